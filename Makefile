@@ -1,0 +1,49 @@
+# kinredund: `make demo` runs the main job, `make test` the tests. Both set up .venv first.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+DEPS_STAMP := $(VENV)/.deps-stamp
+OUT ?= out
+# The default test run skips the slow thesis reproductions; CI (CI=true) runs everything.
+PYTEST_SELECT := $(if $(CI),,-m "not slow")
+PYTEST_ARGS ?=
+
+.PHONY: venv install demo test test-all lint bench robots browser clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(DEPS_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet ".[dev]"
+	touch $(DEPS_STAMP)
+
+# The pytest script (not python -m pytest) keeps the checkout off sys.path: tests import the installed wheel.
+# Always reinstall the package itself as a built wheel (not editable), so the tests see what users get.
+install: $(DEPS_STAMP)
+	$(BIN)/python -m pip install --quiet --no-deps --force-reinstall .
+
+demo: install
+	$(BIN)/kinredund demo --out $(OUT)
+
+browser:
+	@command -v chromium >/dev/null 2>&1 || (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || echo "chromium could not be installed: browser tests will be skipped"
+
+test: install browser
+	$(BIN)/pytest $(PYTEST_SELECT) $(PYTEST_ARGS)
+
+test-all: install browser
+	$(BIN)/pytest $(PYTEST_ARGS)
+
+lint: $(DEPS_STAMP)
+	$(BIN)/ruff check kinredund tests benchmarks
+
+robots: install
+	$(BIN)/kinredund generate-robots --out robots
+
+bench: install
+	$(BIN)/python -m pip install --quiet ".[bench]"
+	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) build *.egg-info $(OUT)

@@ -1,0 +1,135 @@
+"""Rotation invariants, closure equations and the Jacobians built on K (Chapter 2, Chapter 4, Appendix E).
+
+Pure functions of arrays; nothing here calls Pinocchio. Symbols (see ``docs/notation.md``):
+
+- Q: end-effector rotation (3x3); p: position of point P [m]; K: velocity Jacobian (6 x n) with rows
+  [omega; pdot] (Eq. 2.16); dK: its derivative tensor dK[a, i, k] = dK[a, i]/dtheta_k.
+- g: the closure 7-vector of Eq. (2.13); H: the 7x6 matrix of Eq. (2.15); J = H K (Eq. 2.14), the
+  displacement Jacobian (Eqs. 4.7-4.10); dJ its derivative tensor.
+- Lambda = d(J^T lambda)/dtheta (Eqs. 4.20-4.26), symmetric; Lambda* = d(K^T lambda*)/dtheta
+  (Eqs. 4.37-4.42), not symmetric in general.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def vect(Q: np.ndarray) -> np.ndarray:
+    """vect(Q) = u sin(phi), Eqs. (2.6) and (2.8)."""
+    return 0.5 * np.array([Q[2, 1] - Q[1, 2], Q[0, 2] - Q[2, 0], Q[1, 0] - Q[0, 1]])  # Eq. (2.8)
+
+
+def cross_matrix(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrix of v: cross_matrix(v) @ w = v x w."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def natural_invariants(Q: np.ndarray) -> tuple[np.ndarray, float]:
+    """The axis u and angle phi in [0, pi] of a rotation, Eqs. (2.4)-(2.7).
+
+    At phi = pi the axis is taken from the symmetric part (Q + 1)/2 = u u^T; at phi = 0 any axis is
+    valid and (1, 0, 0) is returned.
+    """
+    q = vect(Q)
+    c = np.clip(0.5 * (np.trace(Q) - 1.0), -1.0, 1.0)  # Eq. (2.7)
+    s = np.linalg.norm(q)
+    phi = float(np.arctan2(s, c))
+    if s > 1e-9:
+        return q / s, phi
+    if c > 0:
+        return np.array([1.0, 0.0, 0.0]), 0.0
+    S = 0.5 * (Q + np.eye(3))
+    k = int(np.argmax(np.diag(S)))
+    u = S[:, k] / np.sqrt(S[k, k])
+    return u, float(np.pi)
+
+
+def euler_parameters(Q: np.ndarray) -> np.ndarray:
+    """Euler parameters (r, r0) = (sin(phi/2) u, cos(phi/2)), Eqs. (2.11)-(2.12), with r0 >= 0."""
+    u, phi = natural_invariants(Q)
+    return np.concatenate([np.sin(0.5 * phi) * u, [np.cos(0.5 * phi)]])
+
+
+def rotation_from_invariants(u: np.ndarray, phi: float) -> np.ndarray:
+    """Q = u u^T + cos(phi)(1 - u u^T) + sin(phi) [u]x, Eq. (2.4)."""
+    u = np.asarray(u, dtype=float) / np.linalg.norm(u)
+    uu = np.outer(u, u)
+    return uu + np.cos(phi) * (np.eye(3) - uu) + np.sin(phi) * cross_matrix(u)  # Eq. (2.4)
+
+
+def closure_vector(Q: np.ndarray, p: np.ndarray, Q_d: np.ndarray, p_d: np.ndarray) -> np.ndarray:
+    """The closure 7-vector of Eq. (2.13) for the target pose (Q_d, p_d); zero at the target.
+
+    [2 vect(Q) - 2 u sin(phi); tr(Q) - 1 - 2 cos(phi); p - r] with u sin(phi) = vect(Q_d) and
+    2 cos(phi) = tr(Q_d) - 1.
+    """
+    return np.concatenate(
+        [2.0 * (vect(Q) - vect(Q_d)), [np.trace(Q) - np.trace(Q_d)], p - p_d]  # Eq. (2.13)
+    )
+
+
+def closure_matrix(Q: np.ndarray) -> np.ndarray:
+    """H of Eq. (2.15), 7x6, such that the closure 7-vector's rate is H t, t = [omega; pdot].
+
+    d(2 vect Q)/dt = (tr(Q) 1 - Q) omega and d tr(Q)/dt = -2 vect(Q) . omega.
+    """
+    H = np.zeros((7, 6))
+    H[:3, :3] = np.trace(Q) * np.eye(3) - Q  # Eq. (2.15)
+    H[3, :3] = -2.0 * vect(Q)
+    H[4:, 3:] = np.eye(3)
+    return H
+
+
+def displacement_jacobian(Q: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """J = H K, Eq. (2.14): the 7 x n Jacobian of the closure 7-vector (Eqs. 4.7-4.10)."""
+    return closure_matrix(Q) @ K  # Eq. (2.14)
+
+
+def displacement_jacobian_derivative(Q: np.ndarray, K: np.ndarray, dK: np.ndarray) -> np.ndarray:
+    """dJ[a, i, k] = dJ[a, i]/dtheta_k for J = H K: dH/dtheta_k K + H dK/dtheta_k.
+
+    With omega_k = K[:3, k]: d(tr Q 1 - Q)/dtheta_k = -2 (vect Q . omega_k) 1 - [omega_k]x Q and
+    d(-2 vect Q)/dtheta_k = -(tr Q 1 - Q) omega_k.
+    """
+    W = K[:3]  # angular columns omega_k (unit axes for revolute joints, 0 for prismatic)
+    A = np.trace(Q) * np.eye(3) - Q
+    q = vect(Q)
+    dJ = np.einsum("ab,bik->aik", closure_matrix(Q), dK)
+    # dA/dtheta_k @ W, for every k: -2 (q . w_k) W - [w_k]x Q W
+    QW = Q @ W  # (3, n): columns Q w_i
+    s = q @ W  # (n,)
+    cross = np.cross(W.T[:, None, :], QW.T[None, :, :])  # [k, i, :] = w_k x (Q w_i)
+    dJ[:3] += -2.0 * s[None, None, :] * W[:, :, None] - np.transpose(cross, (2, 1, 0))
+    dJ[3] -= np.einsum("bk,bi->ik", A @ W, W)  # d(-2 vect Q)/dtheta_k . omega_i
+    return dJ
+
+
+def contract(lam: np.ndarray, dK: np.ndarray) -> np.ndarray:
+    """d(K^T lam)/dtheta with lam fixed: sum_a lam_a dK[a, i, k] (Eq. 4.20 / 4.42), shape (n, n)."""
+    m, n, _ = dK.shape
+    return (lam @ dK.reshape(m, n * n)).reshape(n, n)
+
+
+def appendix_e_tensor(K: np.ndarray, revolute: np.ndarray | None = None) -> np.ndarray:
+    """dK/dtheta from K alone, the closed forms of Eqs. (4.40)-(4.41) and Appendix E (E.7, E.15).
+
+    For a serial chain with columns K_i = [A_i; B_i] (A_i = e_i, B_i = e_i x r_i for revolute joints;
+    A_i = 0, B_i = e_i for prismatic ones), ordered from base to tip:
+
+        dA_i/dtheta_j = A_j x A_i  (j < i),   0  (j >= i)            Eq. (4.40), (E.7)
+        dB_i/dtheta_j = A_j x B_i  (j < i),   A_i x B_j  (j >= i)     Eq. (4.41), (E.15)
+
+    Returns dK[a, i, j] = dK[a, i]/dtheta_j, shape (6, n, n).
+    """
+    A, B = K[:3].T, K[3:].T  # (n, 3)
+    if revolute is not None:
+        A = A * np.asarray(revolute, dtype=float)[:, None]
+    n = A.shape[0]
+    lower = np.tril(np.ones((n, n)), -1)[:, :, None]  # [i, j] = 1 where j < i
+    AjAi = np.cross(A[None, :, :], A[:, None, :])  # [i, j] = A_j x A_i
+    AjBi = np.cross(A[None, :, :], B[:, None, :])  # [i, j] = A_j x B_i
+    AiBj = np.cross(A[:, None, :], B[None, :, :])  # [i, j] = A_i x B_j
+    dA = lower * AjAi  # Eq. (E.7)
+    dB = lower * AjBi + (1.0 - lower) * AiBj  # Eq. (E.15)
+    return np.concatenate([dA, dB], axis=2).transpose(2, 0, 1)

@@ -1,0 +1,101 @@
+"""The exception family of kinredund.
+
+Every error raised on bad input derives from :class:`KinredundError`. Subclasses carry the offending
+value and, where there is a finite set of valid choices, the list of them, so that callers (and the
+command line) can report precisely what is wrong and what is allowed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+
+class KinredundError(Exception):
+    """Base class of every error kinredund raises on purpose."""
+
+
+class UnknownRobotError(KinredundError, KeyError):
+    """A robot name that is neither shipped, nor in example-robot-data, nor an existing file."""
+
+    def __init__(self, name: str, known: Sequence[str]):
+        self.name = name
+        self.known = list(known)
+        super().__init__(
+            f"unknown robot {name!r}: not a file, and not one of the known names {', '.join(self.known)}"
+        )
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return self.args[0]
+
+
+class URDFError(KinredundError, ValueError):
+    """A URDF that cannot be parsed or turned into a model; ``reason`` says why."""
+
+    def __init__(self, path: str, reason: str):
+        self.path = path
+        self.reason = reason
+        super().__init__(f"cannot load URDF {path!r}: {reason}")
+
+
+class FrameNotFoundError(KinredundError, KeyError):
+    """An end-effector frame name that the model does not have; ``frames`` lists those it has."""
+
+    def __init__(self, frame: str, frames: Sequence[str]):
+        self.frame = frame
+        self.frames = list(frames)
+        super().__init__(f"no frame {frame!r} in the model; its frames are: {', '.join(self.frames)}")
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+class HDTableError(KinredundError, ValueError):
+    """A Hartenberg-Denavit table with wrong shapes, non-finite values or unknown joint kinds."""
+
+
+class JointVectorError(KinredundError, ValueError):
+    """A joint vector of the wrong length, or with non-finite entries."""
+
+
+class TaskError(KinredundError, ValueError):
+    """A task or target that does not fit the robot (wrong size, non-finite, unknown task kind)."""
+
+
+class ChoiceError(KinredundError, ValueError):
+    """A string option that is not one of the allowed choices."""
+
+    def __init__(self, what: str, value: object, allowed: Sequence[str]):
+        self.what = what
+        self.value = value
+        self.allowed = list(allowed)
+        super().__init__(f"unknown {what} {value!r}; allowed: {', '.join(self.allowed)}")
+
+
+class SingularityError(KinredundError, ArithmeticError):
+    """A (kinematic or algorithmic) singularity met by a solver; fields say where."""
+
+    def __init__(self, message: str, *, t: float | None = None, q=None, sigma_min: float | None = None):
+        self.t = t
+        self.q = None if q is None else [float(v) for v in q]
+        self.sigma_min = sigma_min
+        super().__init__(message)
+
+
+class PathError(KinredundError, ValueError):
+    """A path that is malformed, non-finite or leaves the workspace; fields say where."""
+
+    def __init__(self, message: str, *, t: float | None = None, q=None):
+        self.t = t
+        self.q = None if q is None else [float(v) for v in q]
+        super().__init__(message)
+
+
+class SolverError(KinredundError, RuntimeError):
+    """A numerical backend failed in a way that is not the user's input."""
+
+
+def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:
+    """Return ``value`` if it is one of ``allowed``, else raise :class:`ChoiceError`."""
+    if value not in allowed:
+        raise ChoiceError(what, value, allowed)
+    return value

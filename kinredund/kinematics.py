@@ -1,0 +1,78 @@
+"""The kinematics layer: the one place where Pinocchio's compute-then-get calls happen (Chapter 2).
+
+:class:`Kinematics` owns a ``pin.Data`` workspace for one model and one end-effector frame and returns
+plain numpy arrays:
+
+- the end-effector pose (Q, p): rotation matrix Q and the position p of point P [m];
+- the velocity Jacobian K of Eq. (2.16), rows [omega; pdot] (the thesis's order; Pinocchio's is
+  [v; omega]), taken in world axes at point P;
+- its derivative tensor dK[a, i, k] = dK[a, i] / dtheta_k from Pinocchio's kinematic Hessian
+  (Eqs. 4.38-4.41 and Appendix E computed by Pinocchio), with the memory-layout fix of eigenpy
+  issue #557 (see ``../shared/STACK.md``).
+
+No other module calls ``pinocchio`` compute functions; solvers receive arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+#: Pinocchio's [v; omega] rows reordered into the thesis's [omega; v].
+THESIS_ROWS = np.r_[3:6, 0:3]
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+def fix_hessian_layout(H: np.ndarray) -> np.ndarray:
+    """Return Pinocchio's kinematic Hessian with the layout H[a, i, k] = dJ[a, i] / dq_k.
+
+    eigenpy exposes the column-major Eigen tensor with C strides (eigenpy issue #557); reading the
+    buffer in C order and reshaping it in Fortran order restores the indices.
+    """
+    return np.reshape(H.ravel(order="C"), H.shape, order="F")
+
+
+class Kinematics:
+    """Forward kinematics, the velocity Jacobian and its derivative for one frame of one model.
+
+    Args:
+        model: the Pinocchio model (not modified).
+        frame_id: the end-effector frame's index in ``model.frames``.
+
+    The methods take a validated joint vector (``Robot.check_q`` validates) and return fresh arrays.
+    """
+
+    def __init__(self, model: pin.Model, frame_id: int):
+        self.model = model
+        self.frame_id = frame_id
+        self.data = model.createData()
+
+    def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End-effector rotation Q (3x3) and position p (3,) [m]."""
+        pin.forwardKinematics(self.model, self.data, q)
+        M = pin.updateFramePlacement(self.model, self.data, self.frame_id)
+        return M.rotation.copy(), M.translation.copy()
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Q, p, K): the pose and the velocity Jacobian K of Eq. (2.16), rows [omega; pdot]."""
+        J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id, _LWA)
+        M = self.data.oMf[self.frame_id]
+        return M.rotation.copy(), M.translation.copy(), J[THESIS_ROWS]  # Eq. (2.16)
+
+    def jacobian_derivative(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(Q, p, K, dK) with dK[a, i, k] = dK[a, i]/dtheta_k, the third-rank tensor of Eqs. (4.38)-(4.41)."""
+        model, data, fid = self.model, self.data, self.frame_id
+        pin.computeJointJacobians(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)
+        pin.computeJointKinematicHessians(model, data)
+        H = fix_hessian_layout(pin.getFrameKinematicHessian(model, data, fid, _LWA))
+        return M.rotation.copy(), M.translation.copy(), J[THESIS_ROWS], H[THESIS_ROWS]
+
+    def joint_origins(self, q: np.ndarray) -> np.ndarray:
+        """World positions [m] of every joint origin followed by point P, shape (njoints, 3)."""
+        pin.forwardKinematics(self.model, self.data, q)
+        M = pin.updateFramePlacement(self.model, self.data, self.frame_id)
+        pts = [self.data.oMi[j].translation.copy() for j in range(1, self.model.njoints)]
+        pts.append(M.translation.copy())
+        return np.array(pts)

@@ -1,0 +1,126 @@
+"""Tasks: what the end effector must do, as residuals and Jacobians on K (Chapters 2 and 4).
+
+A task kind (``planar``, ``position``, ``pose``) sets the task dimension m and how a target is given:
+
+- ``planar``: target (x, y) [m] of point P; residual p[:2] - x_d; Jacobian rows pdot_x, pdot_y of K.
+- ``position``: target p_d (3,) [m]; residual p - p_d; Jacobian the pdot rows of K.
+- ``pose``: target a 4x4 homogeneous matrix (Q_d, p_d); residual the closure 7-vector of Eq. (2.13);
+  Jacobian J = H K of Eq. (2.14), 7 x n with one dependent row (Eq. 2.10). The twist-level Jacobian
+  is K itself (Eq. 4.31).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import closure
+from .errors import TaskError
+
+#: rows of K = [omega; pdot] used by the position-only tasks
+TASK_ROWS = {"planar": np.array([3, 4]), "position": np.array([3, 4, 5])}
+
+
+@dataclass(frozen=True)
+class Target:
+    """A validated target: ``Q`` (3x3 or None for position tasks) and ``p`` (3,) [m]."""
+
+    task: str
+    p: np.ndarray
+    Q: np.ndarray | None = None
+
+    @property
+    def vector(self) -> np.ndarray:
+        """The target as given: (x, y), p, or the 4x4 pose."""
+        if self.task == "pose":
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = self.Q, self.p
+            return T
+        return self.p[: 2 if self.task == "planar" else 3].copy()
+
+
+def make_target(task: str, target, *, z: float = 0.0) -> Target:
+    """Validate a target for a task kind.
+
+    Args:
+        task: ``planar``, ``position`` or ``pose``.
+        target: (x, y), (x, y, z), or a 4x4 homogeneous pose (a (Q, p) pair is accepted too).
+        z: the plane height used for planar targets [m].
+
+    Raises:
+        TaskError: wrong size, non-finite entries, or a rotation that is not orthonormal.
+    """
+    if task == "pose":
+        if isinstance(target, tuple) and len(target) == 2:
+            Q, p = (np.asarray(v, dtype=float) for v in target)
+        else:
+            T = np.asarray(target, dtype=float)
+            if T.shape != (4, 4):
+                raise TaskError(f"a pose target must be a 4x4 homogeneous matrix or (Q, p); got shape {T.shape}")
+            Q, p = T[:3, :3], T[:3, 3]
+        if Q.shape != (3, 3) or p.shape != (3,):
+            raise TaskError(f"a pose target needs Q of shape (3, 3) and p of shape (3,), got {Q.shape}, {p.shape}")
+        if not (np.all(np.isfinite(Q)) and np.all(np.isfinite(p))):
+            raise TaskError("the pose target has non-finite entries")
+        if np.abs(Q @ Q.T - np.eye(3)).max() > 1e-8 or np.linalg.det(Q) < 0:
+            raise TaskError("the pose target's rotation is not a proper orthonormal matrix (Q Q^T = 1, det Q = +1)")
+        return Target("pose", p.copy(), Q.copy())
+    size = {"planar": 2, "position": 3}.get(task)
+    if size is None:
+        raise TaskError(f"unknown task kind {task!r}; allowed: planar, position, pose")
+    x = np.asarray(target, dtype=float)
+    if x.shape != (size,):
+        raise TaskError(f"a {task} target must have shape ({size},), got {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise TaskError(f"the {task} target has non-finite entries: {x.tolist()}")
+    p = np.array([x[0], x[1], z]) if size == 2 else x.copy()
+    return Target(task, p)
+
+
+def residual(target: Target, Q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """g(theta) - x of Eq. (4.1): the planar or position error, or the closure 7-vector (Eq. 2.13)."""
+    if target.task == "pose":
+        return closure.closure_vector(Q, p, target.Q, target.p)  # Eq. (2.13)
+    rows = TASK_ROWS[target.task] - 3
+    return p[rows] - target.p[rows]
+
+
+def jacobian(task: str, Q: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """The displacement Jacobian J = dg/dtheta: rows of K, or H K for the pose task (Eq. 2.14)."""
+    if task == "pose":
+        return closure.displacement_jacobian(Q, K)  # Eq. (2.14)
+    return K[TASK_ROWS[task]]
+
+
+def jacobian_derivative(task: str, Q: np.ndarray, K: np.ndarray, dK: np.ndarray) -> np.ndarray:
+    """dJ/dtheta, shape (rows, n, n), matching :func:`jacobian`."""
+    if task == "pose":
+        return closure.displacement_jacobian_derivative(Q, K, dK)
+    return dK[TASK_ROWS[task]]
+
+
+def velocity_rows(task: str) -> np.ndarray:
+    """Rows of K that the task's twist uses: all six for ``pose``, else the position rows."""
+    return np.arange(6) if task == "pose" else TASK_ROWS[task]
+
+
+def pose_errors(Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:
+    """(position error [m], trace error |tr Q - tr Q_d|, vect error ||vect Q - vect Q_d||).
+
+    The orientation errors are in the thesis's invariants (Example 4.3); zero for position tasks.
+    """
+    rows = TASK_ROWS.get(target.task, np.array([3, 4, 5])) - 3
+    pos = float(np.linalg.norm(p[rows] - target.p[rows]))
+    if target.task != "pose":
+        return pos, 0.0, 0.0
+    tr = float(abs(np.trace(Q) - np.trace(target.Q)))
+    ve = float(np.linalg.norm(closure.vect(Q) - closure.vect(target.Q)))
+    return pos, tr, ve
+
+
+def orientation_error(Q: np.ndarray, Q_d: np.ndarray) -> float:
+    """The angle [rad] of Q_d^T Q: a frame-independent orientation error."""
+    c = np.clip(0.5 * (np.trace(Q_d.T @ Q) - 1.0), -1.0, 1.0)
+    s = np.linalg.norm(closure.vect(Q_d.T @ Q))
+    return float(np.arctan2(s, c))
