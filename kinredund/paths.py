@@ -1,0 +1,198 @@
+"""End-effector paths as functions of time: pose and twist (Chapter 4 examples, Section 3.2, Chapter 6).
+
+A path returns, at time t, a :class:`PathSample`: the position p_d [m] of point P, its velocity
+v_d [m/s], and for pose tasks the rotation Q_d and angular velocity omega_d [rad/s] (world axes).
+Closed paths have a ``period`` [s].
+
+- :class:`Circle`: a circle in a plane through its centre with unit normal n, constant speed,
+  counter-clockwise about n (Examples 4.1-4.2 in the xy-plane; Example 4.3 about +x with the Frenet
+  frame Q_d = [e_n, e_t, e_n x e_t], Eqs. 4.47-4.48).
+- :class:`Ellipse`: an ellipse in the xy-plane (Chapter 6), constant angular rate of its parameter.
+- :class:`Helix`: the helix of Section 3.2.
+- :class:`FunctionPath`: a user path from a callable t -> (p, v) or (Q, p, omega, v).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import PathError
+
+
+@dataclass(frozen=True)
+class PathSample:
+    """The desired pose and twist at one time: p [m], v [m/s], Q (3x3) or None, omega [rad/s] or None."""
+
+    p: np.ndarray
+    v: np.ndarray
+    Q: np.ndarray | None = None
+    omega: np.ndarray | None = None
+
+
+class Path:
+    """Base class of paths: :meth:`sample` gives the pose and twist at time t."""
+
+    period: float | None = None
+    has_orientation: bool = False
+
+    def sample(self, t: float) -> PathSample:
+        """Desired pose and twist at time t [s]."""
+        raise NotImplementedError
+
+    def __call__(self, t: float) -> PathSample:
+        s = self.sample(t)
+        bad = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None
+               and not np.all(np.isfinite(getattr(s, name)))]
+        if bad:
+            raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
+        return s
+
+
+def _frame(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = np.asarray(normal, float)
+    n = n / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = helper - (helper @ n) * n
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1), n
+
+
+@dataclass(frozen=True)
+class Circle(Path):
+    """A circle of ``radius`` about ``center``, traced counter-clockwise about ``normal`` at ``speed``.
+
+    Args:
+        center: (3,) [m] (a 2-vector is taken in the plane z = 0).
+        radius: [m] > 0.
+        speed: [m/s] > 0.
+        start_angle: the angle beta of the start point from ``axis_x`` [rad].
+        normal: unit normal of the circle's plane (default +z).
+        axis_x: the in-plane direction of beta = 0 (default: a vector normal to ``normal``, +x for +z).
+        frenet: if True the path has orientation Q_d = [e_n, e_t, e_n x e_t] (Eqs. 4.47-4.48): e_n the
+            outward radial unit vector, e_t the tangent.
+    """
+
+    center: np.ndarray
+    radius: float
+    speed: float = 1.0
+    start_angle: float = 0.0
+    normal: tuple = (0.0, 0.0, 1.0)
+    axis_x: tuple | None = None
+    frenet: bool = False
+
+    def __post_init__(self) -> None:
+        c = np.asarray(self.center, float)
+        if c.shape == (2,):
+            c = np.array([c[0], c[1], 0.0])
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise PathError(f"circle centre must be 2 or 3 finite numbers, got {self.center!r}")
+        if not (np.isfinite(self.radius) and self.radius > 0 and np.isfinite(self.speed) and self.speed > 0):
+            raise PathError(f"circle radius and speed must be > 0, got {self.radius!r}, {self.speed!r}")
+        e1, e2, n = _frame(self.normal)
+        if self.axis_x is not None:
+            e1 = np.asarray(self.axis_x, float)
+            e1 = e1 - (e1 @ n) * n
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(n, e1)
+        object.__setattr__(self, "center", c)
+        object.__setattr__(self, "_basis", (e1, e2, n))
+        object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
+        object.__setattr__(self, "has_orientation", bool(self.frenet))
+
+    def sample(self, t: float) -> PathSample:
+        e1, e2, n = self._basis
+        w = self.speed / self.radius
+        beta = self.start_angle + w * t
+        en = np.cos(beta) * e1 + np.sin(beta) * e2  # outward radial unit vector
+        et = -np.sin(beta) * e1 + np.cos(beta) * e2  # tangent
+        p = self.center + self.radius * en
+        v = self.speed * et
+        if not self.frenet:
+            return PathSample(p, v)
+        Q = np.column_stack([en, et, np.cross(en, et)])  # Eq. (4.47)
+        return PathSample(p, v, Q, w * n)  # Eq. (4.48): the frame turns about n at beta-dot
+
+
+@dataclass(frozen=True)
+class Ellipse(Path):
+    """An ellipse in the xy-plane: semi-axes a, b, major axis at ``angle`` to X, parameter rate ``rate``.
+
+    p(t) = c + R(angle) (a cos s, b sin s, 0), s = start + rate t; counter-clockwise.
+    """
+
+    center: np.ndarray
+    a: float
+    b: float
+    angle: float = 0.0
+    rate: float = 1.0
+    start: float = 0.0
+
+    def __post_init__(self) -> None:
+        c = np.asarray(self.center, float)
+        if c.shape == (2,):
+            c = np.array([c[0], c[1], 0.0])
+        if not (self.a > 0 and self.b > 0 and self.rate > 0):
+            raise PathError(f"ellipse semi-axes and rate must be > 0, got a={self.a}, b={self.b}, rate={self.rate}")
+        object.__setattr__(self, "center", c)
+        object.__setattr__(self, "period", 2 * np.pi / self.rate)
+
+    def sample(self, t: float) -> PathSample:
+        s = self.start + self.rate * t
+        ca, sa = np.cos(self.angle), np.sin(self.angle)
+        local = np.array([self.a * np.cos(s), self.b * np.sin(s)])
+        dlocal = self.rate * np.array([-self.a * np.sin(s), self.b * np.cos(s)])
+        R = np.array([[ca, -sa], [sa, ca]])
+        p = self.center + np.append(R @ local, 0.0)
+        return PathSample(p, np.append(R @ dlocal, 0.0))
+
+
+@dataclass(frozen=True)
+class Helix(Path):
+    """The helix of Section 3.2: x = r cos(beta), y = r sin(beta), z = pitch beta + z0, beta = rate t."""
+
+    radius: float = 1.5
+    pitch: float = 3.0 / np.pi
+    z0: float = 2.0
+    rate: float = 1.0
+
+    def sample(self, t: float) -> PathSample:
+        beta = self.rate * t
+        p = np.array([self.radius * np.cos(beta), self.radius * np.sin(beta), self.pitch * beta + self.z0])
+        v = self.rate * np.array([-self.radius * np.sin(beta), self.radius * np.cos(beta), self.pitch])
+        return PathSample(p, v)
+
+
+@dataclass(frozen=True)
+class FunctionPath(Path):
+    """A user path: ``fn(t)`` returns (p, v) for position tasks or (Q, p, omega, v) for pose tasks.
+
+    Args:
+        fn: the callable.
+        period: the period [s] of a closed path, or None.
+        has_orientation: True when ``fn`` returns the 4-tuple.
+    """
+
+    fn: Callable[[float], tuple]
+    period: float | None = None
+    has_orientation: bool = False
+
+    def sample(self, t: float) -> PathSample:
+        out = self.fn(t)
+        try:
+            if self.has_orientation:
+                Q, p, omega, v = (np.asarray(x, float) for x in out)
+                if Q.shape != (3, 3) or p.shape != (3,) or omega.shape != (3,) or v.shape != (3,):
+                    raise ValueError("shapes")
+                return PathSample(p, v, Q, omega)
+            p, v = (np.asarray(x, float) for x in out)
+            if p.shape == (2,):
+                p, v = np.append(p, 0.0), np.append(v, 0.0)
+            if p.shape != (3,) or v.shape != (3,):
+                raise ValueError("shapes")
+            return PathSample(p, v)
+        except (TypeError, ValueError) as err:
+            want = "(Q 3x3, p (3,), omega (3,), v (3,))" if self.has_orientation else "(p (2,) or (3,), v like p)"
+            raise PathError(f"the user path must return {want} at t = {t:.6g} s, got {out!r}", t=t) from err

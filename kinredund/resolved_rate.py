@@ -1,0 +1,496 @@
+"""The resolved-rate scheme of Chapter 4: cyclic, optimal tracking of a path by a redundant arm.
+
+Problem (4.3): min z(theta) s.t. g(theta) = x(t). Normality (4.5): grad z + J^T lambda = 0, lambda by
+Householder least squares (Eqs. 4.11-4.12). Differentiated in time (Eqs. 4.14-4.24):
+
+    [[M, J^T], [J, 0]] [thetadot; lambdadot] = [-d(grad z)/dt; xdot],   M = Hess z + Lambda   (4.24)
+
+with Lambda = d(J^T lambda)/dtheta at fixed lambda (Eq. 4.26). The velocity-Jacobian form (4.30)-(4.42)
+uses K, the twist t and lambda* instead; M* = Hess z + Lambda* is not symmetric.
+
+Linear solver per step (Theorem 2): where M projected on the null space of J is positive definite the
+rates solve the QP min 1/2 thetadot^T M thetadot s.t. J thetadot = xdot (4.28), solved either with
+proxsuite on M + rho J^T J (same minimiser on the constraint) or by a direct factorisation of its KKT
+system (``qp_backend="kkt"``); elsewhere LU of R. The step records ``qp`` or ``lu``.
+
+Modes:
+- ``thesis``: explicit Euler steps with the velocity correction of Eq. (4.29), lambda from least squares
+  at every step - what the thesis ran (200 steps per loop).
+- ``default``: a predictor (cubic Hermite extrapolation along the optimal path) and a Newton corrector
+  on the full first-order system F(theta, lambda) = [grad z + J^T lambda; g(theta) - x(t)] = 0 at every
+  step, reusing the step's factorisation of R (a chord iteration). The task and the normality condition
+  are then both held to ~1e-12 and the joints close to machine precision loop after loop.
+
+Baselines through the same interface: ``pseudoinverse`` (Whitney 1972) and ``liegeois`` gradient
+projection (Liegeois 1977), Euler steps with the same velocity correction (thesis mode) or with a
+minimum-norm Newton projection onto the task (default mode).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import PathError, SingularityError, check_choice
+from .indices import Index
+from .paths import Path
+from .robot import Robot
+from .rr_terms import task_terms
+from .task import make_target, pose_errors
+from .trajectory import Trajectory, joint_drift
+
+SCHEMES = ("augmented", "velocity", "pseudoinverse", "liegeois")
+MODES = ("default", "thesis")
+QP_BACKENDS = ("proxsuite", "kkt")
+LINEAR_SOLVERS = ("auto", "thesis", "lu", "qp")
+
+
+@dataclass(frozen=True)
+class RateSolution:
+    """The rates at one point: thetadot, lambdadot, the solver used, and diagnostics."""
+
+    thetadot: np.ndarray
+    lamdot: np.ndarray
+    solver: str
+
+
+def multipliers(J: np.ndarray, grad: np.ndarray) -> tuple[np.ndarray, float]:
+    """lambda minimising ||grad z + J^T lambda|| by Householder QR (Eqs. 4.11-4.12), and the residual norm."""
+    Qf, Rf = np.linalg.qr(J.T)  # Householder (LAPACK geqrf)
+    lam = -np.linalg.solve(Rf, Qf.T @ grad)  # Eq. (4.12)
+    return lam, float(np.linalg.norm(grad + J.T @ lam))
+
+
+def null_space_eigs(M: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Eigenvalues of the symmetric part of M projected on the null space of J (Theorem 2), ascending."""
+    _, s, Vt = np.linalg.svd(J)
+    Z = Vt[J.shape[0]:].T
+    Ms = 0.5 * (M + M.T)
+    return np.linalg.eigvalsh(Z.T @ Ms @ Z)
+
+
+def kkt_matrix(M: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """R of Eq. (4.24): [[M, J^T], [J, 0]]."""
+    n, m = M.shape[0], J.shape[0]
+    R = np.zeros((n + m, n + m))
+    R[:n, :n] = M
+    R[:n, n:] = J.T
+    R[n:, :n] = J
+    return R
+
+
+class _ProxQP:
+    """A reused proxsuite dense QP for the rates of Theorem 2 (Eq. 4.28)."""
+
+    def __init__(self, n: int, m: int):
+        import proxsuite
+
+        self.qp = proxsuite.proxqp.dense.QP(n, m, 0)
+        self.qp.settings.eps_abs = 1e-12
+        self.qp.settings.eps_rel = 0.0
+        self.qp.settings.verbose = False
+        self.initialised = False
+
+    def solve(self, M, J, top, xdot):
+        """min 1/2 v^T (M + rho J^T J) v - top^T v s.t. J v = xdot; returns (v, lambdadot)."""
+        import proxsuite
+
+        Ms = 0.5 * (M + M.T)
+        rho = 1.0
+        JtJ = J.T @ J
+        for _ in range(60):
+            H = Ms + rho * JtJ
+            try:
+                np.linalg.cholesky(H)
+                break
+            except np.linalg.LinAlgError:
+                rho *= 4.0
+        g = -top
+        if not self.initialised:
+            self.qp.init(H, g, J, xdot, None, None, None)
+            self.initialised = True
+        else:
+            self.qp.update(H, g, J, xdot, None, None, None)
+        self.qp.solve()
+        if self.qp.results.info.status != proxsuite.proxqp.PROXQP_SOLVED:
+            return None
+        # stationarity: (M + rho J^T J) v - top + J^T y = 0 and J^T J v = J^T xdot, so lambdadot = y + rho xdot
+        return self.qp.results.x.copy(), self.qp.results.y.copy() + rho * xdot
+
+
+def solve_rates(M, J, top, xdot, *, label: str, backend: str, prox: _ProxQP | None) -> RateSolution:
+    """Solve Eq. (4.24) for the rates: the QP of Theorem 2 (Eq. 4.28) for ``qp``/``qp_aug``, else LU of R."""
+    n = M.shape[0]
+    if label != "lu" and backend == "proxsuite" and prox is not None:
+        out = prox.solve(M, J, top, xdot)
+        if out is not None:
+            return RateSolution(out[0], out[1], label)
+    R = kkt_matrix(M, J)
+    sol = np.linalg.solve(R, np.concatenate([top, xdot]))  # LU with partial pivoting (LAPACK gesv)
+    return RateSolution(sol[:n], sol[n:], label)
+
+
+def classify(M: np.ndarray, J: np.ndarray, rule: str, symmetric: bool = True) -> str:
+    """The solver label of one step.
+
+    ``qp``: M is positive definite, the QP of Theorem 2 as stated. ``qp_aug``: M is indefinite but
+    positive definite on the null space of J - still a convex QP once M + rho J^T J replaces M (same
+    minimiser on J thetadot = xdot). ``lu``: neither (or M not symmetric: the velocity form's M*).
+    Rules: ``thesis`` (QP only where M itself is positive definite, as the thesis ran it), ``auto``
+    (all three), ``lu`` (always LU), ``qp`` (QP wherever its projection is positive definite).
+    """
+    if rule == "lu" or not symmetric:
+        return "lu"
+    try:
+        np.linalg.cholesky(M)
+        return "qp"
+    except np.linalg.LinAlgError:
+        pass
+    if rule == "thesis":
+        return "lu"
+    return "qp_aug" if _projected_pd(M, J) else "lu"
+
+
+def _projected_pd(M, J, tol=1e-10) -> bool:
+    """Is M positive definite on the null space of J? (Finsler: M + rho J^T J > 0 for some rho.)"""
+    Ms = 0.5 * (M + M.T)
+    scale = max(1.0, float(np.abs(Ms).max()))
+    JtJ = J.T @ J
+    s2 = max(float(np.linalg.eigvalsh(J @ J.T)[0]), 1e-300)
+    for rho in (scale / s2, 1e2 * scale / s2, 1e4 * scale / s2):
+        try:
+            np.linalg.cholesky(Ms + rho * JtJ - tol * scale * np.eye(M.shape[0]))
+            return True
+        except np.linalg.LinAlgError:
+            continue
+    return False
+
+
+@dataclass
+class _Point:
+    """Everything the scheme evaluates at one (theta, t): kinematics, task terms, index, M and R^-1."""
+
+    q: np.ndarray
+    t: float
+    Q: np.ndarray
+    p: np.ndarray
+    sample: object
+    r: np.ndarray
+    J: np.ndarray
+    dJ: np.ndarray | None
+    xdot: np.ndarray
+    basis: np.ndarray | None
+    grad: np.ndarray
+    hess: np.ndarray
+    dgrad_dt: np.ndarray
+
+
+class _Scheme:
+    """Evaluates the terms of the scheme for one robot, path, index and formulation."""
+
+    def __init__(self, robot: Robot, path: Path, index: Index | None, formulation: str):
+        self.robot, self.path, self.index = robot, path, index
+        self.task = robot.task
+        self.formulation = formulation  # "augmented" or "velocity" (baselines use "augmented" terms)
+        self.n = robot.nq
+
+    def point(self, q: np.ndarray, t: float, need_dJ: bool = True) -> _Point:
+        kin = self.robot.kinematics
+        try:
+            s = self.path(t)
+        except PathError:
+            raise
+        if need_dJ:
+            Q, p, K, dK = kin.jacobian_derivative(q)
+        else:
+            (Q, p, K), dK = kin.jacobian(q), None
+        r, J, dJ, xdot, basis = task_terms(self.task, self.formulation, Q, p, K, dK, s, need_dJ)
+        if self.index is None:
+            grad, hess, dgdt = np.zeros(self.n), np.zeros((self.n, self.n)), np.zeros(self.n)
+        else:
+            _, grad, hess = self.index.evaluate(q, t)
+            dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else np.zeros(self.n)
+        return _Point(q, t, Q, p, s, r, J, dJ, xdot, basis, grad, hess, dgdt)
+
+
+def _contract(lam: np.ndarray, dJ: np.ndarray) -> np.ndarray:
+    m, n, _ = dJ.shape
+    return (lam @ dJ.reshape(m, n * n)).reshape(n, n)  # Eq. (4.20) / (4.42)
+
+
+def _hermite_extrapolate(q0, d0, q1, d1, h):
+    """Cubic Hermite through (q0, d0) at -h and (q1, d1) at 0, evaluated at +h."""
+    return 5.0 * q0 + 2.0 * h * d0 - 4.0 * q1 + 4.0 * h * d1
+
+
+class _Recorder:
+    def __init__(self, diagnostics: bool):
+        self.diagnostics = diagnostics
+        self.rows = {k: [] for k in ("t", "q", "p", "p_desired", "lam", "solver", "m_eigs", "m_null_eigs",
+                                     "position_error", "trace_error", "vect_error", "normality_residual")}
+
+    def add(self, pt: _Point, lam_full, solver: str, M: np.ndarray | None, target_of):
+        rows = self.rows
+        rows["t"].append(pt.t)
+        rows["q"].append(pt.q.copy())
+        rows["p"].append(pt.p.copy())
+        rows["p_desired"].append(pt.sample.p.copy())
+        rows["lam"].append(None if lam_full is None else np.asarray(lam_full, float).copy())
+        rows["solver"].append(solver)
+        e = pose_errors(pt.Q, pt.p, target_of(pt.sample))
+        rows["position_error"].append(e[0])
+        rows["trace_error"].append(e[1])
+        rows["vect_error"].append(e[2])
+        rows["normality_residual"].append(multipliers(pt.J, pt.grad)[1])
+        if self.diagnostics and M is not None:
+            rows["m_eigs"].append(np.sort(np.linalg.eigvals(M).real) if not np.allclose(M, M.T)
+                                  else np.linalg.eigvalsh(M))
+            rows["m_null_eigs"].append(null_space_eigs(M, pt.J))
+
+
+def _target_factory(task: str):
+    def target_of(s):
+        if task == "pose":
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = s.Q, s.p
+            return make_target("pose", T)
+        return make_target(task, s.p[: 2 if task == "planar" else 3])
+
+    return target_of
+
+
+class ResolvedRate:
+    """One tracking run, advanced step by step (``advance``); :func:`track` drives it and records.
+
+    Args:
+        robot: the arm (its ``task`` sets m).
+        path: the path; pose tasks need a path with orientation.
+        index: the performance index z (required for ``augmented``/``velocity``/``liegeois``).
+        q0: the starting configuration (on the path; for the optimal schemes, at the constrained
+            minimum - see :func:`kinredund.ik.solve_ik`).
+        dt: the time step [s].
+        scheme, mode: see the module docstring.
+        linear_solver: the rule of :func:`classify`: ``auto`` (default mode's default), ``thesis`` (thesis
+            mode's default), ``lu`` or ``qp``.
+        qp_backend: ``proxsuite`` or ``kkt`` (default: proxsuite in thesis mode, kkt in default mode).
+        tol: the corrector's tolerance on ||F|| (default mode).
+        liegeois_gain: the gradient-projection gain k of the Liegeois baseline [1/s].
+    """
+
+    def __init__(self, robot, path, index, q0, dt, *, scheme="augmented", mode="default",
+                 linear_solver=None, qp_backend=None, tol=1e-12, liegeois_gain=1.0, t0=0.0):
+        check_choice("scheme", scheme, SCHEMES)
+        check_choice("mode", mode, MODES)
+        linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
+        check_choice("linear solver", linear_solver, LINEAR_SOLVERS)
+        qp_backend = qp_backend or ("proxsuite" if mode == "thesis" else "kkt")
+        check_choice("QP backend", qp_backend, QP_BACKENDS)
+        if robot.task == "pose" and not path.has_orientation:
+            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
+        if index is None and scheme in ("augmented", "velocity", "liegeois"):
+            raise PathError(f"the {scheme} scheme needs a performance index")
+        if not (np.isfinite(dt) and dt > 0):
+            raise PathError(f"the time step must be a finite number > 0, got {dt!r}")
+        self.robot, self.dt, self.mode, self.scheme = robot, float(dt), mode, scheme
+        self.linear_solver, self.qp_backend, self.tol, self.gain = linear_solver, qp_backend, tol, liegeois_gain
+        self.n = robot.nq
+        self.sys = _Scheme(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
+        self.prox = None
+        self.t = float(t0)
+        self.q = robot.check_q(q0, "starting configuration").copy()
+        self.prev = None  # (q, qdot, lam, lamdot) of the previous point, for the predictor
+        self.pt = self.sys.point(self.q, self.t)
+        self._check_on_path(self.pt, "the starting configuration")
+        self.lam = multipliers(self.pt.J, self.pt.grad)[0] if index is not None else np.zeros(len(self.pt.r))
+        if mode == "default" and scheme in ("augmented", "velocity"):
+            self._newton(fresh=True)  # put the start exactly on the optimal manifold
+        self._rates()
+
+    # -- helpers -----------------------------------------------------------------------------------
+    def _check_on_path(self, pt: _Point, what: str, limit: float | None = None) -> None:
+        err = float(np.abs(pt.r).max())
+        scale = max(1.0, float(np.abs(pt.sample.p).max()))
+        if limit is None:
+            limit = 1e-6 * scale
+        if not np.isfinite(err) or err > limit:
+            raise PathError(
+                f"{what} is {err:.3g} away from the path at t = {pt.t:.6g} s (allowed {limit:.3g}); "
+                "the path may leave the workspace", t=pt.t, q=pt.q)
+
+    def _M(self, pt: _Point, lam: np.ndarray) -> np.ndarray:
+        return pt.hess + _contract(lam, pt.dJ)  # M = Hess z + Lambda, Eqs. (4.23), (4.37)
+
+    def _singularity(self, pt: _Point, R: np.ndarray) -> None:
+        sR = np.linalg.svd(R, compute_uv=False)
+        sJ = np.linalg.svd(pt.J, compute_uv=False)
+        kind = "kinematic (J rank-deficient)" if sJ[-1] < 1e-8 * max(1.0, sJ[0]) else \
+            "algorithmic (R singular while J has full rank)"
+        raise SingularityError(
+            f"{kind} singularity at t = {pt.t:.6g} s: smallest singular value of R {sR[-1]:.3g}, "
+            f"of J {sJ[-1]:.3g}; q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sR[-1]))
+
+    def _factor(self, pt: _Point, lam: np.ndarray):
+        """M, R and R^-1 at pt; raises SingularityError where R is (numerically) singular."""
+        M = self._M(pt, lam)
+        R = kkt_matrix(M, pt.J)
+        try:
+            Rinv = np.linalg.inv(R)
+        except np.linalg.LinAlgError:
+            self._singularity(pt, R)
+        if not np.all(np.isfinite(Rinv)) or np.linalg.norm(Rinv) * 1e-11 > 1.0 / max(1.0, np.linalg.norm(R)):
+            self._singularity(pt, R)
+        return M, R, Rinv
+
+    def _newton(self, fresh: bool, Rinv=None, max_chord: int = 8, max_fresh: int = 6) -> None:
+        """Corrector onto F(theta, lambda) = [grad z + J^T lambda; r] = 0 at self.t (default mode)."""
+        n = self.n
+        q, lam = self.q, self.lam
+        for _ in range(max_fresh + 1):
+            if fresh or Rinv is None:
+                pt = self.sys.point(q, self.t)
+                _, _, Rinv = self._factor(pt, lam)
+            for _ in range(max_chord):
+                pt = self.sys.point(q, self.t, need_dJ=False)
+                F = np.concatenate([pt.grad + pt.J.T @ lam, pt.r])
+                scale = max(1.0, float(np.abs(pt.grad).max()))
+                if np.abs(F).max() <= self.tol * scale:
+                    self.q, self.lam = q, lam
+                    return
+                d = Rinv @ F
+                q, lam = q - d[:n], lam - d[n:]
+                if not np.all(np.isfinite(q)):
+                    break
+            fresh = True
+        pt = self.sys.point(self.q, self.t, need_dJ=False)
+        raise PathError(
+            f"the corrector did not converge at t = {self.t:.6g} s (residual {np.abs(F).max():.3g}): the path "
+            "leaves the workspace or crosses a singularity", t=self.t, q=q)
+
+    def _rates(self) -> None:
+        """Evaluate the full system at the current point and solve for the rates (Eq. 4.24 or baseline)."""
+        pt = self.pt = self.sys.point(self.q, self.t)
+        xdot = pt.xdot
+        if self.mode == "thesis":
+            xdot = xdot - pt.r / self.dt  # velocity correction, Eq. (4.29)
+            if self.sys.index is not None:
+                self.lam = multipliers(pt.J, pt.grad)[0]  # Eqs. (4.11)-(4.12)
+        if self.scheme in ("pseudoinverse", "liegeois"):
+            Jp = np.linalg.pinv(pt.J)
+            qd = Jp @ xdot
+            if self.scheme == "liegeois":
+                qd -= self.gain * (pt.grad - Jp @ (pt.J @ pt.grad))  # gradient projection (Liegeois 1977)
+            self.qdot, self.lamdot, self.solver, self.M, self.Rinv = qd, np.zeros_like(self.lam), "lstsq", None, None
+            return
+        M, R, Rinv = self._factor(pt, self.lam)
+        top = -pt.dgrad_dt
+        label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
+        if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
+            self.prox = _ProxQP(self.n, len(pt.r))
+        if self.qp_backend == "kkt" or label == "lu":
+            sol = Rinv @ np.concatenate([top, xdot])  # the factorised R of Eq. (4.24)
+            rs = RateSolution(sol[: self.n], sol[self.n:], label)
+        else:
+            rs = solve_rates(M, pt.J, top, xdot, label=label, backend=self.qp_backend, prox=self.prox)
+        self.qdot, self.lamdot, self.solver, self.M, self.Rinv = rs.thetadot, rs.lamdot, rs.solver, M, Rinv
+
+    # -- the step ----------------------------------------------------------------------------------
+    def advance(self) -> None:
+        """One time step: from (q, lambda) at t to t + dt."""
+        h = self.dt
+        q, lam, qd, lamd = self.q, self.lam, self.qdot, self.lamdot
+        if self.mode == "thesis" or self.scheme in ("pseudoinverse", "liegeois") and self.mode == "thesis":
+            self.q = q + h * qd  # explicit Euler
+            self.t += h
+        elif self.scheme in ("pseudoinverse", "liegeois"):
+            self.q = q + h * qd
+            self.t += h
+            self._project_task()
+        else:
+            if self.prev is None:
+                self.q, self.lam = q + h * qd, lam + h * lamd
+            else:
+                q0, qd0, l0, ld0 = self.prev
+                self.q = _hermite_extrapolate(q0, qd0, q, qd, h)
+                self.lam = _hermite_extrapolate(l0, ld0, lam, lamd, h)
+            self.prev = (q, qd, lam, lamd)
+            self.t += h
+            self._newton(fresh=False, Rinv=self.Rinv)
+        if not np.all(np.isfinite(self.q)):
+            raise PathError(f"non-finite joint values at t = {self.t:.6g} s", t=self.t, q=q)
+        self._rates()
+        if self.mode == "thesis" or self.scheme in ("pseudoinverse", "liegeois"):
+            step = max(1.0, float(np.abs(self.pt.xdot).max())) * h
+            self._check_on_path(self.pt, "the tracked configuration", limit=max(1e-3, 50.0 * step))
+            sJ = np.linalg.svd(self.pt.J, compute_uv=False)
+            if sJ[-1] < 1e-8 * max(1.0, sJ[0]):
+                raise SingularityError(
+                    f"kinematic singularity at t = {self.t:.6g} s: smallest singular value of J {sJ[-1]:.3g}",
+                    t=self.t, q=self.q, sigma_min=float(sJ[-1]))
+
+    def _project_task(self, max_iter: int = 20) -> None:
+        """Minimum-norm Newton projection onto the task at self.t (default-mode baselines)."""
+        for _ in range(max_iter):
+            pt = self.sys.point(self.q, self.t, need_dJ=False)
+            if np.abs(pt.r).max() <= self.tol * max(1.0, float(np.abs(pt.sample.p).max())):
+                return
+            self.q = self.q - np.linalg.lstsq(pt.J, pt.r, rcond=None)[0]
+        raise PathError(f"the task projection did not converge at t = {self.t:.6g} s", t=self.t, q=self.q)
+
+    def lam_full(self) -> np.ndarray:
+        """lambda in the closure 7-vector's coordinates (augmented pose task), else lambda itself."""
+        return self.pt.basis @ self.lam if self.pt.basis is not None else self.lam
+
+
+def track(robot: Robot, path: Path, index: Index | None = None, q0=None, *, scheme: str = "augmented",
+          mode: str = "default", steps_per_loop: int = 200, loops: int = 1, duration: float | None = None,
+          steps: int | None = None, linear_solver: str | None = None, qp_backend: str | None = None,
+          tol: float = 1e-12, diagnostics: bool = True, liegeois_gain: float = 1.0, progress=None,
+          meta: dict | None = None) -> Trajectory:
+    """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
+
+    Closed paths (with a ``period``) run ``loops`` loops of ``steps_per_loop`` steps and record the joint
+    drift at the end of each loop; open paths need ``duration`` [s] and ``steps``.
+
+    Raises:
+        PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
+        SingularityError: R or J becomes singular (time, configuration, smallest singular value).
+    """
+    if path.period is not None and duration is None:
+        if int(steps_per_loop) < 1 or int(loops) < 1:
+            raise PathError(f"steps_per_loop and loops must be >= 1, got {steps_per_loop}, {loops}")
+        dt = path.period / int(steps_per_loop)
+        total = int(steps_per_loop) * int(loops)
+    else:
+        if duration is None or steps is None or steps < 1 or not duration > 0:
+            raise PathError("an open path needs duration > 0 [s] and steps >= 1")
+        dt, total = duration / steps, int(steps)
+    if q0 is None:
+        raise PathError("a starting configuration q0 is needed (see kinredund.ik.solve_ik)")
+    rr = ResolvedRate(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
+                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain)
+    rec = _Recorder(diagnostics)
+    target_of = _target_factory(robot.task)
+    rec.add(rr.pt, rr.lam_full(), rr.solver, rr.M, target_of)
+    for k in range(total):
+        rr.advance()
+        rec.add(rr.pt, rr.lam_full(), rr.solver, rr.M, target_of)
+        if progress is not None:
+            progress(k + 1, total)
+    rows = rec.rows
+    q = np.array(rows["q"])
+    drift = None
+    if path.period is not None and duration is None:
+        drift = np.array([joint_drift(q[0], q[(i + 1) * steps_per_loop], robot.revolute) for i in range(loops)])
+    lam = None if any(v is None for v in rows["lam"]) else np.array(rows["lam"])
+    return Trajectory(
+        robot=robot.name if robot.urdf_path is None or robot.hd is not None or robot.name in ("panda", "xarm7")
+        else str(robot.urdf_path),
+        task=robot.task, t=np.array(rows["t"]), q=q, p=np.array(rows["p"]), p_desired=np.array(rows["p_desired"]),
+        scheme=scheme, mode=mode, solver=tuple(rows["solver"]), lam=lam,
+        m_eigs=np.array(rows["m_eigs"]) if rows["m_eigs"] else None,
+        m_null_eigs=np.array(rows["m_null_eigs"]) if rows["m_null_eigs"] else None,
+        position_error=np.array(rows["position_error"]), trace_error=np.array(rows["trace_error"]),
+        vect_error=np.array(rows["vect_error"]), normality_residual=np.array(rows["normality_residual"]),
+        loop_drift=drift, loop_period=path.period, meta=dict(meta or {}, dt=dt, steps=total),
+    )
