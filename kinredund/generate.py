@@ -15,19 +15,34 @@ from .hd import HDTable
 from .models import EE_FRAME, hd_to_model, hd_to_urdf, load_urdf_text_model
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename (no half-written files)."""
+def atomic_write(path: Path, write, mode: str = "w") -> Path:
+    """Write a file through a temporary file and a rename, so no reader sees it half-written.
+
+    Args:
+        path: the destination (its folder is created).
+        write: called with the open temporary file object.
+        mode: ``"w"`` (text) or ``"wb"`` (binary).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
+        with os.fdopen(fd, mode) as fh:
+            write(fh)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual permissions
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+    return path
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (see :func:`atomic_write`)."""
+    atomic_write(path, lambda fh: fh.write(text), "w")
 
 
 def validated_urdf(table: HDTable, rng_seed: int = 0, samples: int = 5) -> str:

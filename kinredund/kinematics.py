@@ -32,6 +32,11 @@ def fix_hessian_layout(H: np.ndarray) -> np.ndarray:
     return np.reshape(H.ravel(order="C"), H.shape, order="F")
 
 
+def _rows(J: np.ndarray, nv: int) -> np.ndarray:
+    """[v; omega] -> [omega; v]; eigenpy returns a one-joint model's 6x1 Jacobian as shape (6,)."""
+    return np.reshape(J, (6, nv))[THESIS_ROWS]
+
+
 class Kinematics:
     """Forward kinematics, the velocity Jacobian and its derivative for one frame of one model.
 
@@ -56,8 +61,8 @@ class Kinematics:
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(Q, p, K): the pose and the velocity Jacobian K of Eq. (2.16), rows [omega; pdot]."""
         J = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id, _LWA)
-        M = self.data.oMf[self.frame_id]
-        return M.rotation.copy(), M.translation.copy(), J[THESIS_ROWS]  # Eq. (2.16)
+        M = pin.updateFramePlacement(self.model, self.data, self.frame_id)  # cheaper than data.oMf[...]
+        return M.rotation.copy(), M.translation.copy(), _rows(J, self.model.nv)  # Eq. (2.16)
 
     def jacobian_derivative(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(Q, p, K, dK) with dK[a, i, k] = dK[a, i]/dtheta_k, the third-rank tensor of Eqs. (4.38)-(4.41)."""
@@ -67,7 +72,7 @@ class Kinematics:
         J = pin.getFrameJacobian(model, data, fid, _LWA)
         pin.computeJointKinematicHessians(model, data)
         H = fix_hessian_layout(pin.getFrameKinematicHessian(model, data, fid, _LWA))
-        return M.rotation.copy(), M.translation.copy(), J[THESIS_ROWS], H[THESIS_ROWS]
+        return M.rotation.copy(), M.translation.copy(), _rows(J, model.nv), H[THESIS_ROWS]
 
     def joint_origins(self, q: np.ndarray) -> np.ndarray:
         """World positions [m] of every joint origin followed by point P, shape (njoints, 3)."""

@@ -44,9 +44,12 @@ class Path:
 
     def __call__(self, t: float) -> PathSample:
         s = self.sample(t)
-        bad = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None
-               and not np.all(np.isfinite(getattr(s, name)))]
-        if bad:
+        ok = np.isfinite(s.p).all() and np.isfinite(s.v).all()
+        if s.Q is not None:
+            ok = ok and np.isfinite(s.Q).all() and np.isfinite(s.omega).all()
+        if not ok:
+            bad = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None
+                   and not np.all(np.isfinite(getattr(s, name)))]
             raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
         return s
 
@@ -196,3 +199,55 @@ class FunctionPath(Path):
         except (TypeError, ValueError) as err:
             want = "(Q 3x3, p (3,), omega (3,), v (3,))" if self.has_orientation else "(p (2,) or (3,), v like p)"
             raise PathError(f"the user path must return {want} at t = {t:.6g} s, got {out!r}", t=t) from err
+
+
+class SampledPath(Path):
+    """A path through sampled points (a closed loop when ``closed``), interpolated by cubic splines.
+
+    Positions use a (periodic) cubic spline in time; orientations, when given, scipy's RotationSpline
+    (its angular rate is the twist's omega).
+
+    Args:
+        t: sample times [s], strictly increasing.
+        p: positions, shape (N, 2) or (N, 3) [m].
+        Q: rotations, shape (N, 3, 3), or None.
+        closed: the path is periodic with period t[-1] - t[0]; the last sample must equal the first.
+    """
+
+    def __init__(self, t, p, Q=None, closed: bool = True):
+        from scipy.interpolate import CubicSpline
+
+        t = np.asarray(t, float)
+        p = np.asarray(p, float)
+        if t.ndim != 1 or t.shape[0] < 4 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):
+            raise PathError("a sampled path needs at least 4 strictly increasing, finite times")
+        if p.ndim != 2 or p.shape[0] != t.shape[0] or p.shape[1] not in (2, 3) or not np.all(np.isfinite(p)):
+            raise PathError(f"sampled positions must be finite, of shape ({t.shape[0]}, 2 or 3), got {p.shape}")
+        if p.shape[1] == 2:
+            p = np.column_stack([p, np.zeros(len(p))])
+        if closed and np.abs(p[0] - p[-1]).max() > 1e-9:
+            raise PathError("a closed sampled path must end where it starts (last sample = first sample)")
+        self._t0, self._t1 = t[0], t[-1]
+        self.period = float(t[-1] - t[0]) if closed else None
+        self._spline = CubicSpline(t, p, bc_type="periodic" if closed else "not-a-knot")
+        self._rot = None
+        self.has_orientation = Q is not None
+        if Q is not None:
+            from scipy.spatial.transform import Rotation, RotationSpline
+
+            Q = np.asarray(Q, float)
+            if Q.shape != (t.shape[0], 3, 3) or not np.all(np.isfinite(Q)):
+                raise PathError(f"sampled rotations must have shape ({t.shape[0]}, 3, 3), got {Q.shape}")
+            self._rot = RotationSpline(t, Rotation.from_matrix(Q))
+
+    def sample(self, t: float) -> PathSample:
+        if self.period is not None:
+            t = self._t0 + (t - self._t0) % self.period
+        elif not (self._t0 - 1e-12 <= t <= self._t1 + 1e-12):
+            raise PathError(f"t = {t:.6g} s is outside the sampled path's times [{self._t0}, {self._t1}]", t=t)
+        p, v = self._spline(t), self._spline(t, 1)
+        if self._rot is None:
+            return PathSample(p, v)
+        Q = self._rot(t).as_matrix()
+        omega = Q @ self._rot(t, 1)  # RotationSpline's rate is in the body frame
+        return PathSample(p, v, Q, omega)

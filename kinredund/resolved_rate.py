@@ -194,23 +194,29 @@ class _Scheme:
         self.task = robot.task
         self.formulation = formulation  # "augmented" or "velocity" (baselines use "augmented" terms)
         self.n = robot.nq
+        self._cache_t, self._cache = None, None
+        self._zeros, self._zeros2 = np.zeros(self.n), np.zeros((self.n, self.n))
+
+    def sample(self, t: float):
+        """The path sample at t, cached (the corrector evaluates the same time several times)."""
+        if self._cache_t != t:
+            self._cache = self.path(t)
+            self._cache_t = t
+        return self._cache
 
     def point(self, q: np.ndarray, t: float, need_dJ: bool = True) -> _Point:
         kin = self.robot.kinematics
-        try:
-            s = self.path(t)
-        except PathError:
-            raise
+        s = self.sample(t)
         if need_dJ:
             Q, p, K, dK = kin.jacobian_derivative(q)
         else:
             (Q, p, K), dK = kin.jacobian(q), None
         r, J, dJ, xdot, basis = task_terms(self.task, self.formulation, Q, p, K, dK, s, need_dJ)
         if self.index is None:
-            grad, hess, dgdt = np.zeros(self.n), np.zeros((self.n, self.n)), np.zeros(self.n)
+            grad, hess, dgdt = self._zeros, self._zeros2, self._zeros
         else:
             _, grad, hess = self.index.evaluate(q, t)
-            dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else np.zeros(self.n)
+            dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else self._zeros
         return _Point(q, t, Q, p, s, r, J, dJ, xdot, basis, grad, hess, dgdt)
 
 
@@ -231,6 +237,7 @@ class _Recorder:
                                      "position_error", "trace_error", "vect_error", "normality_residual")}
 
     def add(self, pt: _Point, lam_full, solver: str, M: np.ndarray | None, target_of):
+        """Record the point; M may come from the step's predictor (within the corrector's step of pt)."""
         rows = self.rows
         rows["t"].append(pt.t)
         rows["q"].append(pt.q.copy())
@@ -302,6 +309,7 @@ class ResolvedRate:
         self.prev = None  # (q, qdot, lam, lamdot) of the previous point, for the predictor
         self.pt = self.sys.point(self.q, self.t)
         self._check_on_path(self.pt, "the starting configuration")
+        self._check_rank(self.pt)
         self.lam = multipliers(self.pt.J, self.pt.grad)[0] if index is not None else np.zeros(len(self.pt.r))
         if mode == "default" and scheme in ("augmented", "velocity"):
             self._newton(fresh=True)  # put the start exactly on the optimal manifold
@@ -317,6 +325,14 @@ class ResolvedRate:
             raise PathError(
                 f"{what} is {err:.3g} away from the path at t = {pt.t:.6g} s (allowed {limit:.3g}); "
                 "the path may leave the workspace", t=pt.t, q=pt.q)
+
+    def _check_rank(self, pt: _Point) -> None:
+        """Raise SingularityError where J loses rank (a kinematic singularity)."""
+        sJ = np.linalg.svd(pt.J, compute_uv=False)
+        if sJ[-1] < 1e-8 * max(1.0, sJ[0]):
+            raise SingularityError(
+                f"kinematic singularity at t = {pt.t:.6g} s: smallest singular value of J {sJ[-1]:.3g}; "
+                f"q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sJ[-1]))
 
     def _M(self, pt: _Point, lam: np.ndarray) -> np.ndarray:
         return pt.hess + _contract(lam, pt.dJ)  # M = Hess z + Lambda, Eqs. (4.23), (4.37)
@@ -367,6 +383,42 @@ class ResolvedRate:
             f"the corrector did not converge at t = {self.t:.6g} s (residual {np.abs(F).max():.3g}): the path "
             "leaves the workspace or crosses a singularity", t=self.t, q=q)
 
+    def _correct(self, q: np.ndarray, lam: np.ndarray) -> None:
+        """Default-mode corrector at self.t from the predicted (q, lambda), then the rates for the next step.
+
+        Newton on F = [grad z + J^T lambda; r] = 0 with R factorised at the predicted point (the same
+        factorisation then gives the rates, Eq. 4.24). An update d with 10 |d|^2 <= tol leaves an error
+        of order tol (quadratic convergence) and ends the iteration; otherwise chord iterations with
+        fresh residuals follow, then fresh factorisations (:meth:`_newton`).
+        """
+        n = self.n
+        pt = self.sys.point(q, self.t)
+        M, R, Rinv = self._factor(pt, lam)
+        F = np.concatenate([pt.grad + pt.J.T @ lam, pt.r])
+        scale = max(1.0, float(np.abs(pt.grad).max()))
+        step_tol = np.sqrt(0.1 * self.tol * scale)
+        converged = np.abs(F).max() <= self.tol * scale
+        for _ in range(8):
+            if converged:
+                break
+            d = Rinv @ F
+            q, lam = q - d[:n], lam - d[n:]
+            if np.abs(d).max() <= step_tol:
+                converged = True
+                break
+            light = self.sys.point(q, self.t, need_dJ=False)
+            F = np.concatenate([light.grad + light.J.T @ lam, light.r])
+            converged = np.abs(F).max() <= self.tol * scale
+        self.q, self.lam = q, lam
+        if not converged:
+            self._newton(fresh=True)
+            self._rates()
+            return
+        label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
+        sol = Rinv @ np.concatenate([-pt.dgrad_dt, pt.xdot])
+        self.qdot, self.lamdot, self.solver, self.M, self.Rinv = sol[:n], sol[n:], label, M, Rinv
+        self.pt = pt
+
     def _rates(self) -> None:
         """Evaluate the full system at the current point and solve for the rates (Eq. 4.24 or baseline)."""
         pt = self.pt = self.sys.point(self.q, self.t)
@@ -399,7 +451,7 @@ class ResolvedRate:
         """One time step: from (q, lambda) at t to t + dt."""
         h = self.dt
         q, lam, qd, lamd = self.q, self.lam, self.qdot, self.lamdot
-        if self.mode == "thesis" or self.scheme in ("pseudoinverse", "liegeois") and self.mode == "thesis":
+        if self.mode == "thesis":
             self.q = q + h * qd  # explicit Euler
             self.t += h
         elif self.scheme in ("pseudoinverse", "liegeois"):
@@ -408,25 +460,22 @@ class ResolvedRate:
             self._project_task()
         else:
             if self.prev is None:
-                self.q, self.lam = q + h * qd, lam + h * lamd
+                q_p, lam_p = q + h * qd, lam + h * lamd
             else:
                 q0, qd0, l0, ld0 = self.prev
-                self.q = _hermite_extrapolate(q0, qd0, q, qd, h)
-                self.lam = _hermite_extrapolate(l0, ld0, lam, lamd, h)
+                q_p = _hermite_extrapolate(q0, qd0, q, qd, h)
+                lam_p = _hermite_extrapolate(l0, ld0, lam, lamd, h)
             self.prev = (q, qd, lam, lamd)
             self.t += h
-            self._newton(fresh=False, Rinv=self.Rinv)
+            self._correct(q_p, lam_p)
+            return
         if not np.all(np.isfinite(self.q)):
             raise PathError(f"non-finite joint values at t = {self.t:.6g} s", t=self.t, q=q)
         self._rates()
         if self.mode == "thesis" or self.scheme in ("pseudoinverse", "liegeois"):
             step = max(1.0, float(np.abs(self.pt.xdot).max())) * h
             self._check_on_path(self.pt, "the tracked configuration", limit=max(1e-3, 50.0 * step))
-            sJ = np.linalg.svd(self.pt.J, compute_uv=False)
-            if sJ[-1] < 1e-8 * max(1.0, sJ[0]):
-                raise SingularityError(
-                    f"kinematic singularity at t = {self.t:.6g} s: smallest singular value of J {sJ[-1]:.3g}",
-                    t=self.t, q=self.q, sigma_min=float(sJ[-1]))
+            self._check_rank(self.pt)
 
     def _project_task(self, max_iter: int = 20) -> None:
         """Minimum-norm Newton projection onto the task at self.t (default-mode baselines)."""
@@ -436,6 +485,10 @@ class ResolvedRate:
                 return
             self.q = self.q - np.linalg.lstsq(pt.J, pt.r, rcond=None)[0]
         raise PathError(f"the task projection did not converge at t = {self.t:.6g} s", t=self.t, q=self.q)
+
+    def record_point(self) -> _Point:
+        """The terms at the current (q, t), for the record (the step's own evaluation may be at the predictor)."""
+        return self.sys.point(self.q, self.t, need_dJ=False)
 
     def lam_full(self) -> np.ndarray:
         """lambda in the closure 7-vector's coordinates (augmented pose task), else lambda itself."""
@@ -471,10 +524,10 @@ def track(robot: Robot, path: Path, index: Index | None = None, q0=None, *, sche
                       qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain)
     rec = _Recorder(diagnostics)
     target_of = _target_factory(robot.task)
-    rec.add(rr.pt, rr.lam_full(), rr.solver, rr.M, target_of)
+    rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, target_of)
     for k in range(total):
         rr.advance()
-        rec.add(rr.pt, rr.lam_full(), rr.solver, rr.M, target_of)
+        rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, target_of)
         if progress is not None:
             progress(k + 1, total)
     rows = rec.rows

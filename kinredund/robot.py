@@ -18,7 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from .catalog import SHIPPED_TABLES, SHIPPED_TASKS
-from .errors import FrameNotFoundError, KinredundError, JointVectorError, UnknownRobotError, check_choice
+from .errors import FrameNotFoundError, JointVectorError, KinredundError, UnknownRobotError, check_choice
 from .hd import REVOLUTE, HDTable
 from .kinematics import Kinematics
 from .models import EE_FRAME, load_urdf_model
@@ -68,7 +68,10 @@ def erd_share_dir() -> Path:
         candidate = Path(entry or ".") / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
         if candidate.is_dir():
             return candidate
-    raise KinredundError("example-robot-data is not installed (pip install example-robot-data): no robots/ folder under cmeel.prefix/share on sys.path")
+    raise KinredundError(
+        "example-robot-data is not installed (pip install example-robot-data): "
+        "no robots/ folder under cmeel.prefix/share on sys.path"
+    )
 
 
 class Robot:

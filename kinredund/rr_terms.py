@@ -8,14 +8,12 @@ For a task kind and a scheme this module turns the kinematics (Q, p, K, dK) and 
 - xdot: the desired rate of the task coordinates (right-hand side of Eq. 4.15 / 4.31).
 
 Displacement-Jacobian scheme (``augmented``), pose task: the closure 7-vector g of Eq. (2.13) has one
-dependent row (Eq. 2.10). Its linearisation H(Q_d) has the unit left null vector
-n = [vect(Q_d); cos(phi_d); 0] (n^T H = 0, from Eqs. 2.10 and 2.15), so we keep the six equations
-U^T g = 0, U an orthonormal basis of n's complement (a Householder reflector), and lambda = U lambda_r.
-In base-frame components H loses rank where the target rotation turns by pi (tr Q_d = -1: vect Q_d = 0
-and tr(Q_d) 1 - Q_d is singular) - Example 4.3 passes there at beta = pi/2. We therefore write the
+dependent row (Eq. 2.10): its linearisation H(Q_d) has the unit left null vector
+n = [vect(Q_d); cos(phi_d); 0] (n^T H = 0, from Eqs. 2.10 and 2.15). In base-frame components H
+loses rank where the target rotation turns by pi (tr Q_d = -1: vect Q_d = 0 and tr(Q_d) 1 - Q_d is singular) - Example 4.3 passes there at beta = pi/2. We therefore write the
 closure equations with the invariants of the relative rotation Q_d^T Q (the same equations in the
 target's frame): at the solution Q_d^T Q = 1, H = [2 1, 0; 0, 0; 0, 1] and the trace row is the
-dependent one.
+dependent one: we keep the other six rows (U = the 7x6 selection, lambda = U lambda_r).
 Velocity-Jacobian scheme (``velocity``), pose task: r = [log(Q Q_d^T); p - p_d], J = K (Eq. 4.31),
 dJ = dK (Eqs. 4.38-4.41); lambda* of Eq. (4.33).
 """
@@ -27,23 +25,6 @@ import numpy as np
 from . import closure
 from .paths import PathSample
 from .task import TASK_ROWS
-
-
-def null_complement(n: np.ndarray) -> np.ndarray:
-    """An orthonormal basis (columns) of the complement of the unit vector n, by a Householder reflector."""
-    k = int(np.argmax(np.abs(n)))
-    w = n.copy()
-    w[k] += np.copysign(1.0, n[k])
-    P = np.eye(n.shape[0]) - (2.0 / (w @ w)) * np.outer(w, w)
-    return np.delete(P, k, axis=1)
-
-
-def closure_basis(Q_d: np.ndarray) -> np.ndarray:
-    """U (7x6): the six independent directions of the closure 7-vector at the target rotation Q_d."""
-    n = np.zeros(7)
-    n[:3] = closure.vect(Q_d)
-    n[3] = 0.5 * (np.trace(Q_d) - 1.0)  # n^T H(Q_d) = 0
-    return null_complement(n / np.linalg.norm(n))
 
 
 def rotation_log(R: np.ndarray) -> np.ndarray:
@@ -71,17 +52,41 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
         r = np.concatenate([rotation_log(Q @ s.Q.T), p - s.p])
         return r, K, (dK if need_dJ else None), np.concatenate([s.omega, s.v]), None
     # Eq. (2.13) written with the invariants of the relative rotation Q_d^T Q (target frame): same zero
-    # set, but H stays well conditioned where Q_d itself turns by pi (Example 4.3 at beta = pi/2).
+    # set, but H stays well conditioned where Q_d itself turns by pi (Example 4.3 at beta = pi/2). At the
+    # target Q_d^T Q = 1 the left null vector of H is n = [0, 0, 0, 1, 0, 0, 0] (the trace row), so the
+    # six kept rows are [2 vect(Q_d^T Q); p - p_d], U = [e1 e2 e3 e5 e6 e7].
     Qd_T = s.Q.T
     Q_rel = Qd_T @ Q
-    K_rel = np.vstack([Qd_T @ K[:3], K[3:]])
-    U = closure_basis(np.eye(3))
-    g = closure.closure_vector(Q_rel, p, np.eye(3), s.p)  # Eq. (2.13)
-    J = U.T @ closure.displacement_jacobian(Q_rel, K_rel)  # Eq. (2.14), six independent rows
+    W = Qd_T @ K[:3]  # omega columns in the target frame
+    A = (Q_rel[0, 0] + Q_rel[1, 1] + Q_rel[2, 2]) * _EYE3 - Q_rel  # Eq. (2.15): tr(Q) 1 - Q
+    r = np.empty(6)
+    r[0] = Q_rel[2, 1] - Q_rel[1, 2]  # 2 vect(Q_d^T Q), Eq. (2.13)
+    r[1] = Q_rel[0, 2] - Q_rel[2, 0]
+    r[2] = Q_rel[1, 0] - Q_rel[0, 1]
+    r[3:] = p - s.p
+    J = np.empty((6, K.shape[1]))
+    J[:3] = A @ W  # Eq. (2.14), rows of H K
+    J[3:] = K[3:]
     dJ = None
     if need_dJ:
-        dK_rel = np.concatenate([np.einsum("ab,bik->aik", Qd_T, dK[:3]), dK[3:]])
-        dJ7 = closure.displacement_jacobian_derivative(Q_rel, K_rel, dK_rel)
-        dJ = (U.T @ dJ7.reshape(7, -1)).reshape(6, *dJ7.shape[1:])
-    xdot = U.T @ (closure.closure_matrix(np.eye(3)) @ np.concatenate([Qd_T @ s.omega, s.v]))
-    return U.T @ g, J, dJ, xdot, U
+        n = K.shape[1]
+        dW = (Qd_T @ dK[:3].reshape(3, n * n)).reshape(3, n, n)
+        dJ = np.empty((6, n, n))
+        q_rel = 0.5 * r[:3]
+        s_k = q_rel @ W
+        QW = Q_rel @ W
+        dJ[:3] = (A @ dW.reshape(3, n * n)).reshape(3, n, n)
+        dJ[:3] -= 2.0 * s_k[None, None, :] * W[:, :, None]
+        # minus [a, i, k] = (w_k x (Q_rel w_i))_a, written with outer products (np.cross is slow here)
+        dJ[0] -= np.outer(QW[2], W[1]) - np.outer(QW[1], W[2])
+        dJ[1] -= np.outer(QW[0], W[2]) - np.outer(QW[2], W[0])
+        dJ[2] -= np.outer(QW[1], W[0]) - np.outer(QW[0], W[1])
+        dJ[3:] = dK[3:]
+    xdot = np.empty(6)
+    xdot[:3] = A @ (Qd_T @ s.omega)
+    xdot[3:] = s.v
+    return r, J, dJ, xdot, _U_REL
+
+
+_EYE3 = np.eye(3)
+_U_REL = np.delete(np.eye(7), 3, axis=1)

@@ -106,12 +106,12 @@ def test_dJ_and_lambda_matrices(name):
         assert np.abs(dJ - central_difference(J_of, q)).max() < FD_TOL
         lam = rng.normal(size=7)
         Lam = closure.contract(lam, dJ)
-        assert np.abs(Lam - central_difference(lambda x: J_of(x).T @ lam, q)).max() < FD_TOL
+        assert np.abs(Lam - central_difference(lambda x, lam=lam: J_of(x).T @ lam, q)).max() < FD_TOL
         # Lambda is the Hessian of lam . g: symmetric (Eq. 4.26)
         assert np.abs(Lam - Lam.T).max() < 1e-12
         lam_star = rng.normal(size=6)
         Lam_star = closure.contract(lam_star, dK)
-        fd = central_difference(lambda x: r.velocity_jacobian(x).T @ lam_star, q)
+        fd = central_difference(lambda x, ls=lam_star: r.velocity_jacobian(x).T @ ls, q)
         assert np.abs(Lam_star - fd).max() < FD_TOL
 
 

@@ -42,7 +42,8 @@ def test_installed_package_finds_shipped_robots():
 def test_built_wheel_ships_the_robots(tmp_path):
     """A plain wheel (not an editable install) must carry robots/*.urdf as kinredund/robots/."""
     out = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path), str(REPO)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path),
+         str(REPO)],
         capture_output=True, text=True,
     )
     if out.returncode != 0:
@@ -51,6 +52,8 @@ def test_built_wheel_ships_the_robots(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for name in SHIPPED_TABLES:
         assert f"kinredund/robots/{name}.urdf" in names
+    for init in (REPO / "kinredund").rglob("__init__.py"):  # every subpackage is in the wheel
+        assert init.relative_to(REPO).as_posix() in names
 
 
 def _angles(draw_n):

@@ -1,0 +1,87 @@
+"""Playback and plot costs: standalone HTML replays and the Chapter 4 figures.
+
+Usage::
+
+    python benchmarks/viz.py [--json FILE] [--repeat R]
+
+For synthetic trajectories (joints moving sinusoidally, p from forward kinematics; 10 s, 1001 steps):
+
+- ``replay_html`` for the planar 3R (cylinder visuals) and the Panda (meshes): wall time [s] (it starts
+  and stops a meshcat server each time), the file size [MB] and the number of keyframes;
+- each plot of ``kinredund.plots`` written as PNG: wall time [s] and file size [kB].
+
+Each time is the median of ``--repeat`` runs. Prints a table; with ``--json FILE`` writes the figures
+atomically (``_bench.write_json``).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from _bench import parser, print_table, write_json
+
+import kinredund
+from kinredund import plots
+from kinredund.trajectory import Trajectory
+from kinredund.viz import replay_html, resample
+
+
+def synthetic(name: str, duration: float = 10.0, steps: int = 1001) -> tuple[kinredund.Robot, Trajectory]:
+    r = kinredund.load_robot(name)
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, duration, steps)
+    w = 2.0 * np.pi * t / (duration / 5)  # five loops
+    q = np.clip(r.home, r.lower + 0.7, r.upper - 0.7) + 0.5 * np.sin(w[:, None] + rng.uniform(0, 6, r.nq))
+    p = np.array([r.fk(qi)[:3, 3] for qi in q])
+    eigs = np.column_stack([0.4 * np.sin(w) - 0.1, 1.0 + 0.0 * w])
+    return r, Trajectory(
+        robot=name, task=r.task, t=t, q=q, p=p, p_desired=p, solver=tuple("lu" if e < 0 else "qp" for e in eigs[:, 0]),
+        m_eigs=eigs, m_null_eigs=eigs[:, :1], position_error=1e-6 * (1 + np.abs(np.sin(w))),
+        loop_period=duration / 5,
+    )
+
+
+def timed(fn, repeat: int) -> tuple[float, object]:
+    times, out = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+def main() -> None:
+    ap = parser(__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    rows, figures = [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("planar3r", "panda"):
+            r, traj = synthetic(name)
+            seconds, out = timed(lambda r=r, traj=traj, name=name: replay_html(traj, Path(tmp) / f"{name}.html", r),
+                                 args.repeat)
+            size = out.stat().st_size / 1e6
+            frames = len(resample(traj).times)
+            rows.append([f"replay_html {name}", seconds, f"{size:.2f} MB", frames])
+            figures[f"replay_html_{name}"] = {"seconds": seconds, "megabytes": size, "keyframes": frames}
+        _, traj = synthetic("planar3r")
+        jobs = {
+            "joint_histories": lambda: plots.plot_joint_histories(traj, Path(tmp) / "j.png"),
+            "errors": lambda: plots.plot_errors(traj, Path(tmp) / "e.png"),
+            "m_eigenvalues": lambda: plots.plot_m_eigenvalues(traj, Path(tmp) / "m.png"),
+            "loop_drift": lambda: plots.plot_loop_drift([traj, traj], Path(tmp) / "d.png"),
+        }
+        for key, job in jobs.items():
+            seconds, out = timed(job, args.repeat)
+            size = out.stat().st_size / 1e3
+            rows.append([f"plot {key}", seconds, f"{size:.0f} kB", "-"])
+            figures[f"plot_{key}"] = {"seconds": seconds, "kilobytes": size}
+    print_table(rows, ["job", "median [s]", "file", "keyframes"])
+    write_json(args.json, {"viz": figures})
+
+
+if __name__ == "__main__":
+    main()

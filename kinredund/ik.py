@@ -1,0 +1,304 @@
+"""Joint-level inverse kinematics: poses, and constrained minima of a performance index (Chapter 4.2,
+Appendix D).
+
+:func:`solve_ik` solves g(theta) = x (Eq. 4.1) for a pose or point target, or, given an index z, the
+constrained problem of Eq. (4.3),
+
+    min z(theta)   subject to   g(theta) = x,
+
+by the orthogonal-decomposition algorithm of Appendix D (:mod:`kinredund.ik_newton`). This is how the
+thesis finds the starting configuration of a resolved-rate run (Section 4.2, Examples 4.1-4.3). The
+result reports both optimality conditions:
+
+- first order, the normality condition (4.5)/(D.9)/(D.30): the gradient of z projected on the null
+  space of the constraint Jacobian vanishes, ``normality_residual`` = ||L^T grad z||;
+- second order, Eq. (D.33): L^T (Hess z + Lambda) L is positive definite, Lambda = d(K^T lambda*)/dtheta
+  with lambda* the least-squares multipliers of K^T lambda* = -grad z (Eqs. 4.33, 4.37; on the null
+  space of K this equals the Hessian of lambda^T g of the closure equations, Eq. 4.26).
+
+Joint limits: ``bounds=True`` keeps every iterate within them (box-constrained QP steps through
+proxsuite, :mod:`kinredund.ik_qp`); a seed outside them is projected into them and the result's
+``notes`` say so. ``starts > 1`` runs seeded multi-start and returns the converged result of lowest z.
+
+Units: theta [rad or m], residuals in the units of the task (m, and dimensionless closure entries),
+z [rad^2] for the joint-deviation indices, times [s].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from time import perf_counter
+
+import numpy as np
+
+from .closure import contract
+from .errors import TaskError
+from .ik_newton import RANK_TOL, Setup, StartOutcome, bound_kkt, run_start
+from .ik_qp import BoxStep
+from .ik_residual import TaskResidual
+from .indices import Index
+from .task import Target, make_target
+
+#: residuals are never asked to be smaller than this many units of round-off times the target scale
+ROUNDING = 64.0 * float(np.finfo(float).eps)
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """The outcome of :func:`solve_ik`.
+
+    Attributes:
+        q: the joint vector found (the closest one when not converged) [rad or m].
+        converged: residual < tol and, with an index, normality residual < tol.
+        iterations: iterations of the returned start.
+        residual: ||g(q) - x||, the closure 7-vector of Eq. (2.13) for pose tasks.
+        normality_residual: ||L^T grad z||, Eqs. (D.9)/(D.30) (with bounds: the KKT residual including
+            the multipliers of the limits that hold); 0.0 without an index.
+        objective: z(q); 0.0 without an index.
+        reduced_hessian_pd: Eq. (D.33): L^T (Hess z + Lambda) L positive definite (False without an
+            index: there is nothing to check).
+        reduced_hessian_min_eig: its smallest eigenvalue (inf when the null space is empty, nan
+            without an index).
+        reason: "" when converged, else why not (``"timeout"``, a stall, ``max_iter``).
+        starts: how many starts were run.
+        time_s: wall time of the whole call [s].
+        notes: remarks that are not failures (e.g. a seed projected into the joint limits).
+    """
+
+    q: np.ndarray
+    converged: bool
+    iterations: int
+    residual: float
+    normality_residual: float
+    objective: float
+    reduced_hessian_pd: bool
+    reduced_hessian_min_eig: float
+    reason: str
+    starts: int = 1
+    time_s: float = 0.0
+    notes: str = ""
+
+
+@dataclass(frozen=True)
+class Optimality:
+    """First- and second-order conditions at one configuration (see :func:`check_optimality`).
+
+    Attributes:
+        residual, normality_residual, objective, reduced_hessian_pd, reduced_hessian_min_eig: as in
+            :class:`IKResult`.
+        multipliers: lambda* (m,), K[rows]^T lambda* + grad z = 0 in the least-squares sense (Eq. 4.33).
+        reduced_hessian: L^T (Hess z + Lambda*) L, symmetrised (k x k).
+        null_space: L (n x k), orthonormal basis of the null space of K[rows] and the held limits.
+        active: mask of the joint limits that hold (all False without bounds).
+    """
+
+    residual: float
+    normality_residual: float
+    objective: float
+    reduced_hessian_pd: bool
+    reduced_hessian_min_eig: float
+    multipliers: np.ndarray
+    reduced_hessian: np.ndarray
+    null_space: np.ndarray
+    active: np.ndarray
+
+
+def _target(robot, target) -> Target:
+    if isinstance(target, Target):
+        if target.task != robot.task:
+            raise TaskError(f"the target is for a {target.task!r} task but {robot.name} has task {robot.task!r}")
+        return target
+    return make_target(robot.task, target)
+
+
+def _check_index(robot, index, q: np.ndarray) -> None:
+    if index is None:
+        return
+    if not isinstance(index, Index):
+        raise TaskError(f"index must be a kinredund.indices.Index (or None), got {type(index).__name__}")
+    n = robot.nq
+    try:
+        z, grad, H = index.evaluate(q)
+        grad, H = np.asarray(grad, dtype=float), np.asarray(H, dtype=float)
+    except (ValueError, TypeError, IndexError) as err:
+        raise TaskError(
+            f"the index cannot be evaluated on a joint vector of {robot.name} ({n} joints; gradient/Hessian "
+            f"shapes ({n},)/({n}, {n}) needed): {err}"
+        ) from err
+    if grad.shape != (n,) or H.shape != (n, n):
+        raise TaskError(
+            f"index gradient/Hessian must have shapes ({n},)/({n}, {n}) for {robot.name}, got {grad.shape}/{H.shape}"
+        )
+    if not (np.isfinite(z) and np.all(np.isfinite(grad)) and np.all(np.isfinite(H))):
+        raise TaskError("the index returned non-finite values at the seed")
+
+
+def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bool = False) -> Optimality:
+    """Residual, normality (D.9/D.30) and second-order (D.33) conditions of Eq. (4.3) at q.
+
+    Args:
+        robot: a :class:`kinredund.Robot`.
+        target: what :func:`kinredund.task.make_target` accepts, or a Target.
+        q: joint vector (n,) [rad or m].
+        index: the objective z; None gives only the residual.
+        bounds: count the joint limits that q sits on (within 1e-9) as constraints.
+
+    Raises:
+        TaskError: bad target; JointVectorError: bad q.
+    """
+    q = robot.check_q(q, "q")
+    res = TaskResidual(_target(robot, target))
+    _check_index(robot, index, q)
+    if index is None:
+        Q, p = robot.kinematics.pose(q)
+        empty = np.zeros((0, 0))
+        return Optimality(
+            res.residual(Q, p), 0.0, 0.0, False, float("nan"), np.zeros(0), empty, np.zeros((q.size, 0)),
+            np.zeros(q.size, dtype=bool),
+        )
+    Q, p, K, dK = robot.kinematics.jacobian_derivative(q)
+    z, grad, H = index.evaluate(q)
+    Kr = K[res.rows]
+    normality, lam, L, active = bound_kkt(Kr, grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
+    M = H + contract(lam, dK[res.rows])  # Hess z + Lambda*, Eq. (4.37)
+    Br = L.T @ M @ L
+    Br = 0.5 * (Br + Br.T)  # symmetric on the null space of K (Section 4.2)
+    if Br.shape[0]:
+        w = np.linalg.eigvalsh(Br)
+        min_eig = float(w[0])
+        pd = bool(min_eig > RANK_TOL * max(1.0, float(np.abs(w).max())))  # Eq. (D.33)
+    else:
+        min_eig, pd = float("inf"), True
+    return Optimality(res.residual(Q, p), normality, float(z), pd, min_eig, lam, Br, L, active)
+
+
+def _check_options(robot, starts, tol, max_iter, timeout) -> None:
+    if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 1:
+        raise TaskError(f"starts must be an integer >= 1, got {starts!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise TaskError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+    if not (isinstance(tol, (int, float)) and np.isfinite(tol) and tol > 0):
+        raise TaskError(f"tol must be a finite number > 0, got {tol!r}")
+    if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
+        raise TaskError(f"timeout must be None or a number of seconds > 0, got {timeout!r}")
+    if robot.nq < robot.task_dim:
+        raise TaskError(
+            f"{robot.name} has {robot.nq} joints, fewer than the {robot.task_dim} of its {robot.task!r} task: "
+            "use robot.with_task('position') or 'planar'"
+        )
+
+
+#: every other multi-start sample of a pose-only solve (index=None) comes from the middle of each
+#: joint range, leaving out this fraction of the range at either end (local solves from there succeed
+#: more often; the others cover the whole ranges, for solutions near the limits)
+POSE_SAMPLE_MARGIN = 0.3
+
+
+def sample_box(robot, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The box multi-start samples are drawn from: the joint limits, with unbounded ones cut to
+    [-pi, pi] (revolute) or [-1, 1] m (prismatic), shrunk by ``margin`` (a fraction of each range)."""
+    wide = np.where(robot.revolute, np.pi, 1.0)
+    lo = np.where(robot.lower > -1e10, robot.lower, -wide)
+    hi = np.where(robot.upper < 1e10, robot.upper, wide)
+    span = hi - lo
+    return lo + margin * span, hi - margin * span
+
+
+def solve_ik(
+    robot,
+    target,
+    index: Index | None = None,
+    q0=None,
+    *,
+    bounds: bool = False,
+    starts: int = 1,
+    seed: int = 0,
+    tol: float = 1e-10,
+    max_iter: int = 200,
+    timeout: float | None = None,
+) -> IKResult:
+    """Solve g(theta) = x, or min z(theta) s.t. g(theta) = x (Eq. 4.3), by the method of Appendix D.
+
+    Args:
+        robot: a :class:`kinredund.Robot`; its task kind sets what ``target`` is.
+        target: (x, y) for planar, p (3,) for position, a 4x4 pose (or (Q, p)) for pose tasks [m], or
+            a :class:`kinredund.task.Target`.
+        index: the performance index z (:mod:`kinredund.indices`); None solves the pose only.
+        q0: the first seed (n,); default ``robot.home``.
+        bounds: keep the joints within the robot's limits. A seed outside them is projected into them
+            (recorded in ``notes``).
+        starts: number of starts: q0, then ``starts - 1`` samples of ``np.random.default_rng(seed)``
+            uniform in the limits. With an index the converged result of lowest z is returned (the
+            global constrained minimum when enough starts are run); without one, the first converged.
+        seed: seed of the multi-start samples.
+        tol: convergence tolerance on the residual and, with an index, on the normality residual. It
+            is raised to the round-off floor (64 eps times the target scale, and 1e-13 (1 + |grad z|)
+            for the normality residual) when smaller.
+        max_iter: iterations per start.
+        timeout: wall-time budget of the whole call [s]; when it runs out, the best converged result so
+            far is returned, else ``converged=False`` with reason ``"timeout"``.
+
+    Returns:
+        An :class:`IKResult`. An unreachable target gives ``converged=False``, the configuration with
+        the smallest residual found and a reason.
+
+    Raises:
+        TaskError: wrong-size or non-finite target, a target for another task kind, bad options, an
+            index of the wrong size.
+        JointVectorError: q0 of the wrong size or non-finite.
+    """
+    t0 = perf_counter()
+    _check_options(robot, starts, tol, max_iter, timeout)
+    tgt = _target(robot, target)
+    q0 = robot.home.copy() if q0 is None else robot.check_q(q0, "q0").copy()
+    _check_index(robot, index, q0)
+    notes = ""
+    if bounds and not np.all((q0 >= robot.lower) & (q0 <= robot.upper)):
+        bad = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper)).tolist()
+        q0 = np.clip(q0, robot.lower, robot.upper)
+        notes = f"q0 was outside the joint limits at joints {bad}: projected into them"
+    res = TaskResidual(tgt)
+    setup = Setup(
+        kin=robot.kinematics, res=res, index=index, lower=np.asarray(robot.lower), upper=np.asarray(robot.upper),
+        bounds=bool(bounds), rtol=max(float(tol), ROUNDING * (1.0 + res.scale())), tol=float(tol),
+        max_iter=int(max_iter), deadline=None if timeout is None else t0 + float(timeout),
+        box=BoxStep(robot.nq, res.m) if bounds else None,
+    )
+    rng = box = centre = None
+    outcomes: list[tuple[StartOutcome, float]] = []
+    for k in range(int(starts)):
+        if k == 0:
+            qs = q0
+        else:
+            if rng is None:
+                rng = np.random.default_rng(seed)
+                box = sample_box(robot, 0.0)
+                centre = sample_box(robot, POSE_SAMPLE_MARGIN)
+            # pose-only solves alternate between the middle of the ranges and the whole ranges
+            qs = rng.uniform(*(centre if index is None and k % 2 else box))
+        setup.quick_exit = k < starts - 1 or timeout is not None
+        out = run_start(setup, qs)
+        z = index.value(out.q) if (index is not None and out.converged) else 0.0
+        outcomes.append((out, z))
+        if out.reason == "timeout" or (index is None and out.converged):
+            break
+    converged = [(o, z) for o, z in outcomes if o.converged]
+    if converged:
+        best = min(converged, key=lambda oz: oz[1])[0]  # the first of equal minima
+    else:
+        best = min(outcomes, key=lambda oz: oz[0].residual)[0]
+        if outcomes[-1][0].reason == "timeout":
+            best = StartOutcome(best.q, False, best.iterations, "timeout", best.residual)
+    if index is None:  # nothing else to check: skip the second kinematics pass
+        return IKResult(
+            q=best.q, converged=best.converged, iterations=best.iterations, residual=best.residual,
+            normality_residual=0.0, objective=0.0, reduced_hessian_pd=False, reduced_hessian_min_eig=float("nan"),
+            reason=best.reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
+        )
+    opt = check_optimality(robot, tgt, best.q, index, bounds=bounds)
+    return IKResult(
+        q=best.q, converged=best.converged, iterations=best.iterations, residual=opt.residual,
+        normality_residual=opt.normality_residual, objective=opt.objective,
+        reduced_hessian_pd=opt.reduced_hessian_pd, reduced_hessian_min_eig=opt.reduced_hessian_min_eig,
+        reason=best.reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
+    )

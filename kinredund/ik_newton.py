@@ -1,0 +1,384 @@
+"""One start of the joint-level IK: the orthogonal-decomposition algorithm of Appendix D.
+
+At each iteration the constraints are linearised, G dx = -e (Eq. D.23), and the step is split into two
+orthogonal parts, dx = x0 + L u (Eq. D.24):
+
+- x0, the minimum-norm solution of G x0 = -e, from the Householder QR factorisation G^T = [Y L] [R; 0]
+  (LAPACK ``dgeqrf``/``dorgqr``): x0 = -Y R^-T e. J J^T is never formed.
+- L u, a step in the null space of G (G L = 0, Eq. D.25). u minimises the second-order model of the
+  objective along x0 + L u, Eq. (D.26) in its normal form with the Lagrangian Hessian (Newton-SQP):
+  (L^T M L) u = -L^T (grad z + M x0), M = Hess z + Lambda, Lambda = d(G^T lambda)/dtheta (Eq. 4.26),
+  lambda = -R^-1 Y^T grad z the least-squares multipliers of Eqs. (4.11)-(4.12). Where L^T M L is not
+  positive definite its eigenvalues are replaced by their magnitudes (a descent step; D.33 fails there).
+
+The step length is safeguarded by backtracking on the exact-penalty merit function
+phi = z + rho ||e|| (Armijo test, with one second-order correction -Y R^-T e(theta + dx) against the
+Maratos effect). A pose-only solve (no index) takes the minimum-norm Newton step x0 alone and
+backtracks on 1/2 ||e||^2. Near singular G a damped least-squares step replaces x0.
+
+With joint limits as bounds, a step that would leave them is recomputed as a box-constrained QP
+(:mod:`kinredund.ik_qp`); first-order optimality then includes the multipliers of the active bounds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from time import perf_counter
+
+import numpy as np
+from scipy.linalg import lapack
+
+from .closure import contract
+from .ik_qp import BoxStep
+from .ik_residual import TaskResidual
+from .indices import Index
+
+#: Armijo sufficient-decrease constant
+ARMIJO = 1e-4
+#: largest joint change per iteration (infinity norm) [rad or m]
+MAX_STEP = 1.0
+#: smallest step fraction tried by the backtracking line search
+MIN_ALPHA = 2.0**-20
+#: |R_ii| below this times max |R_ii| counts as rank deficiency of G
+RANK_TOL = 1e-9
+#: floor of the damping of least-squares steps, relative to max |G_ij|^2
+DAMPING = 1e-6
+#: a start stops when 1/2 ||e||^2 has not halved for this many iterations (a local minimum of the
+#: residual, typically a singular configuration: a fresh start does better)
+STALL_ITERS = 10
+#: when other starts remain, a pose-only start stops after STUCK_ITERS iterations in a row whose
+#: (capped) linearised step keeps more than STUCK_RATIO of ||e||^2: little first-order progress is
+#: possible there (a local minimum of the residual, within the limits or near a singularity)
+STUCK_RATIO = 0.8
+STUCK_ITERS = 2
+#: weight of ||e||^2 in the damping of least-squares steps
+LM_WEIGHT = 0.05
+#: joints within this distance of a limit count as at the limit [rad or m]
+ACTIVE_TOL = 1e-9
+
+
+@dataclass
+class Setup:
+    """Everything one start needs (built once per solve)."""
+
+    kin: object
+    res: TaskResidual
+    index: Index | None
+    lower: np.ndarray
+    upper: np.ndarray
+    bounds: bool
+    rtol: float
+    tol: float
+    max_iter: int
+    deadline: float | None
+    box: BoxStep | None
+    #: abandon a pose-only start as soon as it looks stuck (set while other starts remain)
+    quick_exit: bool = False
+
+
+@dataclass
+class StartOutcome:
+    """The end of one start: where it stopped and why."""
+
+    q: np.ndarray
+    converged: bool
+    iterations: int
+    reason: str
+    residual: float
+
+
+# -- linear algebra ------------------------------------------------------------------------------
+def qr_split(G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Householder QR of G^T (n x m): (R, Y, L, well_conditioned) with G^T = Y R and G L = 0 (Eq. D.25).
+
+    R is returned as the m x m block whose upper triangle is R (the strict lower triangle holds
+    Householder vectors; the triangular solves below read the upper triangle only).
+    """
+    m, n = G.shape
+    a, tau, _, _ = lapack.dgeqrf(G.T)
+    full = np.zeros((n, n))
+    full[:, :m] = a
+    U, _, _ = lapack.dorgqr(full, tau)
+    return a[:m, :m], U[:, :m], U[:, m:], _well_conditioned(a, m)
+
+
+def _well_conditioned(a: np.ndarray, m: int) -> bool:
+    diag = np.abs(a.diagonal()[:m])
+    return bool(diag.min() > RANK_TOL * max(float(diag.max()), 1e-300))
+
+
+def min_norm_step(G: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """x0 = -G^+ e by Householder QR of G^T (Eq. D.24), or a damped step when G is near singular."""
+    m = G.shape[0]
+    a, tau, _, _ = lapack.dgeqrf(G.T)
+    if not _well_conditioned(a, m):
+        return damped_step(G, e)
+    w = lapack.dtrtrs(a[:m, :m], -e, trans=1)[0]  # R^T w = -e
+    return lapack.dorgqr(a, tau)[0] @ w
+
+
+def solve_rt(R: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """w with R^T w = b (R upper triangular)."""
+    return lapack.dtrtrs(R, b, trans=1)[0]
+
+
+def solve_r(R: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """w with R w = b (R upper triangular)."""
+    return lapack.dtrtrs(R, b)[0]
+
+
+def damped_step(G: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """argmin ||G d + e||^2 + mu ||d||^2 (mu of :func:`_mu`) by least squares on the stacked system
+    [G; sqrt(mu) 1] d = [-e; 0] (no G G^T formed)."""
+    n = G.shape[1]
+    A = np.vstack([G, math.sqrt(_mu(G, e)) * np.eye(n)])
+    return np.linalg.lstsq(A, np.concatenate([-e, np.zeros(n)]), rcond=None)[0]
+
+
+def _mu(G: np.ndarray, e: np.ndarray) -> float:
+    """Levenberg-Marquardt damping of the least-squares steps: mu = LM_WEIGHT ||e||^2 + DAMPING max|G|^2
+    (after Sugihara 2011: large far from the target, vanishing at it, so convergence stays quadratic)."""
+    return LM_WEIGHT * float(e @ e) + DAMPING * float(np.abs(G).max()) ** 2
+
+
+def cap_step(d: np.ndarray) -> np.ndarray:
+    """Scale d so that no joint moves more than :data:`MAX_STEP` in one iteration."""
+    big = float(np.abs(d).max())
+    return d * (MAX_STEP / big) if big > MAX_STEP else d
+
+
+def bound_kkt(A: np.ndarray, grad: np.ndarray, q: np.ndarray, lower, upper, bounds: bool):
+    """First-order conditions with the joint limits that hold (grad z + A^T y + E^T nu = 0).
+
+    Args:
+        A: constraint Jacobian (m x n), rank m.
+        grad: grad z (n,).
+        q, lower, upper: joint values and limits; ``bounds`` False ignores the limits.
+
+    Returns:
+        (normality residual, y (m,), null-space basis (n x k) of A and the held limits, active mask).
+        A limit whose multiplier pulls the wrong way is released (it would not hold).
+    """
+    m, n = A.shape
+    act = np.zeros(n, dtype=bool)
+    side = np.zeros(n)
+    if bounds:
+        lo, hi = q <= lower + ACTIVE_TOL, q >= upper - ACTIVE_TOL
+        act, side = lo | hi, np.where(hi, 1.0, -1.0)
+    while True:
+        idx = np.flatnonzero(act)
+        C = np.vstack([A, np.eye(n)[idx]]) if idx.size else A
+        U, s, Vt = np.linalg.svd(C)
+        rank = int(np.sum(s > RANK_TOL * max(s[0], 1e-300)))
+        y = -(U[:, :rank] / s[:rank]) @ (Vt[:rank] @ grad)  # least squares of C^T y = -grad, Eq. (4.12)
+        nu = y[m:]
+        wrong = side[idx] * nu < -1e-12 * max(1.0, float(np.abs(grad).max()))
+        if not wrong.any():
+            break
+        act[idx[np.argmin(side[idx] * nu)]] = False
+    L = Vt[rank:].T
+    return float(np.linalg.norm(L.T @ grad)), y[:m], L, act  # Eq. (D.30)
+
+
+# -- the iterations ------------------------------------------------------------------------------
+def run_start(s: Setup, q: np.ndarray) -> StartOutcome:
+    """Iterate from q until converged, stalled, out of iterations or out of time."""
+    if s.index is None:
+        return _pose_only(s, q.copy())
+    return _constrained_minimum(s, q.copy())
+
+
+def _timed_out(s: Setup) -> bool:
+    return s.deadline is not None and perf_counter() > s.deadline
+
+
+def _in_box(s: Setup, q: np.ndarray) -> bool:
+    return bool(np.all(q >= s.lower) and np.all(q <= s.upper))
+
+
+def _stall(q, it, r, what: str) -> StartOutcome:
+    return StartOutcome(q, False, it, f"{what}; residual stalled at {r:.3g} (target out of reach from here?)", r)
+
+
+def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
+    """Newton steps x0 = -G^+ e on the constraints alone (index=None), Eqs. (D.23)-(D.24)."""
+    kin, res = s.kin, s.res
+    Q, p, K = kin.jacobian(q)
+    e, jl = res.error(Q, p)
+    phi = 0.5 * float(e @ e)
+    phi_ref, since, stuck = phi, 0, 0
+    for it in range(s.max_iter + 1):
+        r = res.residual(Q, p)
+        if r < s.rtol and 2.0 * phi < s.rtol * s.rtol:  # closure residual and SE(3) error
+            return StartOutcome(q, True, it, "", r)
+        if phi < 0.5 * phi_ref:
+            phi_ref, since = phi, 0
+        elif since >= STALL_ITERS:
+            return _stall(q, it, r, f"no progress in {STALL_ITERS} iterations")
+        since += 1
+        if it == s.max_iter:
+            return StartOutcome(q, False, it, f"max_iter={s.max_iter} reached at residual {r:.3g}", r)
+        if _timed_out(s):
+            return StartOutcome(q, False, it, "timeout", r)
+        G = res.jacobian(K, jl)
+        d = min_norm_step(G, e)  # Eq. (D.24), the x0 part alone
+        if s.bounds and not _in_box(s, q + d):
+            # the linearised constraints are rarely solvable inside the box: damped least squares in it
+            d = s.box.least_squares(G, e, _mu(G, e), s.lower - q, s.upper - q)
+        d = cap_step(d)
+        Gd = G @ d
+        slope = float(e @ Gd)
+        if not slope < 0.0:
+            return _stall(q, it, r, "no descent direction for the residual")
+        lin = e + Gd
+        if s.quick_exit and float(lin @ lin) > STUCK_RATIO * 2.0 * phi:  # little first-order progress
+            stuck += 1
+            if stuck >= STUCK_ITERS:
+                return _stall(q, it, r, "local minimum of the residual (within the limits)" if s.bounds
+                              else "local minimum of the residual (near a singularity)")
+        else:
+            stuck = 0
+        alpha = 1.0
+        while True:
+            qt = q + alpha * d
+            if s.bounds:
+                np.clip(qt, s.lower, s.upper, out=qt)
+            Qt, pt, Kt = kin.jacobian(qt)
+            et, jlt = res.error(Qt, pt)
+            phit = 0.5 * float(et @ et)
+            if phit <= phi + ARMIJO * alpha * slope:
+                break
+            alpha *= 0.5
+            if alpha < MIN_ALPHA:
+                return _stall(q, it, r, "line search failed")
+        q, Q, p, K, e, jl, phi = qt, Qt, pt, Kt, et, jlt, phit
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it: int):
+    """A damped least-squares step on the constraints alone, backtracking on 1/2 ||e||^2.
+
+    Returns the new q, or a :class:`StartOutcome` when no decrease is possible.
+    """
+    d = damped_step(G, e)
+    if s.bounds and not _in_box(s, q + d):
+        d = s.box.least_squares(G, e, _mu(G, e), s.lower - q, s.upper - q)
+    d = cap_step(d)
+    slope = float(e @ (G @ d))
+    if not slope < 0.0:
+        return _stall(q, it, r, "no descent direction for the residual")
+    phi = 0.5 * float(e @ e)
+    alpha = 1.0
+    while alpha >= MIN_ALPHA:
+        qt = q + alpha * d
+        if s.bounds:
+            np.clip(qt, s.lower, s.upper, out=qt)
+        et = s.res.error(*s.kin.pose(qt))[0]
+        if 0.5 * float(et @ et) <= phi + ARMIJO * alpha * slope:
+            return qt
+        alpha *= 0.5
+    return _stall(q, it, r, "line search failed")
+
+
+def _merit(s: Setup, q: np.ndarray, rho: float) -> tuple[float, np.ndarray]:
+    """phi = z + rho ||e|| at q, and e."""
+    Q, p = s.kin.pose(q)
+    e, _ = s.res.error(Q, p)
+    return s.index.value(q) + rho * math.sqrt(float(e @ e)), e
+
+
+def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
+    """min z(theta) s.t. g(theta) = x by the orthogonal decomposition of Appendix D."""
+    kin, res, index, rows = s.kin, s.res, s.index, s.res.rows
+    rho = 0.0
+    r_ref, since = math.inf, 0
+    for it in range(s.max_iter + 1):
+        Q, p, K, dK = kin.jacobian_derivative(q)
+        e, jl = res.error(Q, p)
+        r = res.residual(Q, p)
+        z, grad, H = index.evaluate(q)
+        G = res.jacobian(K, jl)
+        R, Y, L, ok = qr_split(G)  # G^T = Y R, G L = 0, Eq. (D.25)
+        if s.bounds:
+            normality, lam, _, _ = bound_kkt(G, grad, q, s.lower, s.upper, True)
+        elif ok:
+            lam = -solve_r(R, Y.T @ grad)  # least-squares multipliers, Eqs. (4.11)-(4.12)
+            normality = float(np.linalg.norm(L.T @ grad))  # projected gradient, Eqs. (D.9), (D.30)
+        else:
+            lam, normality = np.zeros(res.m), math.inf
+        ntol = max(s.tol, 1e-13 * (1.0 + float(np.abs(grad).max())))
+        if r < s.rtol and float(e @ e) < s.rtol * s.rtol and normality < ntol:
+            return StartOutcome(q, True, it, "", r)
+        if it == s.max_iter:
+            why = f"max_iter={s.max_iter} reached at residual {r:.3g}, normality residual {normality:.3g}"
+            return StartOutcome(q, False, it, why, r)
+        if _timed_out(s):
+            return StartOutcome(q, False, it, "timeout", r)
+        if r < 0.5 * r_ref or r < 1e3 * s.rtol:
+            r_ref, since = r, 0
+        elif since >= 2 * STALL_ITERS:  # far from g = x and not getting closer
+            return _stall(q, it, r, f"the residual did not halve in {2 * STALL_ITERS} iterations")
+        since += 1
+        if not ok:  # near-singular G: a damped restoration step on the constraints alone
+            qn = _restore(s, q, G, e, r, it)
+            if isinstance(qn, StartOutcome):
+                return qn
+            q = qn
+            continue
+        enorm = math.sqrt(float(e @ e))
+        rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1e-12)  # exact-penalty weight > ||lambda||
+        x0 = Y @ solve_rt(R, -e)  # minimum-norm part, Eq. (D.24)
+        M = H + contract(res.k_multipliers(lam, jl), dK[rows])  # Hess z + Lambda, Eqs. (4.20)-(4.26)
+        Br = L.T @ M @ L
+        w, V = np.linalg.eigh(0.5 * (Br + Br.T))
+        wmod = np.maximum(np.abs(w), 1e-8 * max(1.0, float(np.abs(w).max())))  # PD where D.33 fails
+        gr = L.T @ grad
+        u = -V @ ((V.T @ (gr + L.T @ (M @ x0))) / wmod)  # Eq. (D.26), Newton form
+        d = x0 + L @ u
+        if float(grad @ d) - rho * enorm >= 0.0 and gr @ gr > 0.0:
+            u = -V @ ((V.T @ gr) / wmod)  # drop the coupling term: a sure descent direction
+            d = x0 + L @ u
+        if s.bounds and not _in_box(s, q + d):
+            lb, ub = s.lower - q, s.upper - q
+            B = L @ (V * wmod) @ V.T @ L.T + Y @ Y.T  # the reduced model of Eq. (D.26), PD
+            dq = s.box.equality(B, grad + L @ (L.T @ (M @ x0)), G, e, lb, ub)
+            d = dq if dq is not None else s.box.least_squares(G, e, _mu(G, e), lb, ub)
+        d = cap_step(d)
+        Gd = G @ d
+        slope = float(grad @ d) + rho * (float(e @ Gd) / enorm if enorm > 0.0 else math.sqrt(float(Gd @ Gd)))
+        phi = z + rho * enorm
+        qn = _merit_search(s, q, d, rho, phi, slope, R, Y)
+        if qn is None:
+            why = "no descent direction for the merit function" if slope >= 0.0 else "line search failed"
+            return _stall(q, it, r, f"{why} (normality residual {normality:.3g})")
+        q = qn
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _merit_search(s: Setup, q, d, rho, phi, slope, R, Y) -> np.ndarray | None:
+    """Armijo backtracking on phi = z + rho ||e||, with one second-order correction of the full step.
+
+    A step whose predicted decrease is at round-off level (|slope| <= 1e-12 (1 + |phi|), joints moving
+    < 1e-6) is taken as it is: the merit function cannot resolve it and the iteration is converging.
+    """
+    qt = _clip(s, q + d)
+    phit, et = _merit(s, qt, rho)
+    if phit <= phi + ARMIJO * slope or (-slope <= 1e-12 * (1.0 + abs(phi)) and float(np.abs(d).max()) < 1e-6):
+        return qt
+    qc = _clip(s, qt + Y @ solve_rt(R, -et))  # second-order correction (Maratos effect)
+    if _merit(s, qc, rho)[0] <= phi + ARMIJO * slope:
+        return qc
+    if not slope < 0.0:
+        return None
+    alpha = 0.5
+    while alpha >= MIN_ALPHA:
+        qt = _clip(s, q + alpha * d)
+        if _merit(s, qt, rho)[0] <= phi + ARMIJO * alpha * slope:
+            return qt
+        alpha *= 0.5
+    return None
+
+
+def _clip(s: Setup, q: np.ndarray) -> np.ndarray:
+    return np.clip(q, s.lower, s.upper, out=q) if s.bounds else q

@@ -1,0 +1,139 @@
+"""The residual that the joint-level IK drives to zero, and its Jacobian (Chapter 4.2, Appendix D).
+
+The constraints g(theta) = x of Eq. (4.1) are linearised as G dx = -g, Eq. (D.23). For the planar and
+position tasks g is the point position and G the matching rows of K. For the pose task the closure
+7-vector of Eq. (2.13) has one dependent row (Eq. 2.10), so its 7 x n Jacobian J = H K never has full
+row rank. The Newton steps therefore use a 6-D error on SE(3) instead,
+
+    e = [log(Q Q_d^T); p - p_d],        G = [Jl^-1(log(Q Q_d^T)) K_omega; K_pdot],
+
+where log is the rotation vector (axis times angle, world axes) and Jl^-1 the inverse left Jacobian
+of SO(3), so that de/dt = G thetadot exactly. Both vanish together with the closure 7-vector, and at
+e = 0 the null space of G is that of K and of J = H K. The residual *reported* for pose tasks is the
+norm of the closure 7-vector.
+
+Symbols: Q (3x3), p [m], K (6 x n) rows [omega; pdot] (Eq. 2.16), e (m,), G (m x n).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import closure
+from .task import TASK_ROWS, Target
+
+_SMALL_ANGLE = 1e-4
+_NEAR_PI_SIN = 1e-6
+
+
+def rotation_log(R: np.ndarray) -> tuple[np.ndarray, float]:
+    """The rotation vector w = u phi of R (phi in [0, pi]) and its angle phi [rad] (Eqs. 2.4-2.8)."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+    w, phi = _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+    return np.array(w), phi
+
+
+def _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R) -> tuple[tuple[float, float, float], float]:
+    vx, vy, vz = 0.5 * (r21 - r12), 0.5 * (r02 - r20), 0.5 * (r10 - r01)  # vect(R), Eq. (2.8)
+    c = 0.5 * (r00 + r11 + r22 - 1.0)  # cos(phi), Eq. (2.7)
+    s = math.sqrt(vx * vx + vy * vy + vz * vz)  # sin(phi)
+    phi = math.atan2(s, c)
+    if phi < _SMALL_ANGLE:
+        f = 1.0 + phi * phi / 6.0  # phi / sin(phi) to second order
+    elif s > _NEAR_PI_SIN:
+        f = phi / s
+    else:  # phi ~ pi: the axis from the symmetric part of R
+        u, phi = closure.natural_invariants(np.asarray(R))
+        if u[0] * vx + u[1] * vy + u[2] * vz < 0.0:
+            u = -u
+        return (float(u[0] * phi), float(u[1] * phi), float(u[2] * phi)), phi
+    return (f * vx, f * vy, f * vz), phi
+
+
+def inverse_left_jacobian(w, phi: float) -> np.ndarray:
+    """Jl^-1(w) of SO(3): d log(R)/dt = Jl^-1 omega when dR/dt = [omega]x R.
+
+    Jl^-1 = 1 - [w]x / 2 + kappa [w]x^2 = (1 - kappa phi^2) 1 - [w]x / 2 + kappa w w^T,
+    kappa = 1/phi^2 - cot(phi/2) / (2 phi).
+    """
+    if phi < _SMALL_ANGLE:
+        kappa = 1.0 / 12.0 + phi * phi / 720.0
+    else:
+        kappa = 1.0 / (phi * phi) - math.cos(0.5 * phi) / (2.0 * phi * math.sin(0.5 * phi))
+    x, y, z = (float(v) for v in w)
+    d = 1.0 - kappa * phi * phi
+    kx, ky, kz = kappa * x, kappa * y, kappa * z
+    return np.array([
+        [d + kx * x, ky * x + 0.5 * z, kz * x - 0.5 * y],
+        [kx * y - 0.5 * z, d + ky * y, kz * y + 0.5 * x],
+        [kx * z + 0.5 * y, ky * z - 0.5 * x, d + kz * z],
+    ])
+
+
+class TaskResidual:
+    """e(theta), G(theta) and the reported residual for one validated target.
+
+    Args:
+        target: a :class:`kinredund.task.Target`.
+    """
+
+    def __init__(self, target: Target):
+        self.target = target
+        self.pose = target.task == "pose"
+        if self.pose:
+            self.rows = np.arange(6)
+            self.QdT = np.ascontiguousarray(target.Q.T)
+            self.vect_d = closure.vect(target.Q)
+            self.vect_d_list = self.vect_d.tolist()
+            self.trace_d = float(np.trace(target.Q))
+            self.p_d = target.p.copy()
+            self.p_d_list = self.p_d.tolist()
+        else:
+            self.rows = TASK_ROWS[target.task]
+            self.x_d = target.p[self.rows - 3].copy()
+        self.m = self.rows.shape[0]
+
+    def error(self, Q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(e, Jl^-1): the Newton error and, for pose tasks, the inverse left Jacobian at it."""
+        if not self.pose:
+            return p[self.rows - 3] - self.x_d, None
+        R = Q @ self.QdT
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+        w, phi = _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+        px, py, pz = p.tolist()
+        dx, dy, dz = self.p_d_list
+        return np.array([*w, px - dx, py - dy, pz - dz]), inverse_left_jacobian(w, phi)
+
+    def jacobian(self, K: np.ndarray, jl_inv: np.ndarray | None) -> np.ndarray:
+        """G = de/dtheta (m x n): rows of K, or [Jl^-1 K_omega; K_pdot] for pose tasks."""
+        if not self.pose:
+            return K[self.rows]
+        G = K.copy()
+        G[:3] = jl_inv @ K[:3]
+        return G
+
+    def k_multipliers(self, lam: np.ndarray, jl_inv: np.ndarray | None) -> np.ndarray:
+        """lambda* with G^T lambda = K[rows]^T lambda*, for Lambda* = d(K^T lambda*)/dtheta (Eq. 4.37)."""
+        if not self.pose:
+            return lam
+        return np.concatenate([jl_inv.T @ lam[:3], lam[3:]])
+
+    def residual(self, Q: np.ndarray, p: np.ndarray) -> float:
+        """||g(theta) - x||: the closure 7-vector of Eq. (2.13) for pose tasks, else the position error."""
+        if not self.pose:
+            d = p[self.rows - 3] - self.x_d
+            return math.sqrt(float(d @ d))
+        (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = Q.tolist()
+        vx, vy, vz = self.vect_d_list
+        a, b, c = q21 - q12 - 2.0 * vx, q02 - q20 - 2.0 * vy, q10 - q01 - 2.0 * vz  # 2 vect(Q) - 2 vect(Q_d)
+        t = q00 + q11 + q22 - self.trace_d  # Eq. (2.13)
+        px, py, pz = p.tolist()
+        dx, dy, dz = self.p_d_list
+        dx, dy, dz = px - dx, py - dy, pz - dz
+        return math.sqrt(a * a + b * b + c * c + t * t + dx * dx + dy * dy + dz * dz)
+
+    def scale(self) -> float:
+        """A length scale of the target [m] for rounding-aware tolerances."""
+        return float(np.abs(self.target.p).max())

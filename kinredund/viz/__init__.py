@@ -1,0 +1,23 @@
+"""Playback of trajectories in meshcat: standalone HTML replays and a live local viewer.
+
+This subpackage is the only part of kinredund that imports meshcat, and it does so lazily, inside
+the functions, so ``import kinredund.viz`` costs nothing and works without meshcat installed.
+
+- :func:`replay_html`: a single HTML file that plays a trajectory offline (double-click it).
+- :func:`play_live`, :func:`stop_live`: a local meshcat server on 127.0.0.1 playing a trajectory.
+"""
+
+from .live import live_visualizer, play_live, stop_live
+from .replay import replay_html
+from .scene import OBSTACLE_KINDS, Obstacle, parse_obstacle, resample
+
+__all__ = [
+    "OBSTACLE_KINDS",
+    "Obstacle",
+    "live_visualizer",
+    "parse_obstacle",
+    "play_live",
+    "replay_html",
+    "resample",
+    "stop_live",
+]

@@ -1,0 +1,215 @@
+"""Figures: the drawn curves carry the trajectory's numbers, files are written atomically, and
+missing data gives a clear error. Test data are synthetic trajectories built from forward kinematics.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from conftest import robot
+from matplotlib.colors import to_rgb
+
+from kinredund import ChoiceError, KinredundError
+from kinredund.plots import (
+    LOG_FLOOR,
+    errors_figure,
+    joint_histories_figure,
+    loop_drift_figure,
+    loop_drifts,
+    m_eigenvalues_figure,
+    plot_errors,
+    plot_joint_histories,
+    plot_loop_drift,
+    plot_m_eigenvalues,
+    save_figure,
+)
+from kinredund.trajectory import Trajectory
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def synthetic(period: float = 2.0, loops: int = 3, steps_per_loop: int = 100, drift: float = 0.0,
+              seed: int = 0, scheme: str = "augmented", mode: str = "default") -> Trajectory:
+    """A planar 3R run: sinusoidal joints of period ``period`` that creep by ``drift`` [rad] per loop.
+
+    M's eigenvalues are made up so that the smallest, also the null-space one, changes sign: the
+    steps where it is negative are labelled ``lu`` as the scheme would (Theorem 2).
+    """
+    r = robot("planar3r")
+    rng = np.random.default_rng(seed)
+    n = loops * steps_per_loop + 1
+    t = np.linspace(0.0, loops * period, n)
+    w = 2.0 * np.pi * t / period
+    q = rng.uniform(-1.0, 1.0, 3) + 0.5 * np.sin(w[:, None] + rng.uniform(0, 2 * np.pi, 3))
+    q = q + drift * (t / period)[:, None]
+    p = np.array([r.fk(qi)[:3, 3] for qi in q])
+    p_desired = p + 1e-6 * rng.normal(size=p.shape)
+    null = 0.4 * np.sin(w) - 0.1
+    m_eigs = np.column_stack([null, 1.0 + 0.2 * np.cos(w), 3.0 + 0.1 * np.sin(2 * w)])
+    solver = tuple("lu" if v < 0 else "qp" for v in null)
+    return Trajectory(
+        robot="planar3r", task="planar", t=t, q=q, p=p, p_desired=p_desired, scheme=scheme, mode=mode,
+        solver=solver, m_eigs=m_eigs, m_null_eigs=null[:, None],
+        position_error=np.linalg.norm(p - p_desired, axis=1),
+        trace_error=np.abs(1e-4 * np.sin(w)), vect_error=np.abs(1e-3 * np.cos(w)), loop_period=period,
+    )
+
+
+def read_png(path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as img:
+        return np.asarray(img.convert("RGB"))
+
+
+def assert_png(path, min_bytes: int = 10_000) -> None:
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE
+    assert len(data) > min_bytes
+    assert [p.name for p in path.parent.iterdir() if p.name.startswith(".")] == []  # no temporary file
+
+
+def test_joint_histories_draw_each_joint_in_degrees(tmp_path):
+    traj = synthetic()
+    fig = joint_histories_figure(traj)
+    (ax,) = fig.axes
+    lines = ax.get_lines()
+    assert len(lines) == 3
+    for j, line in enumerate(lines):
+        np.testing.assert_allclose(line.get_xdata(), traj.t)
+        np.testing.assert_allclose(line.get_ydata(), np.degrees(traj.q[:, j]))
+    assert "deg" in ax.get_ylabel() and "[s]" in ax.get_xlabel()
+    out = plot_joint_histories([traj, synthetic(seed=1)], tmp_path / "joints.png", joints=[0, 2])
+    assert_png(out)
+    assert read_png(out).shape[0] > read_png(plot_joint_histories(traj, tmp_path / "one.png")).shape[0]
+    with pytest.raises(KinredundError, match=r"out of range.*0\.\.2"):
+        joint_histories_figure(traj, joints=[3])
+
+
+def test_prismatic_joints_go_on_a_millimetre_axis():
+    fig = joint_histories_figure(synthetic(), revolute=[True, False, True])
+    assert len(fig.axes) == 2
+    assert "mm" in fig.axes[1].get_ylabel()
+    np.testing.assert_allclose(fig.axes[1].get_lines()[0].get_ydata(), 1e3 * synthetic().q[:, 1])
+
+
+def test_errors_on_log_scale_with_zeros_floored(tmp_path):
+    traj = synthetic()
+    exact = dataclasses.replace(traj, position_error=None, p_desired=traj.p.copy(), scheme="velocity")
+    fig = errors_figure([traj, exact])
+    top, bottom = fig.axes
+    assert top.get_yscale() == "log" and bottom.get_yscale() == "log"
+    first, second = top.get_lines()
+    np.testing.assert_allclose(first.get_ydata(), np.maximum(traj.position_error, LOG_FLOOR))
+    np.testing.assert_allclose(second.get_ydata(), LOG_FLOOR)  # computed from p - p_desired = 0
+    assert [t.get_text() for t in top.get_legend().get_texts()] == ["augmented (default)", "velocity (default)"]
+    assert len(bottom.get_lines()) == 4  # trace and vect errors of both
+    no_orientation = dataclasses.replace(traj, trace_error=None, vect_error=None)
+    assert len(errors_figure(no_orientation).axes) == 1
+    assert_png(plot_errors(traj, tmp_path / "errors.png"))
+
+
+def test_m_eigenvalues_shade_the_lu_steps(tmp_path):
+    traj = synthetic()
+    fig = m_eigenvalues_figure(traj)
+    top, bottom = fig.axes
+    for j, line in enumerate(top.get_lines()[:3]):
+        np.testing.assert_allclose(line.get_ydata(), traj.m_eigs[:, j])
+    lu = np.array([s == "lu" for s in traj.solver])
+    runs = np.count_nonzero(np.diff(np.concatenate([[0], lu.astype(int)])) == 1)
+    spans = [p for p in top.patches if p.get_facecolor()[:3] == pytest.approx(to_rgb("tab:red"))]
+    assert len(spans) == runs >= 3  # the null-space eigenvalue is negative once per loop (and at t = 0)
+    for span in spans:  # each shaded stretch covers negative null-space eigenvalues only
+        x0, x1 = span.get_x(), span.get_x() + span.get_width()
+        inside = (traj.t > x0 + 1e-9) & (traj.t < x1 - 1e-9)
+        assert np.all(traj.m_null_eigs[inside, 0] < 0)
+
+    # M indefinite but positive definite on null(J): the QP on M + rho J^T J, shaded apart from LU
+    aug = dataclasses.replace(traj, solver=tuple("qp_aug" if s == "lu" else s for s in traj.solver))
+    top = m_eigenvalues_figure(aug).axes[0]
+    colors = [p.get_facecolor()[:3] for p in top.patches]
+    assert sum(c == pytest.approx(to_rgb("gold")) for c in colors) == runs
+    assert not any(c == pytest.approx(to_rgb("tab:red")) for c in colors)
+
+    shaded = plot_m_eigenvalues(traj, tmp_path / "m.png")
+    plain = plot_m_eigenvalues(dataclasses.replace(traj, solver=("qp",) * len(traj.t)), tmp_path / "m_qp.png")
+    assert_png(shaded)
+
+    def reddish(img):
+        r, g, b = (img[..., k].astype(int) for k in range(3))
+        return np.count_nonzero((r > 200) & (r - g > 20) & (r - b > 20) & (g > 150))
+
+    assert reddish(read_png(shaded)) > 20 * max(reddish(read_png(plain)), 1)
+
+
+def test_m_eigenvalues_need_m_eigs(tmp_path):
+    traj = dataclasses.replace(synthetic(), m_eigs=None, m_null_eigs=None, scheme="pseudoinverse")
+    with pytest.raises(KinredundError, match="no m_eigs.*augmented"):
+        plot_m_eigenvalues(traj, tmp_path / "m.png")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_loop_drift_per_scheme(tmp_path):
+    period, per_loop = 2.0, 1e-3
+    cyclic = synthetic(period=period, loops=4, drift=0.0, scheme="augmented")
+    drifting = synthetic(period=period, loops=4, drift=per_loop, scheme="pseudoinverse", mode="thesis")
+    np.testing.assert_allclose(loop_drifts(drifting), per_loop * np.arange(1, 5), rtol=1e-9)
+    assert np.max(loop_drifts(cyclic)) < 1e-12
+    recorded = dataclasses.replace(cyclic, loop_drift=np.array([1e-14, 2e-14]))
+    np.testing.assert_array_equal(loop_drifts(recorded), [1e-14, 2e-14])
+
+    fig = loop_drift_figure([cyclic, drifting])
+    (ax,) = fig.axes
+    assert ax.get_yscale() == "log"
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == ["augmented (default)", "pseudoinverse (thesis)"]
+    np.testing.assert_allclose(ax.get_lines()[1].get_ydata(), per_loop * np.arange(1, 5), rtol=1e-9)
+    assert_png(plot_loop_drift([cyclic, drifting], tmp_path / "drift.png"))
+
+    open_path = dataclasses.replace(cyclic, loop_period=None)
+    with pytest.raises(KinredundError, match="not a closed path"):
+        plot_loop_drift(open_path, tmp_path / "nope.png")
+    short = dataclasses.replace(cyclic, loop_period=100.0)
+    with pytest.raises(KinredundError, match="less than one loop"):
+        loop_drifts(short)
+
+
+def test_writes_are_atomic(tmp_path, monkeypatch):
+    traj = synthetic()
+    target = tmp_path / "joints.png"
+    target.write_bytes(b"old figure")
+    fig = joint_histories_figure(traj)
+
+    def broken(self, fh, **kwargs):
+        fh.write(b"half a PNG")
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(type(fig), "savefig", broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        save_figure(fig, target)
+    assert target.read_bytes() == b"old figure"  # the old file is intact
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["joints.png"]  # and no temporary file is left
+    monkeypatch.undo()
+    out = save_figure(fig, target)
+    assert out == target and target.read_bytes()[:8] == PNG_SIGNATURE
+    assert oct(target.stat().st_mode & 0o777) == oct(0o644)
+
+
+def test_formats_and_bad_input(tmp_path):
+    traj = synthetic(loops=1)
+    svg = plot_errors(traj, tmp_path / "e.svg")
+    assert svg.read_text().lstrip().startswith("<?xml")
+    assert plot_errors(traj, tmp_path / "e.pdf").read_bytes()[:5] == b"%PDF-"
+    with pytest.raises(ChoiceError, match="png, pdf, svg"):
+        plot_errors(traj, tmp_path / "e.jpg")
+    with pytest.raises(KinredundError, match="no trajectory"):
+        plot_errors([], tmp_path / "e.png")
+    with pytest.raises(KinredundError, match="not a kinredund Trajectory"):
+        plot_loop_drift([traj, "x"], tmp_path / "e.png")
+    bad = dataclasses.replace(traj, m_eigs=traj.m_eigs[:-1])
+    with pytest.raises(KinredundError, match="m_eigs .* rows"):
+        m_eigenvalues_figure(bad)
+    assert math.isclose(LOG_FLOOR, 1e-17)
