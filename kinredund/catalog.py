@@ -85,6 +85,15 @@ def cybotech_p15() -> HDTable:
     )
 
 
+#: a default, well-conditioned configuration of each shipped robot (mid-limits can be singular:
+#: the planar arms would be stretched out)
+SHIPPED_HOMES = {
+    "planar3r": (0.3, 1.0, 1.0),
+    "planar3r_ch6": (0.3, 1.0, 1.0),
+    "puma7": (0.0, 0.8, -1.2, 0.9, 0.3, 1.2, 0.2),
+    "cybotech_p15": (0.0, 0.3, 0.9, 0.3, 0.5, 1.0, 0.3),
+}
+
 SHIPPED_TABLES = {
     "planar3r": planar3r,
     "planar3r_ch6": planar3r_ch6,

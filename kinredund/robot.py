@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from .catalog import SHIPPED_TABLES, SHIPPED_TASKS
+from .catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
 from .errors import FrameNotFoundError, JointVectorError, KinredundError, UnknownRobotError, check_choice
 from .hd import REVOLUTE, HDTable
 from .kinematics import Kinematics
@@ -242,7 +242,7 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, task: str 
         model, _ = load_urdf_model(path)
         return Robot(
             key, model, ee_frame or EE_FRAME, task or SHIPPED_TASKS[key], hd=SHIPPED_TABLES[key](),
-            urdf_path=path,
+            urdf_path=path, home=np.array(SHIPPED_HOMES[key]),
         )
     if key in ERD_ARMS:
         return _load_erd(key, task, ee_frame)

@@ -10,7 +10,8 @@ For a task kind and a scheme this module turns the kinematics (Q, p, K, dK) and 
 Displacement-Jacobian scheme (``augmented``), pose task: the closure 7-vector g of Eq. (2.13) has one
 dependent row (Eq. 2.10): its linearisation H(Q_d) has the unit left null vector
 n = [vect(Q_d); cos(phi_d); 0] (n^T H = 0, from Eqs. 2.10 and 2.15). In base-frame components H
-loses rank where the target rotation turns by pi (tr Q_d = -1: vect Q_d = 0 and tr(Q_d) 1 - Q_d is singular) - Example 4.3 passes there at beta = pi/2. We therefore write the
+loses rank where the target rotation turns by pi (tr Q_d = -1: vect Q_d = 0 and tr(Q_d) 1 - Q_d is
+singular) - Example 4.3 passes there at beta = pi/2. We therefore write the
 closure equations with the invariants of the relative rotation Q_d^T Q (the same equations in the
 target's frame): at the solution Q_d^T Q = 1, H = [2 1, 0; 0, 0; 0, 1] and the trace row is the
 dependent one: we keep the other six rows (U = the 7x6 selection, lambda = U lambda_r).
