@@ -184,6 +184,11 @@ class _Point:
     grad: np.ndarray
     hess: np.ndarray
     dgrad_dt: np.ndarray
+    dJdt: np.ndarray | None = None
+
+    def top(self, lam: np.ndarray) -> np.ndarray:
+        """Upper right-hand side of Eq. (4.24): -d(grad z)/dt - (dJ/dt)^T lambda at fixed theta."""
+        return -self.dgrad_dt if self.dJdt is None else -self.dgrad_dt - self.dJdt.T @ lam
 
 
 class _Scheme:
@@ -211,13 +216,13 @@ class _Scheme:
             Q, p, K, dK = kin.jacobian_derivative(q)
         else:
             (Q, p, K), dK = kin.jacobian(q), None
-        r, J, dJ, xdot, basis = task_terms(self.task, self.formulation, Q, p, K, dK, s, need_dJ)
+        r, J, dJ, xdot, basis, dJdt = task_terms(self.task, self.formulation, Q, p, K, dK, s, need_dJ)
         if self.index is None:
             grad, hess, dgdt = self._zeros, self._zeros2, self._zeros
         else:
             _, grad, hess = self.index.evaluate(q, t)
             dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else self._zeros
-        return _Point(q, t, Q, p, s, r, J, dJ, xdot, basis, grad, hess, dgdt)
+        return _Point(q, t, Q, p, s, r, J, dJ, xdot, basis, grad, hess, dgdt, dJdt)
 
 
 def _contract(lam: np.ndarray, dJ: np.ndarray) -> np.ndarray:
@@ -304,7 +309,8 @@ class ResolvedRate:
         self.n = robot.nq
         self.sys = _Scheme(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
         self.prox = None
-        self.t = float(t0)
+        self.t0, self.k = float(t0), 0  # t = t0 + k dt (no accumulated rounding in the clock)
+        self.t = self.t0
         self.q = robot.check_q(q0, "starting configuration").copy()
         self.prev = None  # (q, qdot, lam, lamdot) of the previous point, for the predictor
         self.pt = self.sys.point(self.q, self.t)
@@ -337,8 +343,11 @@ class ResolvedRate:
     def _M(self, pt: _Point, lam: np.ndarray) -> np.ndarray:
         return pt.hess + _contract(lam, pt.dJ)  # M = Hess z + Lambda, Eqs. (4.23), (4.37)
 
-    def _singularity(self, pt: _Point, R: np.ndarray) -> None:
+    def _singularity(self, pt: _Point, R: np.ndarray, force: bool = False) -> None:
+        """Raise SingularityError (kinematic or algorithmic) unless R turns out regular enough."""
         sR = np.linalg.svd(R, compute_uv=False)
+        if not force and sR[-1] > 1e-11 * sR[0]:
+            return  # the estimate was pessimistic: R is regular enough
         sJ = np.linalg.svd(pt.J, compute_uv=False)
         kind = "kinematic (J rank-deficient)" if sJ[-1] < 1e-8 * max(1.0, sJ[0]) else \
             "algorithmic (R singular while J has full rank)"
@@ -353,8 +362,10 @@ class ResolvedRate:
         try:
             Rinv = np.linalg.inv(R)
         except np.linalg.LinAlgError:
-            self._singularity(pt, R)
-        if not np.all(np.isfinite(Rinv)) or np.linalg.norm(Rinv) * 1e-11 > 1.0 / max(1.0, np.linalg.norm(R)):
+            self._singularity(pt, R, force=True)
+        # cheap condition estimate (infinity norms); the exact SVD only when it looks singular
+        cond = np.abs(R).sum(axis=1).max() * np.abs(Rinv).sum(axis=1).max()
+        if not np.isfinite(cond) or cond > 1e12:
             self._singularity(pt, R)
         return M, R, Rinv
 
@@ -415,13 +426,14 @@ class ResolvedRate:
             self._rates()
             return
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
-        sol = Rinv @ np.concatenate([-pt.dgrad_dt, pt.xdot])
+        sol = Rinv @ np.concatenate([pt.top(lam), pt.xdot])
         self.qdot, self.lamdot, self.solver, self.M, self.Rinv = sol[:n], sol[n:], label, M, Rinv
         self.pt = pt
 
     def _rates(self) -> None:
         """Evaluate the full system at the current point and solve for the rates (Eq. 4.24 or baseline)."""
-        pt = self.pt = self.sys.point(self.q, self.t)
+        baseline = self.scheme in ("pseudoinverse", "liegeois")
+        pt = self.pt = self.sys.point(self.q, self.t, need_dJ=not baseline)
         xdot = pt.xdot
         if self.mode == "thesis":
             xdot = xdot - pt.r / self.dt  # velocity correction, Eq. (4.29)
@@ -435,7 +447,7 @@ class ResolvedRate:
             self.qdot, self.lamdot, self.solver, self.M, self.Rinv = qd, np.zeros_like(self.lam), "lstsq", None, None
             return
         M, R, Rinv = self._factor(pt, self.lam)
-        top = -pt.dgrad_dt
+        top = pt.top(self.lam)
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
         if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
             self.prox = _ProxQP(self.n, len(pt.r))
@@ -451,12 +463,14 @@ class ResolvedRate:
         """One time step: from (q, lambda) at t to t + dt."""
         h = self.dt
         q, lam, qd, lamd = self.q, self.lam, self.qdot, self.lamdot
+        self.k += 1
+        t_next = self.t0 + self.k * h
         if self.mode == "thesis":
             self.q = q + h * qd  # explicit Euler
-            self.t += h
+            self.t = t_next
         elif self.scheme in ("pseudoinverse", "liegeois"):
             self.q = q + h * qd
-            self.t += h
+            self.t = t_next
             self._project_task()
         else:
             if self.prev is None:
@@ -466,7 +480,7 @@ class ResolvedRate:
                 q_p = _hermite_extrapolate(q0, qd0, q, qd, h)
                 lam_p = _hermite_extrapolate(l0, ld0, lam, lamd, h)
             self.prev = (q, qd, lam, lamd)
-            self.t += h
+            self.t = t_next
             self._correct(q_p, lam_p)
             return
         if not np.all(np.isfinite(self.q)):

@@ -40,7 +40,10 @@ def rotation_log(R: np.ndarray) -> np.ndarray:
 
 
 def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool = True):
-    """(r, J, dJ or None, xdot, lam_basis) at one configuration; see the module docstring.
+    """(r, J, dJ or None, xdot, lam_basis, dJdt or None) at one configuration; see the module docstring.
+
+    ``dJdt`` is the explicit time derivative of J at fixed theta (nonzero only for the augmented pose
+    task, whose rows are written in the moving target frame), None where it vanishes.
 
     ``lam_basis`` maps the reduced multipliers to the closure 7-vector's (U) for the augmented pose
     task, else None.
@@ -48,10 +51,10 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
     if task != "pose":
         rows = TASK_ROWS[task]
         r = p[rows - 3] - s.p[rows - 3]
-        return r, K[rows], (dK[rows] if need_dJ else None), s.v[rows - 3], None
+        return r, K[rows], (dK[rows] if need_dJ else None), s.v[rows - 3], None, None
     if scheme == "velocity":
         r = np.concatenate([rotation_log(Q @ s.Q.T), p - s.p])
-        return r, K, (dK if need_dJ else None), np.concatenate([s.omega, s.v]), None
+        return r, K, (dK if need_dJ else None), np.concatenate([s.omega, s.v]), None, None
     # Eq. (2.13) written with the invariants of the relative rotation Q_d^T Q (target frame): same zero
     # set, but H stays well conditioned where Q_d itself turns by pi (Example 4.3 at beta = pi/2). At the
     # target Q_d^T Q = 1 the left null vector of H is n = [0, 0, 0, 1, 0, 0, 0] (the trace row), so the
@@ -78,16 +81,30 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
         QW = Q_rel @ W
         dJ[:3] = (A @ dW.reshape(3, n * n)).reshape(3, n, n)
         dJ[:3] -= 2.0 * s_k[None, None, :] * W[:, :, None]
-        # minus [a, i, k] = (w_k x (Q_rel w_i))_a, written with outer products (np.cross is slow here)
-        dJ[0] -= np.outer(QW[2], W[1]) - np.outer(QW[1], W[2])
-        dJ[1] -= np.outer(QW[0], W[2]) - np.outer(QW[2], W[0])
-        dJ[2] -= np.outer(QW[1], W[0]) - np.outer(QW[0], W[1])
+        # minus [a, i, k] = (w_k x (Q_rel w_i))_a = eps_abc w_bk (Q_rel w_i)_c, as two matrix products
+        dJ[:3] -= QW.T @ (_EPS_T @ W).reshape(3, 3, n)  # broadcasts over a: [a, i, k]
         dJ[3:] = dK[3:]
+    w_d = Qd_T @ s.omega  # the target's angular velocity in its own frame
     xdot = np.empty(6)
-    xdot[:3] = A @ (Qd_T @ s.omega)
+    xdot[:3] = A @ w_d  # -dr/dt at fixed theta
     xdot[3:] = s.v
-    return r, J, dJ, xdot, _U_REL
+    dJdt = None
+    if need_dJ:
+        # dJ/dt at fixed theta: Q_rel turns at -w_d and so do the columns W (Eq. 4.15 differentiated
+        # in time needs it: d(J^T lambda)/dt has the term (dJ/dt)^T lambda besides Lambda thetadot)
+        dA = 2.0 * (0.5 * r[:3] @ w_d) * _EYE3 + _cross(w_d) @ Q_rel
+        dJdt = np.zeros((6, K.shape[1]))
+        dJdt[:3] = dA @ W - A @ (_cross(w_d) @ W)
+    return r, J, dJ, xdot, _U_REL, dJdt
+
+
+def _cross(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 _EYE3 = np.eye(3)
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+_EPS_T = _EPS.transpose(0, 2, 1).reshape(9, 3)  # [(a, c), b] = eps_abc
 _U_REL = np.delete(np.eye(7), 3, axis=1)

@@ -104,8 +104,8 @@ def test_qp_and_lu_give_the_same_rates():
         label = classify(M, pt.J, "auto")
         if label == "lu":
             continue
-        a = solve_rates(M, pt.J, -pt.dgrad_dt, pt.xdot, label=label, backend="proxsuite", prox=prox)
-        b = solve_rates(M, pt.J, -pt.dgrad_dt, pt.xdot, label="lu", backend="kkt", prox=None)
+        a = solve_rates(M, pt.J, pt.top(rr.lam), pt.xdot, label=label, backend="proxsuite", prox=prox)
+        b = solve_rates(M, pt.J, pt.top(rr.lam), pt.xdot, label="lu", backend="kkt", prox=None)
         assert np.abs(a.thetadot - b.thetadot).max() < 1e-8
         assert np.abs(a.lamdot - b.lamdot).max() < 1e-6
         checked[label] += 1
@@ -126,10 +126,24 @@ def test_task_jacobians_and_their_derivatives_match_finite_differences(name, sch
             return task_terms(r.task, scheme, Q, p, K, dK, sample, need)
 
         q = q_star + 0.05
-        r_val, J, dJ, _, _ = terms(q)
+        r_val, J, dJ, _, _, _ = terms(q)
         if not (scheme == "velocity" and r.task == "pose"):  # the log map's Jacobian is K only at r = 0
             assert np.abs(J - central_difference(lambda x: terms(x)[0], q)).max() < 1e-7
         assert np.abs(dJ - central_difference(lambda x: terms(x)[1], q)).max() < 1e-7
+
+
+def test_explicit_time_derivative_of_the_target_frame_jacobian():
+    """The augmented pose task's rows live in the moving target frame: dJ/dt at fixed q enters Eq. (4.24)."""
+    from kinredund.examples.panda_circle import panda_circle
+
+    r, path, _, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    q = q0 + 0.05
+    Q, p, K, dK = r.kinematics.jacobian_derivative(q)
+    for t in (0.3, 2.0):
+        dJdt = task_terms("pose", "augmented", Q, p, K, dK, path(t))[5]
+        fd = central_difference(
+            lambda x: task_terms("pose", "augmented", Q, p, K, dK, path(x[0]), False)[1], np.array([t]))[..., 0]
+        assert np.abs(dJdt - fd).max() < 1e-7 and np.abs(fd).max() > 1e-2
 
 
 def _rot(angle):
