@@ -1,0 +1,63 @@
+"""The peers benchmark (benchmarks/peers.py, issue 8) runs and its figures say what they should."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinredund.errors import KinredundError
+
+BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
+KEYS = {"step_us_median", "step_us_p95", "drift", "position_error_max", "orientation_error_max",
+        "normality_residual_max"}
+
+
+def _load_peers():
+    sys.path.insert(0, str(BENCH))  # peers.py imports its sibling _bench
+    spec = importlib.util.spec_from_file_location("kinredund_bench_peers", BENCH / "peers.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+peers = _load_peers()
+
+
+def _has(module: str) -> bool:
+    return importlib.util.find_spec(module) is not None
+
+
+def test_one_loop_constant_orientation(tmp_path):
+    methods = ["augmented", "pseudoinverse"] + (["pink"] if _has("pink") else [])
+    out = peers.run(loops=1, variants=("constant",), methods=tuple(methods))
+    res = out["variants"]["constant"]
+    assert set(res) == set(methods)
+    for m in methods:
+        assert KEYS <= set(res[m]), m
+        assert len(res[m]["drift"]) == 1
+        assert all(np.isfinite(res[m][k]) for k in KEYS - {"drift"})
+        assert 0 < res[m]["step_us_median"] <= res[m]["step_us_p95"]
+    ours, pinv = res["augmented"], res["pseudoinverse"]
+    assert ours["drift"][0] < pinv["drift"][0]
+    # both hold the task (Newton corrector / projection); only ours stays on the constrained optimum
+    for r in (ours, pinv):
+        assert r["position_error_max"] < 1e-9 and r["orientation_error_max"] < 1e-9
+    assert ours["normality_residual_max"] < 1e-9 < pinv["normality_residual_max"]
+    if "pink" in res:  # a dead-beat step on a moving target lags by O(dt^2) and drifts like Whitney
+        assert res["pink"]["drift"][0] > ours["drift"][0]
+        assert res["pink"]["position_error_max"] < 1e-3
+    json.loads(json.dumps(out))  # the figures are plain JSON
+    peers.write_plot(out, tmp_path / "drift.png")
+    assert (tmp_path / "drift.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_unknown_method_or_variant_is_named():
+    with pytest.raises(KinredundError, match="nope"):
+        peers.run(loops=1, variants=("constant",), methods=("nope",))
+    with pytest.raises(KinredundError, match="wrist90"):
+        peers.run(loops=1, variants=("wrist90",), methods=("augmented",))
