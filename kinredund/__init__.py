@@ -18,6 +18,7 @@ from .errors import (
     URDFError,
 )
 from .hd import HDTable
+from .ik import IKResult, check_optimality, solve_ik
 from .robot import Robot, known_robots, load_robot, robot_from_hd
 
 __version__ = "0.1.0"
@@ -26,6 +27,7 @@ __all__ = [
     "ChoiceError",
     "FrameNotFoundError",
     "HDTable",
+    "IKResult",
     "HDTableError",
     "JointVectorError",
     "KinredundError",
@@ -36,7 +38,9 @@ __all__ = [
     "TaskError",
     "URDFError",
     "UnknownRobotError",
+    "check_optimality",
     "known_robots",
     "load_robot",
     "robot_from_hd",
+    "solve_ik",
 ]

@@ -14,7 +14,10 @@ orthogonal parts, dx = x0 + L u (Eq. D.24):
 The step length is safeguarded by backtracking on the exact-penalty merit function
 phi = z + rho ||e|| (Armijo test, with one second-order correction -Y R^-T e(theta + dx) against the
 Maratos effect). A pose-only solve (no index) takes the minimum-norm Newton step x0 alone and
-backtracks on 1/2 ||e||^2. Near singular G a damped least-squares step replaces x0.
+backtracks on 1/2 ||e||^2. Where x0 cannot be trusted (G near singular, or x0 moving a joint by more
+than :data:`MAX_STEP`), a damped least-squares step on the constraints alone replaces the step
+(Levenberg-Marquardt, damping mu = LM_WEIGHT ||e||^2 + DAMPING max|G|^2 after Sugihara 2011).
+Every step is scaled down to move no joint by more than :data:`MAX_STEP`.
 
 With joint limits as bounds, a step that would leave them is recomputed as a box-constrained QP
 (:mod:`kinredund.ik_qp`); first-order optimality then includes the multipliers of the active bounds.
@@ -44,14 +47,19 @@ MIN_ALPHA = 2.0**-20
 RANK_TOL = 1e-9
 #: floor of the damping of least-squares steps, relative to max |G_ij|^2
 DAMPING = 1e-6
-#: a start stops when 1/2 ||e||^2 has not halved for this many iterations (a local minimum of the
-#: residual, typically a singular configuration: a fresh start does better)
+#: a start stops when 1/2 ||e||^2 has not halved for this many iterations while other starts remain
+#: (a local minimum of the residual, typically a singular configuration: a fresh start does better),
+#: or, for the last start, has not decreased by the fraction PATIENT_DECREASE (the closest point to
+#: an unreachable target is approached slowly)
 STALL_ITERS = 10
+PATIENT_DECREASE = 1e-9
 #: when other starts remain, a pose-only start stops after STUCK_ITERS iterations in a row whose
 #: (capped) linearised step keeps more than STUCK_RATIO of ||e||^2: little first-order progress is
 #: possible there (a local minimum of the residual, within the limits or near a singularity)
 STUCK_RATIO = 0.8
 STUCK_ITERS = 2
+#: ... and after this many iterations (converging starts take 5-15)
+QUICK_MAX_ITER = 30
 #: weight of ||e||^2 in the damping of least-squares steps
 LM_WEIGHT = 0.05
 #: joints within this distance of a limit count as at the limit [rad or m]
@@ -104,8 +112,8 @@ def qr_split(G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
 
 
 def _well_conditioned(a: np.ndarray, m: int) -> bool:
-    diag = np.abs(a.diagonal()[:m])
-    return bool(diag.min() > RANK_TOL * max(float(diag.max()), 1e-300))
+    diag = [abs(v) for v in a.diagonal()[:m].tolist()]
+    return min(diag) > RANK_TOL * max(max(diag), 1e-300)
 
 
 def min_norm_step(G: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -129,11 +137,15 @@ def solve_r(R: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def damped_step(G: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """argmin ||G d + e||^2 + mu ||d||^2 (mu of :func:`_mu`) by least squares on the stacked system
-    [G; sqrt(mu) 1] d = [-e; 0] (no G G^T formed)."""
-    n = G.shape[1]
-    A = np.vstack([G, math.sqrt(_mu(G, e)) * np.eye(n)])
-    return np.linalg.lstsq(A, np.concatenate([-e, np.zeros(n)]), rcond=None)[0]
+    """argmin ||G d + e||^2 + mu ||d||^2 (mu of :func:`_mu`): Householder least squares (LAPACK
+    ``dgels``) on the stacked system [G; sqrt(mu) 1] d = [-e; 0] (no G G^T formed)."""
+    m, n = G.shape
+    A = np.zeros((m + n, n))
+    A[:m] = G
+    A[m:] = math.sqrt(_mu(G, e)) * np.eye(n)
+    rhs = np.zeros(m + n)
+    rhs[:m] = -e
+    return lapack.dgels(A, rhs)[1][:n]
 
 
 def _mu(G: np.ndarray, e: np.ndarray) -> float:
@@ -144,7 +156,7 @@ def _mu(G: np.ndarray, e: np.ndarray) -> float:
 
 def cap_step(d: np.ndarray) -> np.ndarray:
     """Scale d so that no joint moves more than :data:`MAX_STEP` in one iteration."""
-    big = float(np.abs(d).max())
+    big = max(map(abs, d.tolist()))
     return d * (MAX_STEP / big) if big > MAX_STEP else d
 
 
@@ -194,7 +206,7 @@ def _timed_out(s: Setup) -> bool:
 
 
 def _in_box(s: Setup, q: np.ndarray) -> bool:
-    return bool(np.all(q >= s.lower) and np.all(q <= s.upper))
+    return not ((q < s.lower).any() or (q > s.upper).any())
 
 
 def _stall(q, it, r, what: str) -> StartOutcome:
@@ -212,17 +224,19 @@ def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
         r = res.residual(Q, p)
         if r < s.rtol and 2.0 * phi < s.rtol * s.rtol:  # closure residual and SE(3) error
             return StartOutcome(q, True, it, "", r)
-        if phi < 0.5 * phi_ref:
+        if phi < (0.5 if s.quick_exit else 1.0 - PATIENT_DECREASE) * phi_ref:
             phi_ref, since = phi, 0
         elif since >= STALL_ITERS:
             return _stall(q, it, r, f"no progress in {STALL_ITERS} iterations")
         since += 1
-        if it == s.max_iter:
-            return StartOutcome(q, False, it, f"max_iter={s.max_iter} reached at residual {r:.3g}", r)
+        if it == s.max_iter or (s.quick_exit and it == QUICK_MAX_ITER):
+            return StartOutcome(q, False, it, f"max_iter={it} reached at residual {r:.3g}", r)
         if _timed_out(s):
             return StartOutcome(q, False, it, "timeout", r)
         G = res.jacobian(K, jl)
         d = min_norm_step(G, e)  # Eq. (D.24), the x0 part alone
+        if max(map(abs, d.tolist())) > MAX_STEP:  # too long to trust (near a singularity): damp it
+            d = damped_step(G, e)
         if s.bounds and not _in_box(s, q + d):
             # the linearised constraints are rarely solvable inside the box: damped least squares in it
             d = s.box.least_squares(G, e, _mu(G, e), s.lower - q, s.upper - q)
@@ -241,9 +255,7 @@ def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
             stuck = 0
         alpha = 1.0
         while True:
-            qt = q + alpha * d
-            if s.bounds:
-                np.clip(qt, s.lower, s.upper, out=qt)
+            qt = _clip(s, q + alpha * d)
             Qt, pt, Kt = kin.jacobian(qt)
             et, jlt = res.error(Qt, pt)
             phit = 0.5 * float(et @ et)
@@ -271,9 +283,7 @@ def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it
     phi = 0.5 * float(e @ e)
     alpha = 1.0
     while alpha >= MIN_ALPHA:
-        qt = q + alpha * d
-        if s.bounds:
-            np.clip(qt, s.lower, s.upper, out=qt)
+        qt = _clip(s, q + alpha * d)
         et = s.res.error(*s.kin.pose(qt))[0]
         if 0.5 * float(et @ et) <= phi + ARMIJO * alpha * slope:
             return qt
@@ -320,7 +330,9 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
         elif since >= 2 * STALL_ITERS:  # far from g = x and not getting closer
             return _stall(q, it, r, f"the residual did not halve in {2 * STALL_ITERS} iterations")
         since += 1
-        if not ok:  # near-singular G: a damped restoration step on the constraints alone
+        x0 = Y @ solve_rt(R, -e) if ok else None  # minimum-norm part, Eq. (D.24)
+        if x0 is None or max(map(abs, x0.tolist())) > MAX_STEP:
+            # near-singular G or far from g = x: a damped restoration step on the constraints alone
             qn = _restore(s, q, G, e, r, it)
             if isinstance(qn, StartOutcome):
                 return qn
@@ -328,23 +340,21 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
             continue
         enorm = math.sqrt(float(e @ e))
         rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1e-12)  # exact-penalty weight > ||lambda||
-        x0 = Y @ solve_rt(R, -e)  # minimum-norm part, Eq. (D.24)
         M = H + contract(res.k_multipliers(lam, jl), dK[rows])  # Hess z + Lambda, Eqs. (4.20)-(4.26)
         Br = L.T @ M @ L
         w, V = np.linalg.eigh(0.5 * (Br + Br.T))
         wmod = np.maximum(np.abs(w), 1e-8 * max(1.0, float(np.abs(w).max())))  # PD where D.33 fails
         gr = L.T @ grad
         u = -V @ ((V.T @ (gr + L.T @ (M @ x0))) / wmod)  # Eq. (D.26), Newton form
-        d = x0 + L @ u
+        d = x0 + cap_step(L @ u)  # the cap shortens the null-space part only: x0 restores g = x in full
         if float(grad @ d) - rho * enorm >= 0.0 and gr @ gr > 0.0:
             u = -V @ ((V.T @ gr) / wmod)  # drop the coupling term: a sure descent direction
-            d = x0 + L @ u
+            d = x0 + cap_step(L @ u)
         if s.bounds and not _in_box(s, q + d):
             lb, ub = s.lower - q, s.upper - q
             B = L @ (V * wmod) @ V.T @ L.T + Y @ Y.T  # the reduced model of Eq. (D.26), PD
             dq = s.box.equality(B, grad + L @ (L.T @ (M @ x0)), G, e, lb, ub)
-            d = dq if dq is not None else s.box.least_squares(G, e, _mu(G, e), lb, ub)
-        d = cap_step(d)
+            d = cap_step(dq if dq is not None else s.box.least_squares(G, e, _mu(G, e), lb, ub))
         Gd = G @ d
         slope = float(grad @ d) + rho * (float(e @ Gd) / enorm if enorm > 0.0 else math.sqrt(float(Gd @ Gd)))
         phi = z + rho * enorm
@@ -357,28 +367,29 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
 
 
 def _merit_search(s: Setup, q, d, rho, phi, slope, R, Y) -> np.ndarray | None:
-    """Armijo backtracking on phi = z + rho ||e||, with one second-order correction of the full step.
+    """Armijo backtracking on phi = z + rho ||e|| along q + alpha d, each trial point also tried with
+    a second-order correction -Y R^-T e(q + alpha d) back towards g = x (against the Maratos effect and
+    the drift off the constraints that curved self-motions cause).
 
     A step whose predicted decrease is at round-off level (|slope| <= 1e-12 (1 + |phi|), joints moving
     < 1e-6) is taken as it is: the merit function cannot resolve it and the iteration is converging.
     """
-    qt = _clip(s, q + d)
-    phit, et = _merit(s, qt, rho)
-    if phit <= phi + ARMIJO * slope or (-slope <= 1e-12 * (1.0 + abs(phi)) and float(np.abs(d).max()) < 1e-6):
-        return qt
-    qc = _clip(s, qt + Y @ solve_rt(R, -et))  # second-order correction (Maratos effect)
-    if _merit(s, qc, rho)[0] <= phi + ARMIJO * slope:
-        return qc
-    if not slope < 0.0:
-        return None
-    alpha = 0.5
+    alpha = 1.0
     while alpha >= MIN_ALPHA:
         qt = _clip(s, q + alpha * d)
-        if _merit(s, qt, rho)[0] <= phi + ARMIJO * alpha * slope:
+        phit, et = _merit(s, qt, rho)
+        goal = phi + ARMIJO * alpha * slope
+        if phit <= goal or (alpha == 1.0 and -slope <= 1e-12 * (1.0 + abs(phi)) and float(np.abs(d).max()) < 1e-6):
             return qt
+        qc = _clip(s, qt + Y @ solve_rt(R, -et))  # second-order correction
+        if _merit(s, qc, rho)[0] <= goal:
+            return qc
+        if not slope < 0.0:
+            return None
         alpha *= 0.5
     return None
 
 
 def _clip(s: Setup, q: np.ndarray) -> np.ndarray:
-    return np.clip(q, s.lower, s.upper, out=q) if s.bounds else q
+    """q clipped into the limits in place when bounds are on (np.clip is slower on short vectors)."""
+    return np.minimum(np.maximum(q, s.lower, out=q), s.upper, out=q) if s.bounds else q

@@ -4,22 +4,32 @@ Used only when the unconstrained step of Eqs. (D.24)-(D.26) would leave the join
 needs no QP). Two problems, both over the step d (n,) within lb <= d <= ub:
 
 - equality form: min 1/2 d^T B d + c^T d  s.t.  G d = -e   (the linearised constraints, Eq. D.23);
-- least-squares form, used when the equality form is infeasible inside the box (the target cannot be
-  met to first order without leaving the limits): min 1/2 ||G d + e||^2 + mu/2 ||d||^2.
+- least-squares form, min 1/2 ||G d + e||^2 + mu/2 ||d||^2 (a damped Gauss-Newton step, always
+  feasible): the step of pose-only solves (whose linearised constraints are rarely solvable inside the
+  box), and of index solves whose equality form is infeasible.
 
 proxsuite's default ``eps_abs`` is 1e-5, far too loose for kinematics: it is set to 1e-11 here (see
-``../shared/STACK.md``). Solver objects are created once per solve and reused with ``update``.
+``../shared/STACK.md``). Solver objects are created once per solve and reused with ``update``; no warm
+start is passed (each step is a new problem).
+
+Speed: before calling proxsuite, the least-squares form tries a cheap guess of the active set (the
+joints at a limit, then also those the guess pushes past one) and keeps it only if it meets the QP's
+KKT conditions, in which case it *is* the QP's unique solution (the QP is strictly convex). On the
+Panda about 4 in 5 bounded steps are settled that way; proxsuite solves the others.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import lapack
 
 from .errors import SolverError
 
 #: proxsuite absolute tolerance of the step [rad or m]
 QP_EPS_ABS = 1e-11
 QP_MAX_ITER = 1000
+#: active-set guesses tried (and checked against the KKT conditions) before calling proxsuite
+GUESS_ROUNDS = 2
 
 
 class BoxStep:
@@ -34,6 +44,9 @@ class BoxStep:
         self.n, self.m = n, m
         self._eq = None
         self._ls = None
+        #: bounded least-squares steps settled by the active-set guess, and by proxsuite
+        self.guesses = 0
+        self.qp_calls = 0
 
     @staticmethod
     def _new(n: int, n_eq: int):
@@ -65,11 +78,16 @@ class BoxStep:
 
     def least_squares(self, G, e, mu, lb, ub) -> np.ndarray:
         """The step of min 1/2 ||G d + e||^2 + mu/2 ||d||^2 s.t. lb <= d <= ub (always feasible)."""
+        H = G.T @ G + mu * np.eye(self.n)
+        g = G.T @ e
+        d = _active_set_guess(H, g, lb, ub)
+        if d is not None:
+            self.guesses += 1
+            return d
+        self.qp_calls += 1
         if self._ls is None:
             self._ls = (*self._new(self.n, 0), False)
         qp, solved, ready = self._ls
-        H = G.T @ G + mu * np.eye(self.n)
-        g = G.T @ e
         if ready:
             qp.update(H, g, None, None, None, None, None, lb, ub)
         else:
@@ -80,3 +98,40 @@ class BoxStep:
             # the QP is strictly convex and feasible: only the iteration limit can stop it
             return np.clip(np.nan_to_num(qp.results.x), lb, ub)
         return np.clip(qp.results.x, lb, ub)
+
+
+def _active_set_guess(H: np.ndarray, g: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> np.ndarray | None:
+    """The solution of min 1/2 d^T H d + g^T d, lb <= d <= ub (H positive definite) if a cheap guess
+    of its active set is right, else None (then proxsuite solves the QP).
+
+    First guess: the joints already at a limit (lb_i = 0 or ub_i = 0) are held there; next guesses:
+    the free joints that the previous one pushed past a bound are held at it too. A guess is returned
+    only if it meets the QP's KKT conditions (free joints within their bounds, the gradient H d + g
+    pushing every held joint outwards): it is then the QP's unique solution.
+    """
+    n = g.shape[0]
+    lbl, ubl = lb.tolist(), ub.tolist()
+    held = {i: lbl[i] if lbl[i] >= 0.0 else ubl[i] for i in range(n) if lbl[i] >= 0.0 or ubl[i] <= 0.0}
+    for _ in range(GUESS_ROUNDS):
+        free = [i for i in range(n) if i not in held]
+        if not free:
+            return None
+        d = np.zeros(n)
+        if held:
+            d[list(held)] = list(held.values())
+        Hf = H[free]
+        c, x, info = lapack.dposv(Hf[:, free], -(g[free] + Hf @ d))  # Cholesky solve of the free block
+        if info != 0:
+            return None
+        d[free] = x
+        dl = d.tolist()
+        out = {i: (lbl[i] if dl[i] < lbl[i] else ubl[i]) for i in free if not lbl[i] <= dl[i] <= ubl[i]}
+        if out:
+            held.update(out)
+            continue
+        grad = (H @ d + g).tolist()
+        tol = 1e-12 * (1.0 + max(map(abs, grad)))
+        if any((grad[i] < -tol) if v == lbl[i] else (grad[i] > tol) for i, v in held.items()):
+            return None
+        return d
+    return None

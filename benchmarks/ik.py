@@ -1,0 +1,139 @@
+"""Joint-level IK benchmark: the TRAC-IK protocol on the Panda and the xArm7 (Chapter 4.2, Appendix D).
+
+Usage::
+
+    python benchmarks/ik.py [--robot NAME] [--n N] [--json FILE] [--z-subset M] [--starts-subset S]
+
+Protocol (Beeson and Ames 2015, TRAC-IK): draw N configurations uniformly within the joint limits
+(``np.random.default_rng(2015)``), take their forward pose as the target, and solve seeded at
+mid-limits with tolerance 1e-5 and a 5 ms budget: ``solve_ik(robot, T, q0=mid, bounds=True, tol=1e-5,
+timeout=0.005, starts=10**6)`` (multi-start until solved or out of time). A success is a converged
+solve; with ``bounds=True`` every solution is within the limits (checked). Reported per robot:
+success rate, median, mean and 95th-percentile wall time of the whole call [ms]; the same for the
+unbounded pose solve (joint limits ignored), as a reference.
+
+The 5 ms budget is wall time, so the success rate drops when other jobs share the CPU. Two
+load-independent figures go with it, on the first S targets: the fraction solved within k starts
+(no budget) and the CPU time per start [ms] (``time.process_time``).
+
+On the first M targets the script also compares the mid-range index z = 1/2 sum (theta_i - mid_i)^2
+(Eq. 4.49, all joints) of the plain pose solve with that of the constrained minimum
+``solve_ik(robot, T, mid_range(...), q0=<pose solution>, bounds=True)``: how much lower z is there.
+
+Prints a table; with ``--json FILE`` writes the figures atomically. The default run (N = 10000 on
+both robots) takes about 2 minutes on an unloaded 2-core machine.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from _bench import parser, print_table, write_json
+
+import kinredund
+from kinredund.ik import solve_ik
+from kinredund.indices import mid_range
+
+ROBOTS = ("panda", "xarm7")
+TOL = 1e-5
+BUDGET_S = 0.005
+SEED = 2015
+STARTS_K = (1, 2, 4, 8, 16, 64)
+
+
+def run_protocol(robot, targets: list[np.ndarray], *, bounds: bool) -> dict:
+    """Solve every target seeded at mid-limits within the budget; success rate and wall times [ms]."""
+    mid = 0.5 * (robot.lower + robot.upper)
+    solve_ik(robot, targets[0], q0=mid, tol=TOL, bounds=bounds)  # warm-up (imports, first QP)
+    ok = np.zeros(len(targets), dtype=bool)
+    ms = np.zeros(len(targets))
+    starts = np.zeros(len(targets), dtype=int)
+    for i, T in enumerate(targets):
+        t0 = time.perf_counter()
+        res = solve_ik(robot, T, q0=mid, tol=TOL, bounds=bounds, starts=10**6, timeout=BUDGET_S)
+        ms[i] = (time.perf_counter() - t0) * 1e3
+        ok[i], starts[i] = res.converged, res.starts
+        if bounds and res.converged and np.any((res.q < robot.lower) | (res.q > robot.upper)):
+            raise AssertionError("a bounded solve left the joint limits")
+    return {
+        "success_rate": float(ok.mean()), "median_ms": float(np.median(ms)), "mean_ms": float(ms.mean()),
+        "p95_ms": float(np.percentile(ms, 95)), "mean_starts": float(starts.mean()), "n": len(targets),
+    }
+
+
+def starts_needed(robot, targets: list[np.ndarray]) -> dict:
+    """Without a budget: the fraction solved within k starts, and CPU time per start [ms]."""
+    mid = 0.5 * (robot.lower + robot.upper)
+    kmax = STARTS_K[-1]
+    used = np.zeros(len(targets), dtype=int)
+    runs = 0
+    cpu0 = time.process_time()
+    for i, T in enumerate(targets):
+        res = solve_ik(robot, T, q0=mid, tol=TOL, bounds=True, starts=kmax)
+        used[i] = res.starts if res.converged else kmax + 1
+        runs += res.starts
+    cpu = time.process_time() - cpu0
+    return {
+        "solved_within_k_starts": {str(k): float((used <= k).mean()) for k in STARTS_K},
+        "cpu_ms_per_start": 1e3 * cpu / runs, "cpu_ms_per_target": 1e3 * cpu / len(targets), "n": len(targets),
+    }
+
+
+def z_comparison(robot, targets: list[np.ndarray]) -> dict:
+    """Mid-range z of the plain (bounded) pose solve and of the constrained minimum seeded there."""
+    index = mid_range(robot.lower, robot.upper)
+    mid = 0.5 * (robot.lower + robot.upper)
+    plain, best, ms = [], [], []
+    for T in targets:
+        pose = solve_ik(robot, T, q0=mid, tol=TOL, bounds=True, starts=64)
+        if not pose.converged:
+            continue
+        t0 = time.perf_counter()
+        cmin = solve_ik(robot, T, index, q0=pose.q, bounds=True, tol=1e-8)
+        ms.append((time.perf_counter() - t0) * 1e3)
+        if cmin.converged:
+            plain.append(index.value(pose.q))
+            best.append(cmin.objective)
+    plain, best = np.array(plain), np.array(best)
+    return {
+        "n": len(plain), "z_pose_median": float(np.median(plain)), "z_min_median": float(np.median(best)),
+        "z_reduction_median": float(np.median(1.0 - best / plain)),
+        "z_never_higher": bool(np.all(best <= plain + 1e-9)), "constrained_min_median_ms": float(np.median(ms)),
+    }
+
+
+def main() -> None:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--robot", choices=ROBOTS, default=None, help="one robot (default: both)")
+    p.add_argument("--n", type=int, default=10000, help="number of random targets per robot")
+    p.add_argument("--z-subset", type=int, default=200, help="targets used for the z comparison")
+    p.add_argument("--starts-subset", type=int, default=1000, help="targets used for the starts-needed figures")
+    args = p.parse_args()
+    figures, rows, extra = {}, [], []
+    for name in (args.robot,) if args.robot else ROBOTS:
+        robot = kinredund.load_robot(name)
+        rng = np.random.default_rng(SEED)
+        targets = [robot.fk(robot.random_configuration(rng)) for _ in range(args.n)]
+        bounded = run_protocol(robot, targets, bounds=True)
+        free = run_protocol(robot, targets, bounds=False)
+        need = starts_needed(robot, targets[: args.starts_subset])
+        zc = z_comparison(robot, targets[: args.z_subset])
+        figures[name] = {**bounded, "unbounded": free, "starts_needed": need, "z_mid_range": zc}
+        for label, f in (("yes", bounded), ("no", free)):
+            rows.append([name, label, f"{100 * f['success_rate']:.2f}", f["median_ms"], f["mean_ms"], f["p95_ms"],
+                         f["mean_starts"]])
+        within = ", ".join(f"{k}: {100 * v:.2f} %" for k, v in need["solved_within_k_starts"].items())
+        extra.append(f"{name}: solved within k starts (bounds, no budget, {need['n']} targets): {within}; "
+                     f"CPU {need['cpu_ms_per_start']:.3f} ms per start")
+        extra.append(f"{name}: mid-range z, pose solve -> constrained minimum (median over {zc['n']}): "
+                     f"{zc['z_pose_median']:.3g} -> {zc['z_min_median']:.3g} "
+                     f"({100 * zc['z_reduction_median']:.1f} % lower; {zc['constrained_min_median_ms']:.2f} ms)")
+    print_table(rows, ["robot", "limits", "success %", "median ms", "mean ms", "p95 ms", "starts"])
+    for line in extra:
+        print(line)
+    write_json(args.json, {"protocol": {"tol": TOL, "budget_s": BUDGET_S, "seed": SEED, "n": args.n}, **figures})
+
+
+if __name__ == "__main__":
+    main()

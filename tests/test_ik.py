@@ -1,0 +1,346 @@
+"""Joint-level IK (Chapter 4.2, Appendix D): starting configurations of Examples 4.1-4.3 as global
+constrained minima, pose recovery on every robot, optimality reports checked by finite differences,
+joint limits, bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import ALL_ROBOTS, configurations, robot
+
+from kinredund import JointVectorError, TaskError, closure
+from kinredund.examples.starts import example_4_1_start, example_4_2_start, example_4_3_start
+from kinredund.finite_diff import central_difference
+from kinredund.ik import IKResult, check_optimality, solve_ik
+from kinredund.ik_residual import TaskResidual, rotation_log
+from kinredund.indices import CustomIndex, IndexCheckError, JointDeviation, check_index, minimum_norm
+from kinredund.task import make_target, orientation_error
+
+EXAMPLES = {"4.1": example_4_1_start, "4.2": example_4_2_start, "4.3": example_4_3_start}
+STARTS = {"4.1": 16, "4.2": 16, "4.3": 24}
+
+
+def _self_motion_curvature(r, target, index, q, L, h=1e-3):
+    """d^2 z / ds^2 along the self-motion through q with tangent L (unit), by central differences of
+    z on the constraint manifold (points q + s L projected back onto g = x by pose-only solves)."""
+
+    def z_on_manifold(s):
+        res = solve_ik(r, target, q0=q + s * L, tol=1e-14)
+        assert res.converged
+        return index.value(res.q)
+
+    return (z_on_manifold(h) - 2.0 * z_on_manifold(0.0) + z_on_manifold(-h)) / h**2
+
+
+def _planar_self_motion(x, y, a=(2.0, 2.0, 2.0), n=400001):
+    """Every configuration of the planar 3R reaching (x, y), on a grid of the last link's angle psi
+    (both elbow branches): an independent, closed-form map of the constraint manifold."""
+    psi = np.linspace(-np.pi, np.pi, n)
+    wx, wy = x - a[2] * np.cos(psi), y - a[2] * np.sin(psi)
+    c2 = (wx**2 + wy**2 - a[0] ** 2 - a[1] ** 2) / (2 * a[0] * a[1])
+    ok = np.abs(c2) <= 1
+    out = []
+    for sign in (1.0, -1.0):
+        q2 = sign * np.arccos(np.clip(c2, -1, 1))
+        q1 = np.arctan2(wy, wx) - np.arctan2(a[1] * np.sin(q2), a[0] + a[1] * np.cos(q2))
+        out.append(np.stack([q1, q2, psi - q1 - q2], axis=1)[ok])
+    return np.vstack(out)
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_example_start_is_global_constrained_minimum(name):
+    r, target, index = EXAMPLES[name]()
+    best = solve_ik(r, target, index, starts=STARTS[name], seed=1)
+    assert best.converged, best.reason
+    assert best.starts == STARTS[name]
+    assert best.residual < 1e-10
+    assert best.normality_residual < 1e-10  # Eq. (D.30)
+    assert best.reduced_hessian_pd and best.reduced_hessian_min_eig > 0  # Eq. (D.33)
+    assert np.isclose(best.objective, index.value(best.q), rtol=0, atol=1e-14)
+    # no single start, from other seeds, finds a lower constrained minimum
+    rng = np.random.default_rng(123)
+    lo, hi = np.maximum(r.lower, -2 * np.pi), np.minimum(r.upper, 2 * np.pi)
+    lower_found = []
+    for _ in range(STARTS[name]):
+        one = solve_ik(r, target, index, q0=rng.uniform(lo, hi))
+        if one.converged and one.objective < best.objective - 1e-9:
+            lower_found.append(one.objective)
+    assert not lower_found, f"other starts found lower z: {lower_found} < {best.objective}"
+
+
+@pytest.mark.parametrize("name", ["4.1", "4.2"])
+def test_planar_example_minimum_matches_closed_form_map_of_the_manifold(name):
+    """The planar manifold, sampled in closed form with each joint shifted by 2 pi k to its best
+    value, has no point with z below the solver's minimum, and its minimum is the solver's."""
+    r, target, index = EXAMPLES[name]()
+    best = solve_ik(r, target, index, starts=STARTS[name])
+    Q = _planar_self_motion(*target)
+    ref, w = index.reference, index.weights
+    Q = ref + (Q - ref + np.pi) % (2 * np.pi) - np.pi  # each joint's 2 pi shift closest to the reference
+    z = 0.5 * ((Q - ref) ** 2 * w).sum(axis=1)
+    assert best.objective <= z.min() + 1e-12
+    assert z.min() - best.objective < 1e-8  # grid spacing 1.6e-5 rad: O(h^2)
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
+def test_reduced_hessian_equals_curvature_along_the_self_motion(name):
+    """Eq. (D.33) checked by finite differences: with n - m = 1 the reduced Hessian is the second
+    derivative of z along the unit-speed self-motion curve."""
+    r, target, index = EXAMPLES[name]()
+    best = solve_ik(r, target, index, starts=STARTS[name])
+    opt = check_optimality(r, target, best.q, index)
+    assert opt.null_space.shape == (r.nq, 1) and opt.reduced_hessian.shape == (1, 1)
+    fd = _self_motion_curvature(r, target, index, best.q, opt.null_space[:, 0])
+    assert abs(fd - opt.reduced_hessian[0, 0]) < 1e-5 * max(1.0, abs(fd))
+    assert np.isclose(opt.reduced_hessian_min_eig, best.reduced_hessian_min_eig)
+
+
+def test_lambda_from_k_and_from_closure_jacobian_give_the_same_reduced_hessian():
+    """Example 4.3: Lambda* = d(K^T lambda*)/dtheta (Eq. 4.37) and Lambda = d(J^T lambda)/dtheta of the
+    closure 7-vector (Eq. 4.26, J = H K rank 6, minimum-norm lambda) agree on the null space."""
+    r, target, index = example_4_3_start()
+    best = solve_ik(r, target, index, starts=STARTS["4.3"])
+    opt = check_optimality(r, target, best.q, index)
+    Q, _, K, dK = r.kinematics.jacobian_derivative(best.q)
+    _, grad, H = index.evaluate(best.q)
+    J = closure.displacement_jacobian(Q, K)
+    dJ = closure.displacement_jacobian_derivative(Q, K, dK)
+    lam = np.linalg.lstsq(J.T, -grad, rcond=None)[0]
+    assert np.linalg.norm(J.T @ lam + grad) < 1e-10  # normality (4.5) with the closure Jacobian
+    L = opt.null_space
+    assert np.abs(J @ L).max() < 1e-10
+    reduced = L.T @ (H + closure.contract(lam, dJ)) @ L
+    assert np.allclose(reduced, opt.reduced_hessian, atol=1e-9)
+
+
+def test_example_4_3_with_bounds_keeps_the_limits_and_meets_kkt():
+    """The unbounded minimum of Example 4.3 breaks the limit of axis 2; with bounds the minimum sits
+    on it, the KKT residual vanishes and z grows along the self-motion into the feasible side."""
+    r, target, index = example_4_3_start()
+    free = solve_ik(r, target, index, starts=STARTS["4.3"])
+    assert np.any((free.q < r.lower) | (free.q > r.upper))  # the documented reason to offer bounds
+    best = solve_ik(r, target, index, starts=STARTS["4.3"], bounds=True)
+    assert best.converged, best.reason
+    assert np.all((best.q >= r.lower) & (best.q <= r.upper))
+    assert best.normality_residual < 1e-10 and best.residual < 1e-10
+    assert best.objective >= free.objective - 1e-12
+    opt = check_optimality(r, target, best.q, index, bounds=True)
+    assert opt.active.any()
+    L = check_optimality(r, target, best.q, index).null_space[:, 0]
+    j = int(np.flatnonzero(opt.active)[0])
+    inward = L if (best.q[j] >= r.upper[j]) == (L[j] < 0) else -L
+    moved = solve_ik(r, target, q0=best.q + 1e-3 * inward, tol=1e-14)
+    assert r.lower[j] <= moved.q[j] <= r.upper[j]
+    assert index.value(moved.q) > best.objective
+
+
+def _stationary_maximum_of_example_4_1():
+    """A local maximum of z = 1/2 |theta|^2 along Example 4.1's self-motion: the minimum of -z there."""
+    r, target, _ = example_4_1_start()
+    neg = CustomIndex(lambda q: -0.5 * q @ q, lambda q: -q, lambda q: -np.eye(3))
+    top = solve_ik(r, target, neg, q0=[0.34, 1.26, -1.43])  # near the maximum of the elbow-up branch
+    assert top.converged and top.reduced_hessian_pd  # a minimum of -z ...
+    return r, target, top
+
+
+def test_second_order_report_flags_a_maximum():
+    r, target, top = _stationary_maximum_of_example_4_1()
+    at_max = solve_ik(r, target, minimum_norm(3), q0=top.q)  # ... is a stationary maximum of z
+    assert at_max.converged and at_max.iterations == 0
+    assert at_max.normality_residual < 1e-10
+    assert not at_max.reduced_hessian_pd
+    assert at_max.reduced_hessian_min_eig == pytest.approx(-top.reduced_hessian_min_eig, rel=1e-9)
+    opt = check_optimality(r, target, top.q, minimum_norm(3))
+    fd = _self_motion_curvature(r, target, minimum_norm(3), top.q, opt.null_space[:, 0])
+    assert fd < 0 and abs(fd - opt.reduced_hessian_min_eig) < 1e-5 * abs(fd)
+
+
+def test_constrained_solve_leaves_a_maximum_when_started_near_it():
+    r, target, top = _stationary_maximum_of_example_4_1()
+    res = solve_ik(r, target, minimum_norm(3), q0=top.q + np.array([1e-3, 0.0, 0.0]))
+    assert res.converged and res.reduced_hessian_pd
+    assert res.objective < minimum_norm(3).value(top.q)
+
+
+@pytest.mark.parametrize("name", ALL_ROBOTS)
+def test_pose_recovered_for_random_configurations(name):
+    """Forward pose of a random configuration -> solve from home -> the same pose to 1e-10 m/rad."""
+    r = robot(name)
+    for q in configurations(r, seed=11, count=8):
+        T = r.fk(q)
+        target = T[:2, 3] if r.task == "planar" else T
+        res = solve_ik(r, target, starts=8, seed=5)
+        assert res.converged, res.reason
+        got = r.fk(res.q)
+        assert np.abs(got[:2, 3] - T[:2, 3]).max() < 1e-10
+        if r.task == "pose":
+            assert np.abs(got[:3, 3] - T[:3, 3]).max() < 1e-10
+            assert orientation_error(got[:3, :3], T[:3, :3]) < 1e-10
+
+
+@pytest.mark.parametrize("name", ["panda", "xarm7", "cybotech_p15"])
+def test_bounded_pose_solve_stays_within_limits(name):
+    r = robot(name)
+    for q in configurations(r, seed=12, count=4, margin=0.02):
+        res = solve_ik(r, r.fk(q), bounds=True, starts=30, seed=2)
+        assert res.converged, res.reason
+        assert np.all((res.q >= r.lower) & (res.q <= r.upper))
+        assert res.residual < 1e-10
+
+
+def test_seed_outside_limits_is_projected_and_noted():
+    r = robot("panda")
+    q0 = r.home.copy()
+    q0[3] = 0.5  # above the upper limit of axis 4 (-0.0698 rad)
+    res = solve_ik(r, r.fk(r.home), q0=q0, bounds=True)
+    assert "projected" in res.notes and "[3]" in res.notes
+    assert res.converged and np.all((res.q >= r.lower) & (res.q <= r.upper))
+    assert solve_ik(r, r.fk(r.home), q0=q0).notes == ""
+
+
+def test_pose_error_jacobian_matches_finite_differences():
+    r = robot("panda")
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        qd, q = r.random_configuration(rng, 0.1), r.random_configuration(rng, 0.1)
+        res = TaskResidual(make_target("pose", r.fk(qd)))
+        Q, p, K = r.kinematics.jacobian(q)
+        e, jl = res.error(Q, p)
+        fd = central_difference(lambda x, res=res: res.error(*r.kinematics.pose(x))[0], q)
+        assert np.abs(res.jacobian(K, jl) - fd).max() < 1e-7
+
+
+@pytest.mark.parametrize("phi", [1e-7, 0.3, 2.0, np.pi - 1e-8, np.pi])
+def test_rotation_log_inverts_rotation_from_invariants(phi):
+    u = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
+    w, angle = rotation_log(closure.rotation_from_invariants(u, phi))
+    assert angle == pytest.approx(phi, abs=1e-12)
+    assert np.allclose(w, u * phi, atol=1e-7) or (phi > 3.14 and np.allclose(w, -u * phi, atol=1e-7))
+
+
+def test_unreachable_target_returns_the_closest_configuration():
+    r = robot("planar3r")  # reach 6 m
+    res = solve_ik(r, (10.0, 0.0), starts=3)
+    assert not res.converged and res.reason
+    assert 4.0 - 1e-12 <= res.residual < 4.0 + 1e-6  # the arm stretched towards the target
+    res = solve_ik(r, (10.0, 0.0), minimum_norm(3), starts=2)
+    assert not res.converged and res.reason and res.residual < 4.0 + 1e-3
+    far = np.eye(4)
+    far[:3, 3] = [5.0, 0.0, 0.5]
+    res = solve_ik(robot("panda"), far, starts=3, bounds=True)
+    assert not res.converged and res.reason and res.residual > 3.0
+
+
+def test_timeout_is_reported():
+    r, target, index = example_4_3_start()
+    res = solve_ik(r, target, index, starts=1000, timeout=1e-4)
+    assert res.reason == "timeout" or (res.converged and res.starts < 1000)
+    res = solve_ik(r, target, index, q0=r.home, timeout=1e-9)
+    assert not res.converged and res.reason == "timeout"
+
+
+def test_pose_only_multistart_stops_at_first_success():
+    r = robot("panda")
+    res = solve_ik(r, r.fk(r.home), starts=50)
+    assert res.converged and res.starts == 1 and res.iterations == 0
+
+
+def test_custom_index_equals_builtin_and_is_checked():
+    r, target, index = example_4_1_start()
+    right = CustomIndex(lambda q: 0.5 * q @ q, lambda q: q.copy(), lambda q: np.eye(3))
+    wrong = CustomIndex(lambda q: 0.5 * q @ q, lambda q: 2.0 * q, lambda q: np.eye(3))
+    q = np.array([0.3, -0.4, 1.1])
+    g_err, h_err = check_index(right, q)
+    assert g_err < 1e-8 and h_err < 1e-8
+    with pytest.raises(IndexCheckError, match="gradient"):
+        check_index(wrong, q)
+    a = solve_ik(r, target, right, q0=[0.1, 0.5, 0.5])
+    b = solve_ik(r, target, index, q0=[0.1, 0.5, 0.5])
+    assert a.converged and np.allclose(a.q, b.q, atol=1e-10)
+
+
+def test_bad_input_raises_with_a_clear_message():
+    r = robot("planar3r")
+    with pytest.raises(TaskError, match=r"shape \(2,\)"):
+        solve_ik(r, (1.0, 2.0, 3.0))
+    with pytest.raises(TaskError, match="non-finite"):
+        solve_ik(r, (np.nan, 1.0))
+    with pytest.raises(TaskError, match="4x4"):
+        solve_ik(robot("panda"), np.eye(3))
+    with pytest.raises(JointVectorError, match=r"q0 must have shape \(3,\)"):
+        solve_ik(r, (3.0, 3.0), q0=[0.0, 0.0])
+    with pytest.raises(JointVectorError, match="non-finite"):
+        solve_ik(r, (3.0, 3.0), q0=[0.0, np.inf, 0.0])
+    with pytest.raises(TaskError, match="starts must be an integer >= 1"):
+        solve_ik(r, (3.0, 3.0), starts=0)
+    with pytest.raises(TaskError, match="tol must be"):
+        solve_ik(r, (3.0, 3.0), tol=-1.0)
+    with pytest.raises(TaskError, match="timeout must be"):
+        solve_ik(r, (3.0, 3.0), timeout=0.0)
+    with pytest.raises(TaskError, match=r"shapes \(3,\)/\(3, 3\)"):
+        solve_ik(r, (3.0, 3.0), JointDeviation(np.zeros(4)))
+    with pytest.raises(TaskError, match="for a 'pose' task"):
+        solve_ik(r, make_target("pose", np.eye(4)))
+    with pytest.raises(TaskError, match="fewer than the 6"):
+        solve_ik(r.with_task("pose"), np.eye(4))
+
+
+def test_result_is_a_frozen_record():
+    res = solve_ik(robot("planar3r"), (3.0, 3.0))
+    assert isinstance(res, IKResult) and res.converged and res.reason == ""
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.converged = False
+
+
+def test_box_step_guess_is_the_proxsuite_solution(monkeypatch):
+    """The active-set guess of the bounded least-squares step is taken only when it is the QP's
+    solution: compare with proxsuite on random problems with joints at and past their limits."""
+    from kinredund import ik_qp
+
+    rng = np.random.default_rng(4)
+    r = robot("panda")
+    guessed = 0
+    for _ in range(100):
+        q = r.random_configuration(rng)
+        j = rng.integers(7)
+        q[j] = r.upper[j] if rng.random() < 0.5 else r.lower[j]
+        G, e = r.velocity_jacobian(q), 0.1 * rng.normal(size=6)
+        lb, ub, mu = r.lower - q, r.upper - q, 1e-3
+        H, g = G.T @ G + mu * np.eye(7), G.T @ e
+        guess = ik_qp._active_set_guess(H, g, lb, ub)
+        monkeypatch.setattr(ik_qp, "GUESS_ROUNDS", 0)
+        exact = ik_qp.BoxStep(7, 6).least_squares(G, e, mu, lb, ub)
+        monkeypatch.undo()
+        if guess is not None:
+            guessed += 1
+            assert np.abs(guess - exact).max() < 1e-7  # proxsuite: eps_abs 1e-11 over mu 1e-3
+    assert guessed >= 20
+
+
+def test_unbounded_result_turns_free_wrist_joints_into_their_limits():
+    r, target, index = example_4_3_start()
+    res = solve_ik(r, target, index, starts=STARTS["4.3"])
+    wrist = slice(4, 7)  # z does not depend on them: any 2 pi turn is free
+    assert np.all((res.q[wrist] >= r.lower[wrist]) & (res.q[wrist] <= r.upper[wrist]))
+    assert res.residual < 1e-10 and res.normality_residual < 1e-10
+
+
+@pytest.mark.parametrize("bounds", [False, True])
+def test_constrained_minimum_on_the_panda_improves_on_the_pose_solution(bounds):
+    from kinredund.indices import mid_range
+
+    r = robot("panda")
+    index = mid_range(r.lower, r.upper)
+    for q in configurations(r, seed=13, count=5, margin=0.02):
+        T = r.fk(q)
+        pose = solve_ik(r, T, bounds=True, starts=20)
+        best = solve_ik(r, T, index, q0=pose.q, bounds=bounds)
+        assert best.converged, best.reason
+        assert best.residual < 1e-10 and best.normality_residual < 1e-10
+        assert best.objective <= index.value(pose.q) + 1e-12
+        if bounds:
+            assert np.all((best.q >= r.lower) & (best.q <= r.upper))
+        else:
+            assert best.reduced_hessian_pd
