@@ -14,6 +14,7 @@ Closed paths have a ``period`` [s].
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -44,10 +45,11 @@ class Path:
 
     def __call__(self, t: float) -> PathSample:
         s = self.sample(t)
-        ok = np.isfinite(s.p).all() and np.isfinite(s.v).all()
+        # one sum per array: finite iff every entry is (an inf or nan entry makes the sum non-finite)
+        total = s.p.sum() + s.v.sum()
         if s.Q is not None:
-            ok = ok and np.isfinite(s.Q).all() and np.isfinite(s.omega).all()
-        if not ok:
+            total += s.Q.sum() + s.omega.sum()
+        if not math.isfinite(total):
             bad = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None
                    and not np.all(np.isfinite(getattr(s, name)))]
             raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
@@ -76,6 +78,9 @@ class Circle(Path):
         axis_x: the in-plane direction of beta = 0 (default: a vector normal to ``normal``, +x for +z).
         frenet: if True the path has orientation Q_d = [e_n, e_t, e_n x e_t] (Eqs. 4.47-4.48): e_n the
             outward radial unit vector, e_t the tangent.
+        orientation: a constant orientation Q_0 (3x3) instead, making it a pose path.
+        roll_amplitude: with ``orientation``, Q_d = Q_0 Rz(roll_amplitude sin(2 pi t / T)): the tool
+            turns back and forth about its own z axis once per loop [rad].
     """
 
     center: np.ndarray
@@ -85,6 +90,8 @@ class Circle(Path):
     normal: tuple = (0.0, 0.0, 1.0)
     axis_x: tuple | None = None
     frenet: bool = False
+    orientation: np.ndarray | None = None
+    roll_amplitude: float = 0.0
 
     def __post_init__(self) -> None:
         c = np.asarray(self.center, float)
@@ -103,16 +110,31 @@ class Circle(Path):
         object.__setattr__(self, "center", c)
         object.__setattr__(self, "_basis", (e1, e2, n))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
-        object.__setattr__(self, "has_orientation", bool(self.frenet))
+        if self.orientation is not None:
+            Q0 = np.asarray(self.orientation, float)
+            if self.frenet or Q0.shape != (3, 3) or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9:
+                raise PathError("orientation must be a rotation matrix (3x3), and excludes frenet=True")
+            object.__setattr__(self, "orientation", Q0)
+        object.__setattr__(self, "has_orientation", bool(self.frenet) or self.orientation is not None)
 
     def sample(self, t: float) -> PathSample:
         e1, e2, n = self._basis
         w = self.speed / self.radius
         beta = self.start_angle + w * t
-        en = np.cos(beta) * e1 + np.sin(beta) * e2  # outward radial unit vector
-        et = -np.sin(beta) * e1 + np.cos(beta) * e2  # tangent
+        c, s = math.cos(beta), math.sin(beta)
+        en = c * e1 + s * e2  # outward radial unit vector
+        et = c * e2 - s * e1  # tangent
         p = self.center + self.radius * en
         v = self.speed * et
+        if self.orientation is not None:
+            Q0 = self.orientation
+            if self.roll_amplitude == 0.0:
+                return PathSample(p, v, Q0, np.zeros(3))
+            wl = 2.0 * math.pi / self.period
+            ang = self.roll_amplitude * math.sin(wl * t)
+            ca, sa = math.cos(ang), math.sin(ang)
+            Q = Q0 @ np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
+            return PathSample(p, v, Q, Q0[:, 2] * (self.roll_amplitude * wl * math.cos(wl * t)))
         if not self.frenet:
             return PathSample(p, v)
         Q = np.column_stack([en, et, np.cross(en, et)])  # Eq. (4.47)

@@ -363,8 +363,9 @@ class ResolvedRate:
             Rinv = np.linalg.inv(R)
         except np.linalg.LinAlgError:
             self._singularity(pt, R, force=True)
-        # cheap condition estimate (infinity norms); the exact SVD only when it looks singular
-        cond = np.abs(R).sum(axis=1).max() * np.abs(Rinv).sum(axis=1).max()
+        # cheap condition estimate (max-abs entries: within a factor n + m of the infinity-norm
+        # condition number); the exact SVD only when it looks singular
+        cond = np.abs(R).max() * np.abs(Rinv).max() * R.shape[0]
         if not np.isfinite(cond) or cond > 1e12:
             self._singularity(pt, R)
         return M, R, Rinv

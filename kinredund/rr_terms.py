@@ -74,12 +74,10 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
     dJ = None
     if need_dJ:
         n = K.shape[1]
-        dW = (Qd_T @ dK[:3].reshape(3, n * n)).reshape(3, n, n)
         dJ = np.empty((6, n, n))
-        q_rel = 0.5 * r[:3]
-        s_k = q_rel @ W
+        s_k = 0.5 * r[:3] @ W  # vect(Q_rel) . w_k
         QW = Q_rel @ W
-        dJ[:3] = (A @ dW.reshape(3, n * n)).reshape(3, n, n)
+        dJ[:3] = ((A @ Qd_T) @ dK[:3].reshape(3, n * n)).reshape(3, n, n)  # A dW/dtheta_k
         dJ[:3] -= 2.0 * s_k[None, None, :] * W[:, :, None]
         # minus [a, i, k] = (w_k x (Q_rel w_i))_a = eps_abc w_bk (Q_rel w_i)_c, as two matrix products
         dJ[:3] -= QW.T @ (_EPS_T @ W).reshape(3, 3, n)  # broadcasts over a: [a, i, k]
@@ -92,9 +90,10 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
     if need_dJ:
         # dJ/dt at fixed theta: Q_rel turns at -w_d and so do the columns W (Eq. 4.15 differentiated
         # in time needs it: d(J^T lambda)/dt has the term (dJ/dt)^T lambda besides Lambda thetadot)
-        dA = 2.0 * (0.5 * r[:3] @ w_d) * _EYE3 + _cross(w_d) @ Q_rel
+        Wx = _cross(w_d)
+        dA = (r[:3] @ w_d) * _EYE3 + Wx @ Q_rel
         dJdt = np.zeros((6, K.shape[1]))
-        dJdt[:3] = dA @ W - A @ (_cross(w_d) @ W)
+        dJdt[:3] = (dA - A @ Wx) @ W
     return r, J, dJ, xdot, _U_REL, dJdt
 
 

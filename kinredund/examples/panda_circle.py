@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..indices import JointDeviation
-from ..paths import Circle, FunctionPath
+from ..paths import Circle
 from ..robot import Robot, load_robot
 
 
@@ -22,19 +22,6 @@ def panda_circle(robot: Robot | None = None, radius: float = 0.1, speed: float =
     q0 = robot.home.copy()
     T0 = robot.fk(q0)
     Q0, p0 = T0[:3, :3], T0[:3, 3]
-    circle = Circle(p0 - radius * np.array([0.0, 1.0, 0.0]), radius, speed, normal=(1.0, 0.0, 0.0),
-                    axis_x=(0.0, 1.0, 0.0))
-    period = circle.period
-    axis = Q0[:, 2]
-    w = 2 * np.pi / period
-
-    def fn(t: float):
-        s = circle.sample(t)
-        ang = wrist_amplitude * np.sin(w * t)
-        c, sn = np.cos(ang), np.sin(ang)
-        Rz = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
-        omega = axis * wrist_amplitude * w * np.cos(w * t)
-        return Q0 @ Rz, s.p, omega, s.v
-
-    path = FunctionPath(fn, period=period, has_orientation=True)
+    path = Circle(p0 - radius * np.array([0.0, 1.0, 0.0]), radius, speed, normal=(1.0, 0.0, 0.0),
+                  axis_x=(0.0, 1.0, 0.0), orientation=Q0, roll_amplitude=wrist_amplitude)
     return robot, path, JointDeviation(q0), q0
