@@ -14,10 +14,19 @@ from __future__ import annotations
 
 import numpy as np
 
+_EYE3 = np.eye(3)
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+_EPS_T = _EPS.transpose(0, 2, 1).reshape(9, 3)  # [(a, c), b] = eps_abc
+
 
 def vect(Q: np.ndarray) -> np.ndarray:
     """vect(Q) = u sin(phi), Eqs. (2.6) and (2.8)."""
-    return 0.5 * np.array([Q[2, 1] - Q[1, 2], Q[0, 2] - Q[2, 0], Q[1, 0] - Q[0, 1]])  # Eq. (2.8)
+    return 0.5 * (Q[_VI, _VJ] - Q[_VJ, _VI])  # Eq. (2.8)
+
+
+_VI, _VJ = np.array([2, 0, 1]), np.array([1, 2, 0])
 
 
 def cross_matrix(v: np.ndarray) -> np.ndarray:
@@ -32,7 +41,7 @@ def natural_invariants(Q: np.ndarray) -> tuple[np.ndarray, float]:
     valid and (1, 0, 0) is returned.
     """
     q = vect(Q)
-    c = np.clip(0.5 * (np.trace(Q) - 1.0), -1.0, 1.0)  # Eq. (2.7)
+    c = np.clip(0.5 * (Q.trace() - 1.0), -1.0, 1.0)  # Eq. (2.7)
     s = np.linalg.norm(q)
     phi = float(np.arctan2(s, c))
     if s > 1e-9:
@@ -64,9 +73,11 @@ def closure_vector(Q: np.ndarray, p: np.ndarray, Q_d: np.ndarray, p_d: np.ndarra
     [2 vect(Q) - 2 u sin(phi); tr(Q) - 1 - 2 cos(phi); p - r] with u sin(phi) = vect(Q_d) and
     2 cos(phi) = tr(Q_d) - 1.
     """
-    return np.concatenate(
-        [2.0 * (vect(Q) - vect(Q_d)), [np.trace(Q) - np.trace(Q_d)], p - p_d]  # Eq. (2.13)
-    )
+    g = np.empty(7)
+    g[:3] = 2.0 * (vect(Q) - vect(Q_d))  # Eq. (2.13)
+    g[3] = Q.trace() - Q_d.trace()
+    g[4:] = p - p_d
+    return g
 
 
 def closure_matrix(Q: np.ndarray) -> np.ndarray:
@@ -75,15 +86,20 @@ def closure_matrix(Q: np.ndarray) -> np.ndarray:
     d(2 vect Q)/dt = (tr(Q) 1 - Q) omega and d tr(Q)/dt = -2 vect(Q) . omega.
     """
     H = np.zeros((7, 6))
-    H[:3, :3] = np.trace(Q) * np.eye(3) - Q  # Eq. (2.15)
+    H[:3, :3] = Q.trace() * np.eye(3) - Q  # Eq. (2.15)
     H[3, :3] = -2.0 * vect(Q)
     H[4:, 3:] = np.eye(3)
     return H
 
 
 def displacement_jacobian(Q: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """J = H K, Eq. (2.14): the 7 x n Jacobian of the closure 7-vector (Eqs. 4.7-4.10)."""
-    return closure_matrix(Q) @ K  # Eq. (2.14)
+    """J = H K, Eq. (2.14): the 7 x n Jacobian of the closure 7-vector (Eqs. 4.7-4.10), by row blocks."""
+    W = K[:3]
+    J = np.empty((7, K.shape[1]))
+    J[:3] = (Q.trace() * _EYE3 - Q) @ W  # Eq. (2.14) with H of Eq. (2.15)
+    J[3] = -2.0 * (vect(Q) @ W)
+    J[4:] = K[3:]
+    return J
 
 
 def displacement_jacobian_derivative(Q: np.ndarray, K: np.ndarray, dK: np.ndarray) -> np.ndarray:
@@ -92,16 +108,19 @@ def displacement_jacobian_derivative(Q: np.ndarray, K: np.ndarray, dK: np.ndarra
     With omega_k = K[:3, k]: d(tr Q 1 - Q)/dtheta_k = -2 (vect Q . omega_k) 1 - [omega_k]x Q and
     d(-2 vect Q)/dtheta_k = -(tr Q 1 - Q) omega_k.
     """
+    n = K.shape[1]
     W = K[:3]  # angular columns omega_k (unit axes for revolute joints, 0 for prismatic)
-    A = np.trace(Q) * np.eye(3) - Q
+    A = Q.trace() * _EYE3 - Q
     q = vect(Q)
-    dJ = np.einsum("ab,bik->aik", closure_matrix(Q), dK)
-    # dA/dtheta_k @ W, for every k: -2 (q . w_k) W - [w_k]x Q W
-    QW = Q @ W  # (3, n): columns Q w_i
-    s = q @ W  # (n,)
-    cross = np.cross(W.T[:, None, :], QW.T[None, :, :])  # [k, i, :] = w_k x (Q w_i)
-    dJ[:3] += -2.0 * s[None, None, :] * W[:, :, None] - np.transpose(cross, (2, 1, 0))
-    dJ[3] -= np.einsum("bk,bi->ik", A @ W, W)  # d(-2 vect Q)/dtheta_k . omega_i
+    dW = dK[:3].reshape(3, n * n)
+    dJ = np.empty((7, n, n))
+    dJ[:3] = (A @ dW).reshape(3, n, n)  # H dK/dtheta_k, row blocks of Eq. (2.15)
+    dJ[3] = (-2.0 * (q @ dW)).reshape(n, n)
+    dJ[4:] = dK[3:]
+    dJ[:3] -= 2.0 * (q @ W)[None, None, :] * W[:, :, None]
+    # minus [a, i, k] = (omega_k x (Q omega_i))_a = eps_abc W[b, k] (Q W)[c, i], as two matrix products
+    dJ[:3] -= (Q @ W).T @ (_EPS_T @ W).reshape(3, 3, n)  # broadcasts over a
+    dJ[3] -= W.T @ (A @ W)  # [i, k] = omega_i . (tr Q 1 - Q) omega_k
     return dJ
 
 

@@ -62,26 +62,15 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
     Qd_T = s.Q.T
     Q_rel = Qd_T @ Q
     W = Qd_T @ K[:3]  # omega columns in the target frame
-    A = (Q_rel[0, 0] + Q_rel[1, 1] + Q_rel[2, 2]) * _EYE3 - Q_rel  # Eq. (2.15): tr(Q) 1 - Q
-    r = np.empty(6)
-    r[0] = Q_rel[2, 1] - Q_rel[1, 2]  # 2 vect(Q_d^T Q), Eq. (2.13)
-    r[1] = Q_rel[0, 2] - Q_rel[2, 0]
-    r[2] = Q_rel[1, 0] - Q_rel[0, 1]
-    r[3:] = p - s.p
-    J = np.empty((6, K.shape[1]))
-    J[:3] = A @ W  # Eq. (2.14), rows of H K
-    J[3:] = K[3:]
+    K_rel = np.concatenate([W, K[3:]])
+    r = closure.closure_vector(Q_rel, p, _EYE3, s.p)[_KEEP]  # Eq. (2.13), the six independent rows
+    J = closure.displacement_jacobian(Q_rel, K_rel)[_KEEP]  # Eq. (2.14)
     dJ = None
     if need_dJ:
         n = K.shape[1]
-        dJ = np.empty((6, n, n))
-        s_k = 0.5 * r[:3] @ W  # vect(Q_rel) . w_k
-        QW = Q_rel @ W
-        dJ[:3] = ((A @ Qd_T) @ dK[:3].reshape(3, n * n)).reshape(3, n, n)  # A dW/dtheta_k
-        dJ[:3] -= 2.0 * s_k[None, None, :] * W[:, :, None]
-        # minus [a, i, k] = (w_k x (Q_rel w_i))_a = eps_abc w_bk (Q_rel w_i)_c, as two matrix products
-        dJ[:3] -= QW.T @ (_EPS_T @ W).reshape(3, 3, n)  # broadcasts over a: [a, i, k]
-        dJ[3:] = dK[3:]
+        dK_rel = np.concatenate([(Qd_T @ dK[:3].reshape(3, n * n)).reshape(3, n, n), dK[3:]])
+        dJ = closure.displacement_jacobian_derivative(Q_rel, K_rel, dK_rel)[_KEEP]
+    A = Q_rel.trace() * _EYE3 - Q_rel  # Eq. (2.15): tr(Q) 1 - Q
     w_d = Qd_T @ s.omega  # the target's angular velocity in its own frame
     xdot = np.empty(6)
     xdot[:3] = A @ w_d  # -dr/dt at fixed theta
@@ -90,20 +79,13 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
     if need_dJ:
         # dJ/dt at fixed theta: Q_rel turns at -w_d and so do the columns W (Eq. 4.15 differentiated
         # in time needs it: d(J^T lambda)/dt has the term (dJ/dt)^T lambda besides Lambda thetadot)
-        Wx = _cross(w_d)
+        Wx = closure.cross_matrix(w_d)
         dA = (r[:3] @ w_d) * _EYE3 + Wx @ Q_rel
         dJdt = np.zeros((6, K.shape[1]))
         dJdt[:3] = (dA - A @ Wx) @ W
     return r, J, dJ, xdot, _U_REL, dJdt
 
 
-def _cross(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 _EYE3 = np.eye(3)
-_EPS = np.zeros((3, 3, 3))
-_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
-_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
-_EPS_T = _EPS.transpose(0, 2, 1).reshape(9, 3)  # [(a, c), b] = eps_abc
-_U_REL = np.delete(np.eye(7), 3, axis=1)
+_KEEP = np.array([0, 1, 2, 4, 5, 6])  # the closure 7-vector without its trace row
+_U_REL = np.eye(7)[:, _KEEP]

@@ -104,3 +104,13 @@ def test_track_path_from_file(tmp_path):
 def test_console_script_is_installed():
     out = subprocess.run([sys.executable, "-m", "kinredund.cli", "robots"], capture_output=True, text=True)
     assert out.returncode == 0 and "panda" in out.stdout
+
+
+def test_failed_run_leaves_no_output_file(tmp_path, capsys):
+    js = tmp_path / "t.json"
+    # a 3 m circle around the home point: the path leaves the 6 m workspace
+    assert main(["track", "planar3r", "--radius", "3", "--speed", "1", "--index", "min-norm", "--json", str(js)]) \
+        == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "kinredund: error:" in err and "t = " in err
+    assert not js.exists() and not list(tmp_path.iterdir())
