@@ -94,6 +94,21 @@ class SolverError(KinredundError, RuntimeError):
     """A numerical backend failed in a way that is not the user's input."""
 
 
+def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
+    """Return q as a float array of shape (n,), or raise :class:`JointVectorError` saying what is wrong."""
+    import numpy as np
+
+    try:
+        arr = np.asarray(q, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise JointVectorError(f"{what} must be numeric, got {q!r}") from err
+    if arr.shape != (n,):
+        raise JointVectorError(f"{what} must have shape ({n},) for {owner}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise JointVectorError(f"{what} has non-finite entries: {arr.tolist()}")
+    return arr
+
+
 def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:
     """Return ``value`` if it is one of ``allowed``, else raise :class:`ChoiceError`."""
     if value not in allowed:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import HDTableError, JointVectorError
+from .errors import HDTableError, check_joint_vector
 from .hd import PRISMATIC, HDTable
 
 
@@ -59,15 +59,7 @@ def _check(table: HDTable, q) -> np.ndarray:
             f"the recursive Jacobian needs an HDTable (robot.hd), got {type(table).__name__}; "
             "URDF robots without an HD table have robot.hd = None"
         )
-    try:
-        arr = np.asarray(q, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise JointVectorError(f"joint vector must be numeric, got {q!r}") from err
-    if arr.shape != (table.n,):
-        raise JointVectorError(f"joint vector must have shape ({table.n},) for {table.name}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise JointVectorError(f"joint vector has non-finite entries: {arr.tolist()}")
-    return arr
+    return check_joint_vector(q, table.n, table.name)
 
 
 def _joint_values(table: HDTable, q: np.ndarray) -> tuple[list[float], list[float], list[bool]]:

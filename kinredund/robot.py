@@ -18,7 +18,14 @@ import numpy as np
 import pinocchio as pin
 
 from .catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
-from .errors import FrameNotFoundError, JointVectorError, KinredundError, UnknownRobotError, check_choice
+from .errors import (
+    FrameNotFoundError,
+    JointVectorError,
+    KinredundError,
+    UnknownRobotError,
+    check_choice,
+    check_joint_vector,
+)
 from .hd import REVOLUTE, HDTable
 from .kinematics import Kinematics
 from .models import EE_FRAME, load_urdf_model
@@ -159,15 +166,7 @@ class Robot:
     # -- validation -------------------------------------------------------------------------------
     def check_q(self, q, what: str = "joint vector") -> np.ndarray:
         """Return q as a float array of length nq, or raise :class:`JointVectorError`."""
-        try:
-            arr = np.asarray(q, dtype=float)
-        except (TypeError, ValueError) as err:
-            raise JointVectorError(f"{what} must be numeric, got {q!r}") from err
-        if arr.shape != (self.nq,):
-            raise JointVectorError(f"{what} must have shape ({self.nq},) for {self.name}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise JointVectorError(f"{what} has non-finite entries: {arr.tolist()}")
-        return arr
+        return check_joint_vector(q, self.nq, self.name, what)
 
     # -- kinematics (validated wrappers over the kinematics layer) --------------------------------
     def fk(self, q) -> np.ndarray:
