@@ -195,6 +195,8 @@ def _check_options(robot, starts, tol, max_iter, timeout) -> None:
 #: either end: local solves from the middle of the ranges succeed more often (on the Panda with
 #: bounds, about 50 % of starts on the hardest targets against 43 % from the whole ranges)
 POSE_SAMPLE_MARGIN = 0.2
+#: multi-start samples are drawn this many at a time
+SAMPLE_BATCH = 16
 
 
 def sample_box(robot, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -256,13 +258,15 @@ def solve_ik(
             out :data:`POSE_SAMPLE_MARGIN` of each range at either end). With an index the converged
             result of lowest z is returned (the global constrained minimum when enough starts are
             run); without one, the first converged. While other starts remain (or with a timeout), a
-            pose-only start that stops making first-order progress is abandoned early.
+            pose-only start whose squared error has not halved in 3 iterations (20 at most, 60 for a
+            start already close and still gaining) is abandoned for the next one, after one try at
+            turning a joint stuck at a limit through a full turn (:mod:`kinredund.ik_newton`).
         seed: seed of the multi-start samples.
         tol: convergence tolerance on the residual and, with an index, on the normality residual. It
             is raised to the round-off floor (64 eps times the target scale, and 1e-13 (1 + |grad z|)
             for the normality residual) when smaller.
         max_iter: iterations per start (a start also stops when its residual has not halved in
-            10 iterations).
+            20 iterations with an index, or, pose-only, its squared error has not decreased in 10).
         timeout: wall-time budget of the whole call [s]; when it runs out, the best converged result so
             far is returned, else ``converged=False`` with reason ``"timeout"``.
 
@@ -290,7 +294,7 @@ def solve_ik(
         kin=robot.kinematics, res=res, index=index, lower=np.asarray(robot.lower), upper=np.asarray(robot.upper),
         bounds=bool(bounds), rtol=max(float(tol), ROUNDING * (1.0 + res.scale())), tol=float(tol),
         max_iter=int(max_iter), deadline=None if timeout is None else t0 + float(timeout),
-        box=BoxStep(robot.nq, res.m) if bounds else None,
+        box=BoxStep(robot.nq, res.m) if bounds else None, revolute=robot.revolute,
     )
     rng = box = None
     outcomes: list[tuple[StartOutcome, float]] = []
@@ -298,10 +302,12 @@ def solve_ik(
         if k == 0:
             qs = q0
         else:
-            if rng is None:
-                rng = np.random.default_rng(seed)
-                box = sample_box(robot, POSE_SAMPLE_MARGIN if index is None else 0.0)
-            qs = rng.uniform(*box)
+            if (k - 1) % SAMPLE_BATCH == 0:  # the same draws as one at a time, fewer calls
+                if rng is None:
+                    rng = np.random.default_rng(seed)
+                    box = sample_box(robot, POSE_SAMPLE_MARGIN if index is None else 0.0)
+                batch = rng.uniform(*box, size=(min(SAMPLE_BATCH, int(starts) - k), robot.nq))
+            qs = batch[(k - 1) % SAMPLE_BATCH]
         setup.quick_exit = k < starts - 1 or timeout is not None
         out = run_start(setup, qs)
         z = index.value(out.q) if (index is not None and out.converged) else 0.0

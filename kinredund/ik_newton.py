@@ -13,14 +13,20 @@ orthogonal parts, dx = x0 + L u (Eq. D.24):
 
 The step length is safeguarded by backtracking on the exact-penalty merit function
 phi = z + rho ||e|| (Armijo test, with one second-order correction -Y R^-T e(theta + dx) against the
-Maratos effect). A pose-only solve (no index) takes the minimum-norm Newton step x0 alone and
-backtracks on 1/2 ||e||^2. Where x0 cannot be trusted (G near singular, or x0 moving a joint by more
-than :data:`MAX_STEP`), a damped least-squares step on the constraints alone replaces the step
+Maratos effect). Where x0 cannot be trusted (G near singular, or x0 moving a joint by more than
+:data:`MAX_STEP`), a damped least-squares step on the constraints alone replaces the step
 (Levenberg-Marquardt, damping mu = LM_WEIGHT ||e||^2 + DAMPING max|G|^2 after Sugihara 2011).
-Every step is scaled down to move no joint by more than :data:`MAX_STEP`.
+Every step is scaled down to move no joint by more than :data:`MAX_STEP`. With joint limits as
+bounds, a step that would leave them is recomputed as a box-constrained QP (:mod:`kinredund.ik_qp`);
+first-order optimality then includes the multipliers of the active bounds.
 
-With joint limits as bounds, a step that would leave them is recomputed as a box-constrained QP
-(:mod:`kinredund.ik_qp`); first-order optimality then includes the multipliers of the active bounds.
+A pose-only solve (no index) is the x0 part alone in its damped form, kept lean because multi-start
+IK runs it many times (:func:`_pose_only`): Levenberg-Marquardt steps d = -G^T (G G^T + mu 1)^-1 e
+with the damping adapted by the gain ratio (Nielsen 1999), accepted when they decrease ||e||; joint
+limits by holding the joints that a step pushes out of their limits and clipping the rest into them
+(as KDL's joint-limited Newton-Raphson solver in TRAC-IK, Beeson and Ames 2015). While other starts
+remain, a start that stops halving ||e||^2 is abandoned for a fresh one (TRAC-IK's random restarts),
+after one try at turning a joint stuck at a limit through a full turn to the far side of its range.
 """
 
 from __future__ import annotations
@@ -47,21 +53,33 @@ MIN_ALPHA = 2.0**-20
 RANK_TOL = 1e-9
 #: floor of the damping of least-squares steps, relative to max |G_ij|^2
 DAMPING = 1e-6
-#: a start stops when 1/2 ||e||^2 has not halved for this many iterations while other starts remain
-#: (a local minimum of the residual, typically a singular configuration: a fresh start does better),
-#: or, for the last start, has not decreased by the fraction PATIENT_DECREASE (the closest point to
-#: an unreachable target is approached slowly)
+#: a start with an index stops when its residual has not halved in 2 STALL_ITERS iterations; a
+#: pose-only start that is the last one stops when ||e||^2 has not decreased by the fraction
+#: PATIENT_DECREASE in STALL_ITERS iterations (the closest point to an unreachable target is approached
+#: slowly)
 STALL_ITERS = 10
 PATIENT_DECREASE = 1e-9
-#: when other starts remain, a pose-only start stops after STUCK_ITERS iterations in a row whose
-#: (capped) linearised step keeps more than STUCK_RATIO of ||e||^2: little first-order progress is
-#: possible there (a local minimum of the residual, within the limits or near a singularity)
-STUCK_RATIO = 0.8
-STUCK_ITERS = 2
-#: ... and after this many iterations (converging starts take 5-15)
-QUICK_MAX_ITER = 30
 #: weight of ||e||^2 in the damping of least-squares steps
 LM_WEIGHT = 0.05
+#: pose-only starts while other starts remain (or with a timeout): abandoned when ||e||^2 has not
+#: halved in QUICK_STALL_ITERS iterations or after QUICK_MAX_ITER iterations (converging starts take
+#: 5-15; a fresh start does better than a stuck one: a local minimum of the residual at the joint
+#: limits, or a near-singular configuration) ...
+QUICK_STALL_ITERS = 3
+QUICK_MAX_ITER = 20
+#: ... unless the start is already close (||e||^2 < SLOW_PHI) and still gaining (||e||^2 below
+#: SLOW_RATIO times its value QUICK_STALL_ITERS iterations before): then it runs up to SLOW_MAX_ITER
+#: iterations (targets whose every solution is near a singular configuration are approached slowly)
+SLOW_PHI = 1e-3
+SLOW_RATIO = 0.9
+SLOW_MAX_ITER = 60
+#: the Levenberg-Marquardt damping scale at which a pose-only start gives up: no step decreases ||e||
+MAX_SCALE = 1e10
+#: before abandoning a stuck pose-only start, turn once (TURNS times) the revolute joints held at a
+#: limit whose range misses a full turn by less than TURN_GAP [rad] through 2 pi towards the other
+#: limit (see :func:`_turn_past_limits`)
+TURNS = 1
+TURN_GAP = 1.0
 #: joints within this distance of a limit count as at the limit [rad or m]
 ACTIVE_TOL = 1e-9
 
@@ -83,6 +101,15 @@ class Setup:
     box: BoxStep | None
     #: abandon a pose-only start as soon as it looks stuck (set while other starts remain)
     quick_exit: bool = False
+    #: revolute joints (n,) bool; None: no joint is turned past its limits
+    revolute: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.eye = np.eye(self.res.m)
+        self.lower_list, self.upper_list = self.lower.tolist(), self.upper.tolist()
+        spans = (self.upper - self.lower).tolist()
+        revolute = [False] * len(spans) if self.revolute is None else np.asarray(self.revolute).tolist()
+        self.turnable = [bool(r) and 2.0 * math.pi - w < TURN_GAP for r, w in zip(revolute, spans, strict=True)]
 
 
 @dataclass
@@ -114,16 +141,6 @@ def qr_split(G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
 def _well_conditioned(a: np.ndarray, m: int) -> bool:
     diag = [abs(v) for v in a.diagonal()[:m].tolist()]
     return min(diag) > RANK_TOL * max(max(diag), 1e-300)
-
-
-def min_norm_step(G: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """x0 = -G^+ e by Householder QR of G^T (Eq. D.24), or a damped step when G is near singular."""
-    m = G.shape[0]
-    a, tau, _, _ = lapack.dgeqrf(G.T)
-    if not _well_conditioned(a, m):
-        return damped_step(G, e)
-    w = lapack.dtrtrs(a[:m, :m], -e, trans=1)[0]  # R^T w = -e
-    return lapack.dorgqr(a, tau)[0] @ w
 
 
 def solve_rt(R: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -214,58 +231,130 @@ def _stall(q, it, r, what: str) -> StartOutcome:
 
 
 def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
-    """Newton steps x0 = -G^+ e on the constraints alone (index=None), Eqs. (D.23)-(D.24)."""
-    kin, res = s.kin, s.res
-    Q, p, K = kin.jacobian(q)
-    e, jl = res.error(Q, p)
-    phi = 0.5 * float(e @ e)
-    phi_ref, since, stuck = phi, 0, 0
-    for it in range(s.max_iter + 1):
-        r = res.residual(Q, p)
-        if r < s.rtol and 2.0 * phi < s.rtol * s.rtol:  # closure residual and SE(3) error
-            return StartOutcome(q, True, it, "", r)
-        if phi < (0.5 if s.quick_exit else 1.0 - PATIENT_DECREASE) * phi_ref:
+    """Levenberg-Marquardt steps on the task error alone (index=None): the damped form of the Newton
+    step x0 = -G^+ e of Eqs. (D.23)-(D.24), d = -G^T (G G^T + mu 1)^-1 e.
+
+    Lean by design (an iteration is one Jacobian, one 6x6 Cholesky solve and a handful of small numpy
+    calls): for pose tasks G is K itself, the Jacobian of e up to Jl^-1 = 1 + O(||e||), which keeps the
+    convergence quadratic; mu = scale (LM_WEIGHT ||e||^2 + DAMPING max|G|^2) after Sugihara (2011), with
+    the scale adapted by the gain ratio of Nielsen (1999). With bounds, a joint at a limit that the step
+    pushes out is frozen there (its column of G dropped, the step recomputed) and the rest is clipped
+    into the limits (the joint-limit handling of KDL's Newton-Raphson solver, as in TRAC-IK).
+    """
+    res, jac, terms, rows = s.res, s.kin.jacobian, s.res.error_terms, None if s.res.pose else s.res.rows
+    eye, bounds, lower_list, upper_list = s.eye, s.bounds, s.lower_list, s.upper_list
+    rtol2 = s.rtol * s.rtol
+    quick = s.quick_exit
+    stall_iters = QUICK_STALL_ITERS if quick else STALL_ITERS
+    max_iter = min(s.max_iter, QUICK_MAX_ITER) if quick else s.max_iter
+    slow_max = max(max_iter, min(s.max_iter, SLOW_MAX_ITER)) if quick else max_iter
+    Q, p, K = jac(q)
+    ev, phi = terms(Q, p)
+    history = [phi]  # ||e||^2 at each iterate
+    phi_ref, since = phi, 0
+    scale, nu, floor = 1.0, 2.0, -1.0
+    held, turns = [], 0  # joints held at a limit by the last step; turns made
+    it = 0
+    while True:
+        if phi < rtol2:
+            r = res.residual(Q, p)
+            if r < s.rtol:  # closure residual and SE(3) error
+                return StartOutcome(q, True, it, "", r)
+        if phi < (0.5 if quick else 1.0 - PATIENT_DECREASE) * phi_ref:
             phi_ref, since = phi, 0
-        elif since >= STALL_ITERS:
-            return _stall(q, it, r, f"no progress in {STALL_ITERS} iterations")
+        slow = quick and phi < SLOW_PHI and it < slow_max and phi < SLOW_RATIO * history[max(0, it - stall_iters)]
+        if (since >= stall_iters or it >= max_iter) and not slow:
+            turned = _turn_past_limits(s, q, held) if quick and turns < TURNS and since >= stall_iters else None
+            if turned is None:
+                r = res.residual(Q, p)
+                if since >= stall_iters:
+                    return _stall(q, it, r, f"no progress in {since} iterations")
+                return StartOutcome(q, False, it, f"max_iter={it} reached at residual {r:.3g}", r)
+            q, held, turns = turned, [], turns + 1
+            Q, p, K = jac(q)
+            ev, phi = terms(Q, p)
+            phi_ref, since, scale, nu = phi, 0, 1.0, 2.0
+            history[-1] = phi
         since += 1
-        if it == s.max_iter or (s.quick_exit and it == QUICK_MAX_ITER):
-            return StartOutcome(q, False, it, f"max_iter={it} reached at residual {r:.3g}", r)
-        if _timed_out(s):
-            return StartOutcome(q, False, it, "timeout", r)
-        G = res.jacobian(K, jl)
-        d = min_norm_step(G, e)  # Eq. (D.24), the x0 part alone
-        if max(map(abs, d.tolist())) > MAX_STEP:  # too long to trust (near a singularity): damp it
-            d = damped_step(G, e)
-        if s.bounds and not _in_box(s, q + d):
-            # the linearised constraints are rarely solvable inside the box: damped least squares in it
-            d = s.box.least_squares(G, e, _mu(G, e), s.lower - q, s.upper - q)
-        d = cap_step(d)
-        Gd = G @ d
-        slope = float(e @ Gd)
-        if not slope < 0.0:
-            return _stall(q, it, r, "no descent direction for the residual")
-        lin = e + Gd
-        if s.quick_exit and float(lin @ lin) > STUCK_RATIO * 2.0 * phi:  # little first-order progress
-            stuck += 1
-            if stuck >= STUCK_ITERS:
-                return _stall(q, it, r, "local minimum of the residual (within the limits)" if s.bounds
-                              else "local minimum of the residual (near a singularity)")
-        else:
-            stuck = 0
-        alpha = 1.0
+        if s.deadline is not None and perf_counter() > s.deadline:
+            return StartOutcome(q, False, it, "timeout", res.residual(Q, p))
+        G = K if rows is None else K[rows]
+        if floor < 0.0:
+            floor = DAMPING * float(np.abs(G).max()) ** 2
+        e = np.array(ev)
+        GGt = G @ G.T
         while True:
-            qt = _clip(s, q + alpha * d)
-            Qt, pt, Kt = kin.jacobian(qt)
-            et, jlt = res.error(Qt, pt)
-            phit = 0.5 * float(et @ et)
-            if phit <= phi + ARMIJO * alpha * slope:
-                break
-            alpha *= 0.5
-            if alpha < MIN_ALPHA:
-                return _stall(q, it, r, "line search failed")
-        q, Q, p, K, e, jl, phi = qt, Qt, pt, Kt, et, jlt, phit
-    raise AssertionError("unreachable")  # pragma: no cover
+            mu = scale * (LM_WEIGHT * phi + floor)
+            x, info = lapack.dposv(GGt + mu * eye, e)[1:]  # (G G^T + mu 1) x = e
+            if info == 0:
+                qn = q - x @ G
+                lin2 = mu * mu * float(x @ x)  # ||e + G d||^2 = ||mu x||^2 for d = -G^T x
+                new_held = []
+                if bounds and _outside(qn.tolist(), lower_list, upper_list):
+                    qn, new_held = _freeze_and_clip(s, q, qn, G, e, mu)
+                    lin = e + G @ (qn - q)
+                    lin2 = float(lin @ lin)
+                Qn, pn, Kn = jac(qn)
+                evn, phin = terms(Qn, pn)
+                if phin < phi:
+                    pred = phi - lin2
+                    rho = (phi - phin) / pred if pred > 0.0 else 0.0  # gain ratio
+                    scale = max(1.0, scale * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
+                    nu = 2.0
+                    break
+            scale *= nu
+            nu *= 2.0
+            if scale > MAX_SCALE:
+                return _stall(q, it, res.residual(Q, p), "no step decreases the residual")
+        q, Q, p, K, ev, phi, held = qn, Qn, pn, Kn, evn, phin, new_held
+        history.append(phi)
+        it += 1
+
+
+def _outside(values: list, lower: list, upper: list) -> bool:
+    """Whether any of the joint values lies outside its limits (a plain loop: faster than numpy on 7)."""
+    for v, a, b in zip(values, lower, upper, strict=True):
+        if v < a or v > b:
+            return True
+    return False
+
+
+def _freeze_and_clip(
+    s: Setup, q: np.ndarray, qn: np.ndarray, G: np.ndarray, e: np.ndarray, mu: float
+) -> tuple[np.ndarray, list[int]]:
+    """The damped step recomputed with the joints that sit at a limit and would leave it held there
+    (their columns of G dropped), then clipped into the limits. Returns (q + d, the held joints)."""
+    lo, hi = s.lower_list, s.upper_list
+    new, old = qn.tolist(), q.tolist()
+    held = [j for j in range(len(new)) if (new[j] < lo[j] and old[j] <= lo[j]) or (new[j] > hi[j] and old[j] >= hi[j])]
+    if held:
+        Gf = G.copy()
+        for j in held:
+            Gf[:, j] = 0.0
+        x, info = lapack.dposv(Gf @ Gf.T + mu * s.eye, e)[1:]
+        if info == 0:
+            qn = q - x @ Gf
+    return np.minimum(np.maximum(qn, s.lower), s.upper), held
+
+
+def _turn_past_limits(s: Setup, q: np.ndarray, held: list[int]) -> np.ndarray | None:
+    """q with the held revolute joints turned by 2 pi away from their limit and clipped into the
+    limits, or None when no held joint can turn.
+
+    A joint held at its upper limit u by steps that push it further wants an angle u + delta, which is
+    the angle u + delta - 2 pi: inside the limits beyond the gap 2 pi - (u - l) that the range misses
+    of a full turn. Turning it to the far limit (or, for a range over a full turn, to the same angle
+    there) continues its motion past the stop; worth a try before a fresh start when the gap is small
+    (the Panda's joints 1, 3, 5, 7 miss a turn by 0.49 rad).
+    """
+    turn = [j for j in held if s.turnable[j]]
+    if not turn:
+        return None
+    out = q.copy()
+    for j in turn:
+        v = out[j] - 2.0 * math.pi if out[j] >= s.upper_list[j] else out[j] + 2.0 * math.pi
+        out[j] = min(max(v, s.lower_list[j]), s.upper_list[j])
+    return out
 
 
 def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it: int):

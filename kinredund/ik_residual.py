@@ -93,6 +93,7 @@ class TaskResidual:
         else:
             self.rows = TASK_ROWS[target.task]
             self.x_d = target.p[self.rows - 3].copy()
+            self.x_d_list = self.x_d.tolist()
         self.m = self.rows.shape[0]
 
     def error(self, Q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -105,6 +106,20 @@ class TaskResidual:
         px, py, pz = p.tolist()
         dx, dy, dz = self.p_d_list
         return np.array([*w, px - dx, py - dy, pz - dz]), inverse_left_jacobian(w, phi)
+
+    def error_terms(self, Q: np.ndarray, p: np.ndarray) -> tuple[tuple[float, ...], float]:
+        """(e, ||e||^2) with e as a tuple of floats: the cheap form of :meth:`error` for the pose-only
+        iteration, which needs neither Jl^-1 nor a numpy vector until it takes a step."""
+        if self.pose:
+            R = Q @ self.QdT
+            (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+            (a, b, c), _ = _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+            px, py, pz = p.tolist()
+            dx, dy, dz = self.p_d_list
+            px, py, pz = px - dx, py - dy, pz - dz
+            return (a, b, c, px, py, pz), a * a + b * b + c * c + px * px + py * py + pz * pz
+        e = tuple(v - d for v, d in zip(p.tolist()[: self.m], self.x_d_list, strict=True))  # rows 3.. of K: x, y, z
+        return e, sum(v * v for v in e)
 
     def jacobian(self, K: np.ndarray, jl_inv: np.ndarray | None) -> np.ndarray:
         """G = de/dtheta (m x n): rows of K, or [Jl^-1 K_omega; K_pdot] for pose tasks."""

@@ -344,3 +344,126 @@ def test_constrained_minimum_on_the_panda_improves_on_the_pose_solution(bounds):
             assert np.all((best.q >= r.lower) & (best.q <= r.upper))
         else:
             assert best.reduced_hessian_pd
+
+
+# -- the lean pose-only solver (index=None) -----------------------------------------------------------
+@pytest.mark.parametrize("name", ["panda", "planar3r", "puma7"])
+def test_error_terms_are_the_newton_error(name):
+    """The cheap tuple form of the error (pose-only iterations) equals TaskResidual.error."""
+    r = robot(name)
+    rng = np.random.default_rng(31)
+    for _ in range(3):
+        qd, q = r.random_configuration(rng, 0.1), r.random_configuration(rng, 0.1)
+        T = r.fk(qd)
+        res = TaskResidual(make_target(r.task, T[:2, 3] if r.task == "planar" else T))
+        Q, p = r.kinematics.pose(q)
+        e, phi = res.error_terms(Q, p)
+        ref = res.error(Q, p)[0]
+        assert np.allclose(e, ref, rtol=0, atol=1e-15)
+        assert phi == pytest.approx(float(ref @ ref), rel=1e-14)
+
+
+@pytest.mark.parametrize("name", ["panda", "puma7"])
+def test_pose_only_steps_converge_like_newton_near_a_solution(name):
+    """G = K for pose targets is the Jacobian of e up to Jl^-1 = 1 + O(|e|): near a solution each
+    iteration squares the residual (until the damping floor and round-off), as Newton's method does."""
+    r = robot(name)
+    rng = np.random.default_rng(21)
+    for _ in range(4):
+        qs = r.random_configuration(rng, 0.1)
+        T = r.fk(qs)
+        d = rng.normal(size=r.nq)
+        q0 = qs + 0.05 * d / np.linalg.norm(d)
+        rs = [check_optimality(r, T, q0).residual]
+        rs += [solve_ik(r, T, q0=q0, max_iter=k, tol=1e-14).residual for k in range(1, 5)]
+        for a, b in zip(rs, rs[1:], strict=False):
+            assert b <= max(100.0 * a * a, 1e-3 * a, 1e-14), rs
+
+
+def test_freeze_and_clip_holds_joints_pushed_out_of_their_limits():
+    """A joint at its upper limit that the damped step would push further is held there, and the other
+    joints take the damped least-squares step of the reduced Jacobian (its column dropped)."""
+    from kinredund.ik_newton import Setup, _freeze_and_clip
+
+    r = robot("panda")
+    rng = np.random.default_rng(5)
+    q = r.random_configuration(rng, 0.1)
+    q[3] = r.upper[3]
+    G = r.velocity_jacobian(q)
+    e = -0.2 * G[:, 3]  # the error of a pose that joint 3 raised by 0.2 rad would reach
+    mu = 1e-3
+    x = np.linalg.solve(G @ G.T + mu * np.eye(6), e)
+    qn = q - G.T @ x
+    assert qn[3] > r.upper[3]
+    s = Setup(kin=r.kinematics, res=TaskResidual(make_target("pose", r.fk(q))), index=None, lower=r.lower,
+              upper=r.upper, bounds=True, rtol=1e-10, tol=1e-10, max_iter=10, deadline=None, box=None)
+    got, held = _freeze_and_clip(s, q, qn, G, e, mu)
+    assert held == [3] and got[3] == r.upper[3]
+    Gf = G.copy()
+    Gf[:, 3] = 0.0
+    ref = np.clip(q - Gf.T @ np.linalg.solve(Gf @ Gf.T + mu * np.eye(6), e), r.lower, r.upper)
+    assert np.allclose(got, ref, rtol=0, atol=1e-12)
+    assert np.all((got >= r.lower) & (got <= r.upper))
+
+
+def test_turn_past_limits_continues_a_joint_the_other_way_round():
+    """Panda joint 7 (range 2 pi - 0.49 rad) held at its upper limit goes to its lower limit, the angle
+    0.49 rad further on; an xArm7 joint (range 4 pi) turns by exactly 2 pi: the same pose; a joint
+    whose range misses a turn by more than TURN_GAP (Panda joint 2) is not turned."""
+    from kinredund.ik_newton import Setup, _turn_past_limits
+
+    def setup(r):
+        return Setup(kin=r.kinematics, res=TaskResidual(make_target("pose", np.eye(4))), index=None,
+                     lower=r.lower, upper=r.upper, bounds=True, rtol=1e-10, tol=1e-10, max_iter=10,
+                     deadline=None, box=None, revolute=r.revolute)
+
+    panda, xarm = robot("panda"), robot("xarm7")
+    q = panda.home.copy()
+    q[6] = panda.upper[6]
+    out = _turn_past_limits(setup(panda), q, [6])
+    assert out[6] == panda.lower[6] and np.array_equal(np.delete(out, 6), np.delete(q, 6))
+    assert (out[6] - q[6]) % (2 * np.pi) == pytest.approx(2 * np.pi - (panda.upper[6] - panda.lower[6]))
+    q = panda.home.copy()
+    q[1] = panda.lower[1]
+    assert _turn_past_limits(setup(panda), q, [1]) is None
+    q = xarm.home.copy()
+    q[2] = xarm.lower[2] + 0.1
+    q[4] = xarm.upper[4]
+    out = _turn_past_limits(setup(xarm), q, [4])
+    assert out[4] == pytest.approx(xarm.upper[4] - 2 * np.pi)
+    assert np.allclose(xarm.fk(out), xarm.fk(q), atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["panda", "xarm7"])
+def test_bounded_multistart_solves_the_trac_ik_protocol(name):
+    """TRAC-IK's protocol without its time budget: random configurations within the limits -> forward
+    pose -> solve seeded at mid-limits (tol 1e-5): every target solved within the limits."""
+    r = robot(name)
+    mid = 0.5 * (r.lower + r.upper)
+    for q in configurations(r, seed=2015, count=60):
+        res = solve_ik(r, r.fk(q), q0=mid, bounds=True, tol=1e-5, starts=64)
+        assert res.converged, res.reason
+        assert np.all((res.q >= r.lower) & (res.q <= r.upper))
+        assert res.residual < 1e-5
+
+
+def test_multistart_samples_do_not_depend_on_the_batch_size(monkeypatch):
+    """The start samples are drawn SAMPLE_BATCH at a time: the same draws as one at a time, so the
+    result of a solve that needs several starts is the same for any batch size."""
+    from kinredund import ik
+
+    r = robot("panda")
+    mid = 0.5 * (r.lower + r.upper)
+    rng = np.random.default_rng(8)
+    for _ in range(200):
+        T = r.fk(r.random_configuration(rng))
+        res = solve_ik(r, T, q0=mid, bounds=True, tol=1e-5, starts=64)
+        if res.starts >= 4:
+            break
+    assert res.converged and res.starts >= 4
+    monkeypatch.setattr(ik, "SAMPLE_BATCH", 1)
+    one = solve_ik(r, T, q0=mid, bounds=True, tol=1e-5, starts=64)
+    monkeypatch.setattr(ik, "SAMPLE_BATCH", 3)
+    three = solve_ik(r, T, q0=mid, bounds=True, tol=1e-5, starts=64)
+    assert one.starts == three.starts == res.starts
+    assert np.array_equal(one.q, res.q) and np.array_equal(three.q, res.q)
