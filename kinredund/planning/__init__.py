@@ -1,0 +1,1 @@
+"""Off-line trajectory planning with collision avoidance (Chapter 6)."""

@@ -1,0 +1,307 @@
+"""The planner's branch choice at the sample points (Section 6.2.2.1) and the transitions between them.
+
+At each sample point the policy index has several local minima (branches: elbow up or down, the arm
+plane on either side of the obstacle, ...). The thesis leaves the choice, and where the arm changes
+branch, to the planner's expertise. Here the planner decides by looking at the *transitions*:
+
+- :func:`candidates`: the distinct collision-free local minima of the policy at one sample, from many
+  seeds (:func:`kinredund.ik.solve_ik` with the policy index).
+- :func:`transition`: how the arm gets from a candidate at one sample to a candidate at the next. The
+  interval is bisected (:func:`bisect`): at the middle time, the configuration on the path closest to
+  the mean of its neighbours (Eq. 6.25's index) is inserted, until no joint jumps by more than
+  ``max_jump`` between consecutive points - which keeps the spline estimate near the self-motion
+  manifold, where the closest-point tracking of Eq. (6.27) is regular. Revolute joints may go either
+  way round: the far end is also tried shifted by whole turns. The transition's cost is its joint
+  "energy" (sum of squared jumps) plus a penalty on the worst link clearance along it when negative;
+  a transition that cannot be refined costs infinity.
+- :func:`choose`: a cyclic dynamic programme over the candidates with these costs.
+
+Units: joints [rad or m], times [s], lengths [m].
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..ik import solve_ik
+from ..indices import Index, JointDeviation
+from .clearance import PENETRATION_TOL, LinkModel, link_clearance, link_segments
+from .obstacles import Obstacle
+from .selfmotion import routes
+from .spline import wrap
+
+#: two candidate configurations closer than this (wrapped, max-abs) are the same [rad]
+SAME_CONFIGURATION = 1e-6
+#: cost of a metre of penetration along a transition, against squared joint jumps [rad^2]
+PENETRATION_PENALTY = 1e4
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A collision-free local minimum of the policy at one sample: q, the index value, link clearance."""
+
+    q: np.ndarray
+    objective: float
+    clearance: np.ndarray
+
+
+@dataclass(frozen=True)
+class Transition:
+    """The refined way from one candidate to the next.
+
+    Attributes:
+        cost: energy + penalty (inf when it could not be refined).
+        shift: whole turns added to the far end [rad], shape (n,).
+        points: the inserted (t, q) in between, q continuous with the near end.
+        min_clearance: the worst link clearance at the inserted points and both ends [m].
+    """
+
+    cost: float
+    shift: np.ndarray
+    points: tuple
+    min_clearance: float
+
+
+def target_of(robot, p: np.ndarray):
+    """The IK target of an end point: (x, y) for planar tasks, p otherwise."""
+    return p[:2] if robot.task == "planar" else p
+
+
+def fit_limits(q: np.ndarray, lower, upper, revolute) -> np.ndarray | None:
+    """q with revolute joints shifted by the fewest whole turns into the limits, or None if impossible."""
+    q = q.copy()
+    for i in range(q.size):
+        if lower[i] - 1e-12 <= q[i] <= upper[i] + 1e-12:
+            continue
+        if not revolute[i]:
+            return None
+        shifted = q[i] + 2 * np.pi * np.arange(-3, 4)
+        inside = shifted[(shifted >= lower[i]) & (shifted <= upper[i])]
+        if inside.size == 0:
+            return None
+        q[i] = inside[np.argmin(np.abs(inside - q[i]))]
+    return q
+
+
+def clearance_of(robot, q, model: LinkModel, obstacle: Obstacle, radius: float, tool_tip: float) -> np.ndarray:
+    """Per-link clearance at one configuration [m]; the last link gets -inf if it penetrates."""
+    clear, pen, _ = link_clearance(obstacle, link_segments(robot, q, model), radius=radius, tool_tip=tool_tip)
+    c = clear[0].copy()
+    if pen[0] > PENETRATION_TOL:
+        c[-1] = -pen[0] - 1.0
+    return c
+
+
+def candidates(robot, index: Index, target, seeds, model: LinkModel, obstacle: Obstacle, radius: float,
+               tool_tip: float, max_iter: int, limit: int | None = None) -> list[Candidate]:
+    """The distinct collision-free local minima (Eq. D.33 holds) of ``index`` on g = x from the seeds.
+
+    Returns at most ``limit`` of them, lowest index value first.
+    """
+    found: list[Candidate] = []
+    for s in seeds:
+        res = solve_ik(robot, target, index, q0=s, max_iter=max_iter)
+        if not (res.converged and res.reduced_hessian_pd):
+            continue
+        q = fit_limits(res.q, robot.lower, robot.upper, robot.revolute)
+        if q is None:
+            continue
+        if any(np.abs(wrap(q - f.q, robot.revolute)).max() < SAME_CONFIGURATION for f in found):
+            continue
+        c = clearance_of(robot, q, model, obstacle, radius, tool_tip)
+        if c.min() <= 0:
+            continue
+        found.append(Candidate(q, float(res.objective), c))
+    found.sort(key=lambda c: c.objective)
+    return found[:limit] if limit else found
+
+
+def closest_on_path(robot, target, reference: np.ndarray, seed=None, max_iter: int = 200):
+    """A configuration on g(theta) = x locally closest to ``reference``: min 1/2 ||theta - reference||^2
+    (the index of Eq. 6.25), from ``seed`` (default: the reference).
+
+    The seed is first projected onto g = x by a pose-only solve: started exactly at the reference, the
+    index's gradient and the multipliers are zero, and the IK's exact-penalty line search (whose weight
+    is set from the multipliers) then cannot accept a step back onto g = x.
+
+    Returns:
+        The :class:`~kinredund.ik.IKResult`.
+    """
+    seed = reference if seed is None else seed
+    first = solve_ik(robot, target, None, q0=seed, max_iter=max_iter)
+    start = first.q if first.converged else seed
+    return solve_ik(robot, target, JointDeviation(reference), q0=start, max_iter=max_iter)
+
+
+def bisect(robot, path, ta: float, qa, tb: float, qb, max_jump: float, budget: int, max_iter: int = 200):
+    """(t, q) points strictly inside (ta, tb) that bring every joint jump within ``max_jump``, or None.
+
+    Each inserted point is the configuration on the path, at the middle time of the worst interval,
+    closest to the mean of its neighbours, found from that mean. It fails when that does not shrink the
+    jump (a fold of the closest-point problem: the neighbours are not joined by a short self-motion) or
+    the budget of inserted points runs out.
+    """
+    pts = [(ta, np.asarray(qa, float)), (tb, np.asarray(qb, float))]
+    while True:
+        jumps = [float(np.abs(pts[k + 1][1] - pts[k][1]).max()) for k in range(len(pts) - 1)]
+        k = int(np.argmax(jumps))
+        if jumps[k] <= max_jump:
+            return pts[1:-1]
+        if len(pts) - 2 >= budget:
+            return None
+        tm = 0.5 * (pts[k][0] + pts[k + 1][0])
+        mean = 0.5 * (pts[k][1] + pts[k + 1][1])
+        res = closest_on_path(robot, target_of(robot, path(tm).p), mean, max_iter=max_iter)
+        qm = mean + wrap(res.q - mean, robot.revolute)
+        worst = max(np.abs(qm - pts[k][1]).max(), np.abs(pts[k + 1][1] - qm).max())
+        if not res.converged or worst >= 0.95 * jumps[k]:
+            return None
+        pts.insert(k + 1, (tm, qm))
+
+
+def turn_shifts(d: np.ndarray, revolute) -> list[np.ndarray]:
+    """Whole-turn shifts to try for the far end of a jump d: none first, then joints with |d_i| > pi/2
+    by -1, 0 or +1 turn, smallest resulting jump first."""
+    joints = [i for i in range(d.size) if revolute[i] and abs(d[i]) > 0.5 * np.pi]
+    out = []
+    for combo in itertools.product((0, -1, 1), repeat=len(joints)):
+        if any(combo):
+            s = np.zeros(d.size)
+            s[joints] = 2 * np.pi * np.array(combo)
+            out.append(s)
+    out.sort(key=lambda s: float(np.abs(d + s).max()))
+    return [np.zeros(d.size)] + out
+
+
+def _chain_cost(robot, chain, model, obstacle, radius, tool_tip) -> tuple[float, float]:
+    """(energy, worst clearance) of a chain of configurations."""
+    energy = float(sum(np.sum((chain[i + 1] - chain[i]) ** 2) for i in range(len(chain) - 1)))
+    worst = min(clearance_of(robot, q, model, obstacle, radius, tool_tip).min() for q in chain)
+    return energy, float(worst)
+
+
+def _join(robot, path, points, max_jump, budget, max_iter):
+    """Bisect every consecutive pair of (t, q) points; the full list of points, or None."""
+    out = [points[0]]
+    for (ta, qa), (tb, qb) in zip(points[:-1], points[1:], strict=True):
+        mid = bisect(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter)
+        if mid is None:
+            return None
+        out.extend(mid)
+        out.append((tb, qb))
+    return out
+
+
+def _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
+    """Transitions through a self-motion: qa is carried to a quarter of the interval, qb back to three
+    quarters, and the arm travels between them along the self-motion at mid-interval (both ways round);
+    the route's points are spread over the middle half of the interval and put back on the path."""
+    t1, tm, t2 = ta + 0.25 * (tb - ta), 0.5 * (ta + tb), tb - 0.25 * (tb - ta)
+    out = []
+    ra = closest_on_path(robot, target_of(robot, path(t1).p), qa, max_iter=max_iter)
+    rb = closest_on_path(robot, target_of(robot, path(t2).p), qb, max_iter=max_iter)
+    if not (ra.converged and rb.converged):
+        return out
+    a1 = qa + wrap(ra.q - qa, robot.revolute)
+    b2 = qb + wrap(rb.q - qb, robot.revolute)
+    target_m = target_of(robot, path(tm).p)
+    ma = closest_on_path(robot, target_m, a1, max_iter=max_iter)
+    mb = closest_on_path(robot, target_m, b2, max_iter=max_iter)
+    if not (ma.converged and mb.converged):
+        return out
+    am = a1 + wrap(ma.q - a1, robot.revolute)
+    for route in routes(robot, target_m, am, mb.q, step=0.5 * max_jump):
+        pts = route.points
+        keep = [0]
+        for i in range(1, len(pts)):
+            if np.abs(pts[i] - pts[keep[-1]]).max() >= 0.5 * max_jump:
+                keep.append(i)
+        if keep[-1] != len(pts) - 1:
+            keep.append(len(pts) - 1)
+        sel = pts[keep]
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(sel, axis=0), axis=1))])
+        times = t1 + (t2 - t1) * (arc / arc[-1] if arc[-1] > 0 else np.linspace(0, 1, len(sel)))
+        placed = [(ta, qa), (t1, a1)]
+        ok = True
+        for tt, c in zip(times[1:-1], sel[1:-1], strict=True):
+            res = closest_on_path(robot, target_of(robot, path(tt).p), c, max_iter=max_iter)
+            if not res.converged:
+                ok = False
+                break
+            placed.append((tt, c + wrap(res.q - c, robot.revolute)))
+        if not ok:
+            continue
+        end = sel[-1]  # mb's representation at the route's end
+        b2_end = end + wrap(b2 - end, robot.revolute)
+        qb_end = b2_end + wrap(qb - b2_end, robot.revolute)
+        placed += [(t2, b2_end), (tb, qb_end)]
+        joined = _join(robot, path, placed, max_jump, budget, max_iter)
+        if joined is not None:
+            out.append((joined, qb_end - np.asarray(qb, float)))
+    return out
+
+
+def transition(robot, path, ta: float, qa, tb: float, qb, *, model: LinkModel, obstacle: Obstacle, radius: float,
+               tool_tip: float, max_jump: float, budget: int, max_iter: int = 200) -> Transition:
+    """The cheapest continuous way from (ta, qa) to (tb, qb).
+
+    Tried in turn: direct bisection (:func:`bisect`) with the far end shifted by the whole turns of
+    :func:`turn_shifts`, then self-motions (:func:`_self_motion_ways`). The first collision-free one
+    (at its points) is taken; otherwise the cheapest found.
+    """
+    qa = np.asarray(qa, float)
+    qb = np.asarray(qb, float)
+    near = qa + wrap(qb - qa, robot.revolute)  # qb's representation nearest qa
+    best = Transition(np.inf, near - qb, (), -np.inf)
+
+    def consider(points, shift):
+        nonlocal best
+        chain = [q for _, q in points]
+        energy, worst = _chain_cost(robot, chain, model, obstacle, radius, tool_tip)
+        cost = energy + PENETRATION_PENALTY * max(0.0, -worst)
+        if cost < best.cost:
+            best = Transition(cost, shift, tuple(points[1:-1]), worst)
+        return worst > 0
+
+    for shift in turn_shifts(near - qa, robot.revolute):
+        end = near + shift
+        pts = bisect(robot, path, ta, qa, tb, end, max_jump, budget, max_iter)
+        if pts is not None and consider([(ta, qa)] + list(pts) + [(tb, end)], end - qb):
+            return best
+    for points, shift in _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
+        if consider(points, shift):
+            return best
+    return best
+
+
+def choose(costs: list[np.ndarray]) -> tuple[list[int], float]:
+    """The cyclic sequence of candidates with the least total transition cost.
+
+    Args:
+        costs: costs[k][i, j] from candidate i at sample k to candidate j at sample k + 1 (the last
+            matrix closes the loop back to sample 0).
+
+    Returns:
+        (the chosen candidate index per sample, the total cost).
+    """
+    n = len(costs)
+    best_total, best_path = np.inf, None
+    for c0 in range(costs[0].shape[0]):
+        acc = np.full(costs[0].shape[0], np.inf)
+        acc[c0] = 0.0
+        back = []
+        for k in range(n - 1):
+            tot = acc[:, None] + costs[k]
+            back.append(np.argmin(tot, axis=0))
+            acc = tot.min(axis=0)
+        closing = acc + costs[n - 1][:, c0]
+        j = int(np.argmin(closing))
+        if closing[j] < best_total:
+            path = [j]
+            for k in range(n - 2, -1, -1):
+                path.append(int(back[k][path[-1]]))
+            best_total, best_path = float(closing[j]), path[::-1]
+    return best_path, best_total

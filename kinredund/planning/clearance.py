@@ -1,0 +1,232 @@
+"""Clearance verification of a planned motion, independent of the policy indices (Chapter 6).
+
+Every link is a segment between consecutive joint origins (``robot.kinematics.joint_origins``), or a
+capsule of a stated radius around it; segments of zero length (e.g. the P-15's offsets a4 = b4 = 0
+and its wrist, whose axes meet at P) are dropped once per robot. The last link ends at the end point
+P, which lies on the obstacle's boundary by design (the tool touches the surface), so its distance is
+always zero: its clearance is measured on the link without a tool tip of stated length at P, and the
+whole last link is separately checked for *penetration*: a point of it deeper than the end point
+itself by more than ``PENETRATION_TOL`` (between tracked steps the interpolated end point may dip
+below the boundary by the interpolation error, which is reported separately).
+
+The motion is checked at a finer resolution than the tracking steps: the joints are interpolated
+linearly between recorded steps (``substeps`` points per step). Two statements bound what lies
+between the checked configurations:
+
+- a rigorous bound for the interpolated motion: between two checked configurations, no point of link
+  k moves by more than ``sum_i |dtheta_i| R_ik`` (R_ik the distance along the chain from joint i to the
+  far end of link k, an upper bound of that point's distance from axis i), so the true minimum is at
+  least the sampled minimum minus half of that (``lower_bound``);
+- an empirical check: :func:`verify_motion` with ``check_doubling=True`` repeats the check at twice the
+  resolution and records how much the minimum moved (``doubling_change``).
+
+Units: lengths [m], times [s].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import TaskError
+from .obstacles import Obstacle
+
+#: a point of the last link deeper than the end point by more than this is a penetration [m]
+PENETRATION_TOL = 1e-9
+#: segments shorter than this are not links [m]
+ZERO_LENGTH = 1e-12
+
+
+@dataclass(frozen=True)
+class LinkModel:
+    """Which joint-origin pairs are links, their lengths, and the chain reach used by the bounds.
+
+    Attributes:
+        pairs: (k, 2) indices into ``joint_origins`` of each link's two ends.
+        lengths: link lengths [m], shape (k,).
+        names: ``link 1`` ... ``link k`` (zero-length segments skipped).
+        reach: reach[i, k] = chain length from joint origin i to the far end of link k [m] (0 when the
+            link comes before joint i), shape (n, k).
+        revolute: which joints are revolute (a prismatic joint moves points by |dq| instead).
+    """
+
+    pairs: np.ndarray
+    lengths: np.ndarray
+    names: tuple[str, ...]
+    reach: np.ndarray
+    revolute: np.ndarray
+
+
+def link_model(robot) -> LinkModel:
+    """The links of ``robot`` (segments between consecutive joint origins, zero-length ones dropped)."""
+    pts = robot.kinematics.joint_origins(np.asarray(robot.home, float))
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    keep = np.flatnonzero(seg > ZERO_LENGTH)
+    pairs = np.stack([keep, keep + 1], axis=1)
+    lengths = seg[keep]
+    n = robot.nq
+    cum = np.concatenate([[0.0], np.cumsum(seg)])  # chain length from origin 0 to origin m
+    reach = np.zeros((n, keep.size))
+    for k, (_, j) in enumerate(pairs):
+        for i in range(n):
+            if i < j:
+                reach[i, k] = cum[j] - cum[i]
+    return LinkModel(pairs, lengths, tuple(f"link {k + 1}" for k in range(keep.size)), reach,
+                     np.asarray(robot.revolute, bool))
+
+
+def link_segments(robot, q_all, model: LinkModel | None = None) -> np.ndarray:
+    """Link end points for many configurations: shape (N, k, 2, 3) [m]."""
+    model = model or link_model(robot)
+    q_all = np.atleast_2d(np.asarray(q_all, float))
+    pts = np.array([robot.kinematics.joint_origins(q) for q in q_all])
+    return np.stack([pts[:, model.pairs[:, 0]], pts[:, model.pairs[:, 1]]], axis=2)
+
+
+def link_clearance(obstacle: Obstacle, segments: np.ndarray, *, radius: float = 0.0, tool_tip: float = 0.0):
+    """Per-link clearance [m], the last link's penetration and the end point's depth, for segments (N, k, 2, 3).
+
+    Args:
+        obstacle: the obstacle.
+        segments: from :func:`link_segments`.
+        radius: capsule radius of every link [m].
+        tool_tip: length [m] at the end point excluded from the last link's clearance (the tool that
+            touches the surface); the whole last link is still checked for penetration.
+
+    Returns:
+        (clearance (N, k), penetration (N,), end-point depth (N,)). The penetration is how much deeper
+        than the end point itself any point of the last link lies (>= 0): the end point of an
+        interpolated motion may dip below the boundary by the interpolation error (reported as the
+        end-point depth, >= 0), which is not a penetration of the link.
+    """
+    p0 = segments[:, :, 0].copy()
+    p1 = segments[:, :, 1].copy()
+    last = p1[:, -1] - p0[:, -1]
+    length = np.linalg.norm(last, axis=1)
+    if np.any(tool_tip >= length):
+        raise TaskError(f"the tool tip ({tool_tip} m) must be shorter than the last link ({length.min():.4g} m)")
+    p1[:, -1] = p1[:, -1] - (tool_tip / length)[:, None] * last
+    clear = obstacle.segment_distance(p0, p1, radius=radius)
+    whole = obstacle.segment_distance(segments[:, -1, 0], segments[:, -1, 1])
+    tip_depth = np.maximum(0.0, -obstacle.signed_distance(segments[:, -1, 1]))
+    return clear, np.maximum(0.0, np.maximum(0.0, -whole) - tip_depth), tip_depth
+
+
+def interpolate_joints(t: np.ndarray, q: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation of recorded joints at ``substeps`` points per step (ends included)."""
+    if substeps < 1:
+        raise TaskError(f"substeps must be >= 1, got {substeps}")
+    lam = np.arange(substeps) / substeps
+    tt = (t[:-1, None] + lam[None, :] * np.diff(t)[:, None]).ravel()
+    qq = (q[:-1, None, :] + lam[None, :, None] * np.diff(q, axis=0)[:, None, :]).reshape(-1, q.shape[1])
+    return np.append(tt, t[-1]), np.vstack([qq, q[-1]])
+
+
+def motion_bound(model: LinkModel, q_dense: np.ndarray) -> np.ndarray:
+    """Largest displacement of any point of each link between consecutive checked configurations.
+
+    For each pair of consecutive configurations, sum_i |dq_i| R_ik (Section docstring); returns the
+    maximum over the pairs, per link [m], shape (k,).
+    """
+    dq = np.abs(np.diff(q_dense, axis=0))  # (N-1, n)
+    lever = np.where(model.revolute[:, None], model.reach, np.where(model.reach > 0, 1.0, 0.0))
+    return (dq @ lever).max(axis=0) if len(dq) else np.zeros(model.pairs.shape[0])
+
+
+@dataclass(frozen=True)
+class ClearanceReport:
+    """What :func:`verify_motion` found.
+
+    Attributes:
+        names: the link names.
+        t: the checked times [s], shape (N,).
+        clearance: per-link clearance [m] at those times, shape (N, k) (the last link without its tool
+            tip; capsules when ``radius`` > 0).
+        penetration: how much deeper than the end point any point of the last link lies [m], shape (N,)
+            (the end point itself touches the surface).
+        minimum: per-link minimum clearance [m], shape (k,).
+        argmin_t: per-link time of the minimum [s].
+        lower_bound: per-link certified lower bound for the interpolated motion [m]:
+            minimum - motion_bound / 2.
+        motion_bound: per-link largest displacement between checked configurations [m].
+        doubling_change: per-link |minimum at twice the resolution - minimum| [m], or None.
+        endpoint_depth_max: how far the end point of the interpolated motion dips below the boundary
+            between tracked steps [m] (the interpolation error; 0 at the steps themselves).
+        substeps, radius, tool_tip: the settings.
+    """
+
+    names: tuple[str, ...]
+    t: np.ndarray
+    clearance: np.ndarray
+    penetration: np.ndarray
+    minimum: np.ndarray
+    argmin_t: np.ndarray
+    lower_bound: np.ndarray
+    motion_bound: np.ndarray
+    doubling_change: np.ndarray | None
+    endpoint_depth_max: float
+    substeps: int
+    radius: float
+    tool_tip: float
+
+    @property
+    def collision_free(self) -> bool:
+        """No penetration of the last link and every certified lower bound > 0."""
+        return bool(self.penetration.max() <= PENETRATION_TOL and np.all(self.lower_bound > 0))
+
+    def intervals(self, threshold: float = 0.0) -> list[tuple[str, float, float, float]]:
+        """(link, t_start, t_end, depth) of each run where a link's clearance is <= threshold [m]."""
+        out = []
+        series = [(self.names[k], self.clearance[:, k]) for k in range(len(self.names))]
+        series.append((f"{self.names[-1]} (whole, penetration)", -self.penetration + PENETRATION_TOL))
+        for name, c in series:
+            bad = c <= threshold
+            if not bad.any():
+                continue
+            idx = np.flatnonzero(bad)
+            splits = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+            for run in splits:
+                out.append((name, float(self.t[run[0]]), float(self.t[run[-1]]), float(-c[run].min())))
+        return out
+
+
+def _check(robot, obstacle, t, q, model, substeps, radius, tool_tip):
+    tt, qq = interpolate_joints(t, q, substeps)
+    seg = link_segments(robot, qq, model)
+    clear, pen, tip = link_clearance(obstacle, seg, radius=radius, tool_tip=tool_tip)
+    return tt, qq, clear, pen, tip
+
+
+def verify_motion(robot, obstacle: Obstacle, t, q, *, substeps: int = 8, radius: float = 0.0,
+                  tool_tip: float = 0.0, check_doubling: bool = True) -> ClearanceReport:
+    """Check every link against the obstacle along a recorded motion, finer than its steps.
+
+    Args:
+        robot: the robot.
+        obstacle: the obstacle.
+        t: times [s], shape (N,).
+        q: joints, shape (N, n).
+        substeps: checked configurations per recorded step (linear interpolation in joint space).
+        radius: capsule radius of the links [m].
+        tool_tip: the last link's tip length excluded from its clearance [m].
+        check_doubling: also check at 2 * substeps and record how much each minimum moved.
+
+    Returns:
+        A :class:`ClearanceReport`.
+    """
+    t = np.asarray(t, float)
+    q = np.asarray(q, float)
+    if q.ndim != 2 or q.shape[0] != t.shape[0] or q.shape[1] != robot.nq:
+        raise TaskError(f"q must have shape ({t.shape[0]}, {robot.nq}), got {q.shape}")
+    model = link_model(robot)
+    tt, qq, clear, pen, tip = _check(robot, obstacle, t, q, model, substeps, radius, tool_tip)
+    k = clear.argmin(axis=0)
+    minimum = clear.min(axis=0)
+    bound = motion_bound(model, qq)
+    change = None
+    if check_doubling:
+        _, _, clear2, _, _ = _check(robot, obstacle, t, q, model, 2 * substeps, radius, tool_tip)
+        change = np.abs(clear2.min(axis=0) - minimum)
+    return ClearanceReport(model.names, tt, clear, pen, minimum, tt[k], minimum - 0.5 * bound, bound, change,
+                           float(tip.max()), int(substeps), float(radius), float(tool_tip))

@@ -1,0 +1,341 @@
+"""Obstacles of Chapter 6: an ellipse (planar case, Section 6.2) and an elliptic cylinder (Section 6.3).
+
+Both are convex solids described by the ellipse of Eqs. (6.3)-(6.5): centre (x0, y0), semi-axes a
+(major) and b, the major axis at angle psi to X. The cylinder's axis is parallel to Z and it spans the
+heights [z_bottom, z_top].
+
+Distances are exact (to round-off), not sampled:
+
+- :meth:`Obstacle.signed_distance` of points: the exact point-to-ellipse distance (the closest point
+  by the root of the ellipse's normal equation, bisected to machine precision, after D. Eberly,
+  *Distance from a Point to an Ellipse, an Ellipsoid, or a Hyperellipsoid*, 2013), negative inside.
+  For the cylinder the 2-D signed distance is combined with the height interval (the exact signed
+  distance of an extruded convex set).
+- :meth:`Obstacle.segment_distance`: the minimum over a segment (a link) of the signed distance. The
+  signed distance of a convex set is a convex function, so along a segment it is convex in the segment
+  parameter; a golden-section search keeps a bracket of the minimiser and stops when it is narrower
+  than :data:`SEGMENT_TOL`. Since the signed distance is 1-Lipschitz, the value returned exceeds the
+  true minimum by at most ``length * SEGMENT_TOL`` (reported as :data:`SEGMENT_TOL` per metre). A
+  capsule of radius r is the segment distance minus r. Zero or negative means contact or penetration.
+
+Units: lengths [m], angles [rad].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import TaskError
+
+#: width of the final bracket of the segment parameter (relative, in [0, 1]); the segment distance is
+#: then at most ``length * SEGMENT_TOL`` above the exact minimum (the signed distance is 1-Lipschitz)
+SEGMENT_TOL = 1e-10
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+#: bisection steps of the ellipse root: the bracket shrinks below the spacing of doubles
+_BISECT = 80
+OBSTACLE_KINDS = ("ellipse", "elliptic_cylinder")
+
+
+def _positive(name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise TaskError(f"obstacle {name} must be a number > 0, got {value!r}") from err
+    if not (math.isfinite(v) and v > 0):
+        raise TaskError(f"obstacle {name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def ellipse_closest_point(a: float, b: float, u, v) -> tuple[np.ndarray, np.ndarray]:
+    """The closest point of the ellipse u^2/a^2 + v^2/b^2 = 1 (Eq. 6.3) to each point (u, v).
+
+    Works in the first quadrant by symmetry; the root s of
+    F(s) = (r0 z0 / (s + r0))^2 + (z1 / (s + 1))^2 - 1, z = (u/a, v/b), r0 = (a/b)^2, is bisected
+    to machine precision (Eberly 2013). Points on the major axis inside the evolute use the closed form.
+
+    Args:
+        a, b: semi-axes [m] (either may be the larger).
+        u, v: coordinates in the ellipse's principal frame [m], arrays of one shape.
+
+    Returns:
+        (xu, xv), the closest boundary points, same shape as u.
+    """
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    if a < b:  # work with the major axis first
+        xv, xu = ellipse_closest_point(b, a, v, u)
+        return xu, xv
+    su, sv = np.sign(u), np.sign(v)
+    su = np.where(su == 0, 1.0, su)
+    sv = np.where(sv == 0, 1.0, sv)
+    y0, y1 = np.abs(u), np.abs(v)
+    z0, z1 = y0 / a, y1 / b
+    r0 = (a / b) ** 2
+    n0 = r0 * z0
+    g = z0 * z0 + z1 * z1 - 1.0
+    lo = np.maximum(z1 - 1.0, n0 - r0)  # F(lo) >= 0 (one term equals 1 there)
+    hi = np.where(g < 0, 0.0, np.hypot(n0, z1) - 1.0)  # F(hi) <= 0
+    lo = np.minimum(lo, hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(_BISECT):
+            mid = 0.5 * (lo + hi)
+            f = (n0 / (mid + r0)) ** 2 + (z1 / (mid + 1.0)) ** 2 - 1.0
+            pos = f > 0
+            lo = np.where(pos, mid, lo)
+            hi = np.where(pos, hi, mid)
+        s = 0.5 * (lo + hi)
+        x0 = r0 * y0 / (s + r0)
+        x0 = np.minimum(x0, a)
+        well = (s + 1.0) > 1e-3
+        x1 = np.where(well, y1 / (s + 1.0), b * np.sqrt(np.maximum(0.0, 1.0 - (x0 / a) ** 2)))
+    # degenerate cases: on the minor axis, and on the major axis (inside the evolute or not)
+    on_minor = y0 == 0.0
+    x0 = np.where(on_minor, 0.0, x0)
+    x1 = np.where(on_minor, b, x1)
+    on_major = (y1 == 0.0) & ~on_minor
+    numer = a * y0
+    denom = a * a - b * b
+    inside_evolute = on_major & (numer < denom)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xe = np.where(inside_evolute, a * a * y0 / np.where(denom > 0, denom, 1.0), a)
+        ye = np.where(inside_evolute, b * np.sqrt(np.maximum(0.0, 1.0 - (xe / a) ** 2)), 0.0)
+    x0 = np.where(on_major, xe, x0)
+    x1 = np.where(on_major, ye, x1)
+    # a point exactly on the minor axis at the centre of a circle: any boundary point is closest
+    return su * x0, sv * x1
+
+
+def ellipse_signed_distance(a: float, b: float, u, v) -> np.ndarray:
+    """Exact signed distance [m] from points (u, v) (principal frame) to the ellipse; negative inside."""
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    xu, xv = ellipse_closest_point(a, b, u, v)
+    d = np.hypot(u - xu, v - xv)
+    inside = (u / a) ** 2 + (v / b) ** 2 < 1.0
+    return np.where(inside, -d, d)
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """Base of the elliptic obstacles: the ellipse of Eqs. (6.3)-(6.5) and its principal frame.
+
+    Attributes:
+        center: centre [m], shape (3,) (for the cylinder: the middle of its height).
+        a, b: semi-axes [m].
+        angle: psi, the major axis's angle from X [rad] (Eqs. 6.4-6.5).
+    """
+
+    center: np.ndarray
+    a: float
+    b: float
+    angle: float = 0.0
+
+    kind = "ellipse"
+
+    def __post_init__(self) -> None:
+        c = np.asarray(self.center, dtype=float)
+        if c.shape == (2,):
+            c = np.array([c[0], c[1], 0.0])
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise TaskError(f"obstacle center must be 2 or 3 finite numbers [m], got {self.center!r}")
+        object.__setattr__(self, "center", c)
+        object.__setattr__(self, "a", _positive("semi-axis a", self.a))
+        object.__setattr__(self, "b", _positive("semi-axis b", self.b))
+        try:
+            ang = float(self.angle)
+        except (TypeError, ValueError) as err:
+            raise TaskError(f"obstacle angle must be a number [rad], got {self.angle!r}") from err
+        if not math.isfinite(ang):
+            raise TaskError(f"obstacle angle must be finite, got {self.angle!r}")
+        object.__setattr__(self, "angle", ang)
+
+    # -- the ellipse ----------------------------------------------------------------------------
+    @property
+    def ratio(self) -> float:
+        """r = a / b, Eq. (6.6)."""
+        return self.a / self.b
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit vectors of the major and minor axes in the base frame (xy), Eqs. (6.4)-(6.5)."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        return np.array([c, s]), np.array([-s, c])
+
+    def local(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        """(x_d, y_d) of Eqs. (6.4)-(6.5): points (..., 2 or 3) in the ellipse's principal frame [m]."""
+        xy = np.asarray(xy, float)
+        dx = xy[..., 0] - self.center[0]
+        dy = xy[..., 1] - self.center[1]
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        return dx * c + dy * s, -dx * s + dy * c  # Eqs. (6.4)-(6.5)
+
+    def boundary(self, beta) -> tuple[np.ndarray, np.ndarray]:
+        """Point and outward unit normal of the ellipse at eccentric angle beta (Eq. 6.19), in xy [m]."""
+        beta = np.asarray(beta, float)
+        e1, e2 = self.axes()
+        cb, sb = np.cos(beta), np.sin(beta)
+        p = self.center[:2] + np.multiply.outer(self.a * cb, e1) + np.multiply.outer(self.b * sb, e2)
+        n = np.multiply.outer(self.b * cb, e1) + np.multiply.outer(self.a * sb, e2)  # Eq. (6.19)
+        return p, n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    def normal_at(self, points) -> np.ndarray:
+        """Outward unit normal of the ellipse (the cylinder's lateral surface) at the boundary point
+        closest to each point, in the xy-plane: shape (..., 3) with z = 0 (Eq. 6.19)."""
+        u, v = self.local(points)
+        xu, xv = ellipse_closest_point(self.a, self.b, u, v)
+        nu, nv = xu / self.a**2, xv / self.b**2  # the gradient of Eq. (6.3)
+        e1, e2 = self.axes()
+        n = np.multiply.outer(nu, e1) + np.multiply.outer(nv, e2)
+        n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+        return np.concatenate([n, np.zeros(n.shape[:-1] + (1,))], axis=-1)
+
+    def ellipse_distance(self, xy) -> np.ndarray:
+        """Signed distance [m] of points (..., 2 or 3) to the ellipse in the xy-plane (negative inside)."""
+        u, v = self.local(xy)
+        return ellipse_signed_distance(self.a, self.b, u, v)
+
+    # -- what subclasses define -----------------------------------------------------------------
+    def signed_distance(self, points) -> np.ndarray:
+        """Exact signed distance [m] of points (..., 3) to the obstacle: > 0 outside, < 0 inside."""
+        return self.ellipse_distance(points)
+
+    def to_dict(self) -> dict:
+        """The JSON form drawn by playback (``Trajectory.meta["obstacle"]``)."""
+        raise NotImplementedError
+
+    # -- segments ---------------------------------------------------------------------------------
+    def segment_distance(self, p0, p1, radius: float = 0.0, return_param: bool = False):
+        """Minimum signed distance [m] between segments p0-p1 (shape (..., 3)) and the obstacle.
+
+        The signed distance is convex along a segment (the obstacle is convex), so a golden-section
+        search on the segment parameter finds its minimum; the value is exact to within
+        ``length * SEGMENT_TOL``. With ``radius`` the segment is a capsule of that radius.
+
+        Args:
+            p0, p1: end points, broadcastable to one shape (..., 3) [m].
+            radius: capsule radius [m] >= 0.
+            return_param: also return the segment parameter in [0, 1] of the minimum.
+
+        Returns:
+            The distances (...,) [m] (negative: penetration depth of the segment's deepest point, for
+            the 2-D ellipse; for the cylinder the exact signed distance of that point), and the
+            parameters when asked.
+        """
+        p0 = np.asarray(p0, float)
+        p1 = np.asarray(p1, float)
+        p0, p1 = np.broadcast_arrays(p0, p1)
+        d = p1 - p0
+
+        def f(s):
+            return self.signed_distance(p0 + s[..., None] * d)
+
+        shape = p0.shape[:-1]
+        lo, hi = np.zeros(shape), np.ones(shape)
+        x1 = hi - _GOLDEN * (hi - lo)
+        x2 = lo + _GOLDEN * (hi - lo)
+        f1, f2 = f(x1), f(x2)
+        iters = int(math.ceil(math.log(SEGMENT_TOL) / math.log(_GOLDEN)))
+        for _ in range(iters):
+            left = f1 <= f2  # the minimiser lies in [lo, x2], else in [x1, hi]
+            hi = np.where(left, x2, hi)
+            lo = np.where(left, lo, x1)
+            nx1 = np.where(left, hi - _GOLDEN * (hi - lo), x2)
+            nx2 = np.where(left, x1, lo + _GOLDEN * (hi - lo))
+            fe = f(np.where(left, nx1, nx2))
+            f1, f2 = np.where(left, fe, f2), np.where(left, f1, fe)
+            x1, x2 = nx1, nx2
+        # end points too (the minimum of a convex function on [0, 1] may sit there)
+        s_in = 0.5 * (lo + hi)
+        cand = np.stack([np.zeros(shape), s_in, np.ones(shape)], axis=-1)
+        vals = np.stack([f(cand[..., k]) for k in range(3)], axis=-1)
+        k = np.argmin(vals, axis=-1)
+        best = np.take_along_axis(vals, k[..., None], axis=-1)[..., 0] - float(radius)
+        if return_param:
+            return best, np.take_along_axis(cand, k[..., None], axis=-1)[..., 0]
+        return best
+
+
+@dataclass(frozen=True)
+class EllipseObstacle(Obstacle):
+    """The planar obstacle of Section 6.2: the region inside an ellipse in the xy-plane.
+
+    Args:
+        center: (x0, y0) or (x0, y0, 0) [m].
+        a, b: semi-axes [m].
+        angle: psi, the major axis's angle from X [rad].
+        thickness: the drawn thickness [m] (``height`` in :meth:`to_dict`).
+    """
+
+    thickness: float = 0.02
+    kind = "ellipse"
+
+    def signed_distance(self, points) -> np.ndarray:
+        return self.ellipse_distance(points)
+
+    def to_dict(self) -> dict:
+        return {"kind": "ellipse", "center": [float(v) for v in self.center], "a": self.a, "b": self.b,
+                "angle": self.angle, "axis": [0.0, 0.0, 1.0], "height": float(self.thickness)}
+
+
+@dataclass(frozen=True)
+class EllipticCylinder(Obstacle):
+    """The obstacle of Section 6.3: an elliptic cylinder with its axis parallel to Z.
+
+    Args:
+        center: the centre of the cylinder (mid-height) [m], shape (3,).
+        a, b: semi-axes of its directrix [m].
+        angle: psi [rad].
+        height: its height [m] > 0; it spans center_z -+ height/2.
+    """
+
+    height: float = 1.0
+
+    kind = "elliptic_cylinder"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "height", _positive("height", self.height))
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        """(z_bottom, z_top) [m]."""
+        h = 0.5 * self.height
+        return float(self.center[2] - h), float(self.center[2] + h)
+
+    def signed_distance(self, points) -> np.ndarray:
+        points = np.asarray(points, float)
+        dxy = self.ellipse_distance(points)
+        z0, z1 = self.z_range
+        dz = np.maximum(z0 - points[..., 2], points[..., 2] - z1)
+        inside = np.minimum(np.maximum(dxy, dz), 0.0)
+        return inside + np.hypot(np.maximum(dxy, 0.0), np.maximum(dz, 0.0))  # exact for an extrusion
+
+    def to_dict(self) -> dict:
+        return {"kind": "elliptic_cylinder", "center": [float(v) for v in self.center], "a": self.a, "b": self.b,
+                "angle": self.angle, "axis": [0.0, 0.0, 1.0], "height": self.height}
+
+
+def obstacle_from_dict(data: dict) -> Obstacle:
+    """Rebuild an obstacle from :meth:`Obstacle.to_dict` output.
+
+    Raises:
+        ChoiceError: unknown kind; TaskError: missing or bad values.
+    """
+    from ..errors import check_choice
+
+    if not isinstance(data, dict):
+        raise TaskError(f"an obstacle must be a dict with kind, center, a, b, got {type(data).__name__}")
+    kind = check_choice("obstacle kind", data.get("kind"), OBSTACLE_KINDS)
+    missing = [k for k in ("center", "a", "b") if k not in data]
+    if missing:
+        raise TaskError(f"obstacle dict misses {', '.join(missing)}; needs kind, center, a, b, angle, height")
+    axis = np.asarray(data.get("axis", [0.0, 0.0, 1.0]), float)
+    if axis.shape != (3,) or np.linalg.norm(axis[:2]) > 1e-12 or axis[2] <= 0:
+        raise TaskError(f"only obstacles with their axis along +Z are supported, got axis {data.get('axis')!r}")
+    if kind == "ellipse":
+        return EllipseObstacle(data["center"], data["a"], data["b"], data.get("angle", 0.0),
+                               thickness=data.get("height", 0.02))
+    return EllipticCylinder(data["center"], data["a"], data["b"], data.get("angle", 0.0),
+                            height=data.get("height", 1.0))

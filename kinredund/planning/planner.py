@@ -1,0 +1,390 @@
+"""The off-line planner of Section 6.2.2: samples, spline, resolved-rate tracking, clearance check.
+
+:func:`plan` runs the thesis's three steps and then checks the result independently:
+
+1. **Samples** (Section 6.2.2.1): at each sample time the end-point target is solved at joint level,
+   min z s.t. g(theta) = x (Eqs. 6.21-6.22 or 6.43-6.44), with the policy index of
+   :mod:`kinredund.planning.policy` and :func:`kinredund.ik.solve_ik`, from many seeds. Every distinct
+   local minimum (positive-definite reduced Hessian, Eq. D.33) whose links clear the obstacle is a
+   candidate. The *branch* is the planner's choice (the thesis leaves it to the planner's expertise):
+   among the candidates, a cyclic dynamic programme picks the sequence with the smallest sum of
+   squared joint jumps between consecutive samples (closing the loop), so the arm changes branch only
+   where it has to. ``seeds`` forces candidates (e.g. a branch) at chosen samples.
+2. **Estimates** (Section 6.2.2.2): a cubic spline through the samples (:mod:`.spline`).
+3. **Tracking** (Section 6.2.2.3): the resolved-rate scheme of Chapter 4 with the time-varying index
+   h = 1/2 ||theta - theta*(t)||^2 and the spline's rate as feed-forward (Eqs. 6.23-6.28), through
+   :func:`kinredund.resolved_rate.track`: the tracked joints are the constrained optimum of h at each
+   time, so where the branch switch happens is found by the tracking itself.
+4. **Verification** (:mod:`.clearance`): every link against the obstacle along the whole tracked
+   motion, finer than the tracking steps. A plan with any penetration, or with a certified clearance
+   that is not positive, is returned with ``ok=False`` and the reason.
+
+A fact about the planar case that the thesis does not mention: a planar arm whose end point goes once
+around a convex obstacle and whose joints come back to their start sweeps over *every* point of the
+obstacle at some time. (For an interior point x, the chain from the base to P, deformed continuously
+over the loop, would otherwise be a null-homotopy in the plane minus x of the loop traced by P, which
+winds once around x.) So no planar plan of Section 6.2 is collision-free; :func:`plan` says so in the
+reason when it finds the penetration. In space an arm can pass over the top of a finite cylinder, and
+the spatial case (Section 6.3) can be collision-free.
+
+Units: times [s], joints [rad or m], lengths [m].
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from time import perf_counter
+
+import numpy as np
+
+from ..errors import KinredundError, TaskError
+from ..ik import sample_box
+from ..indices import Index, TimeVaryingReference
+from ..paths import Path
+from ..resolved_rate import track
+from ..trajectory import Trajectory
+from .branches import Candidate, Transition, candidates, choose, clearance_of, target_of, transition
+from .clearance import ClearanceReport, link_model, verify_motion
+from .obstacles import Obstacle
+from .policy import PlanarPolicy, SpatialPolicy
+from .spline import JointSpline
+
+#: (w1 [m^2], w2) of Eq. (6.21): the thesis's example values for sample point S5
+DEFAULT_WEIGHTS = (1e-3, 1.0)
+
+PolicyFactory = Callable[[object, Obstacle, np.ndarray, tuple], Index]
+
+
+@dataclass(frozen=True)
+class Samples:
+    """The sample points S1..SN and the configurations chosen there.
+
+    Attributes:
+        t: sample times [s], shape (N,).
+        p: end-point targets [m], shape (N, 3).
+        q: chosen configurations, unwrapped one after the other, shape (N, n).
+        turns: joint change over the loop (whole turns for revolute joints) [rad], shape (n,).
+        candidates: the number of distinct collision-free local minima found at each sample.
+        objective: the policy index at the chosen configurations.
+        clearance: per-link clearance at the chosen configurations [m], shape (N, k).
+        weights: (w1, w2) per sample, shape (N, 2) (nan for refinement samples).
+        kind: per sample, ``policy`` (a local minimum of the policy index, Eq. 6.21/6.44) or ``refined``
+            (inserted where consecutive samples jump: the configuration closest to the interpolated
+            estimate, see :func:`plan`).
+    """
+
+    t: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    turns: np.ndarray
+    candidates: tuple[int, ...]
+    objective: np.ndarray
+    clearance: np.ndarray
+    weights: np.ndarray
+    kind: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        """JSON-ready form (nan becomes None)."""
+        def plain(a):
+            return [[None if not np.isfinite(v) else float(v) for v in row] if np.ndim(row) else
+                    (None if not np.isfinite(row) else float(row)) for row in np.asarray(a, float)]
+
+        return {"t": self.t.tolist(), "p": self.p.tolist(), "q": self.q.tolist(), "turns": self.turns.tolist(),
+                "candidates": list(self.candidates), "objective": plain(self.objective),
+                "clearance": self.clearance.tolist(), "weights": plain(self.weights), "kind": list(self.kind)}
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """The outcome of :func:`plan`.
+
+    Attributes:
+        trajectory: the tracked motion (``meta["obstacle"]`` holds the obstacle), or None when the
+            plan stopped before tracking.
+        samples: the sample points and their configurations, or None when they could not be solved.
+        q_spline: the spline's estimates at the trajectory's times, shape (N, n), or None.
+        clearance_min: per-link minimum clearance along the motion [m] (the last link without its tool
+            tip), shape (k,), or None.
+        clearance: the full :class:`~kinredund.planning.clearance.ClearanceReport` (history), or None.
+        link_names: the link names.
+        spline_gap_max: the largest |q - q_spline| over the motion [rad] (nan without a trajectory).
+        ok: the plan is complete and collision-free (certified positive clearance, no penetration).
+        reason: "" when ok, else why not.
+        timings: wall times of the stages [s].
+        notes: remarks that are not failures.
+    """
+
+    trajectory: Trajectory | None
+    samples: Samples | None
+    q_spline: np.ndarray | None
+    clearance_min: np.ndarray | None
+    clearance: ClearanceReport | None
+    link_names: tuple[str, ...]
+    spline_gap_max: float
+    ok: bool
+    reason: str
+    timings: dict = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+    def summary(self) -> dict:
+        """Scalars and short lists: the figures a report or the CLI prints."""
+        tr = self.trajectory
+        c = self.clearance
+        out = {
+            "ok": self.ok,
+            "reason": self.reason,
+            "samples": 0 if self.samples is None else int(len(self.samples.t)),
+            "candidates": None if self.samples is None else list(self.samples.candidates),
+            "links": list(self.link_names),
+            "clearance_min": None if self.clearance_min is None else [float(v) for v in self.clearance_min],
+            "clearance_lower_bound": None if c is None else [float(v) for v in c.lower_bound],
+            "clearance_doubling_change": None if c is None or c.doubling_change is None
+            else [float(v) for v in c.doubling_change],
+            "penetration_max": None if c is None else float(c.penetration.max()),
+            "spline_gap_max": float(self.spline_gap_max),
+            "steps": None if tr is None else int(len(tr.t) - 1),
+            "position_error_max": None if tr is None else float(np.max(tr.position_error)),
+            "normality_residual_max": None if tr is None else float(np.max(tr.normality_residual)),
+            "loop_drift": None if tr is None or tr.loop_drift is None else float(tr.loop_drift[0]),
+            "timings_s": {k: float(v) for k, v in self.timings.items()},
+        }
+        return out
+
+
+def default_policy(robot, obstacle: Obstacle, normal: np.ndarray, weights) -> Index:
+    """The thesis's policy index for this robot: Eq. (6.21) for a planar 3R, Eq. (6.44) for a spatial arm.
+
+    Raises:
+        TaskError: a robot for which the thesis gives no policy (give ``policy=`` to :func:`plan`).
+    """
+    if robot.task == "planar":
+        hd = robot.hd
+        if hd is None or hd.n != 3 or np.any(np.abs(hd.alpha) > 1e-12) or np.any(hd.b != 0) or hd.kinds != "RRR":
+            raise TaskError("the planar policy (Eq. 6.21) needs a planar 3R arm built from an HD table; "
+                            "give plan(..., policy=...) for other arms")
+        return PlanarPolicy(obstacle, float(hd.a[0]), normal, weights, theta0=hd.theta0)
+    if robot.task == "position":
+        pair = link_model(robot).pairs[-1]
+        return SpatialPolicy(robot, obstacle, normal, link=(int(pair[0]), int(pair[1])), weights=weights)
+    raise TaskError(f"plan() needs a planar or position task, got {robot.task!r} (use robot.with_task('position'))")
+
+
+def _sample_times(samples, period: float) -> np.ndarray:
+    if isinstance(samples, (int, np.integer)) and not isinstance(samples, bool):
+        if samples < 4:
+            raise TaskError(f"at least 4 sample points are needed for a cubic spline, got {samples}")
+        return np.arange(int(samples)) * period / int(samples)
+    try:
+        t = np.asarray(samples, float)
+    except (TypeError, ValueError) as err:
+        raise TaskError(f"samples must be a count or sample times [s], got {samples!r}") from err
+    if t.ndim != 1 or t.size < 4 or not np.all(np.isfinite(t)):
+        raise TaskError(f"sample times must be at least 4 finite numbers, got {samples!r}")
+    if t[0] != 0.0 or np.any(np.diff(t) <= 0) or t[-1] >= period:
+        raise TaskError(f"sample times must start at 0, increase strictly and stay below the period {period:.6g} s")
+    return t
+
+
+def _weights(weights, n: int) -> np.ndarray:
+    w = np.asarray(weights, float)
+    if w.shape == (2,):
+        w = np.tile(w, (n, 1))
+    if w.shape != (n, 2) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise TaskError(f"weights must be (w1, w2) or one pair per sample ({n}, 2), all >= 0; got shape {w.shape}")
+    return w
+
+
+def _winding(path: Path, obstacle: Obstacle, period: float, count: int = 720) -> float:
+    """How many times the path goes around the obstacle's centre in the xy-plane over one period."""
+    ts = np.linspace(0.0, period, count + 1)
+    xy = np.array([path(t).p[:2] for t in ts]) - obstacle.center[:2]
+    ang = np.unwrap(np.arctan2(xy[:, 1], xy[:, 0]))
+    return float((ang[-1] - ang[0]) / (2 * np.pi))
+
+
+def _failure(reason, names, timings, samples=None, trajectory=None, notes=()) -> PlanResult:
+    return PlanResult(trajectory, samples, None, None, None, names, float("nan"), False, reason, timings, tuple(notes))
+
+
+def plan(
+    robot,
+    path: Path,
+    obstacle: Obstacle,
+    samples=9,
+    weights=DEFAULT_WEIGHTS,
+    *,
+    policy: PolicyFactory | None = None,
+    seeds: dict | None = None,
+    starts: int = 12,
+    seed: int = 0,
+    spline: str = "periodic",
+    steps_per_loop: int = 400,
+    substeps: int = 8,
+    link_radius: float = 0.0,
+    tool_tip: float | None = None,
+    check_doubling: bool = True,
+    refine: bool = True,
+    max_jump: float = 0.3,
+    max_refine: int = 32,
+    max_candidates: int | None = 4,
+    max_iter: int = 200,
+    progress=None,
+    meta: dict | None = None,
+) -> PlanResult:
+    """Plan a collision-free cyclic motion of the end point along a closed path on the obstacle.
+
+    Args:
+        robot: a planar robot (task ``planar``) or a spatial arm with a ``position`` task.
+        path: a closed path (with a ``period``) on the obstacle's boundary.
+        obstacle: an :class:`~kinredund.planning.obstacles.Obstacle`.
+        samples: the number of equally spaced sample points (from t = 0), or their times [s]
+            (starting at 0, below the period).
+        weights: (w1 [m^2], w2) of Eq. (6.21)/(6.44), or one pair per sample, shape (N, 2).
+        policy: ``policy(robot, obstacle, normal, (w1, w2)) -> Index``; default :func:`default_policy`.
+        seeds: {sample index: configuration or list of configurations} added to the seeds there.
+        starts: random seeds per sample (uniform in the joint limits, ``np.random.default_rng(seed)``);
+            the candidates of the previous sample are seeds too.
+        seed: the random seed.
+        spline: ``periodic`` (default) or ``natural`` (the thesis's), see :mod:`.spline`.
+        steps_per_loop: resolved-rate steps over the loop.
+        substeps: clearance checks per tracking step.
+        link_radius: capsule radius of the links [m].
+        tool_tip: the last link's tip excluded from its clearance [m]; default 1/6 of its length.
+        check_doubling: repeat the clearance check at twice the resolution.
+        refine: refine every transition between consecutive samples until no joint jumps by more than
+            ``max_jump`` [rad] (at most ``max_refine`` inserted points per transition), see
+            :mod:`.branches`. This keeps the estimate theta*(t) near the self-motion manifold, where the
+            closest-point tracking of Eq. (6.27) is regular (the thesis: choose sample points close to
+            one another where the configuration changes fast). The refined points join the samples
+            (``kind`` ``refined``).
+        max_candidates: the local minima kept per sample (lowest index value first), None for all.
+        max_iter: iterations of each joint-level solve.
+        progress: ``progress(done, total)`` during the tracking.
+        meta: extra entries for ``Trajectory.meta``.
+
+    Returns:
+        A :class:`PlanResult`; ``ok=False`` with a reason when a sample has no collision-free
+        solution, the tracking fails, or the verified motion touches or penetrates the obstacle.
+
+    Raises:
+        TaskError, PathError, ChoiceError: bad arguments (an open path, bad weights or sample times).
+    """
+    t_start = perf_counter()
+    timings: dict[str, float] = {}
+    if not isinstance(obstacle, Obstacle):
+        raise TaskError(f"obstacle must be a kinredund.planning Obstacle, got {type(obstacle).__name__}")
+    if path.period is None:
+        raise TaskError("plan() needs a closed path (one with a period)")
+    period = float(path.period)
+    ts = _sample_times(samples, period)
+    W = _weights(weights, ts.size)
+    factory = policy or default_policy
+    model = link_model(robot)
+    names = model.names
+    if tool_tip is None:
+        tool_tip = float(model.lengths[-1]) / 6.0
+    if not (0.0 <= tool_tip < model.lengths[-1]):
+        raise TaskError(f"tool_tip must be in [0, {model.lengths[-1]:.4g}) m (the last link), got {tool_tip!r}")
+    if not (np.isfinite(link_radius) and link_radius >= 0):
+        raise TaskError(f"link_radius must be a number >= 0 [m], got {link_radius!r}")
+    seeds = dict(seeds or {})
+    notes: list[str] = []
+
+    # -- step 1: the sample points at joint level (Eqs. 6.21-6.22) and the branch choice ----------
+    rng = np.random.default_rng(seed)
+    lo, hi = sample_box(robot)
+    cands: list[list[Candidate]] = []
+    ps = np.array([path(t).p for t in ts])
+    for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
+        index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
+        user = seeds.get(k)
+        user = [] if user is None else ([user] if np.ndim(user) == 1 else list(user))
+        pool = [robot.check_q(s, f"seed of sample {k + 1}") for s in user]
+        pool += [c.q for c in cands[-1]] if cands else []
+        pool += [rng.uniform(lo, hi) for _ in range(int(starts))]
+        found = candidates(robot, index, target_of(robot, p), pool, model, obstacle, link_radius, tool_tip, max_iter,
+                           limit=max_candidates)
+        if not found:
+            timings["samples_s"] = perf_counter() - t_start
+            return _failure(
+                f"sample S{k + 1} (t = {t:.4g} s, p = {np.round(p, 4).tolist()}) has no collision-free "
+                f"configuration at a local minimum of the policy ({len(pool)} seeds): the point may be out of "
+                "reach, or the obstacle too large for the arm", names, timings)
+        cands.append(found)
+    n = ts.size
+    trans: list[list[list[Transition]]] = []
+    for k in range(n):
+        tb = ts[k + 1] if k + 1 < n else period
+        nxt = cands[k + 1] if k + 1 < n else cands[0]
+        trans.append([[transition(robot, path, ts[k], a.q, tb, b.q, model=model, obstacle=obstacle,
+                                  radius=link_radius, tool_tip=tool_tip, max_jump=max_jump if refine else np.inf,
+                                  budget=max_refine, max_iter=max_iter) for b in nxt] for a in cands[k]])
+    costs = [np.array([[tr.cost for tr in row] for row in mat]) for mat in trans]
+    choice, total = choose(costs)
+    if choice is None or not np.isfinite(total):
+        timings["samples_s"] = perf_counter() - t_start
+        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
+        where = f" (none between S{bad[0] + 1} and S{(bad[0] + 1) % n + 1})" if bad else ""
+        return _failure(f"no cyclic sequence of sample configurations with continuous transitions{where}: "
+                        "try more samples or other sample times", names, timings)
+    rows = []  # (t, q, kind, candidate count, objective, clearance, weights)
+    acc = np.zeros(robot.nq)
+    for k in range(n):
+        c = cands[k][choice[k]]
+        rows.append((ts[k], c.q + acc, "policy", len(cands[k]), c.objective, c.clearance, W[k]))
+        tr = trans[k][choice[k]][choice[(k + 1) % n]]
+        for tm, qm in tr.points:
+            rows.append((tm, qm + acc, "refined", 0, np.nan,
+                         clearance_of(robot, qm, model, obstacle, link_radius, tool_tip), np.full(2, np.nan)))
+        acc = acc + tr.shift
+        if tr.min_clearance <= 0:
+            notes.append(f"the transition between S{k + 1} and S{(k + 1) % n + 1} is not collision-free at its "
+                         f"refined points (worst clearance {tr.min_clearance:.3g} m)")
+    smp = Samples(np.array([r[0] for r in rows]), np.array([path(r[0]).p for r in rows]),
+                  np.array([r[1] for r in rows]), acc, tuple(r[3] for r in rows), np.array([r[4] for r in rows]),
+                  np.array([r[5] for r in rows]), np.array([r[6] for r in rows]), tuple(r[2] for r in rows))
+    timings["samples_s"] = perf_counter() - t_start
+
+    # -- step 2: the spline estimates (Section 6.2.2.2) -------------------------------------------
+    spl = JointSpline(smp.t, smp.q, period, smp.turns, spline)
+
+    # -- step 3: resolved-rate tracking of h = 1/2 ||theta - theta*(t)||^2 (Eqs. 6.23-6.28) -------
+    t1 = perf_counter()
+    index = TimeVaryingReference(spl, spl.rate)
+    info = {"planner": "chapter6", "obstacle": obstacle.to_dict(), "samples": smp.to_dict(), "spline": spline,
+            "links": list(names), "link_lengths": model.lengths.tolist(), "link_radius": float(link_radius),
+            "tool_tip": float(tool_tip)}
+    info.update(meta or {})
+    try:
+        traj = track(robot, path, index, smp.q[0], steps_per_loop=steps_per_loop, loops=1, progress=progress,
+                     meta=info)
+    except KinredundError as err:
+        timings["tracking_s"] = perf_counter() - t1
+        return _failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)
+    timings["tracking_s"] = perf_counter() - t1
+    q_spline = spl.values(traj.t)
+    gap = float(np.abs(traj.q - q_spline).max())
+
+    # -- step 4: verification, independent of the indices ----------------------------------------
+    t2 = perf_counter()
+    rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, radius=link_radius,
+                        tool_tip=tool_tip, check_doubling=check_doubling)
+    timings["clearance_s"] = perf_counter() - t2
+    timings["total_s"] = perf_counter() - t_start
+    reason = ""
+    if not rep.collision_free:
+        parts = []
+        for name, a, b, depth in rep.intervals()[:6]:
+            parts.append(f"{name} for t in [{a:.4g}, {b:.4g}] s (depth {depth:.3g} m)")
+        if not parts:
+            k = int(np.argmin(rep.lower_bound))
+            parts.append(f"{names[k]}: certified clearance {rep.lower_bound[k]:.3g} m is not positive")
+        reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
+        if robot.task == "planar" and abs(_winding(path, obstacle, period)) > 0.5:
+            reason += (" - unavoidable here: a planar arm whose end point goes around a convex obstacle and "
+                       "whose joints return to their start sweeps over every point of the obstacle "
+                       "(see kinredund.planning.planner)")
+    if traj.loop_drift is not None and traj.loop_drift[0] > 1e-6:
+        notes.append(f"the joint path does not close: drift {traj.loop_drift[0]:.3g} rad after one loop")
+    return PlanResult(traj, smp, q_spline, rep.minimum, rep, names, gap, not reason, reason, timings, tuple(notes))

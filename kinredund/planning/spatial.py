@@ -1,0 +1,184 @@
+"""Section 6.3: the spatial case - an arm of the CYBOTECH P-15 architecture around an elliptic cylinder.
+
+- :func:`scaled_p15`: Table 4.1's architecture (the twists alpha) with every length multiplied by one
+  scale factor. Table 4.1's lengths reach about 0.5 m; the task of Eqs. (6.45)-(6.50) lies 1.4-2.4 m
+  from the base at a height of 1.19-1.37 m, so the thesis's example cannot have used them.
+- :func:`section_path`: the trajectory, the intersection of the cylinder with an inclined plane,
+  Eqs. (6.46)-(6.50):
+
+      x = x_d cos psi - y_d sin psi + x0,   y = x_d sin psi + y_d cos psi + y0,   z = a cos(beta) sin(gamma) + h
+      x_d = a cos(beta) cos(gamma),         y_d = b sin(beta)
+
+  with gamma = 10 deg, psi = 0, h = 1.278 m, a = 0.508 m, b = 0.25 m, (x0, y0) = (1.9, 0) m and
+  beta = start + rate t. The OCR of y_d reads "b sin beta cos gamma"; we drop the cos gamma because the
+  thesis then states that the projection's semi-axes are 0.5 m and 0.25 m (a cos gamma = 0.5 m, and
+  b = 0.25 m only without it), which also makes the curve lie on the cylinder whose directrix is that
+  projection. The curve lies in the plane x - cot(gamma) z + (h cot(gamma) - x0) = 0, i.e.
+  x - 5.671 z + 5.348 = 0; Eq. (6.45) prints 5.4, about 9 mm higher - within the OCR's rounding.
+- :func:`section_cylinder`: the obstacle, the elliptic cylinder with semi-axes (a cos gamma, b) about the
+  vertical axis through (x0, y0), from the floor z = 0 up to the path's highest point (so the path
+  lies on its lateral surface, touching the top rim at beta = 0).
+- :func:`arm_plane_semi_axis_discriminant` and :func:`link2_semi_axis_discriminant`: the thesis's route
+  to b - substitute the link's line into the ellipse and make the quadratic's discriminant vanish
+  (Eqs. 6.7-6.15 and 6.30-6.36) - solved numerically, to check the closed form used by the policy.
+- :func:`link4_direction_thesis`: the direction cosines of Eqs. (6.40)-(6.42) as read from the OCR,
+  L = sgn(b5) (-c1 c23 s4 - s1 c4, c1 c4 - s1 c23 s4, -s23 s4), c23 = cos(theta2 + theta3). The model
+  of Table 4.1 (alpha2 = 180 deg: axis 3 antiparallel to axis 2) gives instead
+  L = (c1 c(2-3) s4 - s1 c4, s1 c(2-3) s4 + c1 c4, s(2-3) s4): the printed formula is the model's with
+  alpha2 = 0 (theta3 adds to theta2) and theta4 of opposite sign - i.e. alpha2 = 0 and alpha3 = +90 deg
+  (the tests check both statements).
+
+Units: lengths [m], angles [rad].
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..catalog import cybotech_p15
+from ..errors import TaskError
+from ..hd import HDTable
+from ..paths import FunctionPath
+from ..robot import Robot, robot_from_hd
+from .obstacles import EllipticCylinder, Obstacle
+
+#: Eqs. (6.49)-(6.50) and the cylinder's axis
+GAMMA = math.radians(10.0)
+PSI = 0.0
+H = 1.278
+A = 0.508
+B = 0.25
+CENTER_XY = (1.9, 0.0)
+#: the scale of Table 4.1's lengths adopted for Section 6.3 (see :func:`scaled_p15`)
+P15_SCALE = 8.0
+
+
+def scaled_p15(scale: float = P15_SCALE, *, lower=None, upper=None, task: str = "position") -> Robot:
+    """An arm of the CYBOTECH P-15 architecture (Table 4.1's twists) with its lengths times ``scale``.
+
+    With scale 8: b1 = 1.28 m (shoulder height), a2 = 1.28 m, a3 = 1.6 m, b5 = 1.12 m (the link from
+    the elbow-side wrist axis to the wrist centre P). This is the smallest integer scale for which every
+    point of the Section 6.3 path has a collision-free configuration with several centimetres to spare
+    (scales 5-7 leave points near beta = 0, the far side of the cylinder, with none or with millimetres).
+
+    Joint limits: Table 4.1's limits of axes 2-4 (+-45 deg, -45..135 deg, +-60 deg) leave the half of
+    the path with y > 0 unreachable without collision, so axes 1-4 get [-pi, pi] and the wrist +-2 pi
+    unless ``lower``/``upper`` are given.
+
+    Args:
+        scale: the factor on every length of Table 4.1 (> 0).
+        lower, upper: joint limits [rad], shape (7,).
+        task: the task kind (``position``: the wrist centre; the thesis positions it with axes 1-4).
+
+    Raises:
+        TaskError: a scale that is not a finite number > 0.
+    """
+    if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+        raise TaskError(f"the scale must be a finite number > 0, got {scale!r}")
+    t = cybotech_p15()
+    pi = math.pi
+    lo = [-pi] * 4 + [-2 * pi] * 3 if lower is None else lower
+    hi = [pi] * 4 + [2 * pi] * 3 if upper is None else upper
+    table = HDTable(alpha=t.alpha, a=scale * t.a, b=scale * t.b, lower=lo, upper=hi,
+                    name=f"cybotech_p15_x{scale:g}",
+                    notes=f"Table 4.1 (CYBOTECH P-15) with every length times {scale:g} (Section 6.3)")
+    return robot_from_hd(table, task=task)
+
+
+def section_point(beta, *, a: float = A, b: float = B, gamma: float = GAMMA, psi: float = PSI, h: float = H,
+                  center=CENTER_XY):
+    """Points of the path at parameters beta, Eqs. (6.46)-(6.49): shape (..., 3) [m]."""
+    beta = np.asarray(beta, float)
+    xd = a * np.cos(beta) * math.cos(gamma)  # Eq. (6.48)
+    yd = b * np.sin(beta)  # Eq. (6.49), without the OCR's cos(gamma) (module docstring)
+    x = xd * math.cos(psi) - yd * math.sin(psi) + center[0]  # Eq. (6.46)
+    y = xd * math.sin(psi) + yd * math.cos(psi) + center[1]  # Eq. (6.47)
+    z = a * np.cos(beta) * math.sin(gamma) + h  # Eq. (6.48)
+    return np.stack([x, y, z], axis=-1)
+
+
+def section_path(rate: float = 1.0, start: float = 0.0, **shape) -> FunctionPath:
+    """The closed path of Section 6.3: beta = start + rate t, period 2 pi / rate [s].
+
+    Args:
+        rate: d beta / dt [rad/s].
+        start: beta at t = 0 [rad].
+        **shape: a, b, gamma, psi, h, center of :func:`section_point`.
+    """
+    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
+        raise TaskError(f"the rate must be a finite number > 0 [rad/s], got {rate!r}")
+    a = shape.get("a", A)
+    b = shape.get("b", B)
+    gamma = shape.get("gamma", GAMMA)
+    psi = shape.get("psi", PSI)
+
+    def fn(t):
+        beta = start + rate * t
+        dxd = -a * math.sin(beta) * math.cos(gamma)
+        dyd = b * math.cos(beta)
+        dp = np.array([dxd * math.cos(psi) - dyd * math.sin(psi), dxd * math.sin(psi) + dyd * math.cos(psi),
+                       -a * math.sin(beta) * math.sin(gamma)])  # d/d beta of Eqs. (6.46)-(6.49)
+        return section_point(beta, **shape), rate * dp
+
+    return FunctionPath(fn, period=2 * math.pi / rate)
+
+
+def section_cylinder(*, a: float = A, b: float = B, gamma: float = GAMMA, psi: float = PSI, h: float = H,
+                     center=CENTER_XY) -> EllipticCylinder:
+    """The cylinder the path lies on: semi-axes (a cos gamma, b), from z = 0 to the path's top."""
+    top = h + a * abs(math.sin(gamma))
+    return EllipticCylinder((center[0], center[1], 0.5 * top), a * math.cos(gamma), b, psi, height=top)
+
+
+def _discriminant_root(disc, b_hi: float) -> float:
+    """The b in (0, b_hi] where disc(b) changes sign (bisection); disc(b) > 0 means intersection."""
+    lo, hi = 1e-12, b_hi
+    if disc(hi) <= 0:
+        return hi
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if disc(mid) > 0:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+def _line_discriminant(obstacle: Obstacle, point, angle: float, b: float) -> float:
+    """B^2 - 4AC of the line through ``point`` at ``angle`` met with the concentric ellipse (r b, b)."""
+    r = obstacle.ratio
+    c, s = math.cos(obstacle.angle), math.sin(obstacle.angle)
+    x0, y0 = obstacle.center[0], obstacle.center[1]
+    # points of the line: point + tau (cos angle, sin angle); in the ellipse frame (Eqs. 6.4-6.5)
+    px, py = point[0] - x0, point[1] - y0
+    ux, uy = math.cos(angle), math.sin(angle)
+    pu, pv = px * c + py * s, -px * s + py * c
+    uu, uv = ux * c + uy * s, -ux * s + uy * c
+    qa = uu**2 / (r * b) ** 2 + uv**2 / b**2  # Eq. (6.3) as a quadratic in tau (6.7 / 6.30)
+    qb = 2 * (pu * uu / (r * b) ** 2 + pv * uv / b**2)
+    qc = pu**2 / (r * b) ** 2 + pv**2 / b**2 - 1.0
+    return qb * qb - 4 * qa * qc  # Eq. (6.15) / (6.36)
+
+
+def link2_semi_axis_discriminant(obstacle: Obstacle, l1: float, theta1: float, theta2: float) -> float:
+    """b of Eq. (6.16) by the thesis's route: the discriminant (6.15) of link 2's line and the ellipse."""
+    E = (l1 * math.cos(theta1), l1 * math.sin(theta1))
+    far = 10.0 * (np.linalg.norm(obstacle.center[:2]) + l1 + 1.0)
+    return _discriminant_root(lambda b: _line_discriminant(obstacle, E, theta1 + theta2, b), far)
+
+
+def arm_plane_semi_axis_discriminant(obstacle: Obstacle, theta1: float) -> float:
+    """b of Eq. (6.37) by the thesis's route: the projected link k2 (y - x tan theta1 = 0, Eq. 6.29)."""
+    far = 10.0 * (np.linalg.norm(obstacle.center[:2]) + 1.0)
+    return _discriminant_root(lambda b: _line_discriminant(obstacle, (0.0, 0.0), theta1, b), far)
+
+
+def link4_direction_thesis(theta, b5: float = 1.0) -> np.ndarray:
+    """Direction cosines of the fourth link, Eqs. (6.40)-(6.42) as read (module docstring)."""
+    t1, t2, t3, t4 = (float(v) for v in np.asarray(theta, float)[:4])
+    c1, s1, c4, s4 = math.cos(t1), math.sin(t1), math.cos(t4), math.sin(t4)
+    c23, s23 = math.cos(t2 + t3), math.sin(t2 + t3)
+    sg = math.copysign(1.0, b5)
+    return sg * np.array([-c23 * c1 * s4 - s1 * c4, c1 * c4 - c23 * s1 * s4, -s23 * s4])  # Eqs. (6.40)-(6.42)
