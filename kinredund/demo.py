@@ -11,8 +11,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from .generate import atomic_write_text
 
 
@@ -89,10 +87,13 @@ def _chapter6(out: Path, rows: list, data: dict, log) -> None:
         s = res.summary()
         data[case] = s
         clearance = s.get("clearance_min")
-        rows.append([f"Section {case}", "planner", _fmt(s.get("position_error_max")), "-", "-", "-",
-                     _fmt(s.get("loop_drift")), f"ok={res.ok}, min clearance {np.min(clearance):.3g} m"
-                     if clearance is not None else f"ok={res.ok}"])
-        replay_html(res.trajectory, out / f"section_{tag}.html")
+        note = f"ok={res.ok}" + (f", min clearance {min(clearance):.3g} m" if clearance else "")
+        if not res.ok:
+            note += f": {res.reason}"
+        rows.append([f"Section {case}", "planner", _fmt(s.get("position_error_max")), "-", "-",
+                     _fmt(s.get("normality_residual_max")), _fmt(s.get("loop_drift")), note])
+        if res.trajectory is not None:
+            replay_html(res.trajectory, out / f"section_{tag}.html")
         log(f"Section {case}: done in {time.perf_counter() - t0:.1f} s")
 
 
