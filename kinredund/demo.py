@@ -32,7 +32,9 @@ def _chapter4(out: Path, loops: int, rows: list, data: dict, log) -> None:
         ex = load_example(name)
         runs = {
             "default": run_example(ex, loops=loops),
-            "thesis": run_example(ex, loops=loops, mode="thesis"),
+            # one loop, as the thesis ran it: over many loops the explicit scheme leaves the optimum
+            # (Example 4.3: the drift grows from 0.05 to 1.6 rad per loop over 10 loops)
+            "thesis": run_example(ex, loops=1, mode="thesis"),
             "pseudoinverse": run_example(ex, loops=loops, scheme="pseudoinverse"),
             "liegeois": run_example(ex, loops=loops, scheme="liegeois"),
         }
