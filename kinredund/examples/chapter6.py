@@ -77,12 +77,14 @@ def planar_feasibility(robot, path, obstacle, samples: int = 720) -> dict:
 
 def _spatial_plan(samples, progress):
     from ..planning import spatial
+    from ..planning.roadmap import plan_roadmap
 
     robot = spatial.scaled_p15()
     path = spatial.section_path()
     obstacle = spatial.section_cylinder()
-    return robot, obstacle, plan(robot, path, obstacle, samples=samples, progress=progress,
-                                 meta={"example": "6.3"})
+    # the policy's optima at the samples do not join into a collision-free loop on this arm; the branch
+    # comes from a roadmap of the self-motion manifold (kinredund.planning.roadmap)
+    return robot, obstacle, plan_roadmap(robot, path, obstacle, progress=progress, meta={"example": "6.3"})
 
 
 def run_case(case: str, samples: int = 9, progress=None) -> tuple[PlanResult, dict]:
@@ -178,6 +180,16 @@ def reproduce(case: str, json_path=None, plot_path=None, progress=None, samples:
         atomic_write_text(json_path, json.dumps(_plain(to_json_dict(case, result, extra)), allow_nan=False))
     if plot_path is not None:
         plot_case(case, result, extra, plot_path)
+        if result.trajectory is not None:  # configuration snapshots (Figs. 6.14-6.22) beside the main plot
+            from pathlib import Path
+
+            from ..planning import spatial
+            from ..planning.figures import snapshot_figure
+
+            robot = load_robot("planar3r_ch6") if case == "6.2" else spatial.scaled_p15()
+            obstacle = planar_setup()[2] if case == "6.2" else spatial.section_cylinder()
+            p = Path(plot_path)
+            snapshot_figure(result, robot, obstacle, p.with_name(f"{p.stem}_snapshots{p.suffix}"))
     return result
 
 

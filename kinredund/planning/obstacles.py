@@ -34,8 +34,9 @@ from ..errors import TaskError
 #: then at most ``length * SEGMENT_TOL`` above the exact minimum (the signed distance is 1-Lipschitz)
 SEGMENT_TOL = 1e-10
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
-#: bisection steps of the ellipse root: the bracket shrinks below the spacing of doubles
-_BISECT = 80
+#: bisection steps of the ellipse root, then monotone Newton steps (quadratic convergence from the left)
+_BISECT = 24
+_NEWTON = 8
 OBSTACLE_KINDS = ("ellipse", "elliptic_cylinder")
 
 
@@ -86,6 +87,16 @@ def ellipse_closest_point(a: float, b: float, u, v) -> tuple[np.ndarray, np.ndar
             pos = f > 0
             lo = np.where(pos, mid, lo)
             hi = np.where(pos, hi, mid)
+        # F is convex and decreasing: Newton from the left end (F(lo) >= 0) rises monotonically to the root
+        s_ = lo
+        for _ in range(_NEWTON):
+            a0, a1 = n0 / (s_ + r0), z1 / (s_ + 1.0)
+            f = a0 * a0 + a1 * a1 - 1.0
+            df = -2.0 * (a0 * a0 / (s_ + r0) + a1 * a1 / (s_ + 1.0))
+            step = np.where((f > 0) & (df < 0), -f / df, 0.0)
+            step = np.where(np.isfinite(step), step, 0.0)  # at the pole s = -1 (points on the major axis)
+            s_ = np.minimum(s_ + step, hi)
+        lo = hi = s_
         s = 0.5 * (lo + hi)
         x0 = r0 * y0 / (s + r0)
         x0 = np.minimum(x0, a)
@@ -283,38 +294,125 @@ class EllipseObstacle(Obstacle):
 class EllipticCylinder(Obstacle):
     """The obstacle of Section 6.3: an elliptic cylinder with its axis parallel to Z.
 
+    Its bottom is the plane z = center_z - height/2. Its top is either the plane z = center_z + height/2
+    or, with ``top_normal``, an inclined plane through (x0, y0, top_z) - the cylinder cut obliquely, as in
+    Eqs. (6.45)-(6.50) where the path is the cut's rim. ``center`` and ``height`` then describe the
+    bounding right cylinder (what playback draws); :meth:`to_dict` adds the plane as ``top_plane``.
+
     Args:
-        center: the centre of the cylinder (mid-height) [m], shape (3,).
+        center: the centre of the (bounding) cylinder [m], shape (3,).
         a, b: semi-axes of its directrix [m].
         angle: psi [rad].
-        height: its height [m] > 0; it spans center_z -+ height/2.
+        height: the (bounding) height [m] > 0.
+        top_normal: the inclined top's upward unit normal (3,) (z component > 0), or None.
+        top_z: the height of the inclined top on the axis [m].
     """
 
     height: float = 1.0
+    top_normal: np.ndarray | None = None
+    top_z: float | None = None
 
     kind = "elliptic_cylinder"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "height", _positive("height", self.height))
+        if self.top_normal is not None:
+            n = np.asarray(self.top_normal, float)
+            if n.shape != (3,) or not np.all(np.isfinite(n)) or n[2] <= 0:
+                raise TaskError(f"top_normal must be 3 finite numbers with z > 0, got {self.top_normal!r}")
+            if self.top_z is None or not math.isfinite(float(self.top_z)):
+                raise TaskError("an inclined top needs top_z, its height on the axis [m]")
+            object.__setattr__(self, "top_normal", n / np.linalg.norm(n))
+            object.__setattr__(self, "top_z", float(self.top_z))
+            object.__setattr__(self, "_rim", self._rim_frame())
 
     @property
     def z_range(self) -> tuple[float, float]:
-        """(z_bottom, z_top) [m]."""
+        """(z_bottom, z_top) of the (bounding) cylinder [m]."""
         h = 0.5 * self.height
         return float(self.center[2] - h), float(self.center[2] + h)
+
+    def top_height(self, xy) -> np.ndarray:
+        """The height of the top above points (..., 2 or 3) [m]."""
+        xy = np.asarray(xy, float)
+        if self.top_normal is None:
+            return np.full(xy.shape[:-1], self.z_range[1])
+        n = self.top_normal
+        return self.top_z - (n[0] * (xy[..., 0] - self.center[0]) + n[1] * (xy[..., 1] - self.center[1])) / n[2]
+
+    def _rim_frame(self):
+        """Centre, principal directions (3, 2) and semi-axes of the top rim (an ellipse in the top plane)."""
+        e1, e2 = self.axes()
+        c = np.array([self.center[0], self.center[1], self.top_z])
+        lift = []
+        for e, s in ((e1, self.a), (e2, self.b)):
+            v = np.array([e[0], e[1], 0.0]) * s
+            v[2] = -(self.top_normal[0] * v[0] + self.top_normal[1] * v[1]) / self.top_normal[2]
+            lift.append(v)
+        U, S, _ = np.linalg.svd(np.column_stack(lift), full_matrices=False)  # conjugate -> principal semi-axes
+        return c, U, S
 
     def signed_distance(self, points) -> np.ndarray:
         points = np.asarray(points, float)
         dxy = self.ellipse_distance(points)
         z0, z1 = self.z_range
-        dz = np.maximum(z0 - points[..., 2], points[..., 2] - z1)
-        inside = np.minimum(np.maximum(dxy, dz), 0.0)
-        return inside + np.hypot(np.maximum(dxy, 0.0), np.maximum(dz, 0.0))  # exact for an extrusion
+        dbot = z0 - points[..., 2]
+        if self.top_normal is None:
+            dz = np.maximum(dbot, points[..., 2] - z1)
+            inside = np.minimum(np.maximum(dxy, dz), 0.0)
+            return inside + np.hypot(np.maximum(dxy, 0.0), np.maximum(dz, 0.0))  # exact for an extrusion
+        n = self.top_normal
+        c, U, S = self._rim
+        dtop = (points - c) @ n  # signed distance to the top plane
+        inner = np.maximum(np.maximum(dxy, dtop), dbot)  # exact inside: the nearest of the three surfaces
+        # outside: the nearest of the five boundary pieces (each candidate is a point of the solid)
+        cand = []
+        lat_ok = (points[..., 2] >= z0) & (points[..., 2] <= self.top_height_at_boundary(points))
+        cand.append(np.where(lat_ok, np.abs(dxy), np.inf))  # lateral surface
+        foot = points - dtop[..., None] * n
+        cand.append(np.where(self.ellipse_distance(foot) <= 0, np.abs(dtop), np.inf))  # top face
+        cand.append(np.where(dxy <= 0, np.abs(dbot), np.inf))  # bottom face
+        rel = foot - c
+        d_in = np.abs(ellipse_signed_distance(S[0], S[1], rel @ U[:, 0], rel @ U[:, 1]))
+        cand.append(np.hypot(dtop, d_in))  # top rim
+        cand.append(np.hypot(dbot, np.abs(dxy)))  # bottom rim
+        outside = np.min(np.stack(cand, axis=-1), axis=-1)
+        return np.where(inner <= 0, inner, outside)
+
+    def top_height_at_boundary(self, points) -> np.ndarray:
+        """The top's height above the boundary point of the directrix closest to each point [m]."""
+        u, v = self.local(points)
+        xu, xv = ellipse_closest_point(self.a, self.b, u, v)
+        e1, e2 = self.axes()
+        x = self.center[0] + xu * e1[0] + xv * e2[0]
+        y = self.center[1] + xu * e1[1] + xv * e2[1]
+        return self.top_height(np.stack([x, y], axis=-1))
 
     def to_dict(self) -> dict:
-        return {"kind": "elliptic_cylinder", "center": [float(v) for v in self.center], "a": self.a, "b": self.b,
-                "angle": self.angle, "axis": [0.0, 0.0, 1.0], "height": self.height}
+        out = {"kind": "elliptic_cylinder", "center": [float(v) for v in self.center], "a": self.a, "b": self.b,
+               "angle": self.angle, "axis": [0.0, 0.0, 1.0], "height": self.height}
+        if self.top_normal is not None:
+            out["top_plane"] = {"point": [float(self.center[0]), float(self.center[1]), self.top_z],
+                                "normal": [float(v) for v in self.top_normal]}
+        return out
+
+
+def cut_cylinder(center_xy, a: float, b: float, angle: float, *, bottom: float, top_normal, top_z: float
+                 ) -> EllipticCylinder:
+    """An elliptic cylinder from z = ``bottom`` up to an inclined plane (normal ``top_normal`` through
+    (x0, y0, top_z)); its ``center``/``height`` bound it (they reach the top's highest point)."""
+    n = np.asarray(top_normal, float)
+    n = n / np.linalg.norm(n)
+    # the top's highest point over the directrix: maximise -(n_xy . d)/n_z over the ellipse
+    e1, e2 = (np.array([math.cos(angle), math.sin(angle)]), np.array([-math.sin(angle), math.cos(angle)]))
+    g = n[:2]
+    rise = math.hypot(a * (g @ e1), b * (g @ e2)) / n[2]
+    top = top_z + rise
+    if top <= bottom:
+        raise TaskError(f"the cut plane lies below the bottom ({bottom} m)")
+    return EllipticCylinder((center_xy[0], center_xy[1], 0.5 * (bottom + top)), a, b, angle, height=top - bottom,
+                            top_normal=n, top_z=top_z)
 
 
 def obstacle_from_dict(data: dict) -> Obstacle:
@@ -337,5 +435,9 @@ def obstacle_from_dict(data: dict) -> Obstacle:
     if kind == "ellipse":
         return EllipseObstacle(data["center"], data["a"], data["b"], data.get("angle", 0.0),
                                thickness=data.get("height", 0.02))
+    top = data.get("top_plane")
+    if top is not None:
+        return EllipticCylinder(data["center"], data["a"], data["b"], data.get("angle", 0.0),
+                                height=data.get("height", 1.0), top_normal=top["normal"], top_z=top["point"][2])
     return EllipticCylinder(data["center"], data["a"], data["b"], data.get("angle", 0.0),
                             height=data.get("height", 1.0))

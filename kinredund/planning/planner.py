@@ -170,6 +170,78 @@ def default_policy(robot, obstacle: Obstacle, normal: np.ndarray, weights) -> In
     raise TaskError(f"plan() needs a planar or position task, got {robot.task!r} (use robot.with_task('position'))")
 
 
+@dataclass(frozen=True)
+class WristReach:
+    """Whether the spatial policy's last link can lie along the normal at each target (Eq. 6.44).
+
+    With the last link (length l) along the outward normal n at P, its joint sits at the wrist point
+    W = P + l n, which the links before it must reach from the last joint origin that no joint moves
+    (O2 for the P-15 architecture): ``|W - O| <= reach``, the chain length from O to W's joint.
+
+    Attributes:
+        origin: the fixed joint origin O [m], shape (3,).
+        reach: the chain length from O to the last link's joint [m].
+        wrist: the points W [m], shape (N, 3).
+        distance: |W - O| [m], shape (N,).
+        margin: reach - |W - O| [m], shape (N,) (negative: W out of reach).
+        end_margin: reach + l - |P - O| [m], shape (N,) (negative: P itself out of reach).
+    """
+
+    origin: np.ndarray
+    reach: float
+    wrist: np.ndarray
+    distance: np.ndarray
+    margin: np.ndarray
+    end_margin: np.ndarray
+
+
+def wrist_reach(robot, points, normals, link=None) -> WristReach | None:
+    """The :class:`WristReach` of the targets ``points`` (N, 3) with outward normals ``normals`` (N, 3).
+
+    Args:
+        robot: a spatial arm with revolute joints (None is returned for other arms).
+        points, normals: the end-point targets [m] and the obstacle's outward unit normals there.
+        link: the joint-origin indices (i, j) of the last link; default the last link of
+            :func:`~kinredund.planning.clearance.link_model`.
+    """
+    if not np.all(robot.revolute):
+        return None
+    model = link_model(robot)
+    i, j = (int(v) for v in (model.pairs[-1] if link is None else link))
+    rng = np.random.default_rng(0)
+    qs = [np.asarray(robot.home, float)] + [rng.uniform(-np.pi, np.pi, robot.nq) for _ in range(2)]
+    pts = np.array([robot.kinematics.joint_origins(q) for q in qs])
+    fixed = [m for m in range(i + 1) if np.abs(pts[:, m] - pts[0, m]).max() < 1e-9]
+    o = int(fixed[-1])
+    origin = pts[0, o]
+    reach = float(np.linalg.norm(np.diff(pts[0, o:i + 1], axis=0), axis=1).sum())
+    length = float(np.linalg.norm(pts[0, j] - pts[0, i]))
+    p = np.asarray(points, float).reshape(-1, 3)
+    n = np.asarray(normals, float).reshape(-1, 3)
+    w = p + length * n
+    dist = np.linalg.norm(w - origin, axis=1)
+    end = reach + length - np.linalg.norm(p - origin, axis=1)
+    return WristReach(origin, reach, w, dist, reach - dist, end)
+
+
+def _reach_reason(wr: WristReach, ts, ps, names) -> str:
+    """The failure reason of :func:`plan` for a :class:`WristReach` with a negative margin."""
+    o = np.round(wr.origin, 4).tolist()
+    if wr.end_margin.min() < 0:
+        k = int(np.argmin(wr.end_margin))
+        return (f"sample S{k + 1} (t = {ts[k]:.4g} s, p = {np.round(ps[k], 4).tolist()}) is out of reach: "
+                f"{-wr.end_margin[k]:.4g} m beyond the arm's reach from {o}")
+    bad = np.flatnonzero(wr.margin < 0)
+    k = int(np.argmin(wr.margin))
+    return (f"the last link ({names[-1]}) cannot lie along the obstacle's normal (Eq. 6.44) at "
+            f"{bad.size} of {len(ts)} samples: at S{k + 1} (t = {ts[k]:.4g} s, p = {np.round(ps[k], 4).tolist()}) "
+            f"its joint W = P + l n = {np.round(wr.wrist[k], 4).tolist()} is {wr.distance[k]:.4g} m from the "
+            f"fixed joint origin {o}, {-wr.margin[k]:.4g} m beyond the reach {wr.reach:.4g} m of the links "
+            "before it, so the policy's optima cannot be met there; plan with a policy of your own "
+            "(policy=...), a larger arm, or, for the P-15 layout, kinredund.planning.roadmap.plan_roadmap, which "
+            "chooses the branch on the self-motion manifold (Section 6.3 plans that way at scale 8)")
+
+
 def _sample_times(samples, period: float) -> np.ndarray:
     if isinstance(samples, (int, np.integer)) and not isinstance(samples, bool):
         if samples < 4:
@@ -229,6 +301,7 @@ def plan(
     max_refine: int = 32,
     max_candidates: int | None = 4,
     max_iter: int = 200,
+    check_reach: bool = True,
     progress=None,
     meta: dict | None = None,
 ) -> PlanResult:
@@ -260,6 +333,11 @@ def plan(
             (``kind`` ``refined``).
         max_candidates: the local minima kept per sample (lowest index value first), None for all.
         max_iter: iterations of each joint-level solve.
+        check_reach: for a spatial arm with the default policy, fail at once (before any solve) when
+            a sample's wrist point W = P + l n is beyond the reach of the links before the last one
+            (:func:`wrist_reach`): the policy's last link cannot lie along the normal there (Eq. 6.44),
+            and the branches found with it tilted do not join into a loop (Section 6.3 at scale 8).
+            A sample whose end point itself is out of reach fails whatever this flag.
         progress: ``progress(done, total)`` during the tracking.
         meta: extra entries for ``Trajectory.meta``.
 
@@ -296,6 +374,11 @@ def plan(
     lo, hi = sample_box(robot)
     cands: list[list[Candidate]] = []
     ps = np.array([path(t).p for t in ts])
+    if robot.task == "position":
+        wr = wrist_reach(robot, ps, obstacle.normal_at(ps))
+        if wr is not None and (wr.end_margin.min() < 0 or (check_reach and policy is None and wr.margin.min() < 0)):
+            timings["samples_s"] = perf_counter() - t_start
+            return _failure(_reach_reason(wr, ts, ps, names), names, timings)
     for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
         index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
         user = seeds.get(k)
@@ -369,7 +452,7 @@ def plan(
     # -- step 4: verification, independent of the indices ----------------------------------------
     t2 = perf_counter()
     rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, radius=link_radius,
-                        tool_tip=tool_tip, check_doubling=check_doubling)
+                        tool_tip=tool_tip, check_doubling=check_doubling, path=path)
     timings["clearance_s"] = perf_counter() - t2
     timings["total_s"] = perf_counter() - t_start
     reason = ""

@@ -16,17 +16,21 @@
   projection. The curve lies in the plane x - cot(gamma) z + (h cot(gamma) - x0) = 0, i.e.
   x - 5.671 z + 5.348 = 0; Eq. (6.45) prints 5.4, about 9 mm higher - within the OCR's rounding.
 - :func:`section_cylinder`: the obstacle, the elliptic cylinder with semi-axes (a cos gamma, b) about the
-  vertical axis through (x0, y0), from the floor z = 0 up to the path's highest point (so the path
-  lies on its lateral surface, touching the top rim at beta = 0).
+  vertical axis through (x0, y0), from the floor z = 0 up to the cutting plane: the path is the rim of
+  its inclined top ("the trajectory is the curve formed by the intersection of a plane and the
+  cylinder"; "the whole surface of the cylinder is the obstacle"). A cylinder that went on above the
+  plane, with the path on its side, admits no collision-free cyclic motion of this arm at any scale we
+  tried (8-16): the arm cannot get over it.
 - :func:`arm_plane_semi_axis_discriminant` and :func:`link2_semi_axis_discriminant`: the thesis's route
   to b - substitute the link's line into the ellipse and make the quadratic's discriminant vanish
   (Eqs. 6.7-6.15 and 6.30-6.36) - solved numerically, to check the closed form used by the policy.
 - :func:`link4_direction_thesis`: the direction cosines of Eqs. (6.40)-(6.42) as read from the OCR,
   L = sgn(b5) (-c1 c23 s4 - s1 c4, c1 c4 - s1 c23 s4, -s23 s4), c23 = cos(theta2 + theta3). The model
   of Table 4.1 (alpha2 = 180 deg: axis 3 antiparallel to axis 2) gives instead
-  L = (c1 c(2-3) s4 - s1 c4, s1 c(2-3) s4 + c1 c4, s(2-3) s4): the printed formula is the model's with
-  alpha2 = 0 (theta3 adds to theta2) and theta4 of opposite sign - i.e. alpha2 = 0 and alpha3 = +90 deg
-  (the tests check both statements).
+  L = (c1 c(2-3) s4 - s1 c4, s1 c(2-3) s4 + c1 c4, s(2-3) s4). Searching the twist signs (tests): the
+  printed formula is the model's for alpha2 = 0 only, and then up to the overall sign - exactly for
+  alpha = (90, 0, -90, -90, ...) deg, or for Table 4.1's alpha4 = +90 deg with b5 < 0. The policy uses
+  the model's direction, not the printed formula.
 
 Units: lengths [m], angles [rad].
 """
@@ -42,7 +46,7 @@ from ..errors import TaskError
 from ..hd import HDTable
 from ..paths import FunctionPath
 from ..robot import Robot, robot_from_hd
-from .obstacles import EllipticCylinder, Obstacle
+from .obstacles import EllipticCylinder, Obstacle, cut_cylinder
 
 #: Eqs. (6.49)-(6.50) and the cylinder's axis
 GAMMA = math.radians(10.0)
@@ -55,13 +59,20 @@ CENTER_XY = (1.9, 0.0)
 P15_SCALE = 8.0
 
 
-def scaled_p15(scale: float = P15_SCALE, *, lower=None, upper=None, task: str = "position") -> Robot:
+def scaled_p15(scale: float = P15_SCALE, *, last_link: float | None = None, lower=None, upper=None,
+               task: str = "position") -> Robot:
     """An arm of the CYBOTECH P-15 architecture (Table 4.1's twists) with its lengths times ``scale``.
 
     With scale 8: b1 = 1.28 m (shoulder height), a2 = 1.28 m, a3 = 1.6 m, b5 = 1.12 m (the link from
     the elbow-side wrist axis to the wrist centre P). This is the smallest integer scale for which every
     point of the Section 6.3 path has a collision-free configuration with several centimetres to spare
     (scales 5-7 leave points near beta = 0, the far side of the cylinder, with none or with millimetres).
+    But the policy's last link cannot lie along the lateral normal there: its joint W = P + b5 n is
+    3.52 m from O2, beyond links 2-3's reach 2.88 m (:func:`~kinredund.planning.planner.wrist_reach`;
+    margin 0.36 s - |W - O2| = -0.64, -0.42, -0.21, 0.00, +0.20 m at scales 8-12), so :func:`plan`
+    with the default policy fails at once below scale 12. For scales above 10, W at beta = pi lies
+    behind the base and the aligned last link crosses link 1's axis: no uniform scale meets the policy
+    exactly on the whole path (``last_link`` decouples b5 from the scale).
 
     Joint limits: Table 4.1's limits of axes 2-4 (+-45 deg, -45..135 deg, +-60 deg) leave the half of
     the path with y > 0 unreachable without collision, so axes 1-4 get [-pi, pi] and the wrist +-2 pi
@@ -69,6 +80,7 @@ def scaled_p15(scale: float = P15_SCALE, *, lower=None, upper=None, task: str = 
 
     Args:
         scale: the factor on every length of Table 4.1 (> 0).
+        last_link: the length b5 of the last positioning link [m] instead of ``scale`` * 0.14 m.
         lower, upper: joint limits [rad], shape (7,).
         task: the task kind (``position``: the wrist centre; the thesis positions it with axes 1-4).
 
@@ -77,12 +89,19 @@ def scaled_p15(scale: float = P15_SCALE, *, lower=None, upper=None, task: str = 
     """
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
         raise TaskError(f"the scale must be a finite number > 0, got {scale!r}")
+    if last_link is not None and not (isinstance(last_link, (int, float)) and math.isfinite(last_link)
+                                      and last_link > 0):
+        raise TaskError(f"last_link must be a finite length > 0 [m], got {last_link!r}")
     t = cybotech_p15()
+    b = scale * np.asarray(t.b, float)
+    if last_link is not None:
+        b[4] = float(last_link)
     pi = math.pi
     lo = [-pi] * 4 + [-2 * pi] * 3 if lower is None else lower
     hi = [pi] * 4 + [2 * pi] * 3 if upper is None else upper
-    table = HDTable(alpha=t.alpha, a=scale * t.a, b=scale * t.b, lower=lo, upper=hi,
-                    name=f"cybotech_p15_x{scale:g}",
+    tag = "" if last_link is None else f"_b5_{last_link:g}"
+    table = HDTable(alpha=t.alpha, a=scale * t.a, b=b, lower=lo, upper=hi,
+                    name=f"cybotech_p15_x{scale:g}{tag}",
                     notes=f"Table 4.1 (CYBOTECH P-15) with every length times {scale:g} (Section 6.3)")
     return robot_from_hd(table, task=task)
 
@@ -126,10 +145,11 @@ def section_path(rate: float = 1.0, start: float = 0.0, **shape) -> FunctionPath
 
 
 def section_cylinder(*, a: float = A, b: float = B, gamma: float = GAMMA, psi: float = PSI, h: float = H,
-                     center=CENTER_XY) -> EllipticCylinder:
-    """The cylinder the path lies on: semi-axes (a cos gamma, b), from z = 0 to the path's top."""
-    top = h + a * abs(math.sin(gamma))
-    return EllipticCylinder((center[0], center[1], 0.5 * top), a * math.cos(gamma), b, psi, height=top)
+                     center=CENTER_XY, bottom: float = 0.0) -> EllipticCylinder:
+    """The obstacle: the elliptic cylinder (semi-axes a cos gamma, b) from the floor up to the cutting plane
+    of Eq. (6.45), so that the path is the rim of its inclined top (a pipe cut obliquely)."""
+    normal = np.array([-math.sin(gamma) * math.cos(psi), -math.sin(gamma) * math.sin(psi), math.cos(gamma)])
+    return cut_cylinder(center, a * math.cos(gamma), b, psi, bottom=bottom, top_normal=normal, top_z=h)
 
 
 def _discriminant_root(disc, b_hi: float) -> float:
@@ -182,3 +202,28 @@ def link4_direction_thesis(theta, b5: float = 1.0) -> np.ndarray:
     c23, s23 = math.cos(t2 + t3), math.sin(t2 + t3)
     sg = math.copysign(1.0, b5)
     return sg * np.array([-c23 * c1 * s4 - s1 * c4, c1 * c4 - c23 * s1 * s4, -s23 * s4])  # Eqs. (6.40)-(6.42)
+
+
+def top_normal_policy(robot, obstacle, normal, weights):
+    """A policy factory for :func:`~kinredund.planning.planner.plan` (its ``policy=``): Eq. (6.44) with the
+    last link along the normal of the cut cylinder's inclined *top* at P (the other side of the rim)
+    instead of the lateral surface's, and w1 = 0.
+
+    The path of Section 6.3 is the rim of the cut, where the outward normals span the cone between the
+    lateral normal n and the top's normal; this picks the top's, so W = P + l n_top lies above the cut
+    and the arm can stay above the obstacle. The term w1 / b(theta1)^2 is dropped: it is infinite when
+    the arm plane passes over the cylinder's axis (b = 0), which reaching over the top requires.
+
+    Raises:
+        TaskError: an obstacle without an inclined top (``top_normal``).
+    """
+    from ..planning.clearance import link_model
+    from ..planning.policy import SpatialPolicy
+
+    top = getattr(obstacle, "top_normal", None)
+    if top is None:
+        raise TaskError("top_normal_policy needs a cut cylinder (EllipticCylinder with top_normal), "
+                        f"got {type(obstacle).__name__} without one")
+    pair = link_model(robot).pairs[-1]
+    return SpatialPolicy(robot, obstacle, np.asarray(top, float), link=(int(pair[0]), int(pair[1])),
+                         weights=(0.0, float(weights[1])))

@@ -1,0 +1,200 @@
+"""Chapter 6: the cut cylinder, the policy indices, the thesis's closed forms, the roadmap plan of Section 6.3."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from kinredund.catalog import cybotech_p15
+from kinredund.hd import HDTable
+from kinredund.indices import check_index
+from kinredund.planning.clearance import link_clearance, link_segments, verify_motion
+from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder, obstacle_from_dict
+from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, tangent_semi_axis
+from kinredund.planning.roadmap import check_architecture, origins, plan_roadmap, self_motion
+from kinredund.planning.spatial import (
+    arm_plane_semi_axis_discriminant,
+    link2_semi_axis_discriminant,
+    link4_direction_thesis,
+    scaled_p15,
+    section_cylinder,
+    section_path,
+)
+from kinredund.planning.spline import JointSpline
+from kinredund.robot import robot_from_hd
+
+
+def _boundary_cloud(cyl: EllipticCylinder, around=1500, up=400, radial=200) -> np.ndarray:
+    ring, _ = cyl.boundary(np.linspace(0, 2 * np.pi, around, endpoint=False))
+    z0 = cyl.z_range[0]
+    top = cyl.top_height(ring)
+    pts = [np.column_stack([ring, z0 + f * (top - z0)]) for f in np.linspace(0, 1, up)]
+    for f in np.linspace(0, 1, radial):
+        xy = cyl.center[:2] + f * (ring - cyl.center[:2])
+        pts += [np.column_stack([xy, cyl.top_height(xy)]), np.column_stack([xy, np.full(len(xy), z0)])]
+    return np.vstack(pts)
+
+
+def test_cut_cylinder_distance_is_exact_against_its_sampled_surface():
+    cyl = section_cylinder()
+    cloud = _boundary_cloud(cyl)
+    spacing = 2 * np.pi * 0.5 / 1500 + 1.4 / 400  # a bound of the cloud's spacing [m]
+    rng = np.random.default_rng(0)
+    X = rng.uniform([0.9, -0.8, -0.4], [2.9, 0.8, 2.0], size=(800, 3))
+    d = cyl.signed_distance(X)
+    near = cKDTree(cloud).query(X)[0]
+    assert np.all(np.abs(d) <= near + 1e-12)  # the exact distance never exceeds a sampled one
+    assert np.all(near - np.abs(d) <= spacing)  # and the samples come within their spacing of it
+    # the path of Eqs. (6.46)-(6.50) is the rim of the cut
+    path = section_path()
+    ps = np.array([path(t).p for t in np.linspace(0, path.period, 97)])
+    assert np.abs(cyl.signed_distance(ps)).max() < 1e-12
+
+
+def test_cut_cylinder_segment_distance_against_dense_sampling_and_round_trip():
+    cyl = section_cylinder()
+    rng = np.random.default_rng(1)
+    p0 = rng.uniform([0.5, -1, 0], [3.0, 1, 2.5], size=(60, 3))
+    p1 = rng.uniform([0.5, -1, 0], [3.0, 1, 2.5], size=(60, 3))
+    got = cyl.segment_distance(p0, p1)
+    s = np.linspace(0, 1, 4001)
+    for k in range(60):
+        dense = cyl.signed_distance(p0[k] + np.outer(s, p1[k] - p0[k]))
+        step = np.linalg.norm(p1[k] - p0[k]) / 4000
+        assert got[k] <= dense.min() + 1e-9
+        assert dense.min() - got[k] <= step  # 1-Lipschitz: the samples are within a step of the minimum
+    again = obstacle_from_dict(cyl.to_dict())
+    np.testing.assert_allclose(again.signed_distance(p0), cyl.signed_distance(p0), atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_policy_gradients_and_hessians(seed):
+    rng = np.random.default_rng(seed)
+    ob = EllipseObstacle((0.9, 0.0), 0.15, 0.075, np.radians(20))
+    _, n = ob.boundary(rng.uniform(0, 2 * np.pi))
+    planar = PlanarPolicy(ob, 0.5, n, (1e-3, 1.0))
+    robot = scaled_p15()
+    spatial = SpatialPolicy(robot, section_cylinder(), np.array([1.0, 0.3, 0.0]), link=(4, 5))
+    for _ in range(3):
+        check_index(planar, rng.uniform(-3, 3, 3), tol=1e-5)
+        check_index(spatial, rng.uniform(-2, 2, 7), tol=1e-5)
+
+
+def test_semi_axis_closed_form_equals_the_thesis_discriminant_route():
+    rng = np.random.default_rng(2)
+    ob = EllipseObstacle((0.9, 0.0), 0.15, 0.075, 0.35)
+    for t1, t2 in rng.uniform(-3, 3, (15, 2)):
+        E = 0.5 * np.array([np.cos(t1), np.sin(t1)])
+        assert link2_semi_axis_discriminant(ob, 0.5, t1, t2) == pytest.approx(
+            float(tangent_semi_axis(ob, E, t1 + t2)), abs=1e-12)  # Eqs. (6.15)-(6.16)
+    cyl = section_cylinder()
+    for t1 in rng.uniform(-3, 3, 15):
+        assert arm_plane_semi_axis_discriminant(cyl, t1) == pytest.approx(
+            float(tangent_semi_axis(cyl, np.zeros(2), t1)), abs=1e-12)  # Eqs. (6.36)-(6.37)
+
+
+def _link4_error(alpha_deg, sign=1.0):
+    t = cybotech_p15()
+    robot = robot_from_hd(HDTable(np.radians(alpha_deg), t.a, t.b, name="variant"), task="position")
+    err = 0.0
+    for q in np.random.default_rng(3).uniform(-3, 3, (20, 7)):
+        o = robot.kinematics.joint_origins(q)
+        L = (o[5] - o[4]) / np.linalg.norm(o[5] - o[4])
+        err = max(err, float(np.abs(L - sign * link4_direction_thesis(q)).max()))
+    return err
+
+
+def test_printed_direction_cosines_need_alpha2_zero():
+    assert _link4_error([90, 180, -90, 90, 90, 90, -90]) > 0.5  # Table 4.1 as printed: no
+    assert _link4_error([90, 180, -90, 90, 90, 90, -90], -1.0) > 0.5
+    assert _link4_error([90, 0, -90, 90, 90, 90, -90], -1.0) < 1e-12  # alpha2 = 0: up to the sign
+    assert _link4_error([90, 0, -90, -90, 90, 90, -90]) < 1e-12  # and exactly with alpha4 = -90 deg
+
+
+def test_closed_form_self_motion_reaches_the_target():
+    robot = scaled_p15()
+    arch = check_architecture(robot)
+    p = section_path()(1.0).p
+    q, ok = self_motion(arch, p, np.linspace(-np.pi, np.pi, 90, endpoint=False))
+    assert ok.sum() > 20
+    ends = origins(arch, q[ok])[:, 4]
+    assert np.abs(ends - p).max() < 1e-12
+    fk = np.array([robot.fk(np.concatenate([qq, np.zeros(3)]))[:3, 3] for qq in q[ok][:10]])
+    assert np.abs(fk - p).max() < 1e-12
+    with pytest.raises(Exception, match="architecture of Table 4.1"):
+        check_architecture(robot_from_hd(HDTable(np.zeros(3), [1, 1, 1], np.zeros(3)), task="planar"))
+
+
+def test_periodic_spline_joins_up_across_the_loop():
+    t = np.linspace(0, 4.0, 7, endpoint=False)
+    q = np.column_stack([np.sin(t), np.cos(2 * t) + t * np.pi / 2])
+    spl = JointSpline(t, q, 4.0, np.array([0.0, 2 * np.pi]))
+    np.testing.assert_allclose(spl(4.0), spl(0.0) + [0.0, 2 * np.pi], atol=1e-12)
+    np.testing.assert_allclose(spl.rate(4.0 - 1e-9), spl.rate(1e-9), atol=1e-6)
+    np.testing.assert_allclose(spl.values(t), q, atol=1e-12)
+
+
+def test_penetration_of_the_tool_link_is_found():
+    robot = scaled_p15()
+    cyl = section_cylinder()
+    seg = link_segments(robot, np.zeros(7))
+    inward = seg.copy()
+    p = section_path()(0.0).p  # the far point of the rim: the last link ends there, coming out of the solid
+    inward[0, -1, 1] = p
+    inward[0, -1, 0] = p + np.array([-0.5, 0.0, -0.3])
+    _, pen, tip = link_clearance(cyl, inward, tool_tip=0.1)
+    assert tip[0] < 1e-12 and pen[0] > 0.05
+    outward = inward.copy()
+    outward[0, -1, 0] = p + np.array([0.5, 0.0, 0.0])  # along the outward normal: touches at P only
+    _, pen, _ = link_clearance(cyl, outward, tool_tip=0.1)
+    assert pen[0] < 1e-12
+
+
+@pytest.fixture(scope="module")
+def section_6_3(tmp_path_factory):
+    from kinredund.examples.chapter6 import reproduce
+
+    out = tmp_path_factory.mktemp("ch6")
+    result = reproduce("6.3", json_path=out / "6.3.json", plot_path=out / "6.3.png")
+    return result, out
+
+
+def test_section_6_3_plan_is_collision_free_cyclic_and_on_the_path(section_6_3):
+    result, out = section_6_3
+    assert result.ok, result.reason
+    tr = result.trajectory
+    assert tr.position_error.max() < 1e-8
+    assert tr.loop_drift[0] < 1e-8  # the joint path closes after a loop
+    c = result.clearance
+    assert np.all(result.clearance_min > 0) and np.all(c.lower_bound > 0)
+    assert c.penetration.max() == 0.0
+    # the check's resolution is fine enough: doubling it moves no minimum by more than the stated bound
+    assert np.all(c.doubling_change <= 0.5 * c.motion_bound + 1e-12)
+    assert result.spline_gap_max < 1e-2
+    assert tr.meta["obstacle"]["kind"] == "elliptic_cylinder" and "top_plane" in tr.meta["obstacle"]
+    data = json.loads((out / "6.3.json").read_text())
+    for key in ("t", "q", "q_spline", "samples", "clearance_min", "obstacle", "ok", "reason"):
+        assert key in data
+    assert len(data["clearance_min"]) == 4 and data["ok"] is True
+    assert (out / "6.3.png").stat().st_size > 0 and (out / "6.3_snapshots.png").stat().st_size > 0
+
+
+def test_section_6_3_clearance_is_recomputed_independently(section_6_3):
+    result, _ = section_6_3
+    tr = result.trajectory
+    rep = verify_motion(scaled_p15(), section_cylinder(), tr.t, tr.q, substeps=2, tool_tip=result.clearance.tool_tip,
+                        check_doubling=False, path=section_path())
+    assert np.all(rep.minimum > 0)
+    assert np.all(rep.minimum >= result.clearance_min - 1e-12)  # a coarser check cannot find less clearance
+
+
+def test_an_obstacle_too_large_for_the_arm_is_reported_as_failed():
+    robot = scaled_p15()
+    big = EllipticCylinder((1.9, 0.0, 0.7), 1.6, 1.2, 0.0, height=1.4, top_normal=[-0.17, 0.0, 0.98], top_z=1.278)
+    result = plan_roadmap(robot, section_path(), big, slices=24, grid=120)
+    assert not result.ok
+    assert "no cyclic collision-free motion" in result.reason
+    assert result.trajectory is None

@@ -1,0 +1,100 @@
+"""Section 6.3 (spatial case): the reach of the policy's wrist point and the planner's fast failure."""
+
+import numpy as np
+import pytest
+
+from kinredund.planning.clearance import link_model
+from kinredund.planning.planner import plan, wrist_reach
+from kinredund.planning.spatial import scaled_p15, section_cylinder, section_path
+
+
+def _targets(count=73, **shape):
+    path = section_path(**shape)
+    ts = np.linspace(0.0, path.period, count)
+    ps = np.array([path(t).p for t in ts])
+    return ps
+
+
+@pytest.mark.parametrize("scale", [8.0, 12.0])
+def test_wrist_reach_bounds_every_configuration(scale):
+    robot = scaled_p15(scale)
+    cyl = section_cylinder()
+    ps = _targets(9)
+    wr = wrist_reach(robot, ps, cyl.normal_at(ps))
+    i = int(link_model(robot).pairs[-1][0])
+    rng = np.random.default_rng(3)
+    dist = [np.linalg.norm(robot.kinematics.joint_origins(robot.random_configuration(rng, 0.0))[i] - wr.origin)
+            for _ in range(400)]
+    assert max(dist) <= wr.reach + 1e-9
+    assert max(dist) > 0.97 * wr.reach  # the bound is nearly attained (links 2-3 stretched)
+    stretched = np.zeros(robot.nq)
+    stretched[2] = np.pi if np.linalg.norm(robot.kinematics.joint_origins(stretched)[i] - wr.origin) < wr.reach - 1e-9 \
+        else 0.0
+    assert np.linalg.norm(robot.kinematics.joint_origins(stretched)[i] - wr.origin) == pytest.approx(wr.reach)
+
+
+def test_wrist_point_is_the_end_point_moved_along_the_normal():
+    robot = scaled_p15(12.0)
+    cyl = section_cylinder()
+    ps = _targets(37)
+    n = cyl.normal_at(ps)
+    wr = wrist_reach(robot, ps, n)
+    length = link_model(robot).lengths[-1]
+    np.testing.assert_allclose(np.linalg.norm(wr.wrist - ps, axis=1), length, rtol=1e-12)
+    np.testing.assert_allclose((wr.wrist - ps) @ np.eye(3), length * n, atol=1e-12)
+    np.testing.assert_allclose(wr.margin, wr.reach - np.linalg.norm(wr.wrist - wr.origin, axis=1), atol=1e-12)
+
+
+@pytest.mark.parametrize("scale", [8.0, 9.0, 10.0, 12.0, 14.0])
+def test_wrist_margin_matches_the_p15_closed_form(scale):
+    # O2 at height b1 = 0.16 s, links 2-3 reach (a2 + a3) = 0.36 s, last link b5 = 0.14 s (Table 4.1 x s)
+    robot = scaled_p15(scale)
+    cyl = section_cylinder()
+    ps = _targets(181)
+    n = cyl.normal_at(ps)
+    wr = wrist_reach(robot, ps, n)
+    expected = 0.36 * scale - np.linalg.norm(ps + 0.14 * scale * n - np.array([0.0, 0.0, 0.16 * scale]), axis=1)
+    np.testing.assert_allclose(wr.margin, expected, atol=1e-9)
+    assert (wr.margin.min() > 0) == (scale >= 12.0)  # scale 11 is the borderline (margin ~0)
+
+
+def test_plan_fails_fast_when_the_wrist_is_out_of_reach():
+    robot = scaled_p15(8.0)
+    path, cyl = section_path(), section_cylinder()
+    res = plan(robot, path, cyl, samples=9)
+    assert not res.ok and res.samples is None and res.trajectory is None
+    assert "S1 " in res.reason and "beyond the reach" in res.reason
+    p = path(0.0).p
+    w = p + 1.12 * cyl.normal_at(p)
+    short = np.linalg.norm(w - np.array([0.0, 0.0, 1.28])) - 2.88
+    assert f"{short:.4g} m beyond" in res.reason
+
+
+def test_an_end_point_out_of_reach_fails_whatever_the_flag():
+    robot = scaled_p15(8.0)
+    far = {"center": (10.0, 0.0)}
+    res = plan(robot, section_path(**far), section_cylinder(**far), samples=6, check_reach=False)
+    assert not res.ok and res.samples is None
+    assert "out of reach" in res.reason and "S1 " in res.reason
+
+
+def test_top_normal_policy_aims_the_last_link_along_the_cut_normal():
+    from kinredund.errors import TaskError
+    from kinredund.planning.obstacles import EllipticCylinder
+    from kinredund.planning.spatial import top_normal_policy
+
+    robot = scaled_p15(8.0)
+    cyl = section_cylinder()
+    p = section_path()(0.7).p
+    pol = top_normal_policy(robot, cyl, cyl.normal_at(p), (1e-3, 1.0))
+    np.testing.assert_allclose(pol.normal, np.asarray(cyl.top_normal) / np.linalg.norm(cyl.top_normal))
+    assert pol.weights == (0.0, 1.0)
+    # the index is 0 exactly when the last link points along -n_top (Eq. 6.44 with w1 = 0)
+    rng = np.random.default_rng(5)
+    q = robot.random_configuration(rng, 0.1)
+    z = pol.evaluate(q)[0]
+    dev = q[pol.wrist_joints] - pol.wrist_ref
+    assert z == pytest.approx(1.0 - float(pol.direction(q) @ -pol.normal) + 0.5 * pol.w_wrist * float(dev @ dev))
+    with pytest.raises(TaskError, match="top_normal"):
+        top_normal_policy(robot, EllipticCylinder((1.9, 0.0, 0.5), 0.5, 0.25, 0.0, height=1.0), cyl.normal_at(p),
+                          (1e-3, 1.0))
