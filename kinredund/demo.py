@@ -95,7 +95,12 @@ def _chapter6(out: Path, rows: list, data: dict, log) -> None:
         rows.append([f"Section {case}", "planner", _fmt(s.get("position_error_max")), "-", "-",
                      _fmt(s.get("normality_residual_max")), _fmt(s.get("loop_drift")), note])
         if res.trajectory is not None:
-            replay_html(res.trajectory, out / f"section_{tag}.html")
+            robot = None
+            if case == "6.3":
+                from .planning.spatial import scaled_p15
+
+                robot = scaled_p15()  # the scaled arm is built from its HD table, not loaded by name
+            replay_html(res.trajectory, out / f"section_{tag}.html", robot=robot)
         log(f"Section {case}: done in {time.perf_counter() - t0:.1f} s")
 
 

@@ -428,7 +428,7 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
             q = qn
             continue
         enorm = math.sqrt(float(e @ e))
-        rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1e-12)  # exact-penalty weight > ||lambda||
+        rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1.0)  # exact penalty > ||lambda||; > 0 at grad z = 0
         M = H + contract(res.k_multipliers(lam, jl), dK[rows])  # Hess z + Lambda, Eqs. (4.20)-(4.26)
         Br = L.T @ M @ L
         w, V = np.linalg.eigh(0.5 * (Br + Br.T))

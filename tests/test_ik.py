@@ -467,3 +467,15 @@ def test_multistart_samples_do_not_depend_on_the_batch_size(monkeypatch):
     three = solve_ik(r, T, q0=mid, bounds=True, tol=1e-5, starts=64)
     assert one.starts == three.starts == res.starts
     assert np.array_equal(one.q, res.q) and np.array_equal(three.q, res.q)
+
+
+def test_constrained_minimum_seeded_at_the_index_reference_off_the_path():
+    """grad z = 0 at the seed: the merit function's penalty weight must still be positive."""
+    import kinredund
+    from kinredund.indices import JointDeviation
+
+    r = kinredund.load_robot("panda")
+    target = r.fk(r.home)
+    target[:3, 3] += 0.01
+    res = kinredund.solve_ik(r, target, JointDeviation(r.home), q0=r.home)
+    assert res.converged and res.normality_residual < 1e-10 and res.reduced_hessian_pd
