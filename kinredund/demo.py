@@ -124,7 +124,7 @@ def run_demo(out: Path, quick: bool = False, stream=None) -> int:
             failures.append(f"{label}: {type(err).__name__}: {err}")
             log(f"{label} FAILED: {type(err).__name__}: {err}")
     header = ["example", "run", "position error [m]", "trace error", "vect error", "normality residual",
-              "joint drift, last loop [rad]", "notes (LU steps / thesis)"]
+              "joint drift from the start after the last loop [rad]", "notes (LU steps / thesis)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
     table = "\n".join(lines)
