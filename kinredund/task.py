@@ -100,11 +100,6 @@ def jacobian_derivative(task: str, Q: np.ndarray, K: np.ndarray, dK: np.ndarray)
     return dK[TASK_ROWS[task]]
 
 
-def velocity_rows(task: str) -> np.ndarray:
-    """Rows of K that the task's twist uses: all six for ``pose``, else the position rows."""
-    return np.arange(6) if task == "pose" else TASK_ROWS[task]
-
-
 def pose_errors(Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:
     """(position error [m], trace error |tr Q - tr Q_d|, vect error ||vect Q - vect Q_d||).
 

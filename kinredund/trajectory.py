@@ -11,7 +11,7 @@ become (nested) lists; ``meta`` is a free-form dict (example name, obstacle, par
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -159,4 +159,4 @@ def joint_drift(q_start: np.ndarray, q_end: np.ndarray, revolute: np.ndarray) ->
     return float(np.max(np.abs(d)))
 
 
-__all__ = ["Trajectory", "joint_drift", "asdict"]
+__all__ = ["Trajectory", "joint_drift"]
