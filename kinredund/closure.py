@@ -12,6 +12,8 @@ Pure functions of arrays; nothing here calls Pinocchio. Symbols (see ``docs/nota
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _EYE3 = np.eye(3)
@@ -52,6 +54,36 @@ def natural_invariants(Q: np.ndarray) -> tuple[np.ndarray, float]:
     k = int(np.argmax(np.diag(S)))
     u = S[:, k] / np.sqrt(S[k, k])
     return u, float(np.pi)
+
+
+#: below this angle [rad] phi / sin(phi) is taken to second order
+SMALL_ANGLE = 1e-4
+_NEAR_PI_SIN = 1e-6
+
+
+def rotation_log(R: np.ndarray) -> tuple[np.ndarray, float]:
+    """The rotation vector w = u phi of R (phi in [0, pi]) and its angle phi [rad] (Eqs. 2.4-2.8)."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+    w, phi = log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+    return np.array(w), phi
+
+
+def log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R) -> tuple[tuple[float, float, float], float]:
+    """:func:`rotation_log` on the nine entries as Python floats (the IK's inner loop has them)."""
+    vx, vy, vz = 0.5 * (r21 - r12), 0.5 * (r02 - r20), 0.5 * (r10 - r01)  # vect(R), Eq. (2.8)
+    c = 0.5 * (r00 + r11 + r22 - 1.0)  # cos(phi), Eq. (2.7)
+    s = math.sqrt(vx * vx + vy * vy + vz * vz)  # sin(phi)
+    phi = math.atan2(s, c)
+    if phi < SMALL_ANGLE:
+        f = 1.0 + phi * phi / 6.0  # phi / sin(phi) to second order
+    elif s > _NEAR_PI_SIN:
+        f = phi / s
+    else:  # phi ~ pi: the axis from the symmetric part of R
+        u, phi = natural_invariants(np.asarray(R))
+        if u[0] * vx + u[1] * vy + u[2] * vz < 0.0:
+            u = -u
+        return (float(u[0] * phi), float(u[1] * phi), float(u[2] * phi)), phi
+    return (f * vx, f * vy, f * vz), phi
 
 
 def euler_parameters(Q: np.ndarray) -> np.ndarray:

@@ -24,33 +24,6 @@ import numpy as np
 from . import closure
 from .task import TASK_ROWS, Target
 
-_SMALL_ANGLE = 1e-4
-_NEAR_PI_SIN = 1e-6
-
-
-def rotation_log(R: np.ndarray) -> tuple[np.ndarray, float]:
-    """The rotation vector w = u phi of R (phi in [0, pi]) and its angle phi [rad] (Eqs. 2.4-2.8)."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
-    w, phi = _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
-    return np.array(w), phi
-
-
-def _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R) -> tuple[tuple[float, float, float], float]:
-    vx, vy, vz = 0.5 * (r21 - r12), 0.5 * (r02 - r20), 0.5 * (r10 - r01)  # vect(R), Eq. (2.8)
-    c = 0.5 * (r00 + r11 + r22 - 1.0)  # cos(phi), Eq. (2.7)
-    s = math.sqrt(vx * vx + vy * vy + vz * vz)  # sin(phi)
-    phi = math.atan2(s, c)
-    if phi < _SMALL_ANGLE:
-        f = 1.0 + phi * phi / 6.0  # phi / sin(phi) to second order
-    elif s > _NEAR_PI_SIN:
-        f = phi / s
-    else:  # phi ~ pi: the axis from the symmetric part of R
-        u, phi = closure.natural_invariants(np.asarray(R))
-        if u[0] * vx + u[1] * vy + u[2] * vz < 0.0:
-            u = -u
-        return (float(u[0] * phi), float(u[1] * phi), float(u[2] * phi)), phi
-    return (f * vx, f * vy, f * vz), phi
-
 
 def inverse_left_jacobian(w, phi: float) -> np.ndarray:
     """Jl^-1(w) of SO(3): d log(R)/dt = Jl^-1 omega when dR/dt = [omega]x R.
@@ -58,7 +31,7 @@ def inverse_left_jacobian(w, phi: float) -> np.ndarray:
     Jl^-1 = 1 - [w]x / 2 + kappa [w]x^2 = (1 - kappa phi^2) 1 - [w]x / 2 + kappa w w^T,
     kappa = 1/phi^2 - cot(phi/2) / (2 phi).
     """
-    if phi < _SMALL_ANGLE:
+    if phi < closure.SMALL_ANGLE:
         kappa = 1.0 / 12.0 + phi * phi / 720.0
     else:
         kappa = 1.0 / (phi * phi) - math.cos(0.5 * phi) / (2.0 * phi * math.sin(0.5 * phi))
@@ -102,7 +75,7 @@ class TaskResidual:
             return p[self.rows - 3] - self.x_d, None
         R = Q @ self.QdT
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
-        w, phi = _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+        w, phi = closure.log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
         px, py, pz = p.tolist()
         dx, dy, dz = self.p_d_list
         return np.array([*w, px - dx, py - dy, pz - dz]), inverse_left_jacobian(w, phi)
@@ -113,7 +86,7 @@ class TaskResidual:
         if self.pose:
             R = Q @ self.QdT
             (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
-            (a, b, c), _ = _log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+            (a, b, c), _ = closure.log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
             px, py, pz = p.tolist()
             dx, dy, dz = self.p_d_list
             px, py, pz = px - dx, py - dy, pz - dz

@@ -28,17 +28,6 @@ from .paths import PathSample
 from .task import TASK_ROWS
 
 
-def rotation_log(R: np.ndarray) -> np.ndarray:
-    """The rotation vector u phi of R (phi in [0, pi]); accurate down to the smallest angles."""
-    q = closure.vect(R)
-    s = float(np.linalg.norm(q))
-    c = 0.5 * (np.trace(R) - 1.0)
-    if s < 1e-4 and c > 0:
-        return q * (1.0 + s * s / 6.0)  # phi / sin(phi) = 1 + phi^2/6 + O(phi^4)
-    u, phi = closure.natural_invariants(R)
-    return u * phi
-
-
 def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool = True):
     """(r, J, dJ or None, xdot, lam_basis, dJdt or None) at one configuration; see the module docstring.
 
@@ -53,7 +42,7 @@ def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool
         r = p[rows - 3] - s.p[rows - 3]
         return r, K[rows], (dK[rows] if need_dJ else None), s.v[rows - 3], None, None
     if scheme == "velocity":
-        r = np.concatenate([rotation_log(Q @ s.Q.T), p - s.p])
+        r = np.concatenate([closure.rotation_log(Q @ s.Q.T)[0], p - s.p])
         return r, K, (dK if need_dJ else None), np.concatenate([s.omega, s.v]), None, None
     # Eq. (2.13) written with the invariants of the relative rotation Q_d^T Q (target frame): same zero
     # set, but H stays well conditioned where Q_d itself turns by pi (Example 4.3 at beta = pi/2). At the

@@ -11,10 +11,11 @@ import pytest
 from conftest import ALL_ROBOTS, configurations, robot
 
 from kinredund import JointVectorError, TaskError, closure
+from kinredund.closure import rotation_log
 from kinredund.examples.starts import example_4_1_start, example_4_2_start, example_4_3_start
 from kinredund.finite_diff import central_difference
 from kinredund.ik import IKResult, check_optimality, solve_ik
-from kinredund.ik_residual import TaskResidual, rotation_log
+from kinredund.ik_residual import TaskResidual
 from kinredund.indices import CustomIndex, IndexCheckError, JointDeviation, check_index, minimum_norm
 from kinredund.task import make_target, orientation_error
 
