@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -26,19 +24,18 @@ import numpy as np
 from ..closed_form import ClosedFormIK, conditioning, polynomial_route, solve_redundancy
 from ..errors import KinredundError
 from ..generate import atomic_write_text
+from ..paths import Helix
+from ..plots import save_figure
 
-HELIX_RADIUS = 1.5  # a [m]
-HELIX_PITCH = 3.0 / math.pi  # b [m/rad]
-HELIX_HEIGHT = 2.0  # z at beta = 0 [m]
+#: the Section 3.2 helix x = 1.5 cos(beta), y = 1.5 sin(beta), z = (3/pi) beta + 2 (paths.Helix's defaults)
+HELIX = Helix(radius=1.5, pitch=3.0 / math.pi, z0=2.0, rate=1.0)
 BETA_END = 0.5 * math.pi
 TIME_END = 2.0  # Fig. 3.6's time axis [s] (our reading)
 
 
 def helix(beta) -> np.ndarray:
     """Wrist-centre positions [m] on the Section 3.2 helix, shape (len(beta), 3)."""
-    beta = np.asarray(beta, dtype=float)
-    return np.column_stack([HELIX_RADIUS * np.cos(beta), HELIX_RADIUS * np.sin(beta),
-                            HELIX_PITCH * beta + HELIX_HEIGHT])
+    return np.array([HELIX.sample(b).p for b in np.asarray(beta, dtype=float)])  # rate 1: t = beta
 
 
 def _save_plot(data: dict, path: Path) -> None:
@@ -55,16 +52,7 @@ def _save_plot(data: dict, path: Path) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", dpi=120)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    save_figure(fig, path)  # atomic, checks the format
 
 
 def _polynomial_route(ik: ClosedFormIK, solutions, points) -> dict:
