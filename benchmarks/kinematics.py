@@ -10,14 +10,11 @@ For the Panda and the CYBOTECH P-15, the per-call median time [us] of
 - ``K``: ``robot.kinematics.jacobian(q)`` (Q, p and the velocity Jacobian K of Eq. 2.16);
 - ``K + Lambda*``: ``robot.kinematics.jacobian_derivative(q)`` (K and dK) followed by
   ``closure.contract(lam_star, dK)``, the matrix Lambda* = d(K^T lambda*)/dtheta of Eq. (4.37);
-- ``K + Lambda* (proposed)``: the same result without the two copies that ``jacobian_derivative``
-  makes of the tensor (the eigenpy layout fix and the row reordering): Lambda* is contracted straight
-  from Pinocchio's column-major buffer with lambda* reordered to Pinocchio's [v; omega] rows;
-- ``K (proposed)``: ``jacobian`` reading the frame placement from ``updateFramePlacement``'s return
-  value instead of ``data.oMf[frame_id]`` (whose indexing costs about 1 us from Python);
+- ``K + Lambda* (fused)``: ``robot.kinematics.lambda_star(q, lam_star)``, the same result contracted
+  straight from Pinocchio's buffer without the two copies of the tensor;
 
-and the ratio "K + Lambda*" / "K" (both current). The two proposals are for ``kinredund/kinematics.py``;
-the script checks that they give the same arrays as the current code. For the CYBOTECH, also the
+and the ratios "K + Lambda*" / "K". The script checks that both routes give the same arrays. For the
+CYBOTECH, also the
 recursive Jacobian of Eqs. (5.1)-(5.21) (``kinredund.recursive.recursive_jacobian``, plain Python and
 numpy) next to Pinocchio's K.
 
@@ -29,56 +26,26 @@ table; with ``--json FILE`` writes the figures atomically (``_bench.write_json``
 
 from __future__ import annotations
 
+import importlib.metadata
 import timeit
 
 import numpy as np
-import pinocchio as pin
 from _bench import parser, write_json
 
 import kinredund
 from kinredund import closure
-from kinredund.kinematics import THESIS_ROWS
 from kinredund.recursive import recursive_jacobian
 
 ROBOTS = ("panda", "cybotech_p15")
 RECURSIVE_ROBOT = "cybotech_p15"
-#: lambda* in Pinocchio's [v; omega] row order, for the proposed contraction
-_PIN_ROWS = np.r_[3:6, 0:3]
-
-
 def median_us(fn, number: int, repeat: int) -> float:
     """Median over ``repeat`` runs of the mean time of ``number`` calls [us]."""
     runs = timeit.repeat(fn, number=number, repeat=repeat)
     return float(np.median(runs) / number * 1e6)
 
 
-def proposed_jacobian(kin, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(Q, p, K) like ``Kinematics.jacobian``, with the placement from ``updateFramePlacement`` (a proposal)."""
-    model, data, fid = kin.model, kin.data, kin.frame_id
-    J = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)
-    M = pin.updateFramePlacement(model, data, fid)
-    return M.rotation.copy(), M.translation.copy(), J[THESIS_ROWS]
-
-
-def proposed_lambda_star(kin, q: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, ...]:
-    """(Q, p, K, Lambda*), Lambda* contracted from Pinocchio's raw Hessian buffer (a proposal for kinematics.py).
-
-    eigenpy exposes the column-major (6, n, n) tensor with C strides (issue #557): its C-order buffer holds
-    entry (a, i, k) at a + 6 (i + n k), so one matrix-vector product gives Lambda*[i, k] (Eq. 4.37).
-    """
-    model, data, fid = kin.model, kin.data, kin.frame_id
-    n = model.nv
-    pin.computeJointJacobians(model, data, q)
-    M = pin.updateFramePlacement(model, data, fid)
-    J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-    pin.computeJointKinematicHessians(model, data)
-    H = pin.getFrameKinematicHessian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-    lam_star = (H.ravel(order="C").reshape(n * n, 6) @ lam[_PIN_ROWS]).reshape(n, n, order="F")  # Eq. (4.37)
-    return M.rotation.copy(), M.translation.copy(), J[THESIS_ROWS], lam_star
-
-
 def bench_robot(name: str, number: int, repeat: int) -> dict:
-    """Timings [us] and the check of the proposed contraction for one robot."""
+    """Timings [us] and the check of the fused contraction for one robot."""
     r = kinredund.load_robot(name)
     rng = np.random.default_rng(0)
     q = r.random_configuration(rng, margin=0.1)
@@ -90,23 +57,19 @@ def bench_robot(name: str, number: int, repeat: int) -> dict:
         return closure.contract(lam, dK)
 
     reference = (*kin.jacobian(q), k_lambda_star())
-    check = max(
-        max(float(np.abs(a - b).max()) for a, b in zip(proposed_lambda_star(kin, q, lam), reference, strict=True)),
-        max(float(np.abs(a - b).max()) for a, b in zip(proposed_jacobian(kin, q), reference[:3], strict=True)),
-    )
+    check = max(float(np.abs(a - b).max()) for a, b in zip(kin.lambda_star(q, lam), reference, strict=True))
     if check > 1e-12:
-        raise SystemExit(f"{name}: a proposal differs from kinematics + closure.contract by {check:.3g}")
+        raise SystemExit(f"{name}: Kinematics.lambda_star differs from closure.contract by {check:.3g}")
     out = {
         "nq": r.nq,
         "fk_us": median_us(lambda: kin.pose(q), number, repeat),
         "K_us": median_us(lambda: kin.jacobian(q), number, repeat),
-        "proposed_K_us": median_us(lambda: proposed_jacobian(kin, q), number, repeat),
         "K_lambda_star_us": median_us(k_lambda_star, number, repeat),
-        "proposed_K_lambda_star_us": median_us(lambda: proposed_lambda_star(kin, q, lam), number, repeat),
-        "proposed_max_abs_difference": check,
+        "fused_K_lambda_star_us": median_us(lambda: kin.lambda_star(q, lam), number, repeat),
+        "fused_max_abs_difference": check,
     }
     out["ratio_K_lambda_star_over_K"] = out["K_lambda_star_us"] / out["K_us"]
-    out["proposed_ratio_over_K"] = out["proposed_K_lambda_star_us"] / out["K_us"]
+    out["fused_ratio_over_K"] = out["fused_K_lambda_star_us"] / out["K_us"]
     return out
 
 
@@ -133,15 +96,15 @@ def bench_recursive(number: int, repeat: int) -> dict:
 def format_table(robots: dict, rec: dict) -> str:
     """The printed table."""
     lines = [
-        f"{'robot':<14}{'n':>3}{'fk':>8}{'K':>8}{'K+Lam*':>9}{'ratio':>7}   proposed:{'K':>6}{'K+Lam*':>9}{'ratio':>7}",
+        f"{'robot':<14}{'n':>3}{'fk':>8}{'K':>8}{'K+Lam*':>9}{'ratio':>7}   fused:{'K+Lam*':>9}{'ratio':>7}",
     ]
     for name, d in robots.items():
         lines.append(
             f"{name:<14}{d['nq']:>3}{d['fk_us']:>8.2f}{d['K_us']:>8.2f}{d['K_lambda_star_us']:>9.2f}"
-            f"{d['ratio_K_lambda_star_over_K']:>7.2f}   {'':>9}{d['proposed_K_us']:>6.2f}"
-            f"{d['proposed_K_lambda_star_us']:>9.2f}{d['proposed_ratio_over_K']:>7.2f}"
+            f"{d['ratio_K_lambda_star_over_K']:>7.2f}   {'':>6}"
+            f"{d['fused_K_lambda_star_us']:>9.2f}{d['fused_ratio_over_K']:>7.2f}"
         )
-    lines.append("[us per call; ratio = K+Lam* / K (current K)]")
+    lines.append("[us per call; ratio = K+Lam* / K]")
     lines.append(
         f"recursive K (Eqs. 5.1-5.21) on {rec['robot']}: {rec['recursive_K_us']:.2f} us; Pinocchio K "
         f"{rec['pinocchio_K_us']:.2f} us (checked robot.velocity_jacobian {rec['pinocchio_K_checked_us']:.2f} us); "
@@ -166,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         "number": args.number,
         "repeat": args.repeat,
         "numpy": np.__version__,
-        "pinocchio": pin.__version__,
+        "pinocchio": importlib.metadata.version("pin"),
         "robots": robots,
         "recursive": rec,
     })

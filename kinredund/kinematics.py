@@ -74,6 +74,25 @@ class Kinematics:
         H = fix_hessian_layout(pin.getFrameKinematicHessian(model, data, fid, _LWA))
         return M.rotation.copy(), M.translation.copy(), _rows(J, model.nv), H[THESIS_ROWS]
 
+    def lambda_star(self, q: np.ndarray, lam_star: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(Q, p, K, Lambda*) with Lambda* = d(K^T lambda*)/dtheta (Eq. 4.37), lambda* held fixed.
+
+        The same as ``closure.contract(lam_star, jacobian_derivative(q)[3])`` without copying the
+        tensor twice: eigenpy's C-order buffer of the column-major (6, n, n) Hessian (the layout of
+        eigenpy issue #557) holds entry (a, i, k) at a + 6 (i + n k), so one matrix-vector product with
+        lambda* in Pinocchio's [v; omega] order gives Lambda*[i, k] (Eq. 4.42).
+        """
+        model, data, fid = self.model, self.data, self.frame_id
+        n = model.nv
+        pin.computeJointJacobians(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)
+        pin.computeJointKinematicHessians(model, data)
+        H = pin.getFrameKinematicHessian(model, data, fid, _LWA)
+        lam_pin = np.asarray(lam_star, float)[THESIS_ROWS]  # [omega; v] -> Pinocchio's [v; omega]
+        L = (H.ravel(order="C").reshape(n * n, 6) @ lam_pin).reshape(n, n, order="F")  # Eq. (4.42)
+        return M.rotation.copy(), M.translation.copy(), _rows(J, n), L
+
     def joint_origins(self, q: np.ndarray) -> np.ndarray:
         """World positions [m] of every joint origin followed by point P, shape (njoints, 3)."""
         pin.forwardKinematics(self.model, self.data, q)

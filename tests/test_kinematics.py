@@ -115,6 +115,19 @@ def test_dJ_and_lambda_matrices(name):
         assert np.abs(Lam_star - fd).max() < FD_TOL
 
 
+@pytest.mark.parametrize("name", ALL_ROBOTS)
+def test_fused_lambda_star_equals_the_contraction_of_dK(name):
+    """Kinematics.lambda_star reads Pinocchio's buffer directly (layout of eigenpy #557): same numbers."""
+    r = robot(name)
+    rng = np.random.default_rng(12)
+    for q in configurations(r, seed=12):
+        lam_star = rng.normal(size=6)
+        Q, p, K, L = r.kinematics.lambda_star(q, lam_star)
+        Q2, p2, K2, dK = r.kinematics.jacobian_derivative(q)
+        assert np.abs(L - closure.contract(lam_star, dK)).max() < 1e-13
+        assert np.array_equal(K, K2) and np.array_equal(Q, Q2) and np.array_equal(p, p2)
+
+
 @pytest.mark.parametrize("name", ["puma7", "cybotech_p15", "panda", "xarm7"])
 def test_lambda_star_is_not_symmetric_for_spatial_arms(name):
     """K is not the Jacobian of any function (Section 4.2): Lambda* = d(K^T lam*)/dtheta is not symmetric."""
