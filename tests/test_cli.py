@@ -102,8 +102,14 @@ def test_track_path_from_file(tmp_path):
 
 
 def test_console_script_is_installed():
-    out = subprocess.run([sys.executable, "-m", "kinredund.cli", "robots"], capture_output=True, text=True)
+    from pathlib import Path
+
+    script = Path(sys.executable).parent / "kinredund"  # installed by pip next to the interpreter
+    assert script.exists()
+    out = subprocess.run([str(script), "robots"], capture_output=True, text=True)
     assert out.returncode == 0 and "panda" in out.stdout
+    out = subprocess.run([str(script), "reproduce", "9.9"], capture_output=True, text=True)
+    assert out.returncode == 2 and "invalid choice" in out.stderr
 
 
 def test_failed_run_leaves_no_output_file(tmp_path, capsys):
