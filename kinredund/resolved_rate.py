@@ -521,6 +521,15 @@ class ResolvedRate:
         return self.pt.basis @ self.lam if self.pt.basis is not None else self.lam
 
 
+def _loadable_name(robot: Robot) -> str:
+    """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
+    from .robot import known_robots
+
+    if robot.name in known_robots() or robot.urdf_path is None:
+        return robot.name
+    return str(robot.urdf_path)
+
+
 def track(robot: Robot, path: Path, index: Index | None = None, q0=None, *, scheme: str = "augmented",
           mode: str = "default", steps_per_loop: int = 200, loops: int = 1, duration: float | None = None,
           steps: int | None = None, linear_solver: str | None = None, qp_backend: str | None = None,
@@ -563,8 +572,7 @@ def track(robot: Robot, path: Path, index: Index | None = None, q0=None, *, sche
         drift = np.array([joint_drift(q[0], q[(i + 1) * steps_per_loop], robot.revolute) for i in range(loops)])
     lam = None if any(v is None for v in rows["lam"]) else np.array(rows["lam"])
     return Trajectory(
-        robot=robot.name if robot.urdf_path is None or robot.hd is not None or robot.name in ("panda", "xarm7")
-        else str(robot.urdf_path),
+        robot=_loadable_name(robot),
         task=robot.task, t=np.array(rows["t"]), q=q, p=np.array(rows["p"]), p_desired=np.array(rows["p_desired"]),
         scheme=scheme, mode=mode, solver=tuple(rows["solver"]), lam=lam,
         m_eigs=np.array(rows["m_eigs"]) if rows["m_eigs"] else None,
