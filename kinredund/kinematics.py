@@ -66,32 +66,30 @@ class Kinematics:
 
     def jacobian_derivative(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(Q, p, K, dK) with dK[a, i, k] = dK[a, i]/dtheta_k, the third-rank tensor of Eqs. (4.38)-(4.41)."""
+        Q, p, K, dk = self.jacobian_hessian(q)
+        return Q, p, K, dk.tensor()
+
+    def jacobian_hessian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, HessianContraction]:
+        """(Q, p, K, dk): the pose, K, and dK kept as a :class:`HessianContraction` (no tensor copy).
+
+        The solvers only ever need contractions sum_a mu_a dK[a, i, k] (Eqs. 4.20, 4.42); this saves
+        the layout fix and the row reordering of the whole (6, n, n) tensor at every step.
+        """
         model, data, fid = self.model, self.data, self.frame_id
         pin.computeJointJacobians(model, data, q)
         M = pin.updateFramePlacement(model, data, fid)
         J = pin.getFrameJacobian(model, data, fid, _LWA)
         pin.computeJointKinematicHessians(model, data)
-        H = fix_hessian_layout(pin.getFrameKinematicHessian(model, data, fid, _LWA))
-        return M.rotation.copy(), M.translation.copy(), _rows(J, model.nv), H[THESIS_ROWS]
+        H = pin.getFrameKinematicHessian(model, data, fid, _LWA)  # a fresh array (a copy of data's)
+        return M.rotation.copy(), M.translation.copy(), _rows(J, model.nv), HessianContraction(H)
 
     def lambda_star(self, q: np.ndarray, lam_star: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(Q, p, K, Lambda*) with Lambda* = d(K^T lambda*)/dtheta (Eq. 4.37), lambda* held fixed.
 
-        The same as ``closure.contract(lam_star, jacobian_derivative(q)[3])`` without copying the
-        tensor twice: eigenpy's C-order buffer of the column-major (6, n, n) Hessian (the layout of
-        eigenpy issue #557) holds entry (a, i, k) at a + 6 (i + n k), so one matrix-vector product with
-        lambda* in Pinocchio's [v; omega] order gives Lambda*[i, k] (Eq. 4.42).
+        The same as ``closure.contract(lam_star, jacobian_derivative(q)[3])`` without copying the tensor.
         """
-        model, data, fid = self.model, self.data, self.frame_id
-        n = model.nv
-        pin.computeJointJacobians(model, data, q)
-        M = pin.updateFramePlacement(model, data, fid)
-        J = pin.getFrameJacobian(model, data, fid, _LWA)
-        pin.computeJointKinematicHessians(model, data)
-        H = pin.getFrameKinematicHessian(model, data, fid, _LWA)
-        lam_pin = np.asarray(lam_star, float)[THESIS_ROWS]  # [omega; v] -> Pinocchio's [v; omega]
-        L = (H.ravel(order="C").reshape(n * n, 6) @ lam_pin).reshape(n, n, order="F")  # Eq. (4.42)
-        return M.rotation.copy(), M.translation.copy(), _rows(J, n), L
+        Q, p, K, dk = self.jacobian_hessian(q)
+        return Q, p, K, dk.contract(np.asarray(lam_star, float))  # Eq. (4.42)
 
     def joint_origins(self, q: np.ndarray) -> np.ndarray:
         """World positions [m] of every joint origin followed by point P, shape (njoints, 3)."""
@@ -100,3 +98,26 @@ class Kinematics:
         pts = [self.data.oMi[j].translation.copy() for j in range(1, self.model.njoints)]
         pts.append(M.translation.copy())
         return np.array(pts)
+
+
+class HessianContraction:
+    """dK of one configuration in Pinocchio's buffer, contracted on demand: sum_a mu_a dK[a, i, k].
+
+    eigenpy's C-order buffer of the column-major (6, n, n) kinematic Hessian (the layout of eigenpy
+    issue #557) holds entry (a, i, k) at a + 6 (i + n k): one matrix-vector product with mu in
+    Pinocchio's [v; omega] row order gives the (n, n) contraction (Eqs. 4.20, 4.42).
+    """
+
+    __slots__ = ("_H", "_flat", "_n")
+
+    def __init__(self, H: np.ndarray):
+        n = H.shape[1]
+        self._H, self._flat, self._n = H, H.ravel(order="C").reshape(n * n, 6), n
+
+    def contract(self, mu: np.ndarray) -> np.ndarray:
+        """sum_a mu_a dK[a, i, k] for mu (6,) in the thesis's [omega; v] order, shape (n, n) (Eq. 4.42)."""
+        return (self._flat @ mu[THESIS_ROWS]).reshape(self._n, self._n, order="F")
+
+    def tensor(self) -> np.ndarray:
+        """The whole tensor dK[a, i, k] (thesis row order), as :meth:`Kinematics.jacobian_derivative` gives it."""
+        return fix_hessian_layout(self._H)[THESIS_ROWS]

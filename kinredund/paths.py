@@ -45,10 +45,10 @@ class Path:
 
     def __call__(self, t: float) -> PathSample:
         s = self.sample(t)
-        # one sum per array: finite iff every entry is (an inf or nan entry makes the sum non-finite)
-        total = s.p.sum() + s.v.sum()
+        # one dot product per array: finite iff every entry is (BLAS raises no floating-point warnings)
+        total = float(s.p @ s.p) + float(s.v @ s.v)
         if s.Q is not None:
-            total += s.Q.sum() + s.omega.sum()
+            total += float(s.Q.ravel() @ s.Q.ravel()) + float(s.omega @ s.omega)
         if not math.isfinite(total):
             bad = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None
                    and not np.all(np.isfinite(getattr(s, name)))]
@@ -109,6 +109,7 @@ class Circle(Path):
             e2 = np.cross(n, e1)
         object.__setattr__(self, "center", c)
         object.__setattr__(self, "_basis", (e1, e2, n))
+        object.__setattr__(self, "_plane", np.column_stack([e1, e2]))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
         if self.orientation is not None:
             Q0 = np.asarray(self.orientation, float)
@@ -122,10 +123,10 @@ class Circle(Path):
         w = self.speed / self.radius
         beta = self.start_angle + w * t
         c, s = math.cos(beta), math.sin(beta)
-        en = c * e1 + s * e2  # outward radial unit vector
-        et = c * e2 - s * e1  # tangent
-        p = self.center + self.radius * en
-        v = self.speed * et
+        # [e_n, e_t] = [e1, e2] [[c, -s], [s, c]]: the outward radial unit vector and the tangent
+        ent = self._plane @ np.array([[c, -s], [s, c]])
+        p = self.center + self.radius * ent[:, 0]
+        v = self.speed * ent[:, 1]
         if self.orientation is not None:
             Q0 = self.orientation
             if self.roll_amplitude == 0.0:
@@ -137,7 +138,9 @@ class Circle(Path):
             return PathSample(p, v, Q, Q0[:, 2] * (self.roll_amplitude * wl * math.cos(wl * t)))
         if not self.frenet:
             return PathSample(p, v)
-        Q = np.column_stack([en, et, np.cross(en, et)])  # Eq. (4.47)
+        Q = np.empty((3, 3))
+        Q[:, :2] = ent  # Eq. (4.47): [e_n, e_t, e_n x e_t], and e_n x e_t = e1 x e2 = n
+        Q[:, 2] = n
         return PathSample(p, v, Q, w * n)  # Eq. (4.48): the frame turns about n at beta-dot
 
 

@@ -28,6 +28,7 @@ minimum-norm Newton projection onto the task (default mode).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,6 +79,11 @@ def null_space_eigs(M: np.ndarray, J: np.ndarray) -> np.ndarray:
     Z = Vt[J.shape[0]:].T
     Ms = 0.5 * (M + M.T)
     return np.linalg.eigvalsh(Z.T @ Ms @ Z)
+
+
+def _lu_solve(lu, b: np.ndarray) -> np.ndarray:
+    """Solve R x = b with R's LU factors from LAPACK dgetrf."""
+    return lapack.dgetrs(lu[0], lu[1], b)[0]
 
 
 def kkt_matrix(M: np.ndarray, J: np.ndarray) -> np.ndarray:
@@ -152,11 +158,8 @@ def classify(M: np.ndarray, J: np.ndarray, rule: str, symmetric: bool = True) ->
     """
     if rule == "lu" or not symmetric:
         return "lu"
-    try:
-        np.linalg.cholesky(M)
+    if _cholesky_ok(M):
         return "qp"
-    except np.linalg.LinAlgError:
-        pass
     if rule == "thesis":
         return "lu"
     return "qp_aug" if _projected_pd(M, J) else "lu"
@@ -168,37 +171,42 @@ def _projected_pd(M, J, tol=1e-10) -> bool:
     scale = max(1.0, float(np.abs(Ms).max()))
     JtJ = J.T @ J
     s2 = max(float(np.linalg.eigvalsh(J @ J.T)[0]), 1e-300)
-    for rho in (scale / s2, 1e2 * scale / s2, 1e4 * scale / s2):
-        try:
-            np.linalg.cholesky(Ms + rho * JtJ - tol * scale * np.eye(M.shape[0]))
-            return True
-        except np.linalg.LinAlgError:
-            continue
-    return False
+    shift = tol * scale * np.eye(M.shape[0])
+    return any(_cholesky_ok(Ms + rho * JtJ - shift) for rho in (scale / s2, 1e2 * scale / s2, 1e4 * scale / s2))
 
 
-@dataclass
+def _cholesky_ok(A: np.ndarray) -> bool:
+    """Is the symmetric A (its lower triangle) positive definite? LAPACK dpotrf's verdict."""
+    return lapack.dpotrf(A, lower=1)[1] == 0
+
+
 class _Point:
-    """Everything the scheme evaluates at one (theta, t): kinematics, task terms, index, M and R^-1."""
+    """Everything the scheme evaluates at one (theta, t): kinematics, task terms, index terms."""
 
-    q: np.ndarray
-    t: float
-    Q: np.ndarray
-    p: np.ndarray
-    sample: object
-    r: np.ndarray
-    J: np.ndarray
-    dJ: np.ndarray | None
-    xdot: np.ndarray
-    basis: np.ndarray | None
-    grad: np.ndarray
-    hess: np.ndarray
-    dgrad_dt: np.ndarray
-    dJdt: np.ndarray | None = None
+    __slots__ = ("q", "t", "Q", "p", "sample", "terms", "r", "J", "xdot", "basis", "grad", "hess", "dgrad_dt")
+
+    def __init__(self, q, t, Q, p, sample, terms, grad, hess, dgrad_dt):
+        self.q, self.t, self.Q, self.p, self.sample, self.terms = q, t, Q, p, sample, terms
+        self.r, self.J, self.xdot, self.basis = terms.r, terms.J, terms.xdot, terms.basis
+        self.grad, self.hess, self.dgrad_dt = grad, hess, dgrad_dt
+
+    def M(self, lam: np.ndarray) -> np.ndarray:
+        """M = Hess z + Lambda, Eqs. (4.23) and (4.37)."""
+        return self.hess + self.terms.Lambda(lam)
 
     def top(self, lam: np.ndarray) -> np.ndarray:
-        """Upper right-hand side of Eq. (4.24): -d(grad z)/dt - (dJ/dt)^T lambda at fixed theta."""
-        return -self.dgrad_dt if self.dJdt is None else -self.dgrad_dt - self.dJdt.T @ lam
+        """Upper right-hand side of Eq. (4.24): -d(grad z)/dt - (dJ/dt)^T lambda at fixed theta.
+
+        ``dgrad_dt`` is None for a time-invariant index (d(grad z)/dt = 0 at fixed theta).
+        """
+        extra = self.terms.dJdt_T(lam)
+        if extra is None:
+            return np.zeros(len(self.grad)) if self.dgrad_dt is None else -self.dgrad_dt
+        return -extra if self.dgrad_dt is None else -self.dgrad_dt - extra
+
+    def residual(self, lam: np.ndarray) -> np.ndarray:
+        """F = [grad z + J^T lambda; r]: the normality condition (4.5) and the task, zero on the optimum."""
+        return np.concatenate([self.grad + self.J.T @ lam, self.r])
 
 
 class _Scheme:
@@ -213,36 +221,39 @@ class _Scheme:
         self._zeros, self._zeros2 = np.zeros(self.n), np.zeros((self.n, self.n))
 
     def sample(self, t: float):
-        """The path sample at t, cached (the corrector evaluates the same time several times)."""
+        """The path sample at t, cached (the corrector evaluates the same time several times).
+
+        Not checked for finite values here (that costs a few microseconds per step): the stepper
+        checks its results and calls :meth:`check_sample` to say where a non-finite value came from.
+        """
         if self._cache_t != t:
-            self._cache = self.path(t)
+            self._cache = self.path.sample(t)
             self._cache_t = t
         return self._cache
+
+    def check_sample(self, t: float) -> None:
+        """Raise PathError if the path's sample at t is not finite (says when)."""
+        self.path(t)
 
     def point(self, q: np.ndarray, t: float, need_dJ: bool = True) -> _Point:
         kin = self.robot.kinematics
         s = self.sample(t)
         if need_dJ:
-            Q, p, K, dK = kin.jacobian_derivative(q)
+            Q, p, K, dk = kin.jacobian_hessian(q)
         else:
-            (Q, p, K), dK = kin.jacobian(q), None
-        r, J, dJ, xdot, basis, dJdt = task_terms(self.task, self.formulation, Q, p, K, dK, s, need_dJ)
+            (Q, p, K), dk = kin.jacobian(q), None
+        terms = task_terms(self.task, self.formulation, Q, p, K, dk, s)
         if self.index is None:
             grad, hess, dgdt = self._zeros, self._zeros2, self._zeros
         else:
             _, grad, hess = self.index.evaluate(q, t)
-            dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else self._zeros
-        return _Point(q, t, Q, p, s, r, J, dJ, xdot, basis, grad, hess, dgdt, dJdt)
+            dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else None
+        return _Point(q, t, Q, p, s, terms, grad, hess, dgdt)
 
 
-def _contract(lam: np.ndarray, dJ: np.ndarray) -> np.ndarray:
-    m, n, _ = dJ.shape
-    return (lam @ dJ.reshape(m, n * n)).reshape(n, n)  # Eq. (4.20) / (4.42)
-
-
-def _hermite_extrapolate(q0, d0, q1, d1, h):
-    """Cubic Hermite through (q0, d0) at -h and (q1, d1) at 0, evaluated at +h."""
-    return 5.0 * q0 + 2.0 * h * d0 - 4.0 * q1 + 4.0 * h * d1
+def hermite_weights(h: float) -> np.ndarray:
+    """Weights w with y(+h) = w @ (y(-h), y'(-h), y(0), y'(0)) for the cubic Hermite through the four values."""
+    return np.array([5.0, 2.0 * h, -4.0, 4.0 * h])
 
 
 class _Recorder:
@@ -322,11 +333,15 @@ class ResolvedRate:
         self.t0, self.k = float(t0), 0  # t = t0 + k dt (no accumulated rounding in the clock)
         self.t = self.t0
         self.q = robot.check_q(q0, "starting configuration").copy()
-        self.prev = None  # (q, qdot, lam, lamdot) of the previous point, for the predictor
+        self.prev = None  # (y, ydot) of the previous point, y = [q; lambda], for the predictor
+        self._hermite = hermite_weights(self.dt)
+        self.sys.check_sample(self.t)
         self.pt = self.sys.point(self.q, self.t)
         self._check_on_path(self.pt, "the starting configuration")
         self._check_rank(self.pt)
         self.lam = multipliers(self.pt.J, self.pt.grad)[0] if index is not None else np.zeros(len(self.pt.r))
+        m = len(self.pt.r)
+        self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
         if mode == "default" and scheme in ("augmented", "velocity"):
             self._newton(fresh=True)  # put the start exactly on the optimal manifold
         self._rates()
@@ -350,11 +365,12 @@ class ResolvedRate:
                 f"kinematic singularity at t = {pt.t:.6g} s: smallest singular value of J {sJ[-1]:.3g}; "
                 f"q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sJ[-1]))
 
-    def _M(self, pt: _Point, lam: np.ndarray) -> np.ndarray:
-        return pt.hess + _contract(lam, pt.dJ)  # M = Hess z + Lambda, Eqs. (4.23), (4.37)
-
     def _singularity(self, pt: _Point, R: np.ndarray, force: bool = False) -> None:
         """Raise SingularityError (kinematic or algorithmic) unless R turns out regular enough."""
+        if not np.all(np.isfinite(R)):
+            self.sys.check_sample(pt.t)  # a non-finite path sample says so itself
+            raise PathError(f"non-finite terms of Eq. (4.24) at t = {pt.t:.6g} s; q = {np.round(pt.q, 6).tolist()}",
+                            t=pt.t, q=pt.q)
         sR = np.linalg.svd(R, compute_uv=False)
         if not force and sR[-1] > 1e-11 * sR[0]:
             return  # the estimate was pessimistic: R is regular enough
@@ -366,81 +382,91 @@ class ResolvedRate:
             f"of J {sJ[-1]:.3g}; q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sR[-1]))
 
     def _factor(self, pt: _Point, lam: np.ndarray):
-        """M, R and R^-1 at pt; raises SingularityError where R is (numerically) singular."""
-        M = self._M(pt, lam)
-        R = kkt_matrix(M, pt.J)
-        try:
-            Rinv = np.linalg.inv(R)
-        except np.linalg.LinAlgError:
-            self._singularity(pt, R, force=True)
-        # cheap condition estimate (max-abs entries: within a factor n + m of the infinity-norm
-        # condition number); the exact SVD only when it looks singular
-        cond = np.abs(R).max() * np.abs(Rinv).max() * R.shape[0]
-        if not np.isfinite(cond) or cond > 1e12:
-            self._singularity(pt, R)
-        return M, R, Rinv
+        """M and the LU factors of R (Eq. 4.24) at pt; raises SingularityError where R is (numerically) singular.
 
-    def _newton(self, fresh: bool, Rinv=None, max_chord: int = 8, max_fresh: int = 6) -> None:
+        LAPACK dgetrf (partial pivoting) and its 1-norm condition estimate dgecon; the exact SVD only
+        when the estimate says R is near singular.
+        """
+        n = self.n
+        M = pt.M(lam)  # Eqs. (4.23), (4.37)
+        R = self._R
+        R[:n, :n] = M  # R of Eq. (4.24): [[M, J^T], [J, 0]]
+        R[:n, n:] = pt.J.T
+        R[n:, :n] = pt.J
+        lu, piv, info = lapack.dgetrf(R)
+        if info > 0:
+            self._singularity(pt, R, force=True)
+        rcond = lapack.dgecon(lu, lapack.dlange("1", R))[0]
+        if not rcond > 1e-12:  # also catches NaN
+            self._singularity(pt, R)
+        return M, (lu, piv)
+
+    def _newton(self, fresh: bool, lu=None, max_chord: int = 8, max_fresh: int = 6) -> None:
         """Corrector onto F(theta, lambda) = [grad z + J^T lambda; r] = 0 at self.t (default mode)."""
         n = self.n
         q, lam = self.q, self.lam
         for _ in range(max_fresh + 1):
-            if fresh or Rinv is None:
-                pt = self.sys.point(q, self.t)
-                _, _, Rinv = self._factor(pt, lam)
+            if fresh or lu is None:
+                _, lu = self._factor(self.sys.point(q, self.t), lam)
             for _ in range(max_chord):
                 pt = self.sys.point(q, self.t, need_dJ=False)
-                F = np.concatenate([pt.grad + pt.J.T @ lam, pt.r])
+                F = pt.residual(lam)
                 scale = max(1.0, float(np.abs(pt.grad).max()))
                 if np.abs(F).max() <= self.tol * scale:
                     self.q, self.lam = q, lam
                     return
-                d = Rinv @ F
+                d = _lu_solve(lu, F)
                 q, lam = q - d[:n], lam - d[n:]
                 if not np.all(np.isfinite(q)):
                     break
             fresh = True
-        pt = self.sys.point(self.q, self.t, need_dJ=False)
         raise PathError(
             f"the corrector did not converge at t = {self.t:.6g} s (residual {np.abs(F).max():.3g}): the path "
             "leaves the workspace or crosses a singularity", t=self.t, q=q)
 
-    def _correct(self, q: np.ndarray, lam: np.ndarray) -> None:
-        """Default-mode corrector at self.t from the predicted (q, lambda), then the rates for the next step.
+    def _correct(self, y: np.ndarray) -> None:
+        """Default-mode corrector at self.t from the predicted y = [q; lambda], then the rates for the next step.
 
         Newton on F = [grad z + J^T lambda; r] = 0 with R factorised at the predicted point (the same
         factorisation then gives the rates, Eq. 4.24). A Newton update d with |d|^2 <= tol (scaled) leaves
         an error of order tol (quadratic convergence) and ends the iteration - the tests check the
         recorded residuals, evaluated afresh, stay ~1e-12; otherwise chord iterations with fresh
-        residuals follow, then fresh factorisations (:meth:`_newton`).
+        residuals follow, then fresh factorisations (:meth:`_newton`). Norms are 2-norms (one dot
+        product each).
         """
         n = self.n
-        pt = self.sys.point(q, self.t)
-        M, R, Rinv = self._factor(pt, lam)
-        F = np.concatenate([pt.grad + pt.J.T @ lam, pt.r])
-        scale = max(1.0, float(np.abs(pt.grad).max()))
-        step_tol = np.sqrt(self.tol * scale)
-        converged = np.abs(F).max() <= self.tol * scale
-        for _ in range(8):
-            if converged:
-                break
-            d = Rinv @ F
-            q, lam = q - d[:n], lam - d[n:]
-            if np.abs(d).max() <= step_tol:
-                converged = True
-                break
-            light = self.sys.point(q, self.t, need_dJ=False)
-            F = np.concatenate([light.grad + light.J.T @ lam, light.r])
-            converged = np.abs(F).max() <= self.tol * scale
-        self.q, self.lam = q, lam
-        if not converged:
-            self._newton(fresh=True)
-            self._rates()
-            return
+        pt = self.sys.point(y[:n], self.t)
+        M, lu = self._factor(pt, y[n:])
+        F = pt.residual(y[n:])
+        tol = self.tol * max(1.0, math.sqrt(float(pt.grad @ pt.grad)))
+        if not float(F @ F) <= tol * tol:  # "not <=": a NaN residual is not converged
+            d = _lu_solve(lu, F)
+            y = y - d
+            if not float(d @ d) <= tol:
+                y = self._chord(y, lu, tol)
+                if y is None:  # no convergence with this factorisation: fresh ones from the prediction
+                    self._newton(fresh=True)
+                    self._rates()
+                    return
+        self.q, self.lam = y[:n], y[n:]
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
-        sol = Rinv @ np.concatenate([pt.top(lam), pt.xdot])
-        self.qdot, self.lamdot, self.solver, self.M, self.Rinv = sol[:n], sol[n:], label, M, Rinv
-        self.pt = pt
+        sol = _lu_solve(lu, np.concatenate([pt.top(y[n:]), pt.xdot]))  # Eq. (4.24)
+        self._y, self._yd = y, sol
+        self.qdot, self.lamdot, self.solver, self.M, self.pt = sol[:n], sol[n:], label, M, pt
+
+    def _chord(self, y: np.ndarray, lu, tol: float, max_iter: int = 8) -> np.ndarray | None:
+        """Chord iterations on F with fresh residuals and R's factors kept; None if they do not converge."""
+        n = self.n
+        for _ in range(max_iter):
+            F = self.sys.point(y[:n], self.t, need_dJ=False).residual(y[n:])
+            if float(F @ F) <= tol * tol:
+                return y
+            d = _lu_solve(lu, F)
+            y = y - d
+            if float(d @ d) <= tol:
+                return y
+        self.sys.check_sample(self.t)  # a non-finite path sample says so itself
+        return None
 
     def _rates(self) -> None:
         """Evaluate the full system at the current point and solve for the rates (Eq. 4.24 or baseline)."""
@@ -453,62 +479,71 @@ class ResolvedRate:
                 self.lam = multipliers(pt.J, pt.grad)[0]  # Eqs. (4.11)-(4.12)
         if self.scheme in ("pseudoinverse", "liegeois"):
             Jp = np.linalg.pinv(pt.J)
-            qd = Jp @ xdot
+            with np.errstate(invalid="ignore", over="ignore"):  # a non-finite xdot: reported by the caller
+                qd = Jp @ xdot
             if self.scheme == "liegeois":
                 qd -= self.gain * (pt.grad - Jp @ (pt.J @ pt.grad))  # gradient projection (Liegeois 1977)
-            self.qdot, self.lamdot, self.solver, self.M, self.Rinv = qd, np.zeros_like(self.lam), "lstsq", None, None
+            self.qdot, self.lamdot, self.solver, self.M = qd, np.zeros_like(self.lam), "lstsq", None
             return
-        M, R, Rinv = self._factor(pt, self.lam)
+        M, lu = self._factor(pt, self.lam)
         top = pt.top(self.lam)
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
         if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
             self.prox = _ProxQP(self.n, len(pt.r))
         if self.qp_backend == "kkt" or label == "lu":
-            sol = Rinv @ np.concatenate([top, xdot])  # the factorised R of Eq. (4.24)
+            sol = _lu_solve(lu, np.concatenate([top, xdot]))  # the factorised R of Eq. (4.24)
             rs = RateSolution(sol[: self.n], sol[self.n:], label)
         else:
             rs = solve_rates(M, pt.J, top, xdot, label=label, backend=self.qp_backend, prox=self.prox)
-        self.qdot, self.lamdot, self.solver, self.M, self.Rinv = rs.thetadot, rs.lamdot, rs.solver, M, Rinv
+        self.qdot, self.lamdot, self.solver, self.M = rs.thetadot, rs.lamdot, rs.solver, M
+        self._y, self._yd = np.concatenate([self.q, self.lam]), np.concatenate([self.qdot, self.lamdot])
 
     # -- the step ----------------------------------------------------------------------------------
     def advance(self) -> None:
         """One time step: from (q, lambda) at t to t + dt."""
         h = self.dt
-        q, lam, qd, lamd = self.q, self.lam, self.qdot, self.lamdot
+        q = self.q
         self.k += 1
         t_next = self.t0 + self.k * h
         if self.mode == "thesis":
-            self.q = q + h * qd  # explicit Euler
+            self.q = q + h * self.qdot  # explicit Euler
             self.t = t_next
         elif self.scheme in ("pseudoinverse", "liegeois"):
-            self.q = q + h * qd
+            self.q = q + h * self.qdot
             self.t = t_next
             self._project_task()
         else:
-            if self.prev is None:
-                q_p, lam_p = q + h * qd, lam + h * lamd
-            else:
-                q0, qd0, l0, ld0 = self.prev
-                q_p = _hermite_extrapolate(q0, qd0, q, qd, h)
-                lam_p = _hermite_extrapolate(l0, ld0, lam, lamd, h)
-            self.prev = (q, qd, lam, lamd)
+            y, yd = self._y, self._yd
+            # predictor: Euler at the first step, then the cubic Hermite extrapolation
+            y_p = y + h * yd if self.prev is None else self._hermite @ np.array((*self.prev, y, yd))
+            self.prev = (y, yd)
             self.t = t_next
-            self._correct(q_p, lam_p)
+            self._correct(y_p)
+            self._check_finite(q)
             return
-        if not np.all(np.isfinite(self.q)):
-            raise PathError(f"non-finite joint values at t = {self.t:.6g} s", t=self.t, q=q)
+        self._check_finite(q)
         self._rates()
-        if self.mode == "thesis" or self.scheme in ("pseudoinverse", "liegeois"):
-            step = max(1.0, float(np.abs(self.pt.xdot).max())) * h
-            self._check_on_path(self.pt, "the tracked configuration", limit=max(1e-3, 50.0 * step))
-            self._check_rank(self.pt)
+        self._check_finite(q)
+        step = max(1.0, float(np.abs(self.pt.xdot).max())) * h
+        self._check_on_path(self.pt, "the tracked configuration", limit=max(1e-3, 50.0 * step))
+        self._check_rank(self.pt)
+
+    def _check_finite(self, q_before: np.ndarray) -> None:
+        """Raise PathError (the path's own message if its sample is not finite) on non-finite joints or rates."""
+        if not math.isfinite(float(self.q @ self.q) + float(self.qdot @ self.qdot)):  # BLAS: no FP warnings
+            self.sys.check_sample(self.t)
+            raise PathError(f"non-finite joint values or rates at t = {self.t:.6g} s", t=self.t, q=q_before)
 
     def _project_task(self, max_iter: int = 20) -> None:
         """Minimum-norm Newton projection onto the task at self.t (default-mode baselines)."""
         for _ in range(max_iter):
             pt = self.sys.point(self.q, self.t, need_dJ=False)
-            if np.abs(pt.r).max() <= self.tol * max(1.0, float(np.abs(pt.sample.p).max())):
+            err = float(np.abs(pt.r).max())
+            if err <= self.tol * max(1.0, float(np.abs(pt.sample.p).max())):
                 return
+            if not math.isfinite(err):
+                self.sys.check_sample(self.t)
+                raise PathError(f"non-finite task residual at t = {self.t:.6g} s", t=self.t, q=self.q)
             self.q = self.q - np.linalg.lstsq(pt.J, pt.r, rcond=None)[0]
         raise PathError(f"the task projection did not converge at t = {self.t:.6g} s", t=self.t, q=self.q)
 

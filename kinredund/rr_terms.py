@@ -1,11 +1,14 @@
 """Task terms of the resolved-rate schemes at one configuration and time (Chapter 4, Eqs. 4.5-4.42).
 
-For a task kind and a scheme this module turns the kinematics (Q, p, K, dK) and a path sample into
+For a task kind and a scheme, :func:`task_terms` turns the kinematics (Q, p, K and dK as a
+:class:`~kinredund.kinematics.HessianContraction`) and a path sample into a :class:`TaskTerms`:
 
 - r: the task residual (actual minus desired), zero on the path;
 - J: its Jacobian dr/dtheta (m x n, full row rank away from singularities);
-- dJ: dJ/dtheta (m, n, n), for Lambda = d(J^T lambda)/dtheta (Eq. 4.20) or Lambda* (Eq. 4.42);
-- xdot: the desired rate of the task coordinates (right-hand side of Eq. 4.15 / 4.31).
+- xdot: the desired rate of the task coordinates (right-hand side of Eq. 4.15 / 4.31);
+- Lambda(lam) = d(J^T lam)/dtheta at fixed lam (Eq. 4.20) or Lambda* (Eq. 4.42), contracted straight
+  from Pinocchio's Hessian (the tensor dJ is never formed);
+- dJdt_T(lam): (dJ/dt)^T lam at fixed theta, where J depends on time (else None).
 
 Displacement-Jacobian scheme (``augmented``), pose task: the closure 7-vector g of Eq. (2.13) has one
 dependent row (Eq. 2.10): its linearisation H(Q_d) has the unit left null vector
@@ -24,55 +27,118 @@ from __future__ import annotations
 import numpy as np
 
 from . import closure
+from .errors import KinredundError
 from .paths import PathSample
 from .task import TASK_ROWS
 
 
-def task_terms(task: str, scheme: str, Q, p, K, dK, s: PathSample, need_dJ: bool = True):
-    """(r, J, dJ or None, xdot, lam_basis, dJdt or None) at one configuration; see the module docstring.
+class TaskTerms:
+    """r, J, xdot and the multiplier basis at one point; Lambda and (dJ/dt)^T lambda on demand."""
 
-    ``dJdt`` is the explicit time derivative of J at fixed theta (nonzero only for the augmented pose
-    task, whose rows are written in the moving target frame), None where it vanishes.
+    __slots__ = ("r", "J", "xdot", "basis", "_dk")
 
-    ``lam_basis`` maps the reduced multipliers to the closure 7-vector's (U) for the augmented pose
+    def Lambda(self, lam: np.ndarray) -> np.ndarray:
+        """d(J^T lam)/dtheta at fixed lam, (n, n): Lambda of Eq. (4.20) or Lambda* of Eq. (4.42)."""
+        raise NotImplementedError
+
+    def dJdt_T(self, lam: np.ndarray) -> np.ndarray | None:
+        """(dJ/dt)^T lam at fixed theta, or None where J does not depend on time."""
+        return None
+
+    def _hessian(self):
+        if self._dk is None:
+            raise KinredundError("these task terms were evaluated without dK (need_dJ=False)")
+        return self._dk
+
+
+class _RowTerms(TaskTerms):
+    """Planar and position tasks: rows of p - p_d, J = rows of K (Eq. 2.16)."""
+
+    __slots__ = ("_rows",)
+
+    def __init__(self, rows, p, K, dk, s: PathSample):
+        i = rows - 3
+        self.r, self.J, self.xdot, self.basis = p[i] - s.p[i], K[rows], s.v[i], None
+        self._dk, self._rows = dk, rows
+
+    def Lambda(self, lam):
+        mu = np.zeros(6)
+        mu[self._rows] = lam
+        return self._hessian().contract(mu)  # Eq. (4.20): sum_a lam_a dK[a]
+
+
+class _TwistTerms(TaskTerms):
+    """Velocity-Jacobian pose task: r = [log(Q Q_d^T); p - p_d], J = K (Eq. 4.31)."""
+
+    __slots__ = ()
+
+    def __init__(self, Q, p, K, dk, s: PathSample):
+        r = np.empty(6)
+        r[:3] = closure.rotation_log(Q @ s.Q.T)[0]
+        r[3:] = p - s.p
+        xdot = np.empty(6)
+        xdot[:3], xdot[3:] = s.omega, s.v
+        self.r, self.J, self.xdot, self.basis, self._dk = r, K, xdot, None, dk
+
+    def Lambda(self, lam):
+        return self._hessian().contract(lam)  # Lambda*, Eq. (4.42)
+
+
+class _ClosureTerms(TaskTerms):
+    """Displacement-Jacobian pose task in the target frame: six rows of Eq. (2.13), J = H K (Eq. 2.14)."""
+
+    __slots__ = ("_Qd", "_Q_rel", "_A", "_v", "_W", "_w_d")
+
+    def __init__(self, Q, p, K, dk, s: PathSample):
+        # Eq. (2.13) written with the invariants of the relative rotation Q_d^T Q (target frame): same
+        # zero set, but H stays well conditioned where Q_d itself turns by pi (Example 4.3 at
+        # beta = pi/2). At the target Q_d^T Q = 1 the left null vector of H is the trace row, so the six
+        # kept rows are [2 vect(Q_d^T Q); p - p_d], U = [e1 e2 e3 e5 e6 e7].
+        Qd_T = s.Q.T
+        Q_rel = Qd_T @ Q
+        W = Qd_T @ K[:3]  # omega columns in the target frame
+        A, v = closure.trace_form(Q_rel), closure.vect(Q_rel)  # Eqs. (2.15), (2.8)
+        r = np.empty(6)
+        r[:3] = 2.0 * v  # Eq. (2.13) with Q_d -> 1: vect(1) = 0
+        r[3:] = p - s.p
+        J = np.empty((6, K.shape[1]))
+        J[:3] = A @ W  # Eq. (2.14): H K, vect rows
+        J[3:] = K[3:]
+        w_d = Qd_T @ s.omega  # the target's angular velocity in its own frame
+        xdot = np.empty(6)
+        xdot[:3] = A @ w_d  # -dr/dt at fixed theta
+        xdot[3:] = s.v
+        self.r, self.J, self.xdot, self.basis, self._dk = r, J, xdot, _U_REL, dk
+        self._Qd, self._Q_rel, self._A, self._v, self._W, self._w_d = s.Q, Q_rel, A, v, W, w_d
+
+    def Lambda(self, lam):
+        # the trace row is not kept: lambda_7 = U lambda has l4 = 0
+        mu, G = closure.lambda_parts(self._Q_rel, lam[:3], 0.0, lam[3:], self._A, self._v)
+        mu[:3] = self._Qd @ mu[:3]  # dK_rel = [Q_d^T dK_omega; dK_v]: contract dK with [Q_d mu_omega; mu_v]
+        W = self._W
+        return self._hessian().contract(mu) - W.T @ (G @ W)  # Eq. (4.20)
+
+    def dJdt_T(self, lam):
+        # dJ/dt at fixed theta: Q_rel turns at -w_d and so do the columns W (Eq. 4.15 differentiated in
+        # time needs it: d(J^T lambda)/dt has the term (dJ/dt)^T lambda besides Lambda thetadot).
+        # dJ_vect/dt = (dA - A [w_d]x) W with dA = (2 v . w_d) 1 + [w_d]x Q_rel; for a row l,
+        # l^T [w]x = (l x w)^T, so l^T (dA - A [w]x) = (2 v . w) l + (l x w) Q_rel - (A^T l) x w.
+        l, w = lam[:3], self._w_d
+        c = (2.0 * float(self._v @ w)) * l + closure.cross(l, w) @ self._Q_rel - closure.cross(l @ self._A, w)
+        return self._W.T @ c
+
+
+def task_terms(task: str, scheme: str, Q, p, K, dk, s: PathSample) -> TaskTerms:
+    """The :class:`TaskTerms` at one configuration; ``dk`` may be None where Lambda is not needed.
+
+    ``basis`` maps the reduced multipliers to the closure 7-vector's (U) for the augmented pose
     task, else None.
     """
     if task != "pose":
-        rows = TASK_ROWS[task]
-        r = p[rows - 3] - s.p[rows - 3]
-        return r, K[rows], (dK[rows] if need_dJ else None), s.v[rows - 3], None, None
+        return _RowTerms(TASK_ROWS[task], p, K, dk, s)
     if scheme == "velocity":
-        r = np.concatenate([closure.rotation_log(Q @ s.Q.T)[0], p - s.p])
-        return r, K, (dK if need_dJ else None), np.concatenate([s.omega, s.v]), None, None
-    # Eq. (2.13) written with the invariants of the relative rotation Q_d^T Q (target frame): same zero
-    # set, but H stays well conditioned where Q_d itself turns by pi (Example 4.3 at beta = pi/2). At the
-    # target Q_d^T Q = 1 the left null vector of H is n = [0, 0, 0, 1, 0, 0, 0] (the trace row), so the
-    # six kept rows are [2 vect(Q_d^T Q); p - p_d], U = [e1 e2 e3 e5 e6 e7].
-    Qd_T = s.Q.T
-    Q_rel = Qd_T @ Q
-    W = Qd_T @ K[:3]  # omega columns in the target frame
-    K_rel = np.concatenate([W, K[3:]])
-    r = closure.closure_vector(Q_rel, p, _EYE3, s.p)[_KEEP]  # Eq. (2.13), the six independent rows
-    J = closure.displacement_jacobian(Q_rel, K_rel)[_KEEP]  # Eq. (2.14)
-    dJ = None
-    if need_dJ:
-        n = K.shape[1]
-        dK_rel = np.concatenate([(Qd_T @ dK[:3].reshape(3, n * n)).reshape(3, n, n), dK[3:]])
-        dJ = closure.displacement_jacobian_derivative(Q_rel, K_rel, dK_rel)[_KEEP]
-    A = Q_rel.trace() * _EYE3 - Q_rel  # Eq. (2.15): tr(Q) 1 - Q
-    w_d = Qd_T @ s.omega  # the target's angular velocity in its own frame
-    xdot = np.empty(6)
-    xdot[:3] = A @ w_d  # -dr/dt at fixed theta
-    xdot[3:] = s.v
-    dJdt = None
-    if need_dJ:
-        # dJ/dt at fixed theta: Q_rel turns at -w_d and so do the columns W (Eq. 4.15 differentiated
-        # in time needs it: d(J^T lambda)/dt has the term (dJ/dt)^T lambda besides Lambda thetadot)
-        Wx = closure.cross_matrix(w_d)
-        dA = (r[:3] @ w_d) * _EYE3 + Wx @ Q_rel
-        dJdt = np.zeros((6, K.shape[1]))
-        dJdt[:3] = (dA - A @ Wx) @ W
-    return r, J, dJ, xdot, _U_REL, dJdt
+        return _TwistTerms(Q, p, K, dk, s)
+    return _ClosureTerms(Q, p, K, dk, s)
 
 
 _EYE3 = np.eye(3)

@@ -128,6 +128,24 @@ def test_fused_lambda_star_equals_the_contraction_of_dK(name):
         assert np.array_equal(K, K2) and np.array_equal(Q, Q2) and np.array_equal(p, p2)
 
 
+@pytest.mark.parametrize("name", ALL_ROBOTS)
+def test_hessian_contraction_matches_the_tensor_and_the_fused_lambda(name):
+    """HessianContraction: its tensor is jacobian_derivative's dK; displacement_lambda = lam . dJ (Eq. 4.20)."""
+    r = robot(name)
+    rng = np.random.default_rng(13)
+    for q in configurations(r, seed=13):
+        Q, p, K, dk = r.kinematics.jacobian_hessian(q)
+        dK = r.kinematics.jacobian_derivative(q)[3]
+        assert np.array_equal(dk.tensor(), dK)
+        mu = rng.normal(size=6)
+        assert np.abs(dk.contract(mu) - closure.contract(mu, dK)).max() < 1e-13
+        lam = rng.normal(size=7)  # all seven closure rows, the trace row included
+        dJ = closure.displacement_jacobian_derivative(Q, K, dK)
+        L = closure.displacement_lambda(Q, K, lam, dk.contract)
+        assert np.abs(L - closure.contract(lam, dJ)).max() < 1e-12
+        assert np.abs(L - L.T).max() < 1e-12  # Lambda is a Hessian (Eq. 4.26)
+
+
 @pytest.mark.parametrize("name", ["puma7", "cybotech_p15", "panda", "xarm7"])
 def test_lambda_star_is_not_symmetric_for_spatial_arms(name):
     """K is not the Jacobian of any function (Section 4.2): Lambda* = d(K^T lam*)/dtheta is not symmetric."""

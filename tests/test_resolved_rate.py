@@ -100,7 +100,7 @@ def test_qp_and_lu_give_the_same_rates():
     for _ in range(200):
         rr.advance()
         pt = rr.sys.point(rr.q, rr.t)
-        M = pt.hess + np.einsum("a,aik->ik", rr.lam, pt.dJ)
+        M = pt.M(rr.lam)
         label = classify(M, pt.J, "auto")
         if label == "lu":
             continue
@@ -115,21 +115,44 @@ def test_qp_and_lu_give_the_same_rates():
 @pytest.mark.parametrize("name", ["planar3r", "cybotech_p15", "panda"])
 @pytest.mark.parametrize("scheme", ["augmented", "velocity"])
 def test_task_jacobians_and_their_derivatives_match_finite_differences(name, scheme):
-    """The scheme's J and dJ (built on the kinematics layer's K and dK) against central differences."""
+    """The scheme's J and Lambda = d(J^T lam)/dtheta (built on the kinematics layer) against central differences."""
     r = robot(name)
+    rng = np.random.default_rng(11)
     for q_star in configurations(r, seed=11, count=2):
         Q0, p0 = r.kinematics.pose(q_star)
         sample = kinredund.paths.PathSample(p0 + 0.01, np.zeros(3), Q0 @ _rot(0.3), np.zeros(3))
 
-        def terms(q, need=True, sample=sample):
-            Q, p, K, dK = r.kinematics.jacobian_derivative(q)
-            return task_terms(r.task, scheme, Q, p, K, dK, sample, need)
+        def terms(q, sample=sample):
+            return task_terms(r.task, scheme, *r.kinematics.jacobian_hessian(q), sample)
 
         q = q_star + 0.05
-        r_val, J, dJ, _, _, _ = terms(q)
+        tt = terms(q)
         if not (scheme == "velocity" and r.task == "pose"):  # the log map's Jacobian is K only at r = 0
-            assert np.abs(J - central_difference(lambda x: terms(x)[0], q)).max() < 1e-7
-        assert np.abs(dJ - central_difference(lambda x: terms(x)[1], q)).max() < 1e-7
+            assert np.abs(tt.J - central_difference(lambda x: terms(x).r, q)).max() < 1e-7
+        lam = rng.normal(size=len(tt.r))
+        fd = central_difference(lambda x, lam=lam: terms(x).J.T @ lam, q)
+        assert np.abs(tt.Lambda(lam) - fd).max() < 1e-7
+
+
+def test_lambda_of_the_pose_task_is_the_contraction_of_the_checked_tensor():
+    """No second derivative code: the fused Lambda equals lam . dJ with dJ from closure (foundation-tested)."""
+    from kinredund import closure
+    from kinredund.rr_terms import _U_REL
+
+    r = robot("panda")
+    rng = np.random.default_rng(5)
+    for q in configurations(r, seed=5, count=3):
+        Q, p, K, dk = r.kinematics.jacobian_hessian(q)
+        Q_d = Q @ _rot(0.7)
+        sample = kinredund.paths.PathSample(p, np.zeros(3), Q_d, np.zeros(3))
+        lam = rng.normal(size=6)
+        # the target-frame rows: Q_rel = Q_d^T Q and K_rel = [Q_d^T K_omega; K_v]
+        K_rel = np.concatenate([Q_d.T @ K[:3], K[3:]])
+        dK = dk.tensor()
+        dK_rel = np.concatenate([np.einsum("ab,bik->aik", Q_d.T, dK[:3]), dK[3:]])
+        dJ = closure.displacement_jacobian_derivative(Q_d.T @ Q, K_rel, dK_rel)
+        want = closure.contract(_U_REL @ lam, dJ)
+        assert np.abs(task_terms("pose", "augmented", Q, p, K, dk, sample).Lambda(lam) - want).max() < 1e-12
 
 
 def test_explicit_time_derivative_of_the_target_frame_jacobian():
@@ -138,12 +161,13 @@ def test_explicit_time_derivative_of_the_target_frame_jacobian():
 
     r, path, _, q0 = panda_circle(wrist_amplitude=np.radians(15))
     q = q0 + 0.05
-    Q, p, K, dK = r.kinematics.jacobian_derivative(q)
+    Q, p, K, dk = r.kinematics.jacobian_hessian(q)
+    lam = np.random.default_rng(4).normal(size=6)
     for t in (0.3, 2.0):
-        dJdt = task_terms("pose", "augmented", Q, p, K, dK, path(t))[5]
+        dJdt_T = task_terms("pose", "augmented", Q, p, K, dk, path(t)).dJdt_T(lam)
         fd = central_difference(
-            lambda x: task_terms("pose", "augmented", Q, p, K, dK, path(x[0]), False)[1], np.array([t]))[..., 0]
-        assert np.abs(dJdt - fd).max() < 1e-7 and np.abs(fd).max() > 1e-2
+            lambda x: task_terms("pose", "augmented", Q, p, K, None, path(x[0])).J.T @ lam, np.array([t]))[..., 0]
+        assert np.abs(dJdt_T - fd).max() < 1e-7 and np.abs(fd).max() > 1e-2
 
 
 def _rot(angle):
@@ -187,18 +211,25 @@ def test_singular_start_is_reported():
         track(r, path, minimum_norm(3), q0)
 
 
-def test_non_finite_path_sample_says_when():
+@pytest.mark.parametrize("bad", ["p", "v"])
+@pytest.mark.parametrize(("mode", "scheme"), [("default", "augmented"), ("default", "velocity"),
+                                              ("thesis", "augmented"), ("default", "pseudoinverse"),
+                                              ("thesis", "liegeois")])
+def test_non_finite_path_sample_says_when(bad, mode, scheme):
+    """The stepper reads samples unchecked and checks its results: the path's own message, with t, either way."""
     r = robot("planar3r")
     q0 = np.array([0.2, 0.6, 0.6])
     p0 = r.fk(q0)[:2, 3]
 
     def fn(t):
+        p, v = p0 + np.array([0.1 * t, 0.0]), np.array([0.1, 0.0])
         if t > 0.5:
-            return np.array([np.nan, 0.0]), np.zeros(2)
-        return p0 + np.array([0.1 * t, 0.0]), np.array([0.1, 0.0])
+            return (np.array([np.nan, 0.0]), v) if bad == "p" else (p, np.array([np.inf, -np.inf]))
+        return p, v
 
-    with pytest.raises(kinredund.PathError, match=r"non-finite p at t = 0\.5"):
-        track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40)
+    with pytest.raises(kinredund.PathError, match=rf"non-finite {bad} at t = 0\.525 s") as err:
+        track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40, mode=mode, scheme=scheme)
+    assert err.value.t == pytest.approx(0.525)
 
 
 def test_start_off_the_path_and_bad_options():
