@@ -109,7 +109,8 @@ class Circle(Path):
             e2 = np.cross(n, e1)
         object.__setattr__(self, "center", c)
         object.__setattr__(self, "_basis", (e1, e2, n))
-        object.__setattr__(self, "_plane", np.column_stack([e1, e2]))
+        object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
+        object.__setattr__(self, "_center_floats", tuple(c.tolist()))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
         if self.orientation is not None:
             Q0 = np.asarray(self.orientation, float)
@@ -119,14 +120,18 @@ class Circle(Path):
         object.__setattr__(self, "has_orientation", bool(self.frenet) or self.orientation is not None)
 
     def sample(self, t: float) -> PathSample:
-        e1, e2, n = self._basis
         w = self.speed / self.radius
         beta = self.start_angle + w * t
         c, s = math.cos(beta), math.sin(beta)
-        # [e_n, e_t] = [e1, e2] [[c, -s], [s, c]]: the outward radial unit vector and the tangent
-        ent = self._plane @ np.array([[c, -s], [s, c]])
-        p = self.center + self.radius * ent[:, 0]
-        v = self.speed * ent[:, 1]
+        # e_n = c e1 + s e2 (outward radial unit vector), e_t = c e2 - s e1 (tangent); Python floats
+        # for these 3-vectors cost less than numpy calls
+        (e1x, e1y, e1z), (e2x, e2y, e2z), _ = self._plane_floats
+        en = (c * e1x + s * e2x, c * e1y + s * e2y, c * e1z + s * e2z)
+        et = (c * e2x - s * e1x, c * e2y - s * e1y, c * e2z - s * e1z)
+        cx, cy, cz = self._center_floats
+        rad, sp = self.radius, self.speed
+        p = np.array([cx + rad * en[0], cy + rad * en[1], cz + rad * en[2]])
+        v = np.array([sp * et[0], sp * et[1], sp * et[2]])
         if self.orientation is not None:
             Q0 = self.orientation
             if self.roll_amplitude == 0.0:
@@ -138,10 +143,10 @@ class Circle(Path):
             return PathSample(p, v, Q, Q0[:, 2] * (self.roll_amplitude * wl * math.cos(wl * t)))
         if not self.frenet:
             return PathSample(p, v)
-        Q = np.empty((3, 3))
-        Q[:, :2] = ent  # Eq. (4.47): [e_n, e_t, e_n x e_t], and e_n x e_t = e1 x e2 = n
-        Q[:, 2] = n
-        return PathSample(p, v, Q, w * n)  # Eq. (4.48): the frame turns about n at beta-dot
+        n0, n1, n2 = self._plane_floats[2]
+        # Eq. (4.47): [e_n, e_t, e_n x e_t], and e_n x e_t = e1 x e2 = n
+        Q = np.array([[en[0], et[0], n0], [en[1], et[1], n1], [en[2], et[2], n2]])
+        return PathSample(p, v, Q, np.array([w * n0, w * n1, w * n2]))  # Eq. (4.48): turns about n at beta-dot
 
 
 @dataclass(frozen=True)

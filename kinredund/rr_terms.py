@@ -98,17 +98,11 @@ class _ClosureTerms(TaskTerms):
         Q_rel = Qd_T @ Q
         W = Qd_T @ K[:3]  # omega columns in the target frame
         A, v = closure.trace_form(Q_rel), closure.vect(Q_rel)  # Eqs. (2.15), (2.8)
-        r = np.empty(6)
-        r[:3] = 2.0 * v  # Eq. (2.13) with Q_d -> 1: vect(1) = 0
-        r[3:] = p - s.p
-        J = np.empty((6, K.shape[1]))
-        J[:3] = A @ W  # Eq. (2.14): H K, vect rows
-        J[3:] = K[3:]
         w_d = Qd_T @ s.omega  # the target's angular velocity in its own frame
-        xdot = np.empty(6)
-        xdot[:3] = A @ w_d  # -dr/dt at fixed theta
-        xdot[3:] = s.v
-        self.r, self.J, self.xdot, self.basis, self._dk = r, J, xdot, _U_REL, dk
+        self.r = np.concatenate((2.0 * v, p - s.p))  # Eq. (2.13) with Q_d -> 1: vect(1) = 0
+        self.J = np.concatenate((A @ W, K[3:]))  # Eq. (2.14): H K, vect rows then position rows
+        self.xdot = np.concatenate((A @ w_d, s.v))  # -dr/dt at fixed theta
+        self.basis, self._dk = _U_REL, dk
         self._Qd, self._Q_rel, self._A, self._v, self._W, self._w_d = s.Q, Q_rel, A, v, W, w_d
 
     def Lambda(self, lam):
@@ -123,8 +117,19 @@ class _ClosureTerms(TaskTerms):
         # time needs it: d(J^T lambda)/dt has the term (dJ/dt)^T lambda besides Lambda thetadot).
         # dJ_vect/dt = (dA - A [w_d]x) W with dA = (2 v . w_d) 1 + [w_d]x Q_rel; for a row l,
         # l^T [w]x = (l x w)^T, so l^T (dA - A [w]x) = (2 v . w) l + (l x w) Q_rel - (A^T l) x w.
-        l, w = lam[:3], self._w_d
-        c = (2.0 * float(self._v @ w)) * l + closure.cross(l, w) @ self._Q_rel - closure.cross(l @ self._A, w)
+        # In Python floats: 3-vector algebra costs less so than a dozen numpy calls.
+        (l0, l1, l2), (w0, w1, w2) = lam[:3].tolist(), self._w_d.tolist()
+        (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = self._Q_rel.tolist()
+        v0, v1, v2 = self._v.tolist()
+        s = 2.0 * (v0 * w0 + v1 * w1 + v2 * w2)
+        x0, x1, x2 = l1 * w2 - l2 * w1, l2 * w0 - l0 * w2, l0 * w1 - l1 * w0  # l x w
+        tr = q00 + q11 + q22
+        a0 = tr * l0 - (q00 * l0 + q10 * l1 + q20 * l2)  # A^T l = tr(Q) l - Q^T l
+        a1 = tr * l1 - (q01 * l0 + q11 * l1 + q21 * l2)
+        a2 = tr * l2 - (q02 * l0 + q12 * l1 + q22 * l2)
+        c = np.array([s * l0 + x0 * q00 + x1 * q10 + x2 * q20 - (a1 * w2 - a2 * w1),
+                      s * l1 + x0 * q01 + x1 * q11 + x2 * q21 - (a2 * w0 - a0 * w2),
+                      s * l2 + x0 * q02 + x1 * q12 + x2 * q22 - (a0 * w1 - a1 * w0)])
         return self._W.T @ c
 
 

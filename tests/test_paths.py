@@ -1,0 +1,97 @@
+"""Paths: the twist each path returns is the time derivative of its pose; closed paths close."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import kinredund
+from kinredund.closure import rotation_from_invariants
+from kinredund.finite_diff import central_difference
+from kinredund.paths import Circle, Ellipse, FunctionPath, Helix, SampledPath
+
+
+def _tilted_q0():
+    return rotation_from_invariants(np.array([0.3, -0.5, 0.8]), 1.1)
+
+
+def _user(t):
+    Q = rotation_from_invariants(np.array([0.0, 0.0, 1.0]), 0.4 * t)
+    return Q, np.array([0.1 * t, np.sin(t), 0.5]), np.array([0.0, 0.0, 0.4]), np.array([0.1, np.cos(t), 0.0])
+
+
+def _sampled():
+    ts = np.linspace(0.0, 2.0, 41)
+    p = np.column_stack([np.cos(np.pi * ts), np.sin(np.pi * ts), 0.2 * np.sin(np.pi * ts)])
+    return SampledPath(ts, p, closed=True)
+
+
+PATHS = {
+    "circle_plane": lambda: Circle((0.5, -0.2), 0.3, 0.7, start_angle=0.4),
+    "circle_frenet_tilted": lambda: Circle((0.1, 0.2, 0.3), 0.4, 1.3, normal=(0.3, 0.2, 1.0), frenet=True),
+    "circle_frenet_x": lambda: Circle((1.0, 0.0, 0.5), 0.25, 0.5, normal=(1.0, 0.0, 0.0), frenet=True),
+    "circle_roll": lambda: Circle((0.4, 0.1, 0.6), 0.1, 0.2, orientation=_tilted_q0(), roll_amplitude=0.3),
+    "ellipse": lambda: Ellipse((0.2, 0.1), 0.3, 0.15, angle=0.5, rate=1.2, start=0.3),
+    "helix": lambda: Helix(),
+    "function": lambda: FunctionPath(_user, has_orientation=True),
+    "sampled": _sampled,
+}
+
+
+@pytest.mark.parametrize("name", sorted(PATHS))
+def test_twist_is_the_derivative_of_the_pose(name):
+    path = PATHS[name]()
+    for t in (0.0, 0.37, 1.9):
+        s = path(t)
+        v_fd = central_difference(lambda x: path(x[0]).p, np.array([t]))[:, 0]
+        tol = 1e-4 if name == "sampled" else 1e-8  # the spline's own derivative vs differences of it
+        assert np.abs(s.v - v_fd).max() < tol
+        if s.Q is None:
+            continue
+        assert np.abs(s.Q @ s.Q.T - np.eye(3)).max() < 1e-12 and np.linalg.det(s.Q) > 0
+        dQ = central_difference(lambda x: path(x[0]).Q.ravel(), np.array([t]))[:, 0].reshape(3, 3)
+        W = dQ @ s.Q.T  # [omega]x (world axes)
+        assert np.abs(W + W.T).max() < 1e-8
+        assert np.abs(np.array([W[2, 1], W[0, 2], W[1, 0]]) - s.omega).max() < 1e-8
+
+
+@pytest.mark.parametrize("name", ["circle_plane", "circle_frenet_tilted", "circle_roll", "ellipse", "sampled"])
+def test_closed_paths_close(name):
+    path = PATHS[name]()
+    a, b = path(0.2), path(0.2 + path.period)
+    assert np.abs(a.p - b.p).max() < 1e-12 and np.abs(a.v - b.v).max() < 1e-10
+    if a.Q is not None:
+        assert np.abs(a.Q - b.Q).max() < 1e-12
+
+
+def test_frenet_frame_of_example_4_3():
+    """Eq. (4.47): Q_d = [e_n, e_t, e_n x e_t] with e_n the outward radial unit vector, e_t the tangent."""
+    c = np.array([0.1, 0.2, 0.3])
+    path = Circle(c, 0.4, 1.3, normal=(0.3, 0.2, 1.0), frenet=True)
+    n = np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0])
+    for t in (0.0, 0.8, 1.5):
+        s = path(t)
+        assert np.abs(s.Q[:, 0] - (s.p - c) / 0.4).max() < 1e-12
+        assert np.abs(s.Q[:, 1] - s.v / 1.3).max() < 1e-12
+        assert np.abs(s.Q[:, 2] - n).max() < 1e-12
+        assert np.abs(s.omega - (1.3 / 0.4) * n).max() < 1e-12  # Eq. (4.48)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: Circle((0.0, 0.0), -1.0, 1.0),
+    lambda: Circle((0.0, 0.0), 1.0, 0.0),
+    lambda: Circle((np.nan, 0.0), 1.0, 1.0),
+    lambda: Circle((0.0, 0.0, 0.0), 1.0, 1.0, orientation=np.ones((3, 3))),
+    lambda: Ellipse((0.0, 0.0), 0.0, 1.0),
+    lambda: SampledPath([0.0, 1.0, 2.0], [[0, 0], [1, 0], [0, 0]]),
+    lambda: SampledPath([0.0, 1.0, 2.0, 3.0], [[0, 0], [1, 0], [1, 1], [0.5, 0]], closed=True),
+])
+def test_bad_paths_raise_path_error(make):
+    with pytest.raises(kinredund.PathError):
+        make()
+
+
+def test_user_path_of_the_wrong_shape_says_when():
+    path = FunctionPath(lambda t: (np.zeros(4), np.zeros(4)))
+    with pytest.raises(kinredund.PathError, match=r"at t = 0\.25 s"):
+        path(0.25)
