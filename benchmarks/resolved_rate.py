@@ -1,16 +1,23 @@
 """Resolved-rate timing on the Panda and the CYBOTECH P-15 (issue 4).
 
 Per robot, medians over one run: one evaluation of the scheme (K, dK, Lambda*, lambda* by Householder
-QR, and the solve of R), one whole step in thesis mode and in the default mode (predictor + corrector),
-and one plain pseudoinverse step. Run: ``python benchmarks/resolved_rate.py [--json FILE]``.
+QR, and the solve of R), one whole step in thesis mode and in the default mode (predictor + corrector;
+the augmented and the velocity-Jacobian form), and one plain pseudoinverse step. On the Panda, the same
+run times pink's QP step on the same path (``pink_step_us``: FrameTask, proxqp, no limits - the plain QP
+step the issue's 75 us target names; ``pink_limits_step_us``: with pink's default limits) and gives our
+default step's ratio to it: the target is relative to what pink takes on the same machine, because wall
+times on this VM drift by up to 2x between runs. Run: ``python benchmarks/resolved_rate.py [--json FILE]``
+(pink comes with ``pip install .[bench]``; without it the pink columns are left out).
 """
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 from _bench import parser, print_table, time_calls, write_json
+from scipy.linalg import lapack
 
-from kinredund.closure import contract
 from kinredund.examples.chapter4 import example_path
 from kinredund.examples.panda_circle import panda_circle
 from kinredund.resolved_rate import ResolvedRate, kkt_matrix, multipliers
@@ -27,32 +34,57 @@ def _setup(name):
 
 
 def _eval_once(robot, index, q, s_twist):
-    Q, p, K, dK = robot.kinematics.jacobian_derivative(q)
+    """One evaluation of the velocity-Jacobian scheme, through the pieces the stepper uses."""
+    Q, p, K, dk = robot.kinematics.jacobian_hessian(q)  # K (Eq. 2.16) and dK (Eqs. 4.38-4.41)
     _, grad, hess = index.evaluate(q)
     lam, _ = multipliers(K, grad)  # Eqs. (4.33)-(4.34)
-    M = hess + contract(lam, dK)  # M* = Hess z + Lambda*, Eq. (4.37)
-    return np.linalg.solve(kkt_matrix(M, K), np.concatenate([np.zeros(robot.nq), s_twist]))  # Eq. (4.36)
+    M = hess + dk.contract(lam)  # M* = Hess z + Lambda*, Eqs. (4.37), (4.42)
+    rhs = np.concatenate([np.zeros(robot.nq), s_twist])
+    return lapack.dgesv(kkt_matrix(M, K), rhs)[2]  # Eq. (4.36), LU with partial pivoting
+
+
+def _pink_steps(robot, path, q0, dt, limits: bool):
+    """pink's step on the same path, as benchmarks/peers.py runs it; None where pink is not installed."""
+    if importlib.util.find_spec("pink") is None:
+        return None
+    from peers import _Pink
+
+    return _Pink(robot, path, q0, dt, posture=False, limits=limits).step
 
 
 def bench(name: str, steps: int) -> dict:
     robot, path, index, q0 = _setup(name)
     s = path(0.0)
     twist = np.concatenate([s.omega, s.v])
+    dt = path.period / 200
     out = {"eval_us": time_calls(lambda: _eval_once(robot, index, q0, twist))["median_us"]}
     for key, mode, scheme in [("step_default_us", "default", "augmented"), ("step_default_velocity_us", "default",
                               "velocity"), ("step_thesis_us", "thesis", "augmented"),
                               ("pinv_us", "thesis", "pseudoinverse")]:
-        rr = ResolvedRate(robot, path, index, q0, path.period / 200, mode=mode, scheme=scheme)
+        rr = ResolvedRate(robot, path, index, q0, dt, mode=mode, scheme=scheme)
         out[key] = time_calls(rr.advance, repeat=steps, warmup=5)["median_us"]
+    if name == "panda":
+        for key, limits in (("pink_step_us", False), ("pink_limits_step_us", True)):
+            step = _pink_steps(robot, path, q0, dt, limits)
+            if step is not None:
+                out[key] = time_calls(step, repeat=steps, warmup=5)["median_us"]
+        if "pink_step_us" in out:
+            out["default_over_pink"] = out["step_default_us"] / out["pink_step_us"]
+            out["default_velocity_over_pink"] = out["step_default_velocity_us"] / out["pink_step_us"]
     return out
 
 
 def main() -> None:
     args = parser(__doc__.splitlines()[0]).parse_args()
     results = {name: bench(name, 1000) for name in ("panda", "cybotech_p15")}
-    rows = [[n, r["eval_us"], r["step_default_us"], r["step_default_velocity_us"], r["step_thesis_us"], r["pinv_us"]]
-            for n, r in results.items()]
-    print_table(rows, ["robot", "eval us", "default step us", "default (velocity) us", "thesis step us", "pinv us"])
+    rows = [[n, r["eval_us"], r["step_default_us"], r["step_default_velocity_us"], r["step_thesis_us"], r["pinv_us"],
+             r.get("pink_step_us", "-"), r.get("pink_limits_step_us", "-")] for n, r in results.items()]
+    print_table(rows, ["robot", "eval us", "default step us", "default (velocity) us", "thesis step us", "pinv us",
+                       "pink QP step us", "pink (limits) us"])
+    panda = results["panda"]
+    if "default_over_pink" in panda:
+        print(f"Panda default step / pink QP step: {panda['default_over_pink']:.2f} (augmented), "
+              f"{panda['default_velocity_over_pink']:.2f} (velocity form); target <= 1")
     write_json(args.json, {"robots": results, **results})
 
 

@@ -451,6 +451,9 @@ class ResolvedRate:
         self.q, self.lam = y[:n], y[n:]
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
         sol = _lu_solve(lu, np.concatenate([pt.top(y[n:]), pt.xdot]))  # Eq. (4.24)
+        if not math.isfinite(float(sol @ sol)):  # y is finite here: d passed its (NaN-failing) test
+            self.sys.check_sample(self.t)
+            raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
         self._y, self._yd = y, sol
         self.qdot, self.lamdot, self.solver, self.M, self.pt = sol[:n], sol[n:], label, M, pt
 
@@ -518,8 +521,7 @@ class ResolvedRate:
             y_p = y + h * yd if self.prev is None else self._hermite @ np.array((*self.prev, y, yd))
             self.prev = (y, yd)
             self.t = t_next
-            self._correct(y_p)
-            self._check_finite(q)
+            self._correct(y_p)  # checks its results for non-finite values
             return
         self._check_finite(q)
         self._rates()
