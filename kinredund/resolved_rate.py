@@ -67,10 +67,11 @@ def multipliers(J: np.ndarray, grad: np.ndarray) -> tuple[np.ndarray, float]:
     qr, tau, _, _ = lapack.dgeqrf(J.T)  # Householder: J^T = Y R
     c, _, _ = lapack.dormqr("L", "T", qr, tau, grad[:, None], lwork=max(64, m))  # Y^T grad
     lam, info = lapack.dtrtrs(qr[:m, :m], c[:m, 0])  # Eq. (4.12): R lambda = -Y^T grad
-    if info != 0 or not np.all(np.isfinite(lam)):
+    if info != 0 or not math.isfinite(float(lam @ lam)):
         lam = np.linalg.lstsq(J.T, -grad, rcond=None)[0]
         return lam, float(np.linalg.norm(grad + J.T @ lam))
-    return -lam, float(np.linalg.norm(c[m:, 0]))  # the residual is orthogonal to range(J^T)
+    res = c[m:, 0]
+    return -lam, math.sqrt(float(res @ res))  # the residual is orthogonal to range(J^T)
 
 
 def null_space_eigs(M: np.ndarray, J: np.ndarray) -> np.ndarray:
