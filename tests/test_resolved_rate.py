@@ -211,6 +211,29 @@ def test_singular_start_is_reported():
         track(r, path, minimum_norm(3), q0)
 
 
+@pytest.mark.parametrize("jump", [0.02, 0.3])
+def test_corrector_recovers_from_a_jump_in_the_path(jump, monkeypatch):
+    """A step the predictor misses badly: chord iterations, then fresh factorisations, end on F = 0 itself."""
+    r = robot("planar3r")
+    q0 = np.array([0.2, 0.6, 0.6])
+    p0 = r.fk(q0)[:2, 3]
+
+    def fn(t):
+        p = p0 + np.array([0.1 * t, 0.0]) + (np.array([0.0, jump]) if t >= 0.5 else 0.0)
+        return p, np.array([0.1, 0.0])
+
+    fresh = []
+    newton = ResolvedRate._newton
+    monkeypatch.setattr(ResolvedRate, "_newton", lambda self, *a, **k: (fresh.append(self.t), newton(self, *a, **k))[1])
+    tr = track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40)
+    assert tr.position_error.max() < 1e-11 and tr.normality_residual.max() < 1e-11
+    assert fresh[0] == 0.0 and (jump < 0.1 or 0.5 in fresh)  # the start, then the jump for the larger one
+    # after the jump the joints sit at the constrained minimum of the shifted path
+    k = int(np.argmax(tr.t >= 0.5))
+    best = kinredund.solve_ik(r, tr.p_desired[k][:2], minimum_norm(3), q0=tr.q[k])
+    assert np.abs(best.q - tr.q[k]).max() < 1e-8
+
+
 @pytest.mark.parametrize("bad", ["p", "v"])
 @pytest.mark.parametrize(("mode", "scheme"), [("default", "augmented"), ("default", "velocity"),
                                               ("thesis", "augmented"), ("default", "pseudoinverse"),
