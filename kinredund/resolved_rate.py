@@ -436,6 +436,7 @@ class ResolvedRate:
         product each).
         """
         n = self.n
+        y_pred = y
         pt = self.sys.point(y[:n], self.t)
         M, lu = self._factor(pt, y[n:])
         F = pt.residual(y[n:])
@@ -446,6 +447,7 @@ class ResolvedRate:
             if not float(d @ d) <= tol:
                 y = self._chord(y, lu, tol)
                 if y is None:  # no convergence with this factorisation: fresh ones from the prediction
+                    self.q, self.lam = y_pred[:n], y_pred[n:]
                     self._newton(fresh=True)
                     self._rates()
                     return
