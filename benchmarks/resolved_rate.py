@@ -7,12 +7,14 @@ run times pink's QP step on the same path (``pink_step_us``: FrameTask, proxqp, 
 step the issue's 75 us target names; ``pink_limits_step_us``: with pink's default limits) and gives our
 default step's ratio to it: the target is relative to what pink takes on the same machine, because wall
 times on this VM drift by up to 2x between runs. Run: ``python benchmarks/resolved_rate.py [--json FILE]``
-(pink comes with ``pip install .[bench]``; without it the pink columns are left out).
+and ``--plot FILE`` for a bar chart (pink comes with ``pip install .[bench]``; without it the pink
+columns are left out).
 """
 
 from __future__ import annotations
 
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 from _bench import parser, print_table, time_calls, write_json
@@ -74,8 +76,40 @@ def bench(name: str, steps: int) -> dict:
     return out
 
 
+def write_plot(results: dict, path: Path) -> None:
+    """Median times per robot as horizontal bars, with the issue's 40 and 75 us lines (written atomically)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from kinredund.plots import save_figure
+
+    labels = {"eval_us": "one evaluation", "step_default_us": "default step (augmented)",
+              "step_default_velocity_us": "default step (velocity form)", "step_thesis_us": "thesis step",
+              "pinv_us": "pseudoinverse step", "pink_step_us": "pink QP step (no limits)",
+              "pink_limits_step_us": "pink QP step (limits)"}
+    fig = Figure(figsize=(6 * len(results), 4.2), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(results), sharex=True, squeeze=False)[0]
+    for ax, (name, res) in zip(axes, results.items(), strict=True):
+        keys = [k for k in labels if k in res]
+        colours = ["tab:gray" if k.startswith("pink") else "tab:blue" for k in keys]
+        ax.barh([labels[k] for k in keys], [res[k] for k in keys], color=colours)
+        ax.axvline(40.0, color="tab:orange", linestyle=":", linewidth=1, label="40 us (evaluation target)")
+        ax.axvline(75.0, color="tab:red", linestyle="--", linewidth=1, label="75 us (default-step target)")
+        ax.invert_yaxis()
+        ax.set_title(name)
+        ax.set_xlabel("median time [us] (one run)")
+        ax.grid(True, axis="x", alpha=0.3)
+    handles, names = axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, fontsize=8, loc="outside lower center", ncols=2)
+    save_figure(fig, path)
+    print(f"wrote {path}")
+
+
 def main() -> None:
-    args = parser(__doc__.splitlines()[0]).parse_args()
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--plot", type=Path, default=None, help="write a bar chart of the times (png, svg, pdf)")
+    args = p.parse_args()
     results = {name: bench(name, 1000) for name in ("panda", "cybotech_p15")}
     rows = [[n, r["eval_us"], r["step_default_us"], r["step_default_velocity_us"], r["step_thesis_us"], r["pinv_us"],
              r.get("pink_step_us", "-"), r.get("pink_limits_step_us", "-")] for n, r in results.items()]
@@ -86,6 +120,8 @@ def main() -> None:
         print(f"Panda default step / pink QP step: {panda['default_over_pink']:.2f} (augmented), "
               f"{panda['default_velocity_over_pink']:.2f} (velocity form); target <= 1")
     write_json(args.json, {"robots": results, **results})
+    if args.plot is not None:
+        write_plot(results, args.plot)
 
 
 if __name__ == "__main__":
