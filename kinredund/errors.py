@@ -94,19 +94,33 @@ class SolverError(KinredundError, RuntimeError):
     """A numerical backend failed in a way that is not the user's input."""
 
 
-def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
-    """Return q as a float array of shape (n,), or raise :class:`JointVectorError` saying what is wrong."""
+def check_array(value, shape: tuple, what: str, error: type[KinredundError] = TaskError, owner: str = ""):
+    """Return ``value`` as a finite float array of ``shape``, or raise ``error`` saying what is wrong.
+
+    Args:
+        value: anything numpy can read as numbers.
+        shape: the required shape; ``None`` in an axis accepts any length there.
+        what: the name used in the message (e.g. ``"wrist-centre position [m]"``).
+        error: the exception class (of the kinredund family) to raise.
+        owner: appended to the shape message as ``for {owner}`` (e.g. the robot's name).
+    """
     import numpy as np
 
     try:
-        arr = np.asarray(q, dtype=float)
+        arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as err:
-        raise JointVectorError(f"{what} must be numeric, got {q!r}") from err
-    if arr.shape != (n,):
-        raise JointVectorError(f"{what} must have shape ({n},) for {owner}, got {arr.shape}")
+        raise error(f"{what} must be numeric, got {value!r}") from err
+    if arr.ndim != len(shape) or any(w is not None and g != w for g, w in zip(arr.shape, shape, strict=True)):
+        want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + ("," if len(shape) == 1 else "") + ")"
+        raise error(f"{what} must have shape {want}{f' for {owner}' if owner else ''}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise JointVectorError(f"{what} has non-finite entries: {arr.tolist()}")
+        raise error(f"{what} has non-finite entries: {arr.tolist()}")
     return arr
+
+
+def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
+    """Return q as a float array of shape (n,), or raise :class:`JointVectorError` saying what is wrong."""
+    return check_array(q, (n,), what, JointVectorError, owner)
 
 
 def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:

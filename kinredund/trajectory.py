@@ -11,6 +11,7 @@ become (nested) lists; ``meta`` is a free-form dict (example name, obstacle, par
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -92,10 +93,10 @@ class Trajectory:
         out = {}
         for f in fields(self):
             v = getattr(self, f.name)
-            out[f.name] = _plain(v)
+            out[f.name] = json_ready(v)
         out["schema_version"] = SCHEMA_VERSION
-        out["q0"] = _plain(self.q0)
-        out["m_min_eig"] = None if self.m_eigs is None else _plain(np.min(self.m_eigs, axis=1))
+        out["q0"] = json_ready(self.q0)
+        out["m_min_eig"] = None if self.m_eigs is None else json_ready(np.min(self.m_eigs, axis=1))
         out.update({k: v for k, v in self.summary().items() if k not in out})
         return out
 
@@ -105,7 +106,7 @@ class Trajectory:
 
         data = self.to_json_dict()
         if extra:
-            data.update(_plain(extra))
+            data.update(json_ready(extra))
         atomic_write_text(Path(path), json.dumps(data, allow_nan=False))
 
     @classmethod
@@ -129,34 +130,50 @@ class Trajectory:
     @classmethod
     def load_json(cls, path: str | Path) -> Trajectory:
         """Read a record written by :meth:`save_json`."""
-        try:
-            data = json.loads(Path(path).read_text())
-        except OSError as err:
-            raise KinredundError(f"cannot read {path}: {err.strerror}") from err
-        except json.JSONDecodeError as err:
-            raise KinredundError(f"{path} is not valid JSON: {err}") from err
-        if not isinstance(data, dict):
-            raise KinredundError(f"{path} does not hold a JSON object")
-        return cls.from_json_dict(data)
+        return cls.from_json_dict(read_json_object(path))
 
 
-def _plain(v):
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
+def json_ready(v):
+    """JSON-ready copy of ``v``: arrays to lists, numpy scalars to Python, non-finite floats to None.
+
+    ``json.dumps(json_ready(v), allow_nan=False)`` then always succeeds for numeric content (a NaN
+    read back into a float array by :meth:`Trajectory.from_json_dict` is NaN again).
+    """
     if isinstance(v, dict):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
+        return {str(k): json_ready(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [json_ready(x) for x in v]
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
     return v
+
+
+def read_json_object(path: str | Path) -> dict:
+    """The JSON object in ``path``; KinredundError (naming the file) if unreadable, not JSON or not an object."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except OSError as err:
+        raise KinredundError(f"cannot read {path}: {err.strerror}") from err
+    except json.JSONDecodeError as err:
+        raise KinredundError(f"{path} is not valid JSON: {err}") from err
+    if not isinstance(data, dict):
+        raise KinredundError(f"{path} does not hold a JSON object")
+    return data
+
+
+def wrap_joints(d, revolute=True) -> np.ndarray:
+    """Joint values or differences with the revolute entries brought into [-pi, pi) [rad]."""
+    d = np.asarray(d, float)
+    return np.where(revolute, (d + np.pi) % (2 * np.pi) - np.pi, d)
 
 
 def joint_drift(q_start: np.ndarray, q_end: np.ndarray, revolute: np.ndarray) -> float:
     """max |q_end - q_start| with revolute joints compared modulo 2 pi [rad]."""
-    d = np.asarray(q_end, float) - np.asarray(q_start, float)
-    d = np.where(revolute, (d + np.pi) % (2 * np.pi) - np.pi, d)
-    return float(np.max(np.abs(d)))
+    return float(np.max(np.abs(wrap_joints(np.asarray(q_end, float) - np.asarray(q_start, float), revolute))))
 
 
-__all__ = ["Trajectory", "joint_drift"]
+__all__ = ["Trajectory", "joint_drift", "json_ready", "read_json_object", "wrap_joints"]
