@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import PathError
+from .errors import PathError, check_array
 
 
 @dataclass(frozen=True)
@@ -56,9 +56,40 @@ class Path:
         return s
 
 
+def _center3(center, what: str) -> np.ndarray:
+    """A centre as 3 finite numbers [m]; a 2-vector is taken in the plane z = 0."""
+    c = check_array(center, (None,), f"{what} centre", PathError)
+    if c.shape == (2,):
+        c = np.append(c, 0.0)
+    if c.shape != (3,):
+        raise PathError(f"{what} centre must be 2 or 3 finite numbers, got {center!r}")
+    return c
+
+
+def _positive(what: str, **values) -> None:
+    bad = {}
+    for k, v in values.items():
+        try:
+            ok = math.isfinite(float(v)) and float(v) > 0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            bad[k] = v
+    if bad:
+        raise PathError(f"{what} {', '.join(values)} must be finite numbers > 0, got "
+                        + ", ".join(f"{k}={v!r}" for k, v in bad.items()))
+
+
+def _unit(v, what: str) -> np.ndarray:
+    u = check_array(v, (3,), what, PathError)
+    norm = float(np.linalg.norm(u))
+    if norm < 1e-12:
+        raise PathError(f"{what} must be a non-zero 3-vector, got {v!r}")
+    return u / norm
+
+
 def _frame(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    n = np.asarray(normal, float)
-    n = n / np.linalg.norm(n)
+    n = _unit(normal, "circle normal")
     helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = helper - (helper @ n) * n
     e1 /= np.linalg.norm(e1)
@@ -94,21 +125,17 @@ class Circle(Path):
     roll_amplitude: float = 0.0
 
     def __post_init__(self) -> None:
-        c = np.asarray(self.center, float)
-        if c.shape == (2,):
-            c = np.array([c[0], c[1], 0.0])
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise PathError(f"circle centre must be 2 or 3 finite numbers, got {self.center!r}")
-        if not (np.isfinite(self.radius) and self.radius > 0 and np.isfinite(self.speed) and self.speed > 0):
-            raise PathError(f"circle radius and speed must be > 0, got {self.radius!r}, {self.speed!r}")
+        c = _center3(self.center, "circle")
+        _positive("circle", radius=self.radius, speed=self.speed)
         e1, e2, n = _frame(self.normal)
         if self.axis_x is not None:
-            e1 = np.asarray(self.axis_x, float)
+            e1 = _unit(self.axis_x, "circle axis_x")
             e1 = e1 - (e1 @ n) * n
+            if np.linalg.norm(e1) < 1e-9:
+                raise PathError(f"circle axis_x must not be parallel to the normal, got {self.axis_x!r}")
             e1 /= np.linalg.norm(e1)
             e2 = np.cross(n, e1)
         object.__setattr__(self, "center", c)
-        object.__setattr__(self, "_basis", (e1, e2, n))
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
@@ -164,12 +191,8 @@ class Ellipse(Path):
     start: float = 0.0
 
     def __post_init__(self) -> None:
-        c = np.asarray(self.center, float)
-        if c.shape == (2,):
-            c = np.array([c[0], c[1], 0.0])
-        if not (self.a > 0 and self.b > 0 and self.rate > 0):
-            raise PathError(f"ellipse semi-axes and rate must be > 0, got a={self.a}, b={self.b}, rate={self.rate}")
-        object.__setattr__(self, "center", c)
+        _positive("ellipse", a=self.a, b=self.b, rate=self.rate)
+        object.__setattr__(self, "center", _center3(self.center, "ellipse"))
         object.__setattr__(self, "period", 2 * np.pi / self.rate)
 
     def sample(self, t: float) -> PathSample:
@@ -190,6 +213,11 @@ class Helix(Path):
     pitch: float = 3.0 / np.pi
     z0: float = 2.0
     rate: float = 1.0
+
+    def __post_init__(self) -> None:
+        _positive("helix", radius=self.radius, rate=self.rate)
+        if not (math.isfinite(self.pitch) and math.isfinite(self.z0)):
+            raise PathError(f"helix pitch and z0 must be finite, got {self.pitch!r}, {self.z0!r}")
 
     def sample(self, t: float) -> PathSample:
         beta = self.rate * t
@@ -247,11 +275,11 @@ class SampledPath(Path):
     def __init__(self, t, p, Q=None, closed: bool = True):
         from scipy.interpolate import CubicSpline
 
-        t = np.asarray(t, float)
-        p = np.asarray(p, float)
-        if t.ndim != 1 or t.shape[0] < 4 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(t)):
+        t = check_array(t, (None,), "sample times", PathError)
+        if t.shape[0] < 4 or np.any(np.diff(t) <= 0):
             raise PathError("a sampled path needs at least 4 strictly increasing, finite times")
-        if p.ndim != 2 or p.shape[0] != t.shape[0] or p.shape[1] not in (2, 3) or not np.all(np.isfinite(p)):
+        p = check_array(p, (t.shape[0], None), "sampled positions", PathError)
+        if p.shape[1] not in (2, 3):
             raise PathError(f"sampled positions must be finite, of shape ({t.shape[0]}, 2 or 3), got {p.shape}")
         if p.shape[1] == 2:
             p = np.column_stack([p, np.zeros(len(p))])
@@ -265,9 +293,9 @@ class SampledPath(Path):
         if Q is not None:
             from scipy.spatial.transform import Rotation, RotationSpline
 
-            Q = np.asarray(Q, float)
-            if Q.shape != (t.shape[0], 3, 3) or not np.all(np.isfinite(Q)):
-                raise PathError(f"sampled rotations must have shape ({t.shape[0]}, 3, 3), got {Q.shape}")
+            Q = check_array(Q, (t.shape[0], 3, 3), "sampled rotations", PathError)
+            if closed and np.abs(Q[0] - Q[-1]).max() > 1e-9:
+                raise PathError("a closed sampled path must end with the rotation it starts with")
             self._rot = RotationSpline(t, Rotation.from_matrix(Q))
 
     def sample(self, t: float) -> PathSample:

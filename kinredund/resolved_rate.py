@@ -39,7 +39,7 @@ from .indices import Index
 from .paths import Path
 from .robot import Robot
 from .rr_terms import task_terms
-from .task import make_target, pose_errors
+from .task import Target, pose_errors
 from .trajectory import Trajectory, joint_drift
 
 SCHEMES = ("augmented", "velocity", "pseudoinverse", "liegeois")
@@ -50,7 +50,7 @@ LINEAR_SOLVERS = ("auto", "thesis", "lu", "qp")
 
 @dataclass(frozen=True)
 class RateSolution:
-    """The rates at one point: thetadot, lambdadot, the solver used, and diagnostics."""
+    """The rates at one point: thetadot, lambdadot and the solver label used (``qp``, ``qp_aug``, ``lu``)."""
 
     thetadot: np.ndarray
     lamdot: np.ndarray
@@ -118,11 +118,9 @@ class _ProxQP:
         JtJ = J.T @ J
         for _ in range(60):
             H = Ms + rho * JtJ
-            try:
-                np.linalg.cholesky(H)
+            if _cholesky_ok(H):
                 break
-            except np.linalg.LinAlgError:
-                rho *= 4.0
+            rho *= 4.0
         g = -top
         if not self.initialised:
             self.qp.init(H, g, J, xdot, None, None, None)
@@ -136,15 +134,18 @@ class _ProxQP:
         return self.qp.results.x.copy(), self.qp.results.y.copy() + rho * xdot
 
 
-def solve_rates(M, J, top, xdot, *, label: str, backend: str, prox: _ProxQP | None) -> RateSolution:
-    """Solve Eq. (4.24) for the rates: the QP of Theorem 2 (Eq. 4.28) for ``qp``/``qp_aug``, else LU of R."""
+def solve_rates(M, J, top, xdot, *, label: str, backend: str, prox: _ProxQP | None, lu=None) -> RateSolution:
+    """Solve Eq. (4.24) for the rates: the QP of Theorem 2 (Eq. 4.28) for ``qp``/``qp_aug``, else LU of R.
+
+    ``lu``: R's LU factors (from LAPACK dgetrf) if the caller has them; otherwise R is factorised here.
+    """
     n = M.shape[0]
     if label != "lu" and backend == "proxsuite" and prox is not None:
         out = prox.solve(M, J, top, xdot)
         if out is not None:
             return RateSolution(out[0], out[1], label)
-    R = kkt_matrix(M, J)
-    sol = np.linalg.solve(R, np.concatenate([top, xdot]))  # LU with partial pivoting (LAPACK gesv)
+    rhs = np.concatenate([top, xdot])
+    sol = _lu_solve(lu, rhs) if lu is not None else np.linalg.solve(kkt_matrix(M, J), rhs)  # LU, partial pivoting
     return RateSolution(sol[:n], sol[n:], label)
 
 
@@ -263,7 +264,7 @@ class _Recorder:
         self.rows = {k: [] for k in ("t", "q", "p", "p_desired", "lam", "solver", "m_eigs", "m_null_eigs",
                                      "position_error", "trace_error", "vect_error", "normality_residual")}
 
-    def add(self, pt: _Point, lam_full, solver: str, M: np.ndarray | None, target_of):
+    def add(self, pt: _Point, lam_full, solver: str, M: np.ndarray | None, task: str):
         """Record the point; M may come from the step's predictor (within the corrector's step of pt)."""
         rows = self.rows
         rows["t"].append(pt.t)
@@ -272,7 +273,8 @@ class _Recorder:
         rows["p_desired"].append(pt.sample.p.copy())
         rows["lam"].append(None if lam_full is None else np.asarray(lam_full, float).copy())
         rows["solver"].append(solver)
-        e = pose_errors(pt.Q, pt.p, target_of(pt.sample))
+        s = pt.sample  # already a valid sample: no need to re-validate it through make_target
+        e = pose_errors(pt.Q, pt.p, Target(task, s.p, s.Q if task == "pose" else None))
         rows["position_error"].append(e[0])
         rows["trace_error"].append(e[1])
         rows["vect_error"].append(e[2])
@@ -281,17 +283,6 @@ class _Recorder:
             rows["m_eigs"].append(np.sort(np.linalg.eigvals(M).real) if not np.allclose(M, M.T)
                                   else np.linalg.eigvalsh(M))
             rows["m_null_eigs"].append(null_space_eigs(M, pt.J))
-
-
-def _target_factory(task: str):
-    def target_of(s):
-        if task == "pose":
-            T = np.eye(4)
-            T[:3, :3], T[:3, 3] = s.Q, s.p
-            return make_target("pose", T)
-        return make_target(task, s.p[: 2 if task == "planar" else 3])
-
-    return target_of
 
 
 class ResolvedRate:
@@ -344,7 +335,7 @@ class ResolvedRate:
         m = len(self.pt.r)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
         if mode == "default" and scheme in ("augmented", "velocity"):
-            self._newton(fresh=True)  # put the start exactly on the optimal manifold
+            self._newton(self.pt)  # put the start exactly on the optimal manifold
         self._rates()
 
     # -- helpers -----------------------------------------------------------------------------------
@@ -402,28 +393,32 @@ class ResolvedRate:
             self._singularity(pt, R)
         return M, (lu, piv)
 
-    def _newton(self, fresh: bool, lu=None, max_chord: int = 8, max_fresh: int = 6) -> None:
-        """Corrector onto F(theta, lambda) = [grad z + J^T lambda; r] = 0 at self.t (default mode)."""
+    def _tol(self, pt: _Point) -> float:
+        """The corrector's tolerance on ||F||_2, scaled by the gradient: tol max(1, ||grad z||)."""
+        return self.tol * max(1.0, math.sqrt(float(pt.grad @ pt.grad)))
+
+    def _newton(self, pt: _Point | None = None, max_fresh: int = 6) -> None:
+        """Corrector onto F(theta, lambda) = [grad z + J^T lambda; r] = 0 at self.t from (self.q, self.lam).
+
+        Rounds of chord iterations (:meth:`_chord`), each with R factorised afresh at its first iterate;
+        ``pt`` is the full evaluation at the current point when the caller has it.
+        """
         n = self.n
-        q, lam = self.q, self.lam
+        y = np.concatenate([self.q, self.lam])
         for _ in range(max_fresh + 1):
-            if fresh or lu is None:
-                _, lu = self._factor(self.sys.point(q, self.t), lam)
-            for _ in range(max_chord):
-                pt = self.sys.point(q, self.t, need_dJ=False)
-                F = pt.residual(lam)
-                scale = max(1.0, float(np.abs(pt.grad).max()))
-                if np.abs(F).max() <= self.tol * scale:
-                    self.q, self.lam = q, lam
-                    return
-                d = _lu_solve(lu, F)
-                q, lam = q - d[:n], lam - d[n:]
-                if not np.all(np.isfinite(q)):
-                    break
-            fresh = True
+            if pt is None:
+                pt = self.sys.point(y[:n], self.t)
+            _, lu = self._factor(pt, y[n:])
+            y, ok = self._chord(y, lu, self._tol(pt), F=pt.residual(y[n:]))
+            if ok:
+                self.q, self.lam = y[:n], y[n:]
+                return
+            pt = None
+            if not math.isfinite(float(y @ y)):
+                break
         raise PathError(
-            f"the corrector did not converge at t = {self.t:.6g} s (residual {np.abs(F).max():.3g}): the path "
-            "leaves the workspace or crosses a singularity", t=self.t, q=q)
+            f"the corrector did not converge at t = {self.t:.6g} s: the path leaves the workspace or crosses a "
+            "singularity", t=self.t, q=self.q)
 
     def _correct(self, y: np.ndarray) -> None:
         """Default-mode corrector at self.t from the predicted y = [q; lambda], then the rates for the next step.
@@ -440,15 +435,15 @@ class ResolvedRate:
         pt = self.sys.point(y[:n], self.t)
         M, lu = self._factor(pt, y[n:])
         F = pt.residual(y[n:])
-        tol = self.tol * max(1.0, math.sqrt(float(pt.grad @ pt.grad)))
+        tol = self._tol(pt)
         if not float(F @ F) <= tol * tol:  # "not <=": a NaN residual is not converged
             d = _lu_solve(lu, F)
             y = y - d
             if not float(d @ d) <= tol:
-                y = self._chord(y, lu, tol)
-                if y is None:  # no convergence with this factorisation: fresh ones from the prediction
+                y, ok = self._chord(y, lu, tol)
+                if not ok:  # no convergence with this factorisation: fresh ones from the prediction
                     self.q, self.lam = y_pred[:n], y_pred[n:]
-                    self._newton(fresh=True)
+                    self._newton()
                     self._rates()
                     return
         self.q, self.lam = y[:n], y[n:]
@@ -460,20 +455,24 @@ class ResolvedRate:
         self._y, self._yd = y, sol
         self.qdot, self.lamdot, self.solver, self.M, self.pt = sol[:n], sol[n:], label, M, pt
 
-    def _chord(self, y: np.ndarray, lu, tol: float, max_iter: int = 8) -> np.ndarray | None:
-        """Chord iterations on F with fresh residuals and R's factors kept; None if they do not converge.
+    def _chord(self, y: np.ndarray, lu, tol: float, F: np.ndarray | None = None,
+               max_iter: int = 8) -> tuple[np.ndarray, bool]:
+        """Chord iterations on F with fresh residuals and R's factors kept: (last iterate, converged).
 
         The factors belong to another point, so the iteration converges only linearly: it ends on the
-        residual itself (||F|| <= tol), never on the size of the update.
+        residual itself (||F|| <= tol), never on the size of the update. ``F``: the residual at ``y``
+        if the caller has it. A non-finite path sample is reported (PathError) when it fails.
         """
         n = self.n
         for _ in range(max_iter):
-            F = self.sys.point(y[:n], self.t, need_dJ=False).residual(y[n:])
+            if F is None:
+                F = self.sys.point(y[:n], self.t, need_dJ=False).residual(y[n:])
             if float(F @ F) <= tol * tol:
-                return y
+                return y, True
             y = y - _lu_solve(lu, F)
+            F = None
         self.sys.check_sample(self.t)  # a non-finite path sample says so itself
-        return None
+        return y, False
 
     def _rates(self) -> None:
         """Evaluate the full system at the current point and solve for the rates (Eq. 4.24 or baseline)."""
@@ -497,11 +496,7 @@ class ResolvedRate:
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
         if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
             self.prox = _ProxQP(self.n, len(pt.r))
-        if self.qp_backend == "kkt" or label == "lu":
-            sol = _lu_solve(lu, np.concatenate([top, xdot]))  # the factorised R of Eq. (4.24)
-            rs = RateSolution(sol[: self.n], sol[self.n:], label)
-        else:
-            rs = solve_rates(M, pt.J, top, xdot, label=label, backend=self.qp_backend, prox=self.prox)
+        rs = solve_rates(M, pt.J, top, xdot, label=label, backend=self.qp_backend, prox=self.prox, lu=lu)
         self.qdot, self.lamdot, self.solver, self.M = rs.thetadot, rs.lamdot, rs.solver, M
         self._y, self._yd = np.concatenate([self.q, self.lam]), np.concatenate([self.qdot, self.lamdot])
 
@@ -599,11 +594,10 @@ def track(robot: Robot, path: Path, index: Index | None = None, q0=None, *, sche
     rr = ResolvedRate(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
                       qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain)
     rec = _Recorder(diagnostics)
-    target_of = _target_factory(robot.task)
-    rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, target_of)
+    rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, robot.task)
     for k in range(total):
         rr.advance()
-        rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, target_of)
+        rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, robot.task)
         if progress is not None:
             progress(k + 1, total)
     rows = rec.rows

@@ -146,6 +146,5 @@ def task_terms(task: str, scheme: str, Q, p, K, dk, s: PathSample) -> TaskTerms:
     return _ClosureTerms(Q, p, K, dk, s)
 
 
-_EYE3 = np.eye(3)
 _KEEP = np.array([0, 1, 2, 4, 5, 6])  # the closure 7-vector without its trace row
 _U_REL = np.eye(7)[:, _KEEP]

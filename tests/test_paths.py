@@ -20,10 +20,13 @@ def _user(t):
     return Q, np.array([0.1 * t, np.sin(t), 0.5]), np.array([0.0, 0.0, 0.4]), np.array([0.1, np.cos(t), 0.0])
 
 
-def _sampled():
+def _sampled(oriented: bool = False):
     ts = np.linspace(0.0, 2.0, 41)
     p = np.column_stack([np.cos(np.pi * ts), np.sin(np.pi * ts), 0.2 * np.sin(np.pi * ts)])
-    return SampledPath(ts, p, closed=True)
+    if not oriented:
+        return SampledPath(ts, p, closed=True)
+    Q = np.array([rotation_from_invariants(np.array([0.2, 0.3, 1.0]), np.pi * t) for t in ts])
+    return SampledPath(ts, p, Q, closed=False)
 
 
 PATHS = {
@@ -35,16 +38,18 @@ PATHS = {
     "helix": lambda: Helix(),
     "function": lambda: FunctionPath(_user, has_orientation=True),
     "sampled": _sampled,
+    "sampled_oriented": lambda: _sampled(oriented=True),
 }
 
 
 @pytest.mark.parametrize("name", sorted(PATHS))
 def test_twist_is_the_derivative_of_the_pose(name):
     path = PATHS[name]()
-    for t in (0.0, 0.37, 1.9):
+    bounded = isinstance(path, SampledPath) and path.period is None  # no samples before t = 0
+    for t in ((0.01,) if bounded else (0.0,)) + (0.37, 1.9):
         s = path(t)
         v_fd = central_difference(lambda x: path(x[0]).p, np.array([t]))[:, 0]
-        tol = 1e-4 if name == "sampled" else 1e-8  # the spline's own derivative vs differences of it
+        tol = 1e-4 if name.startswith("sampled") else 1e-8  # the spline's own derivative vs differences of it
         assert np.abs(s.v - v_fd).max() < tol
         if s.Q is None:
             continue
@@ -85,6 +90,14 @@ def test_frenet_frame_of_example_4_3():
     lambda: Ellipse((0.0, 0.0), 0.0, 1.0),
     lambda: SampledPath([0.0, 1.0, 2.0], [[0, 0], [1, 0], [0, 0]]),
     lambda: SampledPath([0.0, 1.0, 2.0, 3.0], [[0, 0], [1, 0], [1, 1], [0.5, 0]], closed=True),
+    lambda: SampledPath([0.0, 1.0, 2.0, 3.0], [[0, 0], [1, 0], [1, 1], [0, 0]],
+                        [rotation_from_invariants(np.array([0.0, 0.0, 1.0]), a) for a in (0.0, 1.0, 2.0, 3.0)]),
+    lambda: Circle("ab", 1.0, 1.0),
+    lambda: Circle((0.0, 0.0, 0.0), 1.0, 1.0, normal=(0.0, 0.0, 0.0)),
+    lambda: Circle((0.0, 0.0, 0.0), 1.0, 1.0, normal=(0.0, 0.0, 1.0), axis_x=(0.0, 0.0, 2.0)),
+    lambda: Ellipse((1.0, 2.0, 3.0, 4.0), 1.0, 1.0),
+    lambda: Helix(radius=-1.0),
+    lambda: Helix(rate=0.0),
 ])
 def test_bad_paths_raise_path_error(make):
     with pytest.raises(kinredund.PathError):

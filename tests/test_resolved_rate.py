@@ -57,16 +57,16 @@ def test_example_4_3_velocity_jacobian_scheme_is_cyclic_with_lu():
 
 
 def test_example_4_2_M_indefinite_on_one_interval_and_lu_there():
-    tr_thesis_rule = run_example(example("4.2"), loops=1, mode="default")
-    interval = indefinite_interval(tr_thesis_rule)
+    tr_auto = run_example(example("4.2"), loops=1, mode="default")
+    interval = indefinite_interval(tr_auto)
     assert interval is not None
     lo, hi = interval
     assert 1.8 < lo < 2.6 and 3.7 < hi < 4.4, interval  # the thesis reports roughly 2.3 s to 4 s
-    neg = tr_thesis_rule.m_eigs.min(axis=1) < 0
+    neg = tr_auto.m_eigs.min(axis=1) < 0
     idx = np.flatnonzero(neg)
     assert np.all(np.diff(idx) == 1)  # one contiguous interval
-    assert tr_thesis_rule.m_null_eigs.min() > 0  # the projection stays positive definite
-    labels = np.array(tr_thesis_rule.solver)
+    assert tr_auto.m_null_eigs.min() > 0  # the projection stays positive definite
+    labels = np.array(tr_auto.solver)
     assert set(labels[neg]) == {"qp_aug"} and set(labels[~neg]) == {"qp"}
     # the thesis's rule (QP only where M itself is positive definite): LU on exactly that interval
     tr = run_example(example("4.2"), loops=1, mode="thesis")
