@@ -87,65 +87,64 @@ def _cmd_reproduce(args) -> int:
         print("Section 3.2: helix tracked by the hybrid closed-form IK")
         _print_summary({k: v for k, v in out.items() if not isinstance(v, (list, dict))})
     else:
-        from .examples.chapter6 import reproduce
-
-        result = reproduce(name, json_path=args.json, plot_path=args.plot, progress=_progress(f"Example {name}"))
-        print(f"Section {name}: off-line plan with collision avoidance")
-        _print_summary(result.summary())
-        if not result.ok:
-            print(f"kinredund: plan failed: {result.reason}", file=sys.stderr)
-            return EXIT_FAILED
+        code = _plan(name, args.json, args.plot, label=f"Example {name}")
+        if code != EXIT_OK:
+            return code
     for p in (args.json, args.plot):
         if p is not None:
             print(f"wrote {p}")
     return EXIT_OK
 
 
-def _index_for(robot, name: str, q_ref=None):
+def _plan(case: str, json_path, plot_path, samples=None, label: str = "planning") -> int:
+    """Run a Chapter 6 case (``reproduce 6.x`` and ``plan``); EXIT_FAILED when the plan fails its check."""
+    from .examples.chapter6 import reproduce
+
+    more = {} if samples is None else {"samples": samples}
+    result = reproduce(case, json_path=json_path, plot_path=plot_path, progress=_progress(label), **more)
+    print(f"Section {case}: off-line plan with collision avoidance")
+    _print_summary(result.summary())
+    if not result.ok:
+        print(f"kinredund: plan failed: {result.reason}", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
+
+
+def _index_for(robot, name: str):
+    """The index named by --index (argparse restricts ``name`` to home, min-norm and mid-range)."""
     from . import indices
 
     if name == "min-norm":
         return indices.minimum_norm(robot.nq)
     if name == "mid-range":
         return indices.mid_range(robot.lower, robot.upper)
-    if name == "home":
-        return indices.JointDeviation(robot.home if q_ref is None else q_ref)
-    raise KinredundError(f"unknown index {name!r}; allowed: min-norm, mid-range, home")
+    return indices.JointDeviation(robot.home)
 
 
-def _path_for(args, robot):
+def _path_for(args, robot, q_start: np.ndarray):
+    """The path named by --path (argparse restricts it), starting at the pose of ``q_start`` for circles."""
     from . import paths
+    from .trajectory import read_json_object
 
     if args.path == "file":
         if args.path_file is None:
             raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q')")
-        try:
-            data = json.loads(Path(args.path_file).read_text())
-        except OSError as err:
-            raise KinredundError(f"cannot read {args.path_file}: {err.strerror}") from err
-        except json.JSONDecodeError as err:
-            raise KinredundError(f"{args.path_file} is not valid JSON: {err}") from err
-        if not isinstance(data, dict) or "t" not in data or "p" not in data:
+        data = read_json_object(args.path_file)
+        if "t" not in data or "p" not in data:
             raise KinredundError(f"{args.path_file} must hold a JSON object with 't' and 'p' (and optionally 'Q')")
         return paths.SampledPath(data["t"], data["p"], data.get("Q"), closed=data.get("closed", True))
-    T0 = robot.fk(robot.home if args.q0 is None else robot.check_q(args.q0))
+    T0 = robot.fk(q_start)
     p0 = T0[:3, 3]
-    normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
-    frenet = robot.task == "pose"
-    if args.path == "circle":
-        center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
-        if center.shape == (2,):
-            center = np.append(center, p0[2] if robot.task != "planar" else 0.0)
-        circle = paths.Circle(center, args.radius, args.speed, normal=tuple(normal))
-        if not frenet:
-            return circle
-        Q0 = T0[:3, :3]
-        return paths.FunctionPath(lambda t: (Q0, circle.sample(t).p, np.zeros(3), circle.sample(t).v),
-                                  period=circle.period, has_orientation=True)
     if args.path == "ellipse":
         center = args.center if args.center is not None else p0[:2] - np.array([args.radius, 0.0])
         return paths.Ellipse(center[:2], args.radius, args.radius / 2, rate=args.speed / args.radius)
-    raise KinredundError(f"unknown path {args.path!r}; allowed: circle, ellipse, file")
+    normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
+    center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
+    if center.shape == (2,):
+        center = np.append(center, p0[2] if robot.task != "planar" else 0.0)
+    # pose tasks hold the start orientation along the circle
+    return paths.Circle(center, args.radius, args.speed, normal=tuple(normal),
+                        orientation=T0[:3, :3] if robot.task == "pose" else None)
 
 
 def _cmd_track(args) -> int:
@@ -154,11 +153,11 @@ def _cmd_track(args) -> int:
     from .robot import load_robot
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
-    path = _path_for(args, robot)
+    seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
+    path = _path_for(args, robot, seed_q)
     index = None if args.scheme == "pseudoinverse" else _index_for(robot, args.index)
     s0 = path(0.0)
     target = s0.p[: robot.task_dim] if robot.task != "pose" else np.block([[s0.Q, s0.p[:, None]], [0, 0, 0, 1]])
-    seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
     res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts)
     if not res.converged:
         raise KinredundError(f"no starting configuration on the path: {res.reason}")
@@ -239,15 +238,7 @@ def _cmd_play(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    from .examples.chapter6 import reproduce
-
-    result = reproduce(args.case, json_path=args.json, plot_path=args.plot, progress=_progress("planning"),
-                       samples=args.samples)
-    _print_summary(result.summary())
-    if not result.ok:
-        print(f"kinredund: plan failed: {result.reason}", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
+    return _plan(args.case, args.json, args.plot, samples=args.samples)
 
 
 def _cmd_demo(args) -> int:

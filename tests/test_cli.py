@@ -88,6 +88,20 @@ def test_track_and_play(tmp_path):
     assert html.stat().st_size > 100_000 and b"<html" in html.read_bytes()[:2000].lower()
 
 
+def test_track_pose_task_holds_the_start_orientation(tmp_path):
+    """For a pose task the circle keeps the start pose's orientation: vect and trace errors stay ~0."""
+    from kinredund import load_robot
+    from kinredund.trajectory import Trajectory
+
+    js = tmp_path / "pose.json"
+    assert main(["track", "puma7", "--radius", "0.1", "--steps", "60", "--json", str(js)]) == 0
+    tr = Trajectory.load_json(js)
+    robot = load_robot("puma7")
+    Q_start = robot.fk(tr.q[0])[:3, :3]
+    assert max(np.abs(robot.fk(q)[:3, :3] - Q_start).max() for q in tr.q) < 1e-9
+    assert tr.position_error.max() < 1e-9 and tr.loop_drift.max() < 1e-8
+
+
 def test_track_path_from_file(tmp_path):
     ts = np.linspace(0.0, 4.0, 41)
     p = np.column_stack([3.0 + 0.5 * np.cos(2 * np.pi * ts / 4), 3.0 + 0.5 * np.sin(2 * np.pi * ts / 4)])
