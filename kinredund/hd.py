@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import HDTableError
+from .errors import HDTableError, check_array
 
 REVOLUTE = "R"
 PRISMATIC = "P"
@@ -26,17 +26,9 @@ JOINT_KINDS = (REVOLUTE, PRISMATIC)
 
 
 def _row(name: str, values, n: int | None) -> np.ndarray:
-    try:
-        arr = np.asarray(values, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise HDTableError(f"HD column {name!r} is not numeric: {values!r}") from err
-    if arr.ndim != 1:
-        raise HDTableError(f"HD column {name!r} must be one-dimensional, got shape {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise HDTableError(f"HD column {name!r} has {arr.shape[0]} entries; alpha has {n}")
-    if not np.all(np.isfinite(arr)):
-        raise HDTableError(f"HD column {name!r} has non-finite values: {arr.tolist()}")
-    return arr
+    """One finite HD column (n,) (any length for alpha, n = None), or :class:`HDTableError`."""
+    owner = "" if n is None else f"{n} joints (alpha's length)"
+    return check_array(values, (n,), f"HD column {name!r}", HDTableError, owner)
 
 
 @dataclass(frozen=True)

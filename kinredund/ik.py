@@ -16,8 +16,9 @@ result reports both optimality conditions:
   with lambda* the least-squares multipliers of K^T lambda* = -grad z (Eqs. 4.33, 4.37; on the null
   space of K this equals the Hessian of lambda^T g of the closure equations, Eq. 4.26).
 
-Joint limits: ``bounds=True`` keeps every iterate within them (box-constrained QP steps,
-:mod:`kinredund.ik_qp`); a seed outside them is projected into them and the result's ``notes`` say so
+Joint limits: ``bounds=True`` keeps every iterate within them (with an index, box-constrained QP
+steps, :mod:`kinredund.ik_qp`; pose-only, joints held at a limit and the rest clipped into them,
+:mod:`kinredund.ik_newton`); a seed outside them is projected into them and the result's ``notes`` say so
 (the seed is never used as it is). ``starts > 1`` runs seeded multi-start and returns the converged
 result of lowest z.
 
@@ -38,6 +39,7 @@ from .ik_newton import RANK_TOL, Setup, StartOutcome, bound_kkt, run_start
 from .ik_qp import BoxStep
 from .ik_residual import TaskResidual
 from .indices import Index
+from .robot import turn_into_limits
 from .task import Target, make_target
 
 #: residuals are never asked to be smaller than this many units of round-off times the target scale
@@ -114,9 +116,10 @@ def _target(robot, target) -> Target:
     return make_target(robot.task, target)
 
 
-def _check_index(robot, index, q: np.ndarray) -> None:
+def _check_index(robot, index, q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """Validate the index on q; returns its (z, grad z, Hess z) at q (None without an index)."""
     if index is None:
-        return
+        return None
     if not isinstance(index, Index):
         raise TaskError(f"index must be a kinredund.indices.Index (or None), got {type(index).__name__}")
     n = robot.nq
@@ -134,6 +137,7 @@ def _check_index(robot, index, q: np.ndarray) -> None:
         )
     if not (np.isfinite(z) and np.all(np.isfinite(grad)) and np.all(np.isfinite(H))):
         raise TaskError("the index returned non-finite values at the seed")
+    return z, grad, H
 
 
 def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bool = False) -> Optimality:
@@ -151,7 +155,12 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
     """
     q = robot.check_q(q, "q")
     res = TaskResidual(_target(robot, target))
-    _check_index(robot, index, q)
+    return _optimality(robot, res, q, index, bounds, _check_index(robot, index, q))
+
+
+def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bounds: bool,
+                zgh: tuple | None = None) -> Optimality:
+    """:func:`check_optimality` on validated input; ``zgh`` is (z, grad z, Hess z) at q when known."""
     if index is None:
         Q, p = robot.kinematics.pose(q)
         empty = np.zeros((0, 0))
@@ -160,7 +169,7 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
             np.zeros(q.size, dtype=bool),
         )
     Q, p, K, dK = robot.kinematics.jacobian_derivative(q)
-    z, grad, H = index.evaluate(q)
+    z, grad, H = index.evaluate(q) if zgh is None else zgh
     Kr = K[res.rows]
     normality, lam, L, active = bound_kkt(Kr, grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
     M = H + contract(lam, dK[res.rows])  # Hess z + Lambda*, Eq. (4.37)
@@ -192,21 +201,16 @@ def _check_options(robot, starts, tol, max_iter, timeout) -> None:
 
 
 #: multi-start samples of a pose-only solve (index=None) leave out this fraction of each joint range at
-#: either end: local solves from the middle of the ranges succeed more often (on the Panda with
-#: bounds, about 50 % of starts on the hardest targets against 43 % from the whole ranges)
+#: either end: local solves from the middle of the ranges succeeded more often in a one-off measurement
+#: on the Panda with bounds (hardest targets; no benchmark reproduces it)
 POSE_SAMPLE_MARGIN = 0.2
 #: multi-start samples are drawn this many at a time
 SAMPLE_BATCH = 16
 
 
 def sample_box(robot, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """The box multi-start samples are drawn from: the joint limits, with unbounded ones cut to
-    [-pi, pi] (revolute) or [-1, 1] m (prismatic), shrunk by ``margin`` (a fraction of each range)."""
-    wide = np.where(robot.revolute, np.pi, 1.0)
-    lo = np.where(robot.lower > -1e10, robot.lower, -wide)
-    hi = np.where(robot.upper < 1e10, robot.upper, wide)
-    span = hi - lo
-    return lo + margin * span, hi - margin * span
+    """The box multi-start samples are drawn from: :meth:`kinredund.Robot.sample_box`."""
+    return robot.sample_box(margin)
 
 
 def _wrap_into_limits(robot, q: np.ndarray, index: Index | None) -> tuple[np.ndarray, list[int]]:
@@ -216,12 +220,13 @@ def _wrap_into_limits(robot, q: np.ndarray, index: Index | None) -> tuple[np.nda
     if outside.size == 0:
         return q, []
     z0, g0 = (0.0, None) if index is None else index.evaluate(q)[:2]
+    into, inside = turn_into_limits(q, robot.lower, robot.upper)  # the smallest turns in
     turned, done = q.copy(), []
     for i in outside:
-        trial = turned.copy()
-        trial[i] = q[i] + 2.0 * np.pi * np.ceil((robot.lower[i] - q[i]) / (2.0 * np.pi))  # smallest turn in
-        if trial[i] > robot.upper[i]:
+        if not inside[i]:
             continue
+        trial = turned.copy()
+        trial[i] = into[i]
         if index is not None:
             z1, g1 = index.evaluate(trial)[:2]
             if abs(z1 - z0) > 1e-14 * (1.0 + abs(z0)) or not np.allclose(g1, g0, rtol=0.0, atol=1e-14):
@@ -294,7 +299,8 @@ def solve_ik(
         kin=robot.kinematics, res=res, index=index, lower=np.asarray(robot.lower), upper=np.asarray(robot.upper),
         bounds=bool(bounds), rtol=max(float(tol), ROUNDING * (1.0 + res.scale())), tol=float(tol),
         max_iter=int(max_iter), deadline=None if timeout is None else t0 + float(timeout),
-        box=BoxStep(robot.nq, res.m) if bounds else None, revolute=robot.revolute,
+        box=BoxStep(robot.nq, res.m) if bounds and index is not None else None,  # pose-only: no QP
+        revolute=robot.revolute,
     )
     rng = box = None
     outcomes: list[tuple[StartOutcome, float]] = []
@@ -331,7 +337,7 @@ def solve_ik(
             normality_residual=0.0, objective=0.0, reduced_hessian_pd=False, reduced_hessian_min_eig=float("nan"),
             reason=best.reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
         )
-    opt = check_optimality(robot, tgt, best.q, index, bounds=bounds)
+    opt = _optimality(robot, res, best.q, index, bounds)
     return IKResult(
         q=best.q, converged=best.converged, iterations=best.iterations, residual=opt.residual,
         normality_residual=opt.normality_residual, objective=opt.objective,

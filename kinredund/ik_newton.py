@@ -98,6 +98,7 @@ class Setup:
     tol: float
     max_iter: int
     deadline: float | None
+    #: the bounded-QP steps of solves with an index (None without bounds, and for pose-only solves)
     box: BoxStep | None
     #: abandon a pose-only start as soon as it looks stuck (set while other starts remain)
     quick_exit: bool = False

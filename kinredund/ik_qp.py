@@ -1,12 +1,14 @@
 """Joint limits as bounds: the Newton step of Appendix D as a box-constrained QP (proxsuite, dense).
 
-Used only when the unconstrained step of Eqs. (D.24)-(D.26) would leave the joint limits (the fast path
-needs no QP). Two problems, both over the step d (n,) within lb <= d <= ub:
+Used only by solves with an index (Eq. 4.3), and only when their unconstrained step of Eqs.
+(D.24)-(D.26) would leave the joint limits (the fast path needs no QP); pose-only solves hold and clip
+joints instead (:func:`kinredund.ik_newton._pose_only`). Two problems, both over the step d (n,)
+within lb <= d <= ub:
 
 - equality form: min 1/2 d^T B d + c^T d  s.t.  G d = -e   (the linearised constraints, Eq. D.23);
 - least-squares form, min 1/2 ||G d + e||^2 + mu/2 ||d||^2 (a damped Gauss-Newton step, always
-  feasible): the step of pose-only solves (whose linearised constraints are rarely solvable inside the
-  box), and of index solves whose equality form is infeasible.
+  feasible): the step when the equality form is infeasible, and the restoration step on the
+  constraints alone.
 
 proxsuite's default ``eps_abs`` is 1e-5, far too loose for kinematics: it is set to 1e-11 here (see
 ``../shared/STACK.md``). Solver objects are created once per solve and reused with ``update``; no warm
@@ -14,8 +16,8 @@ start is passed (each step is a new problem).
 
 Speed: before calling proxsuite, the least-squares form tries a cheap guess of the active set (the
 joints at a limit, then also those the guess pushes past one) and keeps it only if it meets the QP's
-KKT conditions, in which case it *is* the QP's unique solution (the QP is strictly convex). On the
-Panda about 4 in 5 bounded steps are settled that way; proxsuite solves the others.
+KKT conditions, in which case it *is* the QP's unique solution (the QP is strictly convex) and no
+proxsuite call is made; proxsuite solves the others.
 """
 
 from __future__ import annotations
@@ -44,9 +46,6 @@ class BoxStep:
         self.n, self.m = n, m
         self._eq = None
         self._ls = None
-        #: bounded least-squares steps settled by the active-set guess, and by proxsuite
-        self.guesses = 0
-        self.qp_calls = 0
 
     @staticmethod
     def _new(n: int, n_eq: int):
@@ -82,9 +81,7 @@ class BoxStep:
         g = G.T @ e
         d = _active_set_guess(H, g, lb, ub)
         if d is not None:
-            self.guesses += 1
             return d
-        self.qp_calls += 1
         if self._ls is None:
             self._ls = (*self._new(self.n, 0), False)
         qp, solved, ready = self._ls

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import KinredundError, TaskError
+from .errors import KinredundError, TaskError, check_array
 from .finite_diff import central_difference
 
 
@@ -67,11 +67,9 @@ class JointDeviation(Index):
     weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        ref = np.asarray(self.reference, dtype=float)
-        if ref.ndim != 1 or not np.all(np.isfinite(ref)):
-            raise TaskError(f"index reference must be a finite 1-D vector, got {self.reference!r}")
-        w = np.ones_like(ref) if self.weights is None else np.asarray(self.weights, dtype=float)
-        if w.shape != ref.shape or np.any(w < 0) or not np.all(np.isfinite(w)):
+        ref = check_array(self.reference, (None,), "index reference")
+        w = np.ones_like(ref) if self.weights is None else check_array(self.weights, ref.shape, "index weights")
+        if np.any(w < 0):
             raise TaskError(f"index weights must be {ref.shape[0]} finite values >= 0, got {self.weights!r}")
         object.__setattr__(self, "reference", ref)
         object.__setattr__(self, "weights", w)

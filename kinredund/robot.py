@@ -188,10 +188,27 @@ class Robot:
         """dK/dtheta, shape (6, n, n): dK[a, i, k] = dK[a, i]/dtheta_k (Eqs. 4.38-4.41)."""
         return self.kinematics.jacobian_derivative(self.check_q(q))[3]
 
+    def sample_box(self, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi): the box random configurations are drawn from. The joint limits, with unbounded
+        ones (beyond 1e10) cut to [-pi, pi] (revolute) or [-1, 1] m (prismatic), shrunk by ``margin``
+        (a fraction of each range) at either end."""
+        wide = np.where(self.revolute, np.pi, 1.0)
+        lo = np.where(self.lower > -1e10, self.lower, -wide)
+        hi = np.where(self.upper < 1e10, self.upper, wide)
+        span = hi - lo
+        return lo + margin * span, hi - margin * span
+
     def random_configuration(self, rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
-        """A uniform sample inside the limits shrunk by ``margin`` (a fraction of each range)."""
-        span = self.upper - self.lower
-        return rng.uniform(self.lower + margin * span, self.upper - margin * span)
+        """A uniform sample of :meth:`sample_box` (the limits shrunk by ``margin``)."""
+        return rng.uniform(*self.sample_box(margin))
+
+
+def turn_into_limits(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(q + 2 pi k, ok): each angle turned by the multiple of 2 pi that brings it to the lowest value
+    >= its lower limit [rad], and whether that value is also <= the upper limit (where it is not, no
+    turn puts the angle inside the limits). The pose does not change for revolute joints."""
+    turned = q + 2.0 * np.pi * np.ceil((lower - q) / (2.0 * np.pi))
+    return turned, turned <= upper
 
 
 _PRISMATIC_SHORTNAMES = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import closure
-from .errors import TaskError
+from .errors import TaskError, check_array
 
 #: rows of K = [omega; pdot] used by the position-only tasks
 TASK_ROWS = {"planar": np.array([3, 4]), "position": np.array([3, 4, 5])}
@@ -49,31 +49,25 @@ def make_target(task: str, target, *, z: float = 0.0) -> Target:
         z: the plane height used for planar targets [m].
 
     Raises:
-        TaskError: wrong size, non-finite entries, or a rotation that is not orthonormal.
+        TaskError: not numeric, wrong size, non-finite entries, a 4x4 whose last row is not
+            (0, 0, 0, 1), or a rotation that is not orthonormal.
     """
     if task == "pose":
         if isinstance(target, tuple) and len(target) == 2:
-            Q, p = (np.asarray(v, dtype=float) for v in target)
+            Q = check_array(target[0], (3, 3), "a pose target's rotation Q")
+            p = check_array(target[1], (3,), "a pose target's position p [m]")
         else:
-            T = np.asarray(target, dtype=float)
-            if T.shape != (4, 4):
-                raise TaskError(f"a pose target must be a 4x4 homogeneous matrix or (Q, p); got shape {T.shape}")
+            T = check_array(target, (4, 4), "a pose target (a 4x4 homogeneous matrix, or (Q, p))")
+            if np.abs(T[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-9:
+                raise TaskError(f"a pose target's last row must be (0, 0, 0, 1), got {T[3].tolist()}")
             Q, p = T[:3, :3], T[:3, 3]
-        if Q.shape != (3, 3) or p.shape != (3,):
-            raise TaskError(f"a pose target needs Q of shape (3, 3) and p of shape (3,), got {Q.shape}, {p.shape}")
-        if not (np.all(np.isfinite(Q)) and np.all(np.isfinite(p))):
-            raise TaskError("the pose target has non-finite entries")
         if np.abs(Q @ Q.T - np.eye(3)).max() > 1e-8 or np.linalg.det(Q) < 0:
             raise TaskError("the pose target's rotation is not a proper orthonormal matrix (Q Q^T = 1, det Q = +1)")
         return Target("pose", p.copy(), Q.copy())
     size = {"planar": 2, "position": 3}.get(task)
     if size is None:
         raise TaskError(f"unknown task kind {task!r}; allowed: planar, position, pose")
-    x = np.asarray(target, dtype=float)
-    if x.shape != (size,):
-        raise TaskError(f"a {task} target must have shape ({size},), got {x.shape}")
-    if not np.all(np.isfinite(x)):
-        raise TaskError(f"the {task} target has non-finite entries: {x.tolist()}")
+    x = check_array(target, (size,), f"a {task} target")
     p = np.array([x[0], x[1], z]) if size == 2 else x.copy()
     return Target(task, p)
 

@@ -180,9 +180,19 @@ def test_isotropic_references_with_a3_rounded_as_printed():
     assert tuple(np.round(np.degrees([iso.theta3, iso.theta4]), 2)) == THESIS_REFERENCES_DEG
 
 
-def test_default_references_are_the_isotropic_configuration():
-    ik = _ik()
-    assert np.allclose(ik.references, [ik.isotropic.theta3, ik.isotropic.theta4], atol=0, rtol=0)
+@pytest.mark.parametrize("d", [0.0, 0.3])
+def test_default_references_make_links_2_to_4_isotropic(d):
+    """The solver's default references, as joint values, put links 2-4 in an isotropic configuration:
+    by Pinocchio, the position Jacobian of axes 2-4 has two equal non-zero singular values, wherever
+    the other joints are."""
+    ik = _ik(d)
+    r = ik.robot
+    rng = np.random.default_rng(41)
+    for _ in range(3):
+        q = r.random_configuration(rng, 0.1)
+        q[2:4] = ik.references
+        sv = np.linalg.svd(r.position_jacobian(q)[:, 1:4], compute_uv=False)
+        assert abs(sv[0] - sv[1]) < 1e-12 * sv[0] and sv[2] < 1e-12 * sv[0]
 
 
 # -- errors ----------------------------------------------------------------------------------------------
@@ -214,19 +224,37 @@ def test_bad_input_raises_errors_of_the_family():
         ik.solve_all(np.diag([1.0, 2.0, 1.0, 1.0]))
     with pytest.raises(TaskError, match="4x4"):
         ik.solve_all(np.eye(3))
+    bottom = np.eye(4)
+    bottom[3, :3] = [0.0, 0.1, 0.0]
+    with pytest.raises(TaskError, match=r"last row must be \(0, 0, 0, 1\)"):
+        ik.solve_all(bottom)
+    with pytest.raises(TaskError, match="numeric"):
+        ik.solve_all("abc")
     with pytest.raises(TaskError):
         ik.position_all((1.0, np.nan, 2.0))
+    with pytest.raises(TaskError, match="wrist-centre position"):
+        ik.position_all("abc")
     with pytest.raises(HDTableError, match="Chapter 3 architecture"):
         ClosedFormIK(robot("cybotech_p15"))
     with pytest.raises(ChoiceError, match="objective"):
         ClosedFormIK(ik.robot, objective="cubic")
     with pytest.raises(JointVectorError, match="references"):
         ClosedFormIK(ik.robot, references=(1.0, 2.0, 3.0))
+    with pytest.raises(JointVectorError, match="references .* must be numeric"):
+        ClosedFormIK(ik.robot, references="ab")
     T = ik.robot.fk(ik.robot.home)
     with pytest.raises(ChoiceError, match="pick"):
         ik.solve(T, pick="best")
     with pytest.raises(JointVectorError, match="q_near"):
         ik.solve(T, pick="nearest")
+    with pytest.raises(JointVectorError, match="q_near must be numeric"):
+        ik.position((1.0, 0.5, 2.5), pick="nearest", q_near="abc")
+    with pytest.raises(JointVectorError, match="q_near must have 4 or 7 joint values"):
+        ik.position((1.0, 0.5, 2.5), pick="nearest", q_near=[0.0, 0.0])
+    with pytest.raises(JointVectorError, match="q_near must have 7 joint values"):
+        ik.solve(T, pick="nearest", q_near=np.zeros(4))
+    with pytest.raises(JointVectorError, match="non-finite"):
+        ik.solve(T, pick="nearest", q_near=[0.0, np.nan, 0, 0, 0, 0, 0])
 
 
 # -- the wrist and the picks -----------------------------------------------------------------------------

@@ -18,6 +18,7 @@ from kinredund.ik import IKResult, check_optimality, solve_ik
 from kinredund.ik_residual import TaskResidual
 from kinredund.indices import CustomIndex, IndexCheckError, JointDeviation, check_index, minimum_norm
 from kinredund.task import make_target, orientation_error
+from kinredund.task import residual as task_residual
 
 EXAMPLES = {"4.1": example_4_1_start, "4.2": example_4_2_start, "4.3": example_4_3_start}
 STARTS = {"4.1": 16, "4.2": 16, "4.3": 24}
@@ -288,6 +289,42 @@ def test_bad_input_raises_with_a_clear_message():
         solve_ik(r.with_task("pose"), np.eye(4))
 
 
+def test_non_numeric_and_malformed_input_raises_errors_of_the_family():
+    """Input numpy cannot read as numbers, and 4x4 poses whose last row is not (0, 0, 0, 1), raise
+    kinredund errors (never a bare ValueError) naming what is wrong."""
+    with pytest.raises(TaskError, match="position target must be numeric"):
+        make_target("position", "abc")
+    with pytest.raises(TaskError, match="planar target must be numeric"):
+        make_target("planar", ["x", 1.0])
+    with pytest.raises(TaskError, match="pose target .* must be numeric"):
+        make_target("pose", "abc")
+    with pytest.raises(TaskError, match="rotation Q must be numeric"):
+        make_target("pose", ("abc", np.zeros(3)))
+    with pytest.raises(TaskError, match=r"position p \[m\] must have shape \(3,\)"):
+        make_target("pose", (np.eye(3), np.zeros(4)))
+    bad = np.eye(4)
+    bad[3] = [0.0, 0.0, 0.5, 1.0]
+    for call in (lambda: make_target("pose", bad), lambda: solve_ik(robot("panda"), bad)):
+        with pytest.raises(TaskError, match=r"last row must be \(0, 0, 0, 1\)"):
+            call()
+    bad[3] = [0.0, 0.0, 0.0, 2.0]
+    with pytest.raises(TaskError, match="last row"):
+        make_target("pose", bad)
+    assert np.array_equal(make_target("pose", np.eye(4)).vector, np.eye(4))
+    with pytest.raises(TaskError, match="index reference must be numeric"):
+        JointDeviation("abc")
+    with pytest.raises(TaskError, match=r"index reference must have shape \(n,\)"):
+        JointDeviation(np.zeros((2, 2)))
+    with pytest.raises(TaskError, match="index weights must be numeric"):
+        JointDeviation(np.zeros(3), "abc")
+    with pytest.raises(TaskError, match=r"index weights must have shape \(3,\)"):
+        JointDeviation(np.zeros(3), np.ones(2))
+    with pytest.raises(TaskError, match=">= 0"):
+        JointDeviation(np.zeros(3), [1.0, -1.0, 1.0])
+    with pytest.raises(TaskError, match="non-finite"):
+        JointDeviation([0.0, np.inf])
+
+
 def test_result_is_a_frozen_record():
     res = solve_ik(robot("planar3r"), (3.0, 3.0))
     assert isinstance(res, IKResult) and res.converged and res.reason == ""
@@ -345,6 +382,23 @@ def test_constrained_minimum_on_the_panda_improves_on_the_pose_solution(bounds):
             assert np.all((best.q >= r.lower) & (best.q <= r.upper))
         else:
             assert best.reduced_hessian_pd
+
+
+def test_unrolled_closure_residual_equals_the_closure_vector():
+    """TaskResidual.residual (the closure 7-vector's norm, hand-unrolled for speed) equals the norm of
+    task.residual and of closure.closure_vector (Eq. 2.13) on random Panda pose pairs."""
+    r = robot("panda")
+    rng = np.random.default_rng(77)
+    for _ in range(20):
+        qd, q = r.random_configuration(rng), r.random_configuration(rng)
+        target = make_target("pose", r.fk(qd))
+        Q, p = r.kinematics.pose(q)
+        ref = np.linalg.norm(closure.closure_vector(Q, p, target.Q, target.p))
+        assert np.linalg.norm(task_residual(target, Q, p)) == ref
+        assert abs(TaskResidual(target).residual(Q, p) - ref) < 1e-15 * max(1.0, ref)
+    target = make_target("position", r.fk(qd)[:3, 3])
+    assert TaskResidual(target).residual(Q, p) == pytest.approx(np.linalg.norm(task_residual(target, Q, p)),
+                                                               rel=1e-15, abs=0.0)
 
 
 # -- the lean pose-only solver (index=None) -----------------------------------------------------------

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.polynomial import polynomial as npoly
 
+from ..trajectory import wrap_joints
 from .positioning import ArmGeometry
 
 
@@ -150,25 +151,33 @@ def _unit_nodes(K: int) -> np.ndarray:
     return np.exp(2j * math.pi * (np.arange(K) + 0.5) / K)  # avoid t4 = +-i, +-1
 
 
+def _truncate(c: np.ndarray, degree: int) -> tuple[np.ndarray, float]:
+    """(real coefficients 0..degree, max |c_j| for j > degree relative to max |c_j|, j <= degree)."""
+    return c[:degree + 1].real.copy(), float(np.abs(c[degree + 1:]).max() / np.abs(c[:degree + 1]).max())
+
+
+def _resultant_and_reduced(system: HalfTangentSystem, nodes: int) -> tuple[tuple, tuple]:
+    """(:func:`resultant`, :func:`reduced_polynomial`) from one evaluation of the Sylvester determinants."""
+    z = _unit_nodes(nodes)
+    values = _sylvester_values(system, z)
+    res = _truncate(_interpolate(values, z), 16)
+    red = _truncate(_interpolate(values / (1.0 + z * z) ** 2, z), 12)
+    return res, red
+
+
 def resultant(system: HalfTangentSystem, nodes: int = 32) -> tuple[np.ndarray, float]:
     """Res_t3 of Eqs. (3.51) and (3.74), degree 16 in t4, and the size of its interpolation tail.
 
     Returns:
         (coefficients (17,), tail), tail = max |c_j| for j > 16 relative to max |c_j|, j <= 16.
     """
-    z = _unit_nodes(nodes)
-    c = _interpolate(_sylvester_values(system, z), z)
-    scale = np.abs(c[:17]).max()
-    return c[:17].real.copy(), float(np.abs(c[17:]).max() / scale)
+    return _resultant_and_reduced(system, nodes)[0]
 
 
 def reduced_polynomial(system: HalfTangentSystem, nodes: int = 32) -> tuple[np.ndarray, float]:
     """R12 = Res / (1 + t4^2)^2, degree 12: its roots are the stationary points, and the tail of
     its interpolation (relative), which is ~1e-16 when (1 + t4^2)^2 divides the resultant."""
-    z = _unit_nodes(nodes)
-    c = _interpolate(_sylvester_values(system, z) / (1.0 + z * z) ** 2, z)
-    scale = np.abs(c[:13]).max()
-    return c[:13].real.copy(), float(np.abs(c[13:]).max() / scale)
+    return _resultant_and_reduced(system, nodes)[1]
 
 
 def real_roots(coeffs: np.ndarray, tol: float = 1e-7) -> np.ndarray:
@@ -221,8 +230,7 @@ def polynomial_route(geom: ArmGeometry, rho2: float, references) -> PolynomialRo
     """Build Eqs. (3.51), (3.74), (3.81), the resultant and its degree-12 factor."""
     system = half_tangent_system(geom, rho2, references)
     p24 = thesis_polynomial(system)
-    res, _ = resultant(system)
-    red, tail = reduced_polynomial(system)
+    (res, _), (red, tail) = _resultant_and_reduced(system, 32)  # the 32 determinants once
     spurious = npoly.polypow([system.E, 0.0, system.G], 4)
     factor = npoly.polymul(256.0 * spurious, res)
     factor_residual = float(np.abs(factor[:25] - p24).max() / np.abs(p24).max())
@@ -272,7 +280,7 @@ def _root_condition(c: np.ndarray, t: float) -> float:
 def _nearest_error(c: np.ndarray, theta4: float) -> float:
     r = np.roots(np.trim_zeros(c, "b")[::-1])
     d = 2.0 * np.arctan(r.astype(complex)) - theta4
-    return float(np.min(np.hypot((d.real + math.pi) % (2.0 * math.pi) - math.pi, d.imag)))
+    return float(np.min(np.hypot(wrap_joints(d.real), d.imag)))
 
 
 def conditioning(route: PolynomialRoute, theta4_min: float, eps: float = 1e-12, trials: int = 20,

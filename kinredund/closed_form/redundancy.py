@@ -34,15 +34,14 @@ import numpy as np
 from scipy.optimize import brentq
 
 from ..errors import HDTableError, SolverError, check_choice
+from ..trajectory import wrap_joints
 from .positioning import ArmGeometry
 
 OBJECTIVES = ("angle", "sincos")
-_TWO_PI = 2.0 * math.pi
 
 
-def wrap(x):
-    """Angles [rad] brought into [-pi, pi)."""
-    return (np.asarray(x) + np.pi) % _TWO_PI - np.pi
+#: angles [rad] brought into [-pi, pi) (the name is kept for callers of this module)
+wrap = wrap_joints
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -18,14 +18,17 @@ the 2 pi representatives nearest the references.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import JointVectorError, TaskError, check_choice
+from ..errors import JointVectorError, check_array, check_choice
+from ..recursive import rotation_products
+from ..robot import turn_into_limits
+from ..task import make_target
+from ..trajectory import wrap_joints
 from .positioning import ArmGeometry, plane_radius2, shoulder_branches, theta2_from
-from .redundancy import OBJECTIVES, IsotropicConfiguration, RedundancySolution, isotropic_configuration, wrap
+from .redundancy import OBJECTIVES, IsotropicConfiguration, RedundancySolution, isotropic_configuration
 from .redundancy import solve_redundancy as _solve_redundancy
 from .wrist import rot_x, solve_wrist
 
@@ -87,40 +90,6 @@ class IKBranch:
         return f"{self.shoulder}/{self.wrist}"
 
 
-def _check_pose(pose) -> np.ndarray:
-    try:
-        T = np.asarray(pose, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"target pose must be a numeric 4x4 homogeneous matrix, got {pose!r}") from err
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise TaskError(f"target pose must be a finite 4x4 homogeneous matrix, got shape {T.shape}")
-    R = T[:3, :3]
-    if np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9:
-        raise TaskError(f"target pose's last row must be (0, 0, 0, 1), got {T[3].tolist()}")
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-9 or np.linalg.det(R) < 0.0:
-        raise TaskError("target pose's 3x3 block must be a rotation (orthonormal to 1e-9, det +1)")
-    return T
-
-
-def _check_point(p) -> np.ndarray:
-    try:
-        arr = np.asarray(p, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"wrist-centre position must be 3 numbers [m], got {p!r}") from err
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise TaskError(f"wrist-centre position must be 3 finite numbers [m], got {arr.tolist()}")
-    return arr
-
-
-def _arm_rotation(alpha: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Q1 Q2 Q3 Q4 with Q_i = Rz(theta_i) Rx(alpha_i), Eq. (2.1)."""
-    R = np.eye(3)
-    for th, al in zip(theta, alpha, strict=True):
-        c, s = math.cos(th), math.sin(th)
-        R = R @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ rot_x(al)
-    return R
-
-
 class ClosedFormIK:
     """Hybrid closed-form IK of the Chapter 3 arm: theta1, theta2 and the wrist in closed form, the
     redundancy (theta3, theta4) by a 2-D constrained minimisation.
@@ -157,15 +126,9 @@ class ClosedFormIK:
             self.isotropic = isotropic_configuration(self.geometry)
             refs = np.array([self.isotropic.theta3, self.isotropic.theta4]) - theta0[2:4]
         else:
-            try:
-                refs = np.asarray(references, dtype=float)
-            except (TypeError, ValueError) as err:
-                raise JointVectorError(f"references must be two numbers (q3*, q4*) [rad], got {references!r}") from err
-            if refs.shape != (2,) or not np.all(np.isfinite(refs)):
-                raise JointVectorError(f"references must be two finite numbers (q3*, q4*) [rad], got {references!r}")
+            refs = check_array(references, (2,), "references (q3*, q4*) [rad]", JointVectorError)
         self.references = refs
         self._theta_refs = refs + theta0[2:4]
-        self._alpha = np.asarray(robot.hd.alpha)
 
     @property
     def theta_references(self) -> np.ndarray:
@@ -178,9 +141,7 @@ class ClosedFormIK:
         n = theta.shape[0]
         q = theta - np.array(self.geometry.theta0[:n])
         lo, hi = self.robot.lower[:n], self.robot.upper[:n]
-        shift = np.ceil((lo - q) / (2.0 * math.pi))
-        shifted = q + 2.0 * math.pi * shift
-        ok = shifted <= hi
+        shifted, ok = turn_into_limits(q, lo, hi)
         q = np.where(ok, shifted, q)
         return q, bool(np.all((q >= lo) & (q <= hi)))
 
@@ -195,7 +156,7 @@ class ClosedFormIK:
             TaskError: not 3 finite numbers.
             UnreachableError: inside the inner cylinder or out of the reach of links 2-4.
         """
-        p = _check_point(wrist_centre)
+        p = check_array(wrist_centre, (3,), "wrist-centre position [m]")
         geom = self.geometry
         rho2 = plane_radius2(geom, p)
         sol = self.redundancy(rho2)
@@ -213,8 +174,15 @@ class ClosedFormIK:
         return out
 
     def position(self, wrist_centre, pick: str = "lowest", q_near=None) -> PositioningSolution:
-        """One positioning solution: ``lowest`` objective (ties: the front branch) or ``nearest`` q_near."""
-        return self._pick(self.position_all(wrist_centre), pick, q_near, 4)
+        """One positioning solution: ``lowest`` objective (ties: the front branch) or ``nearest`` q_near
+        (4 or n joint values [rad]; the first 4 are compared).
+
+        Raises:
+            ChoiceError: unknown ``pick``.
+            JointVectorError: ``pick="nearest"`` without a valid ``q_near``.
+        """
+        near = self._check_near(pick, q_near, 4)
+        return self._pick(self.position_all(wrist_centre), pick, near, 4)
 
     def solve_all(self, pose, q_hint=None) -> list[IKBranch]:
         """Every branch (front/back x theta6+/theta6-) for a 4x4 target pose of the end-effector frame.
@@ -225,21 +193,28 @@ class ClosedFormIK:
                 wrist centre on axis 1 and d = 0; theta5 at the wrist singularity); default zeros.
 
         Raises:
-            TaskError: not a 4x4 homogeneous matrix with a rotation block.
+            TaskError: not a 4x4 homogeneous matrix (last row (0, 0, 0, 1)) with a rotation block
+                (:func:`kinredund.task.make_target`).
             UnreachableError: the wrist centre is out of reach.
         """
-        T = _check_pose(pose)
+        target = make_target("pose", pose)
         hint = np.zeros(self.robot.nq) if q_hint is None else self.robot.check_q(q_hint, "q_hint")
+        return self._solve_all(target, hint)
+
+    def _solve_all(self, target, hint: np.ndarray) -> list[IKBranch]:
+        """:meth:`solve_all` for a validated pose :class:`~kinredund.task.Target` and hint (n,)."""
         theta0 = np.array(self.geometry.theta0)
-        target_w = T[:3, :3] @ rot_x(self.geometry.alpha7).T
+        rest = np.zeros(self.robot.nq - 4)
+        target_w = target.Q @ rot_x(self.geometry.alpha7).T
         out = []
-        for pos in self.position_all(T[:3, 3], theta1_hint=hint[0]):
+        for pos in self.position_all(target.p, theta1_hint=hint[0]):
             theta_arm = pos.q + theta0[:4]
-            W = _arm_rotation(self._alpha[:4], theta_arm).T @ target_w
+            arm = rotation_products(self.robot.hd, np.concatenate([pos.q, rest]))[4]  # Q1 Q2 Q3 Q4, Eq. (2.1)
+            W = arm.T @ target_w
             for w in solve_wrist(W, hint[4] + theta0[4], self.singular_tol):
                 q, inside = self._joint_values(np.concatenate([theta_arm, [w.theta5, w.theta6, w.theta7]]))
                 R, p = self.robot.kinematics.pose(q)
-                residual = max(float(np.abs(R - T[:3, :3]).max()), float(np.abs(p - T[:3, 3]).max()))
+                residual = max(float(np.abs(R - target.Q).max()), float(np.abs(p - target.p).max()))
                 out.append(IKBranch(q, pos.objective, residual, pos.shoulder, w.label, w.singular,
                                     w.sin_theta6, inside, pos.multiplier))
         return out
@@ -252,19 +227,31 @@ class ClosedFormIK:
             ChoiceError: unknown ``pick``.
             JointVectorError: ``pick="nearest"`` without a valid ``q_near``.
         """
-        check_choice("pick", pick, PICKS)
-        near = None if q_near is None else self.robot.check_q(q_near, "q_near")
-        return self._pick(self.solve_all(pose, q_hint=near), pick, near, self.robot.nq)
+        target = make_target("pose", pose)
+        near = self._check_near(pick, q_near, self.robot.nq)
+        hint = np.zeros(self.robot.nq) if near is None else near
+        return self._pick(self._solve_all(target, hint), pick, near, self.robot.nq)
 
-    def _pick(self, records, pick, q_near, n):
+    def _check_near(self, pick: str, q_near, n: int) -> np.ndarray | None:
+        """Validate ``pick`` and q_near (n or robot.nq joint values [rad]; None is allowed with
+        ``pick="lowest"``) once, before solving."""
         check_choice("pick", pick, PICKS)
+        if q_near is None:
+            if pick == "nearest":
+                raise JointVectorError("pick='nearest' needs q_near, a joint vector to be near")
+            return None
+        near = check_array(q_near, (None,), "q_near", JointVectorError)
+        if near.shape[0] not in (n, self.robot.nq):
+            lengths = f"{n}" if n == self.robot.nq else f"{n} or {self.robot.nq}"
+            raise JointVectorError(f"q_near must have {lengths} joint values [rad] for {self.robot.name}, "
+                                   f"got {near.shape[0]}")
+        return near
+
+    @staticmethod
+    def _pick(records, pick: str, near: np.ndarray | None, n: int):
+        """The record of lowest objective, or nearest the validated ``near`` (wrapped joint distance)."""
         if pick == "lowest":
             best = min(r.objective for r in records)
             return next(r for r in records if r.objective <= best + 1e-12 * max(1.0, best))
-        if q_near is None:
-            raise JointVectorError("pick='nearest' needs q_near, a joint vector to be near")
-        near = np.asarray(q_near, dtype=float)
-        if near.ndim != 1 or near.shape[0] not in (n, self.robot.nq) or not np.all(np.isfinite(near)):
-            raise JointVectorError(f"q_near must be {n} finite joint values [rad], got {near.tolist()}")
-        return min(records, key=lambda r: float(np.linalg.norm(wrap(r.q - near[:n]))))
+        return min(records, key=lambda r: float(np.linalg.norm(wrap_joints(r.q - near[:n]))))
 

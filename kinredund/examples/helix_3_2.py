@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..closed_form import ClosedFormIK, conditioning, polynomial_route, solve_redundancy
-from ..errors import KinredundError
+from ..closed_form.positioning import plane_radius2
+from ..errors import PathError
 from ..generate import atomic_write_text
 from ..paths import Helix
 from ..plots import save_figure
@@ -67,7 +68,7 @@ def _polynomial_route(ik: ClosedFormIK, solutions, points) -> dict:
     out: dict = {k: [] for k in keys}
     out["theta4_gap_deg"] = []
     for sol, p in zip(solutions, points, strict=True):
-        rho2 = p[0] ** 2 + p[1] ** 2 - geom.d ** 2 + (p[2] - geom.b1) ** 2
+        rho2 = plane_radius2(geom, p)  # xi^2 + eta^2, Eqs. (3.14)-(3.15)
         sincos = solve_redundancy(geom, rho2, refs, "sincos")
         c = conditioning(polynomial_route(geom, rho2, refs), sincos.theta4, trials=5)
         for k in keys:
@@ -96,13 +97,17 @@ def reproduce(samples: int = 91, json_path=None, plot_path=None, branch: str = "
         (:class:`~kinredund.closed_form.Conditioning`).
 
     Raises:
-        KinredundError: samples < 2; ChoiceError: unknown branch.
+        PathError: samples not an integer >= 2; ChoiceError: unknown branch.
     """
     from ..errors import check_choice
 
     check_choice("branch", branch, ("front", "back"))
-    if int(samples) != samples or samples < 2:
-        raise KinredundError(f"samples must be an integer >= 2, got {samples!r}")
+    try:
+        ok = int(samples) == samples and samples >= 2
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise PathError(f"samples (points along the helix) must be an integer >= 2, got {samples!r}")
     ik = ClosedFormIK()
     beta = np.linspace(0.0, BETA_END, int(samples))
     points = helix(beta)
