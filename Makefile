@@ -43,7 +43,7 @@ robots: install
 
 bench: install
 	$(BIN)/python -m pip install --quiet ".[bench]"
-	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
+	for b in benchmarks/[!_]*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
 	rm -rf $(VENV) build *.egg-info $(OUT)

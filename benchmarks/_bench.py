@@ -1,4 +1,13 @@
-"""Shared helpers of the benchmark scripts: timing medians, a table printer and the JSON output."""
+"""Shared helpers of the benchmark scripts: timings, a table printer and the JSON output.
+
+Three ways to time, for three kinds of call:
+
+- :func:`time_calls`: each call timed on its own; median and p95 [us] (calls of ~10 us and more);
+- :func:`timeit_us`: ``timeit`` runs of many back-to-back calls; the median run's mean [us] (calls of
+  ~1-3 us, where timing each call on its own adds the timer's overhead);
+- :func:`best_of_us`: per argument, the best of a few calls [us], with the call's result (a time per
+  input, e.g. per pose).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +16,7 @@ import json
 import platform
 import sys
 import time
+import timeit
 from datetime import date
 from pathlib import Path
 
@@ -25,6 +35,26 @@ def time_calls(fn, repeat: int = 2000, warmup: int = 50) -> dict:
         fn()
         ts[i] = time.perf_counter() - t0
     return {"median_us": float(np.median(ts) * 1e6), "p95_us": float(np.percentile(ts, 95) * 1e6)}
+
+
+def timeit_us(fn, number: int, repeat: int) -> float:
+    """Median over ``repeat`` ``timeit`` runs of the mean time [us] of ``number`` back-to-back calls ``fn()``."""
+    runs = timeit.repeat(fn, number=number, repeat=repeat)
+    return float(np.median(runs) / number * 1e6)
+
+
+def best_of_us(fn, args, repeat: int = 5) -> tuple[np.ndarray, list]:
+    """Per argument ``a`` of ``args``: the best of ``repeat`` timed calls ``fn(a)`` [us], and the last call's result."""
+    times, results = np.empty(len(args)), []
+    for i, a in enumerate(args):
+        best, out = np.inf, None
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            out = fn(a)
+            best = min(best, time.perf_counter() - t0)
+        times[i] = best * 1e6
+        results.append(out)
+    return times, results
 
 
 def machine() -> dict:

@@ -19,18 +19,17 @@ recursive Jacobian of Eqs. (5.1)-(5.21) (``kinredund.recursive.recursive_jacobia
 numpy) next to Pinocchio's K.
 
 The internal kinematics calls are unchecked (no input validation), as the solvers use them. Each figure
-is the median over ``--repeat`` runs of the mean time of ``--number`` calls (``timeit``: timing each
-call on its own, as ``_bench.time_calls`` does, adds the timer's overhead to calls of 1-3 us). Prints a
+is the median over ``--repeat`` runs of the mean time of ``--number`` calls (``_bench.timeit_us``: timing
+each call on its own, as ``_bench.time_calls`` does, adds the timer's overhead to calls of 1-3 us). Prints a
 table; with ``--json FILE`` writes the figures atomically (``_bench.write_json``).
 """
 
 from __future__ import annotations
 
 import importlib.metadata
-import timeit
 
 import numpy as np
-from _bench import parser, write_json
+from _bench import parser, timeit_us, write_json
 
 import kinredund
 from kinredund import closure
@@ -38,10 +37,6 @@ from kinredund.recursive import recursive_jacobian
 
 ROBOTS = ("panda", "cybotech_p15")
 RECURSIVE_ROBOT = "cybotech_p15"
-def median_us(fn, number: int, repeat: int) -> float:
-    """Median over ``repeat`` runs of the mean time of ``number`` calls [us]."""
-    runs = timeit.repeat(fn, number=number, repeat=repeat)
-    return float(np.median(runs) / number * 1e6)
 
 
 def bench_robot(name: str, number: int, repeat: int) -> dict:
@@ -62,10 +57,10 @@ def bench_robot(name: str, number: int, repeat: int) -> dict:
         raise SystemExit(f"{name}: Kinematics.lambda_star differs from closure.contract by {check:.3g}")
     out = {
         "nq": r.nq,
-        "fk_us": median_us(lambda: kin.pose(q), number, repeat),
-        "K_us": median_us(lambda: kin.jacobian(q), number, repeat),
-        "K_lambda_star_us": median_us(k_lambda_star, number, repeat),
-        "fused_K_lambda_star_us": median_us(lambda: kin.lambda_star(q, lam), number, repeat),
+        "fk_us": timeit_us(lambda: kin.pose(q), number, repeat),
+        "K_us": timeit_us(lambda: kin.jacobian(q), number, repeat),
+        "K_lambda_star_us": timeit_us(k_lambda_star, number, repeat),
+        "fused_K_lambda_star_us": timeit_us(lambda: kin.lambda_star(q, lam), number, repeat),
         "fused_max_abs_difference": check,
     }
     out["ratio_K_lambda_star_over_K"] = out["K_lambda_star_us"] / out["K_us"]
@@ -84,9 +79,9 @@ def bench_recursive(number: int, repeat: int) -> dict:
     )
     out = {
         "robot": RECURSIVE_ROBOT,
-        "recursive_K_us": median_us(lambda: recursive_jacobian(r.hd, q), number, repeat),
-        "pinocchio_K_us": median_us(lambda: r.kinematics.jacobian(q), number, repeat),
-        "pinocchio_K_checked_us": median_us(lambda: r.velocity_jacobian(q), number, repeat),
+        "recursive_K_us": timeit_us(lambda: recursive_jacobian(r.hd, q), number, repeat),
+        "pinocchio_K_us": timeit_us(lambda: r.kinematics.jacobian(q), number, repeat),
+        "pinocchio_K_checked_us": timeit_us(lambda: r.velocity_jacobian(q), number, repeat),
         "max_abs_difference": err,
     }
     out["ratio_recursive_over_pinocchio"] = out["recursive_K_us"] / out["pinocchio_K_us"]

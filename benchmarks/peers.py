@@ -25,8 +25,9 @@ Figures per variant and method: per-step time (median, p95) [us] of the step alo
 included, the recording excluded; methods are stepped in turn, so background load hits all alike;
 garbage collection is off while stepping); max position error [m] and orientation error [rad] (angle
 of Q_d^T Q) over all steps; the joint drift max |q(kT) - q(0)| [rad] after each loop; and the max
-normality residual ||(1 - K^+ K) grad z|| (zero exactly on the constrained optimum; K the 6 x n
-velocity Jacobian). Peers whose package is missing are skipped and listed.
+normality residual min over lambda of ||grad z + K^T lambda|| = ||(1 - K^+ K) grad z|| (zero exactly on the
+constrained optimum; K the 6 x n velocity Jacobian; ``kinredund.resolved_rate.multipliers``, as
+``Trajectory.normality_residual``). Peers whose package is missing are skipped and listed.
 """
 
 from __future__ import annotations
@@ -40,7 +41,8 @@ from _bench import parser, print_table, write_json
 
 from kinredund.errors import check_choice
 from kinredund.examples.panda_circle import panda_circle
-from kinredund.resolved_rate import ResolvedRate
+from kinredund.plots import LOG_FLOOR
+from kinredund.resolved_rate import ResolvedRate, multipliers
 from kinredund.task import orientation_error
 from kinredund.trajectory import joint_drift
 
@@ -53,7 +55,6 @@ PINK = {"pink": (False, True), "pink_posture": (True, True), "pink_nolimits": (F
 METHODS = (*OURS, *PINK, "rtb_whitney")
 OPTIMAL = ("augmented", "velocity")  # ours, on the constrained optimum by construction
 POSTURE_COST = 1e-3  # [cost] / [rad], pink's README value; the frame task costs 1 /m and 1 /rad
-DRIFT_FLOOR = 1e-17  # the plot draws drifts below this (exact zeros) at this value
 
 
 class _Ours:
@@ -139,18 +140,15 @@ def _make(method, robot, path, index, q0, dt):
 def _evaluate(robot, path, index, q0, ts, qs, loops, steps_per_loop) -> dict:
     """Tracking errors, normality residuals and the drift per loop of a recorded joint path."""
     kin = robot.kinematics
-    pos, ori, Ks, grads = [], [], [], []
+    pos, ori, normal = [], [], []
     for t, q in zip(ts, qs, strict=True):
         Q, p, K = kin.jacobian(q)
         s = path(t)
         pos.append(np.linalg.norm(p - s.p))
         ori.append(orientation_error(Q, s.Q))
-        Ks.append(K)
-        grads.append(index.evaluate(q, t)[1])
-    K, g = np.array(Ks), np.array(grads)[:, :, None]
-    normal = np.linalg.norm((g - np.linalg.pinv(K) @ (K @ g))[:, :, 0], axis=1)  # ||(1 - K^+ K) grad z||
+        normal.append(multipliers(K, index.evaluate(q, t)[1])[1])  # min ||grad z + K^T lambda||, Eqs. (4.33)-(4.34)
     return {"position_error_max": float(max(pos)), "orientation_error_max": float(max(ori)),
-            "normality_residual_max": float(normal.max()),
+            "normality_residual_max": float(max(normal)),
             "drift": [joint_drift(q0, qs[(i + 1) * steps_per_loop], robot.revolute) for i in range(loops)]}
 
 
@@ -249,32 +247,34 @@ def verdict(results: dict) -> dict:
 
 
 def write_plot(results: dict, path: Path) -> None:
-    """Drift per loop on a log scale, one curve per method, one panel per variant (written atomically)."""
-    import matplotlib
+    """Drift per loop on a log scale, one curve per method, one panel per variant (written atomically).
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    A matplotlib Figure with the Agg canvas (no pyplot, no process-wide backend switch), saved by
+    :func:`kinredund.plots.save_figure`; exact zeros are drawn at :data:`kinredund.plots.LOG_FLOOR`.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    from kinredund.generate import atomic_write
+    from kinredund.plots import save_figure
 
     variants = results["variants"]
-    fig, axes = plt.subplots(1, len(variants), figsize=(6 * len(variants), 4.5), sharey=True, squeeze=False)
-    for ax, (variant, res) in zip(axes[0], variants.items(), strict=True):
+    fig = Figure(figsize=(6 * len(variants) + 2, 4.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(variants), sharey=True, squeeze=False)[0]
+    for ax, (variant, res) in zip(axes, variants.items(), strict=True):
         for k, (m, r) in enumerate(res.items()):
             if "drift" in r:
-                d = np.maximum(np.array(r["drift"]), DRIFT_FLOOR)
+                d = np.maximum(np.array(r["drift"]), LOG_FLOOR)
                 ax.semilogy(np.arange(1, len(d) + 1), d, marker="os^vDx+*P"[k % 9], ms=4, label=m,
                             linestyle="-" if m in OURS else "--")
         ax.set_title(f"Panda circle, {variant} (solid: kinredund, dashed: peers)")
         ax.set_xlabel("loop")
         ax.xaxis.get_major_locator().set_params(integer=True)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel(f"joint drift after the loop [rad] (floor {DRIFT_FLOOR:g})")
-    axes[0][-1].legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    fig.tight_layout()
-    fmt = Path(path).suffix.lstrip(".") or "png"
-    atomic_write(Path(path), lambda fh: fig.savefig(fh, format=fmt, dpi=120), "wb")
-    plt.close(fig)
+    axes[0].set_ylabel(f"joint drift after the loop [rad] (floor {LOG_FLOOR:g})")
+    handles, names = axes[-1].get_legend_handles_labels()
+    fig.legend(handles, names, fontsize=8, loc="outside right center")
+    save_figure(fig, path)
     print(f"wrote {path}")
 
 

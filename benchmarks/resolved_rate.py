@@ -1,14 +1,29 @@
 """Resolved-rate timing on the Panda and the CYBOTECH P-15 (issue 4).
 
-Per robot, medians over one run: one evaluation of the scheme (K, dK, Lambda*, lambda* by Householder
-QR, and the solve of R), one whole step in thesis mode and in the default mode (predictor + corrector;
-the augmented and the velocity-Jacobian form), and one plain pseudoinverse step. On the Panda, the same
-run times pink's QP step on the same path (``pink_step_us``: FrameTask, proxqp, no limits - the plain QP
-step the issue's 75 us target names; ``pink_limits_step_us``: with pink's default limits) and gives our
-default step's ratio to it: the target is relative to what pink takes on the same machine, because wall
-times on this VM drift by up to 2x between runs. Run: ``python benchmarks/resolved_rate.py [--json FILE]``
-and ``--plot FILE`` for a bar chart (pink comes with ``pip install .[bench]``; without it the pink
-columns are left out).
+Per robot, medians over one run of:
+
+- ``eval_us``, one evaluation of the scheme as the issue lists it (Jacobians, Lambda*, lambda*, solve),
+  composed of the library's own pieces: ``Kinematics.jacobian_hessian`` (K, dK), ``Index.evaluate``,
+  ``multipliers`` (lambda* by Householder QR), ``HessianContraction.contract`` (Lambda*), ``kkt_matrix``
+  and LAPACK dgesv;
+- ``eval_stepper_us``, one evaluation as the stepper itself makes it: ``ResolvedRate._rates()`` of a
+  ``ResolvedRate(scheme="velocity", mode="thesis", qp_backend="kkt")`` at the start of the path (K and dK
+  from Pinocchio, the path sample, the task terms and the velocity correction of Eq. 4.29, grad z and
+  Hess z, lambda* by Householder QR (Eqs. 4.33-4.34, recomputed at every call in thesis mode),
+  M* = Hess z + Lambda* (Eqs. 4.37, 4.42), the LU factorisation of R with its condition estimate, and
+  the solve of Eq. (4.36) for the joint and multiplier rates; the velocity form's M* is not symmetric,
+  so the solve is always the LU one);
+- one whole step (``ResolvedRate.advance``) in the default mode (predictor + corrector; the augmented
+  form ``step_default_us`` and the velocity-Jacobian form ``step_default_velocity_us``), in thesis mode
+  (``step_thesis_us``, augmented), and one plain pseudoinverse step (``pinv_us``).
+
+On the Panda, the same run times pink's QP step on the same path (``pink_step_us``: FrameTask, proxqp, no
+limits - the plain QP step the issue's 75 us target names; ``pink_limits_step_us``: with pink's default
+limits) and gives our default step's ratio to it: the target is relative to what pink takes on the same
+machine, because wall times on this VM drift by up to 2x between runs. Run:
+``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
+``pip install .[bench]``; without it the pink columns are left out). The JSON holds ``robots`` (the
+figures per robot) and ``keys`` (what each figure times).
 """
 
 from __future__ import annotations
@@ -24,6 +39,24 @@ from kinredund.examples.chapter4 import example_path
 from kinredund.examples.panda_circle import panda_circle
 from kinredund.resolved_rate import ResolvedRate, kkt_matrix, multipliers
 
+#: what each figure of :func:`bench` times (written to the JSON as ``keys``)
+KEYS = {
+    "eval_us": "one evaluation (the issue's list): jacobian_hessian, Index.evaluate, multipliers (QR), "
+               "HessianContraction.contract, kkt_matrix, dgesv",
+    "eval_stepper_us": "one evaluation as the stepper makes it: ResolvedRate(scheme='velocity', mode='thesis', "
+                       "qp_backend='kkt')._rates() at the path's start - K, dK, path sample, task terms, "
+                       "grad/Hess z, lambda* by Householder QR, M* = Hess z + Lambda*, LU of R (dgetrf + "
+                       "dgecon), solve of Eq. (4.36)",
+    "step_default_us": "ResolvedRate.advance(), augmented scheme, default mode (predictor + Newton corrector)",
+    "step_default_velocity_us": "ResolvedRate.advance(), velocity scheme, default mode",
+    "step_thesis_us": "ResolvedRate.advance(), augmented scheme, thesis mode (Euler step, QP or LU)",
+    "pinv_us": "ResolvedRate.advance(), pseudoinverse scheme, thesis mode",
+    "pink_step_us": "pink FrameTask step, solve_ik with proxqp, no limits (Panda)",
+    "pink_limits_step_us": "pink FrameTask step, solve_ik with proxqp, pink's default limits (Panda)",
+    "default_over_pink": "step_default_us / pink_step_us",
+    "default_velocity_over_pink": "step_default_velocity_us / pink_step_us",
+}
+
 
 def _setup(name):
     if name == "panda":
@@ -36,13 +69,24 @@ def _setup(name):
 
 
 def _eval_once(robot, index, q, s_twist):
-    """One evaluation of the velocity-Jacobian scheme, through the pieces the stepper uses."""
+    """One evaluation of the velocity-Jacobian scheme (``eval_us``), from the library's pieces."""
     Q, p, K, dk = robot.kinematics.jacobian_hessian(q)  # K (Eq. 2.16) and dK (Eqs. 4.38-4.41)
     _, grad, hess = index.evaluate(q)
     lam, _ = multipliers(K, grad)  # Eqs. (4.33)-(4.34)
     M = hess + dk.contract(lam)  # M* = Hess z + Lambda*, Eqs. (4.37), (4.42)
     rhs = np.concatenate([np.zeros(robot.nq), s_twist])
     return lapack.dgesv(kkt_matrix(M, K), rhs)[2]  # Eq. (4.36), LU with partial pivoting
+
+
+def _evaluator(robot, path, index, q0, dt) -> ResolvedRate:
+    """The stepper whose ``_rates()`` is "one evaluation as the stepper makes it" (``eval_stepper_us``).
+
+    Thesis mode recomputes lambda* by QR at every evaluation (Eqs. 4.33-4.34) instead of integrating it;
+    the velocity form's M* (Eq. 4.37) is not symmetric, so the rates always come from the LU factors of R
+    (Eq. 4.36); ``qp_backend="kkt"`` says so explicitly. ``_rates()`` leaves q and t alone: every call
+    evaluates the same point and sets ``qdot``, ``lamdot`` and ``lam``.
+    """
+    return ResolvedRate(robot, path, index, q0, dt, scheme="velocity", mode="thesis", qp_backend="kkt")
 
 
 def _pink_steps(robot, path, q0, dt, limits: bool):
@@ -56,10 +100,11 @@ def _pink_steps(robot, path, q0, dt, limits: bool):
 
 def bench(name: str, steps: int) -> dict:
     robot, path, index, q0 = _setup(name)
+    dt = path.period / 200
     s = path(0.0)
     twist = np.concatenate([s.omega, s.v])
-    dt = path.period / 200
-    out = {"eval_us": time_calls(lambda: _eval_once(robot, index, q0, twist))["median_us"]}
+    out = {"eval_us": time_calls(lambda: _eval_once(robot, index, q0, twist))["median_us"],
+           "eval_stepper_us": time_calls(_evaluator(robot, path, index, q0, dt)._rates)["median_us"]}
     for key, mode, scheme in [("step_default_us", "default", "augmented"), ("step_default_velocity_us", "default",
                               "velocity"), ("step_thesis_us", "thesis", "augmented"),
                               ("pinv_us", "thesis", "pseudoinverse")]:
@@ -83,7 +128,8 @@ def write_plot(results: dict, path: Path) -> None:
 
     from kinredund.plots import save_figure
 
-    labels = {"eval_us": "one evaluation", "step_default_us": "default step (augmented)",
+    labels = {"eval_us": "one evaluation (issue's list)", "eval_stepper_us": "one evaluation (stepper's _rates)",
+              "step_default_us": "default step (augmented)",
               "step_default_velocity_us": "default step (velocity form)", "step_thesis_us": "thesis step",
               "pinv_us": "pseudoinverse step", "pink_step_us": "pink QP step (no limits)",
               "pink_limits_step_us": "pink QP step (limits)"}
@@ -111,15 +157,16 @@ def main() -> None:
     p.add_argument("--plot", type=Path, default=None, help="write a bar chart of the times (png, svg, pdf)")
     args = p.parse_args()
     results = {name: bench(name, 1000) for name in ("panda", "cybotech_p15")}
-    rows = [[n, r["eval_us"], r["step_default_us"], r["step_default_velocity_us"], r["step_thesis_us"], r["pinv_us"],
-             r.get("pink_step_us", "-"), r.get("pink_limits_step_us", "-")] for n, r in results.items()]
-    print_table(rows, ["robot", "eval us", "default step us", "default (velocity) us", "thesis step us", "pinv us",
-                       "pink QP step us", "pink (limits) us"])
+    cols = ["eval_us", "eval_stepper_us", "step_default_us", "step_default_velocity_us", "step_thesis_us", "pinv_us",
+            "pink_step_us", "pink_limits_step_us"]
+    rows = [[n] + [r.get(c, "-") for c in cols] for n, r in results.items()]
+    print_table(rows, ["robot", "eval us", "eval (stepper) us", "default step us", "default (velocity) us",
+                       "thesis step us", "pinv us", "pink QP step us", "pink (limits) us"])
     panda = results["panda"]
     if "default_over_pink" in panda:
         print(f"Panda default step / pink QP step: {panda['default_over_pink']:.2f} (augmented), "
               f"{panda['default_velocity_over_pink']:.2f} (velocity form); target <= 1")
-    write_json(args.json, {"robots": results, **results})
+    write_json(args.json, {"robots": results, "keys": KEYS})
     if args.plot is not None:
         write_plot(results, args.plot)
 

@@ -10,18 +10,17 @@ For synthetic trajectories (joints moving sinusoidally, p from forward kinematic
   and stops a meshcat server each time), the file size [MB] and the number of keyframes;
 - each plot of ``kinredund.plots`` written as PNG: wall time [s] and file size [kB].
 
-Each time is the median of ``--repeat`` runs. Prints a table; with ``--json FILE`` writes the figures
-atomically (``_bench.write_json``).
+Each time is the median of ``--repeat`` runs (``_bench.time_calls``, no warm-up run). Prints a table;
+with ``--json FILE`` writes the figures atomically (``_bench.write_json``).
 """
 
 from __future__ import annotations
 
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
-from _bench import parser, print_table, write_json
+from _bench import parser, print_table, time_calls, write_json
 
 import kinredund
 from kinredund import plots
@@ -44,13 +43,9 @@ def synthetic(name: str, duration: float = 10.0, steps: int = 1001) -> tuple[kin
     )
 
 
-def timed(fn, repeat: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), out
+def seconds(fn, repeat: int) -> float:
+    """Median wall time [s] of ``repeat`` calls ``fn()``."""
+    return time_calls(fn, repeat=repeat, warmup=0)["median_us"] * 1e-6
 
 
 def main() -> None:
@@ -61,24 +56,25 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for name in ("planar3r", "panda"):
             r, traj = synthetic(name)
-            seconds, out = timed(lambda r=r, traj=traj, name=name: replay_html(traj, Path(tmp) / f"{name}.html", r),
-                                 args.repeat)
+            out = Path(tmp) / f"{name}.html"
+            wall = seconds(lambda r=r, traj=traj, out=out: replay_html(traj, out, r), args.repeat)
             size = out.stat().st_size / 1e6
             frames = len(resample(traj).times)
-            rows.append([f"replay_html {name}", seconds, f"{size:.2f} MB", frames])
-            figures[f"replay_html_{name}"] = {"seconds": seconds, "megabytes": size, "keyframes": frames}
+            rows.append([f"replay_html {name}", wall, f"{size:.2f} MB", frames])
+            figures[f"replay_html_{name}"] = {"seconds": wall, "megabytes": size, "keyframes": frames}
         _, traj = synthetic("planar3r")
         jobs = {
-            "joint_histories": lambda: plots.plot_joint_histories(traj, Path(tmp) / "j.png"),
-            "errors": lambda: plots.plot_errors(traj, Path(tmp) / "e.png"),
-            "m_eigenvalues": lambda: plots.plot_m_eigenvalues(traj, Path(tmp) / "m.png"),
-            "loop_drift": lambda: plots.plot_loop_drift([traj, traj], Path(tmp) / "d.png"),
+            "joint_histories": lambda out: plots.plot_joint_histories(traj, out),
+            "errors": lambda out: plots.plot_errors(traj, out),
+            "m_eigenvalues": lambda out: plots.plot_m_eigenvalues(traj, out),
+            "loop_drift": lambda out: plots.plot_loop_drift([traj, traj], out),
         }
         for key, job in jobs.items():
-            seconds, out = timed(job, args.repeat)
+            out = Path(tmp) / f"{key}.png"
+            wall = seconds(lambda job=job, out=out: job(out), args.repeat)
             size = out.stat().st_size / 1e3
-            rows.append([f"plot {key}", seconds, f"{size:.0f} kB", "-"])
-            figures[f"plot_{key}"] = {"seconds": seconds, "kilobytes": size}
+            rows.append([f"plot {key}", wall, f"{size:.0f} kB", "-"])
+            figures[f"plot_{key}"] = {"seconds": wall, "kilobytes": size}
     print_table(rows, ["job", "median [s]", "file", "keyframes"])
     write_json(args.json, {"viz": figures})
 

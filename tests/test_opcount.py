@@ -132,6 +132,24 @@ def test_thesis_size_adopted_figures():
     assert first.multiplications - after.multiplications == 305
 
 
+def test_adopted_figures_quoted_in_the_docs_hold_for_eq_5_41_only():
+    """docs/results.md, Chapter 5: 1915/1533 at the first point, 1610/1255 after - with Hess z of Eq. (5.41).
+
+    The additions depend on the nonzeros of Hess z (one per entry of M* = Lambda* + Hess z); the
+    multiplications do not. The figures are the closed forms of the module docstring at n = 7, m = 6, h = 4.
+    """
+    h = opcount.THESIS_HESSIAN_NONZEROS
+    assert h == 4  # z = 1/2 sum_{i<=4} (theta_i - theta_i*)^2: four diagonal entries
+    first = opcount.total_count(7, 6, hessian_nonzeros=4)
+    after = opcount.total_count(7, 6, hessian_nonzeros=4, first_point=False)
+    assert (first.multiplications, first.additions) == (1915, 1533)
+    assert (after.multiplications, after.additions) == (1610, 1255)
+    full = opcount.total_count(7, 6)  # the default: a full Hess z, 49 nonzeros
+    full_after = opcount.total_count(7, 6, first_point=False)
+    assert (full.multiplications, full.additions) == (1915, 1533 + 49 - 4)
+    assert (full_after.multiplications, full_after.additions) == (1610, 1255 + 49 - 4)
+
+
 # -- instrumented counts ---------------------------------------------------------------------------------
 class Counted:
     """A float that counts the multiplications (and divisions) and additions (and subtractions) made on it."""
