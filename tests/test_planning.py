@@ -10,10 +10,10 @@ from conftest import robot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kinredund import TaskError
+from kinredund import ChoiceError, TaskError
 from kinredund.cli import EXIT_FAILED, main
 from kinredund.examples.chapter4 import load_example, run_example
-from kinredund.examples.chapter6 import planar_feasibility, planar_setup, reproduce
+from kinredund.examples.chapter6 import case_robot, planar_feasibility, planar_setup, reproduce
 from kinredund.paths import Ellipse
 from kinredund.planning.clearance import verify_motion
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder
@@ -111,3 +111,31 @@ def test_plan_command_exit_code_for_a_failed_plan(tmp_path, capsys):
     assert main(["plan", "6.2", "--json", str(js)]) == EXIT_FAILED
     assert "plan failed" in capsys.readouterr().err
     assert json.loads(js.read_text())["ok"] is False
+
+
+def test_doubling_check_shares_the_base_grid():
+    """The report with the doubling check equals the one without, and its change is measured against an
+    independent run at twice the resolution."""
+    r = robot("planar3r_ch6")
+    rng = np.random.default_rng(7)
+    t = np.linspace(0.0, 2.0, 9)
+    q = np.cumsum(rng.uniform(-0.4, 0.4, (9, 3)), axis=0)
+    ob = EllipseObstacle(center=(0.9, 0.1), a=0.3, b=0.15, angle=0.35)
+    both = verify_motion(r, ob, t, q, substeps=3, tool_tip=0.05)
+    base = verify_motion(r, ob, t, q, substeps=3, tool_tip=0.05, check_doubling=False)
+    fine = verify_motion(r, ob, t, q, substeps=6, tool_tip=0.05, check_doubling=False)
+    assert base.doubling_change is None and both.t.size == base.t.size == 8 * 3 + 1
+    for name in ("t", "clearance", "penetration", "minimum", "lower_bound", "motion_bound"):
+        np.testing.assert_array_equal(getattr(both, name), getattr(base, name))
+    np.testing.assert_array_equal(both.doubling_change, np.abs(fine.minimum - base.minimum))
+    assert np.any(both.doubling_change > 0)
+    with pytest.raises(TaskError, match="substeps"):
+        verify_motion(r, ob, t, q, substeps=0)
+
+
+def test_case_robot():
+    r = case_robot("6.3")
+    assert r.name == "cybotech_p15_x8" and r.hd.b[0] == pytest.approx(8 * 0.16)
+    assert case_robot("6.2").hd.a.tolist() == [0.5, 0.6, 0.3]
+    with pytest.raises(ChoiceError, match="6.2, 6.3"):
+        case_robot("6.4")

@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 from kinredund.catalog import cybotech_p15
 from kinredund.hd import HDTable
 from kinredund.indices import check_index
-from kinredund.planning.clearance import link_clearance, link_segments, verify_motion
+from kinredund.planning.clearance import link_clearance, link_segments
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder, obstacle_from_dict
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, tangent_semi_axis
 from kinredund.planning.roadmap import check_architecture, origins, plan_roadmap, self_motion
@@ -25,6 +25,7 @@ from kinredund.planning.spatial import (
 )
 from kinredund.planning.spline import JointSpline
 from kinredund.robot import robot_from_hd
+from kinredund.trajectory import Trajectory
 
 
 def _boundary_cloud(cyl: EllipticCylinder, around=1500, up=400, radial=200) -> np.ndarray:
@@ -48,6 +49,10 @@ def test_cut_cylinder_distance_is_exact_against_its_sampled_surface():
     near = cKDTree(cloud).query(X)[0]
     assert np.all(np.abs(d) <= near + 1e-12)  # the exact distance never exceeds a sampled one
     assert np.all(near - np.abs(d) <= spacing)  # and the samples come within their spacing of it
+    # the roadmap's screening bound: never above the distance, and exact inside
+    bound = cyl.surface_bound(X)
+    assert np.all(bound <= d + 1e-12)
+    np.testing.assert_allclose(bound[d < 0], d[d < 0], atol=1e-12)
     # the path of Eqs. (6.46)-(6.50) is the rim of the cut
     path = section_path()
     ps = np.array([path(t).p for t in np.linspace(0, path.period, 97)])
@@ -182,13 +187,48 @@ def test_section_6_3_plan_is_collision_free_cyclic_and_on_the_path(section_6_3):
     assert (out / "6.3.png").stat().st_size > 0 and (out / "6.3_snapshots.png").stat().st_size > 0
 
 
-def test_section_6_3_clearance_is_recomputed_independently(section_6_3):
+def test_section_6_3_clearance_against_dense_sampling_of_the_links(section_6_3):
+    """The reported per-link minima against the obstacle's signed distance sampled along the segments
+    between consecutive joint origins, at the checked times (joints interpolated here by np.interp)."""
+    result, _ = section_6_3
+    tr, rep = result.trajectory, result.clearance
+    robot, cyl = scaled_p15(), section_cylinder()
+    q = np.column_stack([np.interp(rep.t, tr.t, tr.q[:, j]) for j in range(robot.nq)])
+    pts = np.array([robot.kinematics.joint_origins(qk) for qk in q])  # (N, njoints + 1, 3)
+    home = robot.kinematics.joint_origins(robot.home)
+    links = [k for k in range(len(home) - 1) if np.linalg.norm(home[k + 1] - home[k]) > 1e-9]
+    assert len(links) == len(result.clearance_min)
+    s = np.linspace(0.0, 1.0, 161)
+    for n, k in enumerate(links):
+        a, b = pts[:, k], pts[:, k + 1]
+        length = np.linalg.norm(b[0] - a[0])
+        if n == len(links) - 1:
+            b = b - rep.tool_tip * (b - a) / length  # the tool tip at P is left out
+        dense = cyl.signed_distance(a[:, None] + s[None, :, None] * (b - a)[:, None])  # (N, samples)
+        half_step = 0.5 * np.linalg.norm(b[0] - a[0]) / (len(s) - 1)  # 1-Lipschitz between samples
+        assert dense.min() > 0
+        assert result.clearance_min[n] <= dense.min() + 1e-9  # the exact minimum is below every sample
+        assert result.clearance_min[n] >= dense.min() - half_step - 1e-9
+        assert rep.lower_bound[n] <= dense.min() + 1e-9
+    # the whole last link at the tracked steps: nothing of it inside the cylinder (P itself is on the rim)
+    i, j = links[-1], links[-1] + 1
+    steps = np.array([robot.kinematics.joint_origins(qk) for qk in tr.q])
+    whole = cyl.signed_distance(steps[:, i, None] + s[None, :, None] * (steps[:, j] - steps[:, i])[:, None])
+    assert whole.min() >= -1e-9
+
+
+def test_section_6_3_trajectory_saves_and_reloads(section_6_3, tmp_path):
     result, _ = section_6_3
     tr = result.trajectory
-    rep = verify_motion(scaled_p15(), section_cylinder(), tr.t, tr.q, substeps=2, tool_tip=result.clearance.tool_tip,
-                        check_doubling=False, path=section_path())
-    assert np.all(rep.minimum > 0)
-    assert np.all(rep.minimum >= result.clearance_min - 1e-12)  # a coarser check cannot find less clearance
+    json.dumps(tr.meta, allow_nan=False)  # the meta is strict JSON (the roadmap's samples carry no clearance)
+    assert tr.meta["samples"]["clearance"][0] == [None] * len(result.clearance_min)
+    f = tmp_path / "6.3_trajectory.json"
+    tr.save_json(f)
+    back = Trajectory.load_json(f)
+    np.testing.assert_array_equal(back.t, tr.t)
+    np.testing.assert_array_equal(back.q, tr.q)
+    assert back.meta["samples"] == tr.meta["samples"]
+    np.testing.assert_array_equal(back.meta["samples"]["q"], result.samples.q)
 
 
 def test_an_obstacle_too_large_for_the_arm_is_reported_as_failed():

@@ -42,7 +42,24 @@ def test_wrist_point_is_the_end_point_moved_along_the_normal():
     length = link_model(robot).lengths[-1]
     np.testing.assert_allclose(np.linalg.norm(wr.wrist - ps, axis=1), length, rtol=1e-12)
     np.testing.assert_allclose((wr.wrist - ps) @ np.eye(3), length * n, atol=1e-12)
-    np.testing.assert_allclose(wr.margin, wr.reach - np.linalg.norm(wr.wrist - wr.origin, axis=1), atol=1e-12)
+
+
+def test_a_negative_wrist_margin_is_how_far_the_links_miss_the_wrist_point():
+    """Minimised over the joints numerically, the last link's joint comes no closer to W than -margin."""
+    from scipy.optimize import least_squares
+
+    robot = scaled_p15(8.0)
+    cyl = section_cylinder()
+    ps = _targets(13)
+    wr = wrist_reach(robot, ps, cyl.normal_at(ps))
+    i = int(link_model(robot).pairs[-1][0])
+    rng = np.random.default_rng(4)
+    out = wr.margin < 0
+    assert 0 < out.sum() < len(ps)
+    for w, m in zip(wr.wrist[out], wr.margin[out], strict=True):
+        gaps = [np.linalg.norm(least_squares(lambda q, w=w: robot.kinematics.joint_origins(q)[i] - w, q0).fun)
+                for q0 in rng.uniform(-np.pi, np.pi, (4, robot.nq))]
+        assert min(gaps) == pytest.approx(-m, abs=1e-6)
 
 
 @pytest.mark.parametrize("scale", [8.0, 9.0, 10.0, 12.0, 14.0])

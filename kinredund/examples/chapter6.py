@@ -27,15 +27,19 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 
-from ..errors import ChoiceError
+from ..errors import check_choice
 from ..generate import atomic_write_text
 from ..paths import Ellipse
-from ..planning.obstacles import EllipseObstacle
-from ..planning.planner import PlanResult, plan
-from ..robot import load_robot
+from ..planning import spatial
+from ..planning.obstacles import EllipseObstacle, Obstacle, obstacle_from_dict
+from ..planning.planner import PlanResult, plan, wrist_reach
+from ..planning.roadmap import plan_roadmap
+from ..robot import Robot, load_robot
+from ..trajectory import json_ready
 
 CASES = ("6.2", "6.3")
 PLANAR_CENTER = (0.9, 0.0)
@@ -51,58 +55,73 @@ def planar_setup(a: float = PLANAR_A, b: float = PLANAR_B):
     return robot, path, obstacle
 
 
+def case_setup(case: str) -> tuple[Robot, object, Obstacle]:
+    """(robot, path, obstacle) of Section 6.2 or 6.3 (6.3: the scaled P-15 of
+    :func:`kinredund.planning.spatial.scaled_p15`, which :func:`kinredund.load_robot` cannot load by name).
+
+    Raises:
+        ChoiceError: an unknown case.
+    """
+    check_choice("planning case", case, CASES)
+    if case == "6.2":
+        return planar_setup()
+    return spatial.scaled_p15(), spatial.section_path(), spatial.section_cylinder()
+
+
+def case_robot(case: str) -> Robot:
+    """The robot of Section 6.2 or 6.3 (for playback of the planned trajectory)."""
+    return case_setup(case)[0]
+
+
 def planar_feasibility(robot, path, obstacle, samples: int = 720) -> dict:
-    """The reach of joint 3 needed by the normal-tool policy, against what links 1-2 can reach.
+    """The reach of joint 3 needed by the normal-tool policy, against what links 1-2 can reach
+    (:func:`kinredund.planning.planner.wrist_reach` along the path).
 
     Returns:
-        {"wrist_reach_needed": max |P + l3 n| [m], "wrist_reach_available": l1 + l2 [m],
+        {"wrist_reach_needed": max |P + l3 n - O1| [m], "wrist_reach_available": l1 + l2 [m],
          "reachable": bool, "worst_t": time of the worst point [s], "reason": str}
     """
-    links = np.abs(robot.hd.a)
     ts = np.linspace(0.0, path.period, samples, endpoint=False)
     p = np.array([path(t).p for t in ts])
-    n = obstacle.normal_at(p)
-    w = p + links[-1] * n
-    need = np.linalg.norm(w[:, :2], axis=1)
-    k = int(np.argmax(need))
-    available = float(links[0] + links[1])
-    reachable = bool(need[k] <= available)
+    wr = wrist_reach(robot, p, obstacle.normal_at(p))  # joint 3 at W = P + l3 n (Eqs. 6.19-6.20)
+    k = int(np.argmax(wr.distance))
+    need, available = float(wr.distance[k]), float(wr.reach)
+    reachable = bool(need <= available)
     reason = "" if reachable else (
-        f"the policy puts joint 3 at P + l3 n, {need[k]:.3f} m from the base at t = {ts[k]:.3f} s, beyond the "
+        f"the policy puts joint 3 at P + l3 n, {need:.3f} m from the base at t = {ts[k]:.3f} s, beyond the "
         f"{available:.3f} m that links 1-2 reach; and a planar chain whose end point goes once around a convex "
         "obstacle with closing joints must sweep over the obstacle (see kinredund.examples.chapter6)")
-    return {"wrist_reach_needed": float(need[k]), "wrist_reach_available": available, "reachable": reachable,
+    return {"wrist_reach_needed": need, "wrist_reach_available": available, "reachable": reachable,
             "worst_t": float(ts[k]), "reason": reason}
 
 
-def _spatial_plan(samples, progress):
-    from ..planning import spatial
-    from ..planning.roadmap import plan_roadmap
-
-    robot = spatial.scaled_p15()
-    path = spatial.section_path()
-    obstacle = spatial.section_cylinder()
+def _run(case: str, samples: int, progress) -> tuple[PlanResult, dict, Robot, Obstacle]:
+    robot, path, obstacle = case_setup(case)
+    if case == "6.2":
+        check = planar_feasibility(robot, path, obstacle)
+        extra = {"links": [float(v) for v in np.abs(robot.hd.a)], "feasibility": check,
+                 "obstacle": obstacle.to_dict()}
+        if not check["reachable"]:
+            names = tuple(f"link {k + 1}" for k in range(robot.nq))
+            return PlanResult(None, None, None, None, names, float("nan"), False, check["reason"]), extra, robot, \
+                obstacle
+        result = plan(robot, path, obstacle, samples=samples, progress=progress, meta={"example": "6.2"})
+        return result, extra, robot, obstacle
     # the policy's optima at the samples do not join into a collision-free loop on this arm; the branch
     # comes from a roadmap of the self-motion manifold (kinredund.planning.roadmap)
-    return robot, obstacle, plan_roadmap(robot, path, obstacle, progress=progress, meta={"example": "6.3"})
+    result = plan_roadmap(robot, path, obstacle, progress=progress, meta={"example": "6.3"})
+    return result, {"links": None, "obstacle": obstacle.to_dict(), "scale": spatial.P15_SCALE}, robot, obstacle
 
 
 def run_case(case: str, samples: int = 9, progress=None) -> tuple[PlanResult, dict]:
-    """Plan Section 6.2 or 6.3; returns the result and extra figures for the report."""
-    if case == "6.2":
-        robot, path, obstacle = planar_setup()
-        check = planar_feasibility(robot, path, obstacle)
-        extra = {"links": [float(v) for v in np.abs(robot.hd.a)], "feasibility": check}
-        if not check["reachable"]:
-            names = tuple(f"link {k + 1}" for k in range(robot.nq))
-            return PlanResult(None, None, None, None, None, names, float("nan"), False, check["reason"]), \
-                dict(extra, obstacle=obstacle.to_dict())
-        result = plan(robot, path, obstacle, samples=samples, progress=progress, meta={"example": "6.2"})
-        return result, dict(extra, obstacle=obstacle.to_dict())
-    if case == "6.3":
-        robot, obstacle, result = _spatial_plan(samples, progress)
-        return result, {"links": None, "obstacle": obstacle.to_dict(), "scale": float(robot.hd.b[0] / 0.16)}
-    raise ChoiceError("planning case", case, CASES)
+    """Plan Section 6.2 or 6.3 (``samples`` sample points for 6.2; 6.3 plans on a roadmap); returns the
+    result and extra figures for the report.
+
+    Raises:
+        ChoiceError: an unknown case.
+    """
+    result, extra, _, _ = _run(case, samples, progress)
+    return result, extra
 
 
 def to_json_dict(case: str, result: PlanResult, extra: dict) -> dict:
@@ -154,12 +173,9 @@ def plot_case(case: str, result: PlanResult, extra: dict, path) -> None:
         return
     fig = Figure(figsize=(6.0, 5.0))
     ax = fig.subplots()
-    ob = extra["obstacle"]
     s = np.linspace(0, 2 * np.pi, 200)
-    ca, sa = math.cos(ob["angle"]), math.sin(ob["angle"])
-    ex = ob["center"][0] + ob["a"] * np.cos(s) * ca - ob["b"] * np.sin(s) * sa
-    ey = ob["center"][1] + ob["a"] * np.cos(s) * sa + ob["b"] * np.sin(s) * ca
-    ax.fill(ex, ey, color="tab:purple", alpha=0.3, label="obstacle (= end-point path)")
+    ring, _ = obstacle_from_dict(extra["obstacle"]).boundary(s)
+    ax.fill(ring[:, 0], ring[:, 1], color="tab:purple", alpha=0.3, label="obstacle (= end-point path)")
     feas = extra.get("feasibility")
     if feas is not None:
         r = feas["wrist_reach_available"]
@@ -175,32 +191,14 @@ def plot_case(case: str, result: PlanResult, extra: dict, path) -> None:
 
 def reproduce(case: str, json_path=None, plot_path=None, progress=None, samples: int = 9) -> PlanResult:
     """Run Section 6.2 or 6.3, write its JSON (atomically, also for a failed plan) and plot."""
-    result, extra = run_case(case, samples=samples, progress=progress)
+    result, extra, robot, obstacle = _run(case, samples, progress)
     if json_path is not None:
-        atomic_write_text(json_path, json.dumps(_plain(to_json_dict(case, result, extra)), allow_nan=False))
+        atomic_write_text(json_path, json.dumps(json_ready(to_json_dict(case, result, extra)), allow_nan=False))
     if plot_path is not None:
         plot_case(case, result, extra, plot_path)
         if result.trajectory is not None:  # configuration snapshots (Figs. 6.14-6.22) beside the main plot
-            from pathlib import Path
-
-            from ..planning import spatial
             from ..planning.figures import snapshot_figure
 
-            robot = load_robot("planar3r_ch6") if case == "6.2" else spatial.scaled_p15()
-            obstacle = planar_setup()[2] if case == "6.2" else spatial.section_cylinder()
             p = Path(plot_path)
             snapshot_figure(result, robot, obstacle, p.with_name(f"{p.stem}_snapshots{p.suffix}"))
     return result
-
-
-def _plain(o):
-    """JSON-ready: arrays to lists, numpy scalars to Python, nan and inf to None."""
-    if isinstance(o, dict):
-        return {str(k): _plain(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple, np.ndarray)):
-        return [_plain(v) for v in o]
-    if isinstance(o, (np.floating, float)):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    return o

@@ -28,10 +28,10 @@ import numpy as np
 
 from ..ik import solve_ik
 from ..indices import Index, JointDeviation
+from ..trajectory import wrap_joints
 from .clearance import PENETRATION_TOL, LinkModel, link_clearance, link_segments
 from .obstacles import Obstacle
 from .selfmotion import routes
-from .spline import wrap
 
 #: two candidate configurations closer than this (wrapped, max-abs) are the same [rad]
 SAME_CONFIGURATION = 1e-6
@@ -109,7 +109,7 @@ def candidates(robot, index: Index, target, seeds, model: LinkModel, obstacle: O
         q = fit_limits(res.q, robot.lower, robot.upper, robot.revolute)
         if q is None:
             continue
-        if any(np.abs(wrap(q - f.q, robot.revolute)).max() < SAME_CONFIGURATION for f in found):
+        if any(np.abs(wrap_joints(q - f.q, robot.revolute)).max() < SAME_CONFIGURATION for f in found):
             continue
         c = clearance_of(robot, q, model, obstacle, radius, tool_tip)
         if c.min() <= 0:
@@ -155,7 +155,7 @@ def bisect(robot, path, ta: float, qa, tb: float, qb, max_jump: float, budget: i
         tm = 0.5 * (pts[k][0] + pts[k + 1][0])
         mean = 0.5 * (pts[k][1] + pts[k + 1][1])
         res = closest_on_path(robot, target_of(robot, path(tm).p), mean, max_iter=max_iter)
-        qm = mean + wrap(res.q - mean, robot.revolute)
+        qm = mean + wrap_joints(res.q - mean, robot.revolute)
         worst = max(np.abs(qm - pts[k][1]).max(), np.abs(pts[k + 1][1] - qm).max())
         if not res.converged or worst >= 0.95 * jumps[k]:
             return None
@@ -205,14 +205,14 @@ def _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
     rb = closest_on_path(robot, target_of(robot, path(t2).p), qb, max_iter=max_iter)
     if not (ra.converged and rb.converged):
         return out
-    a1 = qa + wrap(ra.q - qa, robot.revolute)
-    b2 = qb + wrap(rb.q - qb, robot.revolute)
+    a1 = qa + wrap_joints(ra.q - qa, robot.revolute)
+    b2 = qb + wrap_joints(rb.q - qb, robot.revolute)
     target_m = target_of(robot, path(tm).p)
     ma = closest_on_path(robot, target_m, a1, max_iter=max_iter)
     mb = closest_on_path(robot, target_m, b2, max_iter=max_iter)
     if not (ma.converged and mb.converged):
         return out
-    am = a1 + wrap(ma.q - a1, robot.revolute)
+    am = a1 + wrap_joints(ma.q - a1, robot.revolute)
     for route in routes(robot, target_m, am, mb.q, step=0.5 * max_jump):
         pts = route.points
         keep = [0]
@@ -231,12 +231,12 @@ def _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
             if not res.converged:
                 ok = False
                 break
-            placed.append((tt, c + wrap(res.q - c, robot.revolute)))
+            placed.append((tt, c + wrap_joints(res.q - c, robot.revolute)))
         if not ok:
             continue
         end = sel[-1]  # mb's representation at the route's end
-        b2_end = end + wrap(b2 - end, robot.revolute)
-        qb_end = b2_end + wrap(qb - b2_end, robot.revolute)
+        b2_end = end + wrap_joints(b2 - end, robot.revolute)
+        qb_end = b2_end + wrap_joints(qb - b2_end, robot.revolute)
         placed += [(t2, b2_end), (tb, qb_end)]
         joined = _join(robot, path, placed, max_jump, budget, max_iter)
         if joined is not None:
@@ -254,7 +254,7 @@ def transition(robot, path, ta: float, qa, tb: float, qb, *, model: LinkModel, o
     """
     qa = np.asarray(qa, float)
     qb = np.asarray(qb, float)
-    near = qa + wrap(qb - qa, robot.revolute)  # qb's representation nearest qa
+    near = qa + wrap_joints(qb - qa, robot.revolute)  # qb's representation nearest qa
     best = Transition(np.inf, near - qb, (), -np.inf)
 
     def consider(points, shift):

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import TaskError
+from ..errors import TaskError, check_array
 
 #: width of the final bracket of the segment parameter (relative, in [0, 1]); the segment distance is
 #: then at most ``length * SEGMENT_TOL`` above the exact minimum (the signed distance is 1-Lipschitz)
@@ -96,8 +96,7 @@ def ellipse_closest_point(a: float, b: float, u, v) -> tuple[np.ndarray, np.ndar
             step = np.where((f > 0) & (df < 0), -f / df, 0.0)
             step = np.where(np.isfinite(step), step, 0.0)  # at the pole s = -1 (points on the major axis)
             s_ = np.minimum(s_ + step, hi)
-        lo = hi = s_
-        s = 0.5 * (lo + hi)
+        s = s_
         x0 = r0 * y0 / (s + r0)
         x0 = np.minimum(x0, a)
         well = (s + 1.0) > 1e-3
@@ -115,7 +114,6 @@ def ellipse_closest_point(a: float, b: float, u, v) -> tuple[np.ndarray, np.ndar
         ye = np.where(inside_evolute, b * np.sqrt(np.maximum(0.0, 1.0 - (xe / a) ** 2)), 0.0)
     x0 = np.where(on_major, xe, x0)
     x1 = np.where(on_major, ye, x1)
-    # a point exactly on the minor axis at the centre of a circle: any boundary point is closest
     return su * x0, sv * x1
 
 
@@ -123,7 +121,11 @@ def ellipse_signed_distance(a: float, b: float, u, v) -> np.ndarray:
     """Exact signed distance [m] from points (u, v) (principal frame) to the ellipse; negative inside."""
     u = np.asarray(u, float)
     v = np.asarray(v, float)
-    xu, xv = ellipse_closest_point(a, b, u, v)
+    return _signed(a, b, u, v, *ellipse_closest_point(a, b, u, v))
+
+
+def _signed(a: float, b: float, u, v, xu, xv) -> np.ndarray:
+    """The signed distance of (u, v) given its closest ellipse point (xu, xv); negative inside."""
     d = np.hypot(u - xu, v - xv)
     inside = (u / a) ** 2 + (v / b) ** 2 < 1.0
     return np.where(inside, -d, d)
@@ -147,10 +149,10 @@ class Obstacle:
     kind = "ellipse"
 
     def __post_init__(self) -> None:
-        c = np.asarray(self.center, dtype=float)
+        c = check_array(self.center, (None,), "obstacle center [m]")
         if c.shape == (2,):
-            c = np.array([c[0], c[1], 0.0])
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            c = np.append(c, 0.0)
+        if c.shape != (3,):
             raise TaskError(f"obstacle center must be 2 or 3 finite numbers [m], got {self.center!r}")
         object.__setattr__(self, "center", c)
         object.__setattr__(self, "a", _positive("semi-axis a", self.a))
@@ -217,7 +219,7 @@ class Obstacle:
         raise NotImplementedError
 
     # -- segments ---------------------------------------------------------------------------------
-    def segment_distance(self, p0, p1, radius: float = 0.0, return_param: bool = False):
+    def segment_distance(self, p0, p1, radius: float = 0.0):
         """Minimum signed distance [m] between segments p0-p1 (shape (..., 3)) and the obstacle.
 
         The signed distance is convex along a segment (the obstacle is convex), so a golden-section
@@ -227,12 +229,10 @@ class Obstacle:
         Args:
             p0, p1: end points, broadcastable to one shape (..., 3) [m].
             radius: capsule radius [m] >= 0.
-            return_param: also return the segment parameter in [0, 1] of the minimum.
 
         Returns:
             The distances (...,) [m] (negative: penetration depth of the segment's deepest point, for
-            the 2-D ellipse; for the cylinder the exact signed distance of that point), and the
-            parameters when asked.
+            the 2-D ellipse; for the cylinder the exact signed distance of that point).
         """
         p0 = np.asarray(p0, float)
         p1 = np.asarray(p1, float)
@@ -261,11 +261,7 @@ class Obstacle:
         s_in = 0.5 * (lo + hi)
         cand = np.stack([np.zeros(shape), s_in, np.ones(shape)], axis=-1)
         vals = np.stack([f(cand[..., k]) for k in range(3)], axis=-1)
-        k = np.argmin(vals, axis=-1)
-        best = np.take_along_axis(vals, k[..., None], axis=-1)[..., 0] - float(radius)
-        if return_param:
-            return best, np.take_along_axis(cand, k[..., None], axis=-1)[..., 0]
-        return best
+        return vals.min(axis=-1) - float(radius)
 
 
 @dataclass(frozen=True)
@@ -318,8 +314,8 @@ class EllipticCylinder(Obstacle):
         super().__post_init__()
         object.__setattr__(self, "height", _positive("height", self.height))
         if self.top_normal is not None:
-            n = np.asarray(self.top_normal, float)
-            if n.shape != (3,) or not np.all(np.isfinite(n)) or n[2] <= 0:
+            n = check_array(self.top_normal, (3,), "top_normal")
+            if n[2] <= 0:
                 raise TaskError(f"top_normal must be 3 finite numbers with z > 0, got {self.top_normal!r}")
             if self.top_z is None or not math.isfinite(float(self.top_z)):
                 raise TaskError("an inclined top needs top_z, its height on the axis [m]")
@@ -353,22 +349,38 @@ class EllipticCylinder(Obstacle):
         U, S, _ = np.linalg.svd(np.column_stack(lift), full_matrices=False)  # conjugate -> principal semi-axes
         return c, U, S
 
+    def _surfaces(self, points):
+        """(dxy, dtop, dbot, (xu, xv)): the signed distances of points (..., 3) to the lateral surface,
+        the top plane and the bottom plane [m], and the closest directrix points (principal frame)."""
+        u, v = self.local(points)
+        xu, xv = ellipse_closest_point(self.a, self.b, u, v)
+        dxy = _signed(self.a, self.b, u, v, xu, xv)
+        dbot = self.z_range[0] - points[..., 2]
+        if self.top_normal is None:
+            dtop = points[..., 2] - self.z_range[1]
+        else:
+            dtop = (points - self._rim[0]) @ self.top_normal  # signed distance to the inclined top plane
+        return dxy, dtop, dbot, (xu, xv)
+
+    def surface_bound(self, points) -> np.ndarray:
+        """max of the signed distances to the three surfaces [m]: the exact signed distance inside, and
+        outside a lower bound of it (never more than the true distance) - cheap screening."""
+        dxy, dtop, dbot, _ = self._surfaces(np.asarray(points, float))
+        return np.maximum(np.maximum(dxy, dtop), dbot)
+
     def signed_distance(self, points) -> np.ndarray:
         points = np.asarray(points, float)
-        dxy = self.ellipse_distance(points)
-        z0, z1 = self.z_range
-        dbot = z0 - points[..., 2]
+        dxy, dtop, dbot, (xu, xv) = self._surfaces(points)
         if self.top_normal is None:
-            dz = np.maximum(dbot, points[..., 2] - z1)
+            dz = np.maximum(dbot, dtop)
             inside = np.minimum(np.maximum(dxy, dz), 0.0)
             return inside + np.hypot(np.maximum(dxy, 0.0), np.maximum(dz, 0.0))  # exact for an extrusion
         n = self.top_normal
         c, U, S = self._rim
-        dtop = (points - c) @ n  # signed distance to the top plane
         inner = np.maximum(np.maximum(dxy, dtop), dbot)  # exact inside: the nearest of the three surfaces
         # outside: the nearest of the five boundary pieces (each candidate is a point of the solid)
         cand = []
-        lat_ok = (points[..., 2] >= z0) & (points[..., 2] <= self.top_height_at_boundary(points))
+        lat_ok = (points[..., 2] >= self.z_range[0]) & (points[..., 2] <= self._top_above(xu, xv))
         cand.append(np.where(lat_ok, np.abs(dxy), np.inf))  # lateral surface
         foot = points - dtop[..., None] * n
         cand.append(np.where(self.ellipse_distance(foot) <= 0, np.abs(dtop), np.inf))  # top face
@@ -380,10 +392,8 @@ class EllipticCylinder(Obstacle):
         outside = np.min(np.stack(cand, axis=-1), axis=-1)
         return np.where(inner <= 0, inner, outside)
 
-    def top_height_at_boundary(self, points) -> np.ndarray:
-        """The top's height above the boundary point of the directrix closest to each point [m]."""
-        u, v = self.local(points)
-        xu, xv = ellipse_closest_point(self.a, self.b, u, v)
+    def _top_above(self, xu, xv) -> np.ndarray:
+        """The top's height above directrix points (xu, xv) given in the principal frame [m]."""
         e1, e2 = self.axes()
         x = self.center[0] + xu * e1[0] + xv * e2[0]
         y = self.center[1] + xu * e1[1] + xv * e2[1]
@@ -429,15 +439,18 @@ def obstacle_from_dict(data: dict) -> Obstacle:
     missing = [k for k in ("center", "a", "b") if k not in data]
     if missing:
         raise TaskError(f"obstacle dict misses {', '.join(missing)}; needs kind, center, a, b, angle, height")
-    axis = np.asarray(data.get("axis", [0.0, 0.0, 1.0]), float)
-    if axis.shape != (3,) or np.linalg.norm(axis[:2]) > 1e-12 or axis[2] <= 0:
+    axis = check_array(data.get("axis", [0.0, 0.0, 1.0]), (3,), "obstacle axis")
+    if np.linalg.norm(axis[:2]) > 1e-12 or axis[2] <= 0:
         raise TaskError(f"only obstacles with their axis along +Z are supported, got axis {data.get('axis')!r}")
     if kind == "ellipse":
         return EllipseObstacle(data["center"], data["a"], data["b"], data.get("angle", 0.0),
                                thickness=data.get("height", 0.02))
     top = data.get("top_plane")
     if top is not None:
+        if not (isinstance(top, dict) and "normal" in top and "point" in top):
+            raise TaskError(f"an obstacle's top_plane must be a dict with normal and point, got {top!r}")
+        point = check_array(top["point"], (3,), "top_plane point [m]")
         return EllipticCylinder(data["center"], data["a"], data["b"], data.get("angle", 0.0),
-                                height=data.get("height", 1.0), top_normal=top["normal"], top_z=top["point"][2])
+                                height=data.get("height", 1.0), top_normal=top["normal"], top_z=point[2])
     return EllipticCylinder(data["center"], data["a"], data["b"], data.get("angle", 0.0),
                             height=data.get("height", 1.0))

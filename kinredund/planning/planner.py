@@ -33,7 +33,7 @@ Units: times [s], joints [rad or m], lengths [m].
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from time import perf_counter
 
 import numpy as np
@@ -43,7 +43,7 @@ from ..ik import sample_box
 from ..indices import Index, TimeVaryingReference
 from ..paths import Path
 from ..resolved_rate import track
-from ..trajectory import Trajectory
+from ..trajectory import Trajectory, json_ready
 from .branches import Candidate, Transition, candidates, choose, clearance_of, target_of, transition
 from .clearance import ClearanceReport, link_model, verify_motion
 from .obstacles import Obstacle
@@ -85,14 +85,8 @@ class Samples:
     kind: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        """JSON-ready form (nan becomes None)."""
-        def plain(a):
-            return [[None if not np.isfinite(v) else float(v) for v in row] if np.ndim(row) else
-                    (None if not np.isfinite(row) else float(row)) for row in np.asarray(a, float)]
-
-        return {"t": self.t.tolist(), "p": self.p.tolist(), "q": self.q.tolist(), "turns": self.turns.tolist(),
-                "candidates": list(self.candidates), "objective": plain(self.objective),
-                "clearance": self.clearance.tolist(), "weights": plain(self.weights), "kind": list(self.kind)}
+        """JSON-ready form (arrays to lists, nan becomes None)."""
+        return json_ready({f.name: getattr(self, f.name) for f in fields(self)})
 
 
 @dataclass(frozen=True)
@@ -104,8 +98,6 @@ class PlanResult:
             plan stopped before tracking.
         samples: the sample points and their configurations, or None when they could not be solved.
         q_spline: the spline's estimates at the trajectory's times, shape (N, n), or None.
-        clearance_min: per-link minimum clearance along the motion [m] (the last link without its tool
-            tip), shape (k,), or None.
         clearance: the full :class:`~kinredund.planning.clearance.ClearanceReport` (history), or None.
         link_names: the link names.
         spline_gap_max: the largest |q - q_spline| over the motion [rad] (nan without a trajectory).
@@ -118,7 +110,6 @@ class PlanResult:
     trajectory: Trajectory | None
     samples: Samples | None
     q_spline: np.ndarray | None
-    clearance_min: np.ndarray | None
     clearance: ClearanceReport | None
     link_names: tuple[str, ...]
     spline_gap_max: float
@@ -126,6 +117,12 @@ class PlanResult:
     reason: str
     timings: dict = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+
+    @property
+    def clearance_min(self) -> np.ndarray | None:
+        """Per-link minimum clearance along the motion [m] (the last link without its tool tip), shape
+        (k,): ``clearance.minimum``, or None without a verified motion."""
+        return None if self.clearance is None else self.clearance.minimum
 
     def summary(self) -> dict:
         """Scalars and short lists: the figures a report or the CLI prints."""
@@ -276,7 +273,7 @@ def _winding(path: Path, obstacle: Obstacle, period: float, count: int = 720) ->
 
 
 def _failure(reason, names, timings, samples=None, trajectory=None, notes=()) -> PlanResult:
-    return PlanResult(trajectory, samples, None, None, None, names, float("nan"), False, reason, timings, tuple(notes))
+    return PlanResult(trajectory, samples, None, None, names, float("nan"), False, reason, timings, tuple(notes))
 
 
 def plan(
@@ -470,4 +467,4 @@ def plan(
                        "(see kinredund.planning.planner)")
     if traj.loop_drift is not None and traj.loop_drift[0] > 1e-6:
         notes.append(f"the joint path does not close: drift {traj.loop_drift[0]:.3g} rad after one loop")
-    return PlanResult(traj, smp, q_spline, rep.minimum, rep, names, gap, not reason, reason, timings, tuple(notes))
+    return PlanResult(traj, smp, q_spline, rep, names, gap, not reason, reason, timings, tuple(notes))

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..closure import cross_matrix
 from ..errors import TaskError
 from ..indices import Index
 from .obstacles import Obstacle
@@ -120,12 +121,6 @@ class PlanarPolicy(Index):
         object.__setattr__(self, "weights", _weights(self.weights))
         object.__setattr__(self, "theta0", np.zeros(3) if self.theta0 is None else np.asarray(self.theta0, float))
 
-    def semi_axis(self, theta) -> float:
-        """b(theta1, theta2) of Eq. (6.16) [m]."""
-        th = np.asarray(theta, float) + self.theta0
-        E = self.l1 * np.array([math.cos(th[0]), math.sin(th[0])])
-        return float(tangent_semi_axis(self.obstacle, E, th[0] + th[1]))
-
     def evaluate(self, theta, t=0.0):
         th = np.asarray(theta, float) + self.theta0
         w1, w2 = self.weights
@@ -168,13 +163,12 @@ def link_direction_derivatives(axes: np.ndarray, L: np.ndarray, moving: int):
     n = axes.shape[0]
     dL = np.zeros((3, n))
     d2L = np.zeros((3, n, n))
-    for j in range(moving):
-        dL[:, j] = np.cross(axes[j], L)
-    for i in range(moving):
-        for j in range(i, moving):
-            v = np.cross(axes[i], dL[:, j])  # e_i x (e_j x L): e_j turns with joint i for i < j
-            d2L[:, i, j] = v
-            d2L[:, j, i] = v
+    E = axes[:moving]
+    dL[:, :moving] = -cross_matrix(L) @ E.T  # e_j x L = -L x e_j
+    # e_i x (e_j x L) = e_j (e_i . L) - L (e_i . e_j), for i <= j (e_j turns with joint i for i < j)
+    C = E.T[:, None, :] * (E @ L)[None, :, None] - L[:, None, None] * (E @ E.T)[None]  # C[:, i, j]
+    upper = np.triu(np.ones((moving, moving), bool))
+    d2L[:, :moving, :moving] = np.where(upper, C, C.transpose(0, 2, 1))
     return dL, d2L
 
 
@@ -244,10 +238,6 @@ class SpatialPolicy(Index):
         pts = self.robot.kinematics.joint_origins(np.asarray(theta, float))
         v = pts[self.link[1]] - pts[self.link[0]]
         return v / np.linalg.norm(v)
-
-    def semi_axis(self, theta) -> float:
-        """b(theta1) of Eq. (6.37) [m]."""
-        return float(tangent_semi_axis(self.obstacle, np.zeros(2), float(theta[0]) + self.azimuth_offset))
 
     def evaluate(self, theta, t=0.0):
         theta = np.asarray(theta, float)

@@ -42,15 +42,19 @@ from scipy.sparse.csgraph import dijkstra
 from ..errors import KinredundError, TaskError
 from ..indices import TimeVaryingReference
 from ..resolved_rate import track
+from ..trajectory import wrap_joints
 from .branches import closest_on_path
-from .clearance import link_model, verify_motion
+from .clearance import PENETRATION_TOL, link_clearance, link_model, verify_motion
 from .obstacles import EllipticCylinder, Obstacle
 from .planner import PlanResult, Samples
-from .spline import JointSpline, unwrap_samples, wrap
+from .spline import JointSpline, unwrap_samples
 
 #: cost of a move along the self-motion within one time slice, against squared joint steps [rad^2]: the
 #: search advances in time wherever it can (the closest-point tracking follows slow self-motions only)
 SAME_SLICE_COST = 1.0
+#: the clearance margins [m] between which the roadmap's margin is bisected, and the bisection steps
+MARGIN_RANGE = (0.0, 0.3)
+MARGIN_BISECTIONS = 6
 #: the twists of Table 4.1 (deg)
 P15_ALPHA_DEG = (90.0, 180.0, -90.0, 90.0, 90.0, 90.0, -90.0)
 
@@ -135,22 +139,12 @@ def self_motion(arch: Architecture, p, theta1: np.ndarray) -> tuple[np.ndarray, 
 
 
 class _Bound:
-    """A cheap lower bound of an elliptic cylinder's signed distance: the largest of the three surfaces'
-    signed distances (exact inside; outside never more than the true distance)."""
+    """A cheap lower bound of an elliptic cylinder's signed distance
+    (:meth:`~kinredund.planning.obstacles.EllipticCylinder.surface_bound`: exact inside, outside never
+    more than the true distance), with the obstacle's segment search."""
 
     def __init__(self, obstacle: EllipticCylinder):
-        self.obstacle = obstacle
-
-    def signed_distance(self, points):
-        ob = self.obstacle
-        points = np.asarray(points, float)
-        dxy = ob.ellipse_distance(points)
-        dbot = ob.z_range[0] - points[..., 2]
-        if ob.top_normal is None:
-            dtop = points[..., 2] - ob.z_range[1]
-        else:
-            dtop = (points - np.array([ob.center[0], ob.center[1], ob.top_z])) @ ob.top_normal
-        return np.maximum(np.maximum(dxy, dtop), dbot)
+        self.signed_distance = obstacle.surface_bound
 
     def segment_distance(self, p0, p1, radius=0.0):
         return Obstacle.segment_distance(self, p0, p1, radius)
@@ -173,9 +167,13 @@ class Roadmap:
     nodes: int
 
 
-def roadmap_cycle(robot, path, obstacle, *, slices: int = 90, grid: int = 360, tool_tip: float | None = None,
-                  max_jump: float = 0.25, margins=(0.0, 0.3), bisections: int = 6) -> Roadmap:
+def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, grid: int = 360,
+                  max_jump: float = 0.25) -> Roadmap:
     """The cyclic collision-free motion with the largest clearance margin on the roadmap (module docstring).
+
+    The margin is bisected in :data:`MARGIN_RANGE` (:data:`MARGIN_BISECTIONS` steps); ``tool_tip`` [m] is
+    the last link's tip left out of its clearance, as in
+    :func:`~kinredund.planning.clearance.link_clearance`.
 
     Raises:
         TaskError: the arm is not of Table 4.1's architecture.
@@ -183,7 +181,6 @@ def roadmap_cycle(robot, path, obstacle, *, slices: int = 90, grid: int = 360, t
     """
     arch = check_architecture(robot)
     period = float(path.period)
-    tool_tip = arch.b5 / 6.0 if tool_tip is None else float(tool_tip)
     bound = _Bound(obstacle) if isinstance(obstacle, EllipticCylinder) else obstacle
     theta1 = np.linspace(-math.pi, math.pi, grid, endpoint=False)
     ts = np.arange(slices) * period / slices
@@ -191,14 +188,12 @@ def roadmap_cycle(robot, path, obstacle, *, slices: int = 90, grid: int = 360, t
     C = np.full((slices, 4, grid), -np.inf)
     for k, t in enumerate(ts):
         q, ok = self_motion(arch, path(t).p, theta1)
-        pts = origins(arch, q)
-        seg_end = pts[..., 4, :] - tool_tip * (pts[..., 4, :] - pts[..., 3, :]) / arch.b5
-        c = np.minimum.reduce([bound.segment_distance(pts[..., 1, :], pts[..., 2, :]),
-                               bound.segment_distance(pts[..., 2, :], pts[..., 3, :]),
-                               bound.segment_distance(pts[..., 3, :], seg_end)])
-        whole = bound.segment_distance(pts[..., 3, :], pts[..., 4, :])
+        pts = origins(arch, q).reshape(4 * grid, 5, 3)
+        seg = np.stack([pts[:, 1:4], pts[:, 2:5]], axis=2)  # links O2-O3, O3-O4, O4-P: (4 grid, 3, 2, 3)
+        c, pen, tip = link_clearance(bound, seg, tool_tip=tool_tip)
+        whole_out = (pen + tip <= PENETRATION_TOL).reshape(4, grid)  # no point of the last link inside, P included
         Q[k] = q
-        C[k] = np.where(ok & (whole > -1e-9), c, -np.inf)
+        C[k] = np.where(ok & whole_out, c.min(axis=1).reshape(4, grid), -np.inf)
     # candidate edges (same slice: index +-1, +-2 any branch; next slice: index -2..2 any branch)
     n_nodes = slices * 4 * grid + 4 * grid  # the last block is slice 0 again, one period later
 
@@ -216,13 +211,13 @@ def roadmap_cycle(robot, path, obstacle, *, slices: int = 90, grid: int = 360, t
                 Kn = K + step
                 qa = Q[K, B, I]
                 qb = Q[Kn % slices, bb, J]
-                close = np.abs(wrap(qb - qa, np.ones(4, bool))).max(-1) <= max_jump
+                close = np.abs(wrap_joints(qb - qa)).max(-1) <= max_jump
                 src.append(node(K, B, I)[close])
                 dst.append(node(Kn, bb, J)[close] if step else node(K, bb, J)[close])
                 kind.append(np.stack([K[close], B[close], I[close], (Kn % slices)[close], np.full(close.sum(), bb),
                                       J[close]], -1))
     src, dst, kind = np.concatenate(src), np.concatenate(dst), np.concatenate(kind)
-    dq = wrap(Q[kind[:, 3], kind[:, 4], kind[:, 5]] - Q[kind[:, 0], kind[:, 1], kind[:, 2]], np.ones(4, bool))
+    dq = wrap_joints(Q[kind[:, 3], kind[:, 4], kind[:, 5]] - Q[kind[:, 0], kind[:, 1], kind[:, 2]])
     same = src // (4 * grid) == dst // (4 * grid)
     weight = np.sum(dq**2, axis=1) + np.where(same, SAME_SLICE_COST, 1e-6)
     cl_src = C[kind[:, 0], kind[:, 1], kind[:, 2]]
@@ -245,7 +240,7 @@ def roadmap_cycle(robot, path, obstacle, *, slices: int = 90, grid: int = 360, t
                 best_seq, best_cost = seq[::-1], float(dist[goal])
         return best_seq, int(keep.sum())
 
-    lo, hi = margins
+    lo, hi = MARGIN_RANGE
     allow_same = False
     best, edges = cycle(lo, allow_same)
     if best is None:
@@ -255,7 +250,7 @@ def roadmap_cycle(robot, path, obstacle, *, slices: int = 90, grid: int = 360, t
         raise KinredundError(f"no cyclic collision-free motion on the roadmap ({slices} times x {grid} azimuths x 4 "
                              "branches): the arm cannot go round this obstacle without touching it")
     best_margin = lo
-    for _ in range(bisections):
+    for _ in range(MARGIN_BISECTIONS):
         mid = 0.5 * (lo + hi)
         seq, _ = cycle(mid, allow_same)
         if seq is None:
@@ -305,14 +300,14 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         if isinstance(err, TaskError):
             raise
         timings["roadmap_s"] = perf_counter() - t_start
-        return PlanResult(None, None, None, None, None, names, float("nan"), False, str(err), timings)
+        return PlanResult(None, None, None, None, names, float("nan"), False, str(err), timings)
     timings["roadmap_s"] = perf_counter() - t_start
     n_wrist = robot.nq - 4
     qs = []
     for t, q4 in zip(rm.t, rm.q, strict=True):  # put each configuration exactly on the path at its time
         ref = np.concatenate([q4, np.zeros(n_wrist)])
         res = closest_on_path(robot, path(t).p, ref)
-        qs.append(ref + wrap(res.q - ref, robot.revolute) if res.converged else ref)
+        qs.append(ref + wrap_joints(res.q - ref, robot.revolute) if res.converged else ref)
     q_u, turns = unwrap_samples(np.array(qs), robot.revolute)
     ps = np.array([path(t).p for t in rm.t])
     smp = Samples(rm.t, ps, q_u, turns, (0,) * len(rm.t), np.full(len(rm.t), np.nan),
@@ -330,7 +325,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
                      loops=1, progress=progress, meta=info)
     except KinredundError as err:
         timings["tracking_s"] = perf_counter() - t1
-        return PlanResult(None, smp, None, None, None, names, float("nan"), False, f"the tracking failed: {err}",
+        return PlanResult(None, smp, None, None, names, float("nan"), False, f"the tracking failed: {err}",
                           timings)
     timings["tracking_s"] = perf_counter() - t1
     q_spline = spl.values(traj.t)
@@ -348,5 +343,5 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
     notes = (f"branch chosen on a roadmap of the self-motion manifold ({slices} times x {grid} azimuths x 4 "
              f"branches), clearance margin >= {rm.margin:.3g} m at its nodes",)
-    return PlanResult(traj, smp, q_spline, rep.minimum, rep, names, float(np.abs(traj.q - q_spline).max()),
+    return PlanResult(traj, smp, q_spline, rep, names, float(np.abs(traj.q - q_spline).max()),
                       not reason, reason, timings, notes)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .spline import wrap
+from ..trajectory import wrap_joints
 
 #: corrector tolerance on the task residual [m]
 CORRECTOR_TOL = 1e-11
@@ -101,7 +101,7 @@ def trace(robot, target, q0, direction: int, goal=None, *, step: float = 0.05, m
     h = step
     while length < max_length:
         if goal is not None:
-            d = wrap(goal - q, robot.revolute)
+            d = wrap_joints(goal - q, robot.revolute)
             if np.abs(d).max() <= step:
                 pts.append(q + d)
                 return Route(np.array(pts), length + float(np.linalg.norm(d)), True)
@@ -118,7 +118,7 @@ def trace(robot, target, q0, direction: int, goal=None, *, step: float = 0.05, m
         q, v = qn, vn
         pts.append(q.copy())
         h = min(step, 2 * h)
-        if len(pts) > 8 and np.abs(wrap(q - pts[0], robot.revolute)).max() < 0.5 * step:
+        if len(pts) > 8 and np.abs(wrap_joints(q - pts[0], robot.revolute)).max() < 0.5 * step:
             break  # back at the start: a closed curve without the goal on it
     return Route(np.array(pts), length, False)
 

@@ -20,14 +20,9 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ..errors import check_choice
+from ..trajectory import wrap_joints
 
 SPLINE_KINDS = ("periodic", "natural")
-
-
-def wrap(d: np.ndarray, revolute: np.ndarray) -> np.ndarray:
-    """Joint differences with revolute entries wrapped into [-pi, pi)."""
-    d = np.asarray(d, float)
-    return np.where(revolute, (d + np.pi) % (2 * np.pi) - np.pi, d)
 
 
 def unwrap_samples(q: np.ndarray, revolute: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -40,8 +35,8 @@ def unwrap_samples(q: np.ndarray, revolute: np.ndarray) -> tuple[np.ndarray, np.
     q = np.asarray(q, float)
     out = q.copy()
     for k in range(1, len(q)):
-        out[k] = out[k - 1] + wrap(q[k] - out[k - 1], revolute)
-    close = out[-1] + wrap(q[0] - out[-1], revolute)
+        out[k] = out[k - 1] + wrap_joints(q[k] - out[k - 1], revolute)
+    close = out[-1] + wrap_joints(q[0] - out[-1], revolute)
     return out, close - out[0]
 
 
