@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from .generate import atomic_write_text
+from .trajectory import json_ready
 
 
 def _fmt(v) -> str:
@@ -79,7 +80,7 @@ def _chapter3(out: Path, rows: list, data: dict, log) -> None:
 
 
 def _chapter6(out: Path, rows: list, data: dict, log) -> None:
-    from .examples.chapter6 import reproduce
+    from .examples.chapter6 import case_robot, reproduce
     from .viz import replay_html
 
     for case in ("6.2", "6.3"):
@@ -95,12 +96,7 @@ def _chapter6(out: Path, rows: list, data: dict, log) -> None:
         rows.append([f"Section {case}", "planner", _fmt(s.get("position_error_max")), "-", "-",
                      _fmt(s.get("normality_residual_max")), _fmt(s.get("loop_drift")), note])
         if res.trajectory is not None:
-            robot = None
-            if case == "6.3":
-                from .planning.spatial import scaled_p15
-
-                robot = scaled_p15()  # the scaled arm is built from its HD table, not loaded by name
-            replay_html(res.trajectory, out / f"section_{tag}.html", robot=robot)
+            replay_html(res.trajectory, out / f"section_{tag}.html", robot=case_robot(case))
         log(f"Section {case}: done in {time.perf_counter() - t0:.1f} s")
 
 
@@ -131,8 +127,8 @@ def run_demo(out: Path, quick: bool = False, stream=None) -> int:
     log("")
     log(table)
     atomic_write_text(out / "summary.md", "# kinredund demo: our figures next to the thesis's\n\n" + table + "\n")
-    atomic_write_text(out / "summary.json", json.dumps({"rows": rows, "figures": data, "failures": failures},
-                                                       default=lambda o: None))
+    summary = json_ready({"rows": rows, "figures": data, "failures": failures})  # NaN -> null
+    atomic_write_text(out / "summary.json", json.dumps(summary, allow_nan=False))
     log(f"\nwrote {len(list(out.iterdir()))} files into {out}/")
     if failures:
         log("FAILED: " + "; ".join(failures))

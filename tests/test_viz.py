@@ -30,10 +30,21 @@ import pytest
 from conftest import robot
 
 from kinredund import ChoiceError, JointVectorError, PathError, TaskError
+from kinredund.planning.obstacles import OBSTACLE_KINDS, obstacle_from_dict
 from kinredund.trajectory import Trajectory
-from kinredund.viz import OBSTACLE_KINDS, parse_obstacle, play_live, replay_html, resample, stop_live
+from kinredund.viz import play_live, replay_html, resample, stop_live
 from kinredund.viz.live import live_visualizer
-from kinredund.viz.scene import CAMERA_FOV_DEG, camera_view, check_trajectory, to_camera_axes
+from kinredund.viz.scene import (
+    CAMERA_FOV_DEG,
+    camera_view,
+    check_trajectory,
+    obstacle_corner_points,
+    obstacle_frame,
+    obstacle_outline,
+    read_obstacle,
+    to_camera_axes,
+    unit_cylinder_transform,
+)
 
 PLANAR_OBSTACLE = {"kind": "ellipse", "center": [3.0, 3.0, 0.0], "a": 0.8, "b": 0.4, "angle": math.radians(20)}
 ORANGE = np.array([0.9, 0.55, 0.1])  # the shipped robots' link colour
@@ -138,33 +149,70 @@ def test_check_trajectory_names_the_problem():
 @pytest.mark.parametrize("kind", OBSTACLE_KINDS)
 def test_obstacle_transform_maps_the_unit_cylinder_onto_the_ellipse(kind):
     rng = np.random.default_rng(3)
-    axis = rng.normal(size=3)
-    spec = {"kind": kind, "center": [0.4, -0.2, 0.3], "a": 0.5, "b": 0.2, "angle": 0.7,
-            "axis": axis.tolist(), "height": 0.6}
-    obs = parse_obstacle(spec)
-    T = obs.unit_cylinder_transform()
+    angle = 0.7
+    spec = {"kind": kind, "center": [0.4, -0.2, 0.3], "a": 0.5, "b": 0.2, "angle": angle,
+            "axis": [0.0, 0.0, 1.0], "height": 0.6}
+    obs = obstacle_from_dict(spec)  # what build_scene reads from traj.meta["obstacle"]
+    T = unit_cylinder_transform(obs)
     assert np.linalg.det(T[:3, :3]) > 0  # no reflection: meshcat decomposes it into rotation and scale
     s = rng.uniform(0, 2 * np.pi, 50)
     h = rng.uniform(-0.5, 0.5, 50)
     local = np.column_stack([np.cos(s), h, np.sin(s), np.ones(50)])  # rim of meshcat's y-axis cylinder
     world = (T @ local.T).T[:, :3] - obs.center
-    R = obs.frame()
+    R = obstacle_frame(obs)
     u, v, w = (world @ R).T
     np.testing.assert_allclose((u / 0.5) ** 2 + (v / 0.2) ** 2, 1.0, atol=1e-12)  # on the ellipse
     np.testing.assert_allclose(w, 0.6 * h, atol=1e-12)  # along the axis, over the height
-    np.testing.assert_allclose(R[:, 2], axis / np.linalg.norm(axis), atol=1e-12)
+    np.testing.assert_allclose(R[:, 0], [math.cos(angle), math.sin(angle), 0.0], atol=1e-12)  # major axis at psi
+    np.testing.assert_allclose(R[:, 2], [0.0, 0.0, 1.0], atol=1e-12)
     np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+    # the rim, checked with the planner's exact distance instead of the frame: it is the obstacle's ellipse
+    np.testing.assert_allclose(obs.ellipse_distance(world + obs.center), 0.0, atol=1e-12)
+    np.testing.assert_allclose(obs.ellipse_distance(obstacle_outline(obs)), 0.0, atol=1e-12)
+    corners = obstacle_corner_points(obs)
+    np.testing.assert_allclose(np.sort(np.unique(np.round(corners[:, 2], 12))), [0.0, 0.6], atol=1e-12)
 
 
 def test_obstacle_errors_name_the_key():
+    def read(obstacle):
+        return read_obstacle(synthetic(steps=3, obstacle=obstacle))
+
+    assert read(None) is None
     with pytest.raises(ChoiceError, match="ellipse, elliptic_cylinder"):
-        parse_obstacle({"kind": "box", "center": [0, 0, 0], "a": 1, "b": 1})
-    with pytest.raises(TaskError, match="'b'"):
-        parse_obstacle({"kind": "ellipse", "center": [0, 0, 0], "a": 1})
-    with pytest.raises(TaskError, match="'a' must be a finite number > 0"):
-        parse_obstacle({"kind": "ellipse", "center": [0, 0, 0], "a": -1, "b": 1})
-    with pytest.raises(TaskError, match="'center'"):
-        parse_obstacle({"kind": "ellipse", "center": [0, 0], "a": 1, "b": 1})
+        read({"kind": "box", "center": [0, 0, 0], "a": 1, "b": 1})
+    with pytest.raises(TaskError, match=r"misses b;"):
+        read({"kind": "ellipse", "center": [0, 0, 0], "a": 1})
+    with pytest.raises(TaskError, match="semi-axis a must be a finite number > 0"):
+        read({"kind": "ellipse", "center": [0, 0, 0], "a": -1, "b": 1})
+    with pytest.raises(TaskError, match="center must be 2 or 3 finite numbers"):
+        read({"kind": "ellipse", "center": [0, 0, 0, 0], "a": 1, "b": 1})
+    with pytest.raises(TaskError, match="axis along \\+Z"):
+        read({"kind": "ellipse", "center": [0, 0, 0], "a": 1, "b": 1, "axis": [1, 0, 0]})
+    with pytest.raises(TaskError, match="height must be a finite number > 0"):
+        read({"kind": "elliptic_cylinder", "center": [0, 0, 0], "a": 1, "b": 1, "height": 0})
+    with pytest.raises(TaskError, match="center .* must be numeric, got 'abc'"):
+        read({"kind": "ellipse", "center": "abc", "a": 1, "b": 1})
+    with pytest.raises(TaskError, match="axis must be numeric"):
+        read({"kind": "ellipse", "center": [0, 0, 0], "a": 1, "b": 1, "axis": "up"})
+    with pytest.raises(TaskError, match="top_plane must be a dict with normal and point"):
+        read({"kind": "elliptic_cylinder", "center": [0, 0, 0], "a": 1, "b": 1, "top_plane": {}})
+
+
+def meshcat_camera_rotation() -> np.ndarray:
+    """The rotation meshcat's viewer gives ``/Cameras/default/rotated``, read from its JavaScript bundle."""
+    import meshcat
+
+    bundle = Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
+    found = re.search(r"create_camera\(\)\{[^}]*?makeRotation([XYZ])\((-?)Math\.PI(?:/(\d+))?\)", bundle.read_text())
+    assert found, "meshcat's create_camera no longer sets the rotated frame by makeRotation{X,Y,Z}(Math.PI/k)"
+    axis, sign, div = found.groups()
+    angle = (-1.0 if sign else 1.0) * math.pi / float(div or 1)
+    c, s = math.cos(angle), math.sin(angle)
+    k = "XYZ".index(axis)
+    R = np.eye(3)
+    i, j = [m for m in range(3) if m != k]
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
 
 
 @pytest.mark.parametrize("planar", [True, False])
@@ -178,9 +226,11 @@ def test_camera_sees_every_scene_point(planar):
     rays = pts - cam
     angles = np.arccos(np.clip(rays @ look / np.linalg.norm(rays, axis=1), -1, 1))
     assert angles.max() < half_fov
-    # meshcat's rotated camera frame is world rotated by +90 deg about x: y_cam = z, z_cam = -y
-    a, b, c = to_camera_axes(offset)
-    np.testing.assert_allclose([a, -c, b], offset)
+    # the camera's local position, through meshcat's own rotated frame, is the world offset; and the
+    # camera's up axis (its y) is the world's up (z), so the robot stands upright on the screen
+    R = meshcat_camera_rotation()
+    np.testing.assert_allclose(R @ to_camera_axes(offset), offset, atol=1e-12)
+    np.testing.assert_allclose(R[:, 1], [0.0, 0.0, 1.0], atol=1e-12)
 
 
 def test_import_viz_does_not_import_meshcat():
@@ -365,10 +415,16 @@ needs_chromium = pytest.mark.skipif(
 )
 
 
+CAMERA_PROBE = """({camera: viewer.camera.matrixWorld.elements,
+  scene: viewer.scene_tree.find(["meshcat"]).object.matrixWorld.elements,
+  target: viewer.controls.target.toArray()})"""
+
+
 def two_frames(url: str, profile: Path, gap: float = 1.0):
     """Open ``url`` in headless Chromium (800x600) once meshcat has its animation; take two
     screenshots ``gap`` seconds apart (real time: --virtual-time-budget does not advance meshcat's
-    clock). Returns (first, second, clock_first, clock_second): RGB arrays and animation times [s].
+    clock). Returns (first, second, clock_first, clock_second, camera): RGB arrays, animation times
+    [s], and the browser's camera in the robot's frame (see :func:`camera_in_robot_frame`).
     """
     from io import BytesIO
 
@@ -399,9 +455,19 @@ def two_frames(url: str, profile: Path, gap: float = 1.0):
         first, clock_first = screenshot(), evaluate("viewer.animator.time")
         time.sleep(gap)
         second, clock_second = screenshot(), evaluate("viewer.animator.time")
+        camera = camera_in_robot_frame(evaluate(CAMERA_PROBE))
     finally:
         browser.close()
-    return first, second, clock_first, clock_second
+    return first, second, clock_first, clock_second, camera
+
+
+def camera_in_robot_frame(probe: dict) -> dict:
+    """The three.js camera of :data:`CAMERA_PROBE` in the frame of the ``/meshcat`` node (the robot's
+    world, z up): its position, the orbit target, its up axis (camera y) and view direction (camera -z)."""
+    to_robot = np.linalg.inv(np.array(probe["scene"], dtype=float).reshape(4, 4).T)  # three.js: column-major
+    cam = to_robot @ np.array(probe["camera"], dtype=float).reshape(4, 4).T
+    target = to_robot @ np.append(np.array(probe["target"], dtype=float), 1.0)
+    return {"position": cam[:3, 3], "target": target[:3], "up": cam[:3, 1], "view": -cam[:3, 2]}
 
 
 def assert_robot_plays(first: np.ndarray, second: np.ndarray, clock_first: float, clock_second: float):
@@ -426,11 +492,21 @@ def test_replay_plays_in_headless_chromium(tmp_path):
     traj = synthetic(duration=4.0, steps=121, obstacle=PLANAR_OBSTACLE)
     page = replay_html(traj, tmp_path / "replay.html", robot=robot("planar3r"))
     before = children()
-    first, second, c1, c2 = two_frames(page.as_uri(), Path(tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)))
+    first, second, c1, c2, camera = two_frames(page.as_uri(),
+                                               Path(tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)))
     assert children() == before  # the browser is gone
     Image.fromarray(first).save(tmp_path / "frame_a.png")  # kept for a look (pytest's tmp_path)
     Image.fromarray(second).save(tmp_path / "frame_b.png")
     assert_robot_plays(first, second, c1, c2)
+    # the browser's camera, in the robot's z-up frame, sits where camera_view put it (planar task: the
+    # direction of its offset does not depend on the points), looks at the orbit target, and has the
+    # robot's up (+z) pointing up on the screen with no roll
+    _, offset = camera_view(np.zeros((2, 3)), planar=True)
+    seen = camera["position"] - camera["target"]
+    np.testing.assert_allclose(seen / np.linalg.norm(seen), offset / np.linalg.norm(offset), atol=1e-5)
+    np.testing.assert_allclose(camera["view"], -seen / np.linalg.norm(seen), atol=1e-5)
+    assert camera["up"][2] > 0.5
+    assert abs(np.linalg.det(np.column_stack([camera["up"], [0.0, 0.0, 1.0], camera["view"]]))) < 1e-5
 
 
 @pytest.mark.browser
@@ -440,7 +516,7 @@ def test_live_viewer_plays_in_headless_chromium(tmp_path):
     before = children()
     url = play_live(traj, robot=robot("planar3r"), loop=True)
     try:
-        frames = two_frames(url, Path(tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)))
+        *frames, _ = two_frames(url, Path(tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)))
     finally:
         stop_live(url)
     assert children() == before  # browser and server are gone

@@ -5,17 +5,17 @@ the functions, so ``import kinredund.viz`` costs nothing and works without meshc
 
 - :func:`replay_html`: a single HTML file that plays a trajectory offline (double-click it).
 - :func:`play_live`, :func:`stop_live`: a local meshcat server on 127.0.0.1 playing a trajectory.
+
+An obstacle in ``traj.meta["obstacle"]`` is read with
+:func:`kinredund.planning.obstacles.obstacle_from_dict` (the form ``Obstacle.to_dict`` writes).
 """
 
 from .live import live_visualizer, play_live, stop_live
 from .replay import replay_html
-from .scene import OBSTACLE_KINDS, Obstacle, parse_obstacle, resample
+from .scene import resample
 
 __all__ = [
-    "OBSTACLE_KINDS",
-    "Obstacle",
     "live_visualizer",
-    "parse_obstacle",
     "play_live",
     "replay_html",
     "resample",

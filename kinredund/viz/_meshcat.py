@@ -17,9 +17,21 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import KinredundError, SolverError, URDFError
+from ..models import hd_to_urdf, load_urdf_model, load_urdf_text_model
 from ..robot import Robot
 from ..trajectory import Trajectory
-from .scene import Frames, camera_view, check_trajectory, parse_obstacle, resample, to_camera_axes
+from .scene import (
+    MAX_FRAMES,
+    Frames,
+    camera_view,
+    check_trajectory,
+    obstacle_corner_points,
+    obstacle_outline,
+    read_obstacle,
+    resample,
+    to_camera_axes,
+    unit_cylinder_transform,
+)
 
 ROBOT_NODE = "robot"
 PATH_COLOR = 0x1F4FE0
@@ -89,6 +101,10 @@ class RobotVisuals:
     The visuals are parsed from ``robot.urdf_path`` (meshes through ``robot.package_dirs``) into a
     model of their own: for the Panda that model keeps the finger joints that ``load_robot`` drops,
     so joint values are copied across by joint name (the fingers stay at their neutral value).
+    Robots without a URDF file are drawn from the URDF of their HD table.
+
+    Raises:
+        URDFError: the URDF (or its visuals) cannot be parsed, or it lacks one of the robot's joints.
     """
 
     def __init__(self, robot: Robot, vis, mc: SimpleNamespace):
@@ -96,26 +112,28 @@ class RobotVisuals:
 
         self.vis = vis
         urdf_path = robot.urdf_path
+        if urdf_path is not None:
+            source = str(urdf_path)
+            model, _ = load_urdf_model(urdf_path)
+        elif robot.hd is not None:
+            source = f"{robot.name} (URDF of its HD table)"
+            text = hd_to_urdf(robot.hd)
+            model = load_urdf_text_model(text)
+        else:
+            raise URDFError(robot.name, "the robot has neither a URDF file nor an HD table to draw")
         try:
             if urdf_path is not None:
-                model = pin.buildModelFromUrdf(str(urdf_path))
                 visual = pin.buildGeomFromUrdf(
-                    model, str(urdf_path), pin.GeometryType.VISUAL, package_dirs=list(robot.package_dirs)
+                    model, source, pin.GeometryType.VISUAL, package_dirs=list(robot.package_dirs)
                 )
-            elif robot.hd is not None:
-                from ..models import hd_to_urdf
-
-                text = hd_to_urdf(robot.hd)
-                model = pin.buildModelFromXML(text)
-                visual = pin.buildGeomFromUrdfString(model, text, pin.GeometryType.VISUAL)
             else:
-                raise URDFError(robot.name, "the robot has neither a URDF file nor an HD table to draw")
+                visual = pin.buildGeomFromUrdfString(model, text, pin.GeometryType.VISUAL)
         except ValueError as err:
-            raise URDFError(str(urdf_path), f"cannot read its visuals: {err}") from err
+            raise URDFError(source, f"cannot read its visuals: {err}") from err
         self.index = []
         for name in robot.joint_names:
             if not model.existJointName(name):
-                raise URDFError(str(urdf_path), f"the visual model has no joint {name!r}")
+                raise URDFError(source, f"the visual model has no joint {name!r}")
             self.index.append(model.joints[model.getJointId(name)].idx_q)
         self.index = np.array(self.index, dtype=int)
         self.neutral = pin.neutral(model)
@@ -150,7 +168,7 @@ def _scene_points(traj: Trajectory, robot: Robot, frames: Frames, obstacle) -> n
     joints = [robot.kinematics.joint_origins(q) for q in frames.q[::step]]
     pts = [np.vstack(joints), np.asarray(traj.p_desired, dtype=float), frames.p, np.zeros((1, 3))]
     if obstacle is not None:
-        pts.append(obstacle.corner_points())
+        pts.append(obstacle_corner_points(obstacle))
     return np.vstack(pts)
 
 
@@ -161,23 +179,23 @@ def build_scene(
     *,
     fps: float = 30.0,
     show_path: bool = True,
-    max_frames: int = 900,
+    max_frames: int = MAX_FRAMES,
     realtime: bool = True,
 ):
-    """Draw the robot, path, obstacle and camera on ``vis``; return the animation and frame count.
+    """Draw the robot, path, obstacle and camera on ``vis``; return the animation.
 
     Raises:
         JointVectorError, PathError: the trajectory does not fit the robot.
-        TaskError, ChoiceError: a malformed obstacle in ``traj.meta``.
+        TaskError, ChoiceError: a malformed obstacle in ``traj.meta`` (read by ``obstacle_from_dict``).
+        URDFError: the robot's visuals cannot be read.
     """
     mc = import_meshcat()
     check_trajectory(traj, robot.nq)
     frames = resample(traj, fps, max_frames, realtime)
-    # scene size, for the defaults of the obstacle, the tracer and the camera
+    # scene size, for the tracer's radius
     rough = np.vstack([robot.kinematics.joint_origins(frames.q[0]), np.asarray(traj.p_desired, dtype=float)])
     size = max(float(np.ptp(rough, axis=0).max()), 0.1)
-    raw = traj.meta.get("obstacle") if isinstance(traj.meta, dict) else None
-    obstacle = None if raw is None else parse_obstacle(raw, scale=size)
+    obstacle = read_obstacle(traj)
 
     robot_visuals = RobotVisuals(robot, vis, mc)
     robot_visuals.display(frames.q[0])
@@ -192,8 +210,8 @@ def build_scene(
             mc.geometry.Cylinder(1.0, 1.0),
             mc.geometry.MeshLambertMaterial(color=OBSTACLE_COLOR, opacity=0.55, transparent=True),
         )
-        node.set_transform(obstacle.unit_cylinder_transform())
-        vis["obstacle_outline"].set_object(_line(mc, obstacle.outline(), OBSTACLE_COLOR))
+        node.set_transform(unit_cylinder_transform(obstacle))
+        vis["obstacle_outline"].set_object(_line(mc, obstacle_outline(obstacle), OBSTACLE_COLOR))
 
     center, offset = camera_view(_scene_points(traj, robot, frames, obstacle), planar=robot.task == "planar")
     # meshcat 0.3.2's orbit controls always look at the world origin (whatever the transform of
@@ -214,9 +232,9 @@ def build_scene(
         with anim.at_frame(vis, key) as frame:
             robot_visuals.display(q, viewer=frame)
             frame["path/tracer"].set_transform(mc.tf.translation_matrix(p))
-    return anim, len(frames.times)
+    return anim
 
 
-def set_animation(vis, anim, loop: bool, play: bool = True) -> None:
-    """Send the animation; ``loop`` repeats it forever, else it plays once and stops on its last frame."""
-    vis.set_animation(anim, play=play, repetitions=math.inf if loop else 1)
+def set_animation(vis, anim, loop: bool) -> None:
+    """Send the animation, playing; ``loop`` repeats it forever, else it plays once and stops on its last frame."""
+    vis.set_animation(anim, play=True, repetitions=math.inf if loop else 1)

@@ -56,9 +56,7 @@ def play_live(
         robot = load_robot(traj.robot)
     vis = start_visualizer()
     try:
-        anim, _ = build_scene(
-            vis, traj, robot, fps=fps, show_path=show_path, max_frames=max_frames, realtime=realtime
-        )
+        anim = build_scene(vis, traj, robot, fps=fps, show_path=show_path, max_frames=max_frames, realtime=realtime)
         set_animation(vis, anim, loop=loop)
     except BaseException:
         stop_visualizer(vis)

@@ -56,7 +56,7 @@ def replay_html(
         robot = load_robot(traj.robot)
     vis = start_visualizer()
     try:
-        anim, _ = build_scene(vis, traj, robot, fps=fps, show_path=show_path, max_frames=max_frames)
+        anim = build_scene(vis, traj, robot, fps=fps, show_path=show_path, max_frames=max_frames)
         set_animation(vis, anim, loop=loop)
         html = vis.static_html()
     finally:

@@ -1,7 +1,9 @@
 """What a playback shows, in plain numpy: frames, obstacle shape and camera (no meshcat here).
 
 The meshcat side (:mod:`kinredund.viz._meshcat`) turns these numbers into scene commands. Keeping
-them apart lets the tests check the geometry without a viewer.
+them apart lets the tests check the geometry without a viewer. Obstacles are the planner's own
+(:mod:`kinredund.planning.obstacles`, read from ``traj.meta["obstacle"]`` by ``obstacle_from_dict``);
+only their drawing geometry lives here.
 """
 
 from __future__ import annotations
@@ -11,12 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import JointVectorError, PathError, TaskError, check_choice
+from ..errors import JointVectorError, PathError, TaskError, check_array
+from ..planning.obstacles import EllipseObstacle, EllipticCylinder, Obstacle, obstacle_from_dict
 from ..trajectory import Trajectory
 
-#: Obstacle kinds that ``traj.meta["obstacle"]`` may name.
-OBSTACLE_KINDS = ("ellipse", "elliptic_cylinder")
-OBSTACLE_KEYS = "kind, center, a, b, angle (default 0), axis (default [0, 0, 1]), height"
 #: Vertical field of view of meshcat's default camera [deg].
 CAMERA_FOV_DEG = 75.0
 #: The default cap on the number of animation frames of one playback.
@@ -38,117 +38,59 @@ class Frames:
     p: np.ndarray
 
 
-@dataclass(frozen=True)
-class Obstacle:
-    """An elliptic obstacle: a flat ellipse (planar tasks) or an elliptic cylinder.
-
-    Attributes:
-        kind: ``ellipse`` or ``elliptic_cylinder``.
-        center: centre [m], shape (3,).
-        a, b: semi-axes [m] (a along the major axis).
-        angle: angle of the major axis about ``axis`` from the x axis [rad].
-        axis: unit vector of the cylinder's axis (the ellipse's normal).
-        height: the cylinder's height [m] (for an ellipse, the drawn thickness).
-    """
-
-    kind: str
-    center: np.ndarray
-    a: float
-    b: float
-    angle: float
-    axis: np.ndarray
-    height: float
-
-    def frame(self) -> np.ndarray:
-        """Rotation whose columns are the major axis, the minor axis and the cylinder axis."""
-        e3 = self.axis
-        major = np.array([math.cos(self.angle), math.sin(self.angle), 0.0])
-        major = major - e3 * float(major @ e3)
-        if np.linalg.norm(major) < 1e-9:  # axis along x/y: measure the angle from the z axis instead
-            major = np.array([0.0, 0.0, 1.0]) - e3 * e3[2]
-        e1 = major / np.linalg.norm(major)
-        return np.column_stack([e1, np.cross(e3, e1), e3])
-
-    def unit_cylinder_transform(self) -> np.ndarray:
-        """The 4x4 transform that maps meshcat's unit cylinder (radius 1, height 1, axis y) onto the obstacle.
-
-        The matrix is ``R Q diag(a, height, b)``: the scale acts in the cylinder's own axes and Q (a
-        proper rotation) sends its y axis to the obstacle's axis, so the matrix decomposes cleanly.
-        """
-        Q = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # x->major, y->axis, z->-minor
-        T = np.eye(4)
-        T[:3, :3] = self.frame() @ Q @ np.diag([self.a, self.height, self.b])
-        T[:3, 3] = self.center
-        return T
-
-    def outline(self, count: int = 64) -> np.ndarray:
-        """Points on the ellipse through the centre, shape (count, 3) [m]."""
-        s = np.linspace(0.0, 2.0 * np.pi, count)
-        R = self.frame()
-        return self.center + np.outer(self.a * np.cos(s), R[:, 0]) + np.outer(self.b * np.sin(s), R[:, 1])
-
-    def corner_points(self) -> np.ndarray:
-        """Points that bound the drawn obstacle (outline at both ends of the cylinder) [m]."""
-        ring = self.outline(32)
-        half = 0.5 * self.height * self.axis
-        return np.vstack([ring + half, ring - half])
-
-
-def _number(obstacle: dict, key: str, default=None, positive: bool = False) -> float:
-    if key not in obstacle:
-        if default is None:
-            raise TaskError(f"obstacle needs the key {key!r}; its keys are {OBSTACLE_KEYS}")
-        return float(default)
-    try:
-        value = float(obstacle[key])
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"obstacle {key!r} must be a number, got {obstacle[key]!r}") from err
-    if not math.isfinite(value) or (positive and value <= 0.0):
-        need = "a finite number > 0" if positive else "a finite number"
-        raise TaskError(f"obstacle {key!r} must be {need}, got {value!r}")
-    return value
-
-
-def _vector(obstacle: dict, key: str, default) -> np.ndarray:
-    raw = obstacle.get(key, default)
-    try:
-        v = np.asarray(raw, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"obstacle {key!r} must be 3 numbers [x, y, z], got {raw!r}") from err
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise TaskError(f"obstacle {key!r} must be 3 finite numbers [x, y, z], got {raw!r}")
-    return v
-
-
-def parse_obstacle(obstacle: dict, scale: float = 1.0) -> Obstacle:
-    """Validate ``traj.meta["obstacle"]`` and return an :class:`Obstacle`.
-
-    Args:
-        obstacle: ``{"kind": "ellipse"|"elliptic_cylinder", "center": [x, y, z], "a": .., "b": ..,
-            "angle": rad, "axis": [0, 0, 1], "height": m}``; ``angle`` defaults to 0, ``axis`` to
-            z, ``height`` to ``scale`` for a cylinder and to 2 % of ``scale`` for an ellipse.
-        scale: a length of the scene [m], for the defaults.
+def read_obstacle(traj: Trajectory) -> Obstacle | None:
+    """The obstacle of ``traj.meta["obstacle"]`` (as ``Obstacle.to_dict`` writes it), or None.
 
     Raises:
-        TaskError: a key is missing or holds a bad value (the message names it).
-        ChoiceError: an unknown ``kind`` (lists the known ones).
+        ChoiceError: an unknown kind; TaskError: a missing or bad value (``obstacle_from_dict``).
     """
-    if not isinstance(obstacle, dict):
-        raise TaskError(f"the obstacle must be a dict with kind, center, a, b, got {type(obstacle).__name__}")
-    kind = check_choice("obstacle kind", obstacle.get("kind"), OBSTACLE_KINDS)
-    if "center" not in obstacle:
-        raise TaskError(f"obstacle needs the key 'center'; its keys are {OBSTACLE_KEYS}")
-    center = _vector(obstacle, "center", None)
-    a = _number(obstacle, "a", positive=True)
-    b = _number(obstacle, "b", positive=True)
-    angle = _number(obstacle, "angle", 0.0)
-    axis = _vector(obstacle, "axis", [0.0, 0.0, 1.0])
-    norm = float(np.linalg.norm(axis))
-    if norm < 1e-12:
-        raise TaskError("obstacle 'axis' must be a non-zero vector")
-    default_height = scale if kind == "elliptic_cylinder" else 0.02 * scale
-    height = _number(obstacle, "height", default_height, positive=True)
-    return Obstacle(kind, center, a, b, angle, axis / norm, height)
+    raw = traj.meta.get("obstacle") if isinstance(traj.meta, dict) else None
+    return None if raw is None else obstacle_from_dict(raw)
+
+
+def obstacle_height(obstacle: Obstacle) -> float:
+    """The drawn height [m]: :attr:`EllipticCylinder.height`, or :attr:`EllipseObstacle.thickness`.
+
+    Raises:
+        TaskError: an obstacle of another type (the message lists the drawable ones).
+    """
+    if isinstance(obstacle, EllipticCylinder):
+        return float(obstacle.height)
+    if isinstance(obstacle, EllipseObstacle):
+        return float(obstacle.thickness)
+    raise TaskError(f"playback draws EllipseObstacle and EllipticCylinder, got {type(obstacle).__name__}")
+
+
+def obstacle_frame(obstacle: Obstacle) -> np.ndarray:
+    """Rotation whose columns are the major axis, the minor axis (Eqs. 6.4-6.5) and the cylinder axis +Z."""
+    e1, e2 = obstacle.axes()
+    return np.array([[e1[0], e2[0], 0.0], [e1[1], e2[1], 0.0], [0.0, 0.0, 1.0]])
+
+
+def unit_cylinder_transform(obstacle: Obstacle) -> np.ndarray:
+    """The 4x4 transform that maps meshcat's unit cylinder (radius 1, height 1, axis y) onto ``obstacle``.
+
+    The matrix is ``R Q diag(a, height, b)``: the scale acts in the cylinder's own axes and Q (a
+    proper rotation) sends its y axis to the obstacle's axis, so the matrix decomposes cleanly.
+    """
+    Q = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # x->major, y->axis, z->-minor
+    T = np.eye(4)
+    T[:3, :3] = obstacle_frame(obstacle) @ Q @ np.diag([obstacle.a, obstacle_height(obstacle), obstacle.b])
+    T[:3, 3] = obstacle.center
+    return T
+
+
+def obstacle_outline(obstacle: Obstacle, count: int = 64) -> np.ndarray:
+    """Points on the ellipse (Eq. 6.19's boundary) at the height of the centre, shape (count, 3) [m]."""
+    xy, _ = obstacle.boundary(np.linspace(0.0, 2.0 * np.pi, count))
+    return np.column_stack([xy, np.full(count, obstacle.center[2])])
+
+
+def obstacle_corner_points(obstacle: Obstacle) -> np.ndarray:
+    """Points that bound the drawn obstacle (its outline at both ends of the cylinder) [m]."""
+    ring = obstacle_outline(obstacle, 32)
+    half = np.array([0.0, 0.0, 0.5 * obstacle_height(obstacle)])
+    return np.vstack([ring + half, ring - half])
 
 
 def check_trajectory(traj: Trajectory, nq: int) -> None:
@@ -158,27 +100,18 @@ def check_trajectory(traj: Trajectory, nq: int) -> None:
         PathError: bad times or positions.
         JointVectorError: q of the wrong shape or with non-finite entries.
     """
-    t = np.asarray(traj.t, dtype=float)
-    if t.ndim != 1 or len(t) == 0 or not np.all(np.isfinite(t)):
-        raise PathError(f"trajectory times must be a non-empty finite 1-D array, got shape {t.shape}")
+    t = check_array(traj.t, (None,), "trajectory times", PathError)
+    if len(t) == 0:
+        raise PathError("trajectory times must be a non-empty finite 1-D array, got none")
     if len(t) > 1 and np.any(np.diff(t) <= 0.0):
         k = int(np.argmax(np.diff(t) <= 0.0))
         raise PathError(
             f"trajectory times must increase strictly; t[{k + 1}] = {t[k + 1]} <= t[{k}] = {t[k]}",
             t=float(t[k + 1]),
         )
-    q = np.asarray(traj.q, dtype=float)
-    if q.shape != (len(t), nq):
-        raise JointVectorError(
-            f"trajectory q must have shape ({len(t)}, {nq}) for robot {traj.robot!r} (one row per time), "
-            f"got {q.shape}"
-        )
-    if not np.all(np.isfinite(q)):
-        raise JointVectorError("trajectory q has non-finite entries")
+    check_array(traj.q, (len(t), nq), "trajectory q", JointVectorError, f"robot {traj.robot!r} (one row per time)")
     for name in ("p", "p_desired"):
-        arr = np.asarray(getattr(traj, name), dtype=float)
-        if arr.shape != (len(t), 3) or not np.all(np.isfinite(arr)):
-            raise PathError(f"trajectory {name} must be finite with shape ({len(t)}, 3), got {arr.shape}")
+        check_array(getattr(traj, name), (len(t), 3), f"trajectory {name}", PathError)
 
 
 def _interp_rows(t_src: np.ndarray, values: np.ndarray, t_out: np.ndarray) -> np.ndarray:
