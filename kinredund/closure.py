@@ -188,23 +188,30 @@ def lambda_parts(Q, l3, l4: float, lp, A, v) -> tuple[np.ndarray, np.ndarray]:
     v by A omega_k / 2, so d(W^T (A^T l3 - 2 l4 v))/dtheta_k at fixed W adds -W^T G omega_k with
     G = Q^T [l3]x + 2 l3 v^T + l4 A.
     """
-    # 3 x 3 algebra in Python floats (a dozen numpy calls cost more on arrays this small)
-    (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = Q.tolist()
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A.tolist()
-    (l0, l1, l2), (v0, v1, v2) = l3.tolist(), v.tolist()
-    m0 = l0 * a00 + l1 * a10 + l2 * a20 - 2.0 * l4 * v0  # H^T lam, angular part: A^T l3 - 2 l4 v (Eq. 2.15)
-    m1 = l0 * a01 + l1 * a11 + l2 * a21 - 2.0 * l4 * v1
-    m2 = l0 * a02 + l1 * a12 + l2 * a22 - 2.0 * l4 * v2
-    mu = np.array([m0, m1, m2, *lp.tolist()])
+    m, G = lambda_parts_floats(Q.tolist(), A.tolist(), l3.tolist(), l4, v.tolist())
+    return np.array([*m, *lp.tolist()]), np.array(G)
+
+
+def lambda_parts_floats(Q, A, l3, l4: float, v) -> tuple[tuple, tuple]:
+    """:func:`lambda_parts` on Python floats: Q, A as three rows of three, l3 and v as three floats.
+
+    Returns (m, G): m = A^T l3 - 2 l4 v, the angular part of mu (three floats), and G as three rows
+    (3 x 3 algebra in Python floats: a dozen numpy calls cost more on arrays this small).
+    """
+    (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = Q
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    (l0, l1, l2), (v0, v1, v2) = l3, v
+    m = (l0 * a00 + l1 * a10 + l2 * a20 - 2.0 * l4 * v0,  # H^T lam, angular part: A^T l3 - 2 l4 v (Eq. 2.15)
+         l0 * a01 + l1 * a11 + l2 * a21 - 2.0 * l4 * v1,
+         l0 * a02 + l1 * a12 + l2 * a22 - 2.0 * l4 * v2)
     # row i of Q^T [l3]x is (Q e_i) x l3; then + 2 l3 v^T + l4 A
-    G = np.array([
-        [q10 * l2 - q20 * l1 + 2.0 * l0 * v0 + l4 * a00, q20 * l0 - q00 * l2 + 2.0 * l0 * v1 + l4 * a01,
-         q00 * l1 - q10 * l0 + 2.0 * l0 * v2 + l4 * a02],
-        [q11 * l2 - q21 * l1 + 2.0 * l1 * v0 + l4 * a10, q21 * l0 - q01 * l2 + 2.0 * l1 * v1 + l4 * a11,
-         q01 * l1 - q11 * l0 + 2.0 * l1 * v2 + l4 * a12],
-        [q12 * l2 - q22 * l1 + 2.0 * l2 * v0 + l4 * a20, q22 * l0 - q02 * l2 + 2.0 * l2 * v1 + l4 * a21,
-         q02 * l1 - q12 * l0 + 2.0 * l2 * v2 + l4 * a22]])
-    return mu, G
+    G = ((q10 * l2 - q20 * l1 + 2.0 * l0 * v0 + l4 * a00, q20 * l0 - q00 * l2 + 2.0 * l0 * v1 + l4 * a01,
+          q00 * l1 - q10 * l0 + 2.0 * l0 * v2 + l4 * a02),
+         (q11 * l2 - q21 * l1 + 2.0 * l1 * v0 + l4 * a10, q21 * l0 - q01 * l2 + 2.0 * l1 * v1 + l4 * a11,
+          q01 * l1 - q11 * l0 + 2.0 * l1 * v2 + l4 * a12),
+         (q12 * l2 - q22 * l1 + 2.0 * l2 * v0 + l4 * a20, q22 * l0 - q02 * l2 + 2.0 * l2 * v1 + l4 * a21,
+          q02 * l1 - q12 * l0 + 2.0 * l2 * v2 + l4 * a22))
+    return m, G
 
 
 def contract(lam: np.ndarray, dK: np.ndarray) -> np.ndarray:

@@ -46,6 +46,9 @@ SCHEMES = ("augmented", "velocity", "pseudoinverse", "liegeois")
 MODES = ("default", "thesis")
 QP_BACKENDS = ("proxsuite", "kkt")
 LINEAR_SOLVERS = ("auto", "thesis", "lu", "qp")
+#: points (values and slopes) of the default mode's Hermite predictor: 3 gives the quintic, whose O(h^6)
+#: error (~1e-9 rad at 200 steps per loop) lets one Newton update end the corrector at most steps
+PREDICTOR_POINTS = 3
 
 
 @dataclass(frozen=True)
@@ -197,11 +200,14 @@ class _Point:
         return self.hess + self.terms.Lambda(lam)
 
     def top(self, lam: np.ndarray) -> np.ndarray:
-        """Upper right-hand side of Eq. (4.24): -d(grad z)/dt - (dJ/dt)^T lambda at fixed theta.
+        """Upper right-hand side of Eq. (4.24): -d(grad z)/dt - (dJ/dt)^T lambda at fixed theta."""
+        return self.top_from(self.terms.dJdt_T(lam))
+
+    def top_from(self, extra: np.ndarray | None) -> np.ndarray:
+        """:meth:`top` from extra = (dJ/dt)^T lambda (None where J does not depend on time).
 
         ``dgrad_dt`` is None for a time-invariant index (d(grad z)/dt = 0 at fixed theta).
         """
-        extra = self.terms.dJdt_T(lam)
         if extra is None:
             return np.zeros(len(self.grad)) if self.dgrad_dt is None else -self.dgrad_dt
         return -extra if self.dgrad_dt is None else -self.dgrad_dt - extra
@@ -253,9 +259,21 @@ class _Scheme:
         return _Point(q, t, Q, p, s, terms, grad, hess, dgdt)
 
 
-def hermite_weights(h: float) -> np.ndarray:
-    """Weights w with y(+h) = w @ (y(-h), y'(-h), y(0), y'(0)) for the cubic Hermite through the four values."""
-    return np.array([5.0, 2.0 * h, -4.0, 4.0 * h])
+def hermite_weights(h: float, points: int) -> np.ndarray:
+    """Weights w of the Hermite extrapolation to +h through values and slopes at ``points`` past times.
+
+    y(+h) = w @ (y(-(k-1) h), y'(-(k-1) h), ..., y(0), y'(0)) for k = ``points``, exact for polynomials
+    of degree 2k - 1: k = 2 gives the cubic (5, 2h, -4, 4h), k = 3 the quintic
+    (10, 3h, 9, 18h, -18, 9h).
+    """
+    nodes = np.arange(1 - points, 1, dtype=float)
+    powers = np.arange(2 * points)
+    value = nodes[:, None] ** powers  # rows: y at each node, in the monomial basis of s = time / h
+    slope = powers * nodes[:, None] ** np.maximum(powers - 1, 0)  # rows: h y' at each node
+    V = np.stack([value, slope], axis=1).reshape(2 * points, 2 * points)
+    w = np.linalg.solve(V.T, np.ones(2 * points))  # the monomials at s = 1
+    w[1::2] *= h
+    return w
 
 
 class _Recorder:
@@ -325,8 +343,10 @@ class ResolvedRate:
         self.t0, self.k = float(t0), 0  # t = t0 + k dt (no accumulated rounding in the clock)
         self.t = self.t0
         self.q = robot.check_q(q0, "starting configuration").copy()
-        self.prev = None  # (y, ydot) of the previous point, y = [q; lambda], for the predictor
-        self._hermite = hermite_weights(self.dt)
+        # (y, ydot) of up to PREDICTOR_POINTS - 1 previous points, y = [q; lambda], oldest first, and the
+        # predictor's weights by how many there are
+        self.prev = []
+        self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
         self.sys.check_sample(self.t)
         self.pt = self.sys.point(self.q, self.t)
         self._check_on_path(self.pt, "the starting configuration")
@@ -337,6 +357,17 @@ class ResolvedRate:
         if mode == "default" and scheme in ("augmented", "velocity"):
             self._newton(self.pt)  # put the start exactly on the optimal manifold
         self._rates()
+
+    @property
+    def solver(self) -> str:
+        """The step's linear-solver label (``qp``, ``qp_aug``, ``lu``; ``lstsq`` for the baselines).
+
+        The default mode's corrector solves with R's LU factors and labels the step by the rule of
+        :func:`classify` only when asked (the record asks at every step; a bare ``advance`` loop does not).
+        """
+        if self._solver is None:
+            self._solver = classify(self.M, self.pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
+        return self._solver
 
     # -- helpers -----------------------------------------------------------------------------------
     def _check_on_path(self, pt: _Point, what: str, limit: float | None = None) -> None:
@@ -373,14 +404,13 @@ class ResolvedRate:
             f"{kind} singularity at t = {pt.t:.6g} s: smallest singular value of R {sR[-1]:.3g}, "
             f"of J {sJ[-1]:.3g}; q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sR[-1]))
 
-    def _factor(self, pt: _Point, lam: np.ndarray):
-        """M and the LU factors of R (Eq. 4.24) at pt; raises SingularityError where R is (numerically) singular.
+    def _factor(self, pt: _Point, M: np.ndarray):
+        """The LU factors of R (Eq. 4.24) at pt with M; raises SingularityError where R is (numerically) singular.
 
         LAPACK dgetrf (partial pivoting) and its 1-norm condition estimate dgecon; the exact SVD only
         when the estimate says R is near singular.
         """
         n = self.n
-        M = pt.M(lam)  # Eqs. (4.23), (4.37)
         R = self._R
         R[:n, :n] = M  # R of Eq. (4.24): [[M, J^T], [J, 0]]
         R[:n, n:] = pt.J.T
@@ -391,7 +421,7 @@ class ResolvedRate:
         rcond = lapack.dgecon(lu, lapack.dlange("1", R))[0]
         if not rcond > 1e-12:  # also catches NaN
             self._singularity(pt, R)
-        return M, (lu, piv)
+        return lu, piv
 
     def _tol(self, pt: _Point) -> float:
         """The corrector's tolerance on ||F||_2, scaled by the gradient: tol max(1, ||grad z||)."""
@@ -408,7 +438,7 @@ class ResolvedRate:
         for _ in range(max_fresh + 1):
             if pt is None:
                 pt = self.sys.point(y[:n], self.t)
-            _, lu = self._factor(pt, y[n:])
+            lu = self._factor(pt, pt.M(y[n:]))
             y, ok = self._chord(y, lu, self._tol(pt), F=pt.residual(y[n:]))
             if ok:
                 self.q, self.lam = y[:n], y[n:]
@@ -423,37 +453,42 @@ class ResolvedRate:
     def _correct(self, y: np.ndarray) -> None:
         """Default-mode corrector at self.t from the predicted y = [q; lambda], then the rates for the next step.
 
-        Newton on F = [grad z + J^T lambda; r] = 0 with R factorised at the predicted point (the same
-        factorisation then gives the rates, Eq. 4.24). A Newton update d with |d|^2 <= tol (scaled) leaves
-        an error of order tol (quadratic convergence) and ends the iteration - the tests check the
-        recorded residuals, evaluated afresh, stay ~1e-12; otherwise chord iterations with fresh
-        residuals follow, then fresh factorisations (:meth:`_newton`). Norms are 2-norms (one dot
-        product each).
+        One evaluation at the predicted point gives R (Eq. 4.24), the residual F = [grad z + J^T lambda; r]
+        and the right-hand side of Eq. (4.24); R's LU factors give both the Newton update d and the rates
+        (all at the predicted point, within the corrector's step of the corrected one).
+        A Newton update with |d|^2 <= tol (scaled) leaves an error of order tol (quadratic convergence)
+        and ends the iteration - the tests check the recorded residuals, evaluated afresh, stay ~1e-12;
+        otherwise chord iterations with fresh residuals follow, then fresh factorisations
+        (:meth:`_newton`). Norms are 2-norms (one dot product each).
         """
         n = self.n
-        y_pred = y
+        lam = y[n:]
         pt = self.sys.point(y[:n], self.t)
-        M, lu = self._factor(pt, y[n:])
-        F = pt.residual(y[n:])
+        Lam, extra = pt.terms.system(lam)
+        M = pt.hess + Lam  # Eqs. (4.23), (4.37)
+        lu, piv = self._factor(pt, M)
+        # one right-hand side per solve: dgetrs with two goes through a level-3 triangular solve, slower
+        # on these sizes and, with OpenBLAS threads, prone to millisecond waits on a busy machine
+        sol = lapack.dgetrs(lu, piv, np.concatenate((pt.top_from(extra), pt.xdot)))[0]  # Eq. (4.24)
+        if not math.isfinite(float(sol @ sol)):  # the rates are finite iff the step's terms are
+            self.sys.check_sample(self.t)
+            raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
+        F = pt.residual(lam)
         tol = self._tol(pt)
-        if not float(F @ F) <= tol * tol:  # "not <=": a NaN residual is not converged
-            d = _lu_solve(lu, F)
-            y = y - d
+        if not float(F @ F) <= tol * tol:
+            d = lapack.dgetrs(lu, piv, F)[0]
+            y_pred, y = y, y - d
             if not float(d @ d) <= tol:
-                y, ok = self._chord(y, lu, tol)
+                y, ok = self._chord(y, (lu, piv), tol)
                 if not ok:  # no convergence with this factorisation: fresh ones from the prediction
                     self.q, self.lam = y_pred[:n], y_pred[n:]
+                    self.prev.clear()  # the predictor missed (a jump in the path?): restart it with Euler
                     self._newton()
                     self._rates()
                     return
         self.q, self.lam = y[:n], y[n:]
-        label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
-        sol = _lu_solve(lu, np.concatenate([pt.top(y[n:]), pt.xdot]))  # Eq. (4.24)
-        if not math.isfinite(float(sol @ sol)):  # y is finite here: d passed its (NaN-failing) test
-            self.sys.check_sample(self.t)
-            raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
         self._y, self._yd = y, sol
-        self.qdot, self.lamdot, self.solver, self.M, self.pt = sol[:n], sol[n:], label, M, pt
+        self.qdot, self.lamdot, self._solver, self.M, self.pt = sol[:n], sol[n:], None, M, pt
 
     def _chord(self, y: np.ndarray, lu, tol: float, F: np.ndarray | None = None,
                max_iter: int = 8) -> tuple[np.ndarray, bool]:
@@ -489,15 +524,16 @@ class ResolvedRate:
                 qd = Jp @ xdot
             if self.scheme == "liegeois":
                 qd -= self.gain * (pt.grad - Jp @ (pt.J @ pt.grad))  # gradient projection (Liegeois 1977)
-            self.qdot, self.lamdot, self.solver, self.M = qd, np.zeros_like(self.lam), "lstsq", None
+            self.qdot, self.lamdot, self._solver, self.M = qd, np.zeros_like(self.lam), "lstsq", None
             return
-        M, lu = self._factor(pt, self.lam)
+        M = pt.M(self.lam)  # Eqs. (4.23), (4.37)
+        lu = self._factor(pt, M)
         top = pt.top(self.lam)
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
         if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
             self.prox = _ProxQP(self.n, len(pt.r))
         rs = solve_rates(M, pt.J, top, xdot, label=label, backend=self.qp_backend, prox=self.prox, lu=lu)
-        self.qdot, self.lamdot, self.solver, self.M = rs.thetadot, rs.lamdot, rs.solver, M
+        self.qdot, self.lamdot, self._solver, self.M = rs.thetadot, rs.lamdot, rs.solver, M
         self._y, self._yd = np.concatenate([self.q, self.lam]), np.concatenate([self.qdot, self.lamdot])
 
     # -- the step ----------------------------------------------------------------------------------
@@ -516,9 +552,13 @@ class ResolvedRate:
             self._project_task()
         else:
             y, yd = self._y, self._yd
-            # predictor: Euler at the first step, then the cubic Hermite extrapolation
-            y_p = y + h * yd if self.prev is None else self._hermite @ np.array((*self.prev, y, yd))
-            self.prev = (y, yd)
+            # predictor: Euler at the first step, then Hermite extrapolation (cubic, then quintic)
+            prev = self.prev
+            y_p = self._hermite[len(prev)] @ np.array((*(v for pair in prev for v in pair), y, yd)) if prev \
+                else y + h * yd
+            prev.append((y, yd))
+            if len(prev) == PREDICTOR_POINTS:
+                del prev[0]
             self.t = t_next
             self._correct(y_p)  # checks its results for non-finite values
             return

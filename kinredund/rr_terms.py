@@ -45,6 +45,10 @@ class TaskTerms:
         """(dJ/dt)^T lam at fixed theta, or None where J does not depend on time."""
         return None
 
+    def system(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(Lambda(lam), dJdt_T(lam)) together: what one evaluation of Eq. (4.24) needs."""
+        return self.Lambda(lam), self.dJdt_T(lam)
+
     def _hessian(self):
         if self._dk is None:
             raise KinredundError("these task terms were evaluated without dK (need_dJ=False)")
@@ -87,41 +91,57 @@ class _TwistTerms(TaskTerms):
 class _ClosureTerms(TaskTerms):
     """Displacement-Jacobian pose task in the target frame: six rows of Eq. (2.13), J = H K (Eq. 2.14)."""
 
-    __slots__ = ("_Qd", "_Q_rel", "_A", "_v", "_W", "_w_d")
+    __slots__ = ("_W", "_floats")
 
     def __init__(self, Q, p, K, dk, s: PathSample):
         # Eq. (2.13) written with the invariants of the relative rotation Q_d^T Q (target frame): same
         # zero set, but H stays well conditioned where Q_d itself turns by pi (Example 4.3 at
         # beta = pi/2). At the target Q_d^T Q = 1 the left null vector of H is the trace row, so the six
         # kept rows are [2 vect(Q_d^T Q); p - p_d], U = [e1 e2 e3 e5 e6 e7].
+        # The 3 x 3 algebra runs in Python floats (a numpy call costs more on arrays this small).
         Qd_T = s.Q.T
-        Q_rel = Qd_T @ Q
         W = Qd_T @ K[:3]  # omega columns in the target frame
-        A, v = closure.trace_form(Q_rel), closure.vect(Q_rel)  # Eqs. (2.15), (2.8)
-        w_d = Qd_T @ s.omega  # the target's angular velocity in its own frame
-        self.r = np.concatenate((2.0 * v, p - s.p))  # Eq. (2.13) with Q_d -> 1: vect(1) = 0
-        self.J = np.concatenate((A @ W, K[3:]))  # Eq. (2.14): H K, vect rows then position rows
-        self.xdot = np.concatenate((A @ w_d, s.v))  # -dr/dt at fixed theta
-        self.basis, self._dk = _U_REL, dk
-        self._Qd, self._Q_rel, self._A, self._v, self._W, self._w_d = s.Q, Q_rel, A, v, W, w_d
+        rel = (Qd_T @ Q).tolist()  # Q_rel = Q_d^T Q
+        (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = rel
+        tr = q00 + q11 + q22
+        A = ((tr - q00, -q01, -q02), (-q10, tr - q11, -q12), (-q20, -q21, tr - q22))  # tr(Q) 1 - Q, Eq. (2.15)
+        v = (0.5 * (q21 - q12), 0.5 * (q02 - q20), 0.5 * (q10 - q01))  # vect(Q_rel), Eq. (2.8)
+        Qd = s.Q.tolist()
+        (d00, d01, d02), (d10, d11, d12), (d20, d21, d22) = Qd
+        o0, o1, o2 = s.omega.tolist()
+        w_d = (d00 * o0 + d10 * o1 + d20 * o2, d01 * o0 + d11 * o1 + d21 * o2,
+               d02 * o0 + d12 * o1 + d22 * o2)  # Q_d^T omega_d: the target's angular velocity in its frame
+        (p0, p1, p2), (e0, e1, e2) = p.tolist(), s.p.tolist()
+        self.r = np.array([2.0 * v[0], 2.0 * v[1], 2.0 * v[2], p0 - e0, p1 - e1, p2 - e2])  # Eq. (2.13), vect(1) = 0
+        self.J = np.concatenate((np.array(A) @ W, K[3:]))  # Eq. (2.14): H K, vect rows then position rows
+        self.xdot = np.array([A[0][0] * w_d[0] + A[0][1] * w_d[1] + A[0][2] * w_d[2],  # -dr/dt at fixed theta
+                              A[1][0] * w_d[0] + A[1][1] * w_d[1] + A[1][2] * w_d[2],
+                              A[2][0] * w_d[0] + A[2][1] * w_d[1] + A[2][2] * w_d[2], *s.v.tolist()])
+        self.basis, self._dk, self._W, self._floats = _U_REL, dk, W, (rel, A, v, Qd, w_d)
 
     def Lambda(self, lam):
-        # the trace row is not kept: lambda_7 = U lambda has l4 = 0
-        mu, G = closure.lambda_parts(self._Q_rel, lam[:3], 0.0, lam[3:], self._A, self._v)
-        mu[:3] = self._Qd @ mu[:3]  # dK_rel = [Q_d^T dK_omega; dK_v]: contract dK with [Q_d mu_omega; mu_v]
-        W = self._W
-        return self._hessian().contract(mu) - W.T @ (G @ W)  # Eq. (4.20)
+        return self.system(lam)[0]
 
     def dJdt_T(self, lam):
+        return self.system(lam)[1]
+
+    def system(self, lam):
+        rel, A, v, Qd, (w0, w1, w2) = self._floats
+        l0, l1, l2, lp0, lp1, lp2 = lam.tolist()
+        # Lambda, Eq. (4.20); the trace row is not kept: lambda_7 = U lambda has l4 = 0
+        (m0, m1, m2), G = closure.lambda_parts_floats(rel, A, (l0, l1, l2), 0.0, v)
+        (d00, d01, d02), (d10, d11, d12), (d20, d21, d22) = Qd
+        # dK_rel = [Q_d^T dK_omega; dK_v]: contract dK with [Q_d m; lp], here in Pinocchio's [v; omega] order
+        mu = np.array([lp0, lp1, lp2, d00 * m0 + d01 * m1 + d02 * m2, d10 * m0 + d11 * m1 + d12 * m2,
+                       d20 * m0 + d21 * m1 + d22 * m2])
+        W = self._W
+        Lam = self._hessian().contract_pinocchio(mu) - W.T @ (np.array(G) @ W)  # Eq. (4.20)
         # dJ/dt at fixed theta: Q_rel turns at -w_d and so do the columns W (Eq. 4.15 differentiated in
         # time needs it: d(J^T lambda)/dt has the term (dJ/dt)^T lambda besides Lambda thetadot).
         # dJ_vect/dt = (dA - A [w_d]x) W with dA = (2 v . w_d) 1 + [w_d]x Q_rel; for a row l,
         # l^T [w]x = (l x w)^T, so l^T (dA - A [w]x) = (2 v . w) l + (l x w) Q_rel - (A^T l) x w.
-        # In Python floats: 3-vector algebra costs less so than a dozen numpy calls.
-        (l0, l1, l2), (w0, w1, w2) = lam[:3].tolist(), self._w_d.tolist()
-        (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = self._Q_rel.tolist()
-        v0, v1, v2 = self._v.tolist()
-        s = 2.0 * (v0 * w0 + v1 * w1 + v2 * w2)
+        (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = rel
+        s = 2.0 * (v[0] * w0 + v[1] * w1 + v[2] * w2)
         x0, x1, x2 = l1 * w2 - l2 * w1, l2 * w0 - l0 * w2, l0 * w1 - l1 * w0  # l x w
         tr = q00 + q11 + q22
         a0 = tr * l0 - (q00 * l0 + q10 * l1 + q20 * l2)  # A^T l = tr(Q) l - Q^T l
@@ -130,7 +150,7 @@ class _ClosureTerms(TaskTerms):
         c = np.array([s * l0 + x0 * q00 + x1 * q10 + x2 * q20 - (a1 * w2 - a2 * w1),
                       s * l1 + x0 * q01 + x1 * q11 + x2 * q21 - (a2 * w0 - a0 * w2),
                       s * l2 + x0 * q02 + x1 * q12 + x2 * q22 - (a0 * w1 - a1 * w0)])
-        return self._W.T @ c
+        return Lam, W.T @ c
 
 
 def task_terms(task: str, scheme: str, Q, p, K, dk, s: PathSample) -> TaskTerms:

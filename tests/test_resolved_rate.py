@@ -13,7 +13,7 @@ from kinredund.examples.chapter4 import indefinite_interval, load_example, run_e
 from kinredund.finite_diff import central_difference
 from kinredund.indices import CustomIndex, JointDeviation, minimum_norm
 from kinredund.paths import Circle, FunctionPath
-from kinredund.resolved_rate import ResolvedRate, _ProxQP, classify, solve_rates, track
+from kinredund.resolved_rate import ResolvedRate, _ProxQP, classify, hermite_weights, solve_rates, track
 from kinredund.rr_terms import task_terms
 
 
@@ -313,3 +313,20 @@ def _start(r, qa, fn):
     res = solve_ik(r, fn(0.0)[0], JointDeviation(qa), q0=qa, starts=8)
     assert res.converged
     return res.q
+
+
+@pytest.mark.parametrize("points", [2, 3])
+def test_hermite_predictor_is_exact_to_its_degree(points):
+    """The predictor's weights extrapolate polynomials of degree 2k - 1 exactly, and no higher."""
+    h, t0 = 0.03, 0.7
+    rng = np.random.default_rng(points)
+    w = hermite_weights(h, points)
+    nodes = t0 + h * np.arange(1 - points, 1)
+    for degree, exact in [(2 * points - 1, True), (2 * points, False)]:
+        c = rng.normal(size=degree + 1)
+        y, dy = np.polynomial.Polynomial(c), np.polynomial.Polynomial(c).deriv()
+        data = np.ravel(np.column_stack([y(nodes), dy(nodes)]))
+        err = abs(w @ data - y(t0 + h))
+        assert (err < 1e-12) if exact else (err > 1e-9 * abs(c[-1]))
+    if points == 2:
+        assert np.allclose(w, [5.0, 2.0 * h, -4.0, 4.0 * h])  # the cubic of the literature
