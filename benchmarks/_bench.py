@@ -3,6 +3,7 @@
 Three ways to time, for three kinds of call:
 
 - :func:`time_calls`: each call timed on its own; median and p95 [us] (calls of ~10 us and more);
+  :func:`time_in_turn` does it for several functions called in turn (for ratios between them);
 - :func:`timeit_us`: ``timeit`` runs of many back-to-back calls; the median run's mean [us] (calls of
   ~1-3 us, where timing each call on its own adds the timer's overhead);
 - :func:`best_of_us`: per argument, the best of a few calls [us], with the call's result (a time per
@@ -27,14 +28,27 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 def time_calls(fn, repeat: int = 2000, warmup: int = 50) -> dict:
     """Median and p95 [us] of ``fn()`` over ``repeat`` calls, each timed on its own."""
+    return time_in_turn({"fn": fn}, repeat, warmup)["fn"]
+
+
+def time_in_turn(fns: dict, repeat: int = 2000, warmup: int = 50) -> dict:
+    """:func:`time_calls` for several functions called in turn (one call of each per round).
+
+    Background load and the machine's drift then hit all of them alike, so their ratios hold even
+    when the absolute times of one run move. Returns {name: {"median_us", "p95_us"}}.
+    """
     for _ in range(warmup):
-        fn()
-    ts = np.empty(repeat)
+        for fn in fns.values():
+            fn()
+    ts = {name: np.empty(repeat) for name in fns}
+    clock = time.perf_counter
     for i in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        ts[i] = time.perf_counter() - t0
-    return {"median_us": float(np.median(ts) * 1e6), "p95_us": float(np.percentile(ts, 95) * 1e6)}
+        for name, fn in fns.items():
+            t0 = clock()
+            fn()
+            ts[name][i] = clock() - t0
+    return {name: {"median_us": float(np.median(t) * 1e6), "p95_us": float(np.percentile(t, 95) * 1e6)}
+            for name, t in ts.items()}
 
 
 def timeit_us(fn, number: int, repeat: int) -> float:

@@ -144,6 +144,7 @@ class Circle(Path):
             if self.frenet or Q0.shape != (3, 3) or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9:
                 raise PathError("orientation must be a rotation matrix (3x3), and excludes frenet=True")
             object.__setattr__(self, "orientation", Q0)
+            object.__setattr__(self, "_orientation_floats", tuple(tuple(row) for row in Q0.tolist()))
         object.__setattr__(self, "has_orientation", bool(self.frenet) or self.orientation is not None)
 
     def sample(self, t: float) -> PathSample:
@@ -160,14 +161,17 @@ class Circle(Path):
         p = np.array([cx + rad * en[0], cy + rad * en[1], cz + rad * en[2]])
         v = np.array([sp * et[0], sp * et[1], sp * et[2]])
         if self.orientation is not None:
-            Q0 = self.orientation
             if self.roll_amplitude == 0.0:
-                return PathSample(p, v, Q0, np.zeros(3))
+                return PathSample(p, v, self.orientation, np.zeros(3))
             wl = 2.0 * math.pi / self.period
             ang = self.roll_amplitude * math.sin(wl * t)
             ca, sa = math.cos(ang), math.sin(ang)
-            Q = Q0 @ np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
-            return PathSample(p, v, Q, Q0[:, 2] * (self.roll_amplitude * wl * math.cos(wl * t)))
+            # Q = Q_0 Rz(ang): the first two columns turn by ang, the third (the roll axis) stays
+            (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = self._orientation_floats
+            Q = np.array([[ca * x0 + sa * y0, ca * y0 - sa * x0, z0], [ca * x1 + sa * y1, ca * y1 - sa * x1, z1],
+                          [ca * x2 + sa * y2, ca * y2 - sa * x2, z2]])
+            rate = self.roll_amplitude * wl * math.cos(wl * t)
+            return PathSample(p, v, Q, np.array([rate * z0, rate * z1, rate * z2]))  # about Q_0's z axis
         if not self.frenet:
             return PathSample(p, v)
         n0, n1, n2 = self._plane_floats[2]

@@ -343,8 +343,8 @@ class ResolvedRate:
         self.t0, self.k = float(t0), 0  # t = t0 + k dt (no accumulated rounding in the clock)
         self.t = self.t0
         self.q = robot.check_q(q0, "starting configuration").copy()
-        # (y, ydot) of up to PREDICTOR_POINTS - 1 previous points, y = [q; lambda], oldest first, and the
-        # predictor's weights by how many there are
+        # y, ydot of up to PREDICTOR_POINTS - 1 previous points, y = [q; lambda], oldest first (a flat list),
+        # and the predictor's weights by how many points there are
         self.prev = []
         self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
         self.sys.check_sample(self.t)
@@ -553,12 +553,11 @@ class ResolvedRate:
         else:
             y, yd = self._y, self._yd
             # predictor: Euler at the first step, then Hermite extrapolation (cubic, then quintic)
-            prev = self.prev
-            y_p = self._hermite[len(prev)] @ np.array((*(v for pair in prev for v in pair), y, yd)) if prev \
-                else y + h * yd
-            prev.append((y, yd))
-            if len(prev) == PREDICTOR_POINTS:
-                del prev[0]
+            prev = self.prev  # [y, ydot, y, ydot, ...], oldest first
+            y_p = self._hermite[len(prev) // 2] @ np.array(prev + [y, yd]) if prev else y + h * yd
+            prev += (y, yd)
+            if len(prev) == 2 * PREDICTOR_POINTS:
+                del prev[:2]
             self.t = t_next
             self._correct(y_p)  # checks its results for non-finite values
             return

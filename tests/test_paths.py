@@ -69,6 +69,16 @@ def test_closed_paths_close(name):
         assert np.abs(a.Q - b.Q).max() < 1e-12
 
 
+def test_rolling_orientation_turns_about_the_tool_axis():
+    """Q_d = Q_0 Rz(a sin(2 pi t / T)): the tool's z axis stays Q_0's, the other two turn by the roll angle."""
+    path = PATHS["circle_roll"]()
+    Q0 = _tilted_q0()
+    for t in (0.0, 0.4, 1.1, 2.5):
+        ang = 0.3 * np.sin(2 * np.pi * t / path.period)
+        Rz = rotation_from_invariants(np.array([0.0, 0.0, 1.0]), ang)
+        assert np.abs(path(t).Q - Q0 @ Rz).max() < 1e-14
+
+
 def test_frenet_frame_of_example_4_3():
     """Eq. (4.47): Q_d = [e_n, e_t, e_n x e_t] with e_n the outward radial unit vector, e_t the tangent."""
     c = np.array([0.1, 0.2, 0.3])
