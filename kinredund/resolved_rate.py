@@ -16,7 +16,7 @@ system (``qp_backend="kkt"``); elsewhere LU of R. The step records ``qp`` or ``l
 Modes:
 - ``thesis``: explicit Euler steps with the velocity correction of Eq. (4.29), lambda from least squares
   at every step - what the thesis ran (200 steps per loop).
-- ``default``: a predictor (cubic Hermite extrapolation along the optimal path) and a Newton corrector
+- ``default``: a predictor (quintic Hermite extrapolation along the optimal path) and a Newton corrector
   on the full first-order system F(theta, lambda) = [grad z + J^T lambda; g(theta) - x(t)] = 0 at every
   step, reusing the step's factorisation of R (a chord iteration). The task and the normality condition
   are then both held to ~1e-12 and the joints close to machine precision loop after loop.
