@@ -475,7 +475,7 @@ class ResolvedRate:
             raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
         F = pt.residual(lam)
         tol = self._tol(pt)
-        if not float(F @ F) <= tol * tol:
+        if not float(F @ F) <= tol * tol:  # "not <=": a NaN residual is not converged
             d = lapack.dgetrs(lu, piv, F)[0]
             y_pred, y = y, y - d
             if not float(d @ d) <= tol:
