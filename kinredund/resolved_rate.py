@@ -195,22 +195,18 @@ class _Point:
         self.r, self.J, self.xdot, self.basis = terms.r, terms.J, terms.xdot, terms.basis
         self.grad, self.hess, self.dgrad_dt = grad, hess, dgrad_dt
 
-    def M(self, lam: np.ndarray) -> np.ndarray:
-        """M = Hess z + Lambda, Eqs. (4.23) and (4.37)."""
-        return self.hess + self.terms.Lambda(lam)
+    def system(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(M, top) of Eq. (4.24) at this point for the multipliers lam.
 
-    def top(self, lam: np.ndarray) -> np.ndarray:
-        """Upper right-hand side of Eq. (4.24): -d(grad z)/dt - (dJ/dt)^T lambda at fixed theta."""
-        return self.top_from(self.terms.dJdt_T(lam))
-
-    def top_from(self, extra: np.ndarray | None) -> np.ndarray:
-        """:meth:`top` from extra = (dJ/dt)^T lambda (None where J does not depend on time).
-
-        ``dgrad_dt`` is None for a time-invariant index (d(grad z)/dt = 0 at fixed theta).
+        M = Hess z + Lambda (Eqs. 4.23, 4.37); top = -d(grad z)/dt - (dJ/dt)^T lambda at fixed theta, the
+        upper right-hand side (``dgrad_dt`` is None for a time-invariant index: d(grad z)/dt = 0).
         """
+        Lam, extra = self.terms.system(lam)
         if extra is None:
-            return np.zeros(len(self.grad)) if self.dgrad_dt is None else -self.dgrad_dt
-        return -extra if self.dgrad_dt is None else -self.dgrad_dt - extra
+            top = np.zeros(len(self.grad)) if self.dgrad_dt is None else -self.dgrad_dt
+        else:
+            top = -extra if self.dgrad_dt is None else -self.dgrad_dt - extra
+        return self.hess + Lam, top
 
     def residual(self, lam: np.ndarray) -> np.ndarray:
         """F = [grad z + J^T lambda; r]: the normality condition (4.5) and the task, zero on the optimum."""
@@ -438,7 +434,7 @@ class ResolvedRate:
         for _ in range(max_fresh + 1):
             if pt is None:
                 pt = self.sys.point(y[:n], self.t)
-            lu = self._factor(pt, pt.M(y[n:]))
+            lu = self._factor(pt, pt.system(y[n:])[0])
             y, ok = self._chord(y, lu, self._tol(pt), F=pt.residual(y[n:]))
             if ok:
                 self.q, self.lam = y[:n], y[n:]
@@ -464,12 +460,11 @@ class ResolvedRate:
         n = self.n
         lam = y[n:]
         pt = self.sys.point(y[:n], self.t)
-        Lam, extra = pt.terms.system(lam)
-        M = pt.hess + Lam  # Eqs. (4.23), (4.37)
+        M, top = pt.system(lam)  # Eqs. (4.23), (4.37)
         lu, piv = self._factor(pt, M)
         # one right-hand side per solve: dgetrs with two goes through a level-3 triangular solve, slower
         # on these sizes and, with OpenBLAS threads, prone to millisecond waits on a busy machine
-        sol = lapack.dgetrs(lu, piv, np.concatenate((pt.top_from(extra), pt.xdot)))[0]  # Eq. (4.24)
+        sol = lapack.dgetrs(lu, piv, np.concatenate((top, pt.xdot)))[0]  # Eq. (4.24)
         if not math.isfinite(float(sol @ sol)):  # the rates are finite iff the step's terms are
             self.sys.check_sample(self.t)
             raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
@@ -526,9 +521,8 @@ class ResolvedRate:
                 qd -= self.gain * (pt.grad - Jp @ (pt.J @ pt.grad))  # gradient projection (Liegeois 1977)
             self.qdot, self.lamdot, self._solver, self.M = qd, np.zeros_like(self.lam), "lstsq", None
             return
-        M = pt.M(self.lam)  # Eqs. (4.23), (4.37)
+        M, top = pt.system(self.lam)  # Eqs. (4.23), (4.37)
         lu = self._factor(pt, M)
-        top = pt.top(self.lam)
         label = classify(M, pt.J, self.linear_solver, symmetric=self.scheme == "augmented")
         if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
             self.prox = _ProxQP(self.n, len(pt.r))
