@@ -41,35 +41,41 @@ def cross_matrix(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a x b for two 3-vectors (np.cross costs ~20 us on such small arrays; this ~1 us)."""
-    (a0, a1, a2), (b0, b1, b2) = a.tolist(), b.tolist()
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
-
-
 def natural_invariants(Q: np.ndarray) -> tuple[np.ndarray, float]:
     """The axis u and angle phi in [0, pi] of a rotation, Eqs. (2.4)-(2.7).
 
-    At phi = pi the axis is taken from the symmetric part (Q + 1)/2 = u u^T; at phi = 0 any axis is
-    valid and (1, 0, 0) is returned.
+    Near phi = pi, where vect(Q) = u sin(phi) has lost its digits, the axis comes from the symmetric
+    part of Q (:func:`_axis_from_symmetric_part`); at phi = 0 any axis is valid and (1, 0, 0) is returned.
     """
     q = vect(Q)
-    c = np.clip(0.5 * (Q.trace() - 1.0), -1.0, 1.0)  # Eq. (2.7)
-    s = np.linalg.norm(q)
-    phi = float(np.arctan2(s, c))
-    if s > 1e-9:
+    c = float(np.clip(0.5 * (Q.trace() - 1.0), -1.0, 1.0))  # Eq. (2.7)
+    s = float(np.linalg.norm(q))
+    phi = math.atan2(s, c)
+    if s > (_SMALL_SIN if c > 0 else _NEAR_PI_SIN):
         return q / s, phi
     if c > 0:
         return np.array([1.0, 0.0, 0.0]), 0.0
-    S = 0.5 * (Q + np.eye(3))
-    k = int(np.argmax(np.diag(S)))
-    u = S[:, k] / np.sqrt(S[k, k])
-    return u, float(np.pi)
+    u = _axis_from_symmetric_part(Q, c)
+    return (-u if float(u @ q) < 0.0 else u), phi
+
+
+def _axis_from_symmetric_part(Q: np.ndarray, c: float) -> np.ndarray:
+    """The unit axis u (up to sign) of a rotation with cos(phi) = c < 1, from its symmetric part.
+
+    Eq. (2.4): (Q + Q^T)/2 = c 1 + (1 - c) u u^T; the largest diagonal entry of u u^T gives the
+    best-conditioned column.
+    """
+    B = (0.5 * (Q + Q.T) - c * np.eye(3)) / (1.0 - c)  # u u^T
+    k = int(np.argmax(np.diag(B)))
+    return B[:, k] / math.sqrt(B[k, k])
 
 
 #: below this angle [rad] phi / sin(phi) is taken to second order
 SMALL_ANGLE = 1e-4
+#: sin(phi) below which the axis is taken from the symmetric part near phi = pi (vect Q has lost its digits)
 _NEAR_PI_SIN = 1e-6
+#: sin(phi) below which a rotation near the identity is the identity (any axis)
+_SMALL_SIN = 1e-9
 
 
 def rotation_log(R: np.ndarray) -> tuple[np.ndarray, float]:
@@ -89,8 +95,8 @@ def log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R) -> tuple[tuple[f
         f = 1.0 + phi * phi / 6.0  # phi / sin(phi) to second order
     elif s > _NEAR_PI_SIN:
         f = phi / s
-    else:  # phi ~ pi: the axis from the symmetric part of R
-        u, phi = natural_invariants(np.asarray(R))
+    else:  # phi ~ pi: vect(R) has lost its digits; the axis from the symmetric part of R
+        u = _axis_from_symmetric_part(np.asarray(R), c)
         if u[0] * vx + u[1] * vy + u[2] * vz < 0.0:
             u = -u
         return (float(u[0] * phi), float(u[1] * phi), float(u[2] * phi)), phi
@@ -171,32 +177,26 @@ def displacement_lambda(Q: np.ndarray, K: np.ndarray, lam: np.ndarray, contract_
     """Lambda = d(J^T lam)/dtheta at fixed lam for J = H K (Eqs. 4.20, 4.26), without the tensor dJ.
 
     ``contract_dK(mu)`` returns sum_a mu_a dK[a, i, k] (e.g. ``HessianContraction.contract``).
-    Lambda = contract_dK(mu) - W^T G W with W = K[:3] and (mu, G) of :func:`lambda_parts`: the same
-    derivatives as :func:`displacement_jacobian_derivative`, contracted first (one (n, n) result
-    instead of the 7 n^2 tensor).
+    Lambda = contract_dK(mu) - W^T G W with W = K[:3] and (mu, G) of :func:`lambda_parts_floats`: the
+    same derivatives as :func:`displacement_jacobian_derivative`, contracted first (one (n, n) result
+    instead of the 7 n^2 tensor). lam = [l3; l4; lp] holds the closure 7-vector's multipliers.
     """
     W = K[:3]
-    mu, G = lambda_parts(Q, lam[:3], float(lam[3]), lam[4:], trace_form(Q), vect(Q))
-    return contract_dK(mu) - W.T @ (G @ W)  # Eq. (4.20)
+    m, G = lambda_parts_floats(Q.tolist(), trace_form(Q).tolist(), lam[:3].tolist(), float(lam[3]), vect(Q).tolist())
+    mu = np.array([*m, *lam[4:].tolist()])  # mu = H^T lam, Eq. (2.15)
+    return contract_dK(mu) - W.T @ (np.array(G) @ W)  # Eq. (4.20)
 
 
-def lambda_parts(Q, l3, l4: float, lp, A, v) -> tuple[np.ndarray, np.ndarray]:
-    """(mu, G) with d(J^T lam)/dtheta = contract_dK(mu) - W^T G W, lam = [l3; l4; lp] (Eqs. 4.20, 4.26).
+def lambda_parts_floats(Q, A, l3, l4: float, v) -> tuple[tuple, tuple]:
+    """(m, G) with d(J^T lam)/dtheta = contract_dK([m; lp]) - W^T G W, lam = [l3; l4; lp] (Eqs. 4.20, 4.26).
 
     With A = tr(Q) 1 - Q and v = vect(Q) (Eqs. 2.8, 2.15): J^T lam = K^T mu, mu = H^T lam =
     [A^T l3 - 2 l4 v; lp]; moving Q by omega_k changes A by dA_k = -2 (v . omega_k) 1 - [omega_k]x Q and
     v by A omega_k / 2, so d(W^T (A^T l3 - 2 l4 v))/dtheta_k at fixed W adds -W^T G omega_k with
     G = Q^T [l3]x + 2 l3 v^T + l4 A.
-    """
-    m, G = lambda_parts_floats(Q.tolist(), A.tolist(), l3.tolist(), l4, v.tolist())
-    return np.array([*m, *lp.tolist()]), np.array(G)
 
-
-def lambda_parts_floats(Q, A, l3, l4: float, v) -> tuple[tuple, tuple]:
-    """:func:`lambda_parts` on Python floats: Q, A as three rows of three, l3 and v as three floats.
-
-    Returns (m, G): m = A^T l3 - 2 l4 v, the angular part of mu (three floats), and G as three rows
-    (3 x 3 algebra in Python floats: a dozen numpy calls cost more on arrays this small).
+    In Python floats (a dozen numpy calls cost more on arrays this small): Q and A as three rows of
+    three, l3 and v as three floats; returns m = A^T l3 - 2 l4 v (three floats) and G (three rows).
     """
     (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = Q
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A

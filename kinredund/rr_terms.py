@@ -66,9 +66,7 @@ class _RowTerms(TaskTerms):
         self._dk, self._rows = dk, rows
 
     def Lambda(self, lam):
-        mu = np.zeros(6)
-        mu[self._rows] = lam
-        return self._hessian().contract(mu)  # Eq. (4.20): sum_a lam_a dK[a]
+        return self._hessian().contract(lam, self._rows)  # Eq. (4.20): sum_a lam_a dK[a]
 
 
 class _TwistTerms(TaskTerms):
@@ -143,13 +141,10 @@ class _ClosureTerms(TaskTerms):
         (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = rel
         s = 2.0 * (v[0] * w0 + v[1] * w1 + v[2] * w2)
         x0, x1, x2 = l1 * w2 - l2 * w1, l2 * w0 - l0 * w2, l0 * w1 - l1 * w0  # l x w
-        tr = q00 + q11 + q22
-        a0 = tr * l0 - (q00 * l0 + q10 * l1 + q20 * l2)  # A^T l = tr(Q) l - Q^T l
-        a1 = tr * l1 - (q01 * l0 + q11 * l1 + q21 * l2)
-        a2 = tr * l2 - (q02 * l0 + q12 * l1 + q22 * l2)
-        c = np.array([s * l0 + x0 * q00 + x1 * q10 + x2 * q20 - (a1 * w2 - a2 * w1),
-                      s * l1 + x0 * q01 + x1 * q11 + x2 * q21 - (a2 * w0 - a0 * w2),
-                      s * l2 + x0 * q02 + x1 * q12 + x2 * q22 - (a0 * w1 - a1 * w0)])
+        # A^T l is m (lambda_parts_floats with l4 = 0)
+        c = np.array([s * l0 + x0 * q00 + x1 * q10 + x2 * q20 - (m1 * w2 - m2 * w1),
+                      s * l1 + x0 * q01 + x1 * q11 + x2 * q21 - (m2 * w0 - m0 * w2),
+                      s * l2 + x0 * q02 + x1 * q12 + x2 * q22 - (m0 * w1 - m1 * w0)])
         return Lam, W.T @ c
 
 

@@ -214,12 +214,18 @@ def test_pose_error_jacobian_matches_finite_differences():
         assert np.abs(res.jacobian(K, jl) - fd).max() < 1e-7
 
 
-@pytest.mark.parametrize("phi", [1e-7, 0.3, 2.0, np.pi - 1e-8, np.pi])
+@pytest.mark.parametrize("phi", [1e-7, 0.3, 2.0, np.pi - 1e-5, np.pi - 1e-7, np.pi - 1e-8, np.pi])
 def test_rotation_log_inverts_rotation_from_invariants(phi):
+    """The axis to ~1e-10 at every angle, near pi too (where vect Q = u sin(phi) has lost its digits)."""
     u = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
-    w, angle = rotation_log(closure.rotation_from_invariants(u, phi))
+    Q = closure.rotation_from_invariants(u, phi)
+    w, angle = rotation_log(Q)
     assert angle == pytest.approx(phi, abs=1e-12)
-    assert np.allclose(w, u * phi, atol=1e-7) or (phi > 3.14 and np.allclose(w, -u * phi, atol=1e-7))
+    axis = w / angle
+    assert np.abs(axis - u).max() < 1e-10 or (phi == np.pi and np.abs(axis + u).max() < 1e-10)
+    u_ni, phi_ni = closure.natural_invariants(Q)
+    assert phi_ni == pytest.approx(phi, abs=1e-12)
+    assert np.abs(u_ni - u).max() < 1e-10 or (phi == np.pi and np.abs(u_ni + u).max() < 1e-10)
 
 
 def test_unreachable_target_returns_the_closest_configuration():
