@@ -33,7 +33,6 @@ from time import perf_counter
 
 import numpy as np
 
-from .closure import contract
 from .errors import TaskError
 from .ik_newton import RANK_TOL, Setup, StartOutcome, bound_kkt, run_start
 from .ik_qp import BoxStep
@@ -168,11 +167,11 @@ def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bo
             res.residual(Q, p), 0.0, 0.0, False, float("nan"), np.zeros(0), empty, np.zeros((q.size, 0)),
             np.zeros(q.size, dtype=bool),
         )
-    Q, p, K, dK = robot.kinematics.jacobian_derivative(q)
+    Q, p, K, dk = robot.kinematics.jacobian_hessian(q)
     z, grad, H = index.evaluate(q) if zgh is None else zgh
     Kr = K[res.rows]
     normality, lam, L, active = bound_kkt(Kr, grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
-    M = H + contract(lam, dK[res.rows])  # Hess z + Lambda*, Eq. (4.37)
+    M = H + dk.contract(lam, res.rows)  # Hess z + Lambda*, Eq. (4.37)
     Br = L.T @ M @ L
     Br = 0.5 * (Br + Br.T)  # symmetric on the null space of K (Section 4.2)
     if Br.shape[0]:

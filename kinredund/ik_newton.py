@@ -38,7 +38,6 @@ from time import perf_counter
 import numpy as np
 from scipy.linalg import lapack
 
-from .closure import contract
 from .ik_qp import BoxStep
 from .ik_residual import TaskResidual
 from .indices import Index
@@ -394,7 +393,7 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
     rho = 0.0
     r_ref, since = math.inf, 0
     for it in range(s.max_iter + 1):
-        Q, p, K, dK = kin.jacobian_derivative(q)
+        Q, p, K, dk = kin.jacobian_hessian(q)
         e, jl = res.error(Q, p)
         r = res.residual(Q, p)
         z, grad, H = index.evaluate(q)
@@ -430,7 +429,7 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
             continue
         enorm = math.sqrt(float(e @ e))
         rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1.0)  # exact penalty > ||lambda||; > 0 at grad z = 0
-        M = H + contract(res.k_multipliers(lam, jl), dK[rows])  # Hess z + Lambda, Eqs. (4.20)-(4.26)
+        M = H + dk.contract(res.k_multipliers(lam, jl), rows)  # Hess z + Lambda, Eqs. (4.20)-(4.26)
         Br = L.T @ M @ L
         w, V = np.linalg.eigh(0.5 * (Br + Br.T))
         wmod = np.maximum(np.abs(w), 1e-8 * max(1.0, float(np.abs(w).max())))  # PD where D.33 fails

@@ -121,8 +121,15 @@ class HessianContraction:
         # a view: the array eigenpy returns is C-contiguous, so its C-order ravel is its buffer
         self._H, self._flat, self._n = H, H.reshape(n * n, 6), n
 
-    def contract(self, mu: np.ndarray) -> np.ndarray:
-        """sum_a mu_a dK[a, i, k] for mu (6,) in the thesis's [omega; v] order, shape (n, n) (Eq. 4.42)."""
+    def contract(self, mu: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """sum_a mu_a dK[a, i, k] for mu (6,) in the thesis's [omega; v] order, shape (n, n) (Eq. 4.42).
+
+        With ``rows``, mu holds the multipliers of those rows of K only (a task on some of its rows).
+        """
+        if rows is not None:
+            full = np.zeros(6)
+            full[rows] = mu
+            mu = full
         return self.contract_pinocchio(mu.take(THESIS_ROWS))
 
     def contract_pinocchio(self, mu: np.ndarray) -> np.ndarray:
