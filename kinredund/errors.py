@@ -118,6 +118,28 @@ def check_array(value, shape: tuple, what: str, error: type[KinredundError] = Ta
     return arr
 
 
+def check_positive(value, what: str, error: type[KinredundError] = TaskError) -> float:
+    """Return ``value`` as a float if it is a finite number > 0, else raise ``error`` naming ``what``."""
+    import math
+
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise error(f"{what} must be a finite number > 0, got {value!r}") from err
+    if not (math.isfinite(v) and v > 0):
+        raise error(f"{what} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def check_count(value, minimum: int, what: str, error: type[KinredundError] = TaskError) -> int:
+    """Return ``value`` as an int if it is an integer (not a bool, not a float) >= ``minimum``, else raise."""
+    from numbers import Integral
+
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
+        raise error(f"{what} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
 def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
     """Return q as a float array of shape (n,), or raise :class:`JointVectorError` saying what is wrong."""
     return check_array(q, (n,), what, JointVectorError, owner)

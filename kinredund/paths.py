@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import PathError, check_array
+from .errors import PathError, check_array, check_positive
 
 
 @dataclass(frozen=True)
@@ -67,17 +67,8 @@ def _center3(center, what: str) -> np.ndarray:
 
 
 def _positive(what: str, **values) -> None:
-    bad = {}
-    for k, v in values.items():
-        try:
-            ok = math.isfinite(float(v)) and float(v) > 0
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            bad[k] = v
-    if bad:
-        raise PathError(f"{what} {', '.join(values)} must be finite numbers > 0, got "
-                        + ", ".join(f"{k}={v!r}" for k, v in bad.items()))
+    for name, value in values.items():
+        check_positive(value, f"{what} {name}", PathError)
 
 
 def _unit(v, what: str) -> np.ndarray:
@@ -139,10 +130,13 @@ class Circle(Path):
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
+        if not math.isfinite(float(self.roll_amplitude)):
+            raise PathError(f"circle roll_amplitude must be a finite angle [rad], got {self.roll_amplitude!r}")
         if self.orientation is not None:
-            Q0 = np.asarray(self.orientation, float)
-            if self.frenet or Q0.shape != (3, 3) or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9:
-                raise PathError("orientation must be a rotation matrix (3x3), and excludes frenet=True")
+            Q0 = check_array(self.orientation, (3, 3), "circle orientation", PathError)
+            if self.frenet or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9 or np.linalg.det(Q0) <= 0:
+                raise PathError("orientation must be a rotation matrix (3x3, orthonormal, det +1), and excludes "
+                                f"frenet=True; got {Q0.tolist()}")
             object.__setattr__(self, "orientation", Q0)
             object.__setattr__(self, "_orientation_floats", tuple(tuple(row) for row in Q0.tolist()))
         object.__setattr__(self, "has_orientation", bool(self.frenet) or self.orientation is not None)
@@ -163,7 +157,7 @@ class Circle(Path):
         if self.orientation is not None:
             if self.roll_amplitude == 0.0:
                 return PathSample(p, v, self.orientation, np.zeros(3))
-            wl = 2.0 * math.pi / self.period
+            wl = w  # one roll cycle per loop: 2 pi / period = speed / radius
             ang = self.roll_amplitude * math.sin(wl * t)
             ca, sa = math.cos(ang), math.sin(ang)
             # Q = Q_0 Rz(ang): the first two columns turn by ang, the third (the roll axis) stays

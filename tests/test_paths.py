@@ -97,6 +97,9 @@ def test_frenet_frame_of_example_4_3():
     lambda: Circle((0.0, 0.0), 1.0, 0.0),
     lambda: Circle((np.nan, 0.0), 1.0, 1.0),
     lambda: Circle((0.0, 0.0, 0.0), 1.0, 1.0, orientation=np.ones((3, 3))),
+    lambda: Circle((0.0, 0.0, 0.0), 1.0, 1.0, orientation=np.full((3, 3), np.nan)),
+    lambda: Circle((0.0, 0.0, 0.0), 1.0, 1.0, orientation=np.diag([1.0, 1.0, -1.0])),  # a reflection
+    lambda: Circle((0.0, 0.0, 0.0), 1.0, 1.0, orientation=np.eye(3), roll_amplitude=np.nan),
     lambda: Ellipse((0.0, 0.0), 0.0, 1.0),
     lambda: SampledPath([0.0, 1.0, 2.0], [[0, 0], [1, 0], [0, 0]]),
     lambda: SampledPath([0.0, 1.0, 2.0, 3.0], [[0, 0], [1, 0], [1, 1], [0.5, 0]], closed=True),
