@@ -11,7 +11,10 @@ uses K, the twist t and lambda* instead; M* = Hess z + Lambda* is not symmetric.
 Linear solver per step (Theorem 2): where M projected on the null space of J is positive definite the
 rates solve the QP min 1/2 thetadot^T M thetadot s.t. J thetadot = xdot (4.28), solved either with
 proxsuite on M + rho J^T J (same minimiser on the constraint) or by a direct factorisation of its KKT
-system (``qp_backend="kkt"``); elsewhere LU of R. The step records ``qp`` or ``lu``.
+system (``qp_backend="kkt"``); elsewhere LU of R. The step records ``qp``, ``qp_aug`` or ``lu``. The
+default mode solves every step with the LU factors of R, which its corrector needs anyway; its record
+labels each step by where the QP form holds (the rule ``linear_solver``), and ``qp_backend="proxsuite"``
+is for thesis mode only.
 
 Modes:
 - ``thesis``: explicit Euler steps with the velocity correction of Eq. (4.29), lambda from least squares
@@ -47,7 +50,9 @@ MODES = ("default", "thesis")
 QP_BACKENDS = ("proxsuite", "kkt")
 LINEAR_SOLVERS = ("auto", "thesis", "lu", "qp")
 #: points (values and slopes) of the default mode's Hermite predictor: 3 gives the quintic, whose O(h^6)
-#: error (~1e-9 rad at 200 steps per loop) lets one Newton update end the corrector at most steps
+#: error lets one Newton update end the corrector on smooth paths at 200 steps per loop (median miss
+#: ~1e-10 rad on Examples 4.1, 4.2 and the Panda circle; ~1e-5 on the fast Example 4.3, which needs
+#: chord iterations): ``python benchmarks/resolved_rate.py`` prints both figures per robot
 PREDICTOR_POINTS = 3
 
 
@@ -312,7 +317,8 @@ class ResolvedRate:
         scheme, mode: see the module docstring.
         linear_solver: the rule of :func:`classify`: ``auto`` (default mode's default), ``thesis`` (thesis
             mode's default), ``lu`` or ``qp``.
-        qp_backend: ``proxsuite`` or ``kkt`` (default: proxsuite in thesis mode, kkt in default mode).
+        qp_backend: ``proxsuite`` or ``kkt`` (default: proxsuite in thesis mode, kkt in default mode, which
+            solves with R's LU factors and does not take ``proxsuite``).
         tol: the corrector's tolerance on ||F|| (default mode).
         liegeois_gain: the gradient-projection gain k of the Liegeois baseline [1/s].
     """
@@ -325,6 +331,8 @@ class ResolvedRate:
         check_choice("linear solver", linear_solver, LINEAR_SOLVERS)
         qp_backend = qp_backend or ("proxsuite" if mode == "thesis" else "kkt")
         check_choice("QP backend", qp_backend, QP_BACKENDS)
+        if mode == "default":  # it solves with R's LU factors, which its corrector needs
+            check_choice("QP backend of mode='default' (proxsuite is for mode='thesis')", qp_backend, ("kkt",))
         if robot.task == "pose" and not path.has_orientation:
             raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
@@ -464,14 +472,14 @@ class ResolvedRate:
         lu, piv = self._factor(pt, M)
         # one right-hand side per solve: dgetrs with two goes through a level-3 triangular solve, slower
         # on these sizes and, with OpenBLAS threads, prone to millisecond waits on a busy machine
-        sol = lapack.dgetrs(lu, piv, np.concatenate((top, pt.xdot)))[0]  # Eq. (4.24)
+        sol = _lu_solve((lu, piv), np.concatenate((top, pt.xdot)))  # Eq. (4.24)
         if not math.isfinite(float(sol @ sol)):  # the rates are finite iff the step's terms are
             self.sys.check_sample(self.t)
             raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
         F = pt.residual(lam)
         tol = self._tol(pt)
         if not float(F @ F) <= tol * tol:  # "not <=": a NaN residual is not converged
-            d = lapack.dgetrs(lu, piv, F)[0]
+            d = _lu_solve((lu, piv), F)
             y_pred, y = y, y - d
             if not float(d @ d) <= tol:
                 y, ok = self._chord(y, (lu, piv), tol)
@@ -504,10 +512,15 @@ class ResolvedRate:
         self.sys.check_sample(self.t)  # a non-finite path sample says so itself
         return y, False
 
-    def _rates(self) -> None:
-        """Evaluate the full system at the current point and solve for the rates (Eq. 4.24 or baseline)."""
+    def _rates(self, pt: _Point | None = None) -> None:
+        """Evaluate the full system at the current point and solve for the rates (Eq. 4.24 or baseline).
+
+        ``pt``: the baselines' evaluation at the current point when the caller has it (no dK needed).
+        """
         baseline = self.scheme in ("pseudoinverse", "liegeois")
-        pt = self.pt = self.sys.point(self.q, self.t, need_dJ=not baseline)
+        if pt is None:
+            pt = self.sys.point(self.q, self.t, need_dJ=not baseline)
+        self.pt = pt
         xdot = pt.xdot
         if self.mode == "thesis":
             xdot = xdot - pt.r / self.dt  # velocity correction, Eq. (4.29)
@@ -543,7 +556,7 @@ class ResolvedRate:
         elif self.scheme in ("pseudoinverse", "liegeois"):
             self.q = q + h * self.qdot
             self.t = t_next
-            self._project_task()
+            pt = self._project_task()
         else:
             y, yd = self._y, self._yd
             # predictor: Euler at the first step, then Hermite extrapolation (cubic, then quintic)
@@ -556,7 +569,7 @@ class ResolvedRate:
             self._correct(y_p)  # checks its results for non-finite values
             return
         self._check_finite(q)
-        self._rates()
+        self._rates(pt if self.mode == "default" else None)
         self._check_finite(q)
         step = max(1.0, float(np.abs(self.pt.xdot).max())) * h
         self._check_on_path(self.pt, "the tracked configuration", limit=max(1e-3, 50.0 * step))
@@ -568,13 +581,13 @@ class ResolvedRate:
             self.sys.check_sample(self.t)
             raise PathError(f"non-finite joint values or rates at t = {self.t:.6g} s", t=self.t, q=q_before)
 
-    def _project_task(self, max_iter: int = 20) -> None:
-        """Minimum-norm Newton projection onto the task at self.t (default-mode baselines)."""
+    def _project_task(self, max_iter: int = 20) -> _Point:
+        """Minimum-norm Newton projection onto the task at self.t (default-mode baselines); the final point."""
         for _ in range(max_iter):
             pt = self.sys.point(self.q, self.t, need_dJ=False)
             err = float(np.abs(pt.r).max())
             if err <= self.tol * max(1.0, float(np.abs(pt.sample.p).max())):
-                return
+                return pt
             if not math.isfinite(err):
                 self.sys.check_sample(self.t)
                 raise PathError(f"non-finite task residual at t = {self.t:.6g} s", t=self.t, q=self.q)
@@ -582,7 +595,13 @@ class ResolvedRate:
         raise PathError(f"the task projection did not converge at t = {self.t:.6g} s", t=self.t, q=self.q)
 
     def record_point(self) -> _Point:
-        """The terms at the current (q, t), for the record (the step's own evaluation may be at the predictor)."""
+        """The terms at the current (q, t), for the record.
+
+        The step's own evaluation where it was made at (q, t) (thesis mode, baselines); the default mode's
+        is at the predicted point, so the record evaluates afresh.
+        """
+        if self.pt.q is self.q and self.pt.t == self.t:
+            return self.pt
         return self.sys.point(self.q, self.t, need_dJ=False)
 
     def lam_full(self) -> np.ndarray:

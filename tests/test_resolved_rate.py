@@ -330,3 +330,30 @@ def test_hermite_predictor_is_exact_to_its_degree(points):
         assert (err < 1e-12) if exact else (err > 1e-9 * abs(c[-1]))
     if points == 2:
         assert np.allclose(w, [5.0, 2.0 * h, -4.0, 4.0 * h])  # the cubic of the literature
+
+
+@pytest.mark.parametrize("name", ["4.2", "4.3", "panda"])
+def test_default_mode_rates_are_the_time_derivative_of_the_path(name):
+    """The rates the corrector solves for (Eq. 4.24 at the predicted point) match central differences of
+    the tracked joints and multipliers; they drive the predictor, which the corrector would otherwise hide.
+
+    The Panda's rolling tool has non-zero orientation multipliers, so its rates need (dJ/dt)^T lambda.
+    """
+    if name == "panda":
+        from kinredund.examples.panda_circle import panda_circle
+
+        r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    else:
+        ex = example(name)
+        r, path, index, q0 = ex.robot, ex.path, ex.index, ex.q0
+    dt = path.period / 2000
+    rr = ResolvedRate(r, path, index, q0, dt)
+    ys, yds = [], []
+    for _ in range(300):
+        rr.advance()
+        ys.append(np.concatenate([rr.q, rr.lam]))
+        yds.append(np.concatenate([rr.qdot, rr.lamdot]))
+    ys, yds = np.array(ys), np.array(yds)
+    fd = (ys[2:] - ys[:-2]) / (2 * dt)
+    scale = np.abs(yds).max()
+    assert np.abs(yds[1:-1] - fd).max() < 1e-4 * scale
