@@ -1,5 +1,9 @@
 """Resolved-rate timing on the Panda and the CYBOTECH P-15 (issue 4).
 
+Paths, 200 steps per loop: the Panda's 0.1 m circle through its home pose with the tool rolling +-15 deg
+about its axis (``panda_circle(wrist_amplitude=15 deg)``, the ``wrist15`` variant of ``peers.py``);
+Example 4.3's circle with the Frenet frame on the P-15.
+
 Per robot, medians over one run of:
 
 - ``eval_us``, one evaluation of the scheme as the issue lists it (Jacobians, Lambda*, lambda*, solve),
@@ -57,6 +61,9 @@ KEYS = {
     "pink_limits_step_us": "pink FrameTask step, solve_ik with proxqp, pink's default limits (Panda)",
     "in_turn_us": "the default steps (augmented, velocity) and pink's QP step timed in turn, one step each per "
                   "round (Panda)",
+    "evals_per_step": "evaluations of the scheme per default-mode step (augmented), two loops",
+    "predictor_miss_median": "median |q_predicted - q_corrected| [rad] of the default mode's predictor, second loop",
+    "predictor_miss_max": "largest |q_predicted - q_corrected| [rad], second loop",
     "default_over_pink": "in_turn_us: step_default_us / pink_step_us",
     "default_velocity_over_pink": "in_turn_us: step_default_velocity_us / pink_step_us",
 }
@@ -102,6 +109,34 @@ def _pink_steps(robot, path, q0, dt, limits: bool):
     return _Pink(robot, path, q0, dt, posture=False, limits=limits).step
 
 
+def predictor_figures(robot, path, index, q0, dt, loops: int = 2) -> dict:
+    """How far the default mode's predictor misses and what that costs, over ``loops`` loops.
+
+    ``evals_per_step``: evaluations of the scheme per step (1 when one Newton update ends the corrector,
+    more where chord iterations follow); ``predictor_miss_median`` / ``_max``: |q_predicted -
+    q_corrected| [rad] over the steps after the first loop (the predictor's start-up excluded).
+    """
+    rr = ResolvedRate(robot, path, index, q0, dt)
+    n, calls, misses = robot.nq, [0], []
+    point, correct = rr.sys.point, rr._correct
+
+    def counted_point(*args, **kwargs):
+        calls[0] += 1
+        return point(*args, **kwargs)
+
+    def measured_correct(y):
+        correct(y)
+        misses.append(float(np.abs(y[:n] - rr.q).max()))
+
+    rr.sys.point, rr._correct = counted_point, measured_correct
+    steps = loops * round(path.period / dt)
+    for _ in range(steps):
+        rr.advance()
+    tail = np.array(misses[steps // loops:])
+    return {"evals_per_step": calls[0] / steps, "predictor_miss_median": float(np.median(tail)),
+            "predictor_miss_max": float(tail.max())}
+
+
 def bench(name: str, steps: int) -> dict:
     robot, path, index, q0 = _setup(name)
     dt = path.period / 200
@@ -131,6 +166,7 @@ def bench(name: str, steps: int) -> dict:
         out["in_turn_us"] = turn
         out["default_over_pink"] = turn["step_default_us"] / turn["pink_step_us"]
         out["default_velocity_over_pink"] = turn["step_default_velocity_us"] / turn["pink_step_us"]
+    out.update(predictor_figures(robot, path, index, q0, dt))
     return out
 
 
@@ -182,6 +218,9 @@ def main() -> None:
               f"{turn['step_default_velocity_us']:.3g} us, pink {turn['pink_step_us']:.3g} us; default step / pink QP "
               f"step: {panda['default_over_pink']:.2f} (augmented), {panda['default_velocity_over_pink']:.2f} "
               "(velocity form); target <= 1")
+    for name, r in results.items():
+        print(f"{name}: default-mode predictor misses by {r['predictor_miss_median']:.2g} rad (median, largest "
+              f"{r['predictor_miss_max']:.2g}); {r['evals_per_step']:.2f} evaluations per step")
     write_json(args.json, {"robots": results, "keys": KEYS})
     if args.plot is not None:
         write_plot(results, args.plot)

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import functools
+import importlib.util
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +29,20 @@ def configurations(r: kinredund.Robot, seed: int, count: int = 3, margin: float 
     hi = np.minimum(r.upper, np.pi)
     span = hi - lo
     return [rng.uniform(lo + margin * span, hi - margin * span) for _ in range(count)]
+
+
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+
+
+@functools.cache
+def load_benchmark(name: str):
+    """The module of ``benchmarks/NAME.py`` (the scripts import their sibling ``_bench``)."""
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.insert(0, str(BENCHMARKS))
+    spec = importlib.util.spec_from_file_location(f"kinredund_bench_{name}", BENCHMARKS / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 @pytest.fixture(params=ALL_ROBOTS)

@@ -4,29 +4,19 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_benchmark
 
 from kinredund.errors import KinredundError
 
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 KEYS = {"step_us_median", "step_us_p95", "drift", "position_error_max", "orientation_error_max",
         "normality_residual_max"}
 
 
-def _load_peers():
-    sys.path.insert(0, str(BENCH))  # peers.py imports its sibling _bench
-    spec = importlib.util.spec_from_file_location("kinredund_bench_peers", BENCH / "peers.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-peers = _load_peers()
+peers = load_benchmark("peers")
 
 
 def _has(module: str) -> bool:

@@ -3,21 +3,10 @@
 from __future__ import annotations
 
 import importlib.util
-import sys
-from pathlib import Path
 
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
+from conftest import load_benchmark
 
-
-def _load():
-    sys.path.insert(0, str(BENCH))  # the script imports its sibling _bench
-    spec = importlib.util.spec_from_file_location("kinredund_bench_resolved_rate", BENCH / "resolved_rate.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-bench = _load()
+bench = load_benchmark("resolved_rate")
 
 
 def test_panda_figures_and_plot(tmp_path):
@@ -26,8 +15,10 @@ def test_panda_figures_and_plot(tmp_path):
     assert keys <= set(res) and all(res[k] > 0 for k in keys)
     if importlib.util.find_spec("pink") is not None:
         assert res["pink_step_us"] > 0 and res["pink_limits_step_us"] > 0
-        # a sanity band, not a speed target: both take ~100 us; a unit slip (s, ms) lands far outside it
+        # a sanity band, not a speed target (both take ~100 us); the units are _bench's, tested below
         assert 0.1 < res["default_over_pink"] < 10 and 0.1 < res["default_velocity_over_pink"] < 10
+    # on this smooth path the predictor lands within 1e-8 rad, so one Newton update ends most steps
+    assert res["predictor_miss_median"] < 1e-8 and 1.0 <= res["evals_per_step"] < 1.1
     out = tmp_path / "times.png"
     bench.write_plot({"panda": res}, out)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -105,3 +96,13 @@ def test_pink_step_tracks_the_same_path():
         assert abs(runner.t - 20 * dt) < 1e-12
         assert np.linalg.norm(T[:3, 3] - path(runner.t).p) < 1e-3
         assert np.linalg.norm(T[:3, 3] - path(0.0).p) > 0.01  # it moved along the circle
+
+
+def test_timings_are_in_microseconds():
+    """time_calls and time_in_turn report microseconds: a 2 ms sleep reads 2000-20000 us."""
+    import time
+
+    _bench = load_benchmark("_bench")
+    assert 2000 <= _bench.time_calls(lambda: time.sleep(2e-3), repeat=3, warmup=0)["median_us"] < 20000
+    both = _bench.time_in_turn({"a": lambda: time.sleep(2e-3), "b": lambda: None}, repeat=3, warmup=0)
+    assert 2000 <= both["a"]["median_us"] < 20000 and both["b"]["median_us"] < 1000
