@@ -52,9 +52,6 @@ def hd_to_model(table: HDTable) -> pin.Model:
     return model
 
 
-def _rpy(R: np.ndarray) -> np.ndarray:
-    return pin.rpy.matrixToRpy(R)
-
 
 def _origin(T: np.ndarray) -> np.ndarray:
     return np.asarray(T, dtype=float).copy()

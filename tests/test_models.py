@@ -225,7 +225,9 @@ def test_sample_box_cuts_unbounded_limits():
     lo, hi = r.sample_box(0.1)
     span = r.upper - r.lower
     assert np.array_equal(lo, r.lower + 0.1 * span) and np.array_equal(hi, r.upper - 0.1 * span)
-    qs = np.array([r.random_configuration(np.random.default_rng(3), 0.1) for _ in range(5)])
+    rng = np.random.default_rng(3)
+    qs = np.array([r.random_configuration(rng, 0.1) for _ in range(5)])
+    assert len({tuple(q) for q in qs}) == 5  # five draws, not one draw five times
     assert np.all((qs >= lo) & (qs <= hi))
     model = r.model.copy()
     lower, upper = model.lowerPositionLimit.copy(), model.upperPositionLimit.copy()
