@@ -27,11 +27,12 @@ from _bench import best_of_us, parser, print_table, write_json
 
 from kinredund.closed_form import ClosedFormIK, conditioning, polynomial_route, solve_redundancy
 from kinredund.closed_form.polynomial import real_roots
-from kinredund.closed_form.positioning import constraint_value, plane_radius2
-from kinredund.closed_form.redundancy import wrap
+from kinredund.closed_form.positioning import plane_radius2
+from kinredund.closed_form.redundancy import constraint_terms
 from kinredund.examples.helix_3_2 import reproduce as helix_3_2
 from kinredund.ik import solve_ik
 from kinredund.indices import JointDeviation
+from kinredund.trajectory import wrap_joints
 
 NEAR_DEGENERATE_RHO2 = 1.0  # [m^2]
 NEAR_DEGENERATE_THETA3_DEG = 179.9  # the reference theta3*, 0.1 deg from where the curve crosses theta3 = pi
@@ -52,8 +53,8 @@ def near_degenerate(geom, theta3_deg: float = NEAR_DEGENERATE_THETA3_DEG, rho2: 
     A, B, C, D = geom.constraint_coefficients(rho2)  # Eqs. (3.26)-(3.29)
     P, S, R0 = B + D * math.cos(t3), -D * math.sin(t3), A + C * math.cos(t3)
     half = math.acos(-R0 / math.hypot(P, S))
-    t4 = min(float(wrap(math.atan2(S, P) + sign * half)) for sign in (1.0, -1.0))
-    off = constraint_value(geom, rho2, t3, t4)  # Eq. (3.25)
+    t4 = min(float(wrap_joints(math.atan2(S, P) + sign * half)) for sign in (1.0, -1.0))
+    off = constraint_terms((A, B, C, D), t3, t4)[0]  # Eq. (3.25)
     if abs(off) > 1e-12:
         raise SystemExit(f"near-degenerate case: the reference is off the constraint curve by {off:.3g} m^2")
     minimum = solve_redundancy(geom, rho2, (t3, t4), "sincos")
@@ -108,7 +109,7 @@ def main() -> None:
             t0 = time.perf_counter()
             res = solve_ik(robot, T, index, starts=8, seed=1)
             times.append((time.perf_counter() - t0) * 1e6)
-            dist = min(np.abs(wrap(b.q - res.q)).max() for b in found)
+            dist = min(np.abs(wrap_joints(b.q - res.q)).max() for b in found)
             agree += int(res.converged and dist < 1e-9)
         results["solve_ik_8_starts"] = _stats(np.array(times))
         results["solve_ik_agreement"] = agree / len(times)

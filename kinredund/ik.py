@@ -33,8 +33,8 @@ from time import perf_counter
 
 import numpy as np
 
-from .errors import TaskError
-from .ik_newton import RANK_TOL, Setup, StartOutcome, bound_kkt, run_start
+from .errors import TaskError, check_count
+from .ik_newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, bound_kkt, run_start
 from .ik_qp import BoxStep
 from .ik_residual import TaskResidual
 from .indices import Index
@@ -57,7 +57,10 @@ class IKResult:
         iterations: iterations of the returned start.
         residual: ||g(q) - x||, the closure 7-vector of Eq. (2.13) for pose tasks.
         normality_residual: ||L^T grad z||, Eqs. (D.9)/(D.30) (with bounds: the KKT residual including
-            the multipliers of the limits that hold); 0.0 without an index.
+            the multipliers of the limits that hold); 0.0 without an index. For a converged result this
+            and the second-order fields come from the last iteration (L the null space of its G, which
+            equals K[rows] up to O(||e||), :mod:`kinredund.ik_residual`); :func:`check_optimality`
+            evaluates them on K itself.
         objective: z(q); 0.0 without an index.
         reduced_hessian_pd: Eq. (D.33): L^T (Hess z + Lambda) L positive definite (False without an
             index: there is nothing to check).
@@ -169,9 +172,15 @@ def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bo
         )
     Q, p, K, dk = robot.kinematics.jacobian_hessian(q)
     z, grad, H = index.evaluate(q) if zgh is None else zgh
-    Kr = K[res.rows]
-    normality, lam, L, active = bound_kkt(Kr, grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
-    M = H + dk.contract(lam, res.rows)  # Hess z + Lambda*, Eq. (4.37)
+    normality, lam, L, active = bound_kkt(K[res.rows], grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
+    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam, L, active), res.rows)
+
+
+def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Optimality:
+    """The report of Eq. (D.33) from the first-order terms at one q (:func:`_optimality`, or the
+    converged iteration of a start)."""
+    M = t.hessian + t.dk.contract(t.multipliers, rows)  # Hess z + Lambda*, Eq. (4.37)
+    L = t.null_space
     Br = L.T @ M @ L
     Br = 0.5 * (Br + Br.T)  # symmetric on the null space of K (Section 4.2)
     if Br.shape[0]:
@@ -180,14 +189,12 @@ def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bo
         pd = bool(min_eig > RANK_TOL * max(1.0, float(np.abs(w).max())))  # Eq. (D.33)
     else:
         min_eig, pd = float("inf"), True
-    return Optimality(res.residual(Q, p), normality, float(z), pd, min_eig, lam, Br, L, active)
+    return Optimality(residual, t.normality, t.objective, pd, min_eig, t.multipliers, Br, L, t.active)
 
 
 def _check_options(robot, starts, tol, max_iter, timeout) -> None:
-    if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 1:
-        raise TaskError(f"starts must be an integer >= 1, got {starts!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise TaskError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+    check_count(starts, 1, "starts", TaskError)
+    check_count(max_iter, 1, "max_iter", TaskError)
     if not (isinstance(tol, (int, float)) and np.isfinite(tol) and tol > 0):
         raise TaskError(f"tol must be a finite number > 0, got {tol!r}")
     if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
@@ -205,11 +212,6 @@ def _check_options(robot, starts, tol, max_iter, timeout) -> None:
 POSE_SAMPLE_MARGIN = 0.2
 #: multi-start samples are drawn this many at a time
 SAMPLE_BATCH = 16
-
-
-def sample_box(robot, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """The box multi-start samples are drawn from: :meth:`kinredund.Robot.sample_box`."""
-    return robot.sample_box(margin)
 
 
 def _wrap_into_limits(robot, q: np.ndarray, index: Index | None) -> tuple[np.ndarray, list[int]]:
@@ -310,7 +312,7 @@ def solve_ik(
             if (k - 1) % SAMPLE_BATCH == 0:  # the same draws as one at a time, fewer calls
                 if rng is None:
                     rng = np.random.default_rng(seed)
-                    box = sample_box(robot, POSE_SAMPLE_MARGIN if index is None else 0.0)
+                    box = robot.sample_box(POSE_SAMPLE_MARGIN if index is None else 0.0)
                 batch = rng.uniform(*box, size=(min(SAMPLE_BATCH, int(starts) - k), robot.nq))
             qs = batch[(k - 1) % SAMPLE_BATCH]
         setup.quick_exit = k < starts - 1 or timeout is not None
@@ -336,7 +338,10 @@ def solve_ik(
             normality_residual=0.0, objective=0.0, reduced_hessian_pd=False, reduced_hessian_min_eig=float("nan"),
             reason=best.reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
         )
-    opt = _optimality(robot, res, best.q, index, bounds)
+    if best.terms is None:  # not converged, or turned into the limits: evaluate the report at q
+        opt = _optimality(robot, res, best.q, index, bounds)
+    else:  # the converged iteration's terms: no second kinematics pass
+        opt = _second_order(best.residual, best.terms, res.rows)
     return IKResult(
         q=best.q, converged=best.converged, iterations=best.iterations, residual=opt.residual,
         normality_residual=opt.normality_residual, objective=opt.objective,

@@ -16,9 +16,13 @@ phi = z + rho ||e|| (Armijo test, with one second-order correction -Y R^-T e(the
 Maratos effect). Where x0 cannot be trusted (G near singular, or x0 moving a joint by more than
 :data:`MAX_STEP`), a damped least-squares step on the constraints alone replaces the step
 (Levenberg-Marquardt, damping mu = LM_WEIGHT ||e||^2 + DAMPING max|G|^2 after Sugihara 2011).
-Every step is scaled down to move no joint by more than :data:`MAX_STEP`. With joint limits as
-bounds, a step that would leave them is recomputed as a box-constrained QP (:mod:`kinredund.ik_qp`);
-first-order optimality then includes the multipliers of the active bounds.
+Step sizes: x0 is taken in full only when it moves no joint by more than :data:`MAX_STEP`, and the
+null-space part L u is scaled down to that size on its own, so a step x0 + L u can move a joint by
+up to 2 MAX_STEP (x0 still restores g = x to first order in full); the restoration steps and the
+bounded steps below are scaled down to MAX_STEP as a whole. With joint limits as bounds, a step that
+would leave them is recomputed as a box-constrained QP (:mod:`kinredund.ik_qp`); first-order
+optimality then includes the multipliers of the active bounds. A converged start hands the terms of
+its last iteration to the optimality report (:class:`OptimalityTerms`): no second kinematics pass.
 
 A pose-only solve (no index) is the x0 part alone in its damped form, kept lean because multi-start
 IK runs it many times (:func:`_pose_only`): Levenberg-Marquardt steps d = -G^T (G G^T + mu 1)^-1 e
@@ -44,7 +48,9 @@ from .indices import Index
 
 #: Armijo sufficient-decrease constant
 ARMIJO = 1e-4
-#: largest joint change per iteration (infinity norm) [rad or m]
+#: cap on the joint change (infinity norm) of each part of a step with an index: the minimum-norm
+#: part x0 (larger: a restoration step instead), the null-space part L u, and the restoration and
+#: bounded steps as a whole (see the module docstring: x0 + L u may reach 2 MAX_STEP) [rad or m]
 MAX_STEP = 1.0
 #: smallest step fraction tried by the backtracking line search
 MIN_ALPHA = 2.0**-20
@@ -112,15 +118,41 @@ class Setup:
         self.turnable = [bool(r) and 2.0 * math.pi - w < TURN_GAP for r, w in zip(revolute, spans, strict=True)]
 
 
+@dataclass(frozen=True)
+class OptimalityTerms:
+    """The first-order terms at one q with an index, from which the report of Eq. (D.33) follows.
+
+    Attributes:
+        normality: the normality (KKT) residual, Eqs. (D.9)/(D.30).
+        objective: z(q).
+        hessian: Hess z (n x n).
+        dk: dK at q as a :class:`kinredund.kinematics.HessianContraction`.
+        multipliers: lambda* on the task rows of K (K[rows]^T lambda* = -grad z, least squares).
+        null_space: L (n x k), orthonormal basis of the null space of the constraint Jacobian and the
+            held limits.
+        active: mask (n,) of the joint limits that hold.
+    """
+
+    normality: float
+    objective: float
+    hessian: np.ndarray
+    dk: object
+    multipliers: np.ndarray
+    null_space: np.ndarray
+    active: np.ndarray
+
+
 @dataclass
 class StartOutcome:
-    """The end of one start: where it stopped and why."""
+    """The end of one start: where it stopped and why; ``terms``: those of a converged start with an
+    index at its q (None otherwise)."""
 
     q: np.ndarray
     converged: bool
     iterations: int
     reason: str
     residual: float
+    terms: OptimalityTerms | None = None
 
 
 # -- linear algebra ------------------------------------------------------------------------------
@@ -172,7 +204,7 @@ def _mu(G: np.ndarray, e: np.ndarray) -> float:
 
 
 def cap_step(d: np.ndarray) -> np.ndarray:
-    """Scale d so that no joint moves more than :data:`MAX_STEP` in one iteration."""
+    """Scale d so that no joint moves more than :data:`MAX_STEP` along it."""
     big = max(map(abs, d.tolist()))
     return d * (MAX_STEP / big) if big > MAX_STEP else d
 
@@ -373,18 +405,16 @@ def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it
     alpha = 1.0
     while alpha >= MIN_ALPHA:
         qt = _clip(s, q + alpha * d)
-        et = s.res.error(*s.kin.pose(qt))[0]
-        if 0.5 * float(et @ et) <= phi + ARMIJO * alpha * slope:
+        if 0.5 * s.res.error_terms(*s.kin.pose(qt))[1] <= phi + ARMIJO * alpha * slope:  # e only, no Jl^-1
             return qt
         alpha *= 0.5
     return _stall(q, it, r, "line search failed")
 
 
-def _merit(s: Setup, q: np.ndarray, rho: float) -> tuple[float, np.ndarray]:
-    """phi = z + rho ||e|| at q, and e."""
-    Q, p = s.kin.pose(q)
-    e, _ = s.res.error(Q, p)
-    return s.index.value(q) + rho * math.sqrt(float(e @ e)), e
+def _merit(s: Setup, q: np.ndarray, rho: float) -> tuple[float, tuple[float, ...]]:
+    """phi = z + rho ||e|| at q, and e (a tuple: no Jl^-1 is needed here)."""
+    e, ee = s.res.error_terms(*s.kin.pose(q))
+    return s.index.value(q) + rho * math.sqrt(ee), e
 
 
 def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
@@ -399,16 +429,21 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
         z, grad, H = index.evaluate(q)
         G = res.jacobian(K, jl)
         R, Y, L, ok = qr_split(G)  # G^T = Y R, G L = 0, Eq. (D.25)
+        L_kkt, active = L, None  # the null space and the held limits of the first-order conditions
         if s.bounds:
-            normality, lam, _, _ = bound_kkt(G, grad, q, s.lower, s.upper, True)
+            normality, lam, L_kkt, active = bound_kkt(G, grad, q, s.lower, s.upper, True)
         elif ok:
             lam = -solve_r(R, Y.T @ grad)  # least-squares multipliers, Eqs. (4.11)-(4.12)
             normality = float(np.linalg.norm(L.T @ grad))  # projected gradient, Eqs. (D.9), (D.30)
         else:
             lam, normality = np.zeros(res.m), math.inf
+        lam_k = res.k_multipliers(lam, jl)  # G^T lambda = K[rows]^T lambda*
         ntol = max(s.tol, 1e-13 * (1.0 + float(np.abs(grad).max())))
         if r < s.rtol and float(e @ e) < s.rtol * s.rtol and normality < ntol:
-            return StartOutcome(q, True, it, "", r)
+            if active is None:
+                active = np.zeros(q.shape[0], dtype=bool)
+            terms = OptimalityTerms(normality, float(z), H, dk, lam_k, L_kkt, active)  # for the report
+            return StartOutcome(q, True, it, "", r, terms)
         if it == s.max_iter:
             why = f"max_iter={s.max_iter} reached at residual {r:.3g}, normality residual {normality:.3g}"
             return StartOutcome(q, False, it, why, r)
@@ -429,7 +464,7 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
             continue
         enorm = math.sqrt(float(e @ e))
         rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1.0)  # exact penalty > ||lambda||; > 0 at grad z = 0
-        M = H + dk.contract(res.k_multipliers(lam, jl), rows)  # Hess z + Lambda, Eqs. (4.20)-(4.26)
+        M = H + dk.contract(lam_k, rows)  # Hess z + Lambda, Eqs. (4.20)-(4.26)
         Br = L.T @ M @ L
         w, V = np.linalg.eigh(0.5 * (Br + Br.T))
         wmod = np.maximum(np.abs(w), 1e-8 * max(1.0, float(np.abs(w).max())))  # PD where D.33 fails
@@ -470,7 +505,7 @@ def _merit_search(s: Setup, q, d, rho, phi, slope, R, Y) -> np.ndarray | None:
         goal = phi + ARMIJO * alpha * slope
         if phit <= goal or (alpha == 1.0 and -slope <= 1e-12 * (1.0 + abs(phi)) and float(np.abs(d).max()) < 1e-6):
             return qt
-        qc = _clip(s, qt + Y @ solve_rt(R, -et))  # second-order correction
+        qc = _clip(s, qt + Y @ solve_rt(R, -np.array(et)))  # second-order correction
         if _merit(s, qc, rho)[0] <= goal:
             return qc
         if not slope < 0.0:

@@ -12,6 +12,10 @@ of SO(3), so that de/dt = G thetadot exactly. Both vanish together with the clos
 e = 0 the null space of G is that of K and of J = H K. The residual *reported* for pose tasks is the
 norm of the closure 7-vector.
 
+This is the library's one task-residual layer: :mod:`kinredund.task` validates the targets, and the
+closure 7-vector and J = H K themselves are :func:`kinredund.closure.closure_vector` and
+:func:`kinredund.closure.displacement_jacobian`.
+
 Symbols: Q (3x3), p [m], K (6 x n) rows [omega; pdot] (Eq. 2.16), e (m,), G (m x n).
 """
 
@@ -69,24 +73,26 @@ class TaskResidual:
             self.x_d_list = self.x_d.tolist()
         self.m = self.rows.shape[0]
 
+    def _rotation_error(self, Q: np.ndarray) -> tuple[tuple[float, float, float], float]:
+        """log(Q Q_d^T) as Python floats (world axes) and its angle [rad]."""
+        R = Q @ self.QdT
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+        return closure.log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+
     def error(self, Q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(e, Jl^-1): the Newton error and, for pose tasks, the inverse left Jacobian at it."""
         if not self.pose:
             return p[self.rows - 3] - self.x_d, None
-        R = Q @ self.QdT
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
-        w, phi = closure.log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+        w, phi = self._rotation_error(Q)
         px, py, pz = p.tolist()
         dx, dy, dz = self.p_d_list
         return np.array([*w, px - dx, py - dy, pz - dz]), inverse_left_jacobian(w, phi)
 
     def error_terms(self, Q: np.ndarray, p: np.ndarray) -> tuple[tuple[float, ...], float]:
-        """(e, ||e||^2) with e as a tuple of floats: the cheap form of :meth:`error` for the pose-only
-        iteration, which needs neither Jl^-1 nor a numpy vector until it takes a step."""
+        """(e, ||e||^2) with e as a tuple of floats: the cheap form of :meth:`error` for the iterations
+        and line searches that need neither Jl^-1 nor a numpy vector."""
         if self.pose:
-            R = Q @ self.QdT
-            (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
-            (a, b, c), _ = closure.log_scalars(r00, r01, r02, r10, r11, r12, r20, r21, r22, R)
+            (a, b, c), _ = self._rotation_error(Q)
             px, py, pz = p.tolist()
             dx, dy, dz = self.p_d_list
             px, py, pz = px - dx, py - dy, pz - dz
@@ -109,10 +115,11 @@ class TaskResidual:
         return np.concatenate([jl_inv.T @ lam[:3], lam[3:]])
 
     def residual(self, Q: np.ndarray, p: np.ndarray) -> float:
-        """||g(theta) - x||: the closure 7-vector of Eq. (2.13) for pose tasks, else the position error."""
+        """||g(theta) - x||: the closure 7-vector of Eq. (2.13) for pose tasks (the entries of
+        :func:`kinredund.closure.closure_vector`, unrolled: the constrained iteration evaluates it at every
+        step), else the position error."""
         if not self.pose:
-            d = p[self.rows - 3] - self.x_d
-            return math.sqrt(float(d @ d))
+            return math.sqrt(self.error_terms(Q, p)[1])
         (q00, q01, q02), (q10, q11, q12), (q20, q21, q22) = Q.tolist()
         vx, vy, vz = self.vect_d_list
         a, b, c = q21 - q12 - 2.0 * vx, q02 - q20 - 2.0 * vy, q10 - q01 - 2.0 * vz  # 2 vect(Q) - 2 vect(Q_d)

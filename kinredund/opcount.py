@@ -79,9 +79,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 from fractions import Fraction
-from numbers import Integral
 
-from .errors import TaskError
+from .errors import TaskError, check_count
 
 #: The thesis's figures for a 7-axis arm with a 6-D task and Eq. (5.41)'s index (end of Chapter 5):
 #: (multiplications, additions) at the first point and at every point after.
@@ -134,17 +133,16 @@ class OperationCount:
 
 
 def _check_sizes(n, m, hessian_nonzeros) -> int:
-    for what, value in (("n (number of axes)", n), ("m (task dimension)", m)):
-        if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
-            raise TaskError(f"{what} must be a positive integer, got {value!r}")
+    n = check_count(n, 1, "n (number of axes)", TaskError)
+    m = check_count(m, 1, "m (task dimension)", TaskError)
     if m > min(n, 6):
         raise TaskError(f"the task dimension m must satisfy 1 <= m <= min(n, 6) = {min(n, 6)}, got m = {m}")
     if hessian_nonzeros is None:
         return n * n
-    h = hessian_nonzeros
-    if isinstance(h, bool) or not isinstance(h, Integral) or not 0 <= h <= n * n:
-        raise TaskError(f"hessian_nonzeros must be an integer in [0, n^2] = [0, {n * n}], got {h!r}")
-    return int(h)
+    h = check_count(hessian_nonzeros, 0, "hessian_nonzeros", TaskError)
+    if h > n * n:
+        raise TaskError(f"hessian_nonzeros must be an integer in [0, n^2] = [0, {n * n}], got {hessian_nonzeros!r}")
+    return h
 
 
 def stage_counts(n: int, m: int, *, hessian_nonzeros: int | None = None) -> tuple[StageCount, ...]:

@@ -1,12 +1,16 @@
-"""Tasks: what the end effector must do, as residuals and Jacobians on K (Chapters 2 and 4).
+"""Tasks: what the end effector must do, and the validated targets (Chapters 2 and 4).
 
 A task kind (``planar``, ``position``, ``pose``) sets the task dimension m and how a target is given:
 
 - ``planar``: target (x, y) [m] of point P; residual p[:2] - x_d; Jacobian rows pdot_x, pdot_y of K.
 - ``position``: target p_d (3,) [m]; residual p - p_d; Jacobian the pdot rows of K.
-- ``pose``: target a 4x4 homogeneous matrix (Q_d, p_d); residual the closure 7-vector of Eq. (2.13);
-  Jacobian J = H K of Eq. (2.14), 7 x n with one dependent row (Eq. 2.10). The twist-level Jacobian
-  is K itself (Eq. 4.31).
+- ``pose``: target a 4x4 homogeneous matrix (Q_d, p_d); residual the closure 7-vector of Eq. (2.13)
+  (:func:`kinredund.closure.closure_vector`); Jacobian J = H K of Eq. (2.14), 7 x n with one dependent
+  row (Eq. 2.10) (:func:`kinredund.closure.displacement_jacobian`). The twist-level Jacobian is K
+  itself (Eq. 4.31).
+
+The residuals and Jacobians the joint-level IK drives to zero are :class:`kinredund.ik_residual.TaskResidual`;
+the resolved-rate scheme takes the rows :data:`TASK_ROWS` of K.
 """
 
 from __future__ import annotations
@@ -70,28 +74,6 @@ def make_target(task: str, target, *, z: float = 0.0) -> Target:
     x = check_array(target, (size,), f"a {task} target")
     p = np.array([x[0], x[1], z]) if size == 2 else x.copy()
     return Target(task, p)
-
-
-def residual(target: Target, Q: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """g(theta) - x of Eq. (4.1): the planar or position error, or the closure 7-vector (Eq. 2.13)."""
-    if target.task == "pose":
-        return closure.closure_vector(Q, p, target.Q, target.p)  # Eq. (2.13)
-    rows = TASK_ROWS[target.task] - 3
-    return p[rows] - target.p[rows]
-
-
-def jacobian(task: str, Q: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """The displacement Jacobian J = dg/dtheta: rows of K, or H K for the pose task (Eq. 2.14)."""
-    if task == "pose":
-        return closure.displacement_jacobian(Q, K)  # Eq. (2.14)
-    return K[TASK_ROWS[task]]
-
-
-def jacobian_derivative(task: str, Q: np.ndarray, K: np.ndarray, dK: np.ndarray) -> np.ndarray:
-    """dJ/dtheta, shape (rows, n, n), matching :func:`jacobian`."""
-    if task == "pose":
-        return closure.displacement_jacobian_derivative(Q, K, dK)
-    return dK[TASK_ROWS[task]]
 
 
 def pose_errors(Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:

@@ -23,10 +23,11 @@ from kinredund.closed_form import (
     solve_redundancy,
 )
 from kinredund.closed_form.polynomial import real_roots, stationary_points
-from kinredund.closed_form.positioning import constraint_value, shoulder_branches, theta2_from
-from kinredund.closed_form.redundancy import constraint_curve, objective_terms, wrap
+from kinredund.closed_form.positioning import shoulder_branches, theta2_from
+from kinredund.closed_form.redundancy import constraint_curve, objective_terms
 from kinredund.errors import ChoiceError, HDTableError, JointVectorError, KinredundError, TaskError
 from kinredund.finite_diff import central_difference
+from kinredund.trajectory import wrap_joints
 
 #: Section 3.2 as printed: the isotropic references [deg] (NOTES.md, Chapter 3)
 THESIS_REFERENCES_DEG = (94.08, 97.41)
@@ -41,6 +42,12 @@ def _ik(d: float = 0.0) -> ClosedFormIK:
 
 def _geometry(a3: float = math.sqrt(2.0)) -> ArmGeometry:
     return ArmGeometry(b1=2.0, d=0.0, a2=2.0, a3=a3, a4=1.0, alpha7=0.0, theta0=(0.0,) * 7)
+
+
+def constraint_value(geom: ArmGeometry, rho2: float, theta3: float, theta4: float) -> float:
+    """The left-hand side of Eq. (3.25), A + B cos(theta4) + C cos(theta3) + D cos(theta3 + theta4) [m^2]."""
+    A, B, C, D = geom.constraint_coefficients(rho2)
+    return A + B * math.cos(theta4) + C * math.cos(theta3) + D * math.cos(theta3 + theta4)
 
 
 def _helix(beta: float) -> np.ndarray:
@@ -69,7 +76,7 @@ def test_every_branch_reproduces_the_target_pose(d):
             assert b.fk_residual < FK_TOL
             assert b.within_limits
         # the redundancy depends on xi^2 + eta^2 only: the same (theta3, theta4) on every branch
-        assert np.ptp([wrap(b.q[2:4] - branches[0].q[2:4]) for b in branches]) < 1e-12
+        assert np.ptp([wrap_joints(b.q[2:4] - branches[0].q[2:4]) for b in branches]) < 1e-12
 
 
 @pytest.mark.parametrize("d", [0.3, -0.25, 1.2])
@@ -96,7 +103,7 @@ def test_theta2_of_eqs_3_17_to_3_24_closes_the_planar_chain():
     for t2, t3, t4 in rng.uniform(-math.pi, math.pi, (50, 3)):
         w = geom.a2 * np.exp(1j * t2) + geom.a3 * np.exp(1j * (t2 + t3)) + geom.a4 * np.exp(1j * (t2 + t3 + t4))
         assert abs(constraint_value(geom, abs(w) ** 2, t3, t4)) < 1e-12  # Eq. (3.25)
-        assert abs(wrap(theta2_from(geom, w.real, w.imag, t3, t4) - t2)) < 1e-12
+        assert abs(wrap_joints(theta2_from(geom, w.real, w.imag, t3, t4) - t2)) < 1e-12
 
 
 # -- the 2-D problem -------------------------------------------------------------------------------------
@@ -116,7 +123,7 @@ def test_redundancy_solution_satisfies_first_and_second_order_conditions(objecti
         assert sol.curvature > 0.0
         # global: no point of a dense sampling of the curve does better
         pts = np.concatenate(constraint_curve(geom, rho2, 4001))
-        dev = wrap(pts - ref)
+        dev = wrap_joints(pts - ref)
         dense = 0.5 * (dev ** 2).sum(1) if objective == "angle" else 2.0 * (np.sin(0.5 * dev) ** 2).sum(1)
         assert sol.objective <= dense.min() + 1e-12
 
@@ -155,8 +162,8 @@ def test_closed_form_agrees_with_the_joint_level_ik_solver():
         T = r.fk(q)
         result = solve_ik(r, T, index, q0=q, starts=6, seed=1)
         assert result.converged
-        nearest = min(ik.solve_all(T), key=lambda b: np.abs(wrap(b.q - result.q)).max())
-        assert np.abs(wrap(nearest.q - result.q)).max() < 1e-9
+        nearest = min(ik.solve_all(T), key=lambda b: np.abs(wrap_joints(b.q - result.q)).max())
+        assert np.abs(wrap_joints(nearest.q - result.q)).max() < 1e-9
         assert abs(nearest.objective - result.objective) < 1e-9
 
 
@@ -371,3 +378,23 @@ def test_section_3_2_helix(tmp_path):
     assert max(saved["normality_residual"]) < 1e-12
     # smooth, no branch switch: no joint moves more per sample than theta1 (= beta)
     assert np.abs(np.diff(q, axis=0)).max() <= np.diff(beta).max() + 1e-12
+
+
+def test_section_3_2_writes_strict_json_and_checks_its_sample_count(tmp_path, monkeypatch):
+    """Non-finite numbers are written as null (strict JSON, no NaN/Infinity tokens); the sample count
+    must be an integer >= 2 (19.0 and 1 are refused)."""
+    from kinredund.errors import PathError
+    from kinredund.examples import helix_3_2
+
+    monkeypatch.setattr(helix_3_2, "_polynomial_route",
+                        lambda *a: {"root_condition_24": [float("inf")], "eps": float("nan")})
+    helix_3_2.reproduce(samples=3, json_path=tmp_path / "h.json")
+
+    def refuse(token):
+        raise AssertionError(f"non-standard JSON token {token}")
+
+    saved = json.loads((tmp_path / "h.json").read_text(), parse_constant=refuse)
+    assert saved["polynomial_route"] == {"root_condition_24": [None], "eps": None}
+    for bad in (19.0, 1, "19", True):
+        with pytest.raises(PathError, match="integer >= 2"):
+            helix_3_2.reproduce(samples=bad)

@@ -261,14 +261,16 @@ def test_lambda_star_structure_behind_the_lambda_counts():
 @pytest.mark.parametrize(
     ("n", "m", "h", "words"),
     [
-        (0, 1, None, "positive integer"),
-        (2.5, 1, None, "positive integer"),
-        (True, 1, None, "positive integer"),
-        (7, 0, None, "positive integer"),
+        (0, 1, None, "n (number of axes) must be an integer >= 1"),
+        (2.5, 1, None, "n (number of axes) must be an integer >= 1"),
+        (7.0, 1, None, "n (number of axes) must be an integer >= 1"),
+        (True, 1, None, "n (number of axes) must be an integer >= 1"),
+        (7, 0, None, "m (task dimension) must be an integer >= 1"),
         (3, 4, None, "min(n, 6)"),
         (9, 7, None, "min(n, 6)"),
-        (7, 6, -1, "hessian_nonzeros"),
-        (7, 6, 50, "hessian_nonzeros"),
+        (7, 6, -1, "hessian_nonzeros must be an integer >= 0"),
+        (7, 6, 49.0, "hessian_nonzeros must be an integer >= 0"),
+        (7, 6, 50, "hessian_nonzeros must be an integer in"),
     ],
 )
 def test_bad_sizes_raise_task_error(n, m, h, words):

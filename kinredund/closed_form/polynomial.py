@@ -12,7 +12,7 @@ The thesis substitutes the root t3 of the quadratic, Eq. (3.80), into the quarti
 square root: P + Q sqrt(Delta) = 0 -> P^2 - Q^2 Delta = 0, a polynomial of degree 24 in t4 (Eq. 3.81,
 coefficients in Appendix B). We build it with numpy polynomial arithmetic (:func:`thesis_polynomial`),
 and the Sylvester resultant of the two equations in t3 by evaluation at roots of unity and a discrete
-Fourier transform (:func:`resultant`). They satisfy P^2 - Q^2 Delta = 256 (E + G t4^2)^4 Res(t4), and
+Fourier transform (:func:`polynomial_route`). They satisfy P^2 - Q^2 Delta = 256 (E + G t4^2)^4 Res(t4), and
 Res(t4) = (1 + t4^2)^2 R12(t4): of the thesis's 24 roots, 8 are the spurious quadruple pair
 t4 = +-sqrt(-E/G) introduced by clearing the denominator 2 (E + G t4^2) of Eq. (3.80), 4 are t4 = +-i
 (double) from the half-tangent denominators, and only the 12 roots of R12 are stationary points of the
@@ -156,28 +156,21 @@ def _truncate(c: np.ndarray, degree: int) -> tuple[np.ndarray, float]:
     return c[:degree + 1].real.copy(), float(np.abs(c[degree + 1:]).max() / np.abs(c[:degree + 1]).max())
 
 
-def _resultant_and_reduced(system: HalfTangentSystem, nodes: int) -> tuple[tuple, tuple]:
-    """(:func:`resultant`, :func:`reduced_polynomial`) from one evaluation of the Sylvester determinants."""
-    z = _unit_nodes(nodes)
+#: interpolation nodes of the resultant (degree 16): twice its coefficients, so the tail measures exactness
+NODES = 32
+
+
+def _resultant_and_reduced(system: HalfTangentSystem) -> tuple[tuple, tuple]:
+    """From one evaluation of the Sylvester determinants at :data:`NODES` points: ((Res, tail),
+    (R12, tail)), with Res = Res_t3 of Eqs. (3.51) and (3.74), degree 16 in t4, and
+    R12 = Res / (1 + t4^2)^2, degree 12, whose roots are the stationary points. Each tail is
+    max |c_j| beyond the degree relative to max |c_j| within it: ~1e-16 when the interpolation (and,
+    for R12, the division by (1 + t4^2)^2) is exact."""
+    z = _unit_nodes(NODES)
     values = _sylvester_values(system, z)
     res = _truncate(_interpolate(values, z), 16)
     red = _truncate(_interpolate(values / (1.0 + z * z) ** 2, z), 12)
     return res, red
-
-
-def resultant(system: HalfTangentSystem, nodes: int = 32) -> tuple[np.ndarray, float]:
-    """Res_t3 of Eqs. (3.51) and (3.74), degree 16 in t4, and the size of its interpolation tail.
-
-    Returns:
-        (coefficients (17,), tail), tail = max |c_j| for j > 16 relative to max |c_j|, j <= 16.
-    """
-    return _resultant_and_reduced(system, nodes)[0]
-
-
-def reduced_polynomial(system: HalfTangentSystem, nodes: int = 32) -> tuple[np.ndarray, float]:
-    """R12 = Res / (1 + t4^2)^2, degree 12: its roots are the stationary points, and the tail of
-    its interpolation (relative), which is ~1e-16 when (1 + t4^2)^2 divides the resultant."""
-    return _resultant_and_reduced(system, nodes)[1]
 
 
 def real_roots(coeffs: np.ndarray, tol: float = 1e-7) -> np.ndarray:
@@ -230,7 +223,7 @@ def polynomial_route(geom: ArmGeometry, rho2: float, references) -> PolynomialRo
     """Build Eqs. (3.51), (3.74), (3.81), the resultant and its degree-12 factor."""
     system = half_tangent_system(geom, rho2, references)
     p24 = thesis_polynomial(system)
-    (res, _), (red, tail) = _resultant_and_reduced(system, 32)  # the 32 determinants once
+    (res, _), (red, tail) = _resultant_and_reduced(system)  # the determinants once
     spurious = npoly.polypow([system.E, 0.0, system.G], 4)
     factor = npoly.polymul(256.0 * spurious, res)
     factor_residual = float(np.abs(factor[:25] - p24).max() / np.abs(p24).max())

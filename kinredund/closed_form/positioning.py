@@ -266,8 +266,3 @@ def theta2_from(geom: ArmGeometry, xi: float, eta: float, theta3: float, theta4:
     n_c = K1 * xi + K2 * eta + xi * a3c3 + eta * a3s3 + geom.a2 * xi  # Eq. (3.20)
     return math.atan2(n_s, n_c)  # Eq. (3.24); sin and cos share the denominator D of Eq. (3.21)
 
-
-def constraint_value(geom: ArmGeometry, rho2: float, theta3: float, theta4: float) -> float:
-    """The left-hand side of Eq. (3.25), A + B cos(theta4) + C cos(theta3) + D cos(theta3 + theta4) [m^2]."""
-    A, B, C, D = geom.constraint_coefficients(rho2)
-    return A + B * math.cos(theta4) + C * math.cos(theta3) + D * math.cos(theta3 + theta4)  # Eq. (3.25)

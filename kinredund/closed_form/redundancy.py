@@ -40,10 +40,6 @@ from .positioning import ArmGeometry
 OBJECTIVES = ("angle", "sincos")
 
 
-#: angles [rad] brought into [-pi, pi) (the name is kept for callers of this module)
-wrap = wrap_joints
-
-
 # ---------------------------------------------------------------------------------------------------
 # the isotropic references
 @dataclass(frozen=True)
@@ -62,9 +58,10 @@ class IsotropicConfiguration:
     solutions: tuple[tuple[float, float, float], ...]
 
 
-def positioning_jacobian(geom: ArmGeometry, theta3: float, theta4: float, theta2: float = 0.0) -> np.ndarray:
-    """The 2x3 Jacobian [m/rad] of the wrist centre in the arm plane w.r.t. (theta2, theta3, theta4)."""
-    angles = np.cumsum([theta2, theta3, theta4])
+def positioning_jacobian(geom: ArmGeometry, theta3: float, theta4: float) -> np.ndarray:
+    """The 2x3 Jacobian [m/rad] of the wrist centre in the arm plane w.r.t. (theta2, theta3, theta4),
+    at theta2 = 0 (theta2 only rotates it: its singular values do not depend on theta2)."""
+    angles = np.cumsum([0.0, theta3, theta4])
     links = np.array([geom.a2, geom.a3, geom.a4]) * np.exp(1j * angles)
     r = np.cumsum(links[::-1])[::-1]  # r_k: from axis k to the wrist centre, k = 2, 3, 4
     return np.vstack([-r.imag, r.real])
@@ -115,7 +112,7 @@ def isotropic_configuration(geom: ArmGeometry, samples: int = 721) -> IsotropicC
             t3, t4 = t3 + step[0], t4 + step[1]
         sv = np.linalg.svd(positioning_jacobian(geom, t3, t4), compute_uv=False)
         if sv[1] > 0 and sv[0] - sv[1] <= 1e-9 * sv[0]:
-            t3, t4 = float(wrap(t3)), float(wrap(t4))
+            t3, t4 = float(wrap_joints(t3)), float(wrap_joints(t4))
             if all(abs(t3 - s[0]) + abs(t4 - s[1]) > 1e-9 for s in found):
                 found.append((t3, t4, float(sv[0])))
     if not found:
@@ -220,7 +217,7 @@ def _local_minima(raw: np.ndarray, zs: np.ndarray, samples: int) -> list[int]:
     out = [i * samples + 1 + k for i, k in zip(*np.nonzero(inner), strict=True)]
     ends = np.array([i * samples + e for i in range(n_arcs) for e in (0, samples - 1)])
     nbrs = ends + np.tile([1, -1], n_arcs)  # each end point's neighbour on its own arc
-    same = np.abs(wrap(raw[ends][:, None, :] - raw[ends][None, :, :])).max(axis=2) < 1e-9
+    same = np.abs(wrap_joints(raw[ends][:, None, :] - raw[ends][None, :, :])).max(axis=2) < 1e-9
     taken = np.zeros(ends.shape[0], dtype=bool)
     for a in range(ends.shape[0]):
         if not taken[a]:
@@ -289,7 +286,7 @@ def solve_redundancy(
     arcs = constraint_curve(geom, rho2, samples)
     pts = np.concatenate(arcs)
     if objective == "angle":  # the representatives nearest the references
-        pts = np.column_stack([ref3 + wrap(pts[:, 0] - ref3), ref4 + wrap(pts[:, 1] - ref4)])
+        pts = np.column_stack([ref3 + wrap_joints(pts[:, 0] - ref3), ref4 + wrap_joints(pts[:, 1] - ref4)])
         zs = 0.5 * ((pts[:, 0] - ref3) ** 2 + (pts[:, 1] - ref4) ** 2)
     else:
         zs = 2.0 * (np.sin(0.5 * (pts[:, 0] - ref3)) ** 2 + np.sin(0.5 * (pts[:, 1] - ref4)) ** 2)
@@ -300,7 +297,7 @@ def solve_redundancy(
         if objective == "angle":
             ok = ok and abs(t3 - ref3) <= math.pi and abs(t4 - ref4) <= math.pi
         else:  # Eq. (3.31) is 2 pi periodic: report the representatives nearest the references
-            t3, t4 = ref3 + float(wrap(t3 - ref3)), ref4 + float(wrap(t4 - ref4))
+            t3, t4 = ref3 + float(wrap_joints(t3 - ref3)), ref4 + float(wrap_joints(t4 - ref4))
         if not ok:
             continue
         summary = _summary(objective, coeffs, t3, t4, ref3, ref4)

@@ -9,7 +9,7 @@
   (theta_i - mid_i)^2 (Eq. 4.49).
 
 The starting configuration is the global constrained minimum of z at the path's start, found by the
-joint-level IK (multi-start, :func:`kinredund.ik.solve_ik`); the start problems live in
+joint-level IK (multi-start, :func:`kinredund.ik.solve_ik`); the paths and the start problems live in
 :mod:`kinredund.examples.starts`.
 """
 
@@ -21,13 +21,12 @@ import numpy as np
 
 from ..errors import ChoiceError, KinredundError
 from ..indices import Index
-from ..paths import Circle, Path
+from ..paths import Path
 from ..resolved_rate import track
 from ..robot import Robot
 from ..trajectory import Trajectory
 from . import starts
-
-EXAMPLES = ("4.1", "4.2", "4.3")
+from .starts import EXAMPLES, example_path
 
 #: what the thesis reports for each example (thesis mode, 200 steps per loop)
 THESIS_FIGURES = {
@@ -48,17 +47,6 @@ class Example:
     q0: np.ndarray
     start_residual: float
     start_normality: float
-
-
-def example_path(name: str) -> Path:
-    """The path of Example 4.1, 4.2 or 4.3."""
-    if name == "4.1":
-        return Circle((3.0, 3.0), 0.8, 1.0)
-    if name == "4.2":
-        return Circle((1.5, 1.5), 0.8, 1.0)
-    if name == "4.3":
-        return Circle((0.16, 0.0, 0.36), 0.14, 1.0, normal=(1.0, 0.0, 0.0), axis_x=(0.0, 1.0, 0.0), frenet=True)
-    raise ChoiceError("example", name, EXAMPLES)
 
 
 def load_example(name: str, starts_count: int = 24, seed: int = 0) -> Example:

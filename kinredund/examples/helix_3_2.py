@@ -23,10 +23,11 @@ import numpy as np
 
 from ..closed_form import ClosedFormIK, conditioning, polynomial_route, solve_redundancy
 from ..closed_form.positioning import plane_radius2
-from ..errors import PathError
+from ..errors import PathError, check_count
 from ..generate import atomic_write_text
 from ..paths import Helix
 from ..plots import save_figure
+from ..trajectory import json_ready
 
 #: the Section 3.2 helix x = 1.5 cos(beta), y = 1.5 sin(beta), z = (3/pi) beta + 2 (paths.Helix's defaults)
 HELIX = Helix(radius=1.5, pitch=3.0 / math.pi, z0=2.0, rate=1.0)
@@ -79,14 +80,14 @@ def _polynomial_route(ik: ClosedFormIK, solutions, points) -> dict:
     return out
 
 
-def reproduce(samples: int = 91, json_path=None, plot_path=None, branch: str = "front") -> dict:
-    """Solve the positioning problem along the helix and return the joint histories.
+def reproduce(samples: int = 91, json_path=None, plot_path=None) -> dict:
+    """Solve the positioning problem along the helix (front branch: theta1 = beta) and return the
+    joint histories.
 
     Args:
-        samples: number of equally spaced beta values in [0, pi/2] (>= 2).
-        json_path: where to write the result as JSON (atomically), or None.
+        samples: number of equally spaced beta values in [0, pi/2] (an integer >= 2).
+        json_path: where to write the result as JSON (atomically; non-finite numbers as null), or None.
         plot_path: where to save the joint histories (PNG, PDF or SVG by suffix), or None.
-        branch: the theta1 branch, ``front`` (theta1 = beta) or ``back``.
 
     Returns:
         A dict with ``beta`` [rad], ``t`` [s], ``wrist_centre`` [m], ``q`` (theta1..theta4 [rad] per
@@ -97,30 +98,19 @@ def reproduce(samples: int = 91, json_path=None, plot_path=None, branch: str = "
         (:class:`~kinredund.closed_form.Conditioning`).
 
     Raises:
-        PathError: samples not an integer >= 2; ChoiceError: unknown branch.
+        PathError: samples not an integer >= 2.
     """
-    from ..errors import check_choice
-
-    check_choice("branch", branch, ("front", "back"))
-    try:
-        ok = int(samples) == samples and samples >= 2
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise PathError(f"samples (points along the helix) must be an integer >= 2, got {samples!r}")
+    samples = check_count(samples, 2, "samples (points along the helix)", PathError)
     ik = ClosedFormIK()
-    beta = np.linspace(0.0, BETA_END, int(samples))
+    beta = np.linspace(0.0, BETA_END, samples)
     points = helix(beta)
-    rows = []
-    for p in points:
-        sol = next(s for s in ik.position_all(p) if s.shoulder == branch)
-        rows.append(sol)
+    rows = [next(s for s in ik.position_all(p) if s.shoulder == "front") for p in points]
     q = np.array([s.q for s in rows])
     data = {
         "example": "3.2",
         "robot": "puma7",
         "objective_kind": "angle, Eq. (3.30)",
-        "branch": branch,
+        "branch": "front",
         "references_deg": np.degrees(ik.references).tolist(),
         "references_thesis_deg": [94.08, 97.41],
         "beta": beta.tolist(),
@@ -140,7 +130,7 @@ def reproduce(samples: int = 91, json_path=None, plot_path=None, branch: str = "
     data["max_normality_residual"] = max(data["normality_residual"])
     data["max_joint_step_deg"] = float(np.degrees(np.abs(np.diff(q, axis=0))).max())
     if json_path is not None:
-        atomic_write_text(Path(json_path), json.dumps(data, indent=1))
+        atomic_write_text(Path(json_path), json.dumps(json_ready(data), indent=1, allow_nan=False))
     if plot_path is not None:
         _save_plot(data, Path(plot_path))
     return data
