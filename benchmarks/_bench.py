@@ -13,7 +13,6 @@ Three ways to time, for three kinds of call:
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import time
@@ -97,10 +96,10 @@ def parser(description: str) -> argparse.ArgumentParser:
 
 
 def write_json(path: Path | None, data: dict) -> None:
-    """Write the figures atomically (temporary file + rename)."""
+    """Write the figures and the machine as strict JSON, atomically (``kinredund.trajectory.write_json``)."""
     if path is None:
         return
-    from kinredund.generate import atomic_write_text
+    from kinredund.trajectory import write_json as write_strict_json
 
-    atomic_write_text(Path(path), json.dumps({"machine": machine(), **data}, indent=2))
+    write_strict_json(path, {"machine": machine(), **data}, indent=2)
     print(f"wrote {path}")

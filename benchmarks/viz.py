@@ -29,17 +29,19 @@ from kinredund.viz import replay_html, resample
 
 
 def synthetic(name: str, duration: float = 10.0, steps: int = 1001) -> tuple[kinredund.Robot, Trajectory]:
+    """Five loops of sinusoidal joints, p from FK, with every field the plots read (as ``track`` records them)."""
     r = kinredund.load_robot(name)
     rng = np.random.default_rng(0)
     t = np.linspace(0.0, duration, steps)
-    w = 2.0 * np.pi * t / (duration / 5)  # five loops
+    loops = 5
+    w = 2.0 * np.pi * t / (duration / loops)
     q = np.clip(r.home, r.lower + 0.7, r.upper - 0.7) + 0.5 * np.sin(w[:, None] + rng.uniform(0, 6, r.nq))
     p = np.array([r.fk(qi)[:3, 3] for qi in q])
     eigs = np.column_stack([0.4 * np.sin(w) - 0.1, 1.0 + 0.0 * w])
     return r, Trajectory(
         robot=name, task=r.task, t=t, q=q, p=p, p_desired=p, solver=tuple("lu" if e < 0 else "qp" for e in eigs[:, 0]),
         m_eigs=eigs, m_null_eigs=eigs[:, :1], position_error=1e-6 * (1 + np.abs(np.sin(w))),
-        loop_period=duration / 5,
+        loop_drift=1e-15 * np.arange(1, loops + 1), loop_period=duration / loops,
     )
 
 

@@ -8,6 +8,7 @@ of the kinredund family, printed as ``kinredund: error: ...``); 3 an unexpected 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import KinredundError
+from .trajectory import json_ready, write_json
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
 REPRODUCIBLE = ("3.2", "4.1", "4.2", "4.3", "6.2", "6.3")
@@ -36,6 +38,23 @@ def _vector(text: str) -> np.ndarray:
     if not values or not np.all(np.isfinite(values)):
         raise argparse.ArgumentTypeError(f"expected finite comma-separated numbers, got {text!r}")
     return np.array(values)
+
+
+def _at_least(minimum: int):
+    """An argparse type: an integer >= ``minimum`` (the bound the library checks too, so both agree)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from err
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+_COUNT = _at_least(1)  # loops, steps and starts: kinredund.resolved_rate.track and kinredund.ik.solve_ik
 
 
 def _progress(label: str):
@@ -122,47 +141,50 @@ def _index_for(robot, name: str):
 
 
 def _path_for(args, robot, q_start: np.ndarray):
-    """The path named by --path (argparse restricts it), starting at the pose of ``q_start`` for circles."""
+    """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
+
+    Circles and ellipses start at the pose of ``q_start``.
+    """
     from . import paths
-    from .trajectory import read_json_object
 
     if args.path == "file":
         if args.path_file is None:
-            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q')")
-        data = read_json_object(args.path_file)
-        if "t" not in data or "p" not in data:
-            raise KinredundError(f"{args.path_file} must hold a JSON object with 't' and 'p' (and optionally 'Q')")
-        return paths.SampledPath(data["t"], data["p"], data.get("Q"), closed=data.get("closed", True))
+            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
+        path, duration = paths.read_path_file(args.path_file)
+        return path, (duration if path.period is None else None)
     T0 = robot.fk(q_start)
     p0 = T0[:3, 3]
     if args.path == "ellipse":
         center = args.center if args.center is not None else p0[:2] - np.array([args.radius, 0.0])
-        return paths.Ellipse(center[:2], args.radius, args.radius / 2, rate=args.speed / args.radius)
+        return paths.Ellipse(center[:2], args.radius, args.radius / 2, rate=args.speed / args.radius), None
     normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
     center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
     if center.shape == (2,):
         center = np.append(center, p0[2] if robot.task != "planar" else 0.0)
     # pose tasks hold the start orientation along the circle
     return paths.Circle(center, args.radius, args.speed, normal=tuple(normal),
-                        orientation=T0[:3, :3] if robot.task == "pose" else None)
+                        orientation=T0[:3, :3] if robot.task == "pose" else None), None
 
 
 def _cmd_track(args) -> int:
     from .ik import solve_ik
     from .resolved_rate import track
     from .robot import load_robot
+    from .task import make_target
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
     seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
-    path = _path_for(args, robot, seed_q)
+    path, duration = _path_for(args, robot, seed_q)
     index = None if args.scheme == "pseudoinverse" else _index_for(robot, args.index)
     s0 = path(0.0)
-    target = s0.p[: robot.task_dim] if robot.task != "pose" else np.block([[s0.Q, s0.p[:, None]], [0, 0, 0, 1]])
+    target = make_target(robot.task, (s0.Q, s0.p) if robot.task == "pose" else s0.p[: robot.task_dim])
     res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts)
     if not res.converged:
         raise KinredundError(f"no starting configuration on the path: {res.reason}")
+    # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
+    span = {} if duration is None else {"duration": duration, "steps": args.steps}
     traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
-                 loops=args.loops, progress=_progress("tracking"))
+                 loops=args.loops, progress=_progress("tracking"), **span)
     print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode")
     _print_summary(traj.summary())
     if args.json:
@@ -194,21 +216,16 @@ def _cmd_ik(args) -> int:
         r_, p_, y_ = args.rpy
         Q = (rotation_from_invariants([0, 0, 1], y_) @ rotation_from_invariants([0, 1, 0], p_)
              @ rotation_from_invariants([1, 0, 0], r_))
-        target = np.eye(4)
-        target[:3, :3], target[:3, 3] = Q, args.target
+        target = (Q, args.target)  # what kinredund.task.make_target takes
     else:
         target = args.target
     index = None if args.index == "none" else _index_for(robot, args.index)
     q0 = None if args.q0 is None else robot.check_q(args.q0, "--q0")
     res = solve_ik(robot, target, index, q0=q0, bounds=args.bounds, starts=args.starts, seed=args.seed)
-    out = {"robot": robot.name, "q": res.q.tolist(), "converged": res.converged, "iterations": res.iterations,
-           "residual": res.residual, "normality_residual": res.normality_residual, "objective": res.objective,
-           "reduced_hessian_pd": res.reduced_hessian_pd, "reason": res.reason}
+    out = json_ready({"robot": robot.name, **dataclasses.asdict(res)})  # the IKResult's fields (docs/schema.md)
     print(json.dumps(out, indent=2))
     if args.json:
-        from .generate import atomic_write_text
-
-        atomic_write_text(Path(args.json), json.dumps(out))
+        write_json(args.json, out)
     return EXIT_OK if res.converged else EXIT_FAILED
 
 
@@ -259,8 +276,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reproduce", help="reproduce a thesis example")
     p.add_argument("example", choices=REPRODUCIBLE)
-    p.add_argument("--loops", type=int, default=1)
-    p.add_argument("--steps", type=int, default=200, help="steps per loop (default 200, as the thesis)")
+    p.add_argument("--loops", type=_COUNT, default=1)
+    p.add_argument("--steps", type=_COUNT, default=200, help="steps per loop (default 200, as the thesis)")
     p.add_argument("--mode", choices=("default", "thesis"), default="default")
     p.add_argument("--scheme", choices=("augmented", "velocity", "pseudoinverse", "liegeois"), default="augmented")
     p.add_argument("--json", type=Path)
@@ -272,7 +289,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ee-frame")
     p.add_argument("--task", choices=("planar", "position", "pose"))
     p.add_argument("--path", choices=("circle", "ellipse", "file"), default="circle")
-    p.add_argument("--path-file", type=Path, help="JSON with 't', 'p' [, 'Q', 'closed'] for --path file")
+    p.add_argument("--path-file", type=Path,
+                   help="for --path file: JSON with 't' [s], 'p' [m] and optionally 'Q', 'closed' (default true); "
+                        "times count from the first sample")
     p.add_argument("--center", type=_vector)
     p.add_argument("--radius", type=float, default=0.1)
     p.add_argument("--speed", type=float, default=0.1)
@@ -281,9 +300,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home")
     p.add_argument("--scheme", choices=("augmented", "velocity", "pseudoinverse", "liegeois"), default="augmented")
     p.add_argument("--mode", choices=("default", "thesis"), default="default")
-    p.add_argument("--loops", type=int, default=1)
-    p.add_argument("--steps", type=int, default=200)
-    p.add_argument("--starts", type=int, default=8)
+    p.add_argument("--loops", type=_COUNT, default=1, help="loops of a closed path (default 1)")
+    p.add_argument("--steps", type=_COUNT, default=200,
+                   help="steps per loop of a closed path, steps in all of an open one (default 200)")
+    p.add_argument("--starts", type=_COUNT, default=8)
     p.add_argument("--json", type=Path)
     p.add_argument("--plot", type=Path)
     p.add_argument("--html", type=Path)
@@ -298,14 +318,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--index", choices=("none", "home", "min-norm", "mid-range"), default="none")
     p.add_argument("--q0", type=_vector)
     p.add_argument("--bounds", action="store_true", help="respect the joint limits")
-    p.add_argument("--starts", type=int, default=1)
+    p.add_argument("--starts", type=_COUNT, default=1)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path)
     p.set_defaults(func=_cmd_ik)
 
     p = sub.add_parser("plan", help="off-line planning with collision avoidance (Chapter 6)")
     p.add_argument("case", choices=("6.2", "6.3"))
-    p.add_argument("--samples", type=int, default=9)
+    p.add_argument("--samples", type=_at_least(4), default=9,
+                   help="sample points of the 6.2 planner (at least 4, as kinredund.planning.plan needs for its cubic "
+                        "spline; 6.3 plans on a roadmap)")
     p.add_argument("--json", type=Path)
     p.add_argument("--plot", type=Path)
     p.set_defaults(func=_cmd_plan)
@@ -328,10 +350,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     args = build_parser().parse_args(argv)
-    for name in ("loops", "steps", "starts", "samples"):
-        if getattr(args, name, 1) is not None and getattr(args, name, 1) < 1:
-            print(f"kinredund: error: --{name} must be >= 1", file=sys.stderr)
-            return EXIT_USAGE
     try:
         return args.func(args)
     except KinredundError as err:

@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
 
 from .catalog import SHIPPED_TABLES
 from .errors import URDFError
 from .hd import HDTable
+from .kinematics import Kinematics
 from .models import EE_FRAME, hd_to_model, hd_to_urdf, load_urdf_text_model
 
 
@@ -55,21 +56,17 @@ def validated_urdf(table: HDTable, rng_seed: int = 0, samples: int = 5) -> str:
     import yourdfpy
 
     text = hd_to_urdf(table)
-    import io
-
     parsed = yourdfpy.URDF.load(io.BytesIO(text.encode()), load_meshes=False, build_collision_scene_graph=False)
     if not parsed.validate():
         raise URDFError(table.name, "yourdfpy does not validate the generated URDF")
     model = load_urdf_text_model(text)
     direct = hd_to_model(table)
     rng = np.random.default_rng(rng_seed)
-    d1, d2 = model.createData(), direct.createData()
-    f1, f2 = model.getFrameId(EE_FRAME), direct.getFrameId(EE_FRAME)
+    from_urdf, from_hd = Kinematics(model, model.getFrameId(EE_FRAME)), Kinematics(direct, direct.getFrameId(EE_FRAME))
     for _ in range(samples):
         q = rng.uniform(table.lower, table.upper)
-        pin.framesForwardKinematics(model, d1, q)
-        pin.framesForwardKinematics(direct, d2, q)
-        err = np.abs(d1.oMf[f1].homogeneous - d2.oMf[f2].homogeneous).max()
+        (Q1, p1), (Q2, p2) = from_urdf.pose(q), from_hd.pose(q)
+        err = max(np.abs(Q1 - Q2).max(), np.abs(p1 - p2).max())
         if err > 1e-12:
             raise URDFError(table.name, f"URDF and HD forward kinematics differ by {err:.3g}")
     return text

@@ -307,3 +307,34 @@ class SampledPath(Path):
         Q = self._rot(t).as_matrix()
         omega = Q @ self._rot(t, 1)  # RotationSpline's rate is in the body frame
         return PathSample(p, v, Q, omega)
+
+
+def read_path_file(file) -> tuple[SampledPath, float]:
+    """The sampled path of a JSON file (``kinredund track --path file``) and its duration [s].
+
+    The file holds an object with ``t`` (sample times [s], strictly increasing), ``p`` (positions,
+    N x 2 or N x 3 [m]), optionally ``Q`` (rotations, N x 3 x 3) and ``closed`` (true or false,
+    default true: the last sample must then equal the first). The times are shifted to start at 0,
+    where tracking starts.
+
+    Returns:
+        The :class:`SampledPath` and its duration t[-1] - t[0] [s] (the period of a closed path; what
+        an open path is tracked over).
+
+    Raises:
+        KinredundError: the file cannot be read or is not a JSON object; PathError: a missing key, a
+            ``closed`` that is not true or false, or samples :class:`SampledPath` rejects.
+    """
+    from .trajectory import read_json_object
+
+    data = read_json_object(file)
+    if "t" not in data or "p" not in data:
+        raise PathError(f"{file} must hold a JSON object with 't' and 'p' (and optionally 'Q' and 'closed')")
+    closed = data.get("closed", True)
+    if not isinstance(closed, bool):
+        raise PathError(f"'closed' in {file} must be true or false, got {closed!r}")
+    t = check_array(data["t"], (None,), f"sample times 't' in {file}", PathError)
+    if t.size == 0:
+        raise PathError(f"'t' in {file} holds no sample time")
+    path = SampledPath(t - t[0], data["p"], data.get("Q"), closed=closed)
+    return path, float(t[-1] - t[0])

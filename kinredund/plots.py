@@ -23,7 +23,7 @@ import numpy as np
 
 from .errors import KinredundError, check_choice
 from .generate import atomic_write
-from .trajectory import Trajectory, joint_drift
+from .trajectory import Trajectory
 
 PLOT_FORMATS = ("png", "pdf", "svg")
 #: Values below this are drawn at it on log scales (an exact zero has no logarithm).
@@ -33,13 +33,22 @@ _DPI = 120
 
 # -- helpers ---------------------------------------------------------------------------------------
 def _as_list(trajs: Trajectory | Sequence[Trajectory]) -> list[Trajectory]:
+    """The trajectories to draw, each validated by :meth:`Trajectory.checked` (arrays as numpy arrays)."""
     items = [trajs] if isinstance(trajs, Trajectory) else list(trajs)
     if not items:
         raise KinredundError("no trajectory to plot: give a Trajectory or a non-empty list of them")
     for k, tr in enumerate(items):
         if not isinstance(tr, Trajectory):
             raise KinredundError(f"item {k} is a {type(tr).__name__}, not a kinredund Trajectory")
-    return items
+    return [tr.checked() for tr in items]
+
+
+def _required(traj: Trajectory, name: str, hint: str = "") -> np.ndarray:
+    """``traj.<name>`` (a checked record's array), or KinredundError saying the run did not record it."""
+    value = getattr(traj, name)
+    if value is None or np.size(value) == 0:
+        raise KinredundError(f"the {_label(traj)} trajectory of {traj.robot!r} has no {name}{hint}")
+    return value
 
 
 def _label(traj: Trajectory) -> str:
@@ -65,29 +74,6 @@ def save_figure(fig, path: str | Path) -> Path:
     path = Path(path)
     fmt = check_choice("plot format (file suffix)", path.suffix.lower().lstrip("."), PLOT_FORMATS)
     return atomic_write(path, lambda fh: fig.savefig(fh, format=fmt, dpi=_DPI), "wb")
-
-
-def _times(traj: Trajectory) -> np.ndarray:
-    t = np.asarray(traj.t, dtype=float)
-    if t.ndim != 1 or len(t) == 0:
-        raise KinredundError(f"trajectory of {traj.robot!r} has no times to plot (t has shape {t.shape})")
-    return t
-
-
-def _series(traj: Trajectory, name: str, rows: int, required: bool, hint: str = "") -> np.ndarray | None:
-    value = getattr(traj, name)
-    if value is None or np.size(value) == 0:
-        if required:
-            raise KinredundError(
-                f"the {_label(traj)} trajectory of {traj.robot!r} has no {name}{hint}"
-            )
-        return None
-    arr = np.asarray(value, dtype=float)
-    if arr.shape[0] != rows:
-        raise KinredundError(
-            f"{name} of the {_label(traj)} trajectory has {arr.shape[0]} rows but t has {rows}"
-        )
-    return arr
 
 
 def _log_positive(values: np.ndarray) -> np.ndarray:
@@ -136,14 +122,14 @@ def joint_histories_figure(
         title: the figure title; default the robot, scheme and mode.
 
     Raises:
-        KinredundError: no trajectory, q of the wrong shape, or a joint index out of range.
+        KinredundError: no trajectory, a record that :meth:`Trajectory.checked` rejects, or a joint
+            index out of range.
     """
     items = _as_list(trajs)
     fig, axes = _new_figure(len(items))
     for ax, tr in zip(axes, items, strict=True):
-        t = _times(tr)
-        q = _series(tr, "q", len(t), required=True)
-        n = q.shape[1] if q.ndim == 2 else 0
+        t, q = tr.t, tr.q
+        n = q.shape[1]
         chosen = list(range(n)) if joints is None else [int(j) for j in joints]
         bad = [j for j in chosen if not 0 <= j < n]
         if bad:
@@ -179,34 +165,28 @@ def plot_errors(
 
 
 def errors_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | None = None):
-    """Position error |p - p_d| [m] and orientation errors against time, log scale.
+    """Position error |p - p_d| [m] (``traj.position_error``) and orientation errors against time, log scale.
 
-    The position error is ``traj.position_error`` or, when absent, computed from ``p`` and
-    ``p_desired``. The orientation panel (Example 4.3's trace and vect errors) appears when some
-    trajectory has them. Several trajectories are overlaid, labelled by scheme and mode. Exact
-    zeros are drawn at :data:`LOG_FLOOR`.
+    The orientation panel (Example 4.3's trace and vect errors) appears when some trajectory has
+    them. Several trajectories are overlaid, labelled by scheme and mode. Exact zeros are drawn at
+    :data:`LOG_FLOOR`.
 
     Raises:
-        KinredundError: no trajectory, or arrays whose length differs from ``t``.
+        KinredundError: no trajectory, a trajectory without ``position_error`` (every tracking run
+            records it), or a record that :meth:`Trajectory.checked` rejects.
     """
     items = _as_list(trajs)
     has_orientation = any(tr.trace_error is not None or tr.vect_error is not None for tr in items)
     fig, axes = _new_figure(2 if has_orientation else 1)
     for k, tr in enumerate(items):
-        t = _times(tr)
         color = f"C{k % 10}"
-        err = _series(tr, "position_error", len(t), required=False)
-        if err is None:
-            p = _series(tr, "p", len(t), required=True)
-            pd = _series(tr, "p_desired", len(t), required=True)
-            err = np.linalg.norm(p - pd, axis=1)
-        axes[0].semilogy(t, _log_positive(err), color=color, label=_label(tr))
+        err = _required(tr, "position_error")
+        axes[0].semilogy(tr.t, _log_positive(err), color=color, label=_label(tr))
         if has_orientation:
             for name, style in (("trace_error", "-"), ("vect_error", "--")):
-                val = _series(tr, name, len(t), required=False)
+                val = getattr(tr, name)
                 if val is not None:
-                    val = np.linalg.norm(val, axis=1) if val.ndim == 2 else val
-                    axes[1].semilogy(t, _log_positive(val), color=color, linestyle=style,
+                    axes[1].semilogy(tr.t, _log_positive(val), color=color, linestyle=style,
                                      label=f"{name.split('_')[0]}: {_label(tr)}")
     axes[0].set_ylabel("position error [m]")
     axes[0].set_title(title if title is not None else f"Pose errors: {items[0].robot}")
@@ -234,28 +214,23 @@ def m_eigenvalues_figure(traj: Trajectory, *, title: str | None = None):
     positive definite on the null space of J, solved as a QP with M + rho J^T J) are shaded yellow.
 
     Raises:
-        KinredundError: the trajectory has no ``m_eigs`` (only the augmented and velocity schemes
-            record them), or arrays whose length differs from ``t``.
+        KinredundError: ``traj`` is not one Trajectory, it has no ``m_eigs`` (only the augmented and
+            velocity schemes record them), or :meth:`Trajectory.checked` rejects it.
     """
-    if isinstance(traj, (list, tuple)):
-        if len(traj) != 1:
-            raise KinredundError(f"plot_m_eigenvalues draws one trajectory, got {len(traj)}")
-        traj = traj[0]
-    tr = _as_list(traj)[0]
-    t = _times(tr)
+    if not isinstance(traj, Trajectory):
+        raise KinredundError(f"plot_m_eigenvalues draws one kinredund Trajectory, got a {type(traj).__name__}")
+    (tr,) = _as_list(traj)
+    t = tr.t
     hint = " (eigenvalues of M are recorded by the 'augmented' and 'velocity' schemes only)"
-    eigs = _series(tr, "m_eigs", len(t), required=True, hint=hint)
-    null = _series(tr, "m_null_eigs", len(t), required=False)
+    eigs = _required(tr, "m_eigs", hint)
+    null = tr.m_null_eigs
     fig, axes = _new_figure(2 if null is not None and null.size else 1)
     panels = [(axes[0], eigs, "$\\mu_{{{}}}(M)$", "eigenvalues of M")]
     if len(axes) == 2:
         panels.append((axes[1], null, "$\\mu_{{{}}}(N^T M N)$", "eigenvalues of M on null(J)"))
-    if len(tr.solver) not in (0, len(t)):
-        raise KinredundError(f"solver has {len(tr.solver)} entries but t has {len(t)}")
     labels = np.array(tr.solver if tr.solver else [""] * len(t), dtype=object)
     lu, aug = labels == "lu", labels == "qp_aug"
     for ax, values, fmt, ylabel in panels:
-        values = values.reshape(len(t), -1)
         for j in range(values.shape[1]):
             ax.plot(t, values[:, j], label=fmt.format(j + 1))
         ax.axhline(0.0, color="black", linewidth=0.8)
@@ -268,74 +243,45 @@ def m_eigenvalues_figure(traj: Trajectory, *, title: str | None = None):
         ax.set_xlim(t[0], t[-1])
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small", ncols=2)
-    lu_count = int(lu.sum())
+    lu_count = int(lu[1:].sum())  # labels of the steps: solver[0] is the start's (Trajectory.summary)
     axes[0].set_title(title if title is not None
-                      else f"M along the path: {tr.robot}, {_label(tr)}, {lu_count} LU steps of {len(t)}")
+                      else f"M along the path: {tr.robot}, {_label(tr)}, {lu_count} LU steps of {len(t) - 1}")
     return fig
 
 
 # -- drift per loop -----------------------------------------------------------------------------
-def loop_drifts(traj: Trajectory, revolute: Sequence[bool] | None = None) -> np.ndarray:
-    """Joint drift at the end of each loop [rad]: ``traj.loop_drift``, or computed from q and the period.
+_DRIFT_HINT = ": it is not a closed path (tracking records the drift per loop of closed paths only)"
 
-    Without ``loop_drift`` the drift after loop k is ``joint_drift(q(t0), q(t0 + k T))`` with q
-    interpolated linearly, T = ``traj.loop_period``, revolute joints compared modulo 2 pi.
+
+def loop_drifts(traj: Trajectory) -> np.ndarray:
+    """Joint drift at the end of each loop [rad]: ``traj.loop_drift``, which tracking records for closed paths.
 
     Raises:
-        KinredundError: neither ``loop_drift`` nor ``loop_period`` is recorded, or the run is shorter
-            than one loop.
+        KinredundError: the trajectory has no ``loop_drift`` (an open path, or not a tracking run).
     """
-    if traj.loop_drift is not None and np.size(traj.loop_drift):
-        return np.atleast_1d(np.asarray(traj.loop_drift, dtype=float))
-    if traj.loop_period is None or not traj.loop_period > 0:
-        raise KinredundError(
-            f"the {_label(traj)} trajectory of {traj.robot!r} has neither loop_drift nor a loop_period > 0: "
-            "it is not a closed path"
-        )
-    t = _times(traj)
-    q = _series(traj, "q", len(t), required=True)
-    loops = int(np.floor((t[-1] - t[0]) / traj.loop_period + 1e-9))
-    if loops < 1:
-        raise KinredundError(
-            f"the {_label(traj)} trajectory lasts {t[-1] - t[0]:.4g} s, "
-            f"less than one loop ({traj.loop_period:.4g} s)"
-        )
-    mask = np.ones(q.shape[1], dtype=bool) if revolute is None else np.asarray(revolute, dtype=bool)
-    ends = t[0] + traj.loop_period * np.arange(1, loops + 1)
-    q_end = np.column_stack([np.interp(ends, t, q[:, j]) for j in range(q.shape[1])])
-    return np.array([joint_drift(q[0], qe, mask) for qe in q_end])
+    return _required(traj.checked(), "loop_drift", _DRIFT_HINT)
 
 
 def plot_loop_drift(
-    trajs: Trajectory | Sequence[Trajectory],
-    path: str | Path,
-    *,
-    revolute: Sequence[bool] | None = None,
-    title: str | None = None,
+    trajs: Trajectory | Sequence[Trajectory], path: str | Path, *, title: str | None = None
 ) -> Path:
     """Joint drift per loop, one curve per scheme, log: :func:`loop_drift_figure` written to ``path``."""
-    return save_figure(loop_drift_figure(trajs, revolute=revolute, title=title), path)
+    return save_figure(loop_drift_figure(trajs, title=title), path)
 
 
-def loop_drift_figure(
-    trajs: Trajectory | Sequence[Trajectory],
-    *,
-    revolute: Sequence[bool] | None = None,
-    title: str | None = None,
-):
-    """Joint drift at the end of each loop [rad], one curve per trajectory (scheme), log scale.
+def loop_drift_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | None = None):
+    """Joint drift at the end of each loop [rad] (``traj.loop_drift``), one curve per trajectory, log scale.
 
     A cyclic scheme keeps the drift at round-off level; the pseudoinverse (Liegeois) drifts.
 
     Raises:
-        KinredundError: a trajectory with neither ``loop_drift`` nor ``loop_period`` (see
-            :func:`loop_drifts`).
+        KinredundError: a trajectory without ``loop_drift`` (see :func:`loop_drifts`).
     """
     items = _as_list(trajs)
     fig, axes = _new_figure(1)
     ax = axes[0]
     for k, tr in enumerate(items):
-        drift = loop_drifts(tr, revolute)
+        drift = _required(tr, "loop_drift", _DRIFT_HINT)  # tr is checked: not loop_drifts(tr)
         loops = np.arange(1, len(drift) + 1)
         ax.semilogy(loops, _log_positive(drift), marker="o", color=f"C{k % 10}", label=_label(tr))
     ax.set_xlabel("loop")

@@ -1,7 +1,9 @@
 """The trajectory record: what a tracking run produced, step by step (Chapter 4 output).
 
 A :class:`Trajectory` is a frozen record of arrays. Plots, playback, the CLI's ``--json`` output and
-the benchmarks read it; nothing downstream recomputes the kinematics it holds. ``save_json`` writes
+the benchmarks read it; nothing downstream recomputes the kinematics it holds. :meth:`Trajectory.checked`
+is the one validation of a record (shapes, finite values, increasing times): reading a JSON file, the
+plots and the playback all go through it. :func:`write_json` (used by ``save_json``) writes strict JSON
 through a temporary file and a rename, so a failed run never leaves a half-written file.
 
 JSON schema (``docs/schema.md`` has the full list): top-level keys are the field names below; arrays
@@ -12,14 +14,19 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from .errors import KinredundError
+from .errors import JointVectorError, KinredundError, PathError, TaskError, check_array, check_choice, check_positive
 
 SCHEMA_VERSION = 1
+#: Task kinds a record can hold.
+TASKS = ("planar", "position", "pose")
+#: Optional arrays with one row per recorded point, and their shape after the first axis.
+_PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "position_error": (),
+              "trace_error": (), "vect_error": (), "normality_residual": ()}
 
 
 @dataclass(frozen=True)
@@ -36,7 +43,8 @@ class Trajectory:
         scheme: ``augmented`` (displacement Jacobian), ``velocity`` (velocity Jacobian), ``pseudoinverse``,
             ``liegeois``, ``closed_form``, ``planner``.
         mode: ``default`` or ``thesis``.
-        solver: per step, the linear solver used (``qp``, ``lu``, ``lstsq``, ...), length N.
+        solver: per recorded point, the linear-solver label of its rates (``qp``, ``qp_aug``, ``lu``,
+            ``lstsq``), length N: ``solver[0]`` is the start's, ``solver[k]`` the end of step k's.
         lam: Lagrange multipliers per step, shape (N, r), or None.
         m_eigs: eigenvalues of (the symmetric part of) M per step, shape (N, n), or None.
         m_null_eigs: eigenvalues of M projected on the null space of J, shape (N, n - m), or None.
@@ -74,7 +82,11 @@ class Trajectory:
         return self.q[0]
 
     def summary(self) -> dict:
-        """Scalar figures: maxima of the errors, the last loop drift, the number of LU steps."""
+        """Scalar figures: maxima of the errors, the drift per loop, the number of LU steps.
+
+        ``lu_steps`` counts the steps (``solver[1:]``, one label per step; ``solver[0]`` is the start's)
+        labelled ``lu``, so a run of 200 steps has at most 200.
+        """
         def mx(a):
             return None if a is None or len(a) == 0 else float(np.max(a))
 
@@ -85,7 +97,7 @@ class Trajectory:
             "vect_error_max": mx(self.vect_error),
             "normality_residual_max": mx(self.normality_residual),
             "loop_drift": None if self.loop_drift is None else [float(v) for v in self.loop_drift],
-            "lu_steps": int(sum(1 for s in self.solver if s == "lu")),
+            "lu_steps": int(sum(1 for s in self.solver[1:] if s == "lu")),
         }
 
     def to_json_dict(self) -> dict:
@@ -101,31 +113,76 @@ class Trajectory:
         return out
 
     def save_json(self, path: str | Path, extra: dict | None = None) -> None:
-        """Write the record (and ``extra`` keys) as JSON, atomically."""
-        from .generate import atomic_write_text
-
+        """Write the record (and ``extra`` keys) as JSON, atomically (:func:`write_json`)."""
         data = self.to_json_dict()
         if extra:
-            data.update(json_ready(extra))
-        atomic_write_text(Path(path), json.dumps(data, allow_nan=False))
+            data.update(extra)
+        write_json(path, data)
+
+    def checked(self, nq: int | None = None) -> Trajectory:
+        """The record validated, with its arrays as float numpy arrays (a new record; ``self`` is left as it is).
+
+        Checks: ``t`` a non-empty, finite, strictly increasing 1-D array; ``q`` finite of shape (N, n)
+        (n = ``nq`` when given); ``p`` and ``p_desired`` finite of shape (N, 3); each optional per-point
+        array (``lam``, ``m_eigs``, ``m_null_eigs``, ``position_error``, ``trace_error``, ``vect_error``,
+        ``normality_residual``) finite with N rows; ``solver`` empty or N strings; ``loop_drift`` finite
+        and 1-D; ``loop_period`` None or > 0; ``task`` one of :data:`TASKS`; ``robot`` a string and
+        ``meta`` a dict.
+
+        Raises:
+            PathError: bad times, positions or loop figures.
+            JointVectorError: q of the wrong shape (for a robot of ``nq`` joints) or not finite.
+            TaskError, ChoiceError: a bad per-point array, solver list, robot name, task kind or meta.
+        """
+        if not isinstance(self.robot, str):
+            raise TaskError(f"a trajectory's robot must be a name or URDF path (a string), got {self.robot!r}")
+        check_choice("trajectory task", self.task, TASKS)
+        if not isinstance(self.meta, dict):
+            raise TaskError(f"a trajectory's meta must be a dict, got {type(self.meta).__name__}")
+        t = check_array(self.t, (None,), "trajectory times t [s]", PathError)
+        if len(t) == 0:
+            raise PathError("trajectory times t [s] must have at least one entry, got none")
+        if np.any(np.diff(t) <= 0.0):
+            k = int(np.argmax(np.diff(t) <= 0.0))
+            raise PathError(f"trajectory times must increase strictly; t[{k + 1}] = {t[k + 1]} <= t[{k}] = {t[k]}",
+                            t=float(t[k + 1]))
+        n = len(t)
+        out = {"t": t, "q": check_array(self.q, (n, nq), "trajectory q", JointVectorError,
+                                          f"robot {self.robot!r} (one row per time)")}
+        for name in ("p", "p_desired"):
+            out[name] = check_array(getattr(self, name), (n, 3), f"trajectory {name} [m]", PathError)
+        for name, rest in _PER_POINT.items():
+            value = getattr(self, name)
+            if value is not None:
+                out[name] = check_array(value, (n, *rest), f"trajectory {name} (one entry per time)", TaskError)
+        if len(self.solver) not in (0, n) or not all(isinstance(s, str) for s in self.solver):
+            raise TaskError(f"a trajectory's solver must be empty or {n} labels (one per time), got "
+                            f"{len(self.solver)} entries")
+        if self.loop_drift is not None:
+            out["loop_drift"] = check_array(self.loop_drift, (None,), "trajectory loop_drift [rad]", PathError)
+        if self.loop_period is not None:
+            out["loop_period"] = check_positive(self.loop_period, "trajectory loop_period [s]", PathError)
+        return replace(self, solver=tuple(self.solver), **out)
 
     @classmethod
     def from_json_dict(cls, data: dict) -> Trajectory:
-        """Rebuild a record from :meth:`to_json_dict` output."""
+        """Rebuild a record from :meth:`to_json_dict` output, validated by :meth:`checked`.
+
+        Raises:
+            KinredundError: a required key is missing, or :meth:`checked` rejects the record.
+        """
         names = {f.name for f in fields(cls)}
         missing = [k for k in ("robot", "task", "t", "q", "p", "p_desired") if k not in data]
         if missing:
             raise KinredundError(f"not a kinredund trajectory: missing keys {', '.join(missing)}")
-        kw = {}
-        for k in names & set(data):
-            v = data[k]
-            if k in ("robot", "task", "scheme", "mode", "meta", "loop_period"):
-                kw[k] = v
-            elif k == "solver":
-                kw[k] = tuple(v)
-            else:
-                kw[k] = None if v is None else np.asarray(v, dtype=float)
-        return cls(**kw)
+        kw = {k: data[k] for k in names & set(data)}
+        if kw.get("meta") is None:
+            kw.pop("meta", None)
+        if "solver" in kw:
+            if not isinstance(kw["solver"], list):
+                raise TaskError(f"a trajectory's solver must be a list of labels, got {kw['solver']!r}")
+            kw["solver"] = tuple(kw["solver"])
+        return cls(**kw).checked()
 
     @classmethod
     def load_json(cls, path: str | Path) -> Trajectory:
@@ -136,8 +193,8 @@ class Trajectory:
 def json_ready(v):
     """JSON-ready copy of ``v``: arrays to lists, numpy scalars to Python, non-finite floats to None.
 
-    ``json.dumps(json_ready(v), allow_nan=False)`` then always succeeds for numeric content (a NaN
-    read back into a float array by :meth:`Trajectory.from_json_dict` is NaN again).
+    ``json.dumps(json_ready(v), allow_nan=False)`` then always succeeds for numeric content. (A
+    trajectory record holds finite arrays only: :meth:`Trajectory.from_json_dict` rejects a null in one.)
     """
     if isinstance(v, dict):
         return {str(k): json_ready(x) for k, x in v.items()}
@@ -150,6 +207,19 @@ def json_ready(v):
     if isinstance(v, np.bool_):
         return bool(v)
     return v
+
+
+def write_json(path: str | Path, obj, indent: int | None = None) -> Path:
+    """Write ``obj`` as strict JSON to ``path`` atomically (temporary file + rename); return the path.
+
+    ``obj`` goes through :func:`json_ready` (arrays to lists, non-finite floats to null) and
+    ``json.dumps(..., allow_nan=False)``, so the file never holds ``NaN`` or ``Infinity``.
+    """
+    from .generate import atomic_write_text
+
+    path = Path(path)
+    atomic_write_text(path, json.dumps(json_ready(obj), allow_nan=False, indent=indent))
+    return path
 
 
 def read_json_object(path: str | Path) -> dict:
@@ -176,4 +246,4 @@ def joint_drift(q_start: np.ndarray, q_end: np.ndarray, revolute: np.ndarray) ->
     return float(np.max(np.abs(wrap_joints(np.asarray(q_end, float) - np.asarray(q_start, float), revolute))))
 
 
-__all__ = ["Trajectory", "joint_drift", "json_ready", "read_json_object", "wrap_joints"]
+__all__ = ["TASKS", "Trajectory", "joint_drift", "json_ready", "read_json_object", "wrap_joints", "write_json"]

@@ -8,6 +8,8 @@ import sys
 
 import numpy as np
 import pytest
+from test_viz import scene_commands
+from test_viz import track as animation_track
 
 from kinredund.cli import EXIT_FAILED, EXIT_USAGE, main
 
@@ -51,8 +53,16 @@ def test_bad_arguments_exit_2_with_a_message(capsys, tmp_path):
         main(["reproduce", "4.9"])
     assert err.value.code == EXIT_USAGE
     assert "invalid choice" in capsys.readouterr().err
-    assert main(["reproduce", "4.1", "--loops", "0"]) == EXIT_USAGE
-    assert "--loops must be >= 1" in capsys.readouterr().err
+    capsys.readouterr()
+    # counts are checked by argparse with the library's own bounds, before any work
+    for argv, message in ((["reproduce", "4.1", "--loops", "0"], "--loops: must be an integer >= 1, got 0"),
+                          (["track", "planar3r", "--steps", "-3"], "--steps: must be an integer >= 1, got -3"),
+                          (["ik", "planar3r", "--target", "1,2", "--starts", "0"], "--starts: must be an integer >= 1"),
+                          (["plan", "6.2", "--samples", "3"], "--samples: must be an integer >= 4, got 3")):
+        with pytest.raises(SystemExit) as err:
+            main(argv)
+        assert err.value.code == EXIT_USAGE
+        assert message in capsys.readouterr().err
     with pytest.raises(SystemExit) as err:
         main(["ik", "planar3r", "--target", "1,nan"])
     assert err.value.code == EXIT_USAGE
@@ -73,8 +83,9 @@ def test_bad_arguments_exit_2_with_a_message(capsys, tmp_path):
 def test_ik_command(capsys, tmp_path):
     js = tmp_path / "ik.json"
     assert main(["ik", "planar3r", "--target", "3.8,3", "--index", "min-norm", "--starts", "8", "--json", str(js)]) == 0
-    out = json.loads(js.read_text())
+    out = json.loads(js.read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON: {c}"))
     assert out["converged"] and out["normality_residual"] < 1e-9
+    assert out["robot"] == "planar3r" and out["starts"] == 8 and len(out["q"]) == 3  # the IKResult's fields
     assert main(["ik", "planar3r", "--target", "9,0"]) == EXIT_FAILED  # out of reach: not converged
     assert '"converged": false' in capsys.readouterr().out
 
@@ -85,7 +96,18 @@ def test_track_and_play(tmp_path):
     data = json.loads(js.read_text())
     assert max(data["loop_drift"]) < 1e-8
     assert main(["play", str(js), "--html", str(html)]) == 0
-    assert html.stat().st_size > 100_000 and b"<html" in html.read_bytes()[:2000].lower()
+    # the replay's tracer keyframes follow the tracked p at the trajectory's own clock
+    (anim,) = [c for c in scene_commands(html.read_text()) if c["type"] == "set_animation"]
+    fps = anim["animations"][0]["clip"]["fps"]
+    keys, tracer = animation_track(anim, "/meshcat/path/tracer", "position")
+    t, p = np.array(data["t"]), np.array(data["p"])
+    assert len(keys) > 300 and keys[-1] / fps == pytest.approx(t[-1] - t[0])  # two loops of 2 pi 0.5 / 0.5 s
+    expected = np.column_stack([np.interp(t[0] + keys / fps, t, p[:, i]) for i in range(3)])
+    np.testing.assert_allclose(tracer, expected, atol=1e-9)
+    # and they lie on the tracked circle (radius 0.5 m about the start point - 0.5 m in x, plane z = 0)
+    center = p[0] - [0.5, 0.0, 0.0]
+    np.testing.assert_allclose(np.linalg.norm(tracer - center, axis=1), 0.5, atol=1e-4)
+    np.testing.assert_allclose(tracer[:, 2], 0.0, atol=1e-12)
 
 
 def test_track_pose_task_holds_the_start_orientation(tmp_path):
@@ -113,6 +135,30 @@ def test_track_path_from_file(tmp_path):
     assert json.loads(js.read_text())["position_error_max"] < 1e-8
     f.write_text(json.dumps({"t": [0, 1], "p": [[0, 0], [1, 1]]}))
     assert main(["track", "planar3r", "--path", "file", "--path-file", str(f)]) == EXIT_USAGE
+
+
+def test_track_open_path_from_file(tmp_path, capsys):
+    """An open path ("closed": false) is tracked once over its duration, with --steps steps in all."""
+    from kinredund.paths import read_path_file
+
+    ts = 5.0 + np.linspace(0.0, 2.0, 21)  # times need not start at 0: they count from the first sample
+    angle = 0.25 * np.pi * (ts - 5.0)  # a quarter of the circle of test_track_path_from_file
+    p = np.column_stack([3.0 + 0.5 * np.cos(angle), 3.0 + 0.5 * np.sin(angle)])
+    f = tmp_path / "open.json"
+    f.write_text(json.dumps({"t": ts.tolist(), "p": p.tolist(), "closed": False}))
+    path, duration = read_path_file(f)
+    assert path.period is None and duration == pytest.approx(2.0)
+    js = tmp_path / "t.json"
+    assert main(["track", "planar3r", "--path", "file", "--path-file", str(f), "--index", "min-norm",
+                 "--steps", "50", "--json", str(js)]) == 0
+    data = json.loads(js.read_text())
+    assert data["steps"] == 50 and len(data["t"]) == 51 and data["t"][-1] == pytest.approx(2.0)
+    assert data["loop_drift"] is None and data["loop_period"] is None
+    assert data["position_error_max"] < 1e-8
+    np.testing.assert_allclose(np.array(data["p"])[[0, -1], :2], p[[0, -1]], atol=1e-8)  # from end to end
+    f.write_text(json.dumps({"t": ts.tolist(), "p": p.tolist(), "closed": "no"}))
+    assert main(["track", "planar3r", "--path", "file", "--path-file", str(f)]) == EXIT_USAGE
+    assert "'closed' in" in capsys.readouterr().err
 
 
 def test_console_script_is_installed():

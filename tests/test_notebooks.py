@@ -87,8 +87,5 @@ def test_notebook_runs_top_to_bottom(name, jupyter_dir, tmp_path, monkeypatch):
     client = NotebookClient(nb, kernel_name=KERNEL_NAME, timeout=CELL_TIMEOUT, allow_errors=False,
                             resources={"metadata": {"path": str(tmp_path)}})
     start = time.perf_counter()
-    client.execute()  # raises CellExecutionError (with the cell and its traceback) on any error
-    elapsed = time.perf_counter() - start
-    ran = [cell for cell in nb.cells if cell.cell_type == "code"]
-    assert ran and all(cell.execution_count is not None for cell in ran), f"{name}: not every code cell ran"
-    print(f"{name}: {elapsed:.1f} s")
+    client.execute()  # raises CellExecutionError (with the cell and its traceback) on any error or failed assert
+    print(f"{name}: {time.perf_counter() - start:.1f} s")

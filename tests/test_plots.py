@@ -12,7 +12,7 @@ import pytest
 from conftest import robot
 from matplotlib.colors import to_rgb
 
-from kinredund import ChoiceError, KinredundError
+from kinredund import ChoiceError, JointVectorError, KinredundError, PathError
 from kinredund.plots import (
     LOG_FLOOR,
     errors_figure,
@@ -26,7 +26,7 @@ from kinredund.plots import (
     plot_m_eigenvalues,
     save_figure,
 )
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import Trajectory, joint_drift
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -50,11 +50,14 @@ def synthetic(period: float = 2.0, loops: int = 3, steps_per_loop: int = 100, dr
     null = 0.4 * np.sin(w) - 0.1
     m_eigs = np.column_stack([null, 1.0 + 0.2 * np.cos(w), 3.0 + 0.1 * np.sin(2 * w)])
     solver = tuple("lu" if v < 0 else "qp" for v in null)
+    # the drift at the end of each loop, as kinredund.resolved_rate.track records it
+    drift_per_loop = [joint_drift(q[0], q[k * steps_per_loop], True) for k in range(1, loops + 1)]
     return Trajectory(
         robot="planar3r", task="planar", t=t, q=q, p=p, p_desired=p_desired, scheme=scheme, mode=mode,
         solver=solver, m_eigs=m_eigs, m_null_eigs=null[:, None],
         position_error=np.linalg.norm(p - p_desired, axis=1),
-        trace_error=np.abs(1e-4 * np.sin(w)), vect_error=np.abs(1e-3 * np.cos(w)), loop_period=period,
+        trace_error=np.abs(1e-4 * np.sin(w)), vect_error=np.abs(1e-3 * np.cos(w)),
+        loop_drift=np.array(drift_per_loop), loop_period=period,
     )
 
 
@@ -98,18 +101,20 @@ def test_prismatic_joints_go_on_a_millimetre_axis():
 
 def test_errors_on_log_scale_with_zeros_floored(tmp_path):
     traj = synthetic()
-    exact = dataclasses.replace(traj, position_error=None, p_desired=traj.p.copy(), scheme="velocity")
+    exact = dataclasses.replace(traj, position_error=np.zeros(len(traj.t)), p_desired=traj.p.copy(), scheme="velocity")
     fig = errors_figure([traj, exact])
     top, bottom = fig.axes
     assert top.get_yscale() == "log" and bottom.get_yscale() == "log"
     first, second = top.get_lines()
     np.testing.assert_allclose(first.get_ydata(), np.maximum(traj.position_error, LOG_FLOOR))
-    np.testing.assert_allclose(second.get_ydata(), LOG_FLOOR)  # computed from p - p_desired = 0
+    np.testing.assert_allclose(second.get_ydata(), LOG_FLOOR)  # exact zeros, drawn at the floor
     assert [t.get_text() for t in top.get_legend().get_texts()] == ["augmented (default)", "velocity (default)"]
     assert len(bottom.get_lines()) == 4  # trace and vect errors of both
     no_orientation = dataclasses.replace(traj, trace_error=None, vect_error=None)
     assert len(errors_figure(no_orientation).axes) == 1
     assert_png(plot_errors(traj, tmp_path / "errors.png"))
+    with pytest.raises(KinredundError, match="velocity .* has no position_error"):  # every tracking run records it
+        errors_figure([traj, dataclasses.replace(exact, position_error=None)])
 
 
 def test_m_eigenvalues_shade_the_lu_steps(tmp_path):
@@ -159,22 +164,24 @@ def test_loop_drift_per_scheme(tmp_path):
     np.testing.assert_allclose(loop_drifts(drifting), per_loop * np.arange(1, 5), rtol=1e-9)
     assert np.max(loop_drifts(cyclic)) < 1e-12
     recorded = dataclasses.replace(cyclic, loop_drift=np.array([1e-14, 2e-14]))
-    np.testing.assert_array_equal(loop_drifts(recorded), [1e-14, 2e-14])
+    np.testing.assert_array_equal(loop_drifts(recorded), [1e-14, 2e-14])  # the record, not recomputed from q
 
-    fig = loop_drift_figure([cyclic, drifting])
+    fig = loop_drift_figure([cyclic, drifting, recorded])
     (ax,) = fig.axes
     assert ax.get_yscale() == "log"
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert labels == ["augmented (default)", "pseudoinverse (thesis)"]
+    assert labels == ["augmented (default)", "pseudoinverse (thesis)", "augmented (default)"]
     np.testing.assert_allclose(ax.get_lines()[1].get_ydata(), per_loop * np.arange(1, 5), rtol=1e-9)
+    np.testing.assert_array_equal(ax.get_lines()[2].get_xdata(), [1, 2])
+    np.testing.assert_array_equal(ax.get_lines()[2].get_ydata(), [1e-14, 2e-14])
     assert_png(plot_loop_drift([cyclic, drifting], tmp_path / "drift.png"))
 
-    open_path = dataclasses.replace(cyclic, loop_period=None)
-    with pytest.raises(KinredundError, match="not a closed path"):
+    open_path = dataclasses.replace(cyclic, loop_drift=None, loop_period=None)  # as track records an open path
+    with pytest.raises(KinredundError, match="no loop_drift: it is not a closed path"):
         plot_loop_drift(open_path, tmp_path / "nope.png")
-    short = dataclasses.replace(cyclic, loop_period=100.0)
-    with pytest.raises(KinredundError, match="less than one loop"):
-        loop_drifts(short)
+    with pytest.raises(KinredundError, match="no loop_drift"):
+        loop_drifts(open_path)
+    assert not (tmp_path / "nope.png").exists()
 
 
 def test_writes_are_atomic(tmp_path, monkeypatch):
@@ -212,5 +219,24 @@ def test_formats_and_bad_input(tmp_path):
     with pytest.raises(KinredundError, match="not a kinredund Trajectory"):
         plot_loop_drift([traj, "x"], tmp_path / "e.png")
     bad = dataclasses.replace(traj, m_eigs=traj.m_eigs[:-1])
-    with pytest.raises(KinredundError, match="m_eigs .* rows"):
+    with pytest.raises(KinredundError, match=r"m_eigs .*must have shape \(101, n\).*got \(100, 3\)"):
         m_eigenvalues_figure(bad)
+    with pytest.raises(KinredundError, match="one kinredund Trajectory, got a list"):
+        m_eigenvalues_figure([traj])
+
+
+def test_every_figure_checks_the_record():
+    """The plots read records through Trajectory.checked: shapes, finite values, increasing times."""
+    traj = synthetic(loops=1)
+    t = traj.t.copy()
+    t[5] = t[4]
+    q = traj.q.copy()
+    q[3, 1] = np.nan
+    figures = (joint_histories_figure, errors_figure, m_eigenvalues_figure, loop_drift_figure)
+    for figure in figures:
+        with pytest.raises(PathError, match=r"increase strictly; t\[5\]"):
+            figure(dataclasses.replace(traj, t=t))
+        with pytest.raises(JointVectorError, match="trajectory q has non-finite"):
+            figure(dataclasses.replace(traj, q=q))
+        with pytest.raises(KinredundError, match="solver must be empty or 101 labels"):
+            figure(dataclasses.replace(traj, solver=traj.solver[:-1]))

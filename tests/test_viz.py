@@ -37,7 +37,6 @@ from kinredund.viz.live import live_visualizer
 from kinredund.viz.scene import (
     CAMERA_FOV_DEG,
     camera_view,
-    check_trajectory,
     obstacle_corner_points,
     obstacle_frame,
     obstacle_outline,
@@ -136,14 +135,33 @@ def test_resample_rejects_bad_rates():
         resample(traj, max_frames=1)
 
 
-def test_check_trajectory_names_the_problem():
+def test_trajectory_check_names_the_problem():
+    """Trajectory.checked, what playback (and the plots, and reading JSON) validate a record with."""
     traj = synthetic(steps=11)
-    with pytest.raises(JointVectorError, match=r"shape \(11, 7\)"):
-        check_trajectory(traj, 7)
+    with pytest.raises(JointVectorError, match=r"shape \(11, 7\) for robot 'planar3r'"):
+        traj.checked(7)
     bad_t = traj.t.copy()
     bad_t[5] = bad_t[4]
     with pytest.raises(PathError, match="increase"):
-        check_trajectory(dataclasses.replace(traj, t=bad_t), 3)
+        dataclasses.replace(traj, t=bad_t).checked(3)
+    with pytest.raises(PathError, match=r"p_desired \[m\] must have shape \(11, 3\)"):
+        dataclasses.replace(traj, p_desired=traj.p_desired[:, :2]).checked()
+    with pytest.raises(ChoiceError, match="trajectory task"):
+        dataclasses.replace(traj, task="planer").checked()
+    good = dataclasses.replace(traj, t=traj.t.tolist(), q=traj.q.tolist()).checked(3)  # lists become arrays
+    assert isinstance(good.t, np.ndarray) and good.q.shape == (11, 3)
+    # a record read from JSON goes through the same check
+    data = traj.to_json_dict()
+    data["q"][4] = data["q"][4][:2]  # a ragged list
+    with pytest.raises(JointVectorError, match="trajectory q must be numeric"):
+        Trajectory.from_json_dict(data)
+    data = traj.to_json_dict()
+    data["position_error"] = [0.0] * 10
+    with pytest.raises(TaskError, match=r"position_error .*must have shape \(11,\)"):
+        Trajectory.from_json_dict(data)
+    back = Trajectory.from_json_dict(traj.to_json_dict())
+    np.testing.assert_array_equal(back.q, traj.q)
+    assert back.solver == traj.solver
 
 
 @pytest.mark.parametrize("kind", OBSTACLE_KINDS)
@@ -164,7 +182,8 @@ def test_obstacle_transform_maps_the_unit_cylinder_onto_the_ellipse(kind):
     np.testing.assert_allclose((u / 0.5) ** 2 + (v / 0.2) ** 2, 1.0, atol=1e-12)  # on the ellipse
     np.testing.assert_allclose(w, 0.6 * h, atol=1e-12)  # along the axis, over the height
     np.testing.assert_allclose(R[:, 0], [math.cos(angle), math.sin(angle), 0.0], atol=1e-12)  # major axis at psi
-    np.testing.assert_allclose(R[:, 2], [0.0, 0.0, 1.0], atol=1e-12)
+    # the unit cylinder's axis (local y, height 1) is drawn along the obstacle's own axis, over its height
+    np.testing.assert_allclose(T[:3, :3] @ [0.0, 1.0, 0.0], 0.6 * np.asarray(obs.to_dict()["axis"]), atol=1e-12)
     np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
     # the rim, checked with the planner's exact distance instead of the frame: it is the obstacle's ellipse
     np.testing.assert_allclose(obs.ellipse_distance(world + obs.center), 0.0, atol=1e-12)
@@ -182,13 +201,15 @@ def test_obstacle_errors_name_the_key():
         read({"kind": "box", "center": [0, 0, 0], "a": 1, "b": 1})
     with pytest.raises(TaskError, match=r"misses b;"):
         read({"kind": "ellipse", "center": [0, 0, 0], "a": 1})
-    with pytest.raises(TaskError, match="semi-axis a must be a finite number > 0"):
+    with pytest.raises(TaskError, match=r"semi-axis a( \[m\])? must be a finite number > 0"):
         read({"kind": "ellipse", "center": [0, 0, 0], "a": -1, "b": 1})
-    with pytest.raises(TaskError, match="center must be 2 or 3 finite numbers"):
+    # (the messages of kinredund.planning.obstacles before and after its shared checks: either names the key)
+    with pytest.raises(TaskError, match=r"center (must be 2 or 3 finite numbers|\[m\] \(2 or 3 numbers\) must have "
+                                        r"shape \(3,\), got \(4,\))"):
         read({"kind": "ellipse", "center": [0, 0, 0, 0], "a": 1, "b": 1})
     with pytest.raises(TaskError, match="axis along \\+Z"):
         read({"kind": "ellipse", "center": [0, 0, 0], "a": 1, "b": 1, "axis": [1, 0, 0]})
-    with pytest.raises(TaskError, match="height must be a finite number > 0"):
+    with pytest.raises(TaskError, match=r"height( \[m\])? must be a finite number > 0"):
         read({"kind": "elliptic_cylinder", "center": [0, 0, 0], "a": 1, "b": 1, "height": 0})
     with pytest.raises(TaskError, match="center .* must be numeric, got 'abc'"):
         read({"kind": "ellipse", "center": "abc", "a": 1, "b": 1})

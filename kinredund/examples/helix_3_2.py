@@ -15,7 +15,6 @@ speed, so ``t = 4 beta / pi`` [s] is our reading of that axis.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -24,10 +23,9 @@ import numpy as np
 from ..closed_form import ClosedFormIK, conditioning, polynomial_route, solve_redundancy
 from ..closed_form.positioning import plane_radius2
 from ..errors import PathError, check_count
-from ..generate import atomic_write_text
 from ..paths import Helix
 from ..plots import save_figure
-from ..trajectory import json_ready
+from ..trajectory import write_json
 
 #: the Section 3.2 helix x = 1.5 cos(beta), y = 1.5 sin(beta), z = (3/pi) beta + 2 (paths.Helix's defaults)
 HELIX = Helix(radius=1.5, pitch=3.0 / math.pi, z0=2.0, rate=1.0)
@@ -130,7 +128,7 @@ def reproduce(samples: int = 91, json_path=None, plot_path=None) -> dict:
     data["max_normality_residual"] = max(data["normality_residual"])
     data["max_joint_step_deg"] = float(np.degrees(np.abs(np.diff(q, axis=0))).max())
     if json_path is not None:
-        atomic_write_text(Path(json_path), json.dumps(json_ready(data), indent=1, allow_nan=False))
+        write_json(json_path, data, indent=1)
     if plot_path is not None:
         _save_plot(data, Path(plot_path))
     return data

@@ -22,9 +22,7 @@ from ..robot import Robot
 from ..trajectory import Trajectory
 from .scene import (
     MAX_FRAMES,
-    Frames,
     camera_view,
-    check_trajectory,
     obstacle_corner_points,
     obstacle_outline,
     read_obstacle,
@@ -163,15 +161,6 @@ def _line(mc, points: np.ndarray, color: int):
     return g.Line(g.PointsGeometry(np.asarray(points, dtype=np.float32).T), g.LineBasicMaterial(color=color))
 
 
-def _scene_points(traj: Trajectory, robot: Robot, frames: Frames, obstacle) -> np.ndarray:
-    step = max(1, len(frames.q) // 60)
-    joints = [robot.kinematics.joint_origins(q) for q in frames.q[::step]]
-    pts = [np.vstack(joints), np.asarray(traj.p_desired, dtype=float), frames.p, np.zeros((1, 3))]
-    if obstacle is not None:
-        pts.append(obstacle_corner_points(obstacle))
-    return np.vstack(pts)
-
-
 def build_scene(
     vis,
     traj: Trajectory,
@@ -185,17 +174,21 @@ def build_scene(
     """Draw the robot, path, obstacle and camera on ``vis``; return the animation.
 
     Raises:
-        JointVectorError, PathError: the trajectory does not fit the robot.
+        JointVectorError, PathError: the trajectory does not fit the robot (:meth:`Trajectory.checked`).
         TaskError, ChoiceError: a malformed obstacle in ``traj.meta`` (read by ``obstacle_from_dict``).
         URDFError: the robot's visuals cannot be read.
     """
     mc = import_meshcat()
-    check_trajectory(traj, robot.nq)
+    traj = traj.checked(robot.nq)
     frames = resample(traj, fps, max_frames, realtime)
-    # scene size, for the tracer's radius
-    rough = np.vstack([robot.kinematics.joint_origins(frames.q[0]), np.asarray(traj.p_desired, dtype=float)])
-    size = max(float(np.ptp(rough, axis=0).max()), 0.1)
     obstacle = read_obstacle(traj)
+    # the joint origins of about 60 frames, the first at the start, frame the camera; the start's and
+    # the desired path's extent sizes the tracer
+    joints = [robot.kinematics.joint_origins(q) for q in frames.q[:: max(1, len(frames.q) // 60)]]
+    size = max(float(np.ptp(np.vstack([joints[0], traj.p_desired]), axis=0).max()), 0.1)
+    scene_points = [*joints, traj.p_desired, frames.p, np.zeros((1, 3))]
+    if obstacle is not None:
+        scene_points.append(obstacle_corner_points(obstacle))
 
     robot_visuals = RobotVisuals(robot, vis, mc)
     robot_visuals.display(frames.q[0])
@@ -213,7 +206,7 @@ def build_scene(
         node.set_transform(unit_cylinder_transform(obstacle))
         vis["obstacle_outline"].set_object(_line(mc, obstacle_outline(obstacle), OBSTACLE_COLOR))
 
-    center, offset = camera_view(_scene_points(traj, robot, frames, obstacle), planar=robot.task == "planar")
+    center, offset = camera_view(np.vstack(scene_points), planar=robot.task == "planar")
     # meshcat 0.3.2's orbit controls always look at the world origin (whatever the transform of
     # /Cameras/default), so the scene is shifted instead: the centre of attention becomes the origin.
     shift = mc.tf.translation_matrix(-center)
@@ -238,3 +231,22 @@ def build_scene(
 def set_animation(vis, anim, loop: bool) -> None:
     """Send the animation, playing; ``loop`` repeats it forever, else it plays once and stops on its last frame."""
     vis.set_animation(anim, play=True, repetitions=math.inf if loop else 1)
+
+
+def animated_visualizer(traj: Trajectory, robot: Robot | None, *, loop: bool, **scene):
+    """A new local meshcat server playing ``traj`` (:func:`build_scene` with ``scene``'s options).
+
+    ``robot`` defaults to ``kinredund.load_robot(traj.robot)``. The server is stopped again if the
+    scene cannot be built; otherwise the caller stops it (:func:`stop_visualizer`).
+    """
+    if robot is None:
+        from ..robot import load_robot
+
+        robot = load_robot(traj.robot)
+    vis = start_visualizer()
+    try:
+        set_animation(vis, build_scene(vis, traj, robot, **scene), loop=loop)
+    except BaseException:
+        stop_visualizer(vis)
+        raise
+    return vis

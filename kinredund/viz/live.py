@@ -12,7 +12,7 @@ import webbrowser
 
 from ..robot import Robot
 from ..trajectory import Trajectory
-from ._meshcat import build_scene, set_animation, start_visualizer, stop_visualizer
+from ._meshcat import animated_visualizer, stop_visualizer
 from .scene import MAX_FRAMES
 
 #: Running servers started by :func:`play_live`, by URL.
@@ -50,17 +50,8 @@ def play_live(
     Raises:
         KinredundError: as :func:`kinredund.viz.replay_html`.
     """
-    if robot is None:
-        from ..robot import load_robot
-
-        robot = load_robot(traj.robot)
-    vis = start_visualizer()
-    try:
-        anim = build_scene(vis, traj, robot, fps=fps, show_path=show_path, max_frames=max_frames, realtime=realtime)
-        set_animation(vis, anim, loop=loop)
-    except BaseException:
-        stop_visualizer(vis)
-        raise
+    vis = animated_visualizer(traj, robot, loop=loop, fps=fps, show_path=show_path, max_frames=max_frames,
+                              realtime=realtime)
     url = vis.url()
     _LIVE[url] = vis
     if open_browser:

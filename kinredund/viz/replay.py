@@ -13,7 +13,7 @@ from pathlib import Path
 from ..generate import atomic_write_text
 from ..robot import Robot
 from ..trajectory import Trajectory
-from ._meshcat import build_scene, set_animation, start_visualizer, stop_visualizer
+from ._meshcat import animated_visualizer, stop_visualizer
 from .scene import MAX_FRAMES
 
 
@@ -50,14 +50,8 @@ def replay_html(
         KinredundError: an unknown robot, a trajectory that does not fit it, a malformed obstacle,
             or a meshcat server that does not start.
     """
-    if robot is None:
-        from ..robot import load_robot
-
-        robot = load_robot(traj.robot)
-    vis = start_visualizer()
+    vis = animated_visualizer(traj, robot, loop=loop, fps=fps, show_path=show_path, max_frames=max_frames)
     try:
-        anim = build_scene(vis, traj, robot, fps=fps, show_path=show_path, max_frames=max_frames)
-        set_animation(vis, anim, loop=loop)
         html = vis.static_html()
     finally:
         stop_visualizer(vis)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import JointVectorError, PathError, TaskError, check_array
+from ..errors import TaskError
 from ..planning.obstacles import EllipseObstacle, EllipticCylinder, Obstacle, obstacle_from_dict
 from ..trajectory import Trajectory
 
@@ -91,27 +91,6 @@ def obstacle_corner_points(obstacle: Obstacle) -> np.ndarray:
     ring = obstacle_outline(obstacle, 32)
     half = np.array([0.0, 0.0, 0.5 * obstacle_height(obstacle)])
     return np.vstack([ring + half, ring - half])
-
-
-def check_trajectory(traj: Trajectory, nq: int) -> None:
-    """Check the arrays a playback reads: t increasing and finite, q of shape (N, nq), p of shape (N, 3).
-
-    Raises:
-        PathError: bad times or positions.
-        JointVectorError: q of the wrong shape or with non-finite entries.
-    """
-    t = check_array(traj.t, (None,), "trajectory times", PathError)
-    if len(t) == 0:
-        raise PathError("trajectory times must be a non-empty finite 1-D array, got none")
-    if len(t) > 1 and np.any(np.diff(t) <= 0.0):
-        k = int(np.argmax(np.diff(t) <= 0.0))
-        raise PathError(
-            f"trajectory times must increase strictly; t[{k + 1}] = {t[k + 1]} <= t[{k}] = {t[k]}",
-            t=float(t[k + 1]),
-        )
-    check_array(traj.q, (len(t), nq), "trajectory q", JointVectorError, f"robot {traj.robot!r} (one row per time)")
-    for name in ("p", "p_desired"):
-        check_array(getattr(traj, name), (len(t), 3), f"trajectory {name}", PathError)
 
 
 def _interp_rows(t_src: np.ndarray, values: np.ndarray, t_out: np.ndarray) -> np.ndarray:
