@@ -105,6 +105,16 @@ class Kinematics:
         pts.append(M.translation.copy())
         return np.array(pts)
 
+    def jacobian_and_origins(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K, origins): :meth:`jacobian`'s K (Eq. 2.16) and :meth:`joint_origins` from one kinematics pass."""
+        model, data, fid = self.model, self.data, self.frame_id
+        pin.computeJointJacobians(model, data, q)  # runs the forward kinematics: data.oMi too
+        M = pin.updateFramePlacement(model, data, fid)
+        J = pin.getFrameJacobian(model, data, fid, _LWA)
+        pts = [data.oMi[j].translation.copy() for j in range(1, model.njoints)]
+        pts.append(M.translation.copy())
+        return _rows(J, model.nv), np.array(pts)
+
 
 class HessianContraction:
     """dK of one configuration in Pinocchio's buffer, contracted on demand: sum_a mu_a dK[a, i, k].

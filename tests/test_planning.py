@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import numpy as np
@@ -15,8 +16,12 @@ from kinredund.cli import EXIT_FAILED, main
 from kinredund.examples.chapter4 import load_example, run_example
 from kinredund.examples.chapter6 import case_robot, planar_feasibility, planar_setup, reproduce
 from kinredund.paths import Ellipse
-from kinredund.planning.clearance import verify_motion
+from kinredund.planning.branches import PENETRATION_PENALTY, candidates, choose, clearance_of, transition
+from kinredund.planning.clearance import link_model, verify_motion
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder
+from kinredund.planning.planner import default_policy
+from kinredund.planning.selfmotion import routes, trace
+from kinredund.trajectory import wrap_joints
 
 
 def _ellipse_points(ob, m=20000):
@@ -31,9 +36,13 @@ def test_ellipse_signed_distance_against_brute_force(a, ratio, angle, seed):
     ob = EllipseObstacle(center=(0.3, -0.2), a=a, b=a / ratio, angle=angle)
     rng = np.random.default_rng(seed)
     pts = ob.center[:2] + rng.uniform(-2.5 * a, 2.5 * a, size=(50, 2))
-    brute = np.min(np.linalg.norm(pts[:, None, :] - _ellipse_points(ob)[None], axis=2), axis=1)
+    m = 20000
+    brute = np.min(np.linalg.norm(pts[:, None, :] - _ellipse_points(ob, m)[None], axis=2), axis=1)
     d = ob.ellipse_distance(pts)
-    assert np.allclose(np.abs(d), brute, atol=2e-3 * a)  # the boundary sampling's own error
+    # the samples are points of the ellipse, so none is nearer than the exact distance; and the closest
+    # point lies on an arc of length <= a 2 pi / m between two samples, within half of it of one of them
+    assert np.all(np.abs(d) <= brute + 1e-12)
+    assert np.all(brute - np.abs(d) <= np.pi * a / m)
     u, v = ob.local(pts)
     inside = (u / ob.a) ** 2 + (v / ob.b) ** 2 < 1
     assert np.all((d < 0) == inside)
@@ -139,3 +148,94 @@ def test_case_robot():
     assert case_robot("6.2").hd.a.tolist() == [0.5, 0.6, 0.3]
     with pytest.raises(ChoiceError, match="6.2, 6.3"):
         case_robot("6.4")
+
+
+def test_choose_takes_the_cheapest_cyclic_sequence():
+    """Three samples with 2, 3 and 2 candidates: the cheapest loop (1, 2, 0) costs 0.5 + 0.5 + 0.2, though
+    its first step is not the cheapest one from candidate 1 (that one leads to 2.2)."""
+    costs = [np.array([[1.0, 5.0, 9.0], [0.0, 4.0, 0.5]]),
+             np.array([[2.0, 7.0], [1.0, 1.0], [0.5, 8.0]]),
+             np.array([[9.0, 0.2], [3.0, 6.0]])]  # the last one closes the loop back to the first sample
+    assert choose(costs) == ([1, 2, 0], pytest.approx(1.2))
+    # against enumeration, with forbidden (infinite) transitions
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        sizes = rng.integers(1, 4, size=4)
+        costs = [np.where(rng.random((sizes[k], sizes[(k + 1) % 4])) < 0.3, np.inf,
+                          rng.random((sizes[k], sizes[(k + 1) % 4]))) for k in range(4)]
+        totals = {seq: sum(costs[k][seq[k], seq[(k + 1) % 4]] for k in range(4))
+                  for seq in itertools.product(*(range(s) for s in sizes))}
+        best = min(totals.values())
+        seq, total = choose(costs)
+        if np.isfinite(best):
+            assert total == pytest.approx(best) and totals[tuple(seq)] == pytest.approx(best)
+        else:
+            assert seq is None and total == np.inf
+    assert choose([np.full((2, 2), np.inf)] * 3) == (None, np.inf)
+
+
+def test_self_motion_of_the_planar_3r_keeps_the_end_point_and_follows_the_null_space():
+    r = robot("planar3r_ch6")
+    qa = np.array([0.3, 1.1, -0.8])
+    target = r.kinematics.pose(qa)[1][:2]
+    step = 0.05
+    loop = trace(r, target, qa, 1, step=step)  # no goal: once round the closed self-motion curve
+    assert not loop.reached and len(loop.points) > 50
+    assert np.abs(wrap_joints(loop.points[-1] - qa, r.revolute)).max() < 0.5 * step
+    qb = loop.points[len(loop.points) // 3]
+    found = routes(r, target, qa, qb, step=step)
+    assert len(found) == 2 and found[0].length < found[1].length  # both ways round, shortest first
+    assert found[0].length + found[1].length == pytest.approx(loop.length, abs=4 * step)
+    for route in found:
+        pts = route.points
+        np.testing.assert_array_equal(pts[0], qa)
+        assert np.abs(wrap_joints(pts[-1] - qb, r.revolute)).max() < 1e-12  # the goal itself
+        ends = np.array([r.kinematics.pose(q)[1][:2] for q in pts])
+        assert np.abs(ends - target).max() < 1e-9  # the task holds all along
+        dq = np.diff(pts, axis=0)
+        size = np.linalg.norm(dq, axis=1)
+        assert size.max() <= step * np.sqrt(3) + 1e-12 and route.length == pytest.approx(size.sum())
+        # each step is along the null space of J (to first order: it leaves it by the curve's bending)
+        Jdq = np.array([r.kinematics.jacobian(q)[2][3:5] @ d for q, d in zip(pts[:-1], dq, strict=True)])
+        assert np.all(np.linalg.norm(Jdq, axis=1) <= 0.25 * step * size)
+    first = [route.points[1] - qa for route in found]
+    assert first[0] @ first[1] < 0  # they leave qa in opposite directions
+
+
+def test_transition_between_candidates_is_refined_on_the_path():
+    """Two samples of a small ellipse within the planar arm's reach: the candidates (policy minima) and
+    the refined transition between them - on the path at its times, joints within max_jump, and the
+    clearances it reports are those of its points."""
+    r = robot("planar3r_ch6")
+    center, a, b, angle = (0.6, 0.1), 0.12, 0.06, 0.35
+    ob = EllipseObstacle(center, a, b, angle)
+    path = Ellipse(center, a, b, angle=angle)
+    model = link_model(r)
+    tip = model.lengths[-1] / 6
+    rng = np.random.default_rng(0)
+    cands = []
+    for t in (0.0, 0.5):
+        p = path(t).p
+        index = default_policy(r, ob, ob.normal_at(p), (1e-3, 1.0))
+        found = candidates(r, index, p[:2], [rng.uniform(-np.pi, np.pi, 3) for _ in range(8)], model, ob, 0.0, tip,
+                           200)
+        assert found and all(c.clearance.min() > 0 for c in found)
+        cands.append(found)
+    max_jump = 0.15
+    done = [(transition(r, path, 0.0, ca, 0.5, cb, model=model, obstacle=ob, radius=0.0, tool_tip=tip,
+                        max_jump=max_jump, budget=32), ca, cb) for ca in cands[0] for cb in cands[1]]
+    done = [(tr, ca, cb) for tr, ca, cb in done if np.isfinite(tr.cost)]
+    assert done and any(tr.points for tr, _, _ in done)
+    for tr, ca, cb in done:
+        times = [0.0] + [t for t, _ in tr.points] + [0.5]
+        chain = np.array([ca.q] + [q for _, q in tr.points] + [cb.q + tr.shift])
+        assert np.all(np.diff(times) > 0) and np.abs(np.diff(chain, axis=0)).max() <= max_jump
+        for t, q in tr.points:
+            assert np.abs(r.kinematics.pose(q)[1][:2] - path(t).p[:2]).max() < 1e-9
+        assert len(tr.clearance) == len(tr.points)
+        for (_, q), c in zip(tr.points, tr.clearance, strict=True):
+            np.testing.assert_array_equal(c, clearance_of(r, q, model, ob, 0.0, tip))
+        worst = min([ca.clearance.min(), cb.clearance.min()] + [c.min() for c in tr.clearance])
+        assert tr.min_clearance == worst
+        energy = float(np.sum(np.diff(chain, axis=0) ** 2))
+        assert tr.cost == pytest.approx(energy + PENETRATION_PENALTY * max(0.0, -worst), rel=1e-12)

@@ -13,7 +13,7 @@ from kinredund.hd import HDTable
 from kinredund.indices import check_index
 from kinredund.planning.clearance import link_clearance, link_segments
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder, obstacle_from_dict
-from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, tangent_semi_axis
+from kinredund.planning.policy import PlanarPolicy, SpatialPolicy
 from kinredund.planning.roadmap import check_architecture, origins, plan_roadmap, self_motion
 from kinredund.planning.spatial import (
     arm_plane_semi_axis_discriminant,
@@ -88,17 +88,32 @@ def test_policy_gradients_and_hessians(seed):
         check_index(spatial, rng.uniform(-2, 2, 7), tol=1e-5)
 
 
-def test_semi_axis_closed_form_equals_the_thesis_discriminant_route():
+def test_policy_semi_axis_term_equals_the_thesis_discriminant_route():
+    """With w2 = 0 the index is w1 / (2 b^2) (Eqs. 6.21, 6.44): the b it implies is the root of the
+    thesis's vanishing discriminant (Eqs. 6.15-6.16 for link 2, 6.36-6.37 for the projected link k2)."""
     rng = np.random.default_rng(2)
+    w1 = 1e-3
     ob = EllipseObstacle((0.9, 0.0), 0.15, 0.075, 0.35)
-    for t1, t2 in rng.uniform(-3, 3, (15, 2)):
-        E = 0.5 * np.array([np.cos(t1), np.sin(t1)])
-        assert link2_semi_axis_discriminant(ob, 0.5, t1, t2) == pytest.approx(
-            float(tangent_semi_axis(ob, E, t1 + t2)), abs=1e-12)  # Eqs. (6.15)-(6.16)
-    cyl = section_cylinder()
-    for t1 in rng.uniform(-3, 3, 15):
-        assert arm_plane_semi_axis_discriminant(cyl, t1) == pytest.approx(
-            float(tangent_semi_axis(cyl, np.zeros(2), t1)), abs=1e-12)  # Eqs. (6.36)-(6.37)
+    planar = PlanarPolicy(ob, 0.5, np.array([1.0, 0.0]), (w1, 0.0))
+    for t1, t2, t3 in rng.uniform(-3, 3, (15, 3)):
+        b = np.sqrt(0.5 * w1 / planar.evaluate(np.array([t1, t2, t3]))[0])
+        assert b == pytest.approx(link2_semi_axis_discriminant(ob, 0.5, t1, t2), rel=1e-13)
+    robot, cyl = scaled_p15(), section_cylinder()
+    spatial = SpatialPolicy(robot, cyl, np.array([1.0, 0.3, 0.0]), link=(4, 5), weights=(w1, 0.0))
+    assert spatial.wrist_joints.tolist() == [4, 5, 6]  # the joints that do not move the wrist centre
+    for theta in rng.uniform(-3, 3, (15, 7)):
+        theta[spatial.wrist_joints] = spatial.wrist_ref  # no wrist term
+        b = np.sqrt(0.5 * w1 / spatial.evaluate(theta)[0])
+        assert b == pytest.approx(arm_plane_semi_axis_discriminant(cyl, theta[0]), rel=1e-13)
+
+
+def test_jacobian_and_origins_is_one_pass_of_jacobian_and_joint_origins():
+    rng = np.random.default_rng(6)
+    for robot in (scaled_p15(), robot_from_hd(HDTable(np.zeros(3), [0.5, 0.6, 0.3], np.zeros(3)), task="planar")):
+        for q in rng.uniform(-3, 3, (4, robot.nq)):
+            K, origins = robot.kinematics.jacobian_and_origins(q)
+            np.testing.assert_allclose(K, robot.kinematics.jacobian(q)[2], rtol=0, atol=1e-14)
+            np.testing.assert_array_equal(origins, robot.kinematics.joint_origins(q))
 
 
 def _link4_error(alpha_deg, sign=1.0):
@@ -156,6 +171,20 @@ def test_penetration_of_the_tool_link_is_found():
     outward[0, -1, 0] = p + np.array([0.5, 0.0, 0.0])  # along the outward normal: touches at P only
     _, pen, _ = link_clearance(cyl, outward, tool_tip=0.1)
     assert pen[0] < 1e-12
+
+
+def test_screening_clearance_is_a_lower_bound_of_the_exact_one():
+    """The roadmap's screening (link_clearance with the cylinder's surface_bound) never reports more
+    clearance than the exact distance, and the same where a link is inside."""
+    robot, cyl = scaled_p15(), section_cylinder()
+    seg = link_segments(robot, np.random.default_rng(8).uniform(-np.pi, np.pi, (200, 7)))
+    exact = link_clearance(cyl, seg, tool_tip=0.1)
+    screen = link_clearance(cyl, seg, tool_tip=0.1, distance=cyl.surface_bound)
+    assert np.all(screen[0] <= exact[0] + 1e-12) and np.any(screen[0] < exact[0] - 1e-3)
+    inside = exact[0] < 0
+    assert inside.any()
+    np.testing.assert_allclose(screen[0][inside], exact[0][inside], atol=1e-9)
+    assert np.all(screen[1] + screen[2] >= exact[1] + exact[2] - 1e-12)  # no penetration is missed
 
 
 @pytest.fixture(scope="module")
@@ -238,3 +267,14 @@ def test_an_obstacle_too_large_for_the_arm_is_reported_as_failed():
     assert not result.ok
     assert "no cyclic collision-free motion" in result.reason
     assert result.trajectory is None
+
+
+@pytest.mark.parametrize("tool_tip", [-0.1, 1.2, "long"])
+def test_roadmap_plan_checks_the_tool_tip_like_plan(tool_tip):
+    from kinredund.errors import TaskError
+    from kinredund.planning.planner import plan
+
+    robot, path, cyl = scaled_p15(), section_path(), section_cylinder()  # the last link is 1.12 m long
+    for planner in (plan, plan_roadmap):
+        with pytest.raises(TaskError, match="tool_tip"):
+            planner(robot, path, cyl, tool_tip=tool_tip)

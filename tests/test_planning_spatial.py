@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
 
 from kinredund.planning.clearance import link_model
 from kinredund.planning.planner import plan, wrist_reach
@@ -34,20 +35,22 @@ def test_wrist_reach_bounds_every_configuration(scale):
 
 
 def test_wrist_point_is_the_end_point_moved_along_the_normal():
+    """W is one last-link length from P, at P's height and that far from the directrix too: so P is
+    W's closest point of the obstacle's ellipse and W - P lies along the outward normal at P."""
     robot = scaled_p15(12.0)
     cyl = section_cylinder()
     ps = _targets(37)
-    n = cyl.normal_at(ps)
-    wr = wrist_reach(robot, ps, n)
+    wr = wrist_reach(robot, ps, cyl.normal_at(ps))
     length = link_model(robot).lengths[-1]
+    assert length == pytest.approx(0.14 * 12.0)  # b5 of Table 4.1 times the scale
+    np.testing.assert_allclose(np.abs(cyl.ellipse_distance(ps)), 0.0, atol=1e-12)  # P on the lateral surface
     np.testing.assert_allclose(np.linalg.norm(wr.wrist - ps, axis=1), length, rtol=1e-12)
-    np.testing.assert_allclose((wr.wrist - ps) @ np.eye(3), length * n, atol=1e-12)
+    np.testing.assert_allclose(wr.wrist[:, 2], ps[:, 2], atol=1e-12)
+    np.testing.assert_allclose(cyl.ellipse_distance(wr.wrist), length, rtol=1e-9)
 
 
 def test_a_negative_wrist_margin_is_how_far_the_links_miss_the_wrist_point():
     """Minimised over the joints numerically, the last link's joint comes no closer to W than -margin."""
-    from scipy.optimize import least_squares
-
     robot = scaled_p15(8.0)
     cyl = section_cylinder()
     ps = _targets(13)
@@ -106,12 +109,32 @@ def test_top_normal_policy_aims_the_last_link_along_the_cut_normal():
     pol = top_normal_policy(robot, cyl, cyl.normal_at(p), (1e-3, 1.0))
     np.testing.assert_allclose(pol.normal, np.asarray(cyl.top_normal) / np.linalg.norm(cyl.top_normal))
     assert pol.weights == (0.0, 1.0)
-    # the index is 0 exactly when the last link points along -n_top (Eq. 6.44 with w1 = 0)
-    rng = np.random.default_rng(5)
-    q = robot.random_configuration(rng, 0.1)
-    z = pol.evaluate(q)[0]
-    dev = q[pol.wrist_joints] - pol.wrist_ref
-    assert z == pytest.approx(1.0 - float(pol.direction(q) @ -pol.normal) + 0.5 * pol.w_wrist * float(dev @ dev))
+    # the index is 0 when the last link points along -n_top (Eq. 6.44 with w1 = 0), the wrist at its
+    # reference; aligned with the lateral surface's -n instead, it is not
+    i, j = (int(v) for v in link_model(robot).pairs[-1])
+
+    def aligned(direction):  # arm joints putting the last link (from the model's joint origins) along direction
+        def miss(q4):
+            o = robot.kinematics.joint_origins(np.concatenate([q4, np.zeros(3)]))
+            return (o[j] - o[i]) / np.linalg.norm(o[j] - o[i]) - direction
+
+        sol = least_squares(miss, np.full(4, 0.3), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        assert np.abs(sol.fun).max() < 1e-12
+        return np.concatenate([sol.x, np.zeros(3)])
+
+    top_n = np.asarray(cyl.top_normal) / np.linalg.norm(cyl.top_normal)
+    z, g, _ = pol.evaluate(aligned(-top_n))
+    assert abs(z) < 1e-12 and np.abs(g).max() < 1e-9  # its minimum
+    lateral = -cyl.normal_at(p)
+    assert pol.evaluate(aligned(lateral))[0] == pytest.approx(1.0 - float(lateral @ -top_n))  # w2/2 |L - l|^2
     with pytest.raises(TaskError, match="top_normal"):
         top_normal_policy(robot, EllipticCylinder((1.9, 0.0, 0.5), 0.5, 0.25, 0.0, height=1.0), cyl.normal_at(p),
                           (1e-3, 1.0))
+
+
+@pytest.mark.parametrize("weights", [(0.0, 0.0), (1e-3, -1.0), (np.nan, 1.0), "ab", [(1e-3, 1.0)] * 5])
+def test_plan_rejects_bad_weights_before_solving(weights):
+    from kinredund.errors import TaskError
+
+    with pytest.raises(TaskError, match="weights"):
+        plan(scaled_p15(8.0), section_path(), section_cylinder(), samples=6, weights=weights)

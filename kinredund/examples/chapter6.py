@@ -25,21 +25,20 @@ Both are reported as the failure's reason; the plan is never called done.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import check_choice
-from ..generate import atomic_write_text
 from ..paths import Ellipse
 from ..planning import spatial
+from ..planning.clearance import link_model
 from ..planning.obstacles import EllipseObstacle, Obstacle, obstacle_from_dict
-from ..planning.planner import PlanResult, plan, wrist_reach
+from ..planning.planner import PlanResult, _failure, plan, wrist_reach
 from ..planning.roadmap import plan_roadmap
 from ..robot import Robot, load_robot
-from ..trajectory import json_ready
+from ..trajectory import write_json
 
 CASES = ("6.2", "6.3")
 PLANAR_CENTER = (0.9, 0.0)
@@ -102,9 +101,7 @@ def _run(case: str, samples: int, progress) -> tuple[PlanResult, dict, Robot, Ob
         extra = {"links": [float(v) for v in np.abs(robot.hd.a)], "feasibility": check,
                  "obstacle": obstacle.to_dict()}
         if not check["reachable"]:
-            names = tuple(f"link {k + 1}" for k in range(robot.nq))
-            return PlanResult(None, None, None, None, names, float("nan"), False, check["reason"]), extra, robot, \
-                obstacle
+            return _failure(check["reason"], link_model(robot).names, {}), extra, robot, obstacle
         result = plan(robot, path, obstacle, samples=samples, progress=progress, meta={"example": "6.2"})
         return result, extra, robot, obstacle
     # the policy's optima at the samples do not join into a collision-free loop on this arm; the branch
@@ -193,7 +190,7 @@ def reproduce(case: str, json_path=None, plot_path=None, progress=None, samples:
     """Run Section 6.2 or 6.3, write its JSON (atomically, also for a failed plan) and plot."""
     result, extra, robot, obstacle = _run(case, samples, progress)
     if json_path is not None:
-        atomic_write_text(json_path, json.dumps(json_ready(to_json_dict(case, result, extra)), allow_nan=False))
+        write_json(json_path, to_json_dict(case, result, extra))
     if plot_path is not None:
         plot_case(case, result, extra, plot_path)
         if result.trajectory is not None:  # configuration snapshots (Figs. 6.14-6.22) beside the main plot

@@ -57,12 +57,15 @@ class Transition:
         shift: whole turns added to the far end [rad], shape (n,).
         points: the inserted (t, q) in between, q continuous with the near end.
         min_clearance: the worst link clearance at the inserted points and both ends [m].
+        clearance: the per-link clearance at each inserted point [m] (:func:`clearance_of`), one (k,)
+            array per point.
     """
 
     cost: float
     shift: np.ndarray
     points: tuple
     min_clearance: float
+    clearance: tuple = ()
 
 
 def target_of(robot, p: np.ndarray):
@@ -176,11 +179,12 @@ def turn_shifts(d: np.ndarray, revolute) -> list[np.ndarray]:
     return [np.zeros(d.size)] + out
 
 
-def _chain_cost(robot, chain, model, obstacle, radius, tool_tip) -> tuple[float, float]:
-    """(energy, worst clearance) of a chain of configurations."""
+def _chain_cost(robot, chain, ends: float, model, obstacle, radius, tool_tip) -> tuple[float, float, tuple]:
+    """(energy, worst clearance, per-link clearance of the inner points) of a chain of configurations
+    whose two ends (candidates) have the worst clearance ``ends`` [m] already known."""
     energy = float(sum(np.sum((chain[i + 1] - chain[i]) ** 2) for i in range(len(chain) - 1)))
-    worst = min(clearance_of(robot, q, model, obstacle, radius, tool_tip).min() for q in chain)
-    return energy, float(worst)
+    inner = tuple(clearance_of(robot, q, model, obstacle, radius, tool_tip) for q in chain[1:-1])
+    return energy, float(min([ends] + [c.min() for c in inner])), inner
 
 
 def _join(robot, path, points, max_jump, budget, max_iter):
@@ -244,26 +248,28 @@ def _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
     return out
 
 
-def transition(robot, path, ta: float, qa, tb: float, qb, *, model: LinkModel, obstacle: Obstacle, radius: float,
-               tool_tip: float, max_jump: float, budget: int, max_iter: int = 200) -> Transition:
-    """The cheapest continuous way from (ta, qa) to (tb, qb).
+def transition(robot, path, ta: float, a: Candidate, tb: float, b: Candidate, *, model: LinkModel, obstacle: Obstacle,
+               radius: float, tool_tip: float, max_jump: float, budget: int, max_iter: int = 200) -> Transition:
+    """The cheapest continuous way from candidate ``a`` at time ta to candidate ``b`` at tb.
 
     Tried in turn: direct bisection (:func:`bisect`) with the far end shifted by the whole turns of
     :func:`turn_shifts`, then self-motions (:func:`_self_motion_ways`). The first collision-free one
-    (at its points) is taken; otherwise the cheapest found.
+    (at its points) is taken; otherwise the cheapest found. The candidates' clearances are not
+    recomputed (a whole turn of a revolute joint does not move the links).
     """
-    qa = np.asarray(qa, float)
-    qb = np.asarray(qb, float)
+    qa = np.asarray(a.q, float)
+    qb = np.asarray(b.q, float)
+    ends = float(min(a.clearance.min(), b.clearance.min()))
     near = qa + wrap_joints(qb - qa, robot.revolute)  # qb's representation nearest qa
     best = Transition(np.inf, near - qb, (), -np.inf)
 
     def consider(points, shift):
         nonlocal best
         chain = [q for _, q in points]
-        energy, worst = _chain_cost(robot, chain, model, obstacle, radius, tool_tip)
+        energy, worst, inner = _chain_cost(robot, chain, ends, model, obstacle, radius, tool_tip)
         cost = energy + PENETRATION_PENALTY * max(0.0, -worst)
         if cost < best.cost:
-            best = Transition(cost, shift, tuple(points[1:-1]), worst)
+            best = Transition(cost, shift, tuple(points[1:-1]), worst, inner)
         return worst > 0
 
     for shift in turn_shifts(near - qa, robot.revolute):

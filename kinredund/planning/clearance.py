@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import TaskError
-from .obstacles import Obstacle
+from .obstacles import Obstacle, segment_minimum
 
 #: a point of the last link deeper than the end point by more than this is a penetration [m]
 PENETRATION_TOL = 1e-9
@@ -84,7 +84,8 @@ def link_segments(robot, q_all, model: LinkModel | None = None) -> np.ndarray:
     return np.stack([pts[:, model.pairs[:, 0]], pts[:, model.pairs[:, 1]]], axis=2)
 
 
-def link_clearance(obstacle: Obstacle, segments: np.ndarray, *, radius: float = 0.0, tool_tip: float = 0.0):
+def link_clearance(obstacle: Obstacle, segments: np.ndarray, *, radius: float = 0.0, tool_tip: float = 0.0,
+                   distance=None):
     """Per-link clearance [m], the last link's penetration and the end point's depth, for segments (N, k, 2, 3).
 
     Args:
@@ -93,6 +94,10 @@ def link_clearance(obstacle: Obstacle, segments: np.ndarray, *, radius: float = 
         radius: capsule radius of every link [m].
         tool_tip: length [m] at the end point excluded from the last link's clearance (the tool that
             touches the surface); the whole last link is still checked for penetration.
+        distance: ``distance(points) -> [m]`` used instead of ``obstacle.signed_distance``: a convex,
+            1-Lipschitz lower bound of it (e.g.
+            :meth:`~kinredund.planning.obstacles.EllipticCylinder.surface_bound`) screens cheaply, and
+            every value returned is then a lower bound of the exact one.
 
     Returns:
         (clearance (N, k), penetration (N,), end-point depth (N,)). The penetration is how much deeper
@@ -107,16 +112,15 @@ def link_clearance(obstacle: Obstacle, segments: np.ndarray, *, radius: float = 
     if np.any(tool_tip >= length):
         raise TaskError(f"the tool tip ({tool_tip} m) must be shorter than the last link ({length.min():.4g} m)")
     p1[:, -1] = p1[:, -1] - (tool_tip / length)[:, None] * last
-    clear = obstacle.segment_distance(p0, p1, radius=radius)
-    whole = obstacle.segment_distance(segments[:, -1, 0], segments[:, -1, 1])
-    tip_depth = np.maximum(0.0, -obstacle.signed_distance(segments[:, -1, 1]))
+    sd = obstacle.signed_distance if distance is None else distance
+    clear = segment_minimum(sd, p0, p1, radius)
+    whole = segment_minimum(sd, segments[:, -1, 0], segments[:, -1, 1])
+    tip_depth = np.maximum(0.0, -sd(segments[:, -1, 1]))
     return clear, np.maximum(0.0, np.maximum(0.0, -whole) - tip_depth), tip_depth
 
 
 def interpolate_joints(t: np.ndarray, q: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation of recorded joints at ``substeps`` points per step (ends included)."""
-    if substeps < 1:
-        raise TaskError(f"substeps must be >= 1, got {substeps}")
+    """Linear interpolation of recorded joints at ``substeps`` >= 1 points per step (ends included)."""
     lam = np.arange(substeps) / substeps
     tt = (t[:-1, None] + lam[None, :] * np.diff(t)[:, None]).ravel()
     qq = (q[:-1, None, :] + lam[None, :, None] * np.diff(q, axis=0)[:, None, :]).reshape(-1, q.shape[1])

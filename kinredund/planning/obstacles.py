@@ -11,12 +11,13 @@ Distances are exact (to round-off), not sampled:
   *Distance from a Point to an Ellipse, an Ellipsoid, or a Hyperellipsoid*, 2013), negative inside.
   For the cylinder the 2-D signed distance is combined with the height interval (the exact signed
   distance of an extruded convex set).
-- :meth:`Obstacle.segment_distance`: the minimum over a segment (a link) of the signed distance. The
-  signed distance of a convex set is a convex function, so along a segment it is convex in the segment
-  parameter; a golden-section search keeps a bracket of the minimiser and stops when it is narrower
-  than :data:`SEGMENT_TOL`. Since the signed distance is 1-Lipschitz, the value returned exceeds the
-  true minimum by at most ``length * SEGMENT_TOL`` (reported as :data:`SEGMENT_TOL` per metre). A
-  capsule of radius r is the segment distance minus r. Zero or negative means contact or penetration.
+- :meth:`Obstacle.segment_distance`: the minimum over a segment (a link) of the signed distance
+  (:func:`segment_minimum`). The signed distance of a convex set is a convex function, so along a
+  segment it is convex in the segment parameter; a golden-section search keeps a bracket of the
+  minimiser and stops when it is narrower than :data:`SEGMENT_TOL`. Since the signed distance is
+  1-Lipschitz, the value returned exceeds the true minimum by at most ``length * SEGMENT_TOL``
+  (reported as :data:`SEGMENT_TOL` per metre). A capsule of radius r is the segment distance minus r.
+  Zero or negative means contact or penetration.
 
 Units: lengths [m], angles [rad].
 """
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import TaskError, check_array
+from ..errors import TaskError, check_array, check_choice, check_positive
 
 #: width of the final bracket of the segment parameter (relative, in [0, 1]); the segment distance is
 #: then at most ``length * SEGMENT_TOL`` above the exact minimum (the signed distance is 1-Lipschitz)
@@ -40,14 +41,11 @@ _NEWTON = 8
 OBSTACLE_KINDS = ("ellipse", "elliptic_cylinder")
 
 
-def _positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"obstacle {name} must be a number > 0, got {value!r}") from err
-    if not (math.isfinite(v) and v > 0):
-        raise TaskError(f"obstacle {name} must be a finite number > 0, got {value!r}")
-    return v
+def principal_axes(angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors of the major and minor axes of an ellipse whose major axis is at ``angle`` [rad] to X
+    (Eqs. 6.4-6.5)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c, s]), np.array([-s, c])
 
 
 def ellipse_closest_point(a: float, b: float, u, v) -> tuple[np.ndarray, np.ndarray]:
@@ -146,17 +144,12 @@ class Obstacle:
     b: float
     angle: float = 0.0
 
-    kind = "ellipse"
-
     def __post_init__(self) -> None:
-        c = check_array(self.center, (None,), "obstacle center [m]")
-        if c.shape == (2,):
-            c = np.append(c, 0.0)
-        if c.shape != (3,):
-            raise TaskError(f"obstacle center must be 2 or 3 finite numbers [m], got {self.center!r}")
-        object.__setattr__(self, "center", c)
-        object.__setattr__(self, "a", _positive("semi-axis a", self.a))
-        object.__setattr__(self, "b", _positive("semi-axis b", self.b))
+        what = "obstacle center [m] (2 or 3 numbers)"
+        c = check_array(self.center, (None,), what)
+        object.__setattr__(self, "center", check_array(np.append(c, 0.0) if c.size == 2 else c, (3,), what))
+        object.__setattr__(self, "a", check_positive(self.a, "obstacle semi-axis a [m]"))
+        object.__setattr__(self, "b", check_positive(self.b, "obstacle semi-axis b [m]"))
         try:
             ang = float(self.angle)
         except (TypeError, ValueError) as err:
@@ -173,8 +166,7 @@ class Obstacle:
 
     def axes(self) -> tuple[np.ndarray, np.ndarray]:
         """Unit vectors of the major and minor axes in the base frame (xy), Eqs. (6.4)-(6.5)."""
-        c, s = math.cos(self.angle), math.sin(self.angle)
-        return np.array([c, s]), np.array([-s, c])
+        return principal_axes(self.angle)
 
     def local(self, xy) -> tuple[np.ndarray, np.ndarray]:
         """(x_d, y_d) of Eqs. (6.4)-(6.5): points (..., 2 or 3) in the ellipse's principal frame [m]."""
@@ -219,12 +211,9 @@ class Obstacle:
         raise NotImplementedError
 
     # -- segments ---------------------------------------------------------------------------------
-    def segment_distance(self, p0, p1, radius: float = 0.0):
-        """Minimum signed distance [m] between segments p0-p1 (shape (..., 3)) and the obstacle.
-
-        The signed distance is convex along a segment (the obstacle is convex), so a golden-section
-        search on the segment parameter finds its minimum; the value is exact to within
-        ``length * SEGMENT_TOL``. With ``radius`` the segment is a capsule of that radius.
+    def segment_distance(self, p0, p1, radius: float = 0.0) -> np.ndarray:
+        """Minimum signed distance [m] between segments p0-p1 (shape (..., 3)) and the obstacle:
+        :func:`segment_minimum` of :meth:`signed_distance` (exact to within ``length * SEGMENT_TOL``).
 
         Args:
             p0, p1: end points, broadcastable to one shape (..., 3) [m].
@@ -234,34 +223,53 @@ class Obstacle:
             The distances (...,) [m] (negative: penetration depth of the segment's deepest point, for
             the 2-D ellipse; for the cylinder the exact signed distance of that point).
         """
-        p0 = np.asarray(p0, float)
-        p1 = np.asarray(p1, float)
-        p0, p1 = np.broadcast_arrays(p0, p1)
-        d = p1 - p0
+        return segment_minimum(self.signed_distance, p0, p1, radius)
 
-        def f(s):
-            return self.signed_distance(p0 + s[..., None] * d)
 
-        shape = p0.shape[:-1]
-        lo, hi = np.zeros(shape), np.ones(shape)
-        x1 = hi - _GOLDEN * (hi - lo)
-        x2 = lo + _GOLDEN * (hi - lo)
-        f1, f2 = f(x1), f(x2)
-        iters = int(math.ceil(math.log(SEGMENT_TOL) / math.log(_GOLDEN)))
-        for _ in range(iters):
-            left = f1 <= f2  # the minimiser lies in [lo, x2], else in [x1, hi]
-            hi = np.where(left, x2, hi)
-            lo = np.where(left, lo, x1)
-            nx1 = np.where(left, hi - _GOLDEN * (hi - lo), x2)
-            nx2 = np.where(left, x1, lo + _GOLDEN * (hi - lo))
-            fe = f(np.where(left, nx1, nx2))
-            f1, f2 = np.where(left, fe, f2), np.where(left, f1, fe)
-            x1, x2 = nx1, nx2
-        # end points too (the minimum of a convex function on [0, 1] may sit there)
-        s_in = 0.5 * (lo + hi)
-        cand = np.stack([np.zeros(shape), s_in, np.ones(shape)], axis=-1)
-        vals = np.stack([f(cand[..., k]) for k in range(3)], axis=-1)
-        return vals.min(axis=-1) - float(radius)
+def segment_minimum(distance, p0, p1, radius: float = 0.0) -> np.ndarray:
+    """The minimum of a convex function ``distance`` of points over segments p0-p1, minus ``radius``.
+
+    A signed distance to a convex set (or a lower bound of one that is convex too, such as
+    :meth:`EllipticCylinder.surface_bound`) is convex along a segment, so a golden-section search on
+    the segment parameter finds its minimum; for a 1-Lipschitz ``distance`` the value is exact to
+    within ``length * SEGMENT_TOL``. With ``radius`` the segment is a capsule of that radius.
+
+    Args:
+        distance: ``distance(points (..., 3)) -> (...)`` [m].
+        p0, p1: end points, broadcastable to one shape (..., 3) [m].
+        radius: capsule radius [m] >= 0.
+
+    Returns:
+        The minima (...,) [m].
+    """
+    p0 = np.asarray(p0, float)
+    p1 = np.asarray(p1, float)
+    p0, p1 = np.broadcast_arrays(p0, p1)
+    d = p1 - p0
+
+    def f(s):
+        return distance(p0 + s[..., None] * d)
+
+    shape = p0.shape[:-1]
+    lo, hi = np.zeros(shape), np.ones(shape)
+    x1 = hi - _GOLDEN * (hi - lo)
+    x2 = lo + _GOLDEN * (hi - lo)
+    f1, f2 = f(x1), f(x2)
+    iters = int(math.ceil(math.log(SEGMENT_TOL) / math.log(_GOLDEN)))
+    for _ in range(iters):
+        left = f1 <= f2  # the minimiser lies in [lo, x2], else in [x1, hi]
+        hi = np.where(left, x2, hi)
+        lo = np.where(left, lo, x1)
+        nx1 = np.where(left, hi - _GOLDEN * (hi - lo), x2)
+        nx2 = np.where(left, x1, lo + _GOLDEN * (hi - lo))
+        fe = f(np.where(left, nx1, nx2))
+        f1, f2 = np.where(left, fe, f2), np.where(left, f1, fe)
+        x1, x2 = nx1, nx2
+    # end points too (the minimum of a convex function on [0, 1] may sit there)
+    s_in = 0.5 * (lo + hi)
+    cand = np.stack([np.zeros(shape), s_in, np.ones(shape)], axis=-1)
+    vals = np.stack([f(cand[..., k]) for k in range(3)], axis=-1)
+    return vals.min(axis=-1) - float(radius)
 
 
 @dataclass(frozen=True)
@@ -276,10 +284,6 @@ class EllipseObstacle(Obstacle):
     """
 
     thickness: float = 0.02
-    kind = "ellipse"
-
-    def signed_distance(self, points) -> np.ndarray:
-        return self.ellipse_distance(points)
 
     def to_dict(self) -> dict:
         return {"kind": "ellipse", "center": [float(v) for v in self.center], "a": self.a, "b": self.b,
@@ -308,11 +312,9 @@ class EllipticCylinder(Obstacle):
     top_normal: np.ndarray | None = None
     top_z: float | None = None
 
-    kind = "elliptic_cylinder"
-
     def __post_init__(self) -> None:
         super().__post_init__()
-        object.__setattr__(self, "height", _positive("height", self.height))
+        object.__setattr__(self, "height", check_positive(self.height, "obstacle height [m]"))
         if self.top_normal is not None:
             n = check_array(self.top_normal, (3,), "top_normal")
             if n[2] <= 0:
@@ -415,7 +417,7 @@ def cut_cylinder(center_xy, a: float, b: float, angle: float, *, bottom: float, 
     n = np.asarray(top_normal, float)
     n = n / np.linalg.norm(n)
     # the top's highest point over the directrix: maximise -(n_xy . d)/n_z over the ellipse
-    e1, e2 = (np.array([math.cos(angle), math.sin(angle)]), np.array([-math.sin(angle), math.cos(angle)]))
+    e1, e2 = principal_axes(angle)
     g = n[:2]
     rise = math.hypot(a * (g @ e1), b * (g @ e2)) / n[2]
     top = top_z + rise
@@ -431,8 +433,6 @@ def obstacle_from_dict(data: dict) -> Obstacle:
     Raises:
         ChoiceError: unknown kind; TaskError: missing or bad values.
     """
-    from ..errors import check_choice
-
     if not isinstance(data, dict):
         raise TaskError(f"an obstacle must be a dict with kind, center, a, b, got {type(data).__name__}")
     kind = check_choice("obstacle kind", data.get("kind"), OBSTACLE_KINDS)

@@ -39,15 +39,14 @@ from time import perf_counter
 import numpy as np
 
 from ..errors import KinredundError, TaskError
-from ..ik import sample_box
 from ..indices import Index, TimeVaryingReference
 from ..paths import Path
 from ..resolved_rate import track
 from ..trajectory import Trajectory, json_ready
-from .branches import Candidate, Transition, candidates, choose, clearance_of, target_of, transition
-from .clearance import ClearanceReport, link_model, verify_motion
+from .branches import Candidate, Transition, candidates, choose, target_of, transition
+from .clearance import ClearanceReport, LinkModel, link_model, verify_motion
 from .obstacles import Obstacle
-from .policy import PlanarPolicy, SpatialPolicy
+from .policy import PlanarPolicy, SpatialPolicy, check_weights
 from .spline import JointSpline
 
 #: (w1 [m^2], w2) of Eq. (6.21): the thesis's example values for sample point S5
@@ -256,12 +255,33 @@ def _sample_times(samples, period: float) -> np.ndarray:
 
 
 def _weights(weights, n: int) -> np.ndarray:
-    w = np.asarray(weights, float)
+    """The (w1, w2) of each of the n samples, shape (n, 2), each pair checked as the policy checks it."""
+    try:
+        w = np.asarray(weights, float)
+    except (TypeError, ValueError) as err:
+        raise TaskError(f"weights must be (w1, w2) or one pair per sample ({n}, 2), got {weights!r}") from err
     if w.shape == (2,):
         w = np.tile(w, (n, 1))
-    if w.shape != (n, 2) or not np.all(np.isfinite(w)) or np.any(w < 0):
-        raise TaskError(f"weights must be (w1, w2) or one pair per sample ({n}, 2), all >= 0; got shape {w.shape}")
+    if w.shape != (n, 2):
+        raise TaskError(f"weights must be (w1, w2) or one pair per sample ({n}, 2), got shape {w.shape}")
+    for k, pair in enumerate(w):
+        check_weights(pair, f"the weights of sample S{k + 1}")
     return w
+
+
+def _tool_tip(model: LinkModel, tool_tip) -> float:
+    """The last link's tip left out of its clearance [m]: default 1/6 of its length, else checked in
+    [0, length)."""
+    length = float(model.lengths[-1])
+    if tool_tip is None:
+        return length / 6.0
+    try:
+        tip = float(tool_tip)
+    except (TypeError, ValueError) as err:
+        raise TaskError(f"tool_tip must be a length [m], got {tool_tip!r}") from err
+    if not (0.0 <= tip < length):
+        raise TaskError(f"tool_tip must be in [0, {length:.4g}) m (the last link), got {tool_tip!r}")
+    return tip
 
 
 def _winding(path: Path, obstacle: Obstacle, period: float, count: int = 720) -> float:
@@ -273,7 +293,62 @@ def _winding(path: Path, obstacle: Obstacle, period: float, count: int = 720) ->
 
 
 def _failure(reason, names, timings, samples=None, trajectory=None, notes=()) -> PlanResult:
+    """A :class:`PlanResult` with ``ok=False`` and ``reason``, without a verified motion."""
     return PlanResult(trajectory, samples, None, None, names, float("nan"), False, reason, timings, tuple(notes))
+
+
+def _track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model: LinkModel, *, planner: str,
+                      spline: str, steps_per_loop: int, substeps: int, link_radius: float, tool_tip: float,
+                      check_doubling: bool, progress, meta: dict, timings: dict, t_start: float,
+                      notes=()) -> PlanResult:
+    """Steps 2-4 of the off-line procedure from the samples, for :func:`plan` and
+    :func:`~kinredund.planning.roadmap.plan_roadmap`.
+
+    The spline estimates theta*(t) (Section 6.2.2.2), the resolved-rate tracking of
+    h = 1/2 ||theta - theta*(t)||^2 with the spline's rate as feed-forward (Eqs. 6.23-6.28), and the
+    clearance verification, independent of the indices. ``planner`` and ``meta`` (the caller's entries,
+    then the user's) go into ``Trajectory.meta``; the stages' wall times are added to ``timings``.
+    """
+    names = model.names
+    notes = list(notes)
+    # -- step 2: the spline estimates (Section 6.2.2.2) -------------------------------------------
+    spl = JointSpline(smp.t, smp.q, float(path.period), smp.turns, spline)
+
+    # -- step 3: resolved-rate tracking of h = 1/2 ||theta - theta*(t)||^2 (Eqs. 6.23-6.28) -------
+    t1 = perf_counter()
+    info = {"planner": planner, "obstacle": obstacle.to_dict(), "samples": smp.to_dict(), "spline": spline,
+            "links": list(names), "link_lengths": model.lengths.tolist(), "link_radius": float(link_radius),
+            "tool_tip": float(tool_tip), **meta}
+    try:
+        traj = track(robot, path, TimeVaryingReference(spl, spl.rate), smp.q[0], steps_per_loop=steps_per_loop,
+                     loops=1, progress=progress, meta=info)
+    except KinredundError as err:
+        timings["tracking_s"] = perf_counter() - t1
+        return _failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)
+    timings["tracking_s"] = perf_counter() - t1
+    q_spline = spl.values(traj.t)
+    gap = float(np.abs(traj.q - q_spline).max())
+
+    # -- step 4: verification, independent of the indices ----------------------------------------
+    t2 = perf_counter()
+    rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, radius=link_radius,
+                        tool_tip=tool_tip, check_doubling=check_doubling, path=path)
+    timings["clearance_s"] = perf_counter() - t2
+    timings["total_s"] = perf_counter() - t_start
+    reason = ""
+    if not rep.collision_free:
+        parts = [f"{nm} for t in [{a:.4g}, {b:.4g}] s (depth {d:.3g} m)" for nm, a, b, d in rep.intervals()[:6]]
+        if not parts:
+            k = int(np.argmin(rep.lower_bound))
+            parts.append(f"{names[k]}: certified clearance {rep.lower_bound[k]:.3g} m is not positive")
+        reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
+        if robot.task == "planar" and abs(_winding(path, obstacle, float(path.period))) > 0.5:
+            reason += (" - unavoidable here: a planar arm whose end point goes around a convex obstacle and "
+                       "whose joints return to their start sweeps over every point of the obstacle "
+                       "(see kinredund.planning.planner)")
+    if traj.loop_drift is not None and traj.loop_drift[0] > 1e-6:
+        notes.append(f"the joint path does not close: drift {traj.loop_drift[0]:.3g} rad after one loop")
+    return PlanResult(traj, smp, q_spline, rep, names, gap, not reason, reason, timings, tuple(notes))
 
 
 def plan(
@@ -357,10 +432,7 @@ def plan(
     factory = policy or default_policy
     model = link_model(robot)
     names = model.names
-    if tool_tip is None:
-        tool_tip = float(model.lengths[-1]) / 6.0
-    if not (0.0 <= tool_tip < model.lengths[-1]):
-        raise TaskError(f"tool_tip must be in [0, {model.lengths[-1]:.4g}) m (the last link), got {tool_tip!r}")
+    tool_tip = _tool_tip(model, tool_tip)
     if not (np.isfinite(link_radius) and link_radius >= 0):
         raise TaskError(f"link_radius must be a number >= 0 [m], got {link_radius!r}")
     seeds = dict(seeds or {})
@@ -368,7 +440,7 @@ def plan(
 
     # -- step 1: the sample points at joint level (Eqs. 6.21-6.22) and the branch choice ----------
     rng = np.random.default_rng(seed)
-    lo, hi = sample_box(robot)
+    lo, hi = robot.sample_box()
     cands: list[list[Candidate]] = []
     ps = np.array([path(t).p for t in ts])
     if robot.task == "position":
@@ -397,7 +469,7 @@ def plan(
     for k in range(n):
         tb = ts[k + 1] if k + 1 < n else period
         nxt = cands[k + 1] if k + 1 < n else cands[0]
-        trans.append([[transition(robot, path, ts[k], a.q, tb, b.q, model=model, obstacle=obstacle,
+        trans.append([[transition(robot, path, ts[k], a, tb, b, model=model, obstacle=obstacle,
                                   radius=link_radius, tool_tip=tool_tip, max_jump=max_jump if refine else np.inf,
                                   budget=max_refine, max_iter=max_iter) for b in nxt] for a in cands[k]])
     costs = [np.array([[tr.cost for tr in row] for row in mat]) for mat in trans]
@@ -414,9 +486,8 @@ def plan(
         c = cands[k][choice[k]]
         rows.append((ts[k], c.q + acc, "policy", len(cands[k]), c.objective, c.clearance, W[k]))
         tr = trans[k][choice[k]][choice[(k + 1) % n]]
-        for tm, qm in tr.points:
-            rows.append((tm, qm + acc, "refined", 0, np.nan,
-                         clearance_of(robot, qm, model, obstacle, link_radius, tool_tip), np.full(2, np.nan)))
+        for (tm, qm), cm in zip(tr.points, tr.clearance, strict=True):
+            rows.append((tm, qm + acc, "refined", 0, np.nan, cm, np.full(2, np.nan)))
         acc = acc + tr.shift
         if tr.min_clearance <= 0:
             notes.append(f"the transition between S{k + 1} and S{(k + 1) % n + 1} is not collision-free at its "
@@ -425,46 +496,7 @@ def plan(
                   np.array([r[1] for r in rows]), acc, tuple(r[3] for r in rows), np.array([r[4] for r in rows]),
                   np.array([r[5] for r in rows]), np.array([r[6] for r in rows]), tuple(r[2] for r in rows))
     timings["samples_s"] = perf_counter() - t_start
-
-    # -- step 2: the spline estimates (Section 6.2.2.2) -------------------------------------------
-    spl = JointSpline(smp.t, smp.q, period, smp.turns, spline)
-
-    # -- step 3: resolved-rate tracking of h = 1/2 ||theta - theta*(t)||^2 (Eqs. 6.23-6.28) -------
-    t1 = perf_counter()
-    index = TimeVaryingReference(spl, spl.rate)
-    info = {"planner": "chapter6", "obstacle": obstacle.to_dict(), "samples": smp.to_dict(), "spline": spline,
-            "links": list(names), "link_lengths": model.lengths.tolist(), "link_radius": float(link_radius),
-            "tool_tip": float(tool_tip)}
-    info.update(meta or {})
-    try:
-        traj = track(robot, path, index, smp.q[0], steps_per_loop=steps_per_loop, loops=1, progress=progress,
-                     meta=info)
-    except KinredundError as err:
-        timings["tracking_s"] = perf_counter() - t1
-        return _failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)
-    timings["tracking_s"] = perf_counter() - t1
-    q_spline = spl.values(traj.t)
-    gap = float(np.abs(traj.q - q_spline).max())
-
-    # -- step 4: verification, independent of the indices ----------------------------------------
-    t2 = perf_counter()
-    rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, radius=link_radius,
-                        tool_tip=tool_tip, check_doubling=check_doubling, path=path)
-    timings["clearance_s"] = perf_counter() - t2
-    timings["total_s"] = perf_counter() - t_start
-    reason = ""
-    if not rep.collision_free:
-        parts = []
-        for name, a, b, depth in rep.intervals()[:6]:
-            parts.append(f"{name} for t in [{a:.4g}, {b:.4g}] s (depth {depth:.3g} m)")
-        if not parts:
-            k = int(np.argmin(rep.lower_bound))
-            parts.append(f"{names[k]}: certified clearance {rep.lower_bound[k]:.3g} m is not positive")
-        reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
-        if robot.task == "planar" and abs(_winding(path, obstacle, period)) > 0.5:
-            reason += (" - unavoidable here: a planar arm whose end point goes around a convex obstacle and "
-                       "whose joints return to their start sweeps over every point of the obstacle "
-                       "(see kinredund.planning.planner)")
-    if traj.loop_drift is not None and traj.loop_drift[0] > 1e-6:
-        notes.append(f"the joint path does not close: drift {traj.loop_drift[0]:.3g} rad after one loop")
-    return PlanResult(traj, smp, q_spline, rep, names, gap, not reason, reason, timings, tuple(notes))
+    return _track_and_verify(robot, path, obstacle, smp, model, planner="chapter6", spline=spline,
+                             steps_per_loop=steps_per_loop, substeps=substeps, link_radius=link_radius,
+                             tool_tip=tool_tip, check_doubling=check_doubling, progress=progress,
+                             meta=dict(meta or {}), timings=timings, t_start=t_start, notes=notes)

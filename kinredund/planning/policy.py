@@ -41,35 +41,22 @@ from ..closure import cross_matrix
 from ..errors import TaskError
 from ..indices import Index
 from .obstacles import Obstacle
+from .selfmotion import active_joints
 
 
-def _weights(weights) -> tuple[float, float]:
+def check_weights(weights, what: str = "policy weights") -> tuple[float, float]:
+    """(w1, w2) of Eq. (6.21)/(6.44) as floats: two finite numbers >= 0, not both 0.
+
+    Raises:
+        TaskError: anything else (``what`` names them in the message).
+    """
     try:
         w1, w2 = (float(w) for w in weights)
     except (TypeError, ValueError) as err:
-        raise TaskError(f"policy weights must be two numbers (w1, w2) >= 0, got {weights!r}") from err
+        raise TaskError(f"{what} must be two numbers (w1, w2) >= 0, got {weights!r}") from err
     if not (math.isfinite(w1) and math.isfinite(w2) and w1 >= 0 and w2 >= 0 and w1 + w2 > 0):
-        raise TaskError(f"policy weights must be finite, >= 0 and not both 0, got {weights!r}")
+        raise TaskError(f"{what} must be finite, >= 0 and not both 0, got {weights!r}")
     return w1, w2
-
-
-def tangent_semi_axis(obstacle: Obstacle, point, line_angle) -> np.ndarray:
-    """b of the concentric ellipse (ratio a/b of the obstacle) tangent to a line (Eqs. 6.16, 6.37).
-
-    Args:
-        obstacle: gives the centre, the ratio r = a/b and the angle psi.
-        point: a point E of the line, (..., 2) [m].
-        line_angle: the line's direction angle phi from X [rad].
-
-    Returns:
-        b [m] (0 when the line passes through the centre).
-    """
-    E = np.asarray(point, float)
-    phi = np.asarray(line_angle, float)
-    c = obstacle.center
-    d = (c[1] - E[..., 1]) * np.cos(phi) - (c[0] - E[..., 0]) * np.sin(phi)  # n_l . (c - E)
-    D = obstacle.ratio ** 2 * np.sin(phi - obstacle.angle) ** 2 + np.cos(phi - obstacle.angle) ** 2
-    return np.abs(d) / np.sqrt(D)  # Eq. (6.16)
 
 
 def _inv_b2_terms(obstacle: Obstacle, phi: float):
@@ -118,7 +105,7 @@ class PlanarPolicy(Index):
         if not (np.all(np.isfinite(n)) and np.linalg.norm(n) > 0):
             raise TaskError(f"the target normal must be a non-zero vector, got {self.normal!r}")
         object.__setattr__(self, "normal", n / np.linalg.norm(n))
-        object.__setattr__(self, "weights", _weights(self.weights))
+        object.__setattr__(self, "weights", check_weights(self.weights))
         object.__setattr__(self, "theta0", np.zeros(3) if self.theta0 is None else np.asarray(self.theta0, float))
 
     def evaluate(self, theta, t=0.0):
@@ -179,7 +166,7 @@ class SpatialPolicy(Index):
     U = 1/2 [w1 / b(theta1)^2 + w2 |L(theta) - l|^2 + w_wrist sum_{i > last} (theta_i - ref_i)^2]:
 
     - b(theta1), Eq. (6.37): the projected link k2 (links 2-3) is the line through the base at azimuth
-      theta1 + ``azimuth_offset`` (Eq. 6.29);
+      theta1 (Eq. 6.29);
     - L(theta): the unit vector of the last positioning link (joint origin ``link[0]`` to ``link[1]``),
       the direction cosines of Eqs. (6.40)-(6.42) computed from the model (see
       :func:`kinredund.planning.spatial.link4_direction_thesis` for the thesis's closed form);
@@ -192,7 +179,6 @@ class SpatialPolicy(Index):
         normal: the outward unit normal at the target (3,).
         link: the indices (i, j) in ``robot.kinematics.joint_origins`` of the last link's ends.
         weights: (w1 [m^2], w2).
-        azimuth_offset: the angle between theta1 and the arm plane's azimuth [rad].
         w_wrist: weight of the wrist joints' deviation.
         wrist_ref: their reference values [rad], one per wrist joint (default zeros).
     """
@@ -202,7 +188,6 @@ class SpatialPolicy(Index):
     normal: np.ndarray
     link: tuple = (4, 5)
     weights: tuple = (1e-3, 1.0)
-    azimuth_offset: float = 0.0
     w_wrist: float = 1e-2
     wrist_ref: np.ndarray | None = None
 
@@ -211,17 +196,12 @@ class SpatialPolicy(Index):
         if n.shape != (3,) or not (np.all(np.isfinite(n)) and np.linalg.norm(n) > 0):
             raise TaskError(f"the target normal must be a non-zero 3-vector, got {self.normal!r}")
         object.__setattr__(self, "normal", n / np.linalg.norm(n))
-        object.__setattr__(self, "weights", _weights(self.weights))
+        object.__setattr__(self, "weights", check_weights(self.weights))
         nq = self.robot.nq
         i, j = self.link
         if not (0 <= i < j <= nq):
             raise TaskError(f"link must be two joint-origin indices 0 <= i < j <= {nq}, got {self.link!r}")
-        # the joints that do not move P (zero columns of the position Jacobian at two configurations)
-        rng = np.random.default_rng(0)
-        cols = np.zeros(nq)
-        for q in (self.robot.home, rng.uniform(-1.0, 1.0, nq)):
-            cols += np.linalg.norm(self.robot.kinematics.jacobian(np.asarray(q, float))[2][3:], axis=0)
-        wrist = np.flatnonzero(cols < 1e-12)
+        wrist = np.setdiff1d(np.arange(nq), active_joints(self.robot))  # the joints that do not move P
         object.__setattr__(self, "_wrist", wrist)
         ref = np.zeros(wrist.size) if self.wrist_ref is None else np.asarray(self.wrist_ref, float)
         if ref.shape != (wrist.size,):
@@ -235,8 +215,10 @@ class SpatialPolicy(Index):
 
     def direction(self, theta) -> np.ndarray:
         """L(theta): the unit vector of the last positioning link (Eqs. 6.40-6.42 from the model)."""
-        pts = self.robot.kinematics.joint_origins(np.asarray(theta, float))
-        v = pts[self.link[1]] - pts[self.link[0]]
+        return self._direction(self.robot.kinematics.joint_origins(np.asarray(theta, float)))
+
+    def _direction(self, origins: np.ndarray) -> np.ndarray:
+        v = origins[self.link[1]] - origins[self.link[0]]
         return v / np.linalg.norm(v)
 
     def evaluate(self, theta, t=0.0):
@@ -244,7 +226,7 @@ class SpatialPolicy(Index):
         n = theta.shape[0]
         w1, w2 = self.weights
         # 1/b^2 as a function of theta1 alone (Eqs. 6.37-6.39)
-        phi = theta[0] + self.azimuth_offset
+        phi = theta[0]
         x0, y0 = self.obstacle.center[0], self.obstacle.center[1]
         d = y0 * math.cos(phi) - x0 * math.sin(phi)
         if abs(d) < 1e-300:
@@ -258,9 +240,9 @@ class SpatialPolicy(Index):
         g[0] += 0.5 * w1 * g1[0]
         H[0, 0] += 0.5 * w1 * H1[0, 0]
         # |L - l|^2 = 2 (1 - L . l), l = -n (Eq. 6.44)
-        _, _, K = self.robot.kinematics.jacobian(theta)
+        K, origins = self.robot.kinematics.jacobian_and_origins(theta)
         axes = K[:3].T
-        L = self.direction(theta)
+        L = self._direction(origins)
         dL, d2L = link_direction_derivatives(axes, L, self.link[0] + 1)
         lvec = -self.normal
         f2 = 2.0 * (1.0 - float(L @ lvec))

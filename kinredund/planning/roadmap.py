@@ -40,14 +40,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from ..errors import KinredundError, TaskError
-from ..indices import TimeVaryingReference
-from ..resolved_rate import track
 from ..trajectory import wrap_joints
 from .branches import closest_on_path
-from .clearance import PENETRATION_TOL, link_clearance, link_model, verify_motion
-from .obstacles import EllipticCylinder, Obstacle
-from .planner import PlanResult, Samples
-from .spline import JointSpline, unwrap_samples
+from .clearance import PENETRATION_TOL, link_clearance, link_model
+from .obstacles import EllipticCylinder
+from .planner import PlanResult, Samples, _failure, _tool_tip, _track_and_verify
+from .spline import unwrap_samples
 
 #: cost of a move along the self-motion within one time slice, against squared joint steps [rad^2]: the
 #: search advances in time wherever it can (the closest-point tracking follows slow self-motions only)
@@ -138,18 +136,6 @@ def self_motion(arch: Architecture, p, theta1: np.ndarray) -> tuple[np.ndarray, 
     return np.array(qs), np.array(ok)
 
 
-class _Bound:
-    """A cheap lower bound of an elliptic cylinder's signed distance
-    (:meth:`~kinredund.planning.obstacles.EllipticCylinder.surface_bound`: exact inside, outside never
-    more than the true distance), with the obstacle's segment search."""
-
-    def __init__(self, obstacle: EllipticCylinder):
-        self.signed_distance = obstacle.surface_bound
-
-    def segment_distance(self, p0, p1, radius=0.0):
-        return Obstacle.segment_distance(self, p0, p1, radius)
-
-
 @dataclass(frozen=True)
 class Roadmap:
     """The roadmap's cycle.
@@ -158,13 +144,11 @@ class Roadmap:
         t: the times of the cycle's configurations [s] (increasing, from 0).
         q: the configurations (4 arm joints), unwrapped, shape (K, 4).
         margin: the clearance margin the cycle was found with [m] (a lower bound on the grid).
-        nodes: the number of nodes of the roadmap at that margin.
     """
 
     t: np.ndarray
     q: np.ndarray
     margin: float
-    nodes: int
 
 
 def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, grid: int = 360,
@@ -181,7 +165,8 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
     """
     arch = check_architecture(robot)
     period = float(path.period)
-    bound = _Bound(obstacle) if isinstance(obstacle, EllipticCylinder) else obstacle
+    # screening with a lower bound of the distance (exact inside, never above the truth outside)
+    bound = obstacle.surface_bound if isinstance(obstacle, EllipticCylinder) else None
     theta1 = np.linspace(-math.pi, math.pi, grid, endpoint=False)
     ts = np.arange(slices) * period / slices
     Q = np.zeros((slices, 4, grid, 4))
@@ -190,7 +175,7 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
         q, ok = self_motion(arch, path(t).p, theta1)
         pts = origins(arch, q).reshape(4 * grid, 5, 3)
         seg = np.stack([pts[:, 1:4], pts[:, 2:5]], axis=2)  # links O2-O3, O3-O4, O4-P: (4 grid, 3, 2, 3)
-        c, pen, tip = link_clearance(bound, seg, tool_tip=tool_tip)
+        c, pen, tip = link_clearance(obstacle, seg, tool_tip=tool_tip, distance=bound)
         whole_out = (pen + tip <= PENETRATION_TOL).reshape(4, grid)  # no point of the last link inside, P included
         Q[k] = q
         C[k] = np.where(ok & whole_out, c.min(axis=1).reshape(4, grid), -np.inf)
@@ -238,21 +223,21 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
                 while seq[-1] != s:
                     seq.append(int(pred[seq[-1]]))
                 best_seq, best_cost = seq[::-1], float(dist[goal])
-        return best_seq, int(keep.sum())
+        return best_seq
 
     lo, hi = MARGIN_RANGE
     allow_same = False
-    best, edges = cycle(lo, allow_same)
+    best = cycle(lo, allow_same)
     if best is None:
         allow_same = True  # no cycle that only moves forward in time: allow self-motions within a slice
-        best, edges = cycle(lo, allow_same)
+        best = cycle(lo, allow_same)
     if best is None:
         raise KinredundError(f"no cyclic collision-free motion on the roadmap ({slices} times x {grid} azimuths x 4 "
                              "branches): the arm cannot go round this obstacle without touching it")
     best_margin = lo
     for _ in range(MARGIN_BISECTIONS):
         mid = 0.5 * (lo + hi)
-        seq, _ = cycle(mid, allow_same)
+        seq = cycle(mid, allow_same)
         if seq is None:
             hi = mid
         else:
@@ -271,7 +256,7 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
             times.append(ts[k] + dt * j / len(chain))
             qs.append(q)
     q_arr, _ = unwrap_samples(np.array(qs), np.ones(4, bool))
-    return Roadmap(np.array(times), q_arr, float(best_margin), int(edges))
+    return Roadmap(np.array(times), q_arr, float(best_margin))
 
 
 def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, max_jump: float = 0.25,
@@ -280,19 +265,23 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
                  meta: dict | None = None) -> PlanResult:
     """Section 6.3's plan with the branch from :func:`roadmap_cycle`, then the thesis's steps 2-4.
 
+    ``tool_tip`` is the last link's tip left out of its clearance [m], default 1/6 of its length, as in
+    :func:`~kinredund.planning.planner.plan`; the other settings are :func:`roadmap_cycle`'s and
+    :func:`~kinredund.planning.planner.plan`'s.
+
     Returns:
         A :class:`~kinredund.planning.planner.PlanResult` (``samples.kind`` ``roadmap``); ``ok=False``
         with the reason when no cycle exists, the tracking fails or the verification finds contact.
 
     Raises:
-        TaskError: the arm is not of Table 4.1's architecture, or ``path`` is not closed.
+        TaskError: the arm is not of Table 4.1's architecture, ``path`` is not closed, or a bad ``tool_tip``.
     """
     t_start = perf_counter()
     if path.period is None:
         raise TaskError("plan_roadmap() needs a closed path (one with a period)")
     model = link_model(robot)
     names = model.names
-    tool_tip = float(model.lengths[-1]) / 6.0 if tool_tip is None else float(tool_tip)
+    tool_tip = _tool_tip(model, tool_tip)
     timings: dict[str, float] = {}
     try:
         rm = roadmap_cycle(robot, path, obstacle, slices=slices, grid=grid, tool_tip=tool_tip, max_jump=max_jump)
@@ -300,7 +289,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         if isinstance(err, TaskError):
             raise
         timings["roadmap_s"] = perf_counter() - t_start
-        return PlanResult(None, None, None, None, names, float("nan"), False, str(err), timings)
+        return _failure(str(err), names, timings)
     timings["roadmap_s"] = perf_counter() - t_start
     n_wrist = robot.nq - 4
     qs = []
@@ -313,35 +302,11 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
     smp = Samples(rm.t, ps, q_u, turns, (0,) * len(rm.t), np.full(len(rm.t), np.nan),
                   np.full((len(rm.t), len(names)), np.nan), np.full((len(rm.t), 2), np.nan),
                   ("roadmap",) * len(rm.t))
-    spl = JointSpline(rm.t, q_u, float(path.period), turns, spline)
-    info = {"planner": "chapter6-roadmap", "obstacle": obstacle.to_dict(), "samples": smp.to_dict(),
-            "spline": spline, "links": list(names), "link_lengths": model.lengths.tolist(), "tool_tip": tool_tip,
-            "roadmap_margin": rm.margin, "hd": {"alpha": robot.hd.alpha.tolist(), "a": robot.hd.a.tolist(),
-                                                 "b": robot.hd.b.tolist()}}
-    info.update(meta or {})
-    t1 = perf_counter()
-    try:
-        traj = track(robot, path, TimeVaryingReference(spl, spl.rate), q_u[0], steps_per_loop=steps_per_loop,
-                     loops=1, progress=progress, meta=info)
-    except KinredundError as err:
-        timings["tracking_s"] = perf_counter() - t1
-        return PlanResult(None, smp, None, None, names, float("nan"), False, f"the tracking failed: {err}",
-                          timings)
-    timings["tracking_s"] = perf_counter() - t1
-    q_spline = spl.values(traj.t)
-    t2 = perf_counter()
-    rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, tool_tip=tool_tip,
-                        check_doubling=check_doubling, path=path)
-    timings["clearance_s"] = perf_counter() - t2
-    timings["total_s"] = perf_counter() - t_start
-    reason = ""
-    if not rep.collision_free:
-        parts = [f"{nm} for t in [{a:.4g}, {b:.4g}] s (depth {d:.3g} m)" for nm, a, b, d in rep.intervals()[:6]]
-        if not parts:
-            k = int(np.argmin(rep.lower_bound))
-            parts.append(f"{names[k]}: certified clearance {rep.lower_bound[k]:.3g} m is not positive")
-        reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
+    extra = {"roadmap_margin": rm.margin,
+             "hd": {"alpha": robot.hd.alpha.tolist(), "a": robot.hd.a.tolist(), "b": robot.hd.b.tolist()}}
     notes = (f"branch chosen on a roadmap of the self-motion manifold ({slices} times x {grid} azimuths x 4 "
              f"branches), clearance margin >= {rm.margin:.3g} m at its nodes",)
-    return PlanResult(traj, smp, q_spline, rep, names, float(np.abs(traj.q - q_spline).max()),
-                      not reason, reason, timings, notes)
+    return _track_and_verify(robot, path, obstacle, smp, model, planner="chapter6-roadmap", spline=spline,
+                             steps_per_loop=steps_per_loop, substeps=substeps, link_radius=0.0, tool_tip=tool_tip,
+                             check_doubling=check_doubling, progress=progress, meta={**extra, **(meta or {})},
+                             timings=timings, t_start=t_start, notes=notes)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..task import TASK_ROWS
 from ..trajectory import wrap_joints
 
 #: corrector tolerance on the task residual [m]
@@ -32,18 +33,17 @@ def active_joints(robot) -> np.ndarray:
     return np.flatnonzero(cols > 1e-12)
 
 
-def _rows(robot) -> slice:
-    return slice(3, 5) if robot.task == "planar" else slice(3, 6)
+def _project(robot, q: np.ndarray, target: np.ndarray, act: np.ndarray, rows: np.ndarray, iters: int = 12):
+    """Minimum-norm Newton steps on the active joints onto p(q) = target (``rows``: the task's rows of K).
 
-
-def _project(robot, q: np.ndarray, target: np.ndarray, act: np.ndarray, iters: int = 12) -> np.ndarray | None:
-    """Minimum-norm Newton steps on the active joints onto p(q) = target; None if it does not converge."""
-    rows = _rows(robot)
+    Returns:
+        (q, K) at the converged configuration (K its velocity Jacobian), or None if it does not converge.
+    """
     for _ in range(iters):
         _, p, K = robot.kinematics.jacobian(q)
-        e = p[: rows.stop - 3] - target
+        e = p[rows - 3] - target
         if np.abs(e).max() < CORRECTOR_TOL:
-            return q
+            return q, K
         J = K[rows][:, act]
         step = np.linalg.lstsq(J, -e, rcond=None)[0]
         if np.abs(step).max() > 0.5:
@@ -53,13 +53,15 @@ def _project(robot, q: np.ndarray, target: np.ndarray, act: np.ndarray, iters: i
     return None
 
 
-def _null_direction(robot, q: np.ndarray, act: np.ndarray, previous: np.ndarray | None) -> np.ndarray | None:
-    K = robot.kinematics.jacobian(q)[2]
-    J = K[_rows(robot)][:, act]
+def _null_direction(K: np.ndarray, act: np.ndarray, rows: np.ndarray, previous: np.ndarray | None
+                    ) -> np.ndarray | None:
+    """The unit null-space direction of the task Jacobian (rows ``rows`` of K, active joints), signed
+    to continue ``previous``; None where the null space is not one-dimensional."""
+    J = K[rows][:, act]
     _, s, Vt = np.linalg.svd(J)
     if Vt.shape[0] - J.shape[0] != 1 or s[-1] < 1e-9 * max(1.0, s[0]):
         return None  # not one-dimensional, or singular here
-    v = np.zeros(robot.nq)
+    v = np.zeros(K.shape[1])
     v[act] = Vt[-1]
     if previous is not None and v @ previous < 0:
         v = -v
@@ -82,17 +84,20 @@ class Route:
     reached: bool
 
 
-def trace(robot, target, q0, direction: int, goal=None, *, step: float = 0.05, max_length: float = 40.0) -> Route:
+def trace(robot, target, q0, direction: int, goal=None, *, step: float = 0.05, max_length: float = 40.0,
+          active: np.ndarray | None = None) -> Route:
     """Follow the self-motion through q0 (on p(q) = target) one way (``direction`` +1 or -1).
 
     Stops at ``goal`` (within ``step``, revolute joints compared modulo 2 pi), when the curve closes
-    on itself, at a singular point, or after ``max_length`` [rad].
+    on itself, at a singular point, or after ``max_length`` [rad]. ``active`` is
+    :func:`active_joints` of the robot (computed when not given).
     """
-    act = active_joints(robot)
+    act = active_joints(robot) if active is None else active
+    rows = TASK_ROWS.get(robot.task, TASK_ROWS["position"])  # the end point's rows of K (x, y for planar)
     target = np.asarray(target, float)
     q = np.asarray(q0, float).copy()
     goal = None if goal is None else np.asarray(goal, float)
-    v = _null_direction(robot, q, act, None)
+    v = _null_direction(robot.kinematics.jacobian(q)[2], act, rows, None)
     if v is None:
         return Route(q[None], 0.0, False)
     v = direction * v
@@ -105,13 +110,14 @@ def trace(robot, target, q0, direction: int, goal=None, *, step: float = 0.05, m
             if np.abs(d).max() <= step:
                 pts.append(q + d)
                 return Route(np.array(pts), length + float(np.linalg.norm(d)), True)
-        qn = _project(robot, q + h * v, target, act)
-        if qn is None:
+        projected = _project(robot, q + h * v, target, act, rows)
+        if projected is None:
             if h < step / 64:
                 break
             h *= 0.5
             continue
-        vn = _null_direction(robot, qn, act, v)
+        qn, K = projected
+        vn = _null_direction(K, act, rows, v)
         if vn is None:
             break
         length += float(np.linalg.norm(qn - q))
@@ -125,5 +131,6 @@ def trace(robot, target, q0, direction: int, goal=None, *, step: float = 0.05, m
 
 def routes(robot, target, qa, qb, *, step: float = 0.05, max_length: float = 40.0) -> list[Route]:
     """The self-motions from qa to qb (both ways round), those that reach it, shortest first."""
-    out = [trace(robot, target, qa, d, qb, step=step, max_length=max_length) for d in (1, -1)]
+    act = active_joints(robot)
+    out = [trace(robot, target, qa, d, qb, step=step, max_length=max_length, active=act) for d in (1, -1)]
     return sorted([r for r in out if r.reached], key=lambda r: r.length)

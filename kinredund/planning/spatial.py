@@ -46,7 +46,9 @@ from ..errors import TaskError
 from ..hd import HDTable
 from ..paths import FunctionPath
 from ..robot import Robot, robot_from_hd
+from .clearance import link_model
 from .obstacles import EllipticCylinder, Obstacle, cut_cylinder
+from .policy import SpatialPolicy
 
 #: Eqs. (6.49)-(6.50) and the cylinder's axis
 GAMMA = math.radians(10.0)
@@ -169,13 +171,11 @@ def _discriminant_root(disc, b_hi: float) -> float:
 def _line_discriminant(obstacle: Obstacle, point, angle: float, b: float) -> float:
     """B^2 - 4AC of the line through ``point`` at ``angle`` met with the concentric ellipse (r b, b)."""
     r = obstacle.ratio
-    c, s = math.cos(obstacle.angle), math.sin(obstacle.angle)
-    x0, y0 = obstacle.center[0], obstacle.center[1]
-    # points of the line: point + tau (cos angle, sin angle); in the ellipse frame (Eqs. 6.4-6.5)
-    px, py = point[0] - x0, point[1] - y0
-    ux, uy = math.cos(angle), math.sin(angle)
-    pu, pv = px * c + py * s, -px * s + py * c
-    uu, uv = ux * c + uy * s, -ux * s + uy * c
+    # points of the line: point + tau u, u = (cos angle, sin angle); in the ellipse frame (Eqs. 6.4-6.5)
+    pu, pv = (float(v) for v in obstacle.local(np.asarray(point, float)))
+    u = np.array([math.cos(angle), math.sin(angle)])
+    e1, e2 = obstacle.axes()
+    uu, uv = float(u @ e1), float(u @ e2)
     qa = uu**2 / (r * b) ** 2 + uv**2 / b**2  # Eq. (6.3) as a quadratic in tau (6.7 / 6.30)
     qb = 2 * (pu * uu / (r * b) ** 2 + pv * uv / b**2)
     qc = pu**2 / (r * b) ** 2 + pv**2 / b**2 - 1.0
@@ -217,9 +217,6 @@ def top_normal_policy(robot, obstacle, normal, weights):
     Raises:
         TaskError: an obstacle without an inclined top (``top_normal``).
     """
-    from ..planning.clearance import link_model
-    from ..planning.policy import SpatialPolicy
-
     top = getattr(obstacle, "top_normal", None)
     if top is None:
         raise TaskError("top_normal_policy needs a cut cylinder (EllipticCylinder with top_normal), "

@@ -57,7 +57,6 @@ class JointSpline:
         q = np.asarray(q, float)
         self.period = float(period)
         self.turns = np.asarray(turns, float)
-        self.bc = bc
         tt = np.append(t, self.period)
         if bc == "periodic":
             y = q - np.outer(t / self.period, self.turns)
