@@ -100,7 +100,10 @@ class Kinematics:
     def joint_origins(self, q: np.ndarray) -> np.ndarray:
         """World positions [m] of every joint origin followed by point P, shape (njoints, 3)."""
         pin.forwardKinematics(self.model, self.data, q)
-        M = pin.updateFramePlacement(self.model, self.data, self.frame_id)
+        return self._origins(pin.updateFramePlacement(self.model, self.data, self.frame_id))
+
+    def _origins(self, M) -> np.ndarray:
+        """The joint origins in ``data`` (after a forward-kinematics pass) and P at the frame placement M."""
         pts = [self.data.oMi[j].translation.copy() for j in range(1, self.model.njoints)]
         pts.append(M.translation.copy())
         return np.array(pts)
@@ -111,9 +114,7 @@ class Kinematics:
         pin.computeJointJacobians(model, data, q)  # runs the forward kinematics: data.oMi too
         M = pin.updateFramePlacement(model, data, fid)
         J = pin.getFrameJacobian(model, data, fid, _LWA)
-        pts = [data.oMi[j].translation.copy() for j in range(1, model.njoints)]
-        pts.append(M.translation.copy())
-        return _rows(J, model.nv), np.array(pts)
+        return _rows(J, model.nv), self._origins(M)
 
 
 class HessianContraction:
