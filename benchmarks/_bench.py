@@ -13,6 +13,7 @@ Three ways to time, for three kinds of call:
 from __future__ import annotations
 
 import argparse
+import gc
 import platform
 import sys
 import time
@@ -34,20 +35,29 @@ def time_in_turn(fns: dict, repeat: int = 2000, warmup: int = 50) -> dict:
     """:func:`time_calls` for several functions called in turn (one call of each per round).
 
     Background load and the machine's drift then hit all of them alike, so their ratios hold even
-    when the absolute times of one run move. Returns {name: {"median_us", "p95_us"}}.
+    when the absolute times of one run move. Garbage collection is off while timing (as in
+    ``peers.py``'s round robin). Returns {name: {"median_us", "p95_us"}}.
     """
     for _ in range(warmup):
         for fn in fns.values():
             fn()
     ts = {name: np.empty(repeat) for name in fns}
     clock = time.perf_counter
-    for i in range(repeat):
-        for name, fn in fns.items():
-            t0 = clock()
-            fn()
-            ts[name][i] = clock() - t0
-    return {name: {"median_us": float(np.median(t) * 1e6), "p95_us": float(np.percentile(t, 95) * 1e6)}
-            for name, t in ts.items()}
+    gc.disable()
+    try:
+        for i in range(repeat):
+            for name, fn in fns.items():
+                t0 = clock()
+                fn()
+                ts[name][i] = clock() - t0
+    finally:
+        gc.enable()
+    return {name: summary_us(t) for name, t in ts.items()}
+
+
+def summary_us(seconds) -> dict:
+    """{"median_us", "p95_us"} of per-call times given in seconds."""
+    return {"median_us": float(np.median(seconds) * 1e6), "p95_us": float(np.percentile(seconds, 95) * 1e6)}
 
 
 def timeit_us(fn, number: int, repeat: int) -> float:

@@ -23,7 +23,7 @@ import math
 import time
 
 import numpy as np
-from _bench import best_of_us, parser, print_table, write_json
+from _bench import best_of_us, parser, print_table, summary_us, write_json
 
 from kinredund.closed_form import ClosedFormIK, conditioning, polynomial_route, solve_redundancy
 from kinredund.closed_form.polynomial import real_roots
@@ -39,8 +39,8 @@ NEAR_DEGENERATE_THETA3_DEG = 179.9  # the reference theta3*, 0.1 deg from where 
 TRIALS = 20  # seeded coefficient perturbations (conditioning's default), relative size 1e-12
 
 
-def _stats(ts: np.ndarray) -> dict:
-    return {"median_us": float(np.median(ts)), "p95_us": float(np.percentile(ts, 95)), "count": int(ts.size)}
+def _stats(ts_us: np.ndarray) -> dict:
+    return {**summary_us(np.asarray(ts_us) * 1e-6), "count": int(np.size(ts_us))}
 
 
 def near_degenerate(geom, theta3_deg: float = NEAR_DEGENERATE_THETA3_DEG, rho2: float = NEAR_DEGENERATE_RHO2) -> dict:

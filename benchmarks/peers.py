@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _bench import parser, print_table, write_json
+from _bench import parser, print_table, summary_us, write_json
 
 from kinredund.errors import check_choice
 from kinredund.examples.panda_circle import panda_circle
@@ -202,8 +202,8 @@ def run(loops: int = 20, variants=tuple(VARIANTS), methods=METHODS, steps_per_lo
                 res[m] = {"failed": failed[m]}
                 continue
             ts, qs = zip(*rec[m], strict=True)
-            res[m] = {"step_us_median": float(np.median(times[m]) * 1e6),
-                      "step_us_p95": float(np.percentile(times[m], 95) * 1e6),
+            stats = summary_us(times[m])
+            res[m] = {"step_us_median": stats["median_us"], "step_us_p95": stats["p95_us"],
                       **_evaluate(robot, path, index, q0, ts, qs, loops, steps_per_loop)}
         out[variant] = res
     return {"variants": out, "skipped": skipped,
