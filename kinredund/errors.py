@@ -122,6 +122,8 @@ def check_positive(value, what: str, error: type[KinredundError] = TaskError) ->
     """Return ``value`` as a float if it is a finite number > 0, else raise ``error`` naming ``what``."""
     import math
 
+    if isinstance(value, (str, bytes, bool)):
+        raise error(f"{what} must be a finite number > 0, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError) as err:

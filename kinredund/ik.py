@@ -33,7 +33,7 @@ from time import perf_counter
 
 import numpy as np
 
-from .errors import TaskError, check_count
+from .errors import TaskError, check_count, check_positive
 from .ik_newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, bound_kkt, run_start
 from .ik_qp import BoxStep
 from .ik_residual import TaskResidual
@@ -195,8 +195,7 @@ def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Opti
 def _check_options(robot, starts, tol, max_iter, timeout) -> None:
     check_count(starts, 1, "starts", TaskError)
     check_count(max_iter, 1, "max_iter", TaskError)
-    if not (isinstance(tol, (int, float)) and np.isfinite(tol) and tol > 0):
-        raise TaskError(f"tol must be a finite number > 0, got {tol!r}")
+    check_positive(tol, "tol", TaskError)
     if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
         raise TaskError(f"timeout must be None or a number of seconds > 0, got {timeout!r}")
     if robot.nq < robot.task_dim:

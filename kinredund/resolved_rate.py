@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
-from .errors import PathError, SingularityError, check_choice
+from .errors import PathError, SingularityError, check_choice, check_positive
 from .indices import Index
 from .paths import Path
 from .robot import Robot
@@ -337,9 +337,8 @@ class ResolvedRate:
             raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
             raise PathError(f"the {scheme} scheme needs a performance index")
-        if not (np.isfinite(dt) and dt > 0):
-            raise PathError(f"the time step must be a finite number > 0, got {dt!r}")
-        self.robot, self.dt, self.mode, self.scheme = robot, float(dt), mode, scheme
+        dt = check_positive(dt, "the time step [s]", PathError)
+        self.robot, self.dt, self.mode, self.scheme = robot, dt, mode, scheme
         self.linear_solver, self.qp_backend, self.tol, self.gain = linear_solver, qp_backend, tol, liegeois_gain
         self.n = robot.nq
         self.sys = _Scheme(robot, path, index, "velocity" if scheme == "velocity" else "augmented")

@@ -92,6 +92,4 @@ def pose_errors(Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, fl
 
 def orientation_error(Q: np.ndarray, Q_d: np.ndarray) -> float:
     """The angle [rad] of Q_d^T Q: a frame-independent orientation error."""
-    c = np.clip(0.5 * (np.trace(Q_d.T @ Q) - 1.0), -1.0, 1.0)
-    s = np.linalg.norm(closure.vect(Q_d.T @ Q))
-    return float(np.arctan2(s, c))
+    return closure.rotation_log(Q_d.T @ Q)[1]

@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from ..catalog import cybotech_p15
-from ..errors import TaskError
+from ..errors import TaskError, check_positive
 from ..hd import HDTable
 from ..paths import FunctionPath
 from ..robot import Robot, robot_from_hd
@@ -89,8 +89,7 @@ def scaled_p15(scale: float = P15_SCALE, *, last_link: float | None = None, lowe
     Raises:
         TaskError: a scale that is not a finite number > 0.
     """
-    if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-        raise TaskError(f"the scale must be a finite number > 0, got {scale!r}")
+    scale = check_positive(scale, "the scale", TaskError)
     if last_link is not None and not (isinstance(last_link, (int, float)) and math.isfinite(last_link)
                                       and last_link > 0):
         raise TaskError(f"last_link must be a finite length > 0 [m], got {last_link!r}")
@@ -128,8 +127,7 @@ def section_path(rate: float = 1.0, start: float = 0.0, **shape) -> FunctionPath
         start: beta at t = 0 [rad].
         **shape: a, b, gamma, psi, h, center of :func:`section_point`.
     """
-    if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
-        raise TaskError(f"the rate must be a finite number > 0 [rad/s], got {rate!r}")
+    rate = check_positive(rate, "the rate [rad/s]", TaskError)
     a = shape.get("a", A)
     b = shape.get("b", B)
     gamma = shape.get("gamma", GAMMA)

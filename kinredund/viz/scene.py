@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import TaskError
+from ..errors import TaskError, check_positive
 from ..planning.obstacles import EllipseObstacle, EllipticCylinder, Obstacle, obstacle_from_dict
 from ..trajectory import Trajectory
 
@@ -114,8 +114,7 @@ def resample(
     Raises:
         KinredundError: ``fps`` not positive or ``max_frames`` < 2 (as :class:`TaskError`).
     """
-    if not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
-        raise TaskError(f"fps must be a number > 0, got {fps!r}")
+    check_positive(fps, "fps", TaskError)
     if int(max_frames) < 2:
         raise TaskError(f"max_frames must be at least 2, got {max_frames!r}")
     t = np.asarray(traj.t, dtype=float)
