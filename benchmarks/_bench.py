@@ -106,10 +106,10 @@ def parser(description: str) -> argparse.ArgumentParser:
 
 
 def write_json(path: Path | None, data: dict) -> None:
-    """Write the figures and the machine as strict JSON, atomically (``kinredund.trajectory.write_json``)."""
+    """Write the figures and the machine as strict JSON, atomically (``kinredund.io.write_json``)."""
     if path is None:
         return
-    from kinredund.trajectory import write_json as write_strict_json
+    from kinredund.io import write_json as write_strict_json
 
     write_strict_json(path, {"machine": machine(), **data}, indent=2)
     print(f"wrote {path}")

@@ -11,7 +11,7 @@ largest forward-kinematics residual over the branches found. Then ``kinredund.ik
 Conditioning of the polynomial route (Eq. 3.81, degree 24, against its degree-12 factor), through
 :func:`kinredund.closed_form.conditioning` with its defaults (relative coefficient perturbation 1e-12,
 the worst of 20 seeded perturbations): the coefficient spread and the unperturbed root error along the
-Section 3.2 helix (:func:`kinredund.examples.helix_3_2.reproduce`, 91 samples), and at one near-degenerate
+Section 3.2 helix (:func:`kinredund.thesis.helix_3_2.reproduce`, 91 samples), and at one near-degenerate
 case: rho^2 = 1 m^2, references on the constraint curve (Eq. 3.25) with theta3* = 179.9 deg,
 next to where the curve crosses theta3 = pi, so the constrained minimum of Eq. (3.31) is the reference.
 Run: ``python benchmarks/closed_form.py [--json FILE] [--poses N] [--ik-poses N]``.
@@ -29,10 +29,10 @@ from kinredund.closed_form import ClosedFormIK, conditioning, polynomial_route, 
 from kinredund.closed_form.polynomial import real_roots
 from kinredund.closed_form.positioning import plane_radius2
 from kinredund.closed_form.redundancy import constraint_terms
-from kinredund.examples.helix_3_2 import reproduce as helix_3_2
-from kinredund.ik import solve_ik
+from kinredund.ik.solve import solve_ik
 from kinredund.indices import JointDeviation
-from kinredund.trajectory import wrap_joints
+from kinredund.kinematics.angles import wrap_joints
+from kinredund.thesis.helix_3_2 import reproduce as helix_3_2
 
 NEAR_DEGENERATE_RHO2 = 1.0  # [m^2]
 NEAR_DEGENERATE_THETA3_DEG = 179.9  # the reference theta3*, 0.1 deg from where the curve crosses theta3 = pi

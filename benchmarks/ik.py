@@ -35,7 +35,7 @@ import numpy as np
 from _bench import parser, print_table, write_json
 
 import kinredund
-from kinredund.ik import solve_ik
+from kinredund.ik.solve import solve_ik
 from kinredund.indices import mid_range
 
 ROBOTS = ("panda", "xarm7")

@@ -15,7 +15,7 @@ For the Panda and the CYBOTECH P-15, the per-call median time [us] of
 
 and the ratios "K + Lambda*" / "K". The script checks that both routes give the same arrays. For the
 CYBOTECH, also the
-recursive Jacobian of Eqs. (5.1)-(5.21) (``kinredund.recursive.recursive_jacobian``, plain Python and
+recursive Jacobian of Eqs. (5.1)-(5.21) (``kinredund.kinematics.recursive.recursive_jacobian``, plain Python and
 numpy) next to Pinocchio's K.
 
 The internal kinematics calls are unchecked (no input validation), as the solvers use them. Each figure
@@ -32,8 +32,8 @@ import numpy as np
 from _bench import parser, timeit_us, write_json
 
 import kinredund
-from kinredund import closure
-from kinredund.recursive import recursive_jacobian
+from kinredund.kinematics import closure
+from kinredund.kinematics.recursive import recursive_jacobian
 
 ROBOTS = ("panda", "cybotech_p15")
 RECURSIVE_ROBOT = "cybotech_p15"

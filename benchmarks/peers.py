@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/peers.py [--json FILE] [--plot FILE] [--loops N]
 
-The path is :func:`kinredund.examples.panda_circle.panda_circle` (a 0.1 m circle through the home pose at
+The path is :func:`kinredund.problems.panda_circle` (a 0.1 m circle through the home pose at
 0.1 m/s), in two variants: ``constant`` orientation and ``wrist15`` (+-15 deg about the tool axis). Every
 method starts at q_home (the constrained optimum of z = 1/2 ||q - q_home||^2) and takes the same time
 step, T / 200, for N loops (default 20). Methods:
@@ -26,7 +26,7 @@ included, the recording excluded; methods are stepped in turn, so background loa
 garbage collection is off while stepping); max position error [m] and orientation error [rad] (angle
 of Q_d^T Q) over all steps; the joint drift max |q(kT) - q(0)| [rad] after each loop; and the max
 normality residual min over lambda of ||grad z + K^T lambda|| = ||(1 - K^+ K) grad z|| (zero exactly on the
-constrained optimum; K the 6 x n velocity Jacobian; ``kinredund.resolved_rate.multipliers``, as
+constrained optimum; K the 6 x n velocity Jacobian; ``kinredund.tracking.resolved_rate.multipliers``, as
 ``Trajectory.normality_residual``). Peers whose package is missing are skipped and listed.
 """
 
@@ -40,11 +40,11 @@ import numpy as np
 from _bench import parser, print_table, summary_us, write_json
 
 from kinredund.errors import check_choice
-from kinredund.examples.panda_circle import panda_circle
-from kinredund.plots import LOG_FLOOR
-from kinredund.resolved_rate import ResolvedRate, multipliers
-from kinredund.task import orientation_error
-from kinredund.trajectory import joint_drift
+from kinredund.kinematics.angles import joint_drift
+from kinredund.problems import panda_circle
+from kinredund.tasks.target import orientation_error
+from kinredund.tracking.resolved_rate import ResolvedRate, multipliers
+from kinredund.ui.plots import LOG_FLOOR
 
 STEPS_PER_LOOP = 200
 VARIANTS = {"constant": 0.0, "wrist15": float(np.radians(15.0))}
@@ -250,12 +250,12 @@ def write_plot(results: dict, path: Path) -> None:
     """Drift per loop on a log scale, one curve per method, one panel per variant (written atomically).
 
     A matplotlib Figure with the Agg canvas (no pyplot, no process-wide backend switch), saved by
-    :func:`kinredund.plots.save_figure`; exact zeros are drawn at :data:`kinredund.plots.LOG_FLOOR`.
+    :func:`kinredund.ui.plots.save_figure`; exact zeros are drawn at :data:`kinredund.ui.plots.LOG_FLOOR`.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from kinredund.plots import save_figure
+    from kinredund.ui.plots import save_figure
 
     variants = results["variants"]
     fig = Figure(figsize=(6 * len(variants) + 2, 4.5), layout="constrained")

@@ -1,6 +1,6 @@
 """Chapter 6 timing: the whole off-line plan of Sections 6.2 and 6.3 (issue 6).
 
-Per case, one run of ``kinredund.examples.chapter6.run_case`` with its stages (samples or roadmap,
+Per case, one run of ``kinredund.thesis.chapter6.run_case`` with its stages (samples or roadmap,
 tracking, clearance verification) and the verdict. Section 6.2 stops at its feasibility check (the
 policy is out of reach; a planar loop around the obstacle must sweep over it), so its time is that
 check's. Run: ``python benchmarks/planning.py [--json FILE]``.
@@ -12,7 +12,7 @@ import time
 
 from _bench import parser, print_table, write_json
 
-from kinredund.examples.chapter6 import run_case
+from kinredund.thesis.chapter6 import run_case
 
 
 def bench(case: str) -> dict:

@@ -41,9 +41,9 @@ import numpy as np
 from _bench import parser, print_table, time_calls, time_in_turn, write_json
 from scipy.linalg import lapack
 
-from kinredund.examples.chapter4 import example_path
-from kinredund.examples.panda_circle import panda_circle
-from kinredund.resolved_rate import ResolvedRate, kkt_matrix, multipliers
+from kinredund.problems import panda_circle
+from kinredund.thesis.chapter4 import example_path
+from kinredund.tracking.resolved_rate import ResolvedRate, kkt_matrix, multipliers
 
 #: what each figure of :func:`bench` times (written to the JSON as ``keys``)
 KEYS = {
@@ -73,7 +73,7 @@ def _setup(name):
     if name == "panda":
         robot, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
         return robot, path, index, q0
-    from kinredund.examples.chapter4 import load_example
+    from kinredund.thesis.chapter4 import load_example
 
     ex = load_example("4.3")
     return ex.robot, example_path("4.3"), ex.index, ex.q0
@@ -175,7 +175,7 @@ def write_plot(results: dict, path: Path) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from kinredund.plots import save_figure
+    from kinredund.ui.plots import save_figure
 
     labels = {"eval_us": "one evaluation (issue's list)", "eval_stepper_us": "one evaluation (stepper's _rates)",
               "step_default_us": "default step (augmented)",

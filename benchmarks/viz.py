@@ -8,7 +8,7 @@ For synthetic trajectories (joints moving sinusoidally, p from forward kinematic
 
 - ``replay_html`` for the planar 3R (cylinder visuals) and the Panda (meshes): wall time [s] (it starts
   and stops a meshcat server each time), the file size [MB] and the number of keyframes;
-- each plot of ``kinredund.plots`` written as PNG: wall time [s] and file size [kB].
+- each plot of ``kinredund.ui.plots`` written as PNG: wall time [s] and file size [kB].
 
 Each time is the median of ``--repeat`` runs (``_bench.time_calls``, no warm-up run). Prints a table;
 with ``--json FILE`` writes the figures atomically (``_bench.write_json``).
@@ -23,9 +23,9 @@ import numpy as np
 from _bench import parser, print_table, time_calls, write_json
 
 import kinredund
-from kinredund import plots
 from kinredund.trajectory import Trajectory
-from kinredund.viz import replay_html, resample
+from kinredund.ui import plots
+from kinredund.ui.viz import replay_html, resample
 
 
 def synthetic(name: str, duration: float = 10.0, steps: int = 1001) -> tuple[kinredund.Robot, Trajectory]:

@@ -4,7 +4,7 @@ After S. Mathur, *Algorithms for the Kinematic Control of Redundant Manipulators
 McGill University, 1989. See the README for the map from thesis chapters to modules.
 """
 
-from .errors import (
+from kinredund.errors import (
     ChoiceError,
     FrameNotFoundError,
     HDTableError,
@@ -17,9 +17,9 @@ from .errors import (
     UnknownRobotError,
     URDFError,
 )
-from .hd import HDTable
-from .ik import IKResult, check_optimality, solve_ik
-from .robot import Robot, known_robots, load_robot, robot_from_hd
+from kinredund.ik.solve import IKResult, check_optimality, solve_ik
+from kinredund.kinematics.hd import HDTable
+from kinredund.model.robot import Robot, known_robots, load_robot, robot_from_hd
 
 __version__ = "0.1.0"
 

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import KinredundError, TaskError, check_array
-from .finite_diff import central_difference
+from kinredund.errors import KinredundError, TaskError, check_array
+from kinredund.kinematics.finite_diff import central_difference
 
 
 class Index:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import PathError, check_array, check_positive
+from kinredund.errors import PathError, check_array, check_positive
 
 
 @dataclass(frozen=True)
@@ -325,7 +325,7 @@ def read_path_file(file) -> tuple[SampledPath, float]:
         KinredundError: the file cannot be read or is not a JSON object; PathError: a missing key, a
             ``closed`` that is not true or false, or samples :class:`SampledPath` rejects.
     """
-    from .trajectory import read_json_object
+    from kinredund.io import read_json_object
 
     data = read_json_object(file)
     if "t" not in data or "p" not in data:

@@ -12,14 +12,21 @@ become (nested) lists; ``meta`` is a free-form dict (example name, obstacle, par
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from .errors import JointVectorError, KinredundError, PathError, TaskError, check_array, check_choice, check_positive
+from kinredund.errors import (
+    JointVectorError,
+    KinredundError,
+    PathError,
+    TaskError,
+    check_array,
+    check_choice,
+    check_positive,
+)
+from kinredund.io import json_ready, read_json_object, write_json
 
 SCHEMA_VERSION = 1
 #: Task kinds a record can hold.
@@ -190,60 +197,4 @@ class Trajectory:
         return cls.from_json_dict(read_json_object(path))
 
 
-def json_ready(v):
-    """JSON-ready copy of ``v``: arrays to lists, numpy scalars to Python, non-finite floats to None.
-
-    ``json.dumps(json_ready(v), allow_nan=False)`` then always succeeds for numeric content. (A
-    trajectory record holds finite arrays only: :meth:`Trajectory.from_json_dict` rejects a null in one.)
-    """
-    if isinstance(v, dict):
-        return {str(k): json_ready(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return [json_ready(x) for x in v]
-    if isinstance(v, (float, np.floating)):
-        return float(v) if math.isfinite(v) else None
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, np.bool_):
-        return bool(v)
-    return v
-
-
-def write_json(path: str | Path, obj, indent: int | None = None) -> Path:
-    """Write ``obj`` as strict JSON to ``path`` atomically (temporary file + rename); return the path.
-
-    ``obj`` goes through :func:`json_ready` (arrays to lists, non-finite floats to null) and
-    ``json.dumps(..., allow_nan=False)``, so the file never holds ``NaN`` or ``Infinity``.
-    """
-    from .generate import atomic_write_text
-
-    path = Path(path)
-    atomic_write_text(path, json.dumps(json_ready(obj), allow_nan=False, indent=indent))
-    return path
-
-
-def read_json_object(path: str | Path) -> dict:
-    """The JSON object in ``path``; KinredundError (naming the file) if unreadable, not JSON or not an object."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except OSError as err:
-        raise KinredundError(f"cannot read {path}: {err.strerror}") from err
-    except json.JSONDecodeError as err:
-        raise KinredundError(f"{path} is not valid JSON: {err}") from err
-    if not isinstance(data, dict):
-        raise KinredundError(f"{path} does not hold a JSON object")
-    return data
-
-
-def wrap_joints(d, revolute=True) -> np.ndarray:
-    """Joint values or differences with the revolute entries brought into [-pi, pi) [rad]."""
-    d = np.asarray(d, float)
-    return np.where(revolute, (d + np.pi) % (2 * np.pi) - np.pi, d)
-
-
-def joint_drift(q_start: np.ndarray, q_end: np.ndarray, revolute: np.ndarray) -> float:
-    """max |q_end - q_start| with revolute joints compared modulo 2 pi [rad]."""
-    return float(np.max(np.abs(wrap_joints(np.asarray(q_end, float) - np.asarray(q_start, float), revolute))))
-
-
-__all__ = ["TASKS", "Trajectory", "joint_drift", "json_ready", "read_json_object", "wrap_joints", "write_json"]
+__all__ = ["TASKS", "Trajectory"]

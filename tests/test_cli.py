@@ -11,7 +11,7 @@ import pytest
 from test_viz import scene_commands
 from test_viz import track as animation_track
 
-from kinredund.cli import EXIT_FAILED, EXIT_USAGE, main
+from kinredund.ui.cli import EXIT_FAILED, EXIT_USAGE, main
 
 
 def test_robots_lists_every_name(capsys):

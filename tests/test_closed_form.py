@@ -12,7 +12,6 @@ from conftest import robot
 from scipy.optimize import minimize
 
 import kinredund
-from kinredund.catalog import puma7
 from kinredund.closed_form import (
     ArmGeometry,
     ClosedFormIK,
@@ -26,8 +25,9 @@ from kinredund.closed_form.polynomial import real_roots, stationary_points
 from kinredund.closed_form.positioning import shoulder_branches, theta2_from
 from kinredund.closed_form.redundancy import constraint_curve, objective_terms
 from kinredund.errors import ChoiceError, HDTableError, JointVectorError, KinredundError, TaskError
-from kinredund.finite_diff import central_difference
-from kinredund.trajectory import wrap_joints
+from kinredund.kinematics.angles import wrap_joints
+from kinredund.kinematics.finite_diff import central_difference
+from kinredund.model.catalog import puma7
 
 #: Section 3.2 as printed: the isotropic references [deg] (NOTES.md, Chapter 3)
 THESIS_REFERENCES_DEG = (94.08, 97.41)
@@ -148,7 +148,7 @@ def test_redundancy_agrees_with_scipy_slsqp_on_the_2d_problem():
 
 
 def test_closed_form_agrees_with_the_joint_level_ik_solver():
-    from kinredund.ik import solve_ik
+    from kinredund.ik.solve import solve_ik
     from kinredund.indices import JointDeviation
 
     ik = _ik()
@@ -362,7 +362,7 @@ def _brent_on_curve(geom, rho2, t3):
 
 # -- Section 3.2 -----------------------------------------------------------------------------------------
 def test_section_3_2_helix(tmp_path):
-    from kinredund.examples.helix_3_2 import reproduce
+    from kinredund.thesis.helix_3_2 import reproduce
 
     data = reproduce(samples=19, json_path=tmp_path / "h.json", plot_path=tmp_path / "h.png")
     saved = json.loads((tmp_path / "h.json").read_text())
@@ -384,7 +384,7 @@ def test_section_3_2_writes_strict_json_and_checks_its_sample_count(tmp_path, mo
     """Non-finite numbers are written as null (strict JSON, no NaN/Infinity tokens); the sample count
     must be an integer >= 2 (19.0 and 1 are refused)."""
     from kinredund.errors import PathError
-    from kinredund.examples import helix_3_2
+    from kinredund.thesis import helix_3_2
 
     monkeypatch.setattr(helix_3_2, "_polynomial_route",
                         lambda *a: {"root_condition_24": [float("inf")], "eps": float("nan")})

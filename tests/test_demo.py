@@ -1,4 +1,4 @@
-"""`make demo` (kinredund.demo.run_demo): every example runs and the summaries are strict JSON."""
+"""`make demo` (kinredund.ui.demo.run_demo): every example runs and the summaries are strict JSON."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from kinredund.demo import run_demo
+from kinredund.ui.demo import run_demo
 
 
 @pytest.mark.slow

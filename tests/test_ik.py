@@ -8,14 +8,15 @@ import numpy as np
 import pytest
 from conftest import ALL_ROBOTS, configurations, robot
 
-from kinredund import JointVectorError, TaskError, closure
-from kinredund.closure import rotation_log
-from kinredund.examples.starts import example_4_1_start, example_4_2_start, example_4_3_start
-from kinredund.finite_diff import central_difference
-from kinredund.ik import IKResult, check_optimality, solve_ik
-from kinredund.ik_residual import TaskResidual
+from kinredund import JointVectorError, TaskError
+from kinredund.ik.solve import IKResult, check_optimality, solve_ik
 from kinredund.indices import CustomIndex, IndexCheckError, JointDeviation, check_index, minimum_norm
-from kinredund.task import make_target, orientation_error
+from kinredund.kinematics import closure
+from kinredund.kinematics.closure import rotation_log
+from kinredund.kinematics.finite_diff import central_difference
+from kinredund.tasks.residual import TaskResidual
+from kinredund.tasks.target import make_target, orientation_error
+from kinredund.thesis.starts import example_4_1_start, example_4_2_start, example_4_3_start
 
 EXAMPLES = {"4.1": example_4_1_start, "4.2": example_4_2_start, "4.3": example_4_3_start}
 STARTS = {"4.1": 16, "4.2": 16, "4.3": 24}
@@ -343,7 +344,7 @@ def test_pose_only_result_reports_the_residual_reached_and_no_index_terms():
 def test_box_step_guess_is_the_proxsuite_solution(monkeypatch):
     """The active-set guess of the bounded least-squares step is taken only when it is the QP's
     solution: compare with proxsuite on random problems with joints at and past their limits."""
-    from kinredund import ik_qp
+    from kinredund.ik import qp as ik_qp
 
     rng = np.random.default_rng(4)
     r = robot("panda")
@@ -450,7 +451,7 @@ def test_freeze_and_clip_holds_joints_pushed_out_of_their_limits():
     joints take the damped least-squares step of theirs, argmin ||G_f d + e||^2 + mu ||d||^2 (lstsq of
     [G_f; sqrt(mu) 1] d = [-e; 0]), which leaves a far smaller linearised error than the clipped
     unheld step; a joint pushed past a limit it was not at is clipped, not held."""
-    from kinredund.ik_newton import Setup, _freeze_and_clip
+    from kinredund.ik.newton import Setup, _freeze_and_clip
 
     r = robot("panda")
     rng = np.random.default_rng(5)
@@ -486,7 +487,7 @@ def test_turn_past_limits_continues_a_joint_the_other_way_round():
     """Panda joint 7 (range 2 pi - 0.49 rad) held at its upper limit goes to its lower limit, the angle
     0.49 rad further on; an xArm7 joint (range 4 pi) turns by exactly 2 pi: the same pose; a joint
     whose range misses a turn by more than TURN_GAP (Panda joint 2) is not turned."""
-    from kinredund.ik_newton import Setup, _turn_past_limits
+    from kinredund.ik.newton import Setup, _turn_past_limits
 
     def setup(r):
         return Setup(kin=r.kinematics, res=TaskResidual(make_target("pose", np.eye(4))), index=None,
@@ -526,7 +527,7 @@ def test_bounded_multistart_solves_the_trac_ik_protocol(name):
 def test_multistart_samples_do_not_depend_on_the_batch_size(monkeypatch):
     """The start samples are drawn SAMPLE_BATCH at a time: the same draws as one at a time, so the
     result of a solve that needs several starts is the same for any batch size."""
-    from kinredund import ik
+    from kinredund.ik import solve as ik
 
     r = robot("panda")
     mid = 0.5 * (r.lower + r.upper)

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from conftest import ALL_ROBOTS, configurations, robot
 
-from kinredund import closure
-from kinredund.finite_diff import central_difference
-from kinredund.kinematics import fix_hessian_layout
+from kinredund.kinematics import closure
+from kinredund.kinematics.finite_diff import central_difference
+from kinredund.kinematics.state import fix_hessian_layout
 
 FD_TOL = 1e-7
 

@@ -18,11 +18,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import kinredund
-from kinredund.catalog import SHIPPED_TABLES
-from kinredund.generate import validated_urdf
-from kinredund.hd import HDTable
-from kinredund.models import EE_FRAME, hd_to_model, hd_to_urdf, load_urdf_text_model
-from kinredund.robot import shipped_robot_dir
+from kinredund.kinematics.hd import HDTable
+from kinredund.model.catalog import SHIPPED_TABLES
+from kinredund.model.generate import validated_urdf
+from kinredund.model.robot import shipped_robot_dir
+from kinredund.model.urdf import EE_FRAME, hd_to_model, hd_to_urdf, load_urdf_text_model
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -193,7 +193,7 @@ def test_bad_task_kind():
 
 
 def test_generate_robots_command_writes_identical_files(tmp_path):
-    from kinredund.cli import main
+    from kinredund.ui.cli import main
 
     assert main(["generate-robots", "--out", str(tmp_path)]) == 0
     for name in SHIPPED_TABLES:
@@ -204,7 +204,7 @@ def test_generate_robots_command_writes_identical_files(tmp_path):
 def test_turn_into_limits_keeps_the_pose_and_lands_inside():
     """Angles turned by multiples of 2 pi land at the lowest value >= the lower limit, inside the limits
     where any turn can put them (ok), and the forward kinematics does not change."""
-    from kinredund.robot import turn_into_limits
+    from kinredund.kinematics.angles import turn_into_limits
 
     r = robot("panda")
     rng = np.random.default_rng(12)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from conftest import configurations, robot
 
-from kinredund import closure, opcount
 from kinredund.errors import TaskError
 from kinredund.indices import JointDeviation
-from kinredund.recursive import _products
+from kinredund.kinematics import closure, opcount
+from kinredund.kinematics.recursive import _products
 
 GRID = [(n, m) for n in range(1, 13) for m in range(1, min(n, 6) + 1)]
 
@@ -233,7 +233,7 @@ def test_adopted_lu_counts_equal_an_instrumented_elimination(N):
 
 
 def test_rotation_product_recursion_takes_24_multiplications_and_12_additions_per_axis():
-    """Eqs. (5.3)-(5.16) as implemented in kinredund.recursive: the per-axis cost of stage rotation_products."""
+    """Eqs. (5.3)-(5.16) in kinredund.kinematics.recursive: the per-axis cost of stage rotation_products."""
     rng = np.random.default_rng(5)
     counts = []
     for n in (3, 4):

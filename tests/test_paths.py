@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import kinredund
-from kinredund.closure import rotation_from_invariants
-from kinredund.finite_diff import central_difference
+from kinredund.kinematics.closure import rotation_from_invariants
+from kinredund.kinematics.finite_diff import central_difference
 from kinredund.paths import Circle, Ellipse, FunctionPath, Helix, SampledPath
 
 

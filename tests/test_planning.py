@@ -12,16 +12,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kinredund import ChoiceError, TaskError
-from kinredund.cli import EXIT_FAILED, main
-from kinredund.examples.chapter4 import load_example, run_example
-from kinredund.examples.chapter6 import case_robot, planar_feasibility, planar_setup, reproduce
+from kinredund.kinematics.angles import wrap_joints
 from kinredund.paths import Ellipse
 from kinredund.planning.branches import PENETRATION_PENALTY, candidates, choose, clearance_of, transition
 from kinredund.planning.clearance import link_model, verify_motion
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder
 from kinredund.planning.planner import default_policy
 from kinredund.planning.selfmotion import routes, trace
-from kinredund.trajectory import wrap_joints
+from kinredund.thesis.chapter4 import load_example, run_example
+from kinredund.thesis.chapter6 import case_robot, planar_feasibility, planar_setup, reproduce
+from kinredund.ui.cli import EXIT_FAILED, main
 
 
 def _ellipse_points(ob, m=20000):

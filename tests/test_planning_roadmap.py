@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from kinredund.catalog import cybotech_p15
-from kinredund.hd import HDTable
 from kinredund.indices import check_index
+from kinredund.kinematics.hd import HDTable
+from kinredund.model.catalog import cybotech_p15
+from kinredund.model.robot import robot_from_hd
 from kinredund.planning.clearance import link_clearance, link_segments
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder, obstacle_from_dict
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy
@@ -24,7 +25,6 @@ from kinredund.planning.spatial import (
     section_path,
 )
 from kinredund.planning.spline import JointSpline
-from kinredund.robot import robot_from_hd
 from kinredund.trajectory import Trajectory
 
 
@@ -189,7 +189,7 @@ def test_screening_clearance_is_a_lower_bound_of_the_exact_one():
 
 @pytest.fixture(scope="module")
 def section_6_3(tmp_path_factory):
-    from kinredund.examples.chapter6 import reproduce
+    from kinredund.thesis.chapter6 import reproduce
 
     out = tmp_path_factory.mktemp("ch6")
     result = reproduce("6.3", json_path=out / "6.3.json", plot_path=out / "6.3.png")

@@ -8,9 +8,9 @@ from conftest import SHIPPED, configurations, robot
 
 from kinredund import robot_from_hd
 from kinredund.errors import HDTableError, JointVectorError
-from kinredund.finite_diff import central_difference
-from kinredund.hd import HDTable
-from kinredund.recursive import recursive_jacobian, recursive_kinematics, rotation_products
+from kinredund.kinematics.finite_diff import central_difference
+from kinredund.kinematics.hd import HDTable
+from kinredund.kinematics.recursive import recursive_jacobian, recursive_kinematics, rotation_products
 
 
 def _random_qs(r, seed, count=20):

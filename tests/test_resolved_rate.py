@@ -9,12 +9,12 @@ import pytest
 from conftest import configurations, robot
 
 import kinredund
-from kinredund.examples.chapter4 import indefinite_interval, load_example, run_example
-from kinredund.finite_diff import central_difference
 from kinredund.indices import CustomIndex, JointDeviation, minimum_norm
+from kinredund.kinematics.finite_diff import central_difference
 from kinredund.paths import Circle, FunctionPath
-from kinredund.resolved_rate import ResolvedRate, _ProxQP, classify, hermite_weights, solve_rates, track
-from kinredund.rr_terms import task_terms
+from kinredund.tasks.terms import task_terms
+from kinredund.thesis.chapter4 import indefinite_interval, load_example, run_example
+from kinredund.tracking.resolved_rate import ResolvedRate, _ProxQP, classify, hermite_weights, solve_rates, track
 
 
 @functools.cache
@@ -136,8 +136,8 @@ def test_task_jacobians_and_their_derivatives_match_finite_differences(name, sch
 
 def test_lambda_of_the_pose_task_is_the_contraction_of_the_checked_tensor():
     """No second derivative code: the fused Lambda equals lam . dJ with dJ from closure (foundation-tested)."""
-    from kinredund import closure
-    from kinredund.rr_terms import _U_REL
+    from kinredund.kinematics import closure
+    from kinredund.tasks.terms import _U_REL
 
     r = robot("panda")
     rng = np.random.default_rng(5)
@@ -157,7 +157,7 @@ def test_lambda_of_the_pose_task_is_the_contraction_of_the_checked_tensor():
 
 def test_explicit_time_derivative_of_the_target_frame_jacobian():
     """The augmented pose task's rows live in the moving target frame: dJ/dt at fixed q enters Eq. (4.24)."""
-    from kinredund.examples.panda_circle import panda_circle
+    from kinredund.problems import panda_circle
 
     r, path, _, q0 = panda_circle(wrist_amplitude=np.radians(15))
     q = q0 + 0.05
@@ -308,7 +308,7 @@ def test_time_varying_index_feed_forward():
 
 
 def _start(r, qa, fn):
-    from kinredund.ik import solve_ik
+    from kinredund.ik.solve import solve_ik
 
     res = solve_ik(r, fn(0.0)[0], JointDeviation(qa), q0=qa, starts=8)
     assert res.converged
@@ -340,7 +340,7 @@ def test_default_mode_rates_are_the_time_derivative_of_the_path(name):
     The Panda's rolling tool has non-zero orientation multipliers, so its rates need (dJ/dt)^T lambda.
     """
     if name == "panda":
-        from kinredund.examples.panda_circle import panda_circle
+        from kinredund.problems import panda_circle
 
         r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
     else:

@@ -29,8 +29,8 @@ def test_kernel_evaluation_solves_the_velocity_form_system():
     """eval_us: the rates of Eq. (4.36) at the start, M* thetadot + K^T lambda*dot = 0, K thetadot = twist."""
     import numpy as np
 
-    from kinredund.closure import contract
-    from kinredund.resolved_rate import multipliers
+    from kinredund.kinematics.closure import contract
+    from kinredund.tracking.resolved_rate import multipliers
 
     robot, path, index, q0 = bench._setup("panda")
     q = q0 + 0.05  # off q_home, where grad z = 0
@@ -54,7 +54,7 @@ def test_evaluation_solves_the_velocity_form_system():
     """
     import numpy as np
 
-    from kinredund.closure import contract, rotation_log
+    from kinredund.kinematics.closure import contract, rotation_log
 
     robot, path, index, q0 = bench._setup("panda")
     dt = path.period / 200

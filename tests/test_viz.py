@@ -32,9 +32,9 @@ from conftest import robot
 from kinredund import ChoiceError, JointVectorError, PathError, TaskError
 from kinredund.planning.obstacles import OBSTACLE_KINDS, obstacle_from_dict
 from kinredund.trajectory import Trajectory
-from kinredund.viz import play_live, replay_html, resample, stop_live
-from kinredund.viz.live import live_visualizer
-from kinredund.viz.scene import (
+from kinredund.ui.viz import play_live, replay_html, resample, stop_live
+from kinredund.ui.viz.live import live_visualizer
+from kinredund.ui.viz.scene import (
     CAMERA_FOV_DEG,
     camera_view,
     obstacle_corner_points,
@@ -255,7 +255,7 @@ def test_camera_sees_every_scene_point(planar):
 
 
 def test_import_viz_does_not_import_meshcat():
-    code = "import sys, kinredund.viz, kinredund.plots; print('meshcat' in sys.modules)"
+    code = "import sys, kinredund.ui.viz, kinredund.ui.plots; print('meshcat' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "False"
 

@@ -9,11 +9,16 @@
 - :mod:`.solver`: :class:`ClosedFormIK`, the whole chain.
 """
 
-from .polynomial import Conditioning, PolynomialRoute, conditioning, polynomial_route
-from .positioning import ArmGeometry, UnreachableError
-from .redundancy import IsotropicConfiguration, RedundancySolution, isotropic_configuration, solve_redundancy
-from .solver import ClosedFormIK, IKBranch, PositioningSolution
-from .wrist import WristSolution, solve_wrist
+from kinredund.closed_form.polynomial import Conditioning, PolynomialRoute, conditioning, polynomial_route
+from kinredund.closed_form.positioning import ArmGeometry, UnreachableError
+from kinredund.closed_form.redundancy import (
+    IsotropicConfiguration,
+    RedundancySolution,
+    isotropic_configuration,
+    solve_redundancy,
+)
+from kinredund.closed_form.solver import ClosedFormIK, IKBranch, PositioningSolution
+from kinredund.closed_form.wrist import WristSolution, solve_wrist
 
 __all__ = [
     "ArmGeometry",

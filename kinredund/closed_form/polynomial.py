@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.polynomial import polynomial as npoly
 
-from ..trajectory import wrap_joints
-from .positioning import ArmGeometry
+from kinredund.closed_form.positioning import ArmGeometry
+from kinredund.kinematics.angles import wrap_joints
 
 
 def _mul2(a: np.ndarray, b: np.ndarray) -> np.ndarray:

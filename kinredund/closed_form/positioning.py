@@ -1,6 +1,6 @@
 """Positioning of the wrist centre of the PUMA-derived arm: theta1 and theta2 in closed form (Chapter 3).
 
-The arm of Table 3.1 (``kinredund.catalog.puma7``) has axis 1 vertical and axes 2-4 parallel and
+The arm of Table 3.1 (``kinredund.model.catalog.puma7``) has axis 1 vertical and axes 2-4 parallel and
 horizontal, so links 2-4 move in one vertical plane, offset by the shoulder offset d from axis 1. The
 positioning problem of Section 3.1.1 then splits into
 
@@ -27,10 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import HDTableError, KinredundError
-from ..hd import HDTable
+from kinredund.errors import HDTableError, KinredundError
+from kinredund.kinematics.hd import HDTable
 
-#: HD twist angles alpha_i [deg] of the Chapter 3 architecture (PUMA7_NOTES in kinredund.catalog)
+#: HD twist angles alpha_i [deg] of the Chapter 3 architecture (PUMA7_NOTES in kinredund.model.catalog)
 ARCHITECTURE_ALPHA_DEG = (90.0, 0.0, 0.0, 90.0, -90.0, 90.0)
 _TOL = 1e-12
 
@@ -81,7 +81,7 @@ class ArmGeometry:
         """
         expected = (
             "7 revolute axes with alpha_1..6 = (90, 0, 0, 90, -90, 90) deg, a1 = a5 = a6 = a7 = 0, "
-            "b5 = b6 = b7 = 0 and a2, a3, a4 > 0 (see kinredund.catalog.PUMA7_NOTES)"
+            "b5 = b6 = b7 = 0 and a2, a3, a4 > 0 (see kinredund.model.catalog.PUMA7_NOTES)"
         )
         if table is None:
             raise HDTableError(f"the closed-form solver needs a robot built from an HD table with {expected}")

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-from ..errors import HDTableError, SolverError, check_choice
-from ..trajectory import wrap_joints
-from .positioning import ArmGeometry
+from kinredund.closed_form.positioning import ArmGeometry
+from kinredund.errors import HDTableError, SolverError, check_choice
+from kinredund.kinematics.angles import wrap_joints
 
 OBJECTIVES = ("angle", "sincos")
 

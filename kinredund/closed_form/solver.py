@@ -22,15 +22,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import JointVectorError, check_array, check_choice
-from ..recursive import rotation_products
-from ..robot import turn_into_limits
-from ..task import make_target
-from ..trajectory import wrap_joints
-from .positioning import ArmGeometry, plane_radius2, shoulder_branches, theta2_from
-from .redundancy import OBJECTIVES, IsotropicConfiguration, RedundancySolution, isotropic_configuration
-from .redundancy import solve_redundancy as _solve_redundancy
-from .wrist import rot_x, solve_wrist
+from kinredund.closed_form.positioning import ArmGeometry, plane_radius2, shoulder_branches, theta2_from
+from kinredund.closed_form.redundancy import (
+    OBJECTIVES,
+    IsotropicConfiguration,
+    RedundancySolution,
+    isotropic_configuration,
+)
+from kinredund.closed_form.redundancy import solve_redundancy as _solve_redundancy
+from kinredund.closed_form.wrist import rot_x, solve_wrist
+from kinredund.errors import JointVectorError, check_array, check_choice
+from kinredund.kinematics.angles import turn_into_limits, wrap_joints
+from kinredund.kinematics.recursive import rotation_products
+from kinredund.tasks.target import make_target
 
 PICKS = ("lowest", "nearest")
 
@@ -112,7 +116,7 @@ class ClosedFormIK:
     def __init__(self, robot=None, references=None, objective: str = "angle", *,
                  singular_tol: float = 1e-8, samples: int = 96):
         if robot is None:
-            from ..robot import load_robot
+            from kinredund.model.robot import load_robot
 
             robot = load_robot("puma7")
         self.robot = robot
@@ -194,7 +198,7 @@ class ClosedFormIK:
 
         Raises:
             TaskError: not a 4x4 homogeneous matrix (last row (0, 0, 0, 1)) with a rotation block
-                (:func:`kinredund.task.make_target`).
+                (:func:`kinredund.tasks.target.make_target`).
             UnreachableError: the wrist centre is out of reach.
         """
         target = make_target("pose", pose)
@@ -202,7 +206,7 @@ class ClosedFormIK:
         return self._solve_all(target, hint)
 
     def _solve_all(self, target, hint: np.ndarray) -> list[IKBranch]:
-        """:meth:`solve_all` for a validated pose :class:`~kinredund.task.Target` and hint (n,)."""
+        """:meth:`solve_all` for a validated pose :class:`~kinredund.tasks.target.Target` and hint (n,)."""
         theta0 = np.array(self.geometry.theta0)
         rest = np.zeros(self.robot.nq - 4)
         target_w = target.Q @ rot_x(self.geometry.alpha7).T

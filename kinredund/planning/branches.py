@@ -26,12 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..ik import solve_ik
-from ..indices import Index, JointDeviation
-from ..trajectory import wrap_joints
-from .clearance import PENETRATION_TOL, LinkModel, link_clearance, link_segments
-from .obstacles import Obstacle
-from .selfmotion import routes
+from kinredund.ik.solve import solve_ik
+from kinredund.indices import Index, JointDeviation
+from kinredund.kinematics.angles import wrap_joints
+from kinredund.planning.clearance import PENETRATION_TOL, LinkModel, link_clearance, link_segments
+from kinredund.planning.obstacles import Obstacle
+from kinredund.planning.selfmotion import routes
 
 #: two candidate configurations closer than this (wrapped, max-abs) are the same [rad]
 SAME_CONFIGURATION = 1e-6
@@ -131,7 +131,7 @@ def closest_on_path(robot, target, reference: np.ndarray, seed=None, max_iter: i
     is set from the multipliers) then cannot accept a step back onto g = x.
 
     Returns:
-        The :class:`~kinredund.ik.IKResult`.
+        The :class:`~kinredund.ik.solve.IKResult`.
     """
     seed = reference if seed is None else seed
     first = solve_ik(robot, target, None, q0=seed, max_iter=max_iter)

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import TaskError
-from .obstacles import Obstacle, segment_minimum
+from kinredund.errors import TaskError
+from kinredund.planning.obstacles import Obstacle, segment_minimum
 
 #: a point of the last link deeper than the end point by more than this is a penetration [m]
 PENETRATION_TOL = 1e-9

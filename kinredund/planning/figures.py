@@ -3,7 +3,7 @@
 Each panel draws the arm's links (segments between joint origins) at one time with the obstacle and
 the end-point path: the xy-plane for planar arms, and for spatial arms a top view (xy) and a side view
 (xz) with the cylinder's outline. Written with matplotlib's object API on an Agg canvas, atomically
-(:func:`kinredund.plots.save_figure`).
+(:func:`kinredund.ui.plots.save_figure`).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import KinredundError
-from .obstacles import EllipticCylinder, Obstacle
+from kinredund.errors import KinredundError
+from kinredund.planning.obstacles import EllipticCylinder, Obstacle
 
 
 def snapshot_figure(result, robot, obstacle: Obstacle, path_out: str | Path, times=None, count: int = 9):
@@ -24,7 +24,7 @@ def snapshot_figure(result, robot, obstacle: Obstacle, path_out: str | Path, tim
     """
     from matplotlib.figure import Figure
 
-    from ..plots import save_figure
+    from kinredund.ui.plots import save_figure
 
     tr = result.trajectory
     if tr is None:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import TaskError, check_array, check_choice, check_positive
+from kinredund.errors import TaskError, check_array, check_choice, check_positive
 
 #: width of the final bracket of the segment parameter (relative, in [0, 1]); the segment distance is
 #: then at most ``length * SEGMENT_TOL`` above the exact minimum (the signed distance is 1-Lipschitz)

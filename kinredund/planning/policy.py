@@ -37,11 +37,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..closure import cross_matrix
-from ..errors import TaskError
-from ..indices import Index
-from .obstacles import Obstacle
-from .selfmotion import active_joints
+from kinredund.errors import TaskError
+from kinredund.indices import Index
+from kinredund.kinematics.closure import cross_matrix
+from kinredund.planning.obstacles import Obstacle
+from kinredund.planning.selfmotion import active_joints
 
 
 def check_weights(weights, what: str = "policy weights") -> tuple[float, float]:

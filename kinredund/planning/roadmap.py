@@ -39,13 +39,13 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..errors import KinredundError, TaskError
-from ..trajectory import wrap_joints
-from .branches import closest_on_path
-from .clearance import PENETRATION_TOL, link_clearance, link_model
-from .obstacles import EllipticCylinder
-from .planner import PlanResult, Samples, _failure, _tool_tip, _track_and_verify
-from .spline import unwrap_samples
+from kinredund.errors import KinredundError, TaskError
+from kinredund.kinematics.angles import wrap_joints
+from kinredund.planning.branches import closest_on_path
+from kinredund.planning.clearance import PENETRATION_TOL, link_clearance, link_model
+from kinredund.planning.obstacles import EllipticCylinder
+from kinredund.planning.planner import PlanResult, Samples, _failure, _tool_tip, _track_and_verify
+from kinredund.planning.spline import unwrap_samples
 
 #: cost of a move along the self-motion within one time slice, against squared joint steps [rad^2]: the
 #: search advances in time wherever it can (the closest-point tracking follows slow self-motions only)

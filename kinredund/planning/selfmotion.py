@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..task import TASK_ROWS
-from ..trajectory import wrap_joints
+from kinredund.kinematics.angles import wrap_joints
+from kinredund.tasks.target import TASK_ROWS
 
 #: corrector tolerance on the task residual [m]
 CORRECTOR_TOL = 1e-11

@@ -41,14 +41,14 @@ import math
 
 import numpy as np
 
-from ..catalog import cybotech_p15
-from ..errors import TaskError, check_positive
-from ..hd import HDTable
-from ..paths import FunctionPath
-from ..robot import Robot, robot_from_hd
-from .clearance import link_model
-from .obstacles import EllipticCylinder, Obstacle, cut_cylinder
-from .policy import SpatialPolicy
+from kinredund.errors import TaskError, check_positive
+from kinredund.kinematics.hd import HDTable
+from kinredund.model.catalog import cybotech_p15
+from kinredund.model.robot import Robot, robot_from_hd
+from kinredund.paths import FunctionPath
+from kinredund.planning.clearance import link_model
+from kinredund.planning.obstacles import EllipticCylinder, Obstacle, cut_cylinder
+from kinredund.planning.policy import SpatialPolicy
 
 #: Eqs. (6.49)-(6.50) and the cylinder's axis
 GAMMA = math.radians(10.0)

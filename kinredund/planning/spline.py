@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from ..errors import check_choice
-from ..trajectory import wrap_joints
+from kinredund.errors import check_choice
+from kinredund.kinematics.angles import wrap_joints
 
 SPLINE_KINDS = ("periodic", "natural")
 

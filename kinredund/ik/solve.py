@@ -1,0 +1,349 @@
+"""Joint-level inverse kinematics: poses, and constrained minima of a performance index (Chapter 4.2,
+Appendix D).
+
+:func:`solve_ik` solves g(theta) = x (Eq. 4.1) for a pose or point target, or, given an index z, the
+constrained problem of Eq. (4.3),
+
+    min z(theta)   subject to   g(theta) = x,
+
+by the orthogonal-decomposition algorithm of Appendix D (:mod:`kinredund.ik.newton`). This is how the
+thesis finds the starting configuration of a resolved-rate run (Section 4.2, Examples 4.1-4.3). The
+result reports both optimality conditions:
+
+- first order, the normality condition (4.5)/(D.9)/(D.30): the gradient of z projected on the null
+  space of the constraint Jacobian vanishes, ``normality_residual`` = ||L^T grad z||;
+- second order, Eq. (D.33): L^T (Hess z + Lambda) L is positive definite, Lambda = d(K^T lambda*)/dtheta
+  with lambda* the least-squares multipliers of K^T lambda* = -grad z (Eqs. 4.33, 4.37; on the null
+  space of K this equals the Hessian of lambda^T g of the closure equations, Eq. 4.26).
+
+Joint limits: ``bounds=True`` keeps every iterate within them (with an index, box-constrained QP
+steps, :mod:`kinredund.ik.qp`; pose-only, joints held at a limit and the rest clipped into them,
+:mod:`kinredund.ik.newton`); a seed outside them is projected into them and the result's ``notes`` say so
+(the seed is never used as it is). ``starts > 1`` runs seeded multi-start and returns the converged
+result of lowest z.
+
+Units: theta [rad or m], residuals in the units of the task (m, and dimensionless closure entries),
+z [rad^2] for the joint-deviation indices, times [s].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from time import perf_counter
+
+import numpy as np
+
+from kinredund.errors import TaskError, check_count, check_positive
+from kinredund.ik.newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, bound_kkt, run_start
+from kinredund.ik.qp import BoxStep
+from kinredund.indices import Index
+from kinredund.kinematics.angles import turn_into_limits
+from kinredund.tasks.residual import TaskResidual
+from kinredund.tasks.target import Target, make_target
+
+#: residuals are never asked to be smaller than this many units of round-off times the target scale
+ROUNDING = 64.0 * float(np.finfo(float).eps)
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """The outcome of :func:`solve_ik`.
+
+    Attributes:
+        q: the joint vector found (the closest one when not converged) [rad or m].
+        converged: residual < tol (for pose tasks the 6-D error [log(Q Q_d^T); p - p_d] too: the
+            closure 7-vector alone is insensitive to some rotation errors near half-turn targets)
+            and, with an index, normality residual < tol.
+        iterations: iterations of the returned start.
+        residual: ||g(q) - x||, the closure 7-vector of Eq. (2.13) for pose tasks.
+        normality_residual: ||L^T grad z||, Eqs. (D.9)/(D.30) (with bounds: the KKT residual including
+            the multipliers of the limits that hold); 0.0 without an index. For a converged result this
+            and the second-order fields come from the last iteration (L the null space of its G, which
+            equals K[rows] up to O(||e||), :mod:`kinredund.tasks.residual`); :func:`check_optimality`
+            evaluates them on K itself.
+        objective: z(q); 0.0 without an index.
+        reduced_hessian_pd: Eq. (D.33): L^T (Hess z + Lambda) L positive definite (False without an
+            index: there is nothing to check).
+        reduced_hessian_min_eig: its smallest eigenvalue (inf when the null space is empty, nan
+            without an index).
+        reason: "" when converged, else why not (``"timeout"``, a stall, ``max_iter``).
+        starts: how many starts were run.
+        time_s: wall time of the whole call [s].
+        notes: remarks that are not failures (e.g. a seed projected into the joint limits).
+    """
+
+    q: np.ndarray
+    converged: bool
+    iterations: int
+    residual: float
+    normality_residual: float
+    objective: float
+    reduced_hessian_pd: bool
+    reduced_hessian_min_eig: float
+    reason: str
+    starts: int = 1
+    time_s: float = 0.0
+    notes: str = ""
+
+
+@dataclass(frozen=True)
+class Optimality:
+    """First- and second-order conditions at one configuration (see :func:`check_optimality`).
+
+    Attributes:
+        residual, normality_residual, objective, reduced_hessian_pd, reduced_hessian_min_eig: as in
+            :class:`IKResult`.
+        multipliers: lambda* (m,), K[rows]^T lambda* + grad z = 0 in the least-squares sense (Eq. 4.33).
+        reduced_hessian: L^T (Hess z + Lambda*) L, symmetrised (k x k).
+        null_space: L (n x k), orthonormal basis of the null space of K[rows] and the held limits.
+        active: mask of the joint limits that hold (all False without bounds).
+    """
+
+    residual: float
+    normality_residual: float
+    objective: float
+    reduced_hessian_pd: bool
+    reduced_hessian_min_eig: float
+    multipliers: np.ndarray
+    reduced_hessian: np.ndarray
+    null_space: np.ndarray
+    active: np.ndarray
+
+
+def _target(robot, target) -> Target:
+    if isinstance(target, Target):
+        if target.task != robot.task:
+            raise TaskError(f"the target is for a {target.task!r} task but {robot.name} has task {robot.task!r}")
+        return target
+    return make_target(robot.task, target)
+
+
+def _check_index(robot, index, q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """Validate the index on q; returns its (z, grad z, Hess z) at q (None without an index)."""
+    if index is None:
+        return None
+    if not isinstance(index, Index):
+        raise TaskError(f"index must be a kinredund.indices.Index (or None), got {type(index).__name__}")
+    n = robot.nq
+    try:
+        z, grad, H = index.evaluate(q)
+        grad, H = np.asarray(grad, dtype=float), np.asarray(H, dtype=float)
+    except (ValueError, TypeError, IndexError) as err:
+        raise TaskError(
+            f"the index cannot be evaluated on a joint vector of {robot.name} ({n} joints; gradient/Hessian "
+            f"shapes ({n},)/({n}, {n}) needed): {err}"
+        ) from err
+    if grad.shape != (n,) or H.shape != (n, n):
+        raise TaskError(
+            f"index gradient/Hessian must have shapes ({n},)/({n}, {n}) for {robot.name}, got {grad.shape}/{H.shape}"
+        )
+    if not (np.isfinite(z) and np.all(np.isfinite(grad)) and np.all(np.isfinite(H))):
+        raise TaskError("the index returned non-finite values at the seed")
+    return z, grad, H
+
+
+def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bool = False) -> Optimality:
+    """Residual, normality (D.9/D.30) and second-order (D.33) conditions of Eq. (4.3) at q.
+
+    Args:
+        robot: a :class:`kinredund.Robot`.
+        target: what :func:`kinredund.tasks.target.make_target` accepts, or a Target.
+        q: joint vector (n,) [rad or m].
+        index: the objective z; None gives only the residual.
+        bounds: count the joint limits that q sits on (within 1e-9) as constraints.
+
+    Raises:
+        TaskError: bad target; JointVectorError: bad q.
+    """
+    q = robot.check_q(q, "q")
+    res = TaskResidual(_target(robot, target))
+    return _optimality(robot, res, q, index, bounds, _check_index(robot, index, q))
+
+
+def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bounds: bool,
+                zgh: tuple | None = None) -> Optimality:
+    """:func:`check_optimality` on validated input; ``zgh`` is (z, grad z, Hess z) at q when known."""
+    if index is None:
+        Q, p = robot.kinematics.pose(q)
+        empty = np.zeros((0, 0))
+        return Optimality(
+            res.residual(Q, p), 0.0, 0.0, False, float("nan"), np.zeros(0), empty, np.zeros((q.size, 0)),
+            np.zeros(q.size, dtype=bool),
+        )
+    Q, p, K, dk = robot.kinematics.jacobian_hessian(q)
+    z, grad, H = index.evaluate(q) if zgh is None else zgh
+    normality, lam, L, active = bound_kkt(K[res.rows], grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
+    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam, L, active), res.rows)
+
+
+def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Optimality:
+    """The report of Eq. (D.33) from the first-order terms at one q (:func:`_optimality`, or the
+    converged iteration of a start)."""
+    M = t.hessian + t.dk.contract(t.multipliers, rows)  # Hess z + Lambda*, Eq. (4.37)
+    L = t.null_space
+    Br = L.T @ M @ L
+    Br = 0.5 * (Br + Br.T)  # symmetric on the null space of K (Section 4.2)
+    if Br.shape[0]:
+        w = np.linalg.eigvalsh(Br)
+        min_eig = float(w[0])
+        pd = bool(min_eig > RANK_TOL * max(1.0, float(np.abs(w).max())))  # Eq. (D.33)
+    else:
+        min_eig, pd = float("inf"), True
+    return Optimality(residual, t.normality, t.objective, pd, min_eig, t.multipliers, Br, L, t.active)
+
+
+def _check_options(robot, starts, tol, max_iter, timeout) -> None:
+    check_count(starts, 1, "starts", TaskError)
+    check_count(max_iter, 1, "max_iter", TaskError)
+    check_positive(tol, "tol", TaskError)
+    if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
+        raise TaskError(f"timeout must be None or a number of seconds > 0, got {timeout!r}")
+    if robot.nq < robot.task_dim:
+        raise TaskError(
+            f"{robot.name} has {robot.nq} joints, fewer than the {robot.task_dim} of its {robot.task!r} task: "
+            "use robot.with_task('position') or 'planar'"
+        )
+
+
+#: multi-start samples of a pose-only solve (index=None) leave out this fraction of each joint range at
+#: either end: local solves from the middle of the ranges succeeded more often in a one-off measurement
+#: on the Panda with bounds (hardest targets; no benchmark reproduces it)
+POSE_SAMPLE_MARGIN = 0.2
+#: multi-start samples are drawn this many at a time
+SAMPLE_BATCH = 16
+
+
+def _wrap_into_limits(robot, q: np.ndarray, index: Index | None) -> tuple[np.ndarray, list[int]]:
+    """Turn revolute joints outside their limits by multiples of 2 pi into them (the pose does not
+    change), one joint at a time and only where z and grad z stay the same. Returns (q, joints turned)."""
+    outside = np.flatnonzero(robot.revolute & ((q < robot.lower) | (q > robot.upper)))
+    if outside.size == 0:
+        return q, []
+    z0, g0 = (0.0, None) if index is None else index.evaluate(q)[:2]
+    into, inside = turn_into_limits(q, robot.lower, robot.upper)  # the smallest turns in
+    turned, done = q.copy(), []
+    for i in outside:
+        if not inside[i]:
+            continue
+        trial = turned.copy()
+        trial[i] = into[i]
+        if index is not None:
+            z1, g1 = index.evaluate(trial)[:2]
+            if abs(z1 - z0) > 1e-14 * (1.0 + abs(z0)) or not np.allclose(g1, g0, rtol=0.0, atol=1e-14):
+                continue
+        turned, done = trial, [*done, int(i)]
+    return turned, done
+
+
+def solve_ik(
+    robot,
+    target,
+    index: Index | None = None,
+    q0=None,
+    *,
+    bounds: bool = False,
+    starts: int = 1,
+    seed: int = 0,
+    tol: float = 1e-10,
+    max_iter: int = 200,
+    timeout: float | None = None,
+) -> IKResult:
+    """Solve g(theta) = x, or min z(theta) s.t. g(theta) = x (Eq. 4.3), by the method of Appendix D.
+
+    Args:
+        robot: a :class:`kinredund.Robot`; its task kind sets what ``target`` is.
+        target: (x, y) for planar, p (3,) for position, a 4x4 pose (or (Q, p)) for pose tasks [m], or
+            a :class:`kinredund.tasks.target.Target`.
+        index: the performance index z (:mod:`kinredund.indices`); None solves the pose only.
+        q0: the first seed (n,); default ``robot.home``.
+        bounds: keep the joints within the robot's limits. A seed outside them is projected into them
+            (recorded in ``notes``).
+        starts: number of starts: q0, then ``starts - 1`` samples of ``np.random.default_rng(seed)``
+            uniform in the limits (unbounded joints: [-pi, pi] or [-1, 1] m; pose-only solves leave
+            out :data:`POSE_SAMPLE_MARGIN` of each range at either end). With an index the converged
+            result of lowest z is returned (the global constrained minimum when enough starts are
+            run); without one, the first converged. While other starts remain (or with a timeout), a
+            pose-only start whose squared error has not halved in 3 iterations (20 at most, 60 for a
+            start already close and still gaining) is abandoned for the next one, after one try at
+            turning a joint stuck at a limit through a full turn (:mod:`kinredund.ik.newton`).
+        seed: seed of the multi-start samples.
+        tol: convergence tolerance on the residual and, with an index, on the normality residual. It
+            is raised to the round-off floor (64 eps times the target scale, and 1e-13 (1 + |grad z|)
+            for the normality residual) when smaller.
+        max_iter: iterations per start (a start also stops when its residual has not halved in
+            20 iterations with an index, or, pose-only, its squared error has not decreased in 10).
+        timeout: wall-time budget of the whole call [s]; when it runs out, the best converged result so
+            far is returned, else ``converged=False`` with reason ``"timeout"``.
+
+    Returns:
+        An :class:`IKResult`. An unreachable target gives ``converged=False``, the configuration with
+        the smallest residual found and a reason.
+
+    Raises:
+        TaskError: wrong-size or non-finite target, a target for another task kind, bad options, an
+            index of the wrong size.
+        JointVectorError: q0 of the wrong size or non-finite.
+    """
+    t0 = perf_counter()
+    _check_options(robot, starts, tol, max_iter, timeout)
+    tgt = _target(robot, target)
+    q0 = robot.home.copy() if q0 is None else robot.check_q(q0, "q0").copy()
+    _check_index(robot, index, q0)
+    notes = ""
+    if bounds and not np.all((q0 >= robot.lower) & (q0 <= robot.upper)):
+        bad = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper)).tolist()
+        q0 = np.clip(q0, robot.lower, robot.upper)
+        notes = f"q0 was outside the joint limits at joints {bad}: projected into them"
+    res = TaskResidual(tgt)
+    setup = Setup(
+        kin=robot.kinematics, res=res, index=index, lower=np.asarray(robot.lower), upper=np.asarray(robot.upper),
+        bounds=bool(bounds), rtol=max(float(tol), ROUNDING * (1.0 + res.scale())), tol=float(tol),
+        max_iter=int(max_iter), deadline=None if timeout is None else t0 + float(timeout),
+        box=BoxStep(robot.nq, res.m) if bounds and index is not None else None,  # pose-only: no QP
+        revolute=robot.revolute,
+    )
+    rng = box = None
+    outcomes: list[tuple[StartOutcome, float]] = []
+    for k in range(int(starts)):
+        if k == 0:
+            qs = q0
+        else:
+            if (k - 1) % SAMPLE_BATCH == 0:  # the same draws as one at a time, fewer calls
+                if rng is None:
+                    rng = np.random.default_rng(seed)
+                    box = robot.sample_box(POSE_SAMPLE_MARGIN if index is None else 0.0)
+                batch = rng.uniform(*box, size=(min(SAMPLE_BATCH, int(starts) - k), robot.nq))
+            qs = batch[(k - 1) % SAMPLE_BATCH]
+        setup.quick_exit = k < starts - 1 or timeout is not None
+        out = run_start(setup, qs)
+        z = index.value(out.q) if (index is not None and out.converged) else 0.0
+        outcomes.append((out, z))
+        if out.reason == "timeout" or (index is None and out.converged):
+            break
+    converged = [(o, z) for o, z in outcomes if o.converged]
+    if converged:
+        best = min(converged, key=lambda oz: oz[1])[0]  # the first of equal minima
+    else:
+        best = min(outcomes, key=lambda oz: oz[0].residual)[0]
+        if outcomes[-1][0].reason == "timeout":
+            best = StartOutcome(best.q, False, best.iterations, "timeout", best.residual)
+    q, wrapped = _wrap_into_limits(robot, best.q, index)
+    if wrapped:
+        notes = "; ".join(filter(None, [notes, f"joints {wrapped} turned by multiples of 2 pi into their limits"]))
+        best = StartOutcome(q, best.converged, best.iterations, best.reason, res.residual(*robot.kinematics.pose(q)))
+    if index is None:  # nothing else to check: skip the second kinematics pass
+        return IKResult(
+            q=best.q, converged=best.converged, iterations=best.iterations, residual=best.residual,
+            normality_residual=0.0, objective=0.0, reduced_hessian_pd=False, reduced_hessian_min_eig=float("nan"),
+            reason=best.reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
+        )
+    if best.terms is None:  # not converged, or turned into the limits: evaluate the report at q
+        opt = _optimality(robot, res, best.q, index, bounds)
+    else:  # the converged iteration's terms: no second kinematics pass
+        opt = _second_order(best.residual, best.terms, res.rows)
+    return IKResult(
+        q=best.q, converged=best.converged, iterations=best.iterations, residual=opt.residual,
+        normality_residual=opt.normality_residual, objective=opt.objective,
+        reduced_hessian_pd=opt.reduced_hessian_pd, reduced_hessian_min_eig=opt.reduced_hessian_min_eig,
+        reason=best.reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
+    )

@@ -1,0 +1,1 @@
+"""Tasks: what the end effector must do (Chapters 2 and 4)."""
