@@ -47,6 +47,7 @@ from kinredund.planning.clearance import ClearanceReport, LinkModel, link_model,
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, check_weights
 from kinredund.planning.spline import JointSpline
+from kinredund.tasks import get_task
 from kinredund.tracking.resolved_rate import track
 from kinredund.trajectory import Trajectory
 
@@ -155,13 +156,14 @@ def default_policy(robot, obstacle: Obstacle, normal: np.ndarray, weights) -> In
     Raises:
         TaskError: a robot for which the thesis gives no policy (give ``policy=`` to :func:`plan`).
     """
-    if robot.task == "planar":
+    task = get_task(robot.task)
+    if task.planar:
         hd = robot.hd
         if hd is None or hd.n != 3 or np.any(np.abs(hd.alpha) > 1e-12) or np.any(hd.b != 0) or hd.kinds != "RRR":
             raise TaskError("the planar policy (Eq. 6.21) needs a planar 3R arm built from an HD table; "
                             "give plan(..., policy=...) for other arms")
         return PlanarPolicy(obstacle, float(hd.a[0]), normal, weights, theta0=hd.theta0)
-    if robot.task == "position":
+    if not task.has_orientation:
         pair = link_model(robot).pairs[-1]
         return SpatialPolicy(robot, obstacle, normal, link=(int(pair[0]), int(pair[1])), weights=weights)
     raise TaskError(f"plan() needs a planar or position task, got {robot.task!r} (use robot.with_task('position'))")
@@ -343,7 +345,7 @@ def _track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model
             k = int(np.argmin(rep.lower_bound))
             parts.append(f"{names[k]}: certified clearance {rep.lower_bound[k]:.3g} m is not positive")
         reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
-        if robot.task == "planar" and abs(_winding(path, obstacle, float(path.period))) > 0.5:
+        if get_task(robot.task).planar and abs(_winding(path, obstacle, float(path.period))) > 0.5:
             reason += (" - unavoidable here: a planar arm whose end point goes around a convex obstacle and "
                        "whose joints return to their start sweeps over every point of the obstacle "
                        "(see kinredund.planning.planner)")
@@ -444,7 +446,7 @@ def plan(
     lo, hi = robot.sample_box()
     cands: list[list[Candidate]] = []
     ps = np.array([path(t).p for t in ts])
-    if robot.task == "position":
+    if not get_task(robot.task).planar and not get_task(robot.task).has_orientation:
         wr = wrist_reach(robot, ps, obstacle.normal_at(ps))
         if wr is not None and (wr.end_margin.min() < 0 or (check_reach and policy is None and wr.margin.min() < 0)):
             timings["samples_s"] = perf_counter() - t_start
