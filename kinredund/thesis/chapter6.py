@@ -1,6 +1,6 @@
 """Chapter 6 examples: off-line planning with collision avoidance, planar (6.2) and spatial (6.3).
 
-Parameters adopted (``../shared/thesis/NOTES.md``; the OCR lost several):
+Parameters adopted (``docs/thesis_readings.md``; the OCR lost several):
 
 - 6.2: the planar 3R of Chapter 6 (links 0.5, 0.6, 0.3 m); the obstacle is the region inside an ellipse
   centred at (0.9, 0) m with its major axis at 20 deg to X; we choose semi-axes a = 0.3 m, b = 0.15 m
