@@ -126,6 +126,7 @@ class Task(ABC):
         planar: the task lives in the x-y plane (plots and cameras draw it from above).
         has_orientation: the task holds (part of) the orientation: it needs a path with orientation.
         point_rows: the rows of K = [omega; pdot] of the end point's coordinates that the task holds.
+        error_names: the names of :meth:`error_values`, as the record's fields.
     """
 
     name: str = ""
@@ -133,6 +134,7 @@ class Task(ABC):
     planar: bool = False
     has_orientation: bool = False
     point_rows: np.ndarray = np.array([3, 4, 5])
+    error_names: tuple[str, ...] = ("position_error",)
 
     @abstractmethod
     def make_target(self, target, *, z: float = 0.0) -> Target:
@@ -158,13 +160,17 @@ class Task(ABC):
         i = self.point_rows - 3
         return float(np.linalg.norm(np.asarray(p)[i] - target.p[i]))
 
-    def errors(self, Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:
-        """(position error [m], trace error |tr Q - tr Q_d|, vect error ||vect Q - vect Q_d||).
+    def error_values(self, Q: np.ndarray, p: np.ndarray, target: Target) -> dict[str, float]:
+        """The task's errors by the record's names (:attr:`error_names`): ``position_error`` [m], and
+        where the task holds an orientation ``trace_error`` and ``vect_error`` (the thesis's invariants,
+        Example 4.3) or ``axis_error`` [rad]."""
+        return {"position_error": self.position_error(p, target)}
 
-        The orientation errors are in the thesis's invariants (Example 4.3); zero where the task has
-        no orientation.
-        """
-        return self.position_error(p, target), 0.0, 0.0
+    def errors(self, Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:
+        """(position error [m], trace error |tr Q - tr Q_d|, vect error ||vect Q - vect Q_d||), the last
+        two zero where the task does not hold them (:meth:`error_values` has every error of the task)."""
+        e = self.error_values(Q, p, target)
+        return e["position_error"], e.get("trace_error", 0.0), e.get("vect_error", 0.0)
 
     @abstractmethod
     def ik_residual(self, target: Target) -> TaskResidual:
