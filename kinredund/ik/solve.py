@@ -38,7 +38,8 @@ from kinredund.ik.newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, 
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
 from kinredund.kinematics.angles import turn_into_limits
-from kinredund.tasks import Target, TaskResidual, make_target, task_residual
+from kinredund.paths import PathSample
+from kinredund.tasks import Target, TaskResidual, get_task, make_target, task_residual
 
 #: residuals are never asked to be smaller than this many units of round-off times the target scale
 ROUNDING = 64.0 * float(np.finfo(float).eps)
@@ -114,6 +115,11 @@ def _target(robot, target) -> Target:
         if target.task != robot.task:
             raise TaskError(f"the target is for a {target.task!r} task but {robot.name} has task {robot.task!r}")
         return target
+    if isinstance(target, PathSample):  # a path's sample: its point, and its rotation where the task has one
+        task = get_task(robot.task)
+        if task.has_orientation:
+            return task.make_target((target.Q, target.p))
+        return task.make_target(task.point_target(target.p), z=float(target.p[2]))
     return make_target(robot.task, target)
 
 
@@ -146,7 +152,8 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
 
     Args:
         robot: a :class:`kinredund.Robot`.
-        target: what :func:`kinredund.tasks.make_target` accepts, or a Target.
+        target: what :func:`kinredund.tasks.make_target` accepts, a Target, or a path's sample
+            (:class:`kinredund.paths.PathSample`: its point, and its rotation where the task holds one).
         q: joint vector (n,) [rad or m].
         index: the objective z; None gives only the residual.
         bounds: count the joint limits that q sits on (within 1e-9) as constraints.
