@@ -99,13 +99,13 @@ def test_axis_ik_residual_against_central_differences(name):
         Q, p, K, dk = r.kinematics.jacobian_hessian(q)
         e, aux = res.error(Q, p)
         G = res.jacobian(K, aux)
-        assert np.abs(G - central_difference(lambda x: res.error(*r.kinematics.pose(x))[0], q)).max() < FD_BAR
+        assert np.abs(G - central_difference(lambda x, res=res: res.error(*r.kinematics.pose(x))[0], q)).max() < FD_BAR
         lam = rng.normal(size=5)
         lam_k = res.k_multipliers(lam, aux)
         assert np.abs(G.T @ lam - K.T @ lam_k).max() < 1e-12
         exact = dk.contract(lam_k) + res.extra_hessian(K, lam, aux)
 
-        def gt_lam(x, lam=lam):
+        def gt_lam(x, lam=lam, res=res):
             Qx, px, Kx = r.kinematics.jacobian(x)
             return res.jacobian(Kx, res.error(Qx, px)[1]).T @ lam
 
