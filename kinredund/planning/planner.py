@@ -13,7 +13,7 @@
 2. **Estimates** (Section 6.2.2.2): a cubic spline through the samples (:mod:`.spline`).
 3. **Tracking** (Section 6.2.2.3): the resolved-rate scheme of Chapter 4 with the time-varying index
    h = 1/2 ||theta - theta*(t)||^2 and the spline's rate as feed-forward (Eqs. 6.23-6.28), through
-   :func:`kinredund.tracking.resolved_rate.track`: the tracked joints are the constrained optimum of h at each
+   :func:`kinredund.tracking.track`: the tracked joints are the constrained optimum of h at each
    time, so where the branch switch happens is found by the tracking itself.
 4. **Verification** (:mod:`.clearance`): every link against the obstacle along the whole tracked
    motion, finer than the tracking steps. A plan with any penetration, or with a certified clearance
@@ -47,7 +47,7 @@ from kinredund.planning.clearance import ClearanceReport, LinkModel, link_model,
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, check_weights
 from kinredund.planning.spline import JointSpline
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
 #: (w1 [m^2], w2) of Eq. (6.21): the thesis's example values for sample point S5
