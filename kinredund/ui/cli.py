@@ -55,7 +55,7 @@ def _at_least(minimum: int):
     return parse
 
 
-_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.resolved_rate.track and kinredund.ik.solve_ik
+_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.track and kinredund.ik.solve_ik
 
 
 def _progress(label: str):
@@ -170,7 +170,7 @@ def _path_for(args, robot, q_start: np.ndarray):
 def _cmd_track(args) -> int:
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
-    from kinredund.tracking.resolved_rate import track
+    from kinredund.tracking import track
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
     seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
