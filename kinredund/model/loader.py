@@ -12,6 +12,7 @@ Continuous joints arrive as revolute joints without limits (see ``urdf.UNBOUNDED
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from importlib import resources
 from numbers import Real
 from pathlib import Path
@@ -46,6 +47,32 @@ _UNBOUNDED = 1e10
 def known_robots() -> list[str]:
     """Every name :func:`load_robot` accepts: the thesis's robots, then the example-robot-data arms."""
     return sorted(SHIPPED_TABLES) + sorted(ERD_ARMS)
+
+
+@dataclass(frozen=True)
+class RobotRow:
+    """One line of ``kinredund robots``: a name, its joint count n, default task (dimension m) and frame."""
+
+    name: str
+    n: int
+    task: str
+    m: int
+    ee_frame: str
+    note: str
+
+
+def robot_table() -> list[RobotRow]:
+    """Every name of :func:`known_robots`, loaded, with its joints, default task and default frame.
+
+    Raises:
+        KinredundError: a catalogue arm does not load (example-robot-data missing or changed).
+    """
+    rows = []
+    for name in known_robots():
+        r = load_robot(name)
+        note = ERD_ARMS[name].note if name in ERD_ARMS else "thesis robot (shipped)"
+        rows.append(RobotRow(name, r.nq, r.task, r.task_dim, r.ee_frame, note))
+    return rows
 
 
 def shipped_robot_dir() -> Path:
