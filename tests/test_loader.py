@@ -339,3 +339,24 @@ def test_each_thread_has_its_own_workspace_and_the_robot_pickles():
     assert r.kinematics is r.kinematics  # made once per thread
     r2 = pickle.loads(pickle.dumps(r))
     assert np.allclose(r2.fk(r.home), r.fk(r.home), atol=1e-15)
+
+
+def test_cli_ik_on_the_ur5_pose_task_with_an_index_exits_0(capsys):
+    import json
+
+    from kinredund.ui.cli import main
+
+    r = load_robot("ur5", task="pose")
+    T = r.fk(r.home + 0.1)
+    rpy = pin.rpy.matrixToRpy(T[:3, :3])
+    target, angles = (",".join(f"{v:.17g}" for v in x) for x in (T[:3, 3], rpy))
+    code = main(["ik", "ur5", "--task", "pose", "--index", "home", f"--target={target}", f"--rpy={angles}"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["converged"] and "no redundancy" in out["notes"]
+
+
+def test_a_custom_chain_of_a_catalogue_arm_is_not_recorded_under_the_catalogue_name():
+    right = [n.replace("left", "right") for n in BAXTER_LEFT]
+    r = load_robot("baxter", "right_gripper", joints=right)
+    assert r.name != "baxter" and r.name not in known_robots()  # a record must not reload the left arm
+    assert load_robot("baxter").name == "baxter"

@@ -300,10 +300,12 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
         spec = ERD_ARMS[key]
         share = erd_share_dir()
         custom = joints is not None or locked is not None
+        # a record names its robot for reloading: a custom chain must not reload as the catalogue's
+        frame = spec.ee_frame if ee_frame is None else ee_frame
+        home = np.array(spec.home) if spec.home is not None and not custom and ee_frame is None else None
         return _from_urdf(
-            key, share / spec.urdf, spec.ee_frame if ee_frame is None else ee_frame, task or spec.task, tool_axis,
-            spec.joints if joints is None else joints, locked, (str(share.parent.parent),),
-            np.array(spec.home) if spec.home is not None and not custom and ee_frame is None else None,
+            f"{key}:custom" if custom else key, share / spec.urdf, frame, task or spec.task, tool_axis,
+            spec.joints if joints is None else joints, locked, (str(share.parent.parent),), home,
         )
     path = Path(key)
     if path.suffix.lower() in (".urdf", ".xml") or path.exists():
