@@ -10,12 +10,15 @@ import threading
 import numpy as np
 import pinocchio as pin
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import kinredund
 from kinredund.errors import (
     ChoiceError,
     FrameNotFoundError,
     JointVectorError,
+    KinredundError,
     TaskError,
     URDFError,
 )
@@ -23,6 +26,7 @@ from kinredund.ik.solve import solve_ik
 from kinredund.indices import JointDeviation
 from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.loader import HOME_CONDITION, conditioning, known_robots, load_robot, robot_table
+from kinredund.model.urdf import load_urdf
 from kinredund.paths import Circle
 from kinredund.tracking.resolved_rate import track
 
@@ -360,3 +364,46 @@ def test_a_custom_chain_of_a_catalogue_arm_is_not_recorded_under_the_catalogue_n
     r = load_robot("baxter", "right_gripper", joints=right)
     assert r.name != "baxter" and r.name not in known_robots()  # a record must not reload the left arm
     assert load_robot("baxter").name == "baxter"
+
+
+_JUNK = st.one_of(
+    st.none(), st.booleans(), st.integers(-3, 3), st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8), st.sampled_from(["left_s0", "head_pan", "left_gripper", "z", "-y", "pose", "axis"]),
+    st.lists(st.one_of(st.sampled_from(["left_s0", "left_w2", "head_pan"]), st.integers(), st.floats()), max_size=4),
+    st.dictionaries(st.one_of(st.sampled_from(["head_pan", "left_s0", "right_w2"]), st.integers()),
+                    st.one_of(st.floats(allow_nan=True), st.text(max_size=3), st.complex_numbers()), max_size=3),
+    st.lists(st.complex_numbers(allow_nan=True), min_size=3, max_size=3),
+)
+
+
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(option=st.sampled_from(["ee_frame", "task", "tool_axis", "joints", "locked"]), value=_JUNK)
+def test_malformed_options_raise_only_the_project_errors(option, value):
+    try:
+        load_robot("ur5" if option == "tool_axis" else "baxter", **{option: value})
+    except KinredundError:
+        pass
+
+
+def test_playback_draws_locked_joints_where_the_loader_locked_them():
+    """The visual model keeps every joint of the file: the locked ones must sit at robot.locked."""
+    from types import SimpleNamespace
+
+    from kinredund.ui.viz._meshcat import RobotVisuals
+
+    class _Stub:
+        def __init__(self, *args):
+            pass
+
+        def initViewer(self, **kwargs):  # noqa: N802 - Pinocchio's visualizer API
+            pass
+
+        def loadViewerModel(self, **kwargs):  # noqa: N802
+            pass
+
+    r = load_robot("tiago", locked={"torso_lift_joint": 0.3})
+    visuals = RobotVisuals(r, None, SimpleNamespace(MeshcatVisualizer=_Stub))
+    full = visuals.full_q(r.home)
+    model = load_urdf(r.urdf_path).model  # the visual model's joints (continuous wheels as angles)
+    assert full[model.idx_qs[model.getJointId("torso_lift_joint")]] == 0.3  # copied, not computed
+    assert full[model.idx_qs[model.getJointId("arm_1_joint")]] == r.home[0]

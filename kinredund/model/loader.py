@@ -12,6 +12,7 @@ Continuous joints arrive as revolute joints without limits (see ``urdf.UNBOUNDED
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
 from numbers import Real
@@ -108,6 +109,8 @@ def reduce_model(model: pin.Model, joints, locked, mimic: dict, frame_id: int, s
     """
     names = list(model.names)[1:]
     keep = names if joints is None else _joint_list(joints, names)
+    if locked is not None and not isinstance(locked, Mapping):
+        raise ChoiceError("locked (a dict joint name -> value)", locked, [n for n in names if n not in keep])
     locked = {} if locked is None else dict(locked)
     for key in locked:
         check_choice("locked joint", key, [n for n in names if n not in keep])
@@ -169,7 +172,7 @@ def _rename_joints(model: pin.Model, mapping: dict[str, str]) -> None:
 
 
 def _joint_list(joints, names: list[str]) -> list[str]:
-    if isinstance(joints, str) or not all(isinstance(j, str) for j in joints):
+    if not isinstance(joints, (list, tuple)) or not all(isinstance(j, str) for j in joints):
         raise ChoiceError("joints (a list of joint names)", joints, names)
     keep = [check_choice("joint", j, names) for j in joints]
     if not keep:
@@ -277,6 +280,8 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
         ChoiceError, JointVectorError, TaskError: a bad task, tool axis, joint name or locked value.
     """
     if task is not None:
+        if not isinstance(task, str):
+            raise ChoiceError("task kind", task, TASK_KINDS)
         check_choice("task kind", task, TASK_KINDS)
     if tool_axis is not None and task not in (None, "axis"):
         raise TaskError(f"tool_axis is for task='axis', not {task!r}")
