@@ -407,3 +407,13 @@ def test_playback_draws_locked_joints_where_the_loader_locked_them():
     model = load_urdf(r.urdf_path).model  # the visual model's joints (continuous wheels as angles)
     assert full[model.idx_qs[model.getJointId("torso_lift_joint")]] == 0.3  # copied, not computed
     assert full[model.idx_qs[model.getJointId("arm_1_joint")]] == r.home[0]
+
+
+def test_a_relative_urdf_path_is_stored_absolute_and_a_file_named_like_an_arm_keeps_its_path(tmp_path, monkeypatch):
+    (tmp_path / "arms").mkdir()
+    (tmp_path / "arms" / "panda.urdf").write_text(_urdf())
+    monkeypatch.chdir(tmp_path)
+    r = load_robot("arms/panda.urdf", "l2", task="position")
+    assert r.urdf_path.is_absolute() and r.urdf_path == tmp_path / "arms" / "panda.urdf"
+    assert r.name == str(r.urdf_path)  # "panda" would reload the catalogue's Panda from a record
+    assert load_robot("arms/panda.urdf", "l2").nq == 2

@@ -127,6 +127,10 @@ def reduce_model(model: pin.Model, joints, locked, mimic: dict, frame_id: int, s
     for n in order:
         jid = model.getJointId(n)
         lo, hi = float(model.lowerPositionLimit[model.idx_qs[jid]]), float(model.upperPositionLimit[model.idx_qs[jid]])
+        if model.joints[jid].nq != 1:  # a floating or planar joint: at its neutral configuration
+            if n in locked:
+                raise JointVectorError(f"joint {n!r} has {model.joints[jid].nq} coordinates: it locks at its neutral")
+            continue
         if n in locked:
             v = locked[n]
             if isinstance(v, bool) or not isinstance(v, Real) or not np.isfinite(v) or not lo <= v <= hi:
@@ -141,8 +145,7 @@ def reduce_model(model: pin.Model, joints, locked, mimic: dict, frame_id: int, s
                 ))
             v = _finite_mid(lo, hi)
         values[n] = float(v)
-        if model.joints[jid].nq == 1:
-            q[model.idx_qs[jid]] = v
+        q[model.idx_qs[jid]] = v
     lock_ids = [model.getJointId(n) for n in order]
     if not lock_ids:
         return model, values
@@ -316,8 +319,9 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
     if path.suffix.lower() in (".urdf", ".xml") or path.exists():
         if not path.exists():
             raise UnknownRobotError(key, known_robots())
-        path = path.resolve()
-        return _from_urdf(path.stem, path, ee_frame, task or "pose", tool_axis, joints, locked, (str(path.parent),),
+        path = path.resolve()  # a record names the file: absolute, so that it reloads from any folder
+        name = path.stem if path.stem not in known_robots() else str(path)  # never reloads as a catalogue arm
+        return _from_urdf(name, path, ee_frame, task or "pose", tool_axis, joints, locked, (str(path.parent),),
                           None)
     raise UnknownRobotError(key, known_robots())
 

@@ -231,9 +231,7 @@ def _check_joints(root, path: str) -> dict:
     - lower > upper in a joint's ``<limit>``.
     """
     names, children, mimic = set(), {}, {}
-    for joint in root.iter("joint"):
-        if joint.find("parent") is None:  # a <joint> inside <transmission> names a joint, defines none
-            continue
+    for joint in root.findall("joint"):  # children of <robot>: a <transmission>'s <joint> defines none
         name = joint.get("name")
         if name in names:
             raise URDFError(path, f"two joints are named {name!r} (a closed chain? URDF describes trees only)")
@@ -284,8 +282,8 @@ def _continuous_as_revolute(root) -> tuple[str, ...]:
     other revolute joint. The forward kinematics is the same (same axis and placement).
     """
     names = []
-    for joint in root.iter("joint"):
-        if joint.get("type") != "continuous" or joint.find("parent") is None:
+    for joint in root.findall("joint"):
+        if joint.get("type") != "continuous":
             continue
         joint.set("type", "revolute")
         limit = joint.find("limit")
