@@ -59,11 +59,28 @@ def test_every_catalogue_arm_loads_with_its_frame_and_tracks_a_circle(name):
     if spec.joints is not None:
         assert r.joint_names == list(spec.joints)
     assert np.all((r.home >= r.lower) & (r.home <= r.upper))
-    assert conditioning(r.kinematics, r.home, r.task, r.tool_axis) >= HOME_CONDITION / 2  # away from singular
+    assert conditioning(r.kinematics, r.home, r.task) >= HOME_CONDITION / 2  # away from singular
     tr = _track_circle(r.with_task("position"))
     assert tr.position_error.max() < TRACK_TOL
     assert np.all(np.isfinite(tr.q)) and len(tr.t) == 25
     assert tr.loop_drift is not None and tr.loop_drift.max() < 1e-9  # a closed path, a closed joint path
+
+
+@pytest.mark.parametrize("name", sorted(ERD_ARMS))
+def test_every_catalogue_arm_tracks_a_circle_with_its_redundant_task(name):
+    """Its default task (axis, pose or position), the orientation held at the home pose's."""
+    r = load_robot(name)
+    T = r.fk(r.home)
+    radius = 0.01
+    path = Circle(T[:3, 3] - radius * np.array([1.0, 0.0, 0.0]), radius, 0.05, orientation=T[:3, :3])
+    index = JointDeviation(r.home)
+    s0 = path(0.0)
+    start = solve_ik(r, (s0.Q, s0.p) if r.task in ("pose", "axis") else s0.p, index)
+    assert start.converged, start.reason
+    tr = track(r, path, index, start.q, steps_per_loop=24, loops=1)
+    assert tr.position_error.max() < TRACK_TOL and tr.loop_drift.max() < 1e-9
+    if r.task == "axis":
+        assert tr.summary()["axis_error_max"] < 1e-9  # [rad], corrected like the position every step
 
 
 def test_robots_command_lists_every_name_with_joints_frame_and_task(capsys):
@@ -194,8 +211,8 @@ def test_ur5_file_without_home_gets_a_non_singular_one():
     path = erd_share_dir() / ERD_ARMS["ur5"].urdf
     r = load_robot(str(path), "tool0")  # a plain file: no catalogue home
     zero = np.zeros(6)
-    assert conditioning(r.kinematics, zero, "pose", r.tool_axis) < 1e-9  # the stretched arm is singular
-    assert conditioning(r.kinematics, r.home, "pose", r.tool_axis) >= HOME_CONDITION
+    assert conditioning(r.kinematics, zero, "pose") < 1e-9  # the stretched arm is singular
+    assert conditioning(r.kinematics, r.home, "pose") >= HOME_CONDITION
     assert np.array_equal(load_robot(str(path), "tool0").home, r.home)  # deterministic
 
 
@@ -208,15 +225,33 @@ def test_ur5_pose_task_with_an_index_returns_the_unique_solution_with_a_note():
     assert np.abs(res.q - q).max() < 1e-8  # the solution nearest the seed; Newton converges quadratically
 
 
-def test_tool_axis_is_checked():
-    assert np.allclose(load_robot("ur5", tool_axis="-x").tool_axis, [-1.0, 0.0, 0.0])
-    assert np.allclose(load_robot("ur5", tool_axis=[0, 3, 4]).tool_axis, [0, 0.6, 0.8])
-    with pytest.raises(ChoiceError, match="tool axis"):
-        load_robot("ur5", tool_axis="w")
-    with pytest.raises(TaskError, match="non-zero"):
-        load_robot("ur5", tool_axis=[0, 0, 0])
-    with pytest.raises(TaskError, match="task='axis'"):
-        load_robot("ur5", task="pose", tool_axis="z")
+def test_tool_axis_turns_a_frame_onto_the_axis():
+    plain = load_robot("ur5")
+    for axis, unit in (("-x", [-1.0, 0.0, 0.0]), ([0, 3, 4], [0.0, 0.6, 0.8])):
+        r = load_robot("ur5", tool_axis=axis)
+        assert np.allclose(r.tool_axis, unit, atol=1e-15) and r.ee_frame == "tool0_tool_axis"
+        q = r.home + 0.3
+        T, T0 = r.fk(q), plain.fk(q)
+        assert np.allclose(T[:3, 3], T0[:3, 3], atol=1e-12)  # the same point P
+        assert np.allclose(T[:3, 2], T0[:3, :3] @ unit, atol=1e-12)  # its z axis is the tool axis
+        assert np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)
+    assert load_robot("ur5", tool_axis="z").ee_frame == "tool0"
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "needle"),
+    [
+        ({"tool_axis": "w"}, ChoiceError, "tool axis"),
+        ({"tool_axis": [0, 0, 0]}, TaskError, "non-zero"),
+        ({"task": "pose", "tool_axis": "z"}, TaskError, "task='axis'"),
+    ],
+)
+def test_bad_tool_axis(kwargs, error, needle):
+    with pytest.raises(error, match=needle):
+        load_robot("ur5", **kwargs)
+    if "task" not in kwargs:
+        with pytest.raises(TaskError, match="task='axis'"):  # the Panda's own task is the pose task
+            load_robot("panda", tool_axis="x")
 
 
 # -- URDF input that Pinocchio accepts silently --------------------------------------------------------

@@ -33,8 +33,10 @@ from kinredund.kinematics.state import Kinematics
 from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
 from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.frames import resolve_frame
-from kinredund.model.robot import TASK_KINDS, Robot, robot_revolute
+from kinredund.model.robot import Robot, robot_revolute
 from kinredund.model.urdf import EE_FRAME, load_urdf
+from kinredund.tasks import get_task
+from kinredund.tasks.axis import frame_with_axis
 
 #: a home is accepted when the task Jacobian's smallest singular value is at least this fraction of
 #: its largest (1 / condition number); otherwise :func:`choose_home` searches nearby
@@ -205,18 +207,18 @@ def check_tool_axis(tool_axis) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def task_jacobian(K: np.ndarray, R: np.ndarray, task: str, tool_axis: np.ndarray) -> np.ndarray:
+def task_jacobian(K: np.ndarray, R: np.ndarray, task: str) -> np.ndarray:
     """The rows of K (Eq. 2.16, [omega; pdot]) that a task constrains, for conditioning checks.
 
-    ``axis``: pdot and the two components of omega normal to the tool axis a = R tool_axis (the rate
-    of a is omega x a; the spin about a is free).
+    ``axis``: pdot and the two components of omega normal to the tool axis a = R e_z, the frame's z
+    axis (the rate of a is omega x a; the spin about a is free).
     """
     if task == "planar":
         return K[3:5]
     if task == "position":
         return K[3:6]
     if task == "axis":
-        a = R @ tool_axis
+        a = R[:, 2]
         helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         b1 = np.cross(a, helper)
         b1 /= np.linalg.norm(b1)
@@ -224,14 +226,14 @@ def task_jacobian(K: np.ndarray, R: np.ndarray, task: str, tool_axis: np.ndarray
     return K
 
 
-def conditioning(kin: Kinematics, q: np.ndarray, task: str, tool_axis: np.ndarray) -> float:
+def conditioning(kin: Kinematics, q: np.ndarray, task: str) -> float:
     """sigma_min / sigma_max of the task Jacobian at q (0 at a singularity)."""
     R, _, K = kin.jacobian(q)
-    s = np.linalg.svd(task_jacobian(K, R, task, tool_axis), compute_uv=False)
+    s = np.linalg.svd(task_jacobian(K, R, task), compute_uv=False)
     return float(s[-1] / s[0]) if s[0] > 0 else 0.0
 
 
-def choose_home(model: pin.Model, frame_id: int, task: str, tool_axis: np.ndarray, revolute: np.ndarray) -> np.ndarray:
+def choose_home(model: pin.Model, frame_id: int, task: str, revolute: np.ndarray) -> np.ndarray:
     """A home configuration inside the limits where the task Jacobian is well conditioned.
 
     The middle of the limits (0 for a joint without limits) when the task Jacobian's conditioning
@@ -245,12 +247,12 @@ def choose_home(model: pin.Model, frame_id: int, task: str, tool_axis: np.ndarra
     hi_box = np.where(np.abs(hi) < _UNBOUNDED, hi, np.minimum(hi, wide))
     mid = np.array([_finite_mid(a, b) for a, b in zip(lo, hi, strict=True)])
     kin = Kinematics(model, frame_id)
-    if conditioning(kin, mid, task, tool_axis) >= HOME_CONDITION:
+    if conditioning(kin, mid, task) >= HOME_CONDITION:
         return mid
     reach = np.minimum(0.25 * (hi_box - lo_box), 0.25 * wide)
     rng = np.random.default_rng(0)
     cands = np.clip(mid + rng.uniform(-1.0, 1.0, (HOME_CANDIDATES, model.nq)) * reach, lo_box, hi_box)
-    scores = [conditioning(kin, q, task, tool_axis) for q in cands]
+    scores = [conditioning(kin, q, task) for q in cands]
     return cands[int(np.argmax(scores))]
 
 
@@ -270,7 +272,9 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
             Default: the robot's own; for an example-robot-data arm the task that makes it redundant;
             ``pose`` for URDF files.
         tool_axis: for ``task="axis"``: the tool's axis in the end-effector frame, ``"x"``, ``"y"``,
-            ``"z"`` (default), ``"-z"``... or a 3-vector.
+            ``"z"`` (default), ``"-z"``... or a 3-vector. The axis task holds the z axis of the
+            end-effector frame: for another axis a frame ``<ee_frame>_tool_axis`` is added at the same
+            origin, its z axis along the tool axis, and becomes ``robot.ee_frame``.
         joints: the joints to keep, by name (q follows the model's order); the others are locked.
             Default: the catalogue's chain for a named arm, every joint for a URDF file.
         locked: joint name -> value [rad or m] for locked joints; default: a mimic joint follows its
@@ -283,11 +287,11 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
         ChoiceError, JointVectorError, TaskError: a bad task, tool axis, joint name or locked value.
     """
     if task is not None:
-        if not isinstance(task, str):
-            raise ChoiceError("task kind", task, TASK_KINDS)
-        check_choice("task kind", task, TASK_KINDS)
+        get_task(task)  # ChoiceError for an unknown kind
     if tool_axis is not None and task not in (None, "axis"):
         raise TaskError(f"tool_axis is for task='axis', not {task!r}")
+    axis = None if tool_axis is None else check_tool_axis(tool_axis)
+    turned = axis is not None and not np.array_equal(axis, _AXES["z"])
     if isinstance(name_or_path, Path):
         key = str(name_or_path)
     elif isinstance(name_or_path, str):
@@ -298,22 +302,21 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
         if joints is not None or locked is not None:
             raise ChoiceError("option for a thesis robot (joints=/locked= are for URDF arms)", key, ["none"])
         path = shipped_robot_dir() / f"{key}.urdf"
-        model = load_urdf(path).model
-        return Robot(
-            key, model, EE_FRAME if ee_frame is None else ee_frame, task or SHIPPED_TASKS[key],
-            hd=SHIPPED_TABLES[key](), urdf_path=path, home=np.array(SHIPPED_HOMES[key]),
-            tool_axis=None if tool_axis is None else check_tool_axis(tool_axis),
-        )
+        task = task or SHIPPED_TASKS[key]
+        model, frame = _with_tool_axis(load_urdf(path).model, EE_FRAME if ee_frame is None else ee_frame, axis, task)
+        return Robot(key, model, frame, task, hd=SHIPPED_TABLES[key](), urdf_path=path,
+                     home=np.array(SHIPPED_HOMES[key]), tool_axis=axis)
     if key in ERD_ARMS:
         spec = ERD_ARMS[key]
         share = erd_share_dir()
         custom = joints is not None or locked is not None
         # a record names its robot for reloading: a custom chain must not reload as the catalogue's
         frame = spec.ee_frame if ee_frame is None else ee_frame
-        home = np.array(spec.home) if spec.home is not None and not custom and ee_frame is None else None
+        own = spec.home is not None and not custom and ee_frame is None and not turned
         return _from_urdf(
-            f"{key}:custom" if custom else key, share / spec.urdf, frame, task or spec.task, tool_axis,
-            spec.joints if joints is None else joints, locked, (str(share.parent.parent),), home,
+            f"{key}:custom" if custom else key, share / spec.urdf, frame, task or spec.task, axis,
+            spec.joints if joints is None else joints, locked, (str(share.parent.parent),),
+            np.array(spec.home) if own else None,
         )
     path = Path(key)
     if path.suffix.lower() in (".urdf", ".xml") or path.exists():
@@ -321,8 +324,7 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
             raise UnknownRobotError(key, known_robots())
         path = path.resolve()  # a record names the file: absolute, so that it reloads from any folder
         name = path.stem if path.stem not in known_robots() else str(path)  # never reloads as a catalogue arm
-        return _from_urdf(name, path, ee_frame, task or "pose", tool_axis, joints, locked, (str(path.parent),),
-                          None)
+        return _from_urdf(name, path, ee_frame, task or "pose", axis, joints, locked, (str(path.parent),), None)
     raise UnknownRobotError(key, known_robots())
 
 
@@ -332,15 +334,31 @@ def _default_ee_frame(model: pin.Model) -> str:
     return model.frames[len(model.frames) - 1].name
 
 
-def _from_urdf(name, path, ee_frame, task, tool_axis, joints, locked, package_dirs, home) -> Robot:
+def _with_tool_axis(model: pin.Model, frame: str, axis: np.ndarray | None, task: str) -> tuple[pin.Model, str]:
+    """(model, end-effector frame): for a tool axis other than z, a copy of the model with a frame at
+    ``frame``'s origin whose z axis is the tool axis (the axis task holds the frame's z axis)."""
+    if axis is not None and task != "axis":
+        raise TaskError(f"tool_axis is for task='axis', and this robot's task is {task!r}: give task='axis'")
+    if axis is None or np.array_equal(axis, _AXES["z"]):
+        return model, frame
+    fid, _ = resolve_frame(model, frame)
+    base = model.frames[fid]
+    name = f"{frame}_tool_axis"
+    model = pin.Model(model)
+    turn = pin.SE3(frame_with_axis(axis), np.zeros(3))
+    model.addFrame(pin.Frame(name, base.parentJoint, fid, base.placement * turn, pin.FrameType.OP_FRAME))
+    return model, name
+
+
+def _from_urdf(name, path, ee_frame, task, axis, joints, locked, package_dirs, home) -> Robot:
     parsed = load_urdf(path)
     frame = _default_ee_frame(parsed.model) if ee_frame is None else ee_frame
     fid, _ = resolve_frame(parsed.model, frame)
     model, values = reduce_model(parsed.model, joints, locked, parsed.mimic, fid, str(path))
-    axis = check_tool_axis("z" if tool_axis is None else tool_axis)
+    model, frame = _with_tool_axis(model, frame, axis, task)
     if home is None and model.nq == model.nv:
         fid, _ = resolve_frame(model, frame)
-        home = choose_home(model, fid, task, axis, robot_revolute(model))
+        home = choose_home(model, fid, task, robot_revolute(model))
     continuous = tuple(n for n in parsed.continuous if model.existJointName(n))
     return Robot(name, model, frame, task, urdf_path=path, package_dirs=package_dirs, home=home,
                  tool_axis=axis, locked=values, continuous=continuous)

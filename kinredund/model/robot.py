@@ -20,14 +20,13 @@ import threading
 import numpy as np
 import pinocchio as pin
 
-from kinredund.errors import JointVectorError, check_choice, check_joint_vector
+from kinredund.errors import JointVectorError, check_joint_vector
 from kinredund.kinematics.hd import REVOLUTE, HDTable
 from kinredund.kinematics.state import Kinematics
 from kinredund.model.frames import resolve_frame
 from kinredund.model.urdf import EE_FRAME
+from kinredund.tasks import get_task
 
-TASK_DIMS = {"planar": 2, "position": 3, "axis": 5, "pose": 6}
-TASK_KINDS = tuple(TASK_DIMS)
 _PRISMATIC_SHORTNAMES = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}
 
 
@@ -47,7 +46,8 @@ class Robot:
         ee_frame_id: its index in ``model.frames``; ``ee_frame_info`` says which frame was taken
             when a joint and a link share the name (the link is preferred).
         task: ``planar``, ``position``, ``axis`` or ``pose``.
-        tool_axis: the tool's axis in the end-effector frame (unit, shape (3,)) for the ``axis`` task.
+        tool_axis: the tool axis given to ``load_robot`` (unit, shape (3,)) in the frame it was given
+            in; the ``axis`` task holds the z axis of ``ee_frame`` (a frame turned onto that axis).
         lower, upper: joint limits [rad or m], shape (nq,); +-1e12 for a joint without limits
             (a continuous joint, loaded as a revolute one).
         hd: the HD table the model was built from, or None for URDF robots.
@@ -74,7 +74,7 @@ class Robot:
         locked: dict | None = None,
         continuous: tuple[str, ...] = (),
     ):
-        check_choice("task kind", task, TASK_KINDS)
+        get_task(task)  # ChoiceError for an unknown kind
         if model.nq != model.nv:
             odd = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq != model.joints[j].nv]
             raise JointVectorError(
@@ -135,7 +135,7 @@ class Robot:
     @property
     def task_dim(self) -> int:
         """The task dimension m: 2 (planar), 3 (position), 5 (axis) or 6 (pose)."""
-        return TASK_DIMS[self.task]
+        return get_task(self.task).dim
 
     @property
     def joint_names(self) -> list[str]:
@@ -200,14 +200,15 @@ def robot_from_hd(table: HDTable, task: str = "pose") -> Robot:
     return Robot(table.name, hd_to_model(table), EE_FRAME, task, hd=table)
 
 
-_LOADER_NAMES = ("load_robot", "known_robots", "shipped_robot_dir")
+_MOVED = {"load_robot": "loader", "known_robots": "loader", "shipped_robot_dir": "loader",
+          "ERD_ARMS": "erd", "erd_share_dir": "erd"}
 
 
 def __getattr__(name: str):
-    """``load_robot``, ``known_robots`` and ``shipped_robot_dir`` live in :mod:`kinredund.model.loader`
-    (which builds on this module); they stay importable from here."""
-    if name in _LOADER_NAMES:
-        from kinredund.model import loader
+    """The loader's names (:mod:`kinredund.model.loader`, which builds on this module, and the catalogue
+    :mod:`kinredund.model.erd`) stay importable from here."""
+    if name in _MOVED:
+        from importlib import import_module
 
-        return getattr(loader, name)
+        return getattr(import_module(f"kinredund.model.{_MOVED[name]}"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
