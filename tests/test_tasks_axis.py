@@ -153,9 +153,10 @@ def test_every_task_kind_keeps_the_contract():
 
 @pytest.mark.parametrize("name", ["ur5", "panda"])
 def test_axis_ik_optimum_is_checked_on_the_right_manifold(name):
-    """solve_ik on the axis task: the null space has n - 5 directions, and the reduced Hessian reported
-    is that of the true Lagrangian Hess z + d(G^T lambda)/dtheta (central differences), so the term of
-    d a / d theta is in it."""
+    """solve_ik on the axis task: the optimality check's null space has n - 5 directions (that of G, not
+    of K's 6 rows), and the reduced Hessian reported is that of the true Lagrangian
+    Hess z + d(G^T lambda)/dtheta (central differences). (The d a / d theta term of the Lagrangian,
+    K_omega^T a m^T K_omega at a solution, vanishes on that null space, where K_omega v is parallel to a.)"""
     r = ROBOTS[name]()
     q_seed = configurations(r, seed=6, count=1)[0]
     index = kinredund.JointDeviation(q_seed + 0.3)
