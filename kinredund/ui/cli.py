@@ -83,11 +83,12 @@ def _cmd_generate_robots(args) -> int:
 
 
 def _cmd_robots(args) -> int:
-    from kinredund.model.robot import known_robots, load_robot
+    from kinredund.model.loader import robot_table
 
-    for name in known_robots():
-        r = load_robot(name)
-        print(f"{name:14s} n={r.nq}  task={r.task:8s} m={r.task_dim}  ee={r.ee_frame}")
+    print(f"{'name':14s} {'n':>2s}  {'task':8s} {'m':>1s}  {'redundancy':10s} {'default frame':24s} source")
+    for row in robot_table():
+        print(f"{row.name:14s} {row.n:2d}  {row.task:8s} {row.m:1d}  n - m = {row.n - row.m:<3d}"
+              f"{row.ee_frame:24s} {row.note}")
     return EXIT_OK
 
 
