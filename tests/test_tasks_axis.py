@@ -149,3 +149,33 @@ def test_every_task_kind_keeps_the_contract():
         assert set(task.error_values(Q, p, tgt)) == set(task.error_names)
     with pytest.raises(kinredund.ChoiceError, match="axis"):
         get_task("tool")
+
+
+@pytest.mark.parametrize("name", ["ur5", "panda"])
+def test_axis_ik_optimum_is_checked_on_the_right_manifold(name):
+    """solve_ik on the axis task: the optimality check's null space has n - 5 directions (that of G, not
+    of K's 6 rows), and the reduced Hessian reported is that of the true Lagrangian
+    Hess z + d(G^T lambda)/dtheta (central differences). (The d a / d theta term of the Lagrangian,
+    K_omega^T a m^T K_omega at a solution, vanishes on that null space, where K_omega v is parallel to a.)"""
+    r = ROBOTS[name]()
+    q_seed = configurations(r, seed=6, count=1)[0]
+    index = kinredund.JointDeviation(q_seed + 0.3)
+    target = make_target("axis", r.fk(q_seed))
+    res = kinredund.solve_ik(r, target, index, q0=q_seed)
+    assert res.converged, res.reason
+    opt = kinredund.check_optimality(r, target, res.q, index)
+    assert opt.null_space.shape == (r.nq, r.nq - 5)
+    assert opt.normality_residual < 1e-9  # the IK's stopping tolerance is 1e-12 scaled; this is a check
+    resid = task_residual(target)
+    Q, p, K, dk = r.kinematics.jacobian_hessian(res.q)
+    G = resid.jacobian(K, resid.error(Q, p)[1])
+    _, grad, H = index.evaluate(res.q)
+    lam = np.linalg.lstsq(G.T, -grad, rcond=None)[0]
+
+    def gt_lam(x):
+        Qx, px, Kx = r.kinematics.jacobian(x)
+        return resid.jacobian(Kx, resid.error(Qx, px)[1]).T @ lam
+
+    L = opt.null_space
+    want = L.T @ (H + central_difference(gt_lam, res.q)) @ L
+    assert np.abs(opt.reduced_hessian - 0.5 * (want + want.T)).max() < 1e-6

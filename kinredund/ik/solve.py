@@ -178,14 +178,19 @@ def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bo
         )
     Q, p, K, dk = robot.kinematics.jacobian_hessian(q)
     z, grad, H = index.evaluate(q) if zgh is None else zgh
-    normality, lam, L, active = bound_kkt(K[res.rows], grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
-    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam, L, active), res.rows)
+    _, aux = res.error(Q, p)
+    normality, lam, L, active = bound_kkt(res.normal_rows(K, aux), grad, q, robot.lower, robot.upper, bounds)  # (D.30)
+    lam_k, extra = res.normal_multipliers(K, lam, aux)
+    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam_k, L, active, extra),
+                         res.rows)
 
 
 def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Optimality:
     """The report of Eq. (D.33) from the first-order terms at one q (:func:`_optimality`, or the
     converged iteration of a start)."""
     M = t.hessian + t.dk.contract(t.multipliers, rows)  # Hess z + Lambda*, Eq. (4.37)
+    if t.extra is not None:
+        M = M + t.extra
     L = t.null_space
     Br = L.T @ M @ L
     Br = 0.5 * (Br + Br.T)  # symmetric on the null space of K (Section 4.2)

@@ -147,6 +147,13 @@ class AxisResidual(TaskResidual):
         m = self.QdT.T @ np.array([lam[0], lam[1], 0.0])
         return np.concatenate((_cross(a, m), lam[2:]))
 
+    def normal_rows(self, K, aux):
+        """G itself: its 5 rows span a proper subspace of K's 6."""
+        return self.jacobian(K, aux)
+
+    def normal_multipliers(self, K, lam, aux):
+        return self.k_multipliers(lam, aux), self.extra_hessian(K, lam, aux)
+
     def extra_hessian(self, K, lam, aux):
         """The part of d(G^T lambda)/dtheta that d(K^T lambda*)/dtheta at fixed lambda* leaves out:
         K_omega^T [m]x [a]x K_omega, from d a / d theta_j = omega_j x a."""

@@ -108,6 +108,20 @@ class TaskResidual(ABC):
         """lambda* with G^T lambda = K[rows]^T lambda*, for Lambda* = d(K^T lambda*)/dtheta (Eq. 4.37)."""
         return lam
 
+    def normal_rows(self, K: np.ndarray, aux) -> np.ndarray:
+        """Rows spanning the constraints' normal space at a solution, for the optimality check: K[rows]
+        (the same span as G where G = T K[rows] with T invertible), or G itself."""
+        return K[self.rows]
+
+    def normal_multipliers(self, K: np.ndarray, lam: np.ndarray, aux) -> tuple[np.ndarray, np.ndarray | None]:
+        """(lambda* on K[rows], :meth:`extra_hessian`) from the multipliers of :meth:`normal_rows`."""
+        return lam, None
+
+    def extra_hessian(self, K: np.ndarray, lam: np.ndarray, aux) -> np.ndarray | None:
+        """The part of d(G^T lambda)/dtheta that d(K^T lambda*)/dtheta at fixed lambda* leaves out, or
+        None where there is none on the solution set (the Lagrangian's Hessian is then M of Eq. 4.37)."""
+        return None
+
     @abstractmethod
     def residual(self, Q: np.ndarray, p: np.ndarray) -> float:
         """||g(theta) - x||: the residual reported to the user."""
