@@ -10,7 +10,6 @@ import pytest
 import kinredund
 from kinredund.ik import solve_ik
 from kinredund.indices import JointDeviation
-from kinredund.model.robot import erd_share_dir
 from kinredund.paths import Circle
 from kinredund.tasks import make_target
 from kinredund.tasks.axis import frame_with_axis
@@ -22,7 +21,7 @@ STARTS = {"ur5": np.array([0.3, -1.2, 1.5, -1.9, -1.57, 0.3]), "panda": None}
 
 def _case(name: str):
     if name == "ur5":
-        r = kinredund.load_robot(erd_share_dir() / "ur_description/urdf/ur5_robot.urdf", task="axis")
+        r = kinredund.load_robot("ur5")  # the axis task is its default
     else:
         r = kinredund.load_robot("panda", task="axis")
     seed = r.home if STARTS[name] is None else STARTS[name]
