@@ -27,6 +27,7 @@ from kinredund.errors import (
     SingularityError,
     SolverError,
     TaskError,
+    TrackingError,
     UnknownRobotError,
     URDFError,
 )
@@ -65,6 +66,7 @@ __all__ = [
     "SolverError",
     "Task",
     "TaskError",
+    "TrackingError",
     "TimeVaryingReference",
     "Trajectory",
     "URDFError",

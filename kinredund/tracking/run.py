@@ -8,25 +8,17 @@ endless.
 
 from __future__ import annotations
 
-from kinredund.errors import OptionError, PathError, check_count, check_positive
+from kinredund.errors import OptionError, PathError, TrackingError, check_count, check_positive
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
+from kinredund.tracking.failure import loadable_name
 from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.tracker import Tracker
 from kinredund.trajectory import Trajectory
 
 #: the most steps one run records (the record holds every step: about 1.5 KiB each on a 7-axis arm)
 MAX_STEPS = 1_000_000
-
-
-def _loadable_name(robot: Robot) -> str:
-    """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
-    from kinredund.model.robot import known_robots
-
-    if robot.name in known_robots() or robot.urdf_path is None:
-        return robot.name
-    return str(robot.urdf_path)
 
 
 def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:
@@ -50,11 +42,12 @@ def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, in
 def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "augmented", mode: str = "default",
           steps_per_loop: int = 200, loops: int = 1, duration: float | None = None, steps: int | None = None,
           linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
-          diagnostics: bool = True, liegeois_gain: float = 1.0, progress=None, meta: dict | None = None) -> Trajectory:
+          diagnostics: bool = True, liegeois_gain: float = 1.0, strict: bool = True, progress=None,
+          meta: dict | None = None) -> Trajectory:
     """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
 
     Args:
-        robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain: as for
+        robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, strict: as for
             :class:`~kinredund.tracking.tracker.Tracker`.
         steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most
             :data:`MAX_STEPS` steps in all).
@@ -67,18 +60,27 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
         OptionError, ChoiceError: an argument out of its range (checked before any work).
         PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
         SingularityError: R or J becomes singular (time, configuration, smallest singular value).
+        TrackingError: the run stopped (a subclass of both errors above): ``cause``, ``t`` and ``q`` of the
+            last good point, ``watched``, and ``partial``, the record up to the last requested time before it.
     """
     dt, total, loops_run = _span(path, steps_per_loop, loops, duration, steps)
     tracker = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
-                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain)
+                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain, strict=strict)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()
     step = tracker.step
-    for k in range(total):
-        step()
-        rec.add()
-        if progress is not None:
-            progress(k + 1, total)
-    return rec.trajectory(robot_name=_loadable_name(robot), scheme=scheme, mode=mode, loops=loops_run,
+    try:
+        for k in range(total):
+            step()
+            rec.add()
+            if progress is not None:
+                progress(k + 1, total)
+    except TrackingError as err:
+        if err.partial is None:  # the record up to the last requested time (a Trajectory that plays)
+            err.partial = rec.trajectory(robot_name=loadable_name(robot), scheme=scheme, mode=mode, loops=None,
+                                         steps_per_loop=None, period=path.period,
+                                         meta=dict(meta or {}, dt=dt, steps=len(rec) - 1, partial=True))
+        raise
+    return rec.trajectory(robot_name=loadable_name(robot), scheme=scheme, mode=mode, loops=loops_run,
                           steps_per_loop=None if loops_run is None else total // loops_run,
                           period=path.period, meta=dict(meta or {}, dt=dt, steps=total))

@@ -86,6 +86,10 @@ class Tracker:
         tol: the corrector's tolerance on ||F||, in (0, 1) (default mode).
         liegeois_gain: the gradient-projection gain k >= 0 of the Liegeois baseline [1/s].
         t0: the starting time [s].
+        strict: the default mode's step control, jump check and fold and singularity watch
+            (:mod:`kinredund.tracking.step_control`; on by default): a step the corrector fails is retried in
+            sub-steps, and the run stops before a fold or a singularity with a
+            :class:`~kinredund.errors.TrackingError`; ``strict=False`` is the plain predictor-corrector step.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
     ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label) and
@@ -95,11 +99,14 @@ class Tracker:
         ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range.
         PathError: the start is off the path, or the path is unsuitable (says why).
         SingularityError: the start is singular.
+        TrackingError: the start cannot be corrected onto a constrained minimum (``non_optimal_start``), or
+            dt is longer than the path's period (``step_too_long``); from :meth:`step`, the run cannot go on
+            (the cause, the last good point; the stepper stays at the last requested time).
     """
 
     def __init__(self, robot: Robot, path: Path, index: Index | None, q0, dt: float, *, scheme: str = "augmented",
                  mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
-                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0):
+                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0, strict: bool = True):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -124,6 +131,8 @@ class Tracker:
             kwargs["project"] = mode == "default"
         if scheme == "liegeois":
             kwargs["gain"] = gain
+        if mode == "default" and scheme in ("augmented", "velocity"):
+            kwargs["strict"] = strict
         self.stepper: Stepper = STEPPERS[mode, scheme](ev, q, dt, **kwargs)
         self.step = self.stepper.step
 
