@@ -136,11 +136,22 @@ def start_failure(stepper, q0: np.ndarray, err: Exception) -> TrackingError:
                          cause=cause, t=stepper.t0, q=q0, watched=watched, partial=partial)
 
 
+def _watched_start(ev: Evaluator, q: np.ndarray, t: float) -> dict:
+    """The watched quantities at a start (lambda by least squares, Eqs. 4.11-4.12)."""
+    from kinredund.tracking.linalg import multipliers
+
+    pt = ev.point(q, t)
+    out = {"task_residual": float(np.abs(pt.r).max())}
+    lam = multipliers(pt.J, pt.grad)[0]
+    sigma, eig, _ = exact(pt.J, pt.system(lam)[0])
+    return out | {"sigma_min_J": sigma, "reduced_hessian_min": eig}
+
+
 def step_too_long(ev: Evaluator, q0: np.ndarray, t0: float, dt: float, *, mode: str) -> TrackingError:
     """The error of a time step longer than the closed path's period (the path would be aliased)."""
     return TrackingError(f"the time step {dt:.6g} s is longer than the path's period {ev.path.period:.6g} s: "
                          "take at least one step per loop", cause="step_too_long", t=t0, q=q0,
-                         watched={"dt": float(dt), "period": float(ev.path.period)},
+                         watched=_watched_start(ev, q0, t0) | {"dt": float(dt), "period": float(ev.path.period)},
                          partial=point_record(ev, q0, t0, scheme=ev.formulation, mode=mode))
 
 

@@ -94,13 +94,14 @@ class StepControl:
         s = self.s
         t_to = s.t0 + (s.k + 1) * s.dt
         snap = self._snapshot()
-        if self.watch.ahead(t_to) is None:
+        if self.watch.ahead(t_to) is None or self._refreshed_ahead(t_to) is None:
             reason = self._attempt(s.plain_step, snap, s.dt)
             if reason is None:
                 return
             self._restore(snap)
         else:
             reason = (self.watch.ahead(t_to), "predicted within the step")
+            self._restore(snap)
         self._substeps(snap, t_to, reason)
 
     def _attempt(self, advance, snap: dict, h: float):
@@ -131,6 +132,13 @@ class StepControl:
         self._speed2 = speed2
         return None
 
+    def _refreshed_ahead(self, t_next: float) -> str | None:
+        """The prediction again after an exact measurement at the current point (the gated history may be old)."""
+        s = self.s
+        pt = s.ev.point(s.q, s.t)
+        self.watch.refresh(s.t, pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
+        return self.watch.ahead(t_next)
+
     def _euler_to(self, t_next: float) -> None:
         """One sub-step: Euler prediction from the current point to t_next, then the corrector."""
         s = self.s
@@ -147,7 +155,7 @@ class StepControl:
             if h < self.floor * (1.0 - 1e-9):
                 raise self._exhausted(snap_step, t_to, reason, t_tried)
             t_next = t_tried = t_to if h >= (t_to - t) * (1.0 - 1e-9) else t + h
-            kind = self.watch.ahead(t_next)
+            kind = self.watch.ahead(t_next) and self._refreshed_ahead(t_next)
             if kind is not None:
                 reason, h = (kind, f"predicted before t = {t_next:.6g} s"), 0.5 * h
                 continue
@@ -172,8 +180,10 @@ class StepControl:
         cause = {"fold": "fold", "jump": "fold"}.get(kind)
         if kind == "jump" and path_jumps(s.ev, t_good, t_fail):
             cause = "path_discontinuity"
+        if kind == "corrector" and "algorithmic" in why:  # R singular with J of full rank: Z^T M Z is, a fold
+            cause = "fold"
         if cause is None:
-            ahead = self.watch.ahead(t_fail)
+            ahead = self._refreshed_ahead(t_fail + (t_fail - t_good))
             if kind == "corrector" and ahead == "fold":
                 cause = "fold"
             else:

@@ -127,6 +127,14 @@ class Watch:
         eig = float(u @ (M @ u))  # Rayleigh quotient on the null space of J (u = P v lies in it)
         return self._sigma(J), eig
 
+    def refresh(self, t: float, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> None:
+        """Measure exactly at t and push it (before a prediction is acted on: the history may be stale)."""
+        if self.times and self.times[-1] == t and self.sigma_times and self.sigma_times[-1] == t:
+            return
+        J, M = reduce(J, M, fixed)
+        sigma, eig = self._exact(J, M)
+        self.push(t, sigma, eig)
+
     def _exact(self, J, M) -> tuple[float, float]:
         sigma, eig, v = exact(J, M)
         self._v = v
