@@ -116,3 +116,30 @@ class PartPath(Path):
 
     def __repr__(self) -> str:
         return f"PartPath({self.path!r}, pose={self.pose.tolist()})"
+
+
+def part_circle(robot, radius: float = 0.1, speed: float = 0.1, normal=(0.0, 0.0, 1.0), axis_x=None) -> Path:
+    """A circle of ``radius`` [m] about the part frame's origin, at ``speed`` [m/s], about ``normal``.
+
+    Pose tasks hold the tool orientation the robot has at its home configuration (as if the part sat
+    unturned at the base), so the tool turns with the part's yaw.
+    """
+    from kinredund.paths import Circle
+
+    Q = robot.fk(robot.home)[:3, :3] if robot.task == "pose" else None
+    return Circle(np.zeros(3), radius, speed, normal=tuple(normal), axis_x=axis_x, orientation=Q)
+
+
+def panda_part_circle(robot=None):
+    """The Panda benchmark circle (:func:`kinredund.problems.panda_circle`) as a part path.
+
+    Returns:
+        (robot, path, index, pose): the path in the part frame (the vertical 0.1 m circle through the
+        home pose's point P, about the part origin), the index z = 1/2 ||q - q_home||^2 and the part pose
+        that puts the circle where the benchmark has it.
+    """
+    from kinredund.problems import panda_circle
+
+    robot, world, index, _ = panda_circle(robot)
+    part = part_circle(robot, world.radius, world.speed, normal=(1.0, 0.0, 0.0), axis_x=(0.0, 1.0, 0.0))
+    return robot, part, index, placement_pose(*world.center)
