@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import load_benchmark
 
 import kinredund.sweep.evaluate as evaluate_mod
 from kinredund.errors import ChoiceError, KinredundError, PathError
@@ -331,3 +332,18 @@ def test_cli_sweep_rejects_a_bad_grid(capsys):
     with pytest.raises(SystemExit) as err:
         main(["sweep", "panda", "--grid", "0.3:0.5,1"])
     assert err.value.code == 2 and "start:stop:count" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_unreachable_scheduler_is_an_error(capsys):
+    code = main(["sweep", "panda", "--grid", "0.4:0.4:1,0:0:1", "--starts", "1", "--scheduler", "tcp://127.0.0.1:9"])
+    assert code == 2 and "cannot reach the Dask scheduler" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_benchmark_reports_throughput_and_speedup():
+    res = load_benchmark("sweep").bench([2], workers=2)
+    row = res["grids"][0]
+    assert row["placements"] == 8 and row["records_agree"] and res["largest_grid"] == 8
+    assert row["serial_per_s"] > 0 and row["cluster_per_s"] > 0 and row["speedup"] == pytest.approx(
+        row["serial_s"] / row["cluster_s"], rel=1e-12)
