@@ -132,7 +132,10 @@ def test_panda_sweep_is_the_same_serially_on_a_local_cluster_and_on_a_real_clust
         assert cluster.address.startswith("tcp://127.0.0.1:")
         with Client(cluster.address, timeout="30s") as client:
             client.wait_for_workers(2, timeout=60)
-            assert len(client.scheduler_info()["workers"]) == 2
+            workers = client.scheduler_info()["workers"]
+            assert len(workers) == 2 and all(a.startswith("tcp://127.0.0.1:") for a in workers)  # loopback only
+            assert_same_records(serial, run_panda(client=client))  # client=: the caller's client, left open
+            assert client.status == "running"
         assert_same_records(serial, run_panda(scheduler=cluster.address, batch_size=3))
     finally:
         cluster.stop()
@@ -287,6 +290,17 @@ def test_best_ranks_feasible_placements():
     assert len(speed) == 3 and speed[0].speed_ratio <= speed[1].speed_ratio <= speed[2].speed_ratio
     with pytest.raises(ChoiceError, match="margin"):
         best(records, "reach")
+
+
+def test_bad_sweep_arguments_are_refused():
+    with pytest.raises(KinredundError, match="at most one"):
+        run_panda([problem()[3]], workers=0, scheduler="tcp://127.0.0.1:8786")
+    with pytest.raises(PlacementError, match="4x4"):
+        run_panda(np.eye(3), workers=0)
+    with pytest.raises(KinredundError, match="resume=True needs out="):
+        run_panda([problem()[3]], workers=0, resume=True)
+    with pytest.raises(ChoiceError, match="scheme"):
+        run_panda([problem()[3]], workers=0, scheme="newton")
 
 
 def test_grid_order_and_rigid_placements():

@@ -183,9 +183,14 @@ def _dask_client(client, scheduler: str | None, workers: int | None):
             c.close()
         return
     # everything on the loopback interface; the scheduler's HTTP routes on a free port (no dashboard: no bokeh)
-    cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                           host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
-                           env=WORKER_ENV)
+    try:
+        cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                               host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
+                               env=WORKER_ENV)
+    except RuntimeError as err:  # a worker process did not start
+        raise KinredundError(
+            f"the local Dask cluster did not start ({err}): its worker processes are spawned and import the "
+            "main module, so a script must call sweep() under `if __name__ == '__main__':`") from err
     try:
         c = Client(cluster)
         try:
@@ -218,7 +223,8 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
             at each placement (:class:`~kinredund.sweep.evaluate.SweepOptions`).
         client: a ``distributed.Client`` to run on (left open).
         workers: worker processes of the default local cluster (default: this machine's cores);
-            0 runs serially in this process.
+            0 runs serially in this process. The workers are spawned processes that import the main
+            module: a script calls :func:`sweep` under ``if __name__ == "__main__":``.
         scheduler: the address of an existing Dask scheduler (``tcp://host:port``).
         batch_size: placements per task (default: see the module docstring).
         out: the sweep file, written as batches complete (``.jsonl``: JSON lines; else one JSON object).
@@ -235,7 +241,7 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
     T = check_placements(placements)
     options = SweepOptions(steps_per_loop, loops, duration, steps, scheme, mode, bool(limits), bool(speed_limit),
                            starts, seed)
-    if sum(x is not None for x in (client, scheduler)) > 1 or (workers is not None and (client or scheduler)):
+    if sum(x is not None for x in (client, scheduler, workers)) > 1:
         raise KinredundError("give at most one of client=, scheduler= and workers= (workers sizes a local cluster)")
     if workers is not None:
         check_count(workers, 0, "workers", KinredundError)
