@@ -303,6 +303,17 @@ def test_bad_sweep_arguments_are_refused():
         run_panda([problem()[3]], workers=0, scheme="newton")
 
 
+def test_guided_batches_cover_the_placements_in_order():
+    from kinredund.sweep.run import MAX_BATCH, batches
+
+    for count, threads in ((50, 2), (1000, 2), (7, 16)):
+        cut = batches(list(range(count)), None, threads)
+        sizes = [len(b) for b in cut]
+        assert [k for b in cut for k in b] == list(range(count))
+        assert sizes == sorted(sizes, reverse=True) and sizes[-1] == 1 and max(sizes) <= MAX_BATCH
+    assert [len(b) for b in batches(list(range(10)), 3, 2)] == [3, 3, 3, 1]
+
+
 def test_grid_order_and_rigid_placements():
     P = grid(x=[0.1, 0.2], y=[0.0, 0.5, 1.0], z=0.3, yaw=[0.0, np.pi / 2])
     assert P.shape == (12, 4, 4)

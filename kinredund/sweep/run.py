@@ -23,9 +23,9 @@ which identical results need anyway. Only the model travels: the workspace (``pi
 worker and a ``GeometryData`` (which does not pickle) is never needed. Tasks then carry only their
 placements (a batch of 4x4 poses) and bring back small records.
 
-Batching: placements go in batches of ``batch_size`` (default: about 8 batches per worker thread, at
-most 32 placements each), so the scheduler's ~1 ms per task stays small next to ~50 ms per placement,
-while the last batches still spread over all workers.
+Batching: placements go in batches of ``batch_size``, by default guided (:func:`batches`): large
+batches first, so the scheduler's ~1 ms per task stays small next to ~50 ms per placement, and single
+placements last, so the workers finish together.
 
 Output: with ``out=``, the sweep file (:mod:`kinredund.sweep.store`) is rewritten as batches complete
 (at most once a second, and on the way out, also when interrupted); ``resume=True`` keeps the
@@ -59,9 +59,9 @@ from kinredund.sweep.store import resumable_records, write_sweep_file
 #: environment of the local cluster's workers: one BLAS/OpenMP thread each (the work is many small
 #: matrices; more threads per process only compete for the cores)
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-#: default batch size: about this many batches per worker thread ...
-BATCHES_PER_THREAD = 8
-#: ... with at most this many placements in one
+#: default batches (guided): each takes 1 / (this many x worker threads) of the placements still to batch ...
+GUIDED_SHARE = 4
+#: ... and at most this many placements
 MAX_BATCH = 32
 #: the partial output file is rewritten at most this often [s]
 WRITE_INTERVAL = 1.0
@@ -201,8 +201,20 @@ def _dask_client(client, scheduler: str | None, workers: int | None):
         cluster.close()
 
 
-def _batches(todo: list[int], size: int) -> list[list[int]]:
-    return [todo[i:i + size] for i in range(0, len(todo), size)]
+def batches(todo: list[int], size: int | None, threads: int) -> list[list[int]]:
+    """``todo`` cut into batches: of ``size`` each, or by default guided (Polychronopoulos and Kuck 1987).
+
+    Guided: each batch takes 1 / (GUIDED_SHARE x threads) of the placements not yet batched, 1 to
+    MAX_BATCH of them: the first batches are large (little scheduling per placement), the last ones
+    single placements, so the workers finish together. The scheduler hands batches out in order as
+    workers free up.
+    """
+    out, i = [], 0
+    while i < len(todo):
+        step = size or max(1, min(MAX_BATCH, math.ceil((len(todo) - i) / (GUIDED_SHARE * max(threads, 1)))))
+        out.append(todo[i:i + step])
+        i += step
+    return out
 
 
 def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_per_loop: int = 200,
@@ -273,18 +285,13 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
         progress(len(done), len(T))
     try:
         if todo and workers == 0 and client is None and scheduler is None:
-            for batch in _batches(todo, batch_size or _default_batch(len(todo), 1)):
+            for batch in batches(todo, batch_size, 1):
                 finish(run_batch(job, [(k, T[k]) for k in batch]))
         elif todo:
             _run_on_dask(job, T, todo, batch_size, finish, client, scheduler, workers)
     finally:
         write(force=True)
     return [done[k] for k in range(len(T))]
-
-
-def _default_batch(count: int, threads: int) -> int:
-    """About BATCHES_PER_THREAD batches per thread, 1 to MAX_BATCH placements each."""
-    return max(1, min(MAX_BATCH, math.ceil(count / (BATCHES_PER_THREAD * max(threads, 1)))))
 
 
 def _run_on_dask(job, T, todo, batch_size, finish, client, scheduler, workers) -> None:
@@ -294,21 +301,20 @@ def _run_on_dask(job, T, todo, batch_size, finish, client, scheduler, workers) -
         threads = sum(c.nthreads().values())
         if threads == 0:
             raise KinredundError("the Dask cluster has no workers")
-        size = batch_size or _default_batch(len(todo), threads)
         job_f = c.scatter(job, broadcast=True, hash=False)
-        batches = {}
+        items_of = {}
         futures = []
-        for batch in _batches(todo, size):
+        for batch in batches(todo, batch_size, threads):
             items = [(k, T[k]) for k in batch]
             fut = c.submit(run_batch, job_f, items, pure=False)
-            batches[fut.key] = items
+            items_of[fut.key] = items
             futures.append(fut)
         try:
             for fut in as_completed(futures):
                 try:
                     records = fut.result()
                 except Exception as err:  # noqa: BLE001 - a lost task: its placements say so
-                    records = _lost(batches[fut.key], err)
+                    records = _lost(items_of[fut.key], err)
                 finish(records)
         finally:
             c.cancel(futures)

@@ -96,7 +96,8 @@ def add_parser(sub) -> None:
     where.add_argument("--workers", type=_count(0), help="worker processes of the local Dask cluster "
                        "(default: this machine's cores; 0: serially in this process)")
     where.add_argument("--scheduler", help="run on an existing Dask cluster: its scheduler's address (tcp://host:port)")
-    p.add_argument("--batch-size", type=_count(1), help="placements per Dask task (default: ~8 tasks per worker)")
+    p.add_argument("--batch-size", type=_count(1),
+                   help="placements per Dask task (default: guided - large batches first, single placements last)")
     p.add_argument("--json", type=Path, help="the sweep file, written as batches complete (.jsonl: JSON lines)")
     p.add_argument("--resume", action="store_true", help="resume the sweep in --json, running only what it lacks")
     p.add_argument("--plot", type=Path, help="the feasibility and quality map (.png, .pdf or .svg)")
