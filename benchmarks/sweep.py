@@ -16,7 +16,10 @@ per placement. The cluster is started once, outside the timings (its start-up ti
 own), and warmed up with a small sweep so each worker has imported kinredund; the timed sweeps include
 scattering the job and every scheduling cost. A straight-line fit time = a + b N over the grids says how
 the cost grows with the grid size N. The serial and cluster records are compared (feasibility and
-cause must agree).
+cause must agree). Two figures say how far the machine let it go: the parallel capacity (how many
+cores ``--workers`` busy processes get right now, from a busy loop: the ceiling of any speed-up) and
+each timed cluster sweep's worker busy fraction (compute time per worker over the wall time, from
+Dask's task stream: 1 means no worker ever waited for work).
 
 The figures are wall times: on a shared machine they move with the load (run it on a quiet one). The
 default run (sides 3, 5, 8: 18, 50 and 128 placements) takes about 30 s on an unloaded 2-core machine.
@@ -60,8 +63,43 @@ def start_cluster(workers: int):
     return cluster, client, time.perf_counter() - t0
 
 
+def _spin(seconds: float) -> float:
+    """Busy-loop for about ``seconds`` of CPU; the wall time it took [s]."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    while time.process_time() - c0 < seconds:
+        pass
+    return time.perf_counter() - t0
+
+
+def parallel_capacity(workers: int, seconds: float = 0.5) -> float:
+    """How many cores ``workers`` busy processes get now: workers x (one's wall time) / (each's, all at once).
+
+    ~``workers`` on a quiet machine; less when other jobs share it (then no speed-up can reach the target).
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers) as pool:
+        list(pool.map(_spin, [0.05] * workers))  # start the processes
+        single = pool.submit(_spin, seconds).result()
+        together = max(pool.map(_spin, [seconds] * workers))
+    return workers * single / together
+
+
+def _busy(stream: list, wall: float) -> float:
+    """The workers' mean busy fraction during a timed sweep: compute time per worker / wall time."""
+    per = {}
+    for task in stream:
+        for ss in task.get("startstops", ()):
+            if ss.get("action") == "compute":
+                per[task["worker"]] = per.get(task["worker"], 0.0) + ss["stop"] - ss["start"]
+    return float(np.mean(list(per.values())) / wall) if per else float("nan")
+
+
 def bench(sides, workers: int = 2, batch_size: int | None = None) -> dict:
     """The figures of every grid (see the module docstring)."""
+    from distributed import get_task_stream
+
+    capacity = parallel_capacity(workers)
     robot, path, index, _ = panda_part_circle()
     cluster, client, startup = start_cluster(workers)
     try:
@@ -74,14 +112,16 @@ def bench(sides, workers: int = 2, batch_size: int | None = None) -> dict:
             t0 = time.perf_counter()
             serial = sweep(robot, path, index, P, workers=0, batch_size=batch_size)
             t_serial = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            parallel = sweep(robot, path, index, P, client=client, batch_size=batch_size)
-            t_cluster = time.perf_counter() - t0
+            with get_task_stream(client=client) as stream:
+                t0 = time.perf_counter()
+                parallel = sweep(robot, path, index, P, client=client, batch_size=batch_size)
+                t_cluster = time.perf_counter() - t0
             agree = all(a.feasible == b.feasible and a.cause == b.cause for a, b in zip(serial, parallel, strict=True))
             rows.append({"side": side, "placements": len(P), "serial_s": t_serial, "cluster_s": t_cluster,
                          "serial_per_s": len(P) / t_serial, "cluster_per_s": len(P) / t_cluster,
                          "speedup": t_serial / t_cluster, "serial_ms_per_placement": 1e3 * t_serial / len(P),
-                         "feasible": sum(r.feasible for r in serial), "records_agree": agree})
+                         "feasible": sum(r.feasible for r in serial), "records_agree": agree,
+                         "worker_busy": _busy(stream.data, t_cluster)})
     finally:
         client.close()
         cluster.close()
@@ -91,8 +131,8 @@ def bench(sides, workers: int = 2, batch_size: int | None = None) -> dict:
         if len(rows) > 1:
             b, a = np.polyfit(n, [r[key] for r in rows], 1)  # time = a + b N
             fits[key] = {"intercept_s": float(a), "per_placement_ms": float(1e3 * b)}
-    return {"workers": workers, "cluster_startup_s": startup, "warmup_s": warmup, "grids": rows, "fits": fits,
-            "largest_grid": int(n.max())}
+    return {"workers": workers, "parallel_capacity": capacity, "cluster_startup_s": startup, "warmup_s": warmup,
+            "grids": rows, "fits": fits, "largest_grid": int(n.max())}
 
 
 def main() -> None:
@@ -103,12 +143,15 @@ def main() -> None:
     args = p.parse_args()
     sides = [int(s) for s in args.sides.split(",") if s]
     res = bench(sides, args.workers, args.batch_size)
+    print(f"parallel capacity now: {res['parallel_capacity']:.2f} cores for {res['workers']} busy processes "
+          "(the most any speed-up can reach)")
     print(f"local cluster of {res['workers']} workers: start-up {res['cluster_startup_s']:.2f} s, "
           f"warm-up sweep {res['warmup_s']:.2f} s (not in the timings)")
     print_table([[r["placements"], r["serial_s"], r["cluster_s"], r["serial_per_s"], r["cluster_per_s"],
-                  r["speedup"], r["serial_ms_per_placement"], r["feasible"], r["records_agree"]] for r in res["grids"]],
-                ["placements", "serial s", "cluster s", "serial /s", "cluster /s", "speed-up", "ms each", "feasible",
-                 "agree"])
+                  r["speedup"], r["serial_ms_per_placement"], r["worker_busy"], r["feasible"], r["records_agree"]]
+                 for r in res["grids"]],
+                ["placements", "serial s", "cluster s", "serial /s", "cluster /s", "speed-up", "ms each", "busy",
+                 "feasible", "agree"])
     for key, fit in res["fits"].items():
         print(f"{key}: {fit['intercept_s']:.3f} s + {fit['per_placement_ms']:.2f} ms x N")
     write_json(args.json, res)

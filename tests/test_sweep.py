@@ -370,5 +370,6 @@ def test_benchmark_reports_throughput_and_speedup():
     res = load_benchmark("sweep").bench([2], workers=2)
     row = res["grids"][0]
     assert row["placements"] == 8 and row["records_agree"] and res["largest_grid"] == 8
+    assert 0.0 < res["parallel_capacity"] and 0.0 < row["worker_busy"] <= 1.0
     assert row["serial_per_s"] > 0 and row["cluster_per_s"] > 0 and row["speedup"] == pytest.approx(
         row["serial_s"] / row["cluster_s"], rel=1e-12)

@@ -63,6 +63,8 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 GUIDED_SHARE = 4
 #: ... and at most this many placements
 MAX_BATCH = 32
+#: how long a sweep waits for the first worker of a cluster that has none [s]
+WORKER_WAIT = 60.0
 #: the partial output file is rewritten at most this often [s]
 WRITE_INTERVAL = 1.0
 
@@ -298,9 +300,12 @@ def _run_on_dask(job, T, todo, batch_size, finish, client, scheduler, workers) -
     from distributed import as_completed
 
     with _dask_client(client, scheduler, workers) as c:
+        if not c.nthreads():  # a cluster whose workers are still joining: wait for one
+            try:
+                c.wait_for_workers(1, timeout=WORKER_WAIT)
+            except TimeoutError as err:
+                raise KinredundError(f"the Dask cluster has no workers (none joined in {WORKER_WAIT:.0f} s)") from err
         threads = sum(c.nthreads().values())
-        if threads == 0:
-            raise KinredundError("the Dask cluster has no workers")
         job_f = c.scatter(job, broadcast=True, hash=False)
         items_of = {}
         futures = []
