@@ -63,12 +63,19 @@ def start_cluster(workers: int):
     return cluster, client, time.perf_counter() - t0
 
 
-def _spin(seconds: float) -> float:
-    """Busy-loop for about ``seconds`` of CPU; the wall time it took [s]."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    while time.process_time() - c0 < seconds:
-        pass
-    return time.perf_counter() - t0
+#: a busy loop of a given CPU time; prints the wall time it took [s]
+_SPIN = ("import time\nt, c = time.perf_counter(), time.process_time()\nwhile time.process_time() - c < {s}:\n"
+         "    pass\nprint(time.perf_counter() - t)")
+
+
+def _spin(count: int, seconds: float) -> float:
+    """The longest wall time of ``count`` busy loops of ``seconds`` CPU each, run at once (processes)."""
+    import subprocess
+    import sys
+
+    procs = [subprocess.Popen([sys.executable, "-c", _SPIN.format(s=seconds)], stdout=subprocess.PIPE, text=True)
+             for _ in range(count)]
+    return max(float(p.communicate()[0]) for p in procs)
 
 
 def parallel_capacity(workers: int, seconds: float = 0.5) -> float:
@@ -76,13 +83,7 @@ def parallel_capacity(workers: int, seconds: float = 0.5) -> float:
 
     ~``workers`` on a quiet machine; less when other jobs share it (then no speed-up can reach the target).
     """
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(workers) as pool:
-        list(pool.map(_spin, [0.05] * workers))  # start the processes
-        single = pool.submit(_spin, seconds).result()
-        together = max(pool.map(_spin, [seconds] * workers))
-    return workers * single / together
+    return workers * _spin(1, seconds) / _spin(workers, seconds)
 
 
 def _busy(stream: list, wall: float) -> float:
