@@ -30,8 +30,12 @@ from kinredund.paths import Path
 from kinredund.sweep.placement import PartPath, pose_coordinates
 from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks.target import make_target
-from kinredund.tracking.resolved_rate import MODES, SCHEMES, track
 from kinredund.trajectory import Trajectory
+
+try:  # the tracking package (hard joint limits, TrackingError)
+    from kinredund.tracking import MODES, SCHEMES, track
+except ImportError:  # the single-module tracker before it
+    from kinredund.tracking.resolved_rate import MODES, SCHEMES, track
 
 #: a joint counts as outside its limits beyond this [rad or m]: round-off of a tracker that holds them
 #: (its steps land on a bound to ~1e-12), far below any physical margin
@@ -97,11 +101,16 @@ def run_tracker(robot: Robot, path: Path, index: Index | None, q0: np.ndarray, o
     return track(robot, path, index, q0, **kw)
 
 
+#: a limited tracker's causes that the sweep reports under its own name
+TRACKER_CAUSES = {"limits_infeasible": "limits"}
+
+
 def _cause(err: KinredundError) -> str:
-    """The failure cause of a tracker exception: its own ``cause`` if it has one (TrackingError)."""
+    """The failure cause of a tracker exception: its own ``cause`` if it has one (TrackingError; the
+    path cannot be followed within the limits is ``limits``, as when the sweep finds a joint outside them)."""
     cause = getattr(err, "cause", None)
     if cause:
-        return str(cause)
+        return TRACKER_CAUSES.get(str(cause), str(cause))
     if isinstance(err, SingularityError):
         return "singularity"
     if isinstance(err, PathError):
