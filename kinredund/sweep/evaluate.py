@@ -2,9 +2,9 @@
 
 :func:`evaluate_placement` is the only place the sweep calls the solvers: :func:`kinredund.ik.solve_ik`
 for the start (the constrained minimum of z at the path's first point, Eq. 4.3, within the joint
-limits, seeded multi-start so the records are reproducible) and
-:func:`kinredund.tracking.resolved_rate.track` for the run (Chapter 4). Whatever the tracker returns or
-raises becomes a :class:`~kinredund.sweep.record.PlacementRecord`:
+limits, seeded multi-start so the records repeat, to round-off: see :mod:`kinredund.sweep.run`) and
+the tracker's ``track`` for the run (Chapter 4; :mod:`kinredund.tracking`, imported in one place
+below). Whatever the tracker returns or raises becomes a :class:`~kinredund.sweep.record.PlacementRecord`:
 
 - a tracker with hard joint limits (one that takes ``limits=``, checked with ``inspect.signature``) is
   given ``limits=options.limits``; its ``TrackingError`` carries ``cause``, ``t``, ``q`` and the

@@ -9,7 +9,11 @@ Execution (``dask.distributed``): by default an in-process ``LocalCluster`` of o
 worker process per core (nothing to start beforehand); ``scheduler="tcp://host:port"`` or ``client=``
 runs on an existing cluster; ``workers=0`` runs serially in this process. Whatever runs it, each
 placement goes through the same function (:func:`run_batch`) with the same inputs, so the records are
-the same.
+the same: everything discrete (feasible, cause, steps) exactly, the figures to round-off. Not bit for
+bit: the bounded IK's box-constrained QP steps (proxsuite, dense) were measured to return results that
+differ in the last bits for identical inputs from one call to the next (~1e-18 to 1e-16 on the step),
+and the start configuration, hence the run, inherits it (~1e-15 relative on the figures); the tracker
+itself repeats bit for bit.
 
 What travels to the workers, once: a :class:`SweepJob` holding the robot's ``pin.Model`` (pickled by
 Pinocchio's Boost serialisation), its end-effector frame, task kind, HD table and home, the path, the
