@@ -29,7 +29,7 @@ from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.sweep.placement import PartPath, pose_coordinates
 from kinredund.sweep.record import PlacementRecord, clean_float
-from kinredund.tasks.target import make_target
+from kinredund.tasks import get_task
 from kinredund.trajectory import Trajectory
 
 try:  # the tracking package (hard joint limits, TrackingError)
@@ -42,8 +42,6 @@ except ImportError:  # the single-module tracker before it
 LIMIT_TOL = 1e-9
 #: joint limits beyond this are "unbounded" (Pinocchio's default +-1.8e308) and give no margin
 UNBOUNDED = 1e10
-#: the task's rows of K = [omega; pdot] (Eq. 2.16) that sigma_min is taken over
-TASK_ROWS = {"planar": slice(3, 5), "position": slice(3, 6), "pose": slice(0, 6)}
 
 
 @dataclass(frozen=True)
@@ -121,17 +119,14 @@ def _cause(err: KinredundError) -> str:
 def start_configuration(robot: Robot, path: Path, index: Index | None, options: SweepOptions):
     """The IK result at the path's first point: within the limits, seeded multi-start (Eq. 4.3)."""
     s0 = path(0.0)
-    if robot.task == "pose":
-        if s0.Q is None:
-            raise PathError(f"{robot.name} has a pose task: the path needs an orientation")
-        target = make_target("pose", (s0.Q, s0.p))
-    else:
-        target = make_target(robot.task, s0.p[: robot.task_dim])
-    return solve_ik(robot, target, index, bounds=True, starts=options.starts, seed=options.seed)
+    if get_task(robot.task).has_orientation and s0.Q is None:
+        raise PathError(f"{robot.name} has a {robot.task!r} task: the path needs an orientation")
+    return solve_ik(robot, s0, index, bounds=True, starts=options.starts, seed=options.seed)  # its point (and Q)
 
 
-def figures(robot: Robot, index: Index | None, traj: Trajectory) -> dict:
-    """The record's quality figures over a (possibly partial) run, and the first joint-limit violation.
+def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> dict:
+    """The record's quality figures over a (possibly partial) run of ``path``, and the first joint-limit
+    violation.
 
     Returns a dict of :class:`PlacementRecord` fields plus ``"violation"``: None, or (k, joint) of the
     first recorded point outside the limits by more than :data:`LIMIT_TOL`.
@@ -153,9 +148,12 @@ def figures(robot: Robot, index: Index | None, traj: Trajectory) -> dict:
         if np.any(ok):
             speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]  # mean speed over each step [rad/s]
             out["speed_ratio"] = clean_float((speed[:, ok] / vmax[ok]).max())
-    kin, rows = robot.kinematics, TASK_ROWS[robot.task]
-    K = np.array([kin.jacobian(qk)[2][rows] for qk in q])
-    out["sigma_min"] = clean_float(np.linalg.svd(K, compute_uv=False)[:, -1].min())
+    kin, task = robot.kinematics, get_task(robot.task)
+    J = []
+    for qk, tk in zip(q, t, strict=True):
+        Q, _, K = kin.jacobian(qk)
+        J.append(task.span_rows(Q, K, path.sample(tk)))  # rows with J's row space (the task's rows of K)
+    out["sigma_min"] = clean_float(np.linalg.svd(np.array(J), compute_uv=False)[:, -1].min())
     if index is not None:
         z = np.array([index.value(qk, tk) for qk, tk in zip(q, t, strict=True)])
         if traj.loop_period is not None and traj.loop_drift is not None:
@@ -170,8 +168,9 @@ def figures(robot: Robot, index: Index | None, traj: Trajectory) -> dict:
         out["loop_drift"] = clean_float(np.max(traj.loop_drift))
     if traj.position_error is not None and len(traj.position_error):
         out["position_error"] = clean_float(np.max(traj.position_error))
-    if robot.task == "pose" and traj.vect_error is not None and len(traj.vect_error):
-        out["orientation_error"] = clean_float(np.max(traj.vect_error))
+    orientation = traj.vect_error if robot.task == "pose" else traj.axis_error if robot.task == "axis" else None
+    if orientation is not None and len(orientation):
+        out["orientation_error"] = clean_float(np.max(orientation))
     return out
 
 
@@ -203,12 +202,12 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
         traj = run_tracker(robot, part, index, ik.q, options)
     except KinredundError as err:
         partial = getattr(err, "partial", None)
-        figs = figures(robot, index, partial) if isinstance(partial, Trajectory) and len(partial.t) else {}
+        figs = figures(robot, part, index, partial) if isinstance(partial, Trajectory) and len(partial.t) else {}
         figs.pop("violation", None)
         return PlacementRecord(**where, feasible=False, cause=_cause(err), message=str(err),
                                t_fail=clean_float(getattr(err, "t", None)), q_last=_last(getattr(err, "q", None)),
                                **figs)
-    figs = figures(robot, index, traj)
+    figs = figures(robot, part, index, traj)
     violation = figs.pop("violation")
     if violation is not None:
         k, j = violation

@@ -47,11 +47,12 @@ class PlacementRecord:
         steps: steps tracked (of the run asked for; the partial run's for a failure).
         loop_drift: the largest joint drift at the end of a loop [rad] (revolute joints modulo 2 pi).
         position_error: the largest |p - p_d| along the run [m].
-        orientation_error: the largest orientation error (vector invariant, Example 4.3) of a pose task.
+        orientation_error: the largest orientation error: the vect invariant (Example 4.3) of a pose
+            task, the tool-axis angle [rad] of an axis task.
         limit_margin: the smallest distance of a joint to its limits along the run [rad or m]; < 0
             outside them.
-        sigma_min: the smallest singular value of the task's rows of K along the run (pose tasks mix
-            [rad/rad] and [m/rad] rows).
+        sigma_min: the smallest singular value of J along the run (of the task's rows of K, with J's row
+            space: ``Task.span_rows``; pose tasks mix [rad/rad] and [m/rad] rows).
         speed_ratio: the largest |thetadot_i| / (velocity limit of joint i) along the run.
         mean_z: the time average of the index z over the loop [rad^2 for joint deviations].
     """

@@ -15,17 +15,18 @@ differ in the last bits for identical inputs from one call to the next (~1e-18 t
 and the start configuration, hence the run, inherits it (~1e-15 relative on the figures); the tracker
 itself repeats bit for bit.
 
-What travels to the workers, once: a :class:`SweepJob` holding the robot's ``pin.Model`` (pickled by
-Pinocchio's Boost serialisation), its end-effector frame, task kind, HD table and home, the path, the
-index and the options; it is scattered to every worker (``broadcast=True``) and each worker process
-rebuilds the :class:`~kinredund.model.robot.Robot` from it once (cached by the job's token). The pickled
-model rather than the robot's name or URDF text because it serves every robot alike (the shipped ones,
-example-robot-data arms reduced to 7 joints, URDF files the workers do not have, robots built from an HD
-table in memory) and is the very model the client holds, so nothing is re-parsed differently on a
-worker; the price is that workers must run the same Pinocchio version (Boost archives are tied to it),
-which identical results need anyway. Only the model travels: the workspace (``pin.Data``) is made on the
-worker and a ``GeometryData`` (which does not pickle) is never needed. Tasks then carry only their
-placements (a batch of 4x4 poses) and bring back small records.
+What travels to the workers, once: a :class:`SweepJob` holding the :class:`~kinredund.model.robot.Robot`
+itself (pickled with its ``pin.Model``, which Pinocchio serialises through Boost; the per-thread
+workspace, a ``pin.Data``, is left out and made again where it is used), the path, the index and the
+options. It is scattered to every worker (``broadcast=True``): each worker process deserialises it once
+and its tasks share that robot. The pickled model rather than the robot's name or URDF text because it
+serves every robot alike (the shipped ones, example-robot-data arms with joints locked or dropped, URDF
+files the workers do not have, robots built from an HD table in memory) and is the very model the client
+holds, frames, limits and home included, so nothing is re-parsed or re-resolved differently on a worker;
+the price is that workers must run the same Pinocchio version (Boost archives are tied to it), which
+identical results need anyway. No ``GeometryData`` (which does not pickle) is involved, and nothing is
+attached to the ``pin.Model`` (a model with an extra attribute does not pickle). Tasks then carry only
+their placements (a batch of 4x4 poses) and bring back small records.
 
 Batching: placements go in batches of ``batch_size``, by default guided (:func:`batches`): large
 batches first, so the scheduler's ~1 ms per task stays small next to ~50 ms per placement, and single
@@ -52,7 +53,6 @@ import numpy as np
 
 from kinredund.errors import KinredundError, check_count
 from kinredund.indices import Index
-from kinredund.kinematics.hd import HDTable
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.sweep.evaluate import SweepOptions, evaluate_placement, tracker_takes_limits
@@ -78,18 +78,12 @@ class SweepJob:
     """Everything a worker needs for any placement of one sweep (scattered once per sweep).
 
     Attributes:
-        name, ee_frame, task, hd, home: the robot's (see :class:`~kinredund.model.robot.Robot`).
-        model: the robot's ``pin.Model``.
+        robot: the arm (pickled with its ``pin.Model``; each process makes its own workspace).
         path: the path in the part frame; index: the index z (or None); options: the run options.
         token: a SHA-256 of all of it (pickled): the job's identity, also in the output file's header.
     """
 
-    name: str
-    model: object
-    ee_frame: str
-    task: str
-    hd: HDTable | None
-    home: tuple[float, ...]
+    robot: Robot
     path: Path
     index: Index | None
     options: SweepOptions
@@ -104,28 +98,13 @@ def make_job(robot: Robot, path: Path, index: Index | None, options: SweepOption
         raise KinredundError(f"path must be a kinredund.paths.Path (in the part frame), got {type(path).__name__}")
     if index is not None and not isinstance(index, Index):
         raise KinredundError(f"index must be a kinredund.indices.Index or None, got {type(index).__name__}")
-    job = SweepJob(robot.name, robot.model, robot.ee_frame, robot.task, robot.hd,
-                   tuple(float(v) for v in robot.home), path, index, options)
+    job = SweepJob(robot, path, index, options)
     try:
         blob = pickle.dumps(job, protocol=4)
     except (pickle.PicklingError, TypeError, AttributeError) as err:
-        raise KinredundError(f"the sweep's robot model, path or index cannot be pickled for the workers: {err} "
+        raise KinredundError(f"the sweep's robot, path or index cannot be pickled for the workers: {err} "
                              "(a path from a lambda or a local function: use a module-level function)") from err
-    return SweepJob(**{**job.__dict__, "token": hashlib.sha256(blob).hexdigest()})
-
-
-_ROBOTS: dict[str, Robot] = {}
-
-
-def job_robot(job: SweepJob) -> Robot:
-    """The job's robot, built once per process (the last few jobs' robots are kept)."""
-    robot = _ROBOTS.get(job.token)
-    if robot is None:
-        robot = Robot(job.name, job.model, job.ee_frame, job.task, hd=job.hd, home=np.array(job.home))
-        if len(_ROBOTS) >= 4:
-            _ROBOTS.pop(next(iter(_ROBOTS)))
-        _ROBOTS[job.token] = robot
-    return robot
+    return SweepJob(robot, path, index, options, hashlib.sha256(blob).hexdigest())
 
 
 def run_batch(job: SweepJob, batch: list[tuple[int, np.ndarray]]) -> list[PlacementRecord]:
@@ -133,7 +112,7 @@ def run_batch(job: SweepJob, batch: list[tuple[int, np.ndarray]]) -> list[Placem
 
     A placement that raises anything is an ``internal`` record (a bug to report, not a lost sweep).
     """
-    robot = job_robot(job)
+    robot = job.robot  # deserialised once per worker process (scattered data), shared by its tasks
     out = []
     for k, T in batch:
         try:
@@ -155,9 +134,10 @@ def _lost(batch, err: BaseException) -> list[PlacementRecord]:
     return out
 
 
-def header(job: SweepJob, robot: Robot, count: int) -> dict:
+def header(job: SweepJob, count: int) -> dict:
     """The output file's header: what was swept (the token identifies it exactly)."""
-    return {"robot": job.name, "task": job.task, "nq": robot.nq, "path": type(job.path).__name__,
+    robot = job.robot
+    return {"robot": robot.name, "task": robot.task, "nq": robot.nq, "path": type(job.path).__name__,
             "index": None if job.index is None else type(job.index).__name__, "options": asdict(job.options),
             "tracker_limits": tracker_takes_limits(), "placements": count, "token": job.token}
 
@@ -268,7 +248,7 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
     if resume and out is None:
         raise KinredundError("resume=True needs out= (the partial sweep file to resume from)")
     job = make_job(robot, path, index, options)
-    head = header(job, robot, len(T))
+    head = header(job, len(T))
     done: dict[int, PlacementRecord] = {}
     if resume and FilePath(out).exists():
         done = resumable_records(out, head, T)
