@@ -121,12 +121,13 @@ class PartPath(Path):
 def part_circle(robot, radius: float = 0.1, speed: float = 0.1, normal=(0.0, 0.0, 1.0), axis_x=None) -> Path:
     """A circle of ``radius`` [m] about the part frame's origin, at ``speed`` [m/s], about ``normal``.
 
-    Pose tasks hold the tool orientation the robot has at its home configuration (as if the part sat
-    unturned at the base), so the tool turns with the part's yaw.
+    Tasks that hold an orientation (pose, axis) hold the tool orientation the robot has at its home
+    configuration (as if the part sat unturned at the base), so the tool turns with the part's yaw.
     """
     from kinredund.paths import Circle
+    from kinredund.tasks import get_task
 
-    Q = robot.fk(robot.home)[:3, :3] if robot.task == "pose" else None
+    Q = robot.fk(robot.home)[:3, :3] if get_task(robot.task).has_orientation else None
     return Circle(np.zeros(3), radius, speed, normal=tuple(normal), axis_x=axis_x, orientation=Q)
 
 

@@ -68,13 +68,14 @@ def _count(minimum: int):
 def add_parser(sub) -> None:
     """Register the ``sweep`` subcommand on the subparsers ``sub`` of :func:`kinredund.ui.cli.build_parser`."""
     from kinredund.sweep.record import CRITERIA
+    from kinredund.tasks import task_names
 
     p = sub.add_parser("sweep", help="placement sweep: track a part's closed path at many part poses (Dask)",
                        description="Track a closed path given in a part frame with the part at every placement "
                                    "of a grid; report which placements are feasible and the best ones.")
     p.add_argument("robot", help="a robot name (see `kinredund robots`) or a URDF path")
     p.add_argument("--ee-frame", help="the end-effector frame (default: the robot's)")
-    p.add_argument("--task", choices=("planar", "position", "pose"), help="task kind (default: the robot's)")
+    p.add_argument("--task", choices=task_names(), help="task kind (default: the robot's)")
     p.add_argument("--path", choices=("circle", "file"), default="circle",
                    help="circle: a circle about the part origin; file: a JSON path in part coordinates")
     p.add_argument("--path-file", type=Path, help="for --path file: JSON with 't' [s], 'p' [m], optionally 'Q'")
