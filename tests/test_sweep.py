@@ -373,3 +373,18 @@ def test_benchmark_reports_throughput_and_speedup():
     assert 0.0 < res["parallel_capacity"] and 0.0 < row["worker_busy"] <= 1.0
     assert row["serial_per_s"] > 0 and row["cluster_per_s"] > 0 and row["speedup"] == pytest.approx(
         row["serial_s"] / row["cluster_s"], rel=1e-12)
+
+
+def test_speed_ratio_scales_with_the_path_speed_and_speed_limit_makes_it_infeasible():
+    """Ten times the speed over the same circle: the same joint path (the index does not depend on time, the
+    steps fall on the same points), so ten times the joint speeds, to the corrector's 1e-12 on the points."""
+    from kinredund.sweep.placement import part_circle
+
+    robot, path, index, pose = problem()
+    fast = part_circle(robot, path.radius, 10 * path.speed, normal=(1.0, 0.0, 0.0), axis_x=(0.0, 1.0, 0.0))
+    slow_rec = evaluate_placement(robot, path, index, pose, 0, SweepOptions())
+    fast_rec = evaluate_placement(robot, fast, index, pose, 0, SweepOptions())
+    assert fast_rec.feasible and fast_rec.speed_ratio == pytest.approx(10 * slow_rec.speed_ratio, rel=1e-6)
+    assert fast_rec.speed_ratio > 1.0
+    limited = evaluate_placement(robot, fast, index, pose, 0, SweepOptions(speed_limit=True))
+    assert not limited.feasible and limited.cause == "speed" and "velocity limit" in limited.message

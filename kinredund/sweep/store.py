@@ -68,11 +68,11 @@ def resumable_records(path: str | Path, header: dict, placements: np.ndarray) ->
     """The records of ``path`` a sweep with ``header`` and ``placements`` can keep, by placement number.
 
     Raises:
-        KinredundError: the file belongs to another sweep (another robot, path, index, options or set of
-            placements): resuming from it would mix two sweeps.
+        KinredundError: the file belongs to another sweep (another robot, path, index, options, set of
+            placements, or a tracker with(out) hard joint limits): resuming from it would mix two sweeps.
     """
     head, records = read_sweep_file(path)
-    for key in ("token", "placements"):
+    for key in ("token", "placements", "tracker_limits"):  # same job, same placements, same kind of tracker
         if head.get(key) != header[key]:
             raise KinredundError(
                 f"{path} was written by another sweep ({key}: {head.get(key)!r} here, {header[key]!r} now): "
