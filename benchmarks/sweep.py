@@ -19,7 +19,8 @@ the cost grows with the grid size N. The serial and cluster records are compared
 cause must agree). Two figures say how far the machine let it go: the parallel capacity (how many
 cores ``--workers`` busy processes get right now, from a busy loop: the ceiling of any speed-up) and
 each timed cluster sweep's worker busy fraction (compute time per worker over the wall time, from
-Dask's task stream: 1 means no worker ever waited for work).
+Dask's task stream: 1 means no worker ever waited for work), and the CPU share this process (client
+and in-process scheduler) took meanwhile, which the workers do not get on a 2-core machine.
 
 The figures are wall times: on a shared machine they move with the load (run it on a quiet one). The
 default run (sides 3, 5, 8: 18, 50 and 128 placements) takes about 30 s on an unloaded 2-core machine.
@@ -114,15 +115,15 @@ def bench(sides, workers: int = 2, batch_size: int | None = None) -> dict:
             serial = sweep(robot, path, index, P, workers=0, batch_size=batch_size)
             t_serial = time.perf_counter() - t0
             with get_task_stream(client=client) as stream:
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 parallel = sweep(robot, path, index, P, client=client, batch_size=batch_size)
-                t_cluster = time.perf_counter() - t0
+                t_cluster, c_client = time.perf_counter() - t0, time.process_time() - c0
             agree = all(a.feasible == b.feasible and a.cause == b.cause for a, b in zip(serial, parallel, strict=True))
             rows.append({"side": side, "placements": len(P), "serial_s": t_serial, "cluster_s": t_cluster,
                          "serial_per_s": len(P) / t_serial, "cluster_per_s": len(P) / t_cluster,
                          "speedup": t_serial / t_cluster, "serial_ms_per_placement": 1e3 * t_serial / len(P),
                          "feasible": sum(r.feasible for r in serial), "records_agree": agree,
-                         "worker_busy": _busy(stream.data, t_cluster)})
+                         "worker_busy": _busy(stream.data, t_cluster), "client_cpu": c_client / t_cluster})
     finally:
         client.close()
         cluster.close()
@@ -149,10 +150,10 @@ def main() -> None:
     print(f"local cluster of {res['workers']} workers: start-up {res['cluster_startup_s']:.2f} s, "
           f"warm-up sweep {res['warmup_s']:.2f} s (not in the timings)")
     print_table([[r["placements"], r["serial_s"], r["cluster_s"], r["serial_per_s"], r["cluster_per_s"],
-                  r["speedup"], r["serial_ms_per_placement"], r["worker_busy"], r["feasible"], r["records_agree"]]
-                 for r in res["grids"]],
+                  r["speedup"], r["serial_ms_per_placement"], r["worker_busy"], r["client_cpu"], r["feasible"],
+                  r["records_agree"]] for r in res["grids"]],
                 ["placements", "serial s", "cluster s", "serial /s", "cluster /s", "speed-up", "ms each", "busy",
-                 "feasible", "agree"])
+                 "client cpu", "feasible", "agree"])
     for key, fit in res["fits"].items():
         print(f"{key}: {fit['intercept_s']:.3f} s + {fit['per_placement_ms']:.2f} ms x N")
     write_json(args.json, res)
