@@ -96,7 +96,8 @@ class DaskCluster:
         log = open(tmp / "dask.log", "w")  # noqa: SIM115 - closed in stop()
         self.log = log
         self.procs = [subprocess.Popen([str(dask), "scheduler", "--host", "127.0.0.1", "--port", "0",
-                                        "--no-dashboard", "--scheduler-file", str(self.file)],
+                                        "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
+                                        "--scheduler-file", str(self.file)],
                                        stdout=log, stderr=log, env=env)]
         deadline = time.monotonic() + 60
         while not self.file.exists() and time.monotonic() < deadline:
@@ -104,8 +105,17 @@ class DaskCluster:
         for _ in range(2):
             self.procs.append(subprocess.Popen(
                 [str(dask), "worker", "--scheduler-file", str(self.file), "--host", "127.0.0.1", "--nthreads", "1",
-                 "--nworkers", "1", "--no-dashboard", "--memory-limit", "0"], stdout=log, stderr=log, env=env))
+                 "--nworkers", "1", "--no-dashboard", "--dashboard-address", "127.0.0.1:0", "--memory-limit", "0"],
+                stdout=log, stderr=log, env=env))
         self.address = json.loads(self.file.read_text())["address"]
+
+    def listening(self) -> set[str]:
+        """The addresses the cluster's processes (nannies' workers too) listen on."""
+        import psutil  # a dependency of distributed
+
+        procs = [psutil.Process(p.pid) for p in self.procs]
+        procs += [c for p in procs for c in p.children(recursive=True)]
+        return {c.laddr.ip for p in procs for c in p.net_connections(kind="tcp") if c.status == psutil.CONN_LISTEN}
 
     def stop(self) -> None:
         for p in reversed(self.procs):  # workers first, then the scheduler; each by its own pid
@@ -137,6 +147,7 @@ def test_panda_sweep_is_the_same_serially_on_a_local_cluster_and_on_a_real_clust
             assert_same_records(serial, run_panda(client=client))  # client=: the caller's client, left open
             assert client.status == "running"
         assert_same_records(serial, run_panda(scheduler=cluster.address, batch_size=3))
+        assert cluster.listening() == {"127.0.0.1"}  # scheduler, nannies, workers and their HTTP routes
     finally:
         cluster.stop()
     assert all(p.poll() is not None for p in cluster.procs)
