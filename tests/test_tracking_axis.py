@@ -56,3 +56,19 @@ def test_axis_task_tracks_a_circle_and_closes(name, scheme):
     assert np.abs(axes - (0.0, 0.0, -1.0)).max() < 1e-10  # held normal to the plane
     spins = np.unwrap([_spin(r.fk(q)[:3, :3]) for q in tr.q[: 201 : 10]])
     assert np.ptp(spins) > 1e-2  # the free spin is used: it changes along the loop
+
+
+@pytest.mark.parametrize("scheme", ["augmented", "velocity", "pseudoinverse"])
+def test_a_non_redundant_task_tracks_its_unique_solution(scheme):
+    """The UR5 pose task (n = m = 6): the index is irrelevant, every scheme tracks the unique solution
+    and the joints close (the recorder's labels with an empty null space)."""
+    r = kinredund.load_robot("ur5", task="pose")
+    T = r.fk(r.home)
+    path = Circle(T[:3, 3] - np.array([0.05, 0.0, 0.0]), 0.05, 0.1, orientation=T[:3, :3])
+    index = JointDeviation(r.home)
+    start = solve_ik(r, path(0.0), index)
+    assert start.converged and "n = m" in start.notes
+    tr = track(r, path, None if scheme == "pseudoinverse" else index, start.q, scheme=scheme, loops=2)
+    assert tr.loop_drift.max() <= 1e-10 and tr.position_error.max() <= 1e-10
+    if scheme != "pseudoinverse":
+        assert tr.m_null_eigs.shape == (len(tr.t), 0)
