@@ -77,7 +77,8 @@ def _cmd_retime(args) -> int:
     kind = "jerk-limited (smoothed TOPP-RA)" if law.kind == "jerk" else "time-optimal (TOPP-RA)"
     shape = "periodic, loops chain without a stop" if res.path.closed else "open path, rest to rest"
     print(f"{robot.name}: retimed {kind}, {shape}")
-    print(f"  {'duration':24s} {res.path.period:.6g} s -> {law.duration:.6g} s" + (" per loop" if res.path.closed else ""))
+    per = " per loop" if res.path.closed else ""
+    print(f"  {'duration':24s} {res.path.period:.6g} s -> {law.duration:.6g} s{per}")
     print(f"  {'samples':24s} {len(out.t)} ({res.loops} loop(s))")
     print(f"  {'max |qdot| / vmax':24s} {float(np.max(np.abs(out.qdot) / limits.velocity)):.9f}")
     print(f"  {'max |qddot| / amax':24s} {float(np.max(np.abs(out.qddot) / limits.acceleration)):.9f}")
