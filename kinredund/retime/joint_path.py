@@ -19,6 +19,7 @@ may come back turned by whole turns (its spline then carries the turns as a line
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.interpolate import make_interp_spline
@@ -68,13 +69,14 @@ class JointPath:
             bc = "periodic"
         object.__setattr__(self, "_rate", rate)
         object.__setattr__(self, "_spline", make_interp_spline(s, r, k=5, bc_type=bc))
-        object.__setattr__(self, "_tool", make_interp_spline(s, self._p_closed(), k=5, bc_type=bc))
 
-    def _p_closed(self) -> np.ndarray:
+    @cached_property
+    def _tool(self):
+        """The quintic spline of the tool's path points (built when a tool-speed limit asks for it)."""
         p = self.p.copy()
         if self.closed:
             p[-1] = p[0]
-        return p
+        return make_interp_spline(self.s, p, k=5, bc_type="periodic" if self.closed else None)
 
     @property
     def period(self) -> float:
