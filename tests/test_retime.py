@@ -199,6 +199,41 @@ def test_bad_limits_are_refused(bad):
         limits_for(robot, PANDA_AMAX, jerk=bad)
 
 
+def test_bad_tool_speed_is_refused():
+    for bad in (0.0, -0.1, float("nan"), "fast"):
+        with pytest.raises(RetimeError, match="tool-speed limit"):
+            limits_for(problem()[0], PANDA_AMAX, tool_speed=bad)
+
+
+def test_a_joint_that_turns_once_per_loop_keeps_turning():
+    # the joint path with joint 1 turned by a whole turn over the loop: closed modulo 2 pi
+    robot = problem()[0]
+    tr = tracked()
+    turned = tr.q.copy()
+    turned[:, 0] += 2 * np.pi * tr.t / tr.loop_period
+    res = retime(replace(tr, q=turned), limits_for(robot, PANDA_AMAX, velocity=20.0), robot=robot, loops=3)
+    q = res.trajectory.q
+    assert abs(q[-1, 0] - q[0, 0] - 3 * 2 * np.pi) <= 1e-10 and np.abs(q[-1, 1:] - q[0, 1:]).max() <= 1e-10
+    assert np.max(res.trajectory.loop_drift) <= 1e-10  # modulo 2 pi
+    v, a = ratios(res)
+    assert v <= 1.0 + REL and a <= 1.0 + REL
+    # the velocity is the derivative of the positions across a seam, where the turn is added
+    T, h = res.loop_duration, 1e-6
+    fd = (res.interpolate([T + h])[0] - res.interpolate([T - h])[0]) / (2 * h)
+    assert np.abs(fd - res.interpolate([T])[1]).max() <= 1e-5
+
+
+def test_plot_of_a_retimed_record(tmp_path):
+    from kinredund.errors import KinredundError
+    from kinredund.ui.plots_retime import plot_retimed
+
+    out = plot_retimed(retimed(loops=2).trajectory, tmp_path / "r.png")
+    assert out.read_bytes()[:4] == b"\x89PNG" and out.stat().st_size > 20_000
+    with pytest.raises(KinredundError, match="retime it first"):
+        plot_retimed(tracked(), tmp_path / "t.png")
+    assert not (tmp_path / "t.png").exists()
+
+
 def test_urdf_velocity_limits_are_the_default():
     robot = problem()[0]
     lim = limits_for(robot, 10.0)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, check_positive
 
 
 class RetimeError(KinredundError, ValueError):
@@ -70,9 +70,7 @@ class Limits:
         v = _positive_vector(velocity, n, "joint velocity limit [rad/s or m/s]")
         a = _positive_vector(acceleration, n, "joint acceleration limit [rad/s^2 or m/s^2]")
         j = None if jerk is None else _positive_vector(jerk, n, "joint jerk limit [rad/s^3 or m/s^3]")
-        ts = None
-        if tool_speed is not None:
-            ts = float(_positive_vector(tool_speed, 1, "tool-speed limit [m/s]")[0])
+        ts = None if tool_speed is None else check_positive(tool_speed, "tool-speed limit [m/s]", RetimeError)
         for arr in (v, a, j):
             if arr is not None:
                 arr.flags.writeable = False
