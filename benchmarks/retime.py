@@ -18,7 +18,6 @@ left out (a warm-up run).
 
 from __future__ import annotations
 
-import numpy as np
 from _bench import parser, print_table, time_calls, write_json
 
 from kinredund.model.robot import load_robot

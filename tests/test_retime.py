@@ -17,7 +17,7 @@ from conftest import robot as cached_robot
 from kinredund.problems import panda_circle
 from kinredund.retime import Limits, RetimeError, limits_for, retime
 from kinredund.tracking.resolved_rate import track
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import PER_POINT_FIELDS, Trajectory
 
 #: Franka's documented joint acceleration limits [rad/s^2] (the URDF has none)
 PANDA_AMAX = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
@@ -254,8 +254,7 @@ def test_records_that_are_not_joint_paths_are_refused():
         retime(replace(tr, q=drifting), lim, robot=robot)
     with pytest.raises(RetimeError, match="samples"):
         retime(replace(tr, t=tr.t[:5], q=tr.q[:5], p=tr.p[:5], p_desired=tr.p_desired[:5], solver=(),
-                       loop_period=None, **{k: None for k in ("lam", "m_eigs", "m_null_eigs", "position_error",
-                                                              "trace_error", "vect_error", "normality_residual")}),
+                       loop_period=None, **dict.fromkeys(PER_POINT_FIELDS)),
                lim, robot=robot)
     with pytest.raises(RetimeError, match="Trajectory"):
         retime({"t": [0, 1]}, lim, robot=robot)
