@@ -144,6 +144,16 @@ def test_cli_retime_writes_json_csv_bag_and_plot(tmp_path):
     assert (tmp_path / "r.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_cli_retime_rest_to_rest_bag_starts_and_ends_at_rest(tmp_path):
+    records()[0].save_json(tmp_path / "tr.json")
+    out = run("retime", "tr.json", "--amax", PANDA_AMAX, "--loops", "2", "--rest-to-rest", "--bag", "rb", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "from rest to rest" in out.stdout
+    back = read_bag(tmp_path / "rb")
+    assert back.t[0] == 0.0 and len(back.t) == 2 * 100 + 1
+    assert np.abs(back.qdot[0]).max() == 0.0 and np.abs(back.qdot[-1]).max() == 0.0
+
+
 def test_cli_export(tmp_path):
     records()[1].save_json(tmp_path / "r.json")
     out = run("export", "r.json", "--csv", "r.csv", "--bag", "rb", cwd=tmp_path)

@@ -167,6 +167,24 @@ def test_an_open_path_is_retimed_from_rest_to_rest():
     assert res.loop_duration > retimed().loop_duration  # starting and stopping costs time
 
 
+def test_chained_loops_from_rest_to_rest():
+    robot = problem()[0]
+    res = retime(tracked(), limits_for(robot, PANDA_AMAX), robot=robot, loops=4, rest_to_rest=True)
+    tr, N = res.trajectory, 200
+    assert res.rest_to_rest and len(tr.t) == 4 * N + 1 and tr.loop_period is None
+    assert np.abs(tr.qdot[0]).max() == 0.0 and np.abs(tr.qdot[-1]).max() == 0.0
+    v, a = ratios(res)
+    assert v <= 1.0 + REL and a <= 1.0 + REL
+    assert np.abs(tr.q[-1] - tr.q[0]).max() <= 1e-10
+    # the loops in between run the periodic law: the ramps fit in the first and last loops
+    periodic = retimed()
+    assert abs((tr.t[3 * N] - tr.t[2 * N]) - periodic.loop_duration) <= 1e-6 * periodic.loop_duration
+    assert np.abs(tr.qdot[N:3 * N] - periodic.trajectory.qdot[:2 * N]).max() <= 1e-6 * robot.model.velocityLimit.max()
+    # starting and stopping cost time, but less than a stop after every loop
+    open_loop = retime(tracked(), limits_for(robot, PANDA_AMAX), robot=robot, closed=False).loop_duration
+    assert 4 * periodic.loop_duration < res.duration < 4 * open_loop
+
+
 def test_retimed_record_json_round_trip(tmp_path):
     tr = retimed(loops=2).trajectory
     tr.save_json(tmp_path / "r.json")

@@ -10,6 +10,10 @@ qdot = q'(s) sd and qddot = q'(s) sdd + q''(s) sd^2 there. Between samples, the 
 theta(s) of the samples (:mod:`kinredund.retime.joint_path`): on the Panda benchmark circle at 200
 samples per loop the tool is within ~1e-11 m of its path there.
 
+A periodic law's loops start and end at the loop's speed; ``rest_to_rest=True`` makes one time-optimal
+law over all the chained loops instead, from rest to rest (what a controller starting from standstill
+can run as it is).
+
 The output times are whole nanoseconds (a ROS ``builtin_interfaces/Duration`` holds no finer), moved by
 less than 0.5 ns from the time law's: far below any controller's period, and the exported files give
 back exactly the record's times.
@@ -30,7 +34,7 @@ import numpy as np
 from kinredund.kinematics.angles import joint_drift
 from kinredund.retime.joint_path import JointPath, joint_path
 from kinredund.retime.limits import Limits, RetimeError
-from kinredund.retime.time_law import TimeLaw, jerk_law, sample_ratios, toppra_law
+from kinredund.retime.time_law import TimeLaw, jerk_law, rest_to_rest_law, sample_ratios, toppra_law
 from kinredund.trajectory import PER_POINT_FIELDS, Trajectory
 
 #: a limit counts as active at a sample within this fraction of it (the time-optimality measure)
@@ -48,9 +52,10 @@ class RetimeResult:
         trajectory: the retimed :class:`~kinredund.trajectory.Trajectory` (``loops`` loops chained for a
             closed path), with ``qdot`` and ``qddot``.
         path: the joint path theta*(s) it follows.
-        law: the time law of one loop (or of the open path).
+        law: the time law of one loop (or of the open path, or of all the loops from rest to rest).
         limits: the limits it holds at every sample.
         loops: loops chained (1 for an open path).
+        rest_to_rest: the chained loops start and end at rest (one law over all of them).
         active_fraction: the fraction of a loop's samples where some limit is within 1 % (time-optimal
             laws have one active almost everywhere).
         notes: remarks (a time-varying index, the record's own loop drift).
@@ -63,33 +68,30 @@ class RetimeResult:
     loops: int
     active_fraction: float
     notes: tuple[str, ...] = ()
+    rest_to_rest: bool = False
 
     @property
     def loop_duration(self) -> float:
-        """The time of one loop (of the whole open path) under the new law [s]."""
+        """The time of one loop (of the whole open path; of all the loops from rest to rest) [s]."""
         return self.law.duration
+
+    @property
+    def duration(self) -> float:
+        """The time of the whole retimed record [s]."""
+        return float(self.trajectory.t[-1] - self.trajectory.t[0])
 
     def path_parameter(self) -> np.ndarray:
         """s at each output sample, counted on over chained loops [s], shape (N_out,)."""
-        N = len(self.law.s) - 1
-        if not self.path.closed:
-            return self.law.s.copy()
-        k = np.arange(self.loops * N + 1)
-        return self.law.s[k % N] + (k // N) * self.path.period
+        return _samples(self.path, self.law, self.loops, self.rest_to_rest)[1]
 
     def jerk(self) -> np.ndarray | None:
         """qdddot at each output sample (jerk-limited law), shape (N_out, n), else None."""
         if self.law.sddd is None:
             return None
-        s = self.path_parameter()
-        rows = self._rows()
+        rows, s, _ = _samples(self.path, self.law, self.loops, self.rest_to_rest)
         sd, sdd, sddd = self.law.sd[rows], self.law.sdd[rows], self.law.sddd[rows]
         p = self.path
         return p(s, 1) * sddd[:, None] + 3.0 * p(s, 2) * (sd * sdd)[:, None] + p(s, 3) * (sd ** 3)[:, None]
-
-    def _rows(self) -> np.ndarray:
-        N = len(self.law.s) - 1
-        return np.arange(N + 1) if not self.path.closed else np.r_[np.tile(np.arange(N), self.loops), 0]
 
     def interpolate(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, qdot, qddot) at times t [s] between the samples: the shipped interpolation.
@@ -100,9 +102,8 @@ class RetimeResult:
         """
         t = np.atleast_1d(np.asarray(t, dtype=float)) - float(self.trajectory.t[0])
         T = self.law.duration
-        k = np.floor(t / T) if self.path.closed else np.zeros_like(t)
-        if self.path.closed:
-            k = np.clip(k, 0, self.loops - 1)
+        periodic = self.path.closed and not self.rest_to_rest
+        k = np.clip(np.floor(t / T), 0, self.loops - 1) if periodic else np.zeros_like(t)
         s, sd, sdd = self.law.at(t - k * T)
         s = s + k * self.path.period
         p = self.path
@@ -116,7 +117,7 @@ def _nanoseconds(t: np.ndarray) -> np.ndarray:
 
 
 def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = None, closed: bool | None = None,
-           index=None) -> RetimeResult:
+           rest_to_rest: bool = False, index=None) -> RetimeResult:
     """Retime a tracked record under ``limits``: time-optimal (TOPP-RA), or jerk-limited if ``limits.jerk``.
 
     Args:
@@ -125,6 +126,9 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
         robot: the robot (default: loaded from ``traj.robot``); gives the joint count and kinds.
         loops: loops to chain for a closed path (default: as many as the record holds).
         closed: False retimes a closed record as an open path from rest to rest (one pass over all of it).
+        rest_to_rest: for a closed path, the chained loops start and end at rest: one time-optimal law over
+            all of them (the first loop speeds up, the last slows down); default a periodic loop law,
+            whose loops chain without a stop but start and end at the loop's speed.
         index: the index the record was tracked with, if known (a time-varying one gets a note).
 
     Returns:
@@ -144,43 +148,57 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
     if not isinstance(limits, Limits) or limits.velocity.shape != (robot.nq,):
         raise RetimeError(f"limits must be a kinredund.retime.Limits for {robot.nq} joints (limits_for builds them)")
     jp = joint_path(traj, robot.revolute, closed)
-    law = toppra_law(jp, limits)
+    n_loops = 1
+    if jp.closed:
+        n_loops = loops if loops is not None else max(1, int(round((traj.t[-1] - traj.t[0]) / jp.period)))
+        if isinstance(n_loops, bool) or int(n_loops) != n_loops or n_loops < 1:
+            raise RetimeError(f"loops must be an integer >= 1, got {loops!r}")
+        n_loops = int(n_loops)
+    rest = bool(rest_to_rest) and jp.closed
+    if rest and limits.jerk is not None:
+        raise RetimeError("the jerk-limited law is periodic: it does not start or stop at rest (drop rest_to_rest or "
+                          "the jerk limit)")
+    law = rest_to_rest_law(jp, limits, n_loops) if rest else toppra_law(jp, limits)
     if limits.jerk is not None:
         law = jerk_law(jp, limits, law)
     ratios = sample_ratios(jp, law, limits)
     worst = np.max(np.stack(list(ratios.values())), axis=0)
-    loop = worst[:-1] if jp.closed else worst  # a closed loop's last sample is its first
+    loop = worst[:-1] if jp.closed and not rest else worst  # a periodic loop's last sample is its first
     active = float(np.mean(loop >= 1.0 - ACTIVE_WITHIN))
     notes = []
     if (index is not None and getattr(index, "time_varying", False)) or "planner" in traj.meta:
         notes.append(TIME_VARYING_NOTE)
-    if jp.closed:
-        n_loops = loops if loops is not None else max(1, int(round((traj.t[-1] - traj.t[0]) / jp.period)))
-        if int(n_loops) < 1:
-            raise RetimeError(f"loops must be an integer >= 1, got {loops!r}")
-        n_loops = int(n_loops)
-        if jp.drift > 0.0:
-            notes.append(f"the record's joints drift by {jp.drift:.3g} rad over its first loop; the retimed loops "
-                         "close exactly on its first sample")
-    else:
-        n_loops = 1
-    out = _chained_record(traj, jp, law, limits, n_loops, robot.revolute, active, notes)
-    return RetimeResult(out, jp, law, limits, n_loops, active, tuple(notes))
+    if jp.closed and jp.drift > 0.0:
+        notes.append(f"the record's joints drift by {jp.drift:.3g} rad over its first loop; the retimed loops "
+                     "close exactly on its first sample")
+    out = _chained_record(traj, jp, law, limits, n_loops, rest, robot.revolute, active, notes)
+    return RetimeResult(out, jp, law, limits, n_loops, active, tuple(notes), rest)
 
 
-def _chained_record(traj: Trajectory, jp: JointPath, law: TimeLaw, limits: Limits, loops: int, revolute,
-                    active: float, notes: list) -> Trajectory:
+def _samples(jp: JointPath, law: TimeLaw, loops: int, rest: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, s, t) of the output samples: the law's row of each, its path parameter [s] and time [s].
+
+    A periodic loop law repeats over the loops (the last sample closing on the first); a rest-to-rest law
+    and an open path's law have a row for every output sample.
+    """
+    N = len(jp.s) - 1
+    if not jp.closed:
+        return np.arange(N + 1), jp.s, law.t
+    k = np.arange(loops * N + 1)
+    s = jp.s[k % N] + (k // N) * jp.period
+    if rest:
+        return k, s, law.t
+    return k % N, s, law.t[k % N] + (k // N) * law.duration
+
+
+def _chained_record(traj: Trajectory, jp: JointPath, law: TimeLaw, limits: Limits, loops: int, rest: bool,
+                    revolute, active: float, notes: list) -> Trajectory:
     """The retimed record: the loop's samples chained ``loops`` times (closing on the first sample)."""
     N = len(jp.s) - 1
-    if jp.closed:
-        k = np.arange(loops * N + 1)
-        rows, lap = k % N, k // N
-        t = law.t[rows] + lap * law.duration
-        s = jp.s[rows] + lap * jp.period
-    else:
-        rows, lap = np.arange(N + 1), np.zeros(N + 1, dtype=int)
-        t, s = law.t, jp.s
-    src = jp.rows[rows]  # the record's rows
+    rows, s, t = _samples(jp, law, loops, rest)
+    k = np.arange(len(s))
+    lap = k // N if jp.closed else np.zeros(len(s), dtype=int)
+    src = jp.rows[k % N] if jp.closed else jp.rows  # the record's rows
     q = traj.q[src] + np.outer(lap, 2.0 * np.pi * jp.turns)
     q1, q2 = jp(s, 1), jp(s, 2)
     sd, sdd = law.sd[rows], law.sdd[rows]
@@ -197,7 +215,8 @@ def _chained_record(traj: Trajectory, jp: JointPath, law: TimeLaw, limits: Limit
     meta = {key: value for key, value in traj.meta.items() if key != "dt"}
     meta["retime"] = {"law": law.kind, "limits": limits.to_dict(), "loop_duration": law.duration,
                       "original_duration": jp.period, "scale": law.scale, "window": law.window,
-                      "active_fraction": active, "loops": loops, "closed": jp.closed, "notes": list(notes)}
+                      "active_fraction": active, "loops": loops, "closed": jp.closed, "rest_to_rest": rest,
+                      "notes": list(notes)}
     return replace(traj, t=t, q=q, qdot=qdot, qddot=qddot, p=traj.p[src], p_desired=traj.p_desired[src],
                    solver=tuple(traj.solver[i] for i in src) if traj.solver else (), loop_drift=drift,
-                   loop_period=law.duration if jp.closed else None, meta=meta, **kw).checked()
+                   loop_period=law.duration if jp.closed and not rest else None, meta=meta, **kw).checked()

@@ -29,6 +29,8 @@ the joints then move as theta(t) = theta*(s(t)), with
   continuous and sddd = sd (sd^2)''/2 bounded. One uniform time scaling then brings the velocity,
   acceleration and jerk at every sample within their limits. The window w is chosen among 1, 2, 4, ...
   samples for the shortest loop. Closed paths only (a periodic law, no stop).
+- :func:`rest_to_rest_law`: chained loops of a closed path that start and end at rest (TOPP-RA over all
+  of them), for a controller that starts from standstill.
 """
 
 from __future__ import annotations
@@ -265,6 +267,23 @@ def toppra_law(jp: JointPath, limits: Limits) -> TimeLaw:
             return _scale_into_limits(jp, _with_times(jp.s, sd, True), limits)
     raise RetimeError("no periodic time law found: the speed at the start of a loop still differs from the speed at "
                       f"its end after 9 chained loops ({sd[0]:.6g} against {sd[-1]:.6g})")
+
+
+def rest_to_rest_law(jp: JointPath, limits: Limits, loops: int) -> TimeLaw:
+    """The time-optimal law over ``loops`` laps of a closed joint path, from rest to rest.
+
+    One TOPP-RA run over all the laps (their samples as grid points): the first lap speeds up, the last
+    slows down, and the laps in between repeat the periodic law of :func:`toppra_law` once the ramps
+    fit in a lap. What a controller that starts and ends at rest can run as it is.
+
+    Raises:
+        RetimeError: an open path, or TOPP-RA finds no law.
+    """
+    if not jp.closed:
+        raise RetimeError("a rest-to-rest law over loops needs a closed path (an open path is always retimed from rest "
+                          "to rest)")
+    grid, sd = _toppra_run(jp, limits, loops)
+    return _scale_into_limits(jp, _with_times(grid, sd, False), limits)
 
 
 def _running(x: np.ndarray, w: int, how) -> np.ndarray:

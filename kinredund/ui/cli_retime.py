@@ -71,13 +71,17 @@ def _cmd_retime(args) -> int:
     traj = Trajectory.load_json(args.result)
     robot = load_robot(traj.robot, task=traj.task)
     limits = limits_for(robot, args.amax, velocity=args.vmax, jerk=args.jmax, tool_speed=args.tool_speed)
-    res = retime(traj, limits, robot=robot, loops=args.loops, closed=False if args.open else None)
+    res = retime(traj, limits, robot=robot, loops=args.loops, closed=False if args.open else None,
+                 rest_to_rest=args.rest_to_rest)
     out = res.trajectory
     law = res.law
     kind = "jerk-limited (smoothed TOPP-RA)" if law.kind == "jerk" else "time-optimal (TOPP-RA)"
-    shape = "periodic, loops chain without a stop" if res.path.closed else "open path, rest to rest"
+    if res.rest_to_rest:
+        shape = f"{res.loops} loop(s) from rest to rest"
+    else:
+        shape = "periodic, loops chain without a stop" if res.path.closed else "open path, rest to rest"
     print(f"{robot.name}: retimed {kind}, {shape}")
-    per = " per loop" if res.path.closed else ""
+    per = " per loop" if res.path.closed and not res.rest_to_rest else ""
     print(f"  {'duration':24s} {res.path.period:.6g} s -> {law.duration:.6g} s{per}")
     print(f"  {'samples':24s} {len(out.t)} ({res.loops} loop(s))")
     print(f"  {'max |qdot| / vmax':24s} {float(np.max(np.abs(out.qdot) / limits.velocity)):.9f}")
@@ -121,6 +125,10 @@ def add_parsers(sub) -> None:
     p.add_argument("--tool-speed", type=float, help="speed limit of the tool along its path [m/s]")
     p.add_argument("--loops", type=_count, help="loops to chain (closed paths; default: as many as the record has)")
     p.add_argument("--open", action="store_true", help="retime a closed record as an open path from rest to rest")
+    p.add_argument("--rest-to-rest", action="store_true",
+                   help="closed paths: start the first loop from rest and stop at the end of the last (one "
+                        "time-optimal law over all loops), for a controller that starts from standstill; default a "
+                        "periodic loop law, which starts and ends at the loop's speed")
     p.add_argument("--json", type=Path, help="write the retimed record (with qdot, qddot) as JSON")
     p.add_argument("--csv", type=Path, help="write it as CSV: t, q_<joint>..., qdot_<joint>..., qddot_<joint>...")
     p.add_argument("--bag", type=Path, help="write it as a ROS 2 bag folder (must not exist): one "
