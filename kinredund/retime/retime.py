@@ -37,6 +37,8 @@ from kinredund.retime.limits import Limits, RetimeError
 from kinredund.retime.time_law import TimeLaw, jerk_law, rest_to_rest_law, sample_ratios, toppra_law
 from kinredund.trajectory import PER_POINT_FIELDS, Trajectory
 
+#: a record's loop drift [rad] above which the result notes it (below: round-off of the tracker)
+DRIFT_NOTE = 1e-12
 #: a limit counts as active at a sample within this fraction of it (the time-optimality measure)
 ACTIVE_WITHIN = 0.01
 TIME_VARYING_NOTE = ("time-varying index (the Chapter 6 reference theta*(t), Eq. 6.25): the joint path was retimed as "
@@ -168,7 +170,7 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
     notes = []
     if (index is not None and getattr(index, "time_varying", False)) or "planner" in traj.meta:
         notes.append(TIME_VARYING_NOTE)
-    if jp.closed and jp.drift > 0.0:
+    if jp.closed and jp.drift > DRIFT_NOTE:
         notes.append(f"the record's joints drift by {jp.drift:.3g} rad over its first loop; the retimed loops "
                      "close exactly on its first sample")
     out = _chained_record(traj, jp, law, limits, n_loops, rest, robot.revolute, active, notes)
