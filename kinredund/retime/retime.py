@@ -8,7 +8,7 @@ and gives each a new time t_k from the time law (:mod:`kinredund.retime.time_law
 qdot = q'(s) sd and qddot = q'(s) sdd + q''(s) sd^2 there. Between samples, the shipped interpolation
 (:meth:`RetimeResult.interpolate`) is the time law evaluated as it is defined and the quintic spline
 theta(s) of the samples (:mod:`kinredund.retime.joint_path`): on the Panda benchmark circle at 200
-samples per loop the tool is within ~1e-11 m of its path there.
+samples per loop the tool is within ~1e-13 m of its path there.
 
 A periodic law's loops start and end at the loop's speed; ``rest_to_rest=True`` makes one time-optimal
 law over all the chained loops instead, from rest to rest (what a controller starting from standstill
