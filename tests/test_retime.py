@@ -185,6 +185,27 @@ def test_chained_loops_from_rest_to_rest():
     assert 4 * periodic.loop_duration < res.duration < 4 * open_loop
 
 
+def test_resampling_at_uniform_times_gives_exact_optimal_points():
+    from kinredund.retime import resample
+
+    robot, path, index, _ = problem()
+    res = retimed(loops=2)
+    out = resample(res, 0.005, robot, path, index)
+    assert out.t[-1] == res.trajectory.t[-1] and np.abs(np.diff(out.t)[:-1] - 0.005).max() <= 1e-12
+    info = out.meta["resample"]
+    # each sample solves min z s.t. g = x(s(t_k)) (Eq. 4.3): both optimality conditions to the solve's tolerance
+    assert info["max_residual"] <= 1e-12 and info["max_normality_residual"] <= 1e-12
+    assert info["max_move_from_spline"] <= 1e-9  # the spline's value is already that optimum (~2e-13 rad)
+    assert out.position_error.max() <= 1e-9
+    # between TOPP-RA's grid points the limits hold to ~2e-4 (the constraints are imposed at the grid)
+    assert np.max(np.abs(out.qdot) / res.limits.velocity) <= 1.001
+    assert np.max(np.abs(out.qddot) / res.limits.acceleration) <= 1.001
+    with pytest.raises(RetimeError, match="time-invariant index"):
+        resample(res, 0.005, robot, path, None)
+    with pytest.raises(RetimeError, match="dt"):
+        resample(res, 0.0, robot, path, index)
+
+
 def test_retimed_record_json_round_trip(tmp_path):
     tr = retimed(loops=2).trajectory
     tr.save_json(tmp_path / "r.json")

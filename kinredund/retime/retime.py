@@ -95,6 +95,16 @@ class RetimeResult:
         p = self.path
         return p(s, 1) * sddd[:, None] + 3.0 * p(s, 2) * (sd * sdd)[:, None] + p(s, 3) * (sd ** 3)[:, None]
 
+    def law_at(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, sd, sdd) at the retimed record's times t [s]: the path parameter counted on over chained loops
+        [s], its rate [1] and acceleration [1/s] (:meth:`TimeLaw.at`, loop by loop for a periodic law)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float)) - float(self.trajectory.t[0])
+        T = self.law.duration
+        periodic = self.path.closed and not self.rest_to_rest
+        k = np.clip(np.floor(t / T), 0, self.loops - 1) if periodic else np.zeros_like(t)
+        s, sd, sdd = self.law.at(t - k * T)
+        return s + k * self.path.period, sd, sdd
+
     def interpolate(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, qdot, qddot) at times t [s] between the samples: the shipped interpolation.
 
@@ -102,12 +112,7 @@ class RetimeResult:
         spline theta*(s) of the samples and its derivatives. Times are those of the retimed record
         (0 to its end; chained loops repeat the loop's law).
         """
-        t = np.atleast_1d(np.asarray(t, dtype=float)) - float(self.trajectory.t[0])
-        T = self.law.duration
-        periodic = self.path.closed and not self.rest_to_rest
-        k = np.clip(np.floor(t / T), 0, self.loops - 1) if periodic else np.zeros_like(t)
-        s, sd, sdd = self.law.at(t - k * T)
-        s = s + k * self.path.period
+        s, sd, sdd = self.law_at(t)
         p = self.path
         q1 = p(s, 1)
         return p(s), q1 * sd[:, None], q1 * sdd[:, None] + p(s, 2) * (sd * sd)[:, None]
