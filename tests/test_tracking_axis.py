@@ -10,11 +10,10 @@ import pytest
 import kinredund
 from kinredund.ik import solve_ik
 from kinredund.indices import JointDeviation
-from kinredund.model.robot import erd_share_dir
 from kinredund.paths import Circle
 from kinredund.tasks import make_target
 from kinredund.tasks.axis import frame_with_axis
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 
 #: a regular, well-conditioned start (the UR5's all-zero pose is singular)
 STARTS = {"ur5": np.array([0.3, -1.2, 1.5, -1.9, -1.57, 0.3]), "panda": None}
@@ -22,7 +21,7 @@ STARTS = {"ur5": np.array([0.3, -1.2, 1.5, -1.9, -1.57, 0.3]), "panda": None}
 
 def _case(name: str):
     if name == "ur5":
-        r = kinredund.load_robot(erd_share_dir() / "ur_description/urdf/ur5_robot.urdf", task="axis")
+        r = kinredund.load_robot("ur5")  # the axis task is its default
     else:
         r = kinredund.load_robot("panda", task="axis")
     seed = r.home if STARTS[name] is None else STARTS[name]
@@ -57,3 +56,19 @@ def test_axis_task_tracks_a_circle_and_closes(name, scheme):
     assert np.abs(axes - (0.0, 0.0, -1.0)).max() < 1e-10  # held normal to the plane
     spins = np.unwrap([_spin(r.fk(q)[:3, :3]) for q in tr.q[: 201 : 10]])
     assert np.ptp(spins) > 1e-2  # the free spin is used: it changes along the loop
+
+
+@pytest.mark.parametrize("scheme", ["augmented", "velocity", "pseudoinverse"])
+def test_a_non_redundant_task_tracks_its_unique_solution(scheme):
+    """The UR5 pose task (n = m = 6): the index is irrelevant, every scheme tracks the unique solution
+    and the joints close (the recorder's labels with an empty null space)."""
+    r = kinredund.load_robot("ur5", task="pose")
+    T = r.fk(r.home)
+    path = Circle(T[:3, 3] - np.array([0.05, 0.0, 0.0]), 0.05, 0.1, orientation=T[:3, :3])
+    index = JointDeviation(r.home)
+    start = solve_ik(r, path(0.0), index)
+    assert start.converged and "n = m" in start.notes
+    tr = track(r, path, None if scheme == "pseudoinverse" else index, start.q, scheme=scheme, loops=2)
+    assert tr.loop_drift.max() <= 1e-10 and tr.position_error.max() <= 1e-10
+    if scheme != "pseudoinverse":
+        assert tr.m_null_eigs.shape == (len(tr.t), 0)
