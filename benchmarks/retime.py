@@ -25,7 +25,7 @@ from kinredund.problems import panda_circle
 from kinredund.retime import limits_for, retime
 from kinredund.retime.joint_path import joint_path
 from kinredund.retime.time_law import toppra_law
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 
 AMAX = [15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0]
 JMAX = 500.0

@@ -19,7 +19,7 @@ from conftest import robot as cached_robot
 from kinredund.export import DEFAULT_TOPIC, ExportError, JointSamples, read_bag, read_csv, write_bag, write_csv
 from kinredund.problems import panda_circle
 from kinredund.retime import limits_for, retime
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
 PANDA_AMAX = "15,7.5,10,12.5,15,20,20"

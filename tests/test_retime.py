@@ -16,7 +16,7 @@ from conftest import robot as cached_robot
 
 from kinredund.problems import panda_circle
 from kinredund.retime import Limits, RetimeError, limits_for, retime
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import PER_POINT_FIELDS, Trajectory
 
 #: Franka's documented joint acceleration limits [rad/s^2] (the URDF has none)

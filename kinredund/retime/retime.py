@@ -128,7 +128,7 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
     """Retime a tracked record under ``limits``: time-optimal (TOPP-RA), or jerk-limited if ``limits.jerk``.
 
     Args:
-        traj: a tracking record (``kinredund.tracking.resolved_rate.track`` or its JSON).
+        traj: a tracking record (``kinredund.tracking.track`` or its JSON).
         limits: the limits (:func:`kinredund.retime.limits.limits_for` builds them from the URDF).
         robot: the robot (default: loaded from ``traj.robot``); gives the joint count and kinds.
         loops: loops to chain for a closed path (default: as many as the record holds).
