@@ -273,6 +273,16 @@ def test_plot_of_a_retimed_record(tmp_path):
     assert not (tmp_path / "t.png").exists()
 
 
+def test_a_record_with_rates_of_the_wrong_shape_is_refused():
+    from kinredund.errors import JointVectorError
+
+    tr = retimed(loops=1).trajectory
+    with pytest.raises(JointVectorError, match="qdot"):
+        replace(tr, qdot=tr.qdot[:, :6]).checked()
+    with pytest.raises(JointVectorError, match="qddot"):
+        replace(tr, qddot=np.full_like(tr.qddot, np.nan)).checked()
+
+
 def test_urdf_velocity_limits_are_the_default():
     robot = problem()[0]
     lim = limits_for(robot, 10.0)
