@@ -65,6 +65,7 @@ def _write_outputs(traj, names, args) -> None:
 def _cmd_retime(args) -> int:
     from kinredund.model.robot import load_robot
     from kinredund.retime import limits_for, retime
+    from kinredund.retime.time_law import sample_ratios
     from kinredund.trajectory import Trajectory
 
     _refuse_existing_bag(args.bag)
@@ -86,6 +87,10 @@ def _cmd_retime(args) -> int:
     print(f"  {'samples':24s} {len(out.t)} ({res.loops} loop(s))")
     print(f"  {'max |qdot| / vmax':24s} {float(np.max(np.abs(out.qdot) / limits.velocity)):.9f}")
     print(f"  {'max |qddot| / amax':24s} {float(np.max(np.abs(out.qddot) / limits.acceleration)):.9f}")
+    ratios = sample_ratios(res.path, law, limits)
+    for key, label in (("jerk", "max |qdddot| / jmax"), ("tool_speed", "max tool speed / limit")):
+        if key in ratios:
+            print(f"  {label:24s} {float(ratios[key].max()):.9f}")
     print(f"  {'samples with a limit':24s} {100 * res.active_fraction:.1f} % (within 1 % of it)")
     for note in res.notes:
         print(f"  note: {note}")
