@@ -27,7 +27,7 @@ from kinredund.errors import (
     check_positive,
 )
 from kinredund.io import json_ready, read_json_object, write_json
-from kinredund.tasks import task_names
+from kinredund.tasks import get_task, task_names
 
 SCHEMA_VERSION = 1
 #: Optional arrays with one row per recorded point, and their shape after the first axis.
@@ -97,7 +97,8 @@ class Trajectory:
         return self.q[0]
 
     def summary(self) -> dict:
-        """Scalar figures: maxima of the errors, the drift per loop, the number of LU steps.
+        """Scalar figures: maxima of the errors (None for an error the task does not hold), the drift per
+        loop, the number of LU steps.
 
         ``lu_steps`` counts the steps (``solver[1:]``, one label per step; ``solver[0]`` is the start's)
         labelled ``lu``, so a run of 200 steps has at most 200.
@@ -105,12 +106,17 @@ class Trajectory:
         def mx(a):
             return None if a is None or len(a) == 0 else float(np.max(a))
 
+        held = get_task(self.task).error_names  # an error the task does not hold is None, not 0
+
+        def err(name):
+            return mx(getattr(self, name)) if name in held else None
+
         return {
             "steps": int(len(self.t) - 1),
             "position_error_max": mx(self.position_error),
-            "trace_error_max": mx(self.trace_error),
-            "vect_error_max": mx(self.vect_error),
-            "axis_error_max": mx(self.axis_error),
+            "trace_error_max": err("trace_error"),
+            "vect_error_max": err("vect_error"),
+            "axis_error_max": err("axis_error"),
             "normality_residual_max": mx(self.normality_residual),
             "loop_drift": None if self.loop_drift is None else [float(v) for v in self.loop_drift],
             "lu_steps": int(sum(1 for s in self.solver[1:] if s == "lu")),
