@@ -27,8 +27,8 @@ the joints then move as theta(t) = theta*(s(t)), with
   2w + 1 samples, which never raises it (each average is of minima over windows that contain the
   sample), so the speed limits still hold; a periodic cubic spline through it gives sdd = (sd^2)'/2
   continuous and sddd = sd (sd^2)''/2 bounded. One uniform time scaling then brings the velocity,
-  acceleration and jerk at every sample within their limits. The window w is chosen among 1, 2, 4, ...
-  samples for the shortest loop. Closed paths only (a periodic law, no stop).
+  acceleration and jerk at every sample within their limits. The window w is chosen among 1, 2, 3, 4, 6, 8, ...
+  samples (steps of sqrt 2) for the shortest loop. Closed paths only (a periodic law, no stop).
 - :func:`rest_to_rest_law`: chained loops of a closed path that start and end at rest (TOPP-RA over all
   of them), for a controller that starts from standstill.
 """
@@ -315,13 +315,12 @@ def jerk_law(jp: JointPath, limits: Limits, base: TimeLaw | None = None) -> Time
     x0 = (base.sd ** 2)[:-1]
     N = len(x0)
     best = None
-    w = 1
-    while 2 * w + 1 <= N // 2:
+    widths = sorted({int(round(2 ** (k / 2))) for k in range(40)} & set(range(1, (N // 2 - 1) // 2 + 1)))
+    for w in widths:  # 1, 2, 3, 4, 6, 8, 11, 16, ...: steps of sqrt(2)
         xs = _running(_running(x0, w, np.min), w, np.mean)
         law = _scale_into_limits(jp, _smooth_law(jp, np.append(xs, xs[0]), w), limits)
         if best is None or law.duration < best.duration:
             best = law
-        w *= 2
     if best is None:
         raise RetimeError(f"a jerk-limited law needs at least 6 samples per loop, got {N}")
     return best
