@@ -32,10 +32,7 @@ from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks import get_task
 from kinredund.trajectory import Trajectory
 
-try:  # the tracking package (hard joint limits, TrackingError)
-    from kinredund.tracking import MODES, SCHEMES, track
-except ImportError:  # the single-module tracker before it
-    from kinredund.tracking.resolved_rate import MODES, SCHEMES, track
+from kinredund.tracking import MODES, SCHEMES, track
 
 #: a joint counts as outside its limits beyond this [rad or m]: round-off of a tracker that holds them
 #: (its steps land on a bound to ~1e-12), far below any physical margin
@@ -49,7 +46,7 @@ class SweepOptions:
     """How each placement is run (the same for all of a sweep's placements).
 
     Attributes:
-        steps_per_loop, loops: the run of a closed path (see :func:`kinredund.tracking.resolved_rate.track`).
+        steps_per_loop, loops: the run of a closed path (see :func:`kinredund.tracking.track`).
         duration, steps: the run of an open path [s], [-] (None for closed paths).
         scheme, mode: the tracker's scheme and mode.
         limits: ask the tracker to hold the joint limits (passed on when the tracker takes ``limits=``).
@@ -83,7 +80,7 @@ class SweepOptions:
 
 @functools.cache
 def tracker_takes_limits() -> bool:
-    """Does :func:`~kinredund.tracking.resolved_rate.track` take ``limits=`` (hard joint limits)?"""
+    """Does :func:`~kinredund.tracking.track` take ``limits=`` (hard joint limits)?"""
     return "limits" in inspect.signature(track).parameters
 
 
