@@ -30,9 +30,8 @@ from kinredund.paths import Path
 from kinredund.sweep.placement import PartPath, pose_coordinates
 from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks import get_task
-from kinredund.trajectory import Trajectory
-
 from kinredund.tracking import MODES, SCHEMES, track
+from kinredund.trajectory import Trajectory
 
 #: a joint counts as outside its limits beyond this [rad or m]: round-off of a tracker that holds them
 #: (its steps land on a bound to ~1e-12), far below any physical margin
