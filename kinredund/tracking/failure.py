@@ -83,11 +83,27 @@ def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 20
     return math.sqrt(f), q
 
 
-def out_of_reach(ev: Evaluator, q: np.ndarray, times) -> tuple[bool, float, float]:
-    """(out of reach at any of ``times``, the largest smallest residual there [m], at which time [s])."""
+def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: int = 0) -> tuple[bool, float, float]:
+    """(out of reach at any of ``times``, the largest smallest residual there [m], at which time [s]).
+
+    From q first, then (where that leaves a residual) from ``restarts`` seeded perturbations of q (0.3 and
+    1 rad, clipped into the robot's limits): Levenberg-Marquardt from the last good point alone can end
+    on a singular configuration (J^T r = 0 with r != 0) although the point is reachable past the
+    singularity. The task-only residual uses the displacement form, whose J is the Jacobian of r.
+    """
+    if ev.formulation != "augmented":
+        ev = Evaluator(ev.robot, ev.path, ev.index, "augmented")
+    rng = np.random.default_rng(seed)
+    lo, hi = np.maximum(ev.robot.lower, -1e3), np.minimum(ev.robot.upper, 1e3)
     worst, at = 0.0, float(times[0])
     for tp in times:
+        scale = max(1.0, float(np.abs(ev.sample(tp).p).max()))
         res, _ = task_residual_min(ev, q, tp)
+        for k in range(restarts):
+            if res <= REACH_TOL * scale:
+                break
+            start = np.clip(q + (0.3 if k % 2 == 0 else 1.0) * rng.standard_normal(len(q)), lo, hi)
+            res = min(res, task_residual_min(ev, start, tp)[0])
         if not res <= worst:
             worst, at = res, float(tp)
     scale = max(1.0, float(np.abs(ev.sample(at).p).max()))
