@@ -181,10 +181,11 @@ def path_jumps(ev: Evaluator, t_a: float, t_b: float, factor: float = 4.0) -> bo
 def explicit_failure(stepper, err: Exception) -> TrackingError:
     """The error of a failed explicit step (thesis mode, the baselines), the stepper at the step's start.
 
-    ``kinematic_singularity`` where J lost rank, ``fold`` where R turned singular with J of full rank (an
-    algorithmic singularity), ``out_of_reach`` where the step left the path and the path point cannot be
-    reached, else ``step_control_exhausted`` (the explicit schemes have no sub-steps: a finer step may
-    help).
+    ``kinematic_singularity`` where J lost rank (or its smallest singular value is below 1e-2 of its
+    largest at the last good point: an explicit step past a stretched arm leaves the path instead),
+    ``fold`` where R turned singular with J of full rank (an algorithmic singularity), ``out_of_reach``
+    where the step left the path and the path point cannot be reached, else ``step_control_exhausted``
+    (the explicit schemes have no sub-steps: a finer step may help).
     """
     text = str(err)
     t_next = stepper.t0 + (stepper.k + 1) * stepper.dt
@@ -192,7 +193,9 @@ def explicit_failure(stepper, err: Exception) -> TrackingError:
     watched["t_failed"] = float(t_next)
     if getattr(err, "sigma_min", None) is not None:
         watched["sigma_min_R"] = float(err.sigma_min)
-    if "kinematic" in text:
+    pt = stepper.ev.point(stepper.q, stepper.t, need_dJ=False)
+    sJ = np.linalg.svd(pt.J, compute_uv=False)
+    if "kinematic" in text or sJ[-1] < 1e-2 * sJ[0]:  # J rank-deficient, or nearly so at the last good point
         cause = "kinematic_singularity"
     elif "algorithmic" in text:
         cause = "fold"

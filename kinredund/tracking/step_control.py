@@ -4,10 +4,13 @@
 :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` (both forms) and accepts it only if
 
 1. the corrector converged (no ``PathError``/``SingularityError`` from the predictor-corrector step);
-2. it is no jump: |q_{k+1} - q_k| <= :data:`JUMP_FACTOR` h (max(|qdot_k|, |qdot_{k+1}|) + |qdot_{k+1} -
-   qdot_k|) (2-norms; the rates at both ends bound a smooth step's displacement: Delta q = h qdot_k +
-   h^2 qddot / 2 + ..., and h |qdot_{k+1} - qdot_k| ~ h^2 |qddot|), so a step that lands on another
-   branch of the optimum far from where the rates lead is rejected;
+2. it is no jump: the displacement agrees with the rates at both ends by the trapezoidal rule,
+   |Delta q - h (qdot_k + qdot_{k+1}) / 2| <= :data:`TRAPEZOID_TOL` max(|Delta q|, h max(|qdot_k|,
+   |qdot_{k+1}|)) (2-norms). On a smooth step the miss is h^3 |q'''| / 12 (the rule is exact for
+   quadratics), of relative size O(h^2); a step that lands on another branch of the optimum misses by
+   the jump itself, however large the rates are there. A smooth but under-resolved step is rejected
+   and sub-stepped too (the results at the requested times are the same); a jump that persists at the
+   floor is a discontinuity of the optimum (or of the path);
 3. the watch (:mod:`kinredund.tracking.watch`) finds sigma_min(J) and the reduced Hessian's eigenvalue
    nearest zero both above their floors at the new point (a step onto a branch where Z^T M Z is not
    positive definite, a saddle or a maximum of z, is rejected).
@@ -33,6 +36,7 @@ check (three vector norms) and a snapshot of the state (references and a copy of
 from __future__ import annotations
 
 import math
+from operator import attrgetter
 
 from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.tracking.failure import out_of_reach, path_jumps, watched_at
@@ -40,10 +44,12 @@ from kinredund.tracking.watch import Watch
 
 #: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
 MAX_HALVINGS = 6
-#: a step's displacement beyond this multiple of what its end rates allow is a jump (see the module docstring)
-JUMP_FACTOR = 4.0
+#: a step whose displacement misses the trapezoidal rule's h (qdot_k + qdot_{k+1}) / 2 by more than this
+#: fraction of max(|Delta q|, h |qdot|) is rejected (see the module docstring)
+TRAPEZOID_TOL = 0.25
 #: the stepper's state a rejected (sub-)step is undone to
 STATE = ("t", "k", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "_lu", "_rcond")
+_get_state = attrgetter(*STATE)
 
 
 class StepControl:
@@ -61,6 +67,7 @@ class StepControl:
         self.floor = stepper.dt / 2**MAX_HALVINGS
         self.substepped: list[float] = []
         s = stepper
+        self._sub = getattr(s, "_snapshot", None)
         sigma, eig = self.watch.measure(s.pt.J, s.M, getattr(s, "_lu", None), getattr(s, "fixed", None))
         self.watch.push(s.t, sigma, eig)
         self._speed2 = float(s.qdot @ s.qdot)
@@ -72,11 +79,10 @@ class StepControl:
     # -- the state ------------------------------------------------------------------------------------
     def _snapshot(self) -> dict:
         s = self.s
-        snap = {name: getattr(s, name, None) for name in STATE}
+        snap = dict(zip(STATE, _get_state(s), strict=True))
         snap["prev"], snap["speed2"] = list(s.prev), self._speed2
-        extra = getattr(s, "_snapshot", None)  # a subclass's own state (e.g. the active set of the limits)
-        if extra is not None:
-            snap["sub"] = extra()
+        if self._sub is not None:  # a subclass's own state (e.g. the active set of the limits)
+            snap["sub"] = self._sub()
         return snap
 
     def _restore(self, snap: dict) -> None:
@@ -113,14 +119,15 @@ class StepControl:
             raise
         except (PathError, SingularityError) as err:
             s.ev.check_sample(s.t)  # a non-finite path sample is the caller's input: its PathError propagates
-            return "corrector", str(err)
+            return "corrector", str(err).split("; q = ")[0]  # not the diverged iterate: the last good point is reported
         qd0, qd1 = snap["qdot"], s.qdot
-        dq, dd = s.q - snap["q"], qd1 - qd0
-        speed2 = float(qd1 @ qd1)
-        allowed = JUMP_FACTOR * h * (math.sqrt(max(self._speed2, speed2)) + math.sqrt(float(dd @ dd))) + 1e-12
-        move2 = float(dq @ dq)
-        if not move2 <= allowed * allowed:
-            return "jump", f"the joints moved {math.sqrt(move2):.3g} in {h:.3g} s where the rates allow {allowed:.3g}"
+        dq = s.q - snap["q"]
+        e = dq - (0.5 * h) * (qd0 + qd1)  # the trapezoidal rule's miss: h^3 |q'''| / 12 on a smooth step
+        move2, speed2, miss2 = float(dq @ dq), float(qd1 @ qd1), float(e @ e)
+        scale2 = max(move2, h * h * max(self._speed2, speed2))
+        if not miss2 <= TRAPEZOID_TOL**2 * scale2 + 1e-24:
+            return "jump", (f"the joints moved {math.sqrt(move2):.3g} in {h:.3g} s, {math.sqrt(miss2):.3g} away from "
+                            "what the rates at both ends give (trapezoidal rule)")
         if not (self.watch.due(s._rcond) or h < s.dt):
             self._speed2 = speed2
             return None

@@ -91,6 +91,7 @@ class Watch:
         self._count = 0
         self._rcond = math.inf
         self._b = None
+        self._safe = -math.inf  # nothing measured yet: ahead() checks the history itself
 
     def due(self, rcond: float) -> bool:
         """Should this step be measured? (The cheap gate: R's condition estimate, see :data:`RCOND_NEAR`.)"""
@@ -102,6 +103,7 @@ class Watch:
         """Forget the history (after a restart: the next prediction starts afresh)."""
         for hist in (self.times, self.eig, self.sigma_times, self.sigma):
             hist.clear()
+        self._safe = -math.inf
 
     def measure(self, J: np.ndarray, M: np.ndarray, lu=None, fixed: np.ndarray | None = None) -> tuple[float, float]:
         """(sigma_min_J, reduced_hessian_min) at a point with J (m, n), M (n, n) and R's LU factors there.
@@ -161,6 +163,8 @@ class Watch:
         if self._fresh or not self.sigma:
             _keep(self.sigma_times, t, self.sigma, sigma)
         _keep(self.times, t, self.eig, eig)
+        fs, fe = self.floors()
+        self._safe = min(_crossing_time(self.sigma_times, self.sigma, fs), _crossing_time(self.times, self.eig, fe))
 
     def floors(self) -> tuple[float, float]:
         """(kinematic floor, fold floor): values at or below them count as crossed."""
@@ -177,6 +181,8 @@ class Watch:
 
     def ahead(self, t_next: float) -> str | None:
         """``kinematic``, ``fold`` or None: the quantity predicted to cross zero by ``t_next`` [s]."""
+        if t_next < self._safe:  # the earliest predicted crossing, computed at the last push
+            return None
         fs, fe = self.floors()
         for kind, times, hist, floor in (("kinematic", self.sigma_times, self.sigma, fs),
                                          ("fold", self.times, self.eig, fe)):
@@ -196,6 +202,23 @@ def _keep(times: list[float], t: float, values: list[float], v: float) -> None:
     values.append(v)
     if len(times) > 2:
         del times[0], values[0]
+
+
+def _crossing_time(times: list[float], values: list[float], floor: float) -> float:
+    """The earliest time [s] at which v or v^2, extrapolated linearly from its last two values, reaches ``floor``
+    (-inf where the last value is at or below it or not a number, +inf where v does not decrease)."""
+    if not values:
+        return math.inf
+    v1 = values[-1]
+    if not v1 > floor:
+        return -math.inf
+    if len(values) < 2:
+        return math.inf
+    v0, t0, t1 = values[-2], times[-2], times[-1]
+    if not (v1 < v0 and t1 > t0):
+        return math.inf
+    slope, slope2 = (v1 - v0) / (t1 - t0), (v1 * v1 - v0 * v0) / (t1 - t0)
+    return min(t1 + (floor - v1) / slope, t1 + (floor * floor - v1 * v1) / slope2)
 
 
 def _crosses(times: list[float], values: list[float], t_next: float, floor: float) -> bool:
