@@ -78,6 +78,7 @@ class PredictorCorrector(Stepper):
         if len(prev) == 2 * PREDICTOR_POINTS:
             del prev[:2]
         self.t = self._next_time()
+        self._q_pred = y_p[: self.n]  # the step control compares the corrected joints with it
         self._correct(y_p)  # checks its results for non-finite values
 
     def _rates(self) -> None:

@@ -10,7 +10,9 @@
    quadratics), of relative size O(h^2); a step that lands on another branch of the optimum misses by
    the jump itself, however large the rates are there. A smooth but under-resolved step is rejected
    and sub-stepped too (the results at the requested times are the same); a jump that persists at the
-   floor is a discontinuity of the optimum (or of the path);
+   floor is a discontinuity of the optimum (or of the path). A whole step whose corrected joints are
+   within :data:`PREDICTED_TOL` h |qdot| of the predictor's point (the Hermite extrapolation of the
+   past points) is consistent with the smooth past and skips this check (two vector operations);
 3. the watch (:mod:`kinredund.tracking.watch`) finds sigma_min(J) and the reduced Hessian's eigenvalue
    nearest zero both above their floors at the new point (a step onto a branch where Z^T M Z is not
    positive definite, a saddle or a maximum of z, is rejected).
@@ -47,6 +49,9 @@ MAX_HALVINGS = 6
 #: a step whose displacement misses the trapezoidal rule's h (qdot_k + qdot_{k+1}) / 2 by more than this
 #: fraction of max(|Delta q|, h |qdot|) is rejected (see the module docstring)
 TRAPEZOID_TOL = 0.25
+#: a whole step whose corrected joints lie within this fraction of h |qdot| of the predictor's point
+#: (extrapolated from the smooth past) is no jump, and the trapezoidal check is skipped
+PREDICTED_TOL = 0.01
 #: the stepper's state a rejected (sub-)step is undone to
 STATE = ("t", "k", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "_lu", "_rcond")
 _get_state = attrgetter(*STATE)
@@ -119,15 +124,26 @@ class StepControl:
             raise
         except (PathError, SingularityError) as err:
             s.ev.check_sample(s.t)  # a non-finite path sample is the caller's input: its PathError propagates
-            return "corrector", str(err).split("; q = ")[0]  # not the diverged iterate: the last good point is reported
+            # the message without the diverged iterate: the error reports the last good point instead
+            return "corrector", str(err).split("; q = ")[0]
         qd0, qd1 = snap["qdot"], s.qdot
+        speed2 = float(qd1 @ qd1)
+        if h == s.dt:  # a whole step: where the corrector ended next to the predictor's point, no jump
+            m = s.q - s._q_pred
+            if float(m @ m) <= (PREDICTED_TOL * h) ** 2 * max(self._speed2, speed2):
+                return self._watch_point(h, speed2)
         dq = s.q - snap["q"]
         e = dq - (0.5 * h) * (qd0 + qd1)  # the trapezoidal rule's miss: h^3 |q'''| / 12 on a smooth step
-        move2, speed2, miss2 = float(dq @ dq), float(qd1 @ qd1), float(e @ e)
+        move2, miss2 = float(dq @ dq), float(e @ e)
         scale2 = max(move2, h * h * max(self._speed2, speed2))
         if not miss2 <= TRAPEZOID_TOL**2 * scale2 + 1e-24:
             return "jump", (f"the joints moved {math.sqrt(move2):.3g} in {h:.3g} s, {math.sqrt(miss2):.3g} away from "
                             "what the rates at both ends give (trapezoidal rule)")
+        return self._watch_point(h, speed2)
+
+    def _watch_point(self, h: float, speed2: float):
+        """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why)."""
+        s = self.s
         if not (self.watch.due(s._rcond) or h < s.dt):
             self._speed2 = speed2
             return None
