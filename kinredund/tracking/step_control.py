@@ -147,7 +147,11 @@ class StepControl:
         if not (self.watch.due(s._rcond) or h < s.dt):
             self._speed2 = speed2
             return None
-        sigma, eig = self.watch.measure(s.pt.J, s.M, s._lu, getattr(s, "fixed", None))
+        if h < s.dt:  # sub-steps (near trouble): exactly, at the corrected point (not the Euler prediction's)
+            pt = s.ev.point(s.q, s.t)
+            sigma, eig = self.watch.measure_exact(pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
+        else:
+            sigma, eig = self.watch.measure(s.pt.J, s.M, s._lu, getattr(s, "fixed", None))
         kind = self.watch.crossed(sigma, eig)
         if kind is not None:
             return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"
@@ -203,10 +207,10 @@ class StepControl:
         cause = {"fold": "fold", "jump": "fold"}.get(kind)
         if kind == "jump" and path_jumps(s.ev, t_good, t_fail):
             cause = "path_discontinuity"
-        if kind == "corrector" and "algorithmic" in why:  # R singular with J of full rank: Z^T M Z is, a fold
+        if kind == "corrector" and "algorithmic" in why:  # R singular, J of full rank: Z^T M Z singular (a fold)
             cause = "fold"
         if cause is None:
-            ahead = self._refreshed_ahead(t_fail + (t_fail - t_good))
+            ahead = self._refreshed_ahead(t_good + s.dt)  # a crossing predicted within a whole step names it
             if kind == "corrector" and ahead == "fold":
                 cause = "fold"
             else:

@@ -92,6 +92,7 @@ class Watch:
         self._rcond = math.inf
         self._b = None
         self._safe = -math.inf  # nothing measured yet: ahead() checks the history itself
+        self._exact_at = None
 
     def due(self, rcond: float) -> bool:
         """Should this step be measured? (The cheap gate: R's condition estimate, see :data:`RCOND_NEAR`.)"""
@@ -131,11 +132,15 @@ class Watch:
 
     def refresh(self, t: float, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> None:
         """Measure exactly at t and push it (before a prediction is acted on: the history may be stale)."""
-        if self.times and self.times[-1] == t and self.sigma_times and self.sigma_times[-1] == t:
+        if self._exact_at == t:
             return
-        J, M = reduce(J, M, fixed)
-        sigma, eig = self._exact(J, M)
-        self.push(t, sigma, eig)
+        self.push(t, *self.measure_exact(J, M, fixed))
+        self._exact_at = t
+
+    def measure_exact(self, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> tuple[float, float]:
+        """(sigma_min_J, reduced_hessian_min) exactly (QR null basis and eigh, SVD), at the caller's point."""
+        self._exact_at = None
+        return self._exact(*reduce(J, M, fixed))
 
     def _exact(self, J, M) -> tuple[float, float]:
         sigma, eig, v = exact(J, M)
@@ -198,6 +203,9 @@ class Watch:
 
 
 def _keep(times: list[float], t: float, values: list[float], v: float) -> None:
+    if times and times[-1] == t:  # a second measurement at the same time (exact after estimated) replaces it
+        values[-1] = v
+        return
     times.append(t)
     values.append(v)
     if len(times) > 2:
