@@ -216,8 +216,25 @@ def test_partial_record_plays(arm, tmp_path):
 
     path, index, q0 = _fold_case(arm)
     err = _fails(arm, path, index, q0)
-    out = replay_html(err.partial, tmp_path / "fold.html", robot=arm, max_frames=20)
-    assert out.stat().st_size > 1000
+    err.partial.save_json(tmp_path / "fold.json")
+    back = kinredund.Trajectory.load_json(tmp_path / "fold.json")  # what `kinredund play` reads
+    out = replay_html(back, tmp_path / "fold.html", robot=arm, max_frames=20)
+    assert out.stat().st_size > 1000 and np.array_equal(back.q, err.partial.q)
+
+
+def test_cli_track_writes_the_partial_record(arm, tmp_path):
+    """``kinredund track`` on a circle leaving the reach: exit code of an error, the partial record written."""
+    import json
+
+    from kinredund.ui.cli import main
+
+    out = tmp_path / "partial.json"
+    code = main(["track", "planar3r", "--radius", "2.5", "--index", "min-norm", "--partial", str(out)])
+    assert code != 0
+    data = json.loads(out.read_text())
+    assert data["failure"]["cause"] == "out_of_reach"  # a 2.5 m circle from the home pose leaves the 6 m reach
+    assert kinredund.Trajectory.load_json(out).checked(nq=3).t[-1] <= data["failure"]["t"]
+    assert main(["play", str(out), "--html", str(tmp_path / "partial.html")]) == 0
 
 
 def test_tracking_error_pickles():

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task, task_names
 
@@ -184,8 +184,15 @@ def _cmd_track(args) -> int:
         raise KinredundError(f"no starting configuration on the path: {res.reason}")
     # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
     span = {} if duration is None else {"duration": duration, "steps": args.steps}
-    traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
-                 loops=args.loops, progress=_progress("tracking"), **span)
+    try:
+        traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
+                     loops=args.loops, progress=_progress("tracking"), **span)
+    except TrackingError as err:
+        if args.partial and err.partial is not None:  # the record up to the stop, with why (it plays: `play`)
+            failure = {"cause": err.cause, "t": err.t, "q": err.q, "watched": err.watched, "message": str(err)}
+            err.partial.save_json(args.partial, extra={"failure": json_ready(failure)})
+            print(f"wrote the partial record up to t = {err.partial.t[-1]:.6g} s to {args.partial}", file=sys.stderr)
+        raise
     print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode")
     _print_summary(traj.summary())
     if args.json:
@@ -308,6 +315,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path)
     p.add_argument("--plot", type=Path)
     p.add_argument("--html", type=Path)
+    p.add_argument("--partial", type=Path, help="where tracking stops (a fold, a singularity, out of reach, ...), "
+                   "write the record up to there and the failure's cause, time and state (JSON; `play` takes it)")
     p.set_defaults(func=_cmd_track)
 
     p = sub.add_parser("ik", help="joint-level (constrained) inverse kinematics")
