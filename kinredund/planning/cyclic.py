@@ -1,0 +1,477 @@
+"""A cyclic, within-limits joint path for any arm and any closed path (Chapter 6's procedure, generalised).
+
+:func:`plan` runs the thesis's off-line procedure of Section 6.2.2 with the user's own index z in place
+of the obstacle policy, and the joint limits as hard bounds:
+
+1. **Samples.** The path is sampled at N equally spaced times. At each sample the within-limits local
+   minima of z on g(theta) = x(t_k) (Eq. 4.3 with the bounds; Eq. D.33 with the active limits) are
+   found by the joint-level IK :func:`kinredund.ik.solve_ik` with ``bounds=True``: continued from the
+   previous sample's minima (a forward sweep, then a backward one) and from random starts inside the
+   limits. Every distinct minimum is a candidate: a *branch*.
+2. **Branch choice.** One candidate per sample, so that consecutive choices are continuous and the
+   sequence closes: the shortest closed walk through the layered candidate graph, with the joint
+   distance ||q_b - q_a|| as the edge cost and an edge only where no joint moves by more than
+   ``max_jump`` (dynamic programming over the start candidate,
+   :func:`kinredund.planning.branches.choose`). Where no such walk exists (a fold of z: the local
+   minimum followed ceases to exist and the remaining one is far away) the interval is *refined*: at
+   its middle time the within-limits configuration on the path closest to the mean of its ends
+   (the index of Eq. 6.25) is inserted, recursively, until every jump is below ``max_jump``.
+3. **Estimates.** A periodic cubic spline theta*(t) through the chosen samples (:mod:`.spline`, Section
+   6.2.2.2).
+4. **Tracking.** The resolved-rate scheme with the time-varying index h = 1/2 ||theta - theta*(t)||^2
+   and the spline's rate as feed-forward (Eqs. 6.23-6.28), ``loops`` loops.
+5. **Verification** (:mod:`.verify`): joint limits at every recorded point, the task error with the
+   robot's own FK, closure after each loop, no joint jump. A motion that leaves the limits (the spline
+   overshooting a sample held at a limit) gets a sample inserted at the worst point and is planned again
+   (at most ``rounds`` times).
+
+The samples are solved inside the limits shrunk by ``margin`` [rad or m]: between samples the tracked
+joints follow the spline, which may overshoot a value held at a limit by a little; the margin keeps
+that overshoot inside the real limits (the verification checks the real ones).
+
+Where the chosen walk changes branch (a refined interval, or a sample whose candidate is not the one
+the previous sample's candidate continued to) the result says, in ``off_optimum`` and ``notes``, that it
+follows its reference there rather than the index's optimum: between those times no local minimum of z
+is followed continuously, and the plan takes the continuous within-limits path it found instead.
+
+Joint values are taken as they are (no wrapping by whole turns): a motion inside the limits cannot gain
+a turn on a joint whose range is under one turn, and on wider joints (the xArm7's +-2 pi) the two
+representations of an angle are different candidates.
+
+Units: times [s], joints [rad or m], positions [m].
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+from dataclasses import dataclass, field
+from time import perf_counter
+
+import numpy as np
+
+from kinredund.errors import KinredundError, PathError, TaskError, check_count, check_positive
+from kinredund.ik.solve import solve_ik
+from kinredund.indices import Index, JointDeviation, TimeVaryingReference
+from kinredund.paths import Path
+from kinredund.planning.branches import choose
+from kinredund.planning.spline import JointSpline
+from kinredund.planning.verify import MotionCheck, verify_motion_on_path
+from kinredund.tasks.target import make_target
+from kinredund.tracking.resolved_rate import track
+from kinredund.trajectory import Trajectory
+
+#: two candidates closer than this (max-abs) are the same local minimum [rad or m]
+SAME_CANDIDATE = 1e-6
+#: a completed plan tracks the path to this [m] (and [rad] for orientation): the default-mode corrector
+#: holds the task residual to ~1e-12, so this leaves three orders of round-off headroom
+TASK_TOL = 1e-9
+#: a completed plan closes to this after every loop [rad or m]: the tracked joints are the optimum of h
+#: with a periodic reference, held by the corrector to ~1e-12, so the loop returns to them
+CLOSURE_TOL = 1e-10
+
+
+@dataclass(frozen=True)
+class CyclicSamples:
+    """The sample points, their candidates and the chosen walk.
+
+    Attributes:
+        t: the times of the spline's knots [s], shape (M,) (the N sample times and the refined ones).
+        q: the chosen configurations there, shape (M, n).
+        kind: per knot ``optimum`` (a within-limits local minimum of z) or ``refined`` (inserted on a
+            fold: the configuration closest to its neighbours' mean, not an optimum of z).
+        branch: per knot the chosen candidate's number at its sample (-1 for refined knots).
+        sample_t: the N sample times [s].
+        candidates: per sample the candidates found, each an array (c_k, n), lowest z first.
+        objective: per sample the z of each candidate.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    kind: tuple[str, ...]
+    branch: tuple[int, ...]
+    sample_t: np.ndarray
+    candidates: tuple[np.ndarray, ...]
+    objective: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True)
+class CyclicPlan:
+    """The outcome of :func:`plan`.
+
+    Attributes:
+        ok: the motion is complete, inside the limits, on the path (``TASK_TOL``), closed after every
+            loop (``CLOSURE_TOL``) and without a joint jump, as checked by :mod:`.verify`.
+        reason: "" when ok, else why not.
+        trajectory: the tracked motion (None when planning stopped before tracking).
+        samples: the samples and chosen branches (None when a sample has no candidate).
+        check: the independent verification of ``trajectory`` (None without one).
+        off_optimum: the time intervals [s] where the motion follows its reference rather than a local
+            minimum of z (module docstring); empty when it follows z's optima throughout.
+        notes: remarks that are not failures.
+        timings: wall times of the stages [s].
+        partial: what the tracker returned before it failed, when it failed and gave one.
+    """
+
+    ok: bool
+    reason: str
+    trajectory: Trajectory | None
+    samples: CyclicSamples | None
+    check: MotionCheck | None
+    off_optimum: tuple[tuple[float, float], ...] = ()
+    notes: tuple[str, ...] = ()
+    timings: dict = field(default_factory=dict)
+    partial: Trajectory | None = None
+
+    def summary(self) -> dict:
+        """Scalars and short lists: the figures a report prints."""
+        s = self.samples
+        return {"ok": self.ok, "reason": self.reason,
+                "samples": None if s is None else int(s.sample_t.size),
+                "knots": None if s is None else int(s.t.size),
+                "refined": None if s is None else int(sum(k == "refined" for k in s.kind)),
+                "candidates": None if s is None else [int(len(c)) for c in s.candidates],
+                "off_optimum": [list(iv) for iv in self.off_optimum],
+                "check": None if self.check is None else self.check.to_dict(),
+                "notes": list(self.notes), "timings_s": {k: float(v) for k, v in self.timings.items()}}
+
+
+def _inner(robot, margin: float):
+    """A shallow copy of the robot whose limits are shrunk by ``margin`` (the model is shared, unchanged)."""
+    inner = copy.copy(robot)
+    span = robot.upper - robot.lower
+    m = np.minimum(margin, 0.25 * span)
+    inner.lower, inner.upper = robot.lower + m, robot.upper - m
+    return inner
+
+
+def _target(robot, path: Path, t: float):
+    s = path(t)
+    if robot.task == "pose":
+        if s.Q is None:
+            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
+        return make_target("pose", (s.Q, s.p))
+    return make_target(robot.task, s.p[:2] if robot.task == "planar" else s.p)
+
+
+def _inside(robot, q) -> bool:
+    return bool(np.all(q >= robot.lower) and np.all(q <= robot.upper))
+
+
+def _minimum(inner, target, index: Index, seed, max_iter: int):
+    """A within-limits local minimum of z from ``seed`` (q, z), or None."""
+    res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
+    if not (res.converged and res.reduced_hessian_pd and _inside(inner, res.q)):
+        return None
+    return res.q, float(res.objective)
+
+
+def closest_within_limits(inner, target, reference, seed=None, max_iter: int = 200):
+    """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25),
+    from ``seed`` (default the reference), or None.
+
+    The seed is first put on g = x by a pose-only solve: from the reference itself the index's gradient
+    and the multipliers vanish and the constrained solve's line search cannot step back onto g = x.
+    """
+    seed = np.clip(np.asarray(reference if seed is None else seed, float), inner.lower, inner.upper)
+    first = solve_ik(inner, target, None, q0=seed, bounds=True, max_iter=max_iter)
+    start = first.q if first.converged else seed
+    res = solve_ik(inner, target, JointDeviation(np.asarray(reference, float)), q0=start, bounds=True,
+                   max_iter=max_iter)
+    return res.q if res.converged and _inside(inner, res.q) else None
+
+
+class _Pool:
+    """The candidates of one sample: distinct minima (q, z), each with a label unique over the plan."""
+
+    def __init__(self):
+        self.q: list[np.ndarray] = []
+        self.z: list[float] = []
+        self.label: list[int] = []
+
+    def add(self, found, counter: list) -> int:
+        """Add (q, z) unless already there; its label (or -1 for None). ``counter``: [next label]."""
+        if found is None:
+            return -1
+        q, z = found
+        for i, c in enumerate(self.q):
+            if np.abs(c - q).max() < SAME_CANDIDATE:
+                return self.label[i]
+        self.q.append(q)
+        self.z.append(z)
+        self.label.append(counter[0])
+        counter[0] += 1
+        return self.label[-1]
+
+    def trim(self, limit: int) -> None:
+        """Keep the ``limit`` candidates of lowest z (in their order)."""
+        keep = sorted(np.argsort(self.z, kind="stable")[:limit])
+        self.q, self.z, self.label = ([v[i] for i in keep] for v in (self.q, self.z, self.label))
+
+
+def _continue(inner, targets, index, pools, a, b, links, counter, max_iter) -> None:
+    """Continue every candidate of sample a to sample b; the pairs of labels joined go into ``links``."""
+    for la, q in zip(list(pools[a].label), list(pools[a].q), strict=True):
+        lb = pools[b].add(_minimum(inner, targets[b], index, q, max_iter), counter)
+        if lb >= 0:
+            links.add(frozenset((la, lb)))
+
+
+def _bisect(inner, path, ta, qa, tb, qb, max_jump, budget, max_iter):
+    """Points strictly inside (ta, tb) that bring every joint jump within ``max_jump``, or None
+    (Section 6.2.2.1: sample points close to one another where the configuration changes fast)."""
+    pts = [(ta, qa), (tb, qb)]
+    while True:
+        jumps = [float(np.abs(pts[k + 1][1] - pts[k][1]).max()) for k in range(len(pts) - 1)]
+        k = int(np.argmax(jumps))
+        if jumps[k] <= max_jump:
+            return pts[1:-1]
+        if len(pts) - 2 >= budget:
+            return None
+        tm = 0.5 * (pts[k][0] + pts[k + 1][0])
+        mean = 0.5 * (pts[k][1] + pts[k + 1][1])
+        qm = closest_within_limits(inner, _target(inner, path, tm), mean, max_iter=max_iter)
+        if qm is None or max(np.abs(qm - pts[k][1]).max(), np.abs(pts[k + 1][1] - qm).max()) >= 0.95 * jumps[k]:
+            return None
+        pts.insert(k + 1, (tm, qm))
+
+
+def _costs(pools, max_jump):
+    """Edge costs of the layered graph: the joint distance where no joint jumps by more than max_jump."""
+    n = len(pools)
+    out = []
+    for k in range(n):
+        A, B = np.array(pools[k].q), np.array(pools[(k + 1) % n].q)
+        d = A[:, None, :] - B[None, :, :]
+        c = np.linalg.norm(d, axis=2)
+        c[np.abs(d).max(axis=2) > max_jump] = np.inf
+        out.append(c)
+    return out
+
+
+def _refine_graph(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter, tries=2):
+    """Refine the infinite edges of each candidate toward its ``tries`` nearest successors; fills
+    ``refined[(k, i, j)]`` with the inserted points and their cost into ``costs``."""
+    n = len(pools)
+    for k in range(n):
+        tb = ts[k + 1] if k + 1 < n else period
+        A, B = pools[k].q, pools[(k + 1) % n].q
+        for i, qa in enumerate(A):
+            dist = [float(np.linalg.norm(qb - qa)) for qb in B]
+            for j in np.argsort(dist)[:tries]:
+                if np.isfinite(costs[k][i, j]) or (k, i, int(j)) in refined:
+                    continue
+                pts = _bisect(inner, path, ts[k], qa, tb, B[j], max_jump, budget, max_iter)
+                refined[(k, i, int(j))] = pts
+                if pts is not None:
+                    chain = [qa] + [q for _, q in pts] + [B[j]]
+                    costs[k][i, j] = float(sum(np.linalg.norm(chain[m + 1] - chain[m]) for m in range(len(chain) - 1)))
+
+
+def _tracker_takes_limits() -> bool:
+    return "limits" in inspect.signature(track).parameters
+
+
+def _knots(ts, pools, choice, refined):
+    """The spline's knots (t, q, kind, branch) along the chosen walk."""
+    n = len(ts)
+    rows = []
+    for k in range(n):
+        i, j = choice[k], choice[(k + 1) % n]
+        rows.append((ts[k], pools[k].q[i], "optimum", i))
+        for tm, qm in refined.get((k, i, j)) or ():
+            rows.append((tm, qm, "refined", -1))
+    return rows
+
+
+def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin):
+    if not isinstance(path, Path) or path.period is None:
+        raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
+    if not isinstance(index, Index):
+        raise TaskError(f"index must be a kinredund.indices.Index, got {type(index).__name__}")
+    if robot.nq <= robot.task_dim:
+        raise TaskError(f"{robot.name} has {robot.nq} joints for a {robot.task_dim}-D {robot.task!r} task: "
+                        "the cyclic planner needs a redundant arm (use robot.with_task('position'))")
+    check_count(samples, 4, "samples (at least 4 for a cubic spline)", TaskError)
+    check_count(starts, 1, "starts", TaskError)
+    check_count(loops, 1, "loops", TaskError)
+    check_count(steps_per_loop, 4, "steps_per_loop", TaskError)
+    check_positive(max_jump, "max_jump [rad]", TaskError)
+    if not (np.isfinite(margin) and margin >= 0):
+        raise TaskError(f"margin must be a number >= 0 [rad or m], got {margin!r}")
+
+
+def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8, seed: int = 0,
+         loops: int = 2, steps_per_loop: int = 200, max_jump: float = 0.25, margin: float = 1e-3,
+         max_candidates: int = 8, budget: int = 16, rounds: int = 3, max_iter: int = 200,
+         progress=None, meta: dict | None = None) -> CyclicPlan:
+    """Plan a cyclic within-limits joint motion along the closed ``path`` that follows z's optima.
+
+    Args:
+        robot: a redundant :class:`kinredund.Robot` (its task kind sets the target: pose, position, planar).
+        path: a closed path (with a period); pose tasks need its orientation.
+        index: the user's performance index z (:mod:`kinredund.indices`).
+        samples: N, the equally spaced sample times k T / N.
+        starts: random starts inside the limits per sample (four times as many at the first sample),
+            ``np.random.default_rng(seed)``.
+        seed: the random seed.
+        loops, steps_per_loop: the tracking (the verification checks closure after every loop).
+        max_jump: the largest joint change between consecutive knots [rad or m]; edges above it are
+            refined or dropped (module docstring).
+        margin: the limits are shrunk by this for the samples and refinements [rad or m].
+        max_candidates: the candidates kept per sample (lowest z first; the chosen walk's are always kept).
+        budget: the most points inserted into one refined interval.
+        rounds: re-plans with an inserted sample where the motion leaves the limits.
+        max_iter: iterations of each joint-level solve.
+        progress: ``progress(done, total)`` during the tracking.
+        meta: extra entries for ``Trajectory.meta``.
+
+    Returns:
+        A :class:`CyclicPlan`; ``ok=False`` with the reason when a sample has no within-limits minimum,
+        no continuous closed walk exists at this sampling resolution, the tracking fails, or the
+        verification does not pass.
+
+    Raises:
+        TaskError, PathError: bad arguments (an open path, a non-redundant arm, a bad count).
+    """
+    _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin)
+    t0 = perf_counter()
+    timings: dict[str, float] = {}
+    period = float(path.period)
+    n = int(samples)
+    ts = np.arange(n) * period / n
+    inner = _inner(robot, float(margin))
+    targets = [_target(robot, path, float(t)) for t in ts]
+    rng = np.random.default_rng(seed)
+    lo, hi = inner.sample_box()
+
+    # -- step 1: within-limits minima of z at the samples (forward sweep with random starts, backward sweep)
+    pools = [_Pool() for _ in range(n)]
+    links: set = set()  # pairs of candidate labels one solve joined (the same branch at neighbouring samples)
+    counter = [0]
+    for k in range(n):
+        if k > 0:
+            _continue(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
+        for _ in range(int(starts) * (4 if k == 0 else 1)):
+            pools[k].add(_minimum(inner, targets[k], index, rng.uniform(lo, hi), max_iter), counter)
+        if not pools[k].q:  # seed from a within-limits point on the path (pose-only multi-start)
+            feasible = solve_ik(inner, targets[k], None, bounds=True, starts=4 * int(starts), seed=seed + k)
+            if feasible.converged:
+                pools[k].add(_minimum(inner, targets[k], index, feasible.q, max_iter), counter)
+        if not pools[k].q:
+            timings["samples_s"] = perf_counter() - t0
+            return CyclicPlan(False, f"sample {k + 1} of {n} (t = {ts[k]:.4g} s) has no within-limits local "
+                              f"minimum of the index ({int(starts) * (4 if k == 0 else 1)} random starts and the "
+                              "previous sample's minima): the path may leave the reachable set there",
+                              None, None, None, timings=timings)
+        pools[k].trim(max_candidates)
+    _continue(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
+    for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
+        _continue(inner, targets, index, pools, k, k - 1, links, counter, max_iter)
+    _continue(inner, targets, index, pools, 0, n - 1, links, counter, max_iter)
+    for pool in pools:
+        pool.trim(2 * max_candidates)
+    timings["samples_s"] = perf_counter() - t0
+
+    # -- step 2: the shortest closed walk through the candidates, refined where it must be
+    t1 = perf_counter()
+    costs = _costs(pools, max_jump)
+    refined: dict = {}
+    choice, total = choose(costs)
+    if choice is None or not np.isfinite(total):
+        _refine_graph(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter)
+        choice, total = choose(costs)
+    timings["walk_s"] = perf_counter() - t1
+    candidates = tuple(np.array(p.q) for p in pools)
+    objective = tuple(np.array(p.z) for p in pools)
+    if choice is None or not np.isfinite(total):
+        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
+        where = f" (no continuous way from sample {bad[0] + 1} to {(bad[0] + 1) % n + 1})" if bad else ""
+        smp = CyclicSamples(np.zeros(0), np.zeros((0, robot.nq)), (), (), ts, candidates, objective)
+        return CyclicPlan(False, "no continuous closed walk through the within-limits minima at this sampling "
+                          f"resolution{where}: try more samples", None, smp, None, timings=timings)
+    rows = _knots(ts, pools, choice, refined)
+    off = _off_optimum(ts, period, pools, choice, links, refined)
+    notes = [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
+             "path), not a local minimum of the index: the minimum followed ceases to exist there (a fold)"
+             for a, b in off]
+    return _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objective, off, notes, loops,
+                         steps_per_loop, rounds, max_iter, progress, meta, timings, t0)
+
+
+def _off_optimum(ts, period, pools, choice, links, refined) -> tuple:
+    """The intervals where the chosen walk is not the continuation of one minimum (module docstring)."""
+    n = len(ts)
+    out = []
+    for k in range(n):
+        i, j = choice[k], choice[(k + 1) % n]
+        pair = frozenset((pools[k].label[i], pools[(k + 1) % n].label[j]))
+        if refined.get((k, i, j)) or pair not in links:
+            out.append((float(ts[k]), float(ts[k + 1] if k + 1 < n else period)))
+    merged: list[list[float]] = []
+    for a, b in out:
+        if merged and abs(merged[-1][1] - a) < 1e-12:
+            merged[-1][1] = b
+        else:
+            merged.append([a, b])
+    return tuple((a, b) for a, b in merged)
+
+
+def _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objective, off, notes, loops,
+                  steps_per_loop, rounds, max_iter, progress, meta, timings, t0) -> CyclicPlan:
+    """Steps 3-5 of :func:`plan`: spline, tracking, verification; re-planned with an inserted knot where
+    the motion leaves the limits."""
+    period = float(path.period)
+    limits = _tracker_takes_limits()
+    info = dict(meta or {}, planner="cyclic", index=type(index).__name__)
+    for attempt in range(int(rounds) + 1):
+        rows.sort(key=lambda r: r[0])
+        kt = np.array([r[0] for r in rows])
+        kq = np.array([r[1] for r in rows])
+        smp = CyclicSamples(kt, kq, tuple(r[2] for r in rows), tuple(int(r[3]) for r in rows), ts, candidates,
+                            objective)
+        spl = JointSpline(kt, kq, period, np.zeros(robot.nq), "periodic")  # Section 6.2.2.2
+        t1 = perf_counter()
+        ref = TimeVaryingReference(spl, spl.rate)  # Eqs. (6.23)-(6.25)
+        kw = {"limits": True} if limits else {}
+        try:
+            traj = track(robot, path, ref, kq[0], steps_per_loop=int(steps_per_loop), loops=int(loops),
+                         progress=progress, meta=dict(info, knots=len(kt)), **kw)  # Eqs. (6.26)-(6.28)
+        except KinredundError as err:
+            timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
+            partial = getattr(err, "partial", None)
+            return CyclicPlan(False, f"the tracking of the planned reference failed: {err}", None, smp, None, off,
+                              tuple(notes), timings, partial)
+        timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
+        check = verify_motion_on_path(robot, path, traj.t, traj.q, int(steps_per_loop))
+        if check.limit_violation > 0 and attempt < rounds:
+            k = check.worst_limit_step
+            tk = float(traj.t[k]) % period
+            qk = closest_within_limits(inner, _target(robot, path, tk), np.clip(traj.q[k], inner.lower, inner.upper),
+                                       seed=traj.q[k], max_iter=max_iter)
+            if qk is not None and all(abs(tk - r[0]) > 1e-9 for r in rows):
+                rows.append((tk, qk, "refined", -1))
+                notes.append(f"a knot was inserted at t = {tk:.4g} s where the motion left the limits by "
+                             f"{check.limit_violation:.3g}")
+                continue
+        break
+    timings["total_s"] = perf_counter() - t0
+    reason = _verdict(check)
+    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings)
+
+
+def _verdict(check: MotionCheck) -> str:
+    """'' when the verification passes, else what failed."""
+    bad = []
+    if check.limit_violation > 0:
+        bad.append(f"leaves the joint limits by {check.limit_violation:.3g} (point {check.worst_limit_step})")
+    if check.position_error_max > TASK_TOL or check.orientation_error_max > TASK_TOL:
+        bad.append(f"misses the path by {check.position_error_max:.3g} m / {check.orientation_error_max:.3g} rad")
+    if not check.closure or check.closure_max > CLOSURE_TOL:
+        bad.append(f"does not close: {list(check.closure)}")
+    if check.jumps:
+        bad.append(f"jumps at steps {list(check.jumps)[:6]} (step ratio {check.jump_ratio_max:.3g})")
+    return "" if not bad else "the verified motion " + "; ".join(bad)
+
+
+__all__ = ["CLOSURE_TOL", "TASK_TOL", "CyclicPlan", "CyclicSamples", "closest_within_limits", "plan"]
