@@ -14,8 +14,9 @@ within-limits posture or mid_range (Eq. 4.49). A task is kept only when every on
 has a within-limits pose solution (``circles.reachable``); the rejections are counted. Each task runs
 2 loops of 200 steps.
 
-Methods, all from the same start q0 = ``solve_ik(robot, pose(0), z, bounds=True, starts=16)`` (the
-within-limits optimum at t = 0):
+Methods, all from the same start q0 = ``circles.start_of(robot, task, S + i)``, i.e.
+``solve_ik(robot, pose(0), z, bounds=True, starts=16, seed=S + i)`` for task i (the within-limits
+optimum at t = 0):
 
 - ``strict``: ``kinredund.track(robot, path, z, q0, steps_per_loop=200, loops=2)``, with ``limits=True``
   when the installed tracker takes it (reported in the settings);
@@ -51,12 +52,10 @@ import numpy as np
 from _bench import parser, print_table, write_json
 
 from kinredund.errors import KinredundError
-from kinredund.ik.solve import solve_ik
 from kinredund.model.robot import load_robot
-from kinredund.planning.circles import CircleTask, random_circle, reachable
+from kinredund.planning.circles import CircleTask, random_circle, reachable, start_of
 from kinredund.planning.cyclic import plan
 from kinredund.planning.verify import limit_excursion, task_errors, verify_motion_on_path
-from kinredund.tasks.target import make_target
 from kinredund.tracking.resolved_rate import track
 
 ROBOTS = ("panda", "xarm7")
@@ -73,11 +72,6 @@ MAX_DRAWS = 50  # draws per task before giving up on finding a reachable one
 
 def _tracker_limits() -> dict:
     return {"limits": True} if "limits" in inspect.signature(track).parameters else {}
-
-
-def _pose(path, t):
-    s = path(t)
-    return make_target("pose", (s.Q, s.p))
 
 
 def _figures(method, robot, path, t, q, completed: bool, cause: str = "", t_fail=None, q_fail=None) -> dict:
@@ -185,7 +179,7 @@ def run_robot(name: str, n: int, seed: int, progress=True) -> dict:
         task, rej = draw(robot, rng)
         rejected += rej
         path, index = task.path(), task.performance_index(robot)
-        start = solve_ik(robot, _pose(path, 0.0), index, bounds=True, starts=16, seed=seed + i)
+        start = start_of(robot, task, seed + i)
         row = {"task": task.to_dict(), "start_converged": bool(start.converged)}
         for m in METHODS:
             t0 = time.perf_counter()

@@ -129,4 +129,54 @@ def random_circle(robot, rng: np.random.Generator) -> CircleTask:
                       kind, ref)
 
 
-__all__ = ["INDICES", "ORIENTATIONS", "RADIUS_RANGE", "SPEED_RANGE", "CircleTask", "random_circle", "reachable"]
+def start_of(robot, task: CircleTask, seed: int):
+    """The start every method of the benchmark shares: the within-limits optimum of the task's index at
+    t = 0 by ``solve_ik(..., bounds=True, starts=16, seed=seed)`` (an :class:`~kinredund.ik.solve.IKResult`)."""
+    from kinredund.ik.solve import solve_ik
+    from kinredund.tasks.target import make_target
+
+    s = task.path()(0.0)
+    return solve_ik(robot, make_target("pose", (s.Q, s.p)), task.performance_index(robot), bounds=True, starts=16,
+                    seed=seed)
+
+
+def _held(robot, center, radius, speed, normal, axis_x, Q, index="mid_range", reference=None) -> CircleTask:
+    return CircleTask(robot, center, radius, speed, normal, axis_x, "held", Q, index, reference)
+
+
+#: Tasks the generator drew (``np.random.default_rng(11)`` on the Panda, ``(12)`` on the xArm7), kept by
+#: name with the seed of their start (:func:`start_of`):
+#:
+#: - ``panda_fold``: from its start the strict tracker without limits meets an algorithmic singularity (a
+#:   fold of the unconstrained optimum, R singular with J of full rank) at t = 1.85 s; the within-limits
+#:   optimum rides the lower limit of joint 2 instead.
+#: - ``xarm7_fold``: the strict tracker without limits meets an algorithmic singularity at t = 0.40 s.
+#: - ``panda_limit``: the strict tracker without limits completes the loops, but 0.013 rad beyond a limit:
+#:   the unconstrained optimum meets a limit.
+NAMED_CASES: dict[str, tuple[CircleTask, int]] = {
+    "panda_fold": (_held(
+        "panda", (-0.4374239915514832, 0.411988598142515, 0.42218921602899434), 0.07848929013431506,
+        0.06412068725073046, (-0.2092917110145177, -0.9188273981662223, 0.3345940705985478),
+        (0.9778532505957198, -0.19665830038614993, 0.0716137779244694),
+        ((-0.6731121553727186, -0.7195253910288438, -0.17088954899080863),
+         (0.6650589370600773, -0.4878754214823251, -0.5653973676539039),
+         (0.3234449513070392, -0.4942274625900841, 0.806921668252721))), 22),
+    "xarm7_fold": (_held(
+        "xarm7", (-0.31156826260412745, 0.010238446606960466, 0.8269664475215209), 0.07034594266490501,
+        0.23932374067039558, (-0.13405764520530697, -0.7071839529290573, -0.6942041518758304),
+        (0.9909735353489557, -0.0956669497972683, -0.09391105874431879),
+        ((-0.057126660652616734, -0.49953420719241837, -0.8644085379537413),
+         (0.9711704746730064, 0.17290893456001305, -0.16410487339725782),
+         (0.23143995715107135, -0.84886281352994, 0.47525516308604926))), 2),
+    "panda_limit": (_held(
+        "panda", (-0.3038354706244746, -0.20999219388889195, 0.4404219268770904), 0.05484417019412952,
+        0.06573395172699154, (-0.6821970097963143, -0.5377298896912668, 0.4954329475898688),
+        (0.7311684072940843, -0.5017144055540925, 0.462250381757047),
+        ((0.020381349516606473, -0.993244941343246, -0.11423260081051119),
+         (0.22353443494569014, 0.11589101704976904, -0.967781808343534),
+         (0.9744829177494045, -0.005810220582891157, 0.22438646205015417))), 7),
+}
+
+
+__all__ = ["INDICES", "NAMED_CASES", "ORIENTATIONS", "RADIUS_RANGE", "SPEED_RANGE", "CircleTask", "random_circle",
+           "reachable", "start_of"]

@@ -203,9 +203,10 @@ class _Pool:
         counter[0] += 1
         return self.label[-1]
 
-    def trim(self, limit: int) -> None:
-        """Keep the ``limit`` candidates of lowest z (in their order)."""
-        keep = sorted(np.argsort(self.z, kind="stable")[:limit])
+    def trim(self, limit: int, keep: int | None = None) -> None:
+        """Keep the ``limit`` candidates of lowest z (in their order), and the one labelled ``keep``."""
+        keep = sorted(set(np.argsort(self.z, kind="stable")[:limit].tolist())
+                      | ({self.label.index(keep)} if keep is not None else set()))
         self.q, self.z, self.label = ([v[i] for i in keep] for v in (self.q, self.z, self.label))
 
 
@@ -268,6 +269,13 @@ def _refine_graph(inner, path, ts, period, pools, costs, refined, max_jump, budg
                     costs[k][i, j] = float(sum(np.linalg.norm(chain[m + 1] - chain[m]) for m in range(len(chain) - 1)))
 
 
+def _restrict(costs, i0: int | None) -> None:
+    """With a start candidate i0 at sample 0: the walk leaves sample 0 from it and returns to it."""
+    if i0 is not None:
+        costs[0][np.arange(costs[0].shape[0]) != i0, :] = np.inf
+        costs[-1][:, np.arange(costs[-1].shape[1]) != i0] = np.inf
+
+
 def _tracker_takes_limits() -> bool:
     return "limits" in inspect.signature(track).parameters
 
@@ -303,7 +311,7 @@ def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_
 
 def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8, seed: int = 0,
          loops: int = 2, steps_per_loop: int = 200, max_jump: float = 0.25, margin: float = 1e-3,
-         max_candidates: int = 8, budget: int = 16, rounds: int = 3, max_iter: int = 200,
+         max_candidates: int = 8, budget: int = 16, rounds: int = 3, max_iter: int = 200, q0=None,
          progress=None, meta: dict | None = None) -> CyclicPlan:
     """Plan a cyclic within-limits joint motion along the closed ``path`` that follows z's optima.
 
@@ -323,6 +331,9 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         budget: the most points inserted into one refined interval.
         rounds: re-plans with an inserted sample where the motion leaves the limits.
         max_iter: iterations of each joint-level solve.
+        q0: a start inside the limits (n,): the walk then starts (and ends) at the within-limits minimum
+            of z reached from it at t = 0 (the branch the strict tracker would follow from q0); default
+            the shortest closed walk from any candidate.
         progress: ``progress(done, total)`` during the tracking.
         meta: extra entries for ``Trajectory.meta``.
 
@@ -349,6 +360,15 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
     pools = [_Pool() for _ in range(n)]
     links: set = set()  # pairs of candidate labels one solve joined (the same branch at neighbouring samples)
     counter = [0]
+    start = None
+    if q0 is not None:
+        q0 = robot.check_q(q0, "q0")
+        if not _inside(robot, q0):
+            raise TaskError(f"q0 must lie inside the joint limits of {robot.name}, got {np.round(q0, 6).tolist()}")
+        start = pools[0].add(_minimum(inner, targets[0], index, q0, max_iter), counter)
+        if start < 0:
+            return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
+                              None, None, None, timings={"samples_s": perf_counter() - t0})
     for k in range(n):
         if k > 0:
             _continue(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
@@ -364,22 +384,25 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
                               f"minimum of the index ({int(starts) * (4 if k == 0 else 1)} random starts and the "
                               "previous sample's minima): the path may leave the reachable set there",
                               None, None, None, timings=timings)
-        pools[k].trim(max_candidates)
+        pools[k].trim(max_candidates, keep=start if k == 0 else None)
     _continue(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
     for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
         _continue(inner, targets, index, pools, k, k - 1, links, counter, max_iter)
     _continue(inner, targets, index, pools, 0, n - 1, links, counter, max_iter)
-    for pool in pools:
-        pool.trim(2 * max_candidates)
+    for k, pool in enumerate(pools):
+        pool.trim(2 * max_candidates, keep=start if k == 0 else None)
     timings["samples_s"] = perf_counter() - t0
 
     # -- step 2: the shortest closed walk through the candidates, refined where it must be
     t1 = perf_counter()
     costs = _costs(pools, max_jump)
+    i0 = None if start is None else pools[0].label.index(start)
+    _restrict(costs, i0)
     refined: dict = {}
     choice, total = choose(costs)
     if choice is None or not np.isfinite(total):
         _refine_graph(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter)
+        _restrict(costs, i0)
         choice, total = choose(costs)
     timings["walk_s"] = perf_counter() - t1
     candidates = tuple(np.array(p.q) for p in pools)
