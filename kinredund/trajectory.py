@@ -27,10 +27,10 @@ from kinredund.errors import (
     check_positive,
 )
 from kinredund.io import json_ready, read_json_object, write_json
+from kinredund.tasks import task_names
 
 SCHEMA_VERSION = 1
 #: Task kinds a record can hold.
-TASKS = ("planar", "position", "pose")
 #: Optional arrays with one row per recorded point, and their shape after the first axis.
 _PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "position_error": (),
               "trace_error": (), "vect_error": (), "normality_residual": ()}
@@ -133,8 +133,8 @@ class Trajectory:
         (n = ``nq`` when given); ``p`` and ``p_desired`` finite of shape (N, 3); each optional per-point
         array (``lam``, ``m_eigs``, ``m_null_eigs``, ``position_error``, ``trace_error``, ``vect_error``,
         ``normality_residual``) finite with N rows; ``solver`` empty or N strings; ``loop_drift`` finite
-        and 1-D; ``loop_period`` None or > 0; ``task`` one of :data:`TASKS`; ``robot`` a string and
-        ``meta`` a dict.
+        and 1-D; ``loop_period`` None or > 0; ``task`` a task kind (:func:`kinredund.tasks.task_names`);
+        ``robot`` a string and ``meta`` a dict.
 
         Raises:
             PathError: bad times, positions or loop figures.
@@ -143,7 +143,7 @@ class Trajectory:
         """
         if not isinstance(self.robot, str):
             raise TaskError(f"a trajectory's robot must be a name or URDF path (a string), got {self.robot!r}")
-        check_choice("trajectory task", self.task, TASKS)
+        check_choice("trajectory task", self.task, task_names())
         if not isinstance(self.meta, dict):
             raise TaskError(f"a trajectory's meta must be a dict, got {type(self.meta).__name__}")
         t = check_array(self.t, (None,), "trajectory times t [s]", PathError)
@@ -197,4 +197,4 @@ class Trajectory:
         return cls.from_json_dict(read_json_object(path))
 
 
-__all__ = ["TASKS", "Trajectory"]
+__all__ = ["Trajectory"]

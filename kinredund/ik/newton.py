@@ -44,7 +44,7 @@ from scipy.linalg import lapack
 
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
-from kinredund.tasks.residual import TaskResidual
+from kinredund.tasks import TaskResidual
 
 #: Armijo sufficient-decrease constant
 ARMIJO = 1e-4
@@ -273,7 +273,7 @@ def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
     pushes out is frozen there (its column of G dropped, the step recomputed) and the rest is clipped
     into the limits (the joint-limit handling of KDL's Newton-Raphson solver, as in TRAC-IK).
     """
-    res, jac, terms, rows = s.res, s.kin.jacobian, s.res.error_terms, None if s.res.pose else s.res.rows
+    res, jac, terms, rows = s.res, s.kin.jacobian, s.res.error_terms, s.res.row_selection
     eye, bounds, lower_list, upper_list = s.eye, s.bounds, s.lower_list, s.upper_list
     rtol2 = s.rtol * s.rtol
     quick = s.quick_exit

@@ -38,8 +38,7 @@ from kinredund.ik.newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, 
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
 from kinredund.kinematics.angles import turn_into_limits
-from kinredund.tasks.residual import TaskResidual
-from kinredund.tasks.target import Target, make_target
+from kinredund.tasks import Target, TaskResidual, make_target, task_residual
 
 #: residuals are never asked to be smaller than this many units of round-off times the target scale
 ROUNDING = 64.0 * float(np.finfo(float).eps)
@@ -59,7 +58,7 @@ class IKResult:
         normality_residual: ||L^T grad z||, Eqs. (D.9)/(D.30) (with bounds: the KKT residual including
             the multipliers of the limits that hold); 0.0 without an index. For a converged result this
             and the second-order fields come from the last iteration (L the null space of its G, which
-            equals K[rows] up to O(||e||), :mod:`kinredund.tasks.residual`); :func:`check_optimality`
+            equals K[rows] up to O(||e||), :meth:`kinredund.tasks.Task.ik_residual`); :func:`check_optimality`
             evaluates them on K itself.
         objective: z(q); 0.0 without an index.
         reduced_hessian_pd: Eq. (D.33): L^T (Hess z + Lambda) L positive definite (False without an
@@ -147,7 +146,7 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
 
     Args:
         robot: a :class:`kinredund.Robot`.
-        target: what :func:`kinredund.tasks.target.make_target` accepts, or a Target.
+        target: what :func:`kinredund.tasks.make_target` accepts, or a Target.
         q: joint vector (n,) [rad or m].
         index: the objective z; None gives only the residual.
         bounds: count the joint limits that q sits on (within 1e-9) as constraints.
@@ -156,7 +155,7 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
         TaskError: bad target; JointVectorError: bad q.
     """
     q = robot.check_q(q, "q")
-    res = TaskResidual(_target(robot, target))
+    res = task_residual(_target(robot, target))
     return _optimality(robot, res, q, index, bounds, _check_index(robot, index, q))
 
 
@@ -253,7 +252,7 @@ def solve_ik(
     Args:
         robot: a :class:`kinredund.Robot`; its task kind sets what ``target`` is.
         target: (x, y) for planar, p (3,) for position, a 4x4 pose (or (Q, p)) for pose tasks [m], or
-            a :class:`kinredund.tasks.target.Target`.
+            a :class:`kinredund.tasks.Target`.
         index: the performance index z (:mod:`kinredund.indices`); None solves the pose only.
         q0: the first seed (n,); default ``robot.home``.
         bounds: keep the joints within the robot's limits. A seed outside them is projected into them
@@ -294,7 +293,7 @@ def solve_ik(
         bad = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper)).tolist()
         q0 = np.clip(q0, robot.lower, robot.upper)
         notes = f"q0 was outside the joint limits at joints {bad}: projected into them"
-    res = TaskResidual(tgt)
+    res = task_residual(tgt)
     setup = Setup(
         kin=robot.kinematics, res=res, index=index, lower=np.asarray(robot.lower), upper=np.asarray(robot.upper),
         bounds=bool(bounds), rtol=max(float(tol), ROUNDING * (1.0 + res.scale())), tol=float(tol),
