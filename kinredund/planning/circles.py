@@ -93,7 +93,7 @@ def reachable(robot, task: CircleTask, points: int = 48, starts: int = 32, seed:
     """Whether the circle's pose at each of ``points`` equally spaced times has a within-limits IK solution
     (pose only, ``starts`` starts): the generator's screen (a task that fails it is drawn again)."""
     from kinredund.ik.solve import solve_ik
-    from kinredund.tasks.target import make_target
+    from kinredund.tasks import make_target
 
     path = task.path()
     for t in np.arange(points) * float(path.period) / points:
@@ -133,7 +133,7 @@ def start_of(robot, task: CircleTask, seed: int):
     """The start every method of the benchmark shares: the within-limits optimum of the task's index at
     t = 0 by ``solve_ik(..., bounds=True, starts=16, seed=seed)`` (an :class:`~kinredund.ik.solve.IKResult`)."""
     from kinredund.ik.solve import solve_ik
-    from kinredund.tasks.target import make_target
+    from kinredund.tasks import make_target
 
     s = task.path()(0.0)
     return solve_ik(robot, make_target("pose", (s.Q, s.p)), task.performance_index(robot), bounds=True, starts=16,

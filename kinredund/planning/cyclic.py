@@ -57,7 +57,7 @@ from kinredund.paths import Path
 from kinredund.planning.branches import choose
 from kinredund.planning.spline import JointSpline
 from kinredund.planning.verify import MotionCheck, verify_motion_on_path
-from kinredund.tasks.target import make_target
+from kinredund.tasks import make_target
 from kinredund.tracking.resolved_rate import track
 from kinredund.trajectory import Trajectory
 

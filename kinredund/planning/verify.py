@@ -22,7 +22,7 @@ import numpy as np
 
 from kinredund.errors import PathError, check_array
 from kinredund.paths import Path
-from kinredund.tasks.target import orientation_error
+from kinredund.tasks import orientation_error
 
 #: a step is a jump when its joint change exceeds this multiple of its neighbours' largest change
 JUMP_FACTOR = 4.0
