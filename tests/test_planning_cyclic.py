@@ -129,6 +129,23 @@ def test_planner_from_the_strict_trackers_start_rides_the_limit():
     assert gap < 2e-3  # on the margin of a limit (1e-3 rad) for part of the loop
 
 
+def test_planner_through_a_fold_says_it_follows_its_reference_there():
+    """panda_fold_followed from the strict tracker's start: the minimum of z followed ceases to exist;
+    the plan still closes inside the limits, through refined knots that are not optima of z, and says
+    where."""
+    r, path, index, start = _case("panda_fold_followed")
+    with pytest.raises(KinredundError):
+        track(r, path, index, start.q, steps_per_loop=STEPS, loops=2, diagnostics=False)
+    result = plan(r, path, index, q0=start.q, seed=1)
+    _assert_completed(r, path, result)
+    assert result.off_optimum and "refined" in result.samples.kind
+    for a, b in result.off_optimum:
+        assert 0 <= a < b <= path.period
+        assert any(f"{a:.4g} s" in note and "follows its reference" in note for note in result.notes)
+    refined = [t for t, kind in zip(result.samples.t, result.samples.kind, strict=True) if kind == "refined"]
+    assert all(any(a < t < b for a, b in result.off_optimum) for t in refined)  # only inside the flagged intervals
+
+
 def test_planner_where_the_unconstrained_optimum_meets_a_limit():
     r, path, index, start = _case("panda_limit")
     tr = track(r, path, index, start.q, steps_per_loop=STEPS, loops=2, diagnostics=False)

@@ -151,6 +151,9 @@ def _held(robot, center, radius, speed, normal, axis_x, Q, index="mid_range", re
 #:   fold of the unconstrained optimum, R singular with J of full rank) at t = 1.85 s; the within-limits
 #:   optimum rides the lower limit of joint 2 instead.
 #: - ``xarm7_fold``: the strict tracker without limits meets an algorithmic singularity at t = 0.40 s.
+#: - ``panda_fold_followed`` (``default_rng(21)``): from its start the strict tracker without limits meets
+#:   an algorithmic singularity at t = 0.89 s; the within-limits minimum of its branch ceases to exist
+#:   twice in the loop, and the plan from that start follows its reference there.
 #: - ``panda_limit``: the strict tracker without limits completes the loops, but 0.013 rad beyond a limit:
 #:   the unconstrained optimum meets a limit.
 NAMED_CASES: dict[str, tuple[CircleTask, int]] = {
@@ -168,6 +171,15 @@ NAMED_CASES: dict[str, tuple[CircleTask, int]] = {
         ((-0.057126660652616734, -0.49953420719241837, -0.8644085379537413),
          (0.9711704746730064, 0.17290893456001305, -0.16410487339725782),
          (0.23143995715107135, -0.84886281352994, 0.47525516308604926))), 2),
+    "panda_fold_followed": (CircleTask(
+        "panda", (-0.18931495395531306, -0.31477805961762595, 0.26895203878308205), 0.025826394683224396,
+        0.16353983722013388, (0.3183031679169474, -0.6369556982914351, 0.7021186023088307),
+        (0.947988973192218, 0.2138685388989285, -0.23574807480698953), "held",
+        ((0.64454720935942, -0.22218247931676607, 0.731569436753367),
+         (0.006046741827606228, -0.9553333393183701, -0.29546852235065935),
+         (0.764540601812784, 0.19486702304768383, -0.6144139577746255)), "posture",
+        (-0.7209401314110142, 0.9455273774030113, -2.8594318821450484, -1.3038465943266733, 0.507411561634219,
+         0.20180540005672093, 1.5335792633377152)), 6),
     "panda_limit": (_held(
         "panda", (-0.3038354706244746, -0.20999219388889195, 0.4404219268770904), 0.05484417019412952,
         0.06573395172699154, (-0.6821970097963143, -0.5377298896912668, 0.4954329475898688),

@@ -43,7 +43,6 @@ Units: times [s], joints [rad or m], positions [m].
 
 from __future__ import annotations
 
-import copy
 import inspect
 from dataclasses import dataclass, field
 from time import perf_counter
@@ -52,17 +51,28 @@ import numpy as np
 
 from kinredund.errors import KinredundError, PathError, TaskError, check_count, check_positive
 from kinredund.ik.solve import solve_ik
-from kinredund.indices import Index, JointDeviation, TimeVaryingReference
+from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
 from kinredund.planning.branches import choose
 from kinredund.planning.spline import JointSpline
-from kinredund.planning.verify import MotionCheck, verify_motion_on_path
-from kinredund.tasks import make_target
+from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
+from kinredund.planning.walk import (
+    CandidatePool,
+    closest_within_limits,
+    continue_candidates,
+    inside_limits,
+    local_minimum,
+    off_optimum_intervals,
+    refine_walk,
+    restrict_start,
+    shrunk_limits,
+    target_at,
+    walk_costs,
+    walk_knots,
+)
 from kinredund.tracking.resolved_rate import track
 from kinredund.trajectory import Trajectory
 
-#: two candidates closer than this (max-abs) are the same local minimum [rad or m]
-SAME_CANDIDATE = 1e-6
 #: a completed plan tracks the path to this [m] (and [rad] for orientation): the default-mode corrector
 #: holds the task residual to ~1e-12, so this leaves three orders of round-off headroom
 TASK_TOL = 1e-9
@@ -78,8 +88,9 @@ class CyclicSamples:
     Attributes:
         t: the times of the spline's knots [s], shape (M,) (the N sample times and the refined ones).
         q: the chosen configurations there, shape (M, n).
-        kind: per knot ``optimum`` (a within-limits local minimum of z) or ``refined`` (inserted on a
-            fold: the configuration closest to its neighbours' mean, not an optimum of z).
+        kind: per knot ``optimum`` (a within-limits local minimum of z), ``refined`` (inserted on a
+            fold: the configuration closest to its neighbours' mean, not an optimum of z) or ``limit``
+            (inserted where a tracked motion left the limits: the within-limits configuration closest to it).
         branch: per knot the chosen candidate's number at its sample (-1 for refined knots).
         sample_t: the N sample times [s].
         candidates: per sample the candidates found, each an array (c_k, n), lowest z first.
@@ -130,166 +141,15 @@ class CyclicPlan:
                 "samples": None if s is None else int(s.sample_t.size),
                 "knots": None if s is None else int(s.t.size),
                 "refined": None if s is None else int(sum(k == "refined" for k in s.kind)),
+                "limit_knots": None if s is None else int(sum(k == "limit" for k in s.kind)),
                 "candidates": None if s is None else [int(len(c)) for c in s.candidates],
                 "off_optimum": [list(iv) for iv in self.off_optimum],
                 "check": None if self.check is None else self.check.to_dict(),
                 "notes": list(self.notes), "timings_s": {k: float(v) for k, v in self.timings.items()}}
 
 
-def _inner(robot, margin: float):
-    """A shallow copy of the robot whose limits are shrunk by ``margin`` (the model is shared, unchanged)."""
-    inner = copy.copy(robot)
-    span = robot.upper - robot.lower
-    m = np.minimum(margin, 0.25 * span)
-    inner.lower, inner.upper = robot.lower + m, robot.upper - m
-    return inner
-
-
-def _target(robot, path: Path, t: float):
-    s = path(t)
-    if robot.task == "pose":
-        if s.Q is None:
-            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
-        return make_target("pose", (s.Q, s.p))
-    return make_target(robot.task, s.p[:2] if robot.task == "planar" else s.p)
-
-
-def _inside(robot, q) -> bool:
-    return bool(np.all(q >= robot.lower) and np.all(q <= robot.upper))
-
-
-def _minimum(inner, target, index: Index, seed, max_iter: int):
-    """A within-limits local minimum of z from ``seed`` (q, z), or None."""
-    res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
-    if not (res.converged and res.reduced_hessian_pd and _inside(inner, res.q)):
-        return None
-    return res.q, float(res.objective)
-
-
-def closest_within_limits(inner, target, reference, seed=None, max_iter: int = 200):
-    """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25),
-    from ``seed`` (default the reference), or None.
-
-    The seed is first put on g = x by a pose-only solve: from the reference itself the index's gradient
-    and the multipliers vanish and the constrained solve's line search cannot step back onto g = x.
-    """
-    seed = np.clip(np.asarray(reference if seed is None else seed, float), inner.lower, inner.upper)
-    first = solve_ik(inner, target, None, q0=seed, bounds=True, max_iter=max_iter)
-    start = first.q if first.converged else seed
-    res = solve_ik(inner, target, JointDeviation(np.asarray(reference, float)), q0=start, bounds=True,
-                   max_iter=max_iter)
-    return res.q if res.converged and _inside(inner, res.q) else None
-
-
-class _Pool:
-    """The candidates of one sample: distinct minima (q, z), each with a label unique over the plan."""
-
-    def __init__(self):
-        self.q: list[np.ndarray] = []
-        self.z: list[float] = []
-        self.label: list[int] = []
-
-    def add(self, found, counter: list) -> int:
-        """Add (q, z) unless already there; its label (or -1 for None). ``counter``: [next label]."""
-        if found is None:
-            return -1
-        q, z = found
-        for i, c in enumerate(self.q):
-            if np.abs(c - q).max() < SAME_CANDIDATE:
-                return self.label[i]
-        self.q.append(q)
-        self.z.append(z)
-        self.label.append(counter[0])
-        counter[0] += 1
-        return self.label[-1]
-
-    def trim(self, limit: int, keep: int | None = None) -> None:
-        """Keep the ``limit`` candidates of lowest z (in their order), and the one labelled ``keep``."""
-        keep = sorted(set(np.argsort(self.z, kind="stable")[:limit].tolist())
-                      | ({self.label.index(keep)} if keep is not None else set()))
-        self.q, self.z, self.label = ([v[i] for i in keep] for v in (self.q, self.z, self.label))
-
-
-def _continue(inner, targets, index, pools, a, b, links, counter, max_iter) -> None:
-    """Continue every candidate of sample a to sample b; the pairs of labels joined go into ``links``."""
-    for la, q in zip(list(pools[a].label), list(pools[a].q), strict=True):
-        lb = pools[b].add(_minimum(inner, targets[b], index, q, max_iter), counter)
-        if lb >= 0:
-            links.add(frozenset((la, lb)))
-
-
-def _bisect(inner, path, ta, qa, tb, qb, max_jump, budget, max_iter):
-    """Points strictly inside (ta, tb) that bring every joint jump within ``max_jump``, or None
-    (Section 6.2.2.1: sample points close to one another where the configuration changes fast)."""
-    pts = [(ta, qa), (tb, qb)]
-    while True:
-        jumps = [float(np.abs(pts[k + 1][1] - pts[k][1]).max()) for k in range(len(pts) - 1)]
-        k = int(np.argmax(jumps))
-        if jumps[k] <= max_jump:
-            return pts[1:-1]
-        if len(pts) - 2 >= budget:
-            return None
-        tm = 0.5 * (pts[k][0] + pts[k + 1][0])
-        mean = 0.5 * (pts[k][1] + pts[k + 1][1])
-        qm = closest_within_limits(inner, _target(inner, path, tm), mean, max_iter=max_iter)
-        if qm is None or max(np.abs(qm - pts[k][1]).max(), np.abs(pts[k + 1][1] - qm).max()) >= 0.95 * jumps[k]:
-            return None
-        pts.insert(k + 1, (tm, qm))
-
-
-def _costs(pools, max_jump):
-    """Edge costs of the layered graph: the joint distance where no joint jumps by more than max_jump."""
-    n = len(pools)
-    out = []
-    for k in range(n):
-        A, B = np.array(pools[k].q), np.array(pools[(k + 1) % n].q)
-        d = A[:, None, :] - B[None, :, :]
-        c = np.linalg.norm(d, axis=2)
-        c[np.abs(d).max(axis=2) > max_jump] = np.inf
-        out.append(c)
-    return out
-
-
-def _refine_graph(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter, tries=2):
-    """Refine the infinite edges of each candidate toward its ``tries`` nearest successors; fills
-    ``refined[(k, i, j)]`` with the inserted points and their cost into ``costs``."""
-    n = len(pools)
-    for k in range(n):
-        tb = ts[k + 1] if k + 1 < n else period
-        A, B = pools[k].q, pools[(k + 1) % n].q
-        for i, qa in enumerate(A):
-            dist = [float(np.linalg.norm(qb - qa)) for qb in B]
-            for j in np.argsort(dist)[:tries]:
-                if np.isfinite(costs[k][i, j]) or (k, i, int(j)) in refined:
-                    continue
-                pts = _bisect(inner, path, ts[k], qa, tb, B[j], max_jump, budget, max_iter)
-                refined[(k, i, int(j))] = pts
-                if pts is not None:
-                    chain = [qa] + [q for _, q in pts] + [B[j]]
-                    costs[k][i, j] = float(sum(np.linalg.norm(chain[m + 1] - chain[m]) for m in range(len(chain) - 1)))
-
-
-def _restrict(costs, i0: int | None) -> None:
-    """With a start candidate i0 at sample 0: the walk leaves sample 0 from it and returns to it."""
-    if i0 is not None:
-        costs[0][np.arange(costs[0].shape[0]) != i0, :] = np.inf
-        costs[-1][:, np.arange(costs[-1].shape[1]) != i0] = np.inf
-
-
 def _tracker_takes_limits() -> bool:
     return "limits" in inspect.signature(track).parameters
-
-
-def _knots(ts, pools, choice, refined):
-    """The spline's knots (t, q, kind, branch) along the chosen walk."""
-    n = len(ts)
-    rows = []
-    for k in range(n):
-        i, j = choice[k], choice[(k + 1) % n]
-        rows.append((ts[k], pools[k].q[i], "optimum", i))
-        for tm, qm in refined.get((k, i, j)) or ():
-            rows.append((tm, qm, "refined", -1))
-    return rows
 
 
 def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin):
@@ -311,7 +171,7 @@ def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_
 
 def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8, seed: int = 0,
          loops: int = 2, steps_per_loop: int = 200, max_jump: float = 0.25, margin: float = 1e-3,
-         max_candidates: int = 8, budget: int = 16, rounds: int = 3, max_iter: int = 200, q0=None,
+         max_candidates: int = 8, budget: int = 16, rounds: int = 4, max_iter: int = 200, q0=None,
          progress=None, meta: dict | None = None) -> CyclicPlan:
     """Plan a cyclic within-limits joint motion along the closed ``path`` that follows z's optima.
 
@@ -351,33 +211,33 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
     period = float(path.period)
     n = int(samples)
     ts = np.arange(n) * period / n
-    inner = _inner(robot, float(margin))
-    targets = [_target(robot, path, float(t)) for t in ts]
+    inner = shrunk_limits(robot, float(margin))
+    targets = [target_at(robot, path, float(t)) for t in ts]
     rng = np.random.default_rng(seed)
     lo, hi = inner.sample_box()
 
     # -- step 1: within-limits minima of z at the samples (forward sweep with random starts, backward sweep)
-    pools = [_Pool() for _ in range(n)]
+    pools = [CandidatePool() for _ in range(n)]
     links: set = set()  # pairs of candidate labels one solve joined (the same branch at neighbouring samples)
     counter = [0]
     start = None
     if q0 is not None:
         q0 = robot.check_q(q0, "q0")
-        if not _inside(robot, q0):
+        if not inside_limits(robot, q0):
             raise TaskError(f"q0 must lie inside the joint limits of {robot.name}, got {np.round(q0, 6).tolist()}")
-        start = pools[0].add(_minimum(inner, targets[0], index, q0, max_iter), counter)
+        start = pools[0].add(local_minimum(inner, targets[0], index, q0, max_iter), counter)
         if start < 0:
             return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
                               None, None, None, timings={"samples_s": perf_counter() - t0})
     for k in range(n):
         if k > 0:
-            _continue(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
+            continue_candidates(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
         for _ in range(int(starts) * (4 if k == 0 else 1)):
-            pools[k].add(_minimum(inner, targets[k], index, rng.uniform(lo, hi), max_iter), counter)
+            pools[k].add(local_minimum(inner, targets[k], index, rng.uniform(lo, hi), max_iter), counter)
         if not pools[k].q:  # seed from a within-limits point on the path (pose-only multi-start)
             feasible = solve_ik(inner, targets[k], None, bounds=True, starts=4 * int(starts), seed=seed + k)
             if feasible.converged:
-                pools[k].add(_minimum(inner, targets[k], index, feasible.q, max_iter), counter)
+                pools[k].add(local_minimum(inner, targets[k], index, feasible.q, max_iter), counter)
         if not pools[k].q:
             timings["samples_s"] = perf_counter() - t0
             return CyclicPlan(False, f"sample {k + 1} of {n} (t = {ts[k]:.4g} s) has no within-limits local "
@@ -385,24 +245,24 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
                               "previous sample's minima): the path may leave the reachable set there",
                               None, None, None, timings=timings)
         pools[k].trim(max_candidates, keep=start if k == 0 else None)
-    _continue(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
+    continue_candidates(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
     for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
-        _continue(inner, targets, index, pools, k, k - 1, links, counter, max_iter)
-    _continue(inner, targets, index, pools, 0, n - 1, links, counter, max_iter)
+        continue_candidates(inner, targets, index, pools, k, k - 1, links, counter, max_iter)
+    continue_candidates(inner, targets, index, pools, 0, n - 1, links, counter, max_iter)
     for k, pool in enumerate(pools):
         pool.trim(2 * max_candidates, keep=start if k == 0 else None)
     timings["samples_s"] = perf_counter() - t0
 
     # -- step 2: the shortest closed walk through the candidates, refined where it must be
     t1 = perf_counter()
-    costs = _costs(pools, max_jump)
+    costs = walk_costs(pools, max_jump)
     i0 = None if start is None else pools[0].label.index(start)
-    _restrict(costs, i0)
+    restrict_start(costs, i0)
     refined: dict = {}
     choice, total = choose(costs)
     if choice is None or not np.isfinite(total):
-        _refine_graph(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter)
-        _restrict(costs, i0)
+        refine_walk(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter)
+        restrict_start(costs, i0)
         choice, total = choose(costs)
     timings["walk_s"] = perf_counter() - t1
     candidates = tuple(np.array(p.q) for p in pools)
@@ -413,31 +273,13 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         smp = CyclicSamples(np.zeros(0), np.zeros((0, robot.nq)), (), (), ts, candidates, objective)
         return CyclicPlan(False, "no continuous closed walk through the within-limits minima at this sampling "
                           f"resolution{where}: try more samples", None, smp, None, timings=timings)
-    rows = _knots(ts, pools, choice, refined)
-    off = _off_optimum(ts, period, pools, choice, links, refined)
+    rows = walk_knots(ts, pools, choice, refined)
+    off = off_optimum_intervals(ts, period, pools, choice, links, refined)
     notes = [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
              "path), not a local minimum of the index: the minimum followed ceases to exist there (a fold)"
              for a, b in off]
     return _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objective, off, notes, loops,
                          steps_per_loop, rounds, max_iter, progress, meta, timings, t0)
-
-
-def _off_optimum(ts, period, pools, choice, links, refined) -> tuple:
-    """The intervals where the chosen walk is not the continuation of one minimum (module docstring)."""
-    n = len(ts)
-    out = []
-    for k in range(n):
-        i, j = choice[k], choice[(k + 1) % n]
-        pair = frozenset((pools[k].label[i], pools[(k + 1) % n].label[j]))
-        if refined.get((k, i, j)) or pair not in links:
-            out.append((float(ts[k]), float(ts[k + 1] if k + 1 < n else period)))
-    merged: list[list[float]] = []
-    for a, b in out:
-        if merged and abs(merged[-1][1] - a) < 1e-12:
-            merged[-1][1] = b
-        else:
-            merged.append([a, b])
-    return tuple((a, b) for a, b in merged)
 
 
 def _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objective, off, notes, loops,
@@ -468,19 +310,40 @@ def _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objec
         timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
         check = verify_motion_on_path(robot, path, traj.t, traj.q, int(steps_per_loop))
         if check.limit_violation > 0 and attempt < rounds:
-            k = check.worst_limit_step
-            tk = float(traj.t[k]) % period
-            qk = closest_within_limits(inner, _target(robot, path, tk), np.clip(traj.q[k], inner.lower, inner.upper),
-                                       seed=traj.q[k], max_iter=max_iter)
-            if qk is not None and all(abs(tk - r[0]) > 1e-9 for r in rows):
-                rows.append((tk, qk, "refined", -1))
-                notes.append(f"a knot was inserted at t = {tk:.4g} s where the motion left the limits by "
+            added = 0
+            for k in _worst_per_excursion(robot, traj.q):
+                tk = float(traj.t[k]) % period
+                ref_k = np.clip(traj.q[k], inner.lower, inner.upper)
+                qk = closest_within_limits(inner, target_at(robot, path, tk), ref_k, seed=traj.q[k],
+                                           max_iter=max_iter, fallback=True)
+                if qk is not None and all(abs(tk - r[0]) > 1e-9 for r in rows):
+                    rows.append((tk, qk, "limit", -1))
+                    added += 1
+            if added:
+                notes.append(f"{added} knot(s) inserted where the motion left the limits by up to "
                              f"{check.limit_violation:.3g}")
                 continue
         break
     timings["total_s"] = perf_counter() - t0
     reason = _verdict(check)
     return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings)
+
+
+def _worst_per_excursion(robot, q) -> list[int]:
+    """The recorded point of the largest excursion beyond the limits in each run of consecutive points
+    outside them."""
+    over = limit_excursion(robot, q)
+    out, k = [], 0
+    while k < len(over):
+        if over[k] > 0:
+            j = k
+            while j < len(over) and over[j] > 0:
+                j += 1
+            out.append(k + int(np.argmax(over[k:j])))
+            k = j
+        else:
+            k += 1
+    return out
 
 
 def _verdict(check: MotionCheck) -> str:
@@ -497,4 +360,4 @@ def _verdict(check: MotionCheck) -> str:
     return "" if not bad else "the verified motion " + "; ".join(bad)
 
 
-__all__ = ["CLOSURE_TOL", "TASK_TOL", "CyclicPlan", "CyclicSamples", "closest_within_limits", "plan"]
+__all__ = ["CLOSURE_TOL", "TASK_TOL", "CyclicPlan", "CyclicSamples", "plan"]
