@@ -38,7 +38,8 @@ from kinredund.ik.newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, 
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
 from kinredund.kinematics.angles import turn_into_limits
-from kinredund.tasks import Target, TaskResidual, make_target, task_residual
+from kinredund.paths import PathSample
+from kinredund.tasks import Target, TaskResidual, get_task, make_target, task_residual
 
 #: residuals are never asked to be smaller than this many units of round-off times the target scale
 ROUNDING = 64.0 * float(np.finfo(float).eps)
@@ -114,6 +115,11 @@ def _target(robot, target) -> Target:
         if target.task != robot.task:
             raise TaskError(f"the target is for a {target.task!r} task but {robot.name} has task {robot.task!r}")
         return target
+    if isinstance(target, PathSample):  # a path's sample: its point, and its rotation where the task has one
+        task = get_task(robot.task)
+        if task.has_orientation:
+            return task.make_target((target.Q, target.p))
+        return task.make_target(task.point_target(target.p), z=float(target.p[2]))
     return make_target(robot.task, target)
 
 
@@ -146,7 +152,8 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
 
     Args:
         robot: a :class:`kinredund.Robot`.
-        target: what :func:`kinredund.tasks.make_target` accepts, or a Target.
+        target: what :func:`kinredund.tasks.make_target` accepts, a Target, or a path's sample
+            (:class:`kinredund.paths.PathSample`: its point, and its rotation where the task holds one).
         q: joint vector (n,) [rad or m].
         index: the objective z; None gives only the residual.
         bounds: count the joint limits that q sits on (within 1e-9) as constraints.
@@ -171,14 +178,19 @@ def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bo
         )
     Q, p, K, dk = robot.kinematics.jacobian_hessian(q)
     z, grad, H = index.evaluate(q) if zgh is None else zgh
-    normality, lam, L, active = bound_kkt(K[res.rows], grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
-    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam, L, active), res.rows)
+    _, aux = res.error(Q, p)
+    normality, lam, L, active = bound_kkt(res.normal_rows(K, aux), grad, q, robot.lower, robot.upper, bounds)  # (D.30)
+    lam_k, extra = res.normal_multipliers(K, lam, aux)
+    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam_k, L, active, extra),
+                         res.rows)
 
 
 def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Optimality:
     """The report of Eq. (D.33) from the first-order terms at one q (:func:`_optimality`, or the
     converged iteration of a start)."""
     M = t.hessian + t.dk.contract(t.multipliers, rows)  # Hess z + Lambda*, Eq. (4.37)
+    if t.extra is not None:
+        M = M + t.extra
     L = t.null_space
     Br = L.T @ M @ L
     Br = 0.5 * (Br + Br.T)  # symmetric on the null space of K (Section 4.2)

@@ -1,7 +1,8 @@
 """Tasks: what the end effector must do (Chapters 2 and 4).
 
 One :class:`~kinredund.tasks.base.Task` subclass per kind, one file each: ``planar`` (x, y of point P,
-m = 2), ``position`` (p, m = 3), ``pose`` (orientation and position, m = 6). Ask the task object
+m = 2), ``position`` (p, m = 3), ``pose`` (orientation and position, m = 6), ``axis`` (point and tool
+axis, the spin about it free, m = 5). Ask the task object
 (:func:`get_task`) for dimensions, targets, errors, the IK residual and the tracking terms.
 """
 

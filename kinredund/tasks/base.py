@@ -108,6 +108,20 @@ class TaskResidual(ABC):
         """lambda* with G^T lambda = K[rows]^T lambda*, for Lambda* = d(K^T lambda*)/dtheta (Eq. 4.37)."""
         return lam
 
+    def normal_rows(self, K: np.ndarray, aux) -> np.ndarray:
+        """Rows spanning the constraints' normal space at a solution, for the optimality check: K[rows]
+        (the same span as G where G = T K[rows] with T invertible), or G itself."""
+        return K[self.rows]
+
+    def normal_multipliers(self, K: np.ndarray, lam: np.ndarray, aux) -> tuple[np.ndarray, np.ndarray | None]:
+        """(lambda* on K[rows], :meth:`extra_hessian`) from the multipliers of :meth:`normal_rows`."""
+        return lam, None
+
+    def extra_hessian(self, K: np.ndarray, lam: np.ndarray, aux) -> np.ndarray | None:
+        """The part of d(G^T lambda)/dtheta that d(K^T lambda*)/dtheta at fixed lambda* leaves out, or
+        None where there is none on the solution set (the Lagrangian's Hessian is then M of Eq. 4.37)."""
+        return None
+
     @abstractmethod
     def residual(self, Q: np.ndarray, p: np.ndarray) -> float:
         """||g(theta) - x||: the residual reported to the user."""
@@ -126,6 +140,7 @@ class Task(ABC):
         planar: the task lives in the x-y plane (plots and cameras draw it from above).
         has_orientation: the task holds (part of) the orientation: it needs a path with orientation.
         point_rows: the rows of K = [omega; pdot] of the end point's coordinates that the task holds.
+        error_names: the names of :meth:`error_values`, as the record's fields.
     """
 
     name: str = ""
@@ -133,6 +148,7 @@ class Task(ABC):
     planar: bool = False
     has_orientation: bool = False
     point_rows: np.ndarray = np.array([3, 4, 5])
+    error_names: tuple[str, ...] = ("position_error",)
 
     @abstractmethod
     def make_target(self, target, *, z: float = 0.0) -> Target:
@@ -158,13 +174,17 @@ class Task(ABC):
         i = self.point_rows - 3
         return float(np.linalg.norm(np.asarray(p)[i] - target.p[i]))
 
-    def errors(self, Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:
-        """(position error [m], trace error |tr Q - tr Q_d|, vect error ||vect Q - vect Q_d||).
+    def error_values(self, Q: np.ndarray, p: np.ndarray, target: Target) -> dict[str, float]:
+        """The task's errors by the record's names (:attr:`error_names`): ``position_error`` [m], and
+        where the task holds an orientation ``trace_error`` and ``vect_error`` (the thesis's invariants,
+        Example 4.3) or ``axis_error`` [rad]."""
+        return {"position_error": self.position_error(p, target)}
 
-        The orientation errors are in the thesis's invariants (Example 4.3); zero where the task has
-        no orientation.
-        """
-        return self.position_error(p, target), 0.0, 0.0
+    def errors(self, Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:
+        """(position error [m], trace error |tr Q - tr Q_d|, vect error ||vect Q - vect Q_d||), the last
+        two zero where the task does not hold them (:meth:`error_values` has every error of the task)."""
+        e = self.error_values(Q, p, target)
+        return e["position_error"], e.get("trace_error", 0.0), e.get("vect_error", 0.0)
 
     @abstractmethod
     def ik_residual(self, target: Target) -> TaskResidual:

@@ -217,6 +217,7 @@ class PoseTask(Task):
     name = "pose"
     dim = 6
     has_orientation = True
+    error_names = ("position_error", "trace_error", "vect_error")
 
     def make_target(self, target, *, z: float = 0.0) -> Target:
         """Validate a 4x4 homogeneous pose (or a (Q, p) pair).
@@ -237,10 +238,10 @@ class PoseTask(Task):
             raise TaskError("the pose target's rotation is not a proper orthonormal matrix (Q Q^T = 1, det Q = +1)")
         return Target(self.name, p.copy(), Q.copy())
 
-    def errors(self, Q, p, target):
+    def error_values(self, Q, p, target):
         tr = float(abs(np.trace(Q) - np.trace(target.Q)))
         ve = float(np.linalg.norm(closure.vect(Q) - closure.vect(target.Q)))
-        return self.position_error(p, target), tr, ve
+        return {"position_error": self.position_error(p, target), "trace_error": tr, "vect_error": ve}
 
     def ik_residual(self, target: Target) -> PoseResidual:
         return PoseResidual(target)

@@ -4,13 +4,14 @@ subclass, one line in :data:`TASKS`, and its tests (see docs/architecture.md).""
 from __future__ import annotations
 
 from kinredund.errors import ChoiceError
+from kinredund.tasks.axis import AxisTask
 from kinredund.tasks.base import Task
 from kinredund.tasks.planar import PlanarTask
 from kinredund.tasks.pose import PoseTask
 from kinredund.tasks.position import PositionTask
 
 #: every task kind, by name (the task objects hold no state: one instance each)
-TASKS: dict[str, Task] = {task.name: task for task in (PlanarTask(), PositionTask(), PoseTask())}
+TASKS: dict[str, Task] = {task.name: task for task in (PlanarTask(), PositionTask(), PoseTask(), AxisTask())}
 
 
 def task_names() -> tuple[str, ...]:
