@@ -14,7 +14,7 @@ from kinredund.model.robot import erd_share_dir
 from kinredund.paths import Circle
 from kinredund.tasks import make_target
 from kinredund.tasks.axis import frame_with_axis
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 
 #: a regular, well-conditioned start (the UR5's all-zero pose is singular)
 STARTS = {"ur5": np.array([0.3, -1.2, 1.5, -1.9, -1.57, 0.3]), "panda": None}

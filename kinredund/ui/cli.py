@@ -55,7 +55,7 @@ def _at_least(minimum: int):
     return parse
 
 
-_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.resolved_rate.track and kinredund.ik.solve_ik
+_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.track and kinredund.ik.solve_ik
 
 
 def _progress(label: str):
@@ -83,11 +83,12 @@ def _cmd_generate_robots(args) -> int:
 
 
 def _cmd_robots(args) -> int:
-    from kinredund.model.robot import known_robots, load_robot
+    from kinredund.model.loader import robot_table
 
-    for name in known_robots():
-        r = load_robot(name)
-        print(f"{name:14s} n={r.nq}  task={r.task:8s} m={r.task_dim}  ee={r.ee_frame}")
+    print(f"{'name':14s} {'n':>2s}  {'task':8s} {'m':>1s}  {'redundancy':10s} {'default frame':24s} source")
+    for row in robot_table():
+        print(f"{row.name:14s} {row.n:2d}  {row.task:8s} {row.m:1d}  n - m = {row.n - row.m:<3d}"
+              f"{row.ee_frame:24s} {row.note}")
     return EXIT_OK
 
 
@@ -170,7 +171,7 @@ def _path_for(args, robot, q_start: np.ndarray):
 def _cmd_track(args) -> int:
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
-    from kinredund.tracking.resolved_rate import track
+    from kinredund.tracking import track
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
     seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
