@@ -56,7 +56,7 @@ from kinredund.model.robot import load_robot
 from kinredund.planning.circles import CircleTask, random_circle, reachable, start_of
 from kinredund.planning.cyclic import plan
 from kinredund.planning.verify import limit_excursion, task_errors, verify_motion_on_path
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 
 ROBOTS = ("panda", "xarm7")
 METHODS = ("strict", "planner", "pink")

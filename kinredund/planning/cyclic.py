@@ -70,7 +70,7 @@ from kinredund.planning.walk import (
     walk_costs,
     walk_knots,
 )
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
 #: a completed plan tracks the path to this [m] (and [rad] for orientation): the default-mode corrector
