@@ -84,7 +84,8 @@ def _figures(method, robot, path, t, q, completed: bool, cause: str = "", t_fail
             out.update(completed=False, cause=f"lost the path: {c.position_error_max:.3g} m, "
                        f"{c.orientation_error_max:.3g} rad")
         out.update(inside=c.limit_violation <= tol, limit_violation=c.limit_violation,
-                   closed=bool(c.closure and c.closure_max <= CLOSURE_TOL), closure=c.closure_max,
+                   closed=bool(len(c.closure) >= LOOPS and c.closure[LOOPS - 1] <= CLOSURE_TOL),
+                   closure=c.closure[LOOPS - 1] if len(c.closure) >= LOOPS else None,
                    position_error_max=c.position_error_max, orientation_error_max=c.orientation_error_max,
                    step_max=c.step_max, jumps=len(c.jumps), jump_ratio_max=c.jump_ratio_max)
     elif q_fail is not None and t_fail is not None:

@@ -20,6 +20,7 @@ from kinredund.planning.circles import (
     start_of,
 )
 from kinredund.planning.cyclic import CLOSURE_TOL, TASK_TOL, plan
+from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
 from kinredund.planning.verify import (
     JUMP_FACTOR,
     JUMP_FLOOR,
@@ -159,6 +160,37 @@ def test_planner_where_the_unconstrained_optimum_meets_a_limit():
     _assert_completed(r, path, result)
     q = result.trajectory.q
     assert np.minimum(q - r.lower, r.upper - q).min() < 2e-3  # it stays on (the margin of) the limit instead
+
+
+def test_planner_on_a_planar_arm():
+    """Any arm: the thesis's planar 3R (task ``planar``, m = 2) on a circle through its home point."""
+    r = robot("planar3r")
+    path = Circle(r.fk(r.home)[:3, 3] - np.array([0.1, 0.0, 0.0]), 0.1, 0.2)
+    result = plan(r, path, JointDeviation(r.home), loops=1)
+    _assert_completed(r, path, result, loops=1)
+
+
+# -- which closed paths admit a closed joint path --------------------------------------------------------
+def test_orientation_loop_class():
+    Q0 = robot("panda").fk(robot("panda").home)[:3, :3]
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1, frenet=True)) is True  # one turn about n
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1, orientation=Q0)) is False
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1, orientation=Q0, roll_amplitude=2.0)) is False
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1)) is None  # no orientation
+    twice = RepeatedPath(Circle((0.4, 0.0, 0.5), 0.05, 0.1, frenet=True), 2)
+    assert orientation_loop_flips(twice) is False  # traversed twice the loop is contractible (Z_2)
+    assert twice.period == pytest.approx(2 * twice.base.period, rel=1e-15)
+    assert np.array_equal(twice(0.3).Q, twice.base(0.3).Q)
+
+
+def test_plan_refuses_a_frenet_circle_with_one_cycle_and_says_why():
+    r = robot("panda")
+    T = r.fk(r.home)
+    path = Circle(T[:3, 3], 0.05, 0.1, normal=T[:3, 2], axis_x=T[:3, 0], frenet=True)
+    result = plan(r, path, JointDeviation(r.home))
+    assert not result.ok and "not contractible" in result.reason and result.samples is None
+    with pytest.raises(TaskError, match="cycles"):
+        plan(r, path, JointDeviation(r.home), cycles=0)
 
 
 # -- bad input -------------------------------------------------------------------------------------------

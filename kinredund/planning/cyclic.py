@@ -34,6 +34,10 @@ the previous sample's candidate continued to) the result says, in ``off_optimum`
 follows its reference there rather than the index's optimum: between those times no local minimum of z
 is followed continuously, and the plan takes the continuous within-limits path it found instead.
 
+A pose path whose orientation turns once about an axis per loop (a circle's Frenet frame) admits no
+within-limits joint path that closes after one loop (:mod:`.topology`); :func:`plan` says so at once, and
+plans a joint motion that repeats every two loops when asked (``cycles=2``).
+
 Joint values are taken as they are (no wrapping by whole turns): a motion inside the limits cannot gain
 a turn on a joint whose range is under one turn, and on wider joints (the xArm7's +-2 pi) the two
 representations of an angle are different candidates.
@@ -55,6 +59,7 @@ from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
 from kinredund.planning.branches import choose
 from kinredund.planning.spline import JointSpline
+from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
 from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
 from kinredund.planning.walk import (
     CandidatePool,
@@ -122,6 +127,7 @@ class CyclicPlan:
         notes: remarks that are not failures.
         timings: wall times of the stages [s].
         partial: what the tracker returned before it failed, when it failed and gave one.
+        cycles: the joint motion repeats every ``cycles`` loops of the path.
     """
 
     ok: bool
@@ -133,11 +139,12 @@ class CyclicPlan:
     notes: tuple[str, ...] = ()
     timings: dict = field(default_factory=dict)
     partial: Trajectory | None = None
+    cycles: int = 1
 
     def summary(self) -> dict:
         """Scalars and short lists: the figures a report prints."""
         s = self.samples
-        return {"ok": self.ok, "reason": self.reason,
+        return {"ok": self.ok, "reason": self.reason, "cycles": self.cycles,
                 "samples": None if s is None else int(s.sample_t.size),
                 "knots": None if s is None else int(s.t.size),
                 "refined": None if s is None else int(sum(k == "refined" for k in s.kind)),
@@ -172,7 +179,7 @@ def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_
 def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8, seed: int = 0,
          loops: int = 2, steps_per_loop: int = 200, max_jump: float = 0.25, margin: float = 1e-3,
          max_candidates: int = 8, budget: int = 16, rounds: int = 4, max_iter: int = 200, q0=None,
-         progress=None, meta: dict | None = None) -> CyclicPlan:
+         cycles: int = 1, progress=None, meta: dict | None = None) -> CyclicPlan:
     """Plan a cyclic within-limits joint motion along the closed ``path`` that follows z's optima.
 
     Args:
@@ -194,6 +201,11 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         q0: a start inside the limits (n,): the walk then starts (and ends) at the within-limits minimum
             of z reached from it at t = 0 (the branch the strict tracker would follow from q0); default
             the shortest closed walk from any candidate.
+        cycles: the joint motion repeats every ``cycles`` loops of the path. A pose path whose
+            orientation loop is not contractible (:mod:`.topology`) admits no within-limits joint path
+            that closes after an odd number of loops: the plan then fails at once and says so (with 2 it
+            may exist, though it needs the arm to swing wide). The samples cover ``cycles`` loops (N per
+            loop) and the closure is checked after every ``cycles`` loops.
         progress: ``progress(done, total)`` during the tracking.
         meta: extra entries for ``Trajectory.meta``.
 
@@ -208,8 +220,18 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
     _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin)
     t0 = perf_counter()
     timings: dict[str, float] = {}
+    flips = orientation_loop_flips(path) if robot.task == "pose" else None
+    cycles = check_count(cycles, 1, "cycles", TaskError)
+    if flips and cycles % 2:
+        return CyclicPlan(False, "the path's orientation turns once about an axis per loop (a loop of SO(3) that is "
+                          "not contractible), and a joint path inside the limits maps to contractible loops "
+                          f"only: no within-limits joint path closes after {cycles} loop(s); plan with an even "
+                          "number of cycles (kinredund.planning.topology)", None, None, None,
+                          timings={"total_s": perf_counter() - t0}, cycles=cycles)
+    user_path, path = path, (path if cycles == 1 else RepeatedPath(path, cycles))
+    first_notes = [f"the joint motion repeats every {cycles} loops of the path"] if cycles > 1 else []
     period = float(path.period)
-    n = int(samples)
+    n = int(samples) * cycles
     ts = np.arange(n) * period / n
     inner = shrunk_limits(robot, float(margin))
     targets = [target_at(robot, path, float(t)) for t in ts]
@@ -228,7 +250,7 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         start = pools[0].add(local_minimum(inner, targets[0], index, q0, max_iter), counter)
         if start < 0:
             return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
-                              None, None, None, timings={"samples_s": perf_counter() - t0})
+                              None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles)
     for k in range(n):
         if k > 0:
             continue_candidates(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
@@ -243,7 +265,7 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
             return CyclicPlan(False, f"sample {k + 1} of {n} (t = {ts[k]:.4g} s) has no within-limits local "
                               f"minimum of the index ({int(starts) * (4 if k == 0 else 1)} random starts and the "
                               "previous sample's minima): the path may leave the reachable set there",
-                              None, None, None, timings=timings)
+                              None, None, None, timings=timings, cycles=cycles)
         pools[k].trim(max_candidates, keep=start if k == 0 else None)
     continue_candidates(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
     for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
@@ -272,21 +294,23 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         where = f" (no continuous way from sample {bad[0] + 1} to {(bad[0] + 1) % n + 1})" if bad else ""
         smp = CyclicSamples(np.zeros(0), np.zeros((0, robot.nq)), (), (), ts, candidates, objective)
         return CyclicPlan(False, "no continuous closed walk through the within-limits minima at this sampling "
-                          f"resolution{where}: try more samples", None, smp, None, timings=timings)
+                          f"resolution{where}: try more samples", None, smp, None, timings=timings, cycles=cycles)
     rows = walk_knots(ts, pools, choice, refined)
     off = off_optimum_intervals(ts, period, pools, choice, links, refined)
-    notes = [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
-             "path), not a local minimum of the index: the minimum followed ceases to exist there (a fold)"
-             for a, b in off]
-    return _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objective, off, notes, loops,
-                         steps_per_loop, rounds, max_iter, progress, meta, timings, t0)
+    notes = first_notes + [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous "
+                           "within-limits path), not a local minimum of the index: the minimum followed ceases to "
+                           "exist there (a fold)" for a, b in off]
+    return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes,
+                         loops, steps_per_loop, rounds, max_iter, progress, meta, timings, t0)
 
 
-def _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objective, off, notes, loops,
+def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, loops,
                   steps_per_loop, rounds, max_iter, progress, meta, timings, t0) -> CyclicPlan:
     """Steps 3-5 of :func:`plan`: spline, tracking, verification; re-planned with an inserted knot where
-    the motion leaves the limits."""
+    the motion leaves the limits. ``path`` is the user's path run ``cycles`` times (one period of the
+    joint motion), ``user_path`` the user's."""
     period = float(path.period)
+    per_cycle = int(steps_per_loop) * cycles
     limits = _tracker_takes_limits()
     info = dict(meta or {}, planner="cyclic", index=type(index).__name__)
     for attempt in range(int(rounds) + 1):
@@ -300,15 +324,15 @@ def _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objec
         ref = TimeVaryingReference(spl, spl.rate)  # Eqs. (6.23)-(6.25)
         kw = {"limits": True} if limits else {}
         try:
-            traj = track(robot, path, ref, kq[0], steps_per_loop=int(steps_per_loop), loops=int(loops),
-                         progress=progress, meta=dict(info, knots=len(kt)), **kw)  # Eqs. (6.26)-(6.28)
+            traj = track(robot, path, ref, kq[0], steps_per_loop=per_cycle, loops=-(-int(loops) // cycles),
+                         progress=progress, meta=dict(info, knots=len(kt), cycles=cycles), **kw)  # Eqs. (6.26)-(6.28)
         except KinredundError as err:
             timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
             partial = getattr(err, "partial", None)
             return CyclicPlan(False, f"the tracking of the planned reference failed: {err}", None, smp, None, off,
-                              tuple(notes), timings, partial)
+                              tuple(notes), timings, partial, cycles)
         timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
-        check = verify_motion_on_path(robot, path, traj.t, traj.q, int(steps_per_loop))
+        check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
         if check.limit_violation > 0 and attempt < rounds:
             added = 0
             for k in _worst_per_excursion(robot, traj.q):
@@ -326,7 +350,7 @@ def _track_rounds(robot, inner, path, index, rows, ts, choice, candidates, objec
         break
     timings["total_s"] = perf_counter() - t0
     reason = _verdict(check)
-    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings)
+    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles)
 
 
 def _worst_per_excursion(robot, q) -> list[int]:
