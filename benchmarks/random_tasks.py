@@ -117,7 +117,7 @@ def run_planner(robot, path, index, seed: int) -> dict:
         out["off_optimum"] = [list(iv) for iv in res.off_optimum]
         return out
     part = res.partial if res.partial is not None else res.trajectory
-    out = _figures("planner", robot, path, None, None, False, res.reason[:200],
+    out = _figures("planner", robot, path, None, None, False, f"{res.cause}: {res.reason[:200]}",
                    None if part is None else part.t[-1], None if part is None else part.q[-1])
     return out
 

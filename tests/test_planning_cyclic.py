@@ -44,7 +44,7 @@ def _case(name):
 
 def _assert_completed(r, path, result, loops=2):
     """The plan's own verdict, and the figures recomputed here from its joints with the robot's FK."""
-    assert result.ok, result.reason
+    assert result.ok and result.cause == "", result.reason
     tr = result.trajectory
     assert len(tr.t) == loops * STEPS + 1
     assert limit_excursion(r, tr.q).max() == 0.0  # every recorded point inside the limits, exactly
@@ -188,7 +188,8 @@ def test_plan_refuses_a_frenet_circle_with_one_cycle_and_says_why():
     T = r.fk(r.home)
     path = Circle(T[:3, 3], 0.05, 0.1, normal=T[:3, 2], axis_x=T[:3, 0], frenet=True)
     result = plan(r, path, JointDeviation(r.home))
-    assert not result.ok and "not contractible" in result.reason and result.samples is None
+    assert not result.ok and result.cause == "orientation_loop" and "not contractible" in result.reason
+    assert result.samples is None
     with pytest.raises(TaskError, match="cycles"):
         plan(r, path, JointDeviation(r.home), cycles=0)
 
@@ -214,7 +215,8 @@ def test_plan_says_why_when_the_path_leaves_the_reachable_set():
     r = robot("panda")
     far = Circle((3.0, 0.0, 0.5), 0.05, 0.1, orientation=np.eye(3))
     result = plan(r, far, JointDeviation(r.home), samples=6, starts=2)
-    assert not result.ok and "no within-limits local minimum" in result.reason and result.trajectory is None
+    assert not result.ok and result.cause == "no_minimum" and "no within-limits local minimum" in result.reason
+    assert result.trajectory is None
 
 
 # -- the benchmark runs ------------------------------------------------------------------------------------

@@ -128,6 +128,9 @@ class CyclicPlan:
         timings: wall times of the stages [s].
         partial: what the tracker returned before it failed, when it failed and gave one.
         cycles: the joint motion repeats every ``cycles`` loops of the path.
+        cause: a short machine-readable tag of the failure ("" when ok): ``orientation_loop`` (no closed
+            joint path exists for this many cycles, :mod:`.topology`), ``no_minimum`` (a sample without a
+            within-limits minimum), ``no_closed_walk``, ``tracking_failed``, ``verification``.
     """
 
     ok: bool
@@ -140,11 +143,12 @@ class CyclicPlan:
     timings: dict = field(default_factory=dict)
     partial: Trajectory | None = None
     cycles: int = 1
+    cause: str = ""
 
     def summary(self) -> dict:
         """Scalars and short lists: the figures a report prints."""
         s = self.samples
-        return {"ok": self.ok, "reason": self.reason, "cycles": self.cycles,
+        return {"ok": self.ok, "reason": self.reason, "cause": self.cause, "cycles": self.cycles,
                 "samples": None if s is None else int(s.sample_t.size),
                 "knots": None if s is None else int(s.t.size),
                 "refined": None if s is None else int(sum(k == "refined" for k in s.kind)),
@@ -227,7 +231,8 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
                           "not contractible), and a joint path inside the limits maps to contractible loops "
                           f"only: no within-limits joint path closes after {cycles} loop(s); plan with an even "
                           "number of cycles (kinredund.planning.topology)", None, None, None,
-                          timings={"total_s": perf_counter() - t0}, cycles=cycles)
+                          timings={"total_s": perf_counter() - t0}, cycles=cycles,
+                          cause="orientation_loop")
     user_path, path = path, (path if cycles == 1 else RepeatedPath(path, cycles))
     first_notes = [f"the joint motion repeats every {cycles} loops of the path"] if cycles > 1 else []
     period = float(path.period)
@@ -250,7 +255,8 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         start = pools[0].add(local_minimum(inner, targets[0], index, q0, max_iter), counter)
         if start < 0:
             return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
-                              None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles)
+                              None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles,
+                              cause="no_minimum")
     for k in range(n):
         if k > 0:
             continue_candidates(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
@@ -265,7 +271,7 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
             return CyclicPlan(False, f"sample {k + 1} of {n} (t = {ts[k]:.4g} s) has no within-limits local "
                               f"minimum of the index ({int(starts) * (4 if k == 0 else 1)} random starts and the "
                               "previous sample's minima): the path may leave the reachable set there",
-                              None, None, None, timings=timings, cycles=cycles)
+                              None, None, None, timings=timings, cycles=cycles, cause="no_minimum")
         pools[k].trim(max_candidates, keep=start if k == 0 else None)
     continue_candidates(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
     for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
@@ -294,7 +300,8 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         where = f" (no continuous way from sample {bad[0] + 1} to {(bad[0] + 1) % n + 1})" if bad else ""
         smp = CyclicSamples(np.zeros(0), np.zeros((0, robot.nq)), (), (), ts, candidates, objective)
         return CyclicPlan(False, "no continuous closed walk through the within-limits minima at this sampling "
-                          f"resolution{where}: try more samples", None, smp, None, timings=timings, cycles=cycles)
+                          f"resolution{where}: try more samples", None, smp, None, timings=timings, cycles=cycles,
+                          cause="no_closed_walk")
     rows = walk_knots(ts, pools, choice, refined)
     off = off_optimum_intervals(ts, period, pools, choice, links, refined)
     notes = first_notes + [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous "
@@ -330,7 +337,7 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
             timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
             partial = getattr(err, "partial", None)
             return CyclicPlan(False, f"the tracking of the planned reference failed: {err}", None, smp, None, off,
-                              tuple(notes), timings, partial, cycles)
+                              tuple(notes), timings, partial, cycles, "tracking_failed")
         timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
         check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
         if check.limit_violation > 0 and attempt < rounds:
@@ -350,7 +357,8 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
         break
     timings["total_s"] = perf_counter() - t0
     reason = _verdict(check)
-    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles)
+    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles,
+                      "verification" if reason else "")
 
 
 def _worst_per_excursion(robot, q) -> list[int]:
