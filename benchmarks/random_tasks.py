@@ -20,7 +20,10 @@ optimum at t = 0):
 
 - ``strict``: ``kinredund.track(robot, path, z, q0, steps_per_loop=200, loops=2)``, with ``limits=True``
   when the installed tracker takes it (reported in the settings);
-- ``planner``: ``kinredund.planning.cyclic.plan(robot, path, z)`` (24 samples, its defaults);
+- ``planner``: ``kinredund.planning.cyclic.plan(robot, path, z)`` (24 samples, its defaults). On a
+  Frenet circle the orientation turns once per loop, a loop of SO(3) no within-limits joint path can
+  follow and close (``kinredund.planning.topology``): the planner says so at once (cause
+  ``orientation_loop``), and the other methods cannot close there either;
 - ``pink``: pin-pink's differential IK with its default limits (configuration and velocity) and the daqp
   solver: a ``FrameTask`` on the end-effector frame (costs 1 /m, 1 /rad, gain 1), a ``PostureTask`` toward
   the index's reference (cost 1e-3), the target of each step the path's pose at its end (dead-beat:
