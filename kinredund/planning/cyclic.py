@@ -19,11 +19,12 @@ of the obstacle policy, and the joint limits as hard bounds:
 3. **Estimates.** A periodic cubic spline theta*(t) through the chosen samples (:mod:`.spline`, Section
    6.2.2.2).
 4. **Tracking.** The resolved-rate scheme with the time-varying index h = 1/2 ||theta - theta*(t)||^2
-   and the spline's rate as feed-forward (Eqs. 6.23-6.28), ``loops`` loops.
+   and the spline's rate as feed-forward (Eqs. 6.23-6.28), ``loops`` loops, with the joint limits as
+   hard constraints when the installed tracker takes them (``track(..., limits=True)``).
 5. **Verification** (:mod:`.verify`): joint limits at every recorded point, the task error with the
    robot's own FK, closure after each loop, no joint jump. A motion that leaves the limits (the spline
-   overshooting a sample held at a limit) gets a sample inserted at the worst point and is planned again
-   (at most ``rounds`` times).
+   overshooting a sample held at a limit) gets a knot inserted at the worst point of each excursion and
+   is tracked again (at most ``rounds`` times).
 
 The samples are solved inside the limits shrunk by ``margin`` [rad or m]: between samples the tracked
 joints follow the spline, which may overshoot a value held at a limit by a little; the margin keeps
