@@ -33,9 +33,9 @@ Figures per task and method, all checked independently by ``kinredund.planning.v
 robot's own FK: completed (2 loops without an exception, tracked to within 1 mm and 1e-3 rad at every
 recorded point, and for the planner its ``ok``), inside the limits (every recorded point; tolerance
 1e-12 rad for ours, pink's own ``check_limits`` tolerance 1e-6 rad for pink), closed after 2 loops
-(max |q(2T) - q(0)| <= 1e-10 rad),
-the max tracking error [m] and orientation error [rad], the max joint step and the jumps (a step more
-than 4x its neighbours', :mod:`kinredund.planning.verify`), the wall time [s]. For each failure: its cause
+(max |q(2T) - q(0)| <= 1e-10 rad), the same modulo whole turns of the revolute joints, the max
+tracking error [m] and orientation error [rad], the max joint step and the jumps (a step more than 4x
+its neighbours', :mod:`kinredund.planning.verify`), the wall time [s]. For each failure: its cause
 (the exception's ``cause`` field where it has one, else its type; the planner's reason) and whether the
 configuration it reports lies on the path (<= 1e-6 m, FK) and inside the limits.
 
@@ -55,6 +55,7 @@ import numpy as np
 from _bench import parser, print_table, write_json
 
 from kinredund.errors import KinredundError
+from kinredund.kinematics.angles import joint_drift
 from kinredund.model.robot import load_robot
 from kinredund.planning.circles import CircleTask, random_circle, reachable, start_of
 from kinredund.planning.cyclic import plan
@@ -70,6 +71,7 @@ TRACK_TOL = 1e-3  # [m] and [rad]: a run that ends farther from the path than th
 CLOSURE_TOL = 1e-10  # [rad]
 ON_PATH_TOL = 1e-6  # [m]
 POSTURE_COST = 1e-3
+PINK_CLOSURE_TOL = 1e-2  # [rad]: pink tracks to ~1e-5 m without feed-forward; its joints drift by more
 MAX_DRAWS = 50  # draws per task before giving up on finding a reachable one
 
 
@@ -90,7 +92,8 @@ def _figures(method, robot, path, t, q, completed: bool, cause: str = "", t_fail
                    closed=bool(len(c.closure) >= LOOPS and c.closure[LOOPS - 1] <= CLOSURE_TOL),
                    closure=c.closure[LOOPS - 1] if len(c.closure) >= LOOPS else None,
                    position_error_max=c.position_error_max, orientation_error_max=c.orientation_error_max,
-                   step_max=c.step_max, jumps=len(c.jumps), jump_ratio_max=c.jump_ratio_max)
+                   step_max=c.step_max, jumps=len(c.jumps), jump_ratio_max=c.jump_ratio_max,
+                   closure_modulo_turns=joint_drift(q[0], q[LOOPS * STEPS_PER_LOOP], robot.revolute))
     elif q_fail is not None and t_fail is not None:
         pos, ang = task_errors(robot, path, [float(t_fail)], [q_fail])
         out.update(failure_t=float(t_fail), failure_on_path=bool(pos[0] <= ON_PATH_TOL and ang[0] <= ON_PATH_TOL),
@@ -223,8 +226,15 @@ def summarise(result: dict) -> dict:
                   "causes": dict(Counter(f["cause"].split(":")[0] for f in fails))}
     pink_ok = [i for i, r in enumerate(rows) if r["pink"]["completed"] and r["pink"]["inside"]]
     plan_on = [i for i in pink_ok if rows[i]["planner"]["completed"]]
-    out["planner_on_pink_completions"] = {"pink_completed_inside": len(pink_ok), "planner_completed": len(plan_on),
-                                          "rate": len(plan_on) / len(pink_ok) if pink_ok else None}
+    pink_cyclic = [i for i in pink_ok if rows[i]["pink"]["closure_modulo_turns"] <= PINK_CLOSURE_TOL]
+    out["planner_on_pink_completions"] = {
+        "pink_completed_inside": len(pink_ok), "planner_completed": len(plan_on),
+        "rate": len(plan_on) / len(pink_ok) if pink_ok else None,
+        "pink_completed_inside_and_closed_modulo_turns": len(pink_cyclic),
+        "planner_completed_of_those": sum(rows[i]["planner"]["completed"] for i in pink_cyclic),
+        "pink_not_closed": [{"task": i, "closure_modulo_turns": rows[i]["pink"]["closure_modulo_turns"],
+                             "planner_cause": rows[i]["planner"]["cause"].split(":")[0]}
+                            for i in pink_ok if i not in pink_cyclic and not rows[i]["planner"]["completed"]]}
     return out
 
 
@@ -257,7 +267,12 @@ def main() -> None:
         s = res["summary"]
         pk = s["planner_on_pink_completions"]
         print(f"{name}: {res['rejected_draws']} draws rejected (not reachable); planner completes "
-              f"{pk['planner_completed']} of the {pk['pink_completed_inside']} tasks pink completes inside its limits")
+              f"{pk['planner_completed']} of the {pk['pink_completed_inside']} tasks pink completes inside its limits, "
+              f"{pk['planner_completed_of_those']} of the {pk['pink_completed_inside_and_closed_modulo_turns']} "
+              f"where pink's joints also come back (modulo turns, to {PINK_CLOSURE_TOL:g} rad) after {LOOPS} loops")
+        for miss in pk["pink_not_closed"]:
+            print(f"  task {miss['task']}: pink completes without coming back (drift "
+                  f"{miss['closure_modulo_turns']:.3g} rad modulo turns); planner: {miss['planner_cause']}")
         for m in METHODS:
             if s[m]["causes"]:
                 print(f"  {m} failures: " + ", ".join(f"{k} x{v}" for k, v in s[m]["causes"].items()))
