@@ -12,7 +12,7 @@ import pinocchio as pin
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 
 import kinredund
 from kinredund.errors import (
