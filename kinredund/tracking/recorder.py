@@ -50,6 +50,8 @@ class Recorder:
     def __init__(self, stepper: Stepper, diagnostics: bool = True):
         self.stepper, self.diagnostics = stepper, diagnostics
         self.t, self.q, self.lam, self.solver, self.M, self.J_step, self.points = [], [], [], [], [], [], []
+        self.limited = getattr(stepper, "limits", None) is not None
+        self.active, self.mu, self.qdot = [], [], []
 
     def add(self) -> None:
         """Record the stepper's current point (M and J may come from the step's predicted point)."""
@@ -63,9 +65,29 @@ class Recorder:
         pt = s.pt
         self.J_step.append(pt.J if pending else None)
         self.points.append(pt if pt.q is s.q and pt.t == s.t else pt.sample)
+        if self.limited:
+            self.active.append(s.active_bounds())
+            self.mu.append(s.mu.copy())
+            self.qdot.append(s.qdot.copy())
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def _limits_record(self, q: np.ndarray, meta: dict) -> dict:
+        """The limits' record: active sets, bound multipliers, margins, switches, speeds against the limits."""
+        s = self.stepper
+        lim = s.limits
+        speeds = np.abs(np.array(self.qdot))
+        vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float)
+        fastest = speeds.max(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(vmax > 0, fastest / vmax, np.inf)
+        meta.update(switches=list(s.switches), joint_speed_max=fastest.tolist(), velocity_limit=vmax.tolist(),
+                    speed_over_velocity_limit_max=float(np.max(ratio)) if np.all(np.isfinite(ratio)) else None,
+                    limit_margin=lim.margin)
+        return {"active_bounds": np.array(self.active), "bound_multipliers": np.array(self.mu),
+                "limit_margins": np.minimum(np.array([lim.margins(x) for x in q]), 1e10),
+                "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
     def _evaluate(self):
         """Per point (Q, p, J or the rows of K with J's row space, grad z, sample): the step's own
@@ -116,8 +138,9 @@ class Recorder:
         if loops is not None:
             drift = np.array([joint_drift(q[0], q[(i + 1) * steps_per_loop], s.ev.robot.revolute)
                               for i in range(loops)])
+        extra = self._limits_record(q, meta) if self.limited else {}
         return Trajectory(
-            robot=robot_name, task=task, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme, mode=mode,
+            **extra, robot=robot_name, task=task, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme, mode=mode,
             solver=tuple(solver), lam=np.array(self.lam), m_eigs=m_eigs, m_null_eigs=m_null,
             position_error=errors[:, 0], trace_error=errors[:, 1], vect_error=errors[:, 2],
             normality_residual=normality_many(Z, grad), loop_drift=drift, loop_period=period, meta=meta)

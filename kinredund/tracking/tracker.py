@@ -33,7 +33,9 @@ from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.tracking.baselines import Liegeois, Pseudoinverse
+from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.tracking.explicit import ExplicitEuler
+from kinredund.tracking.limited import LimitedPredictorCorrector
 from kinredund.tracking.point import Evaluator
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.stepper import Stepper
@@ -85,20 +87,30 @@ class Tracker:
         tol: the corrector's tolerance on ||F||, in (0, 1) (default mode).
         liegeois_gain: the gradient-projection gain k >= 0 of the Liegeois baseline [1/s].
         t0: the starting time [s].
+        limits: hold the robot's joint position limits (``True``, the default), a
+            :class:`~kinredund.tracking.constraints.JointLimits` (e.g. with a margin), or ``False`` for the
+            unconstrained scheme of Chapter 4 (the thesis's). Limits are held by the default mode's
+            optimal schemes (:mod:`kinredund.tracking.limited`); thesis mode and the baselines refuse them
+            (pass ``limits=False``).
+        project_start: put a ``q0`` outside the limits on them instead of raising.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
     ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label) and
     ``stepper`` (the scheme's own object).
 
     Raises:
-        ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range.
+        ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range (also:
+            limits asked of thesis mode or a baseline).
+        TrackingError: with limits, ``q0`` is outside them (``cause="limits_infeasible"``, naming the joints
+            and by how much), or no constrained optimum is found at the start.
         PathError: the start is off the path, or the path is unsuitable (says why).
         SingularityError: the start is singular.
     """
 
     def __init__(self, robot: Robot, path: Path, index: Index | None, q0, dt: float, *, scheme: str = "augmented",
                  mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
-                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0):
+                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0, limits: bool | JointLimits = True,
+                 project_start: bool = False):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -118,13 +130,35 @@ class Tracker:
         self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
         ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
         q = robot.check_q(q0, "starting configuration").copy()
+        limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
+        self.limits = limits
+        if limits is not None:
+            if project_start:
+                q = limits.project(q)
+            self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, **kwargs)
+            self.step = self.stepper.step
+            return
         if scheme in ("pseudoinverse", "liegeois"):
             kwargs["project"] = mode == "default"
         if scheme == "liegeois":
             kwargs["gain"] = gain
         self.stepper: Stepper = STEPPERS[mode, scheme](ev, q, dt, **kwargs)
         self.step = self.stepper.step
+
+    @staticmethod
+    def _limits(robot: Robot, limits, mode: str, scheme: str) -> JointLimits | None:
+        if limits is False or limits is None:
+            return None
+        if limits is True:
+            limits = JointLimits(robot)
+        if not isinstance(limits, JointLimits):
+            raise OptionError(f"limits must be True, False or a JointLimits, got {limits!r}")
+        if mode != "default" or scheme not in ("augmented", "velocity"):
+            raise OptionError(f"joint limits are held by the default mode's augmented and velocity schemes only, "
+                              f"not by mode={mode!r}, scheme={scheme!r}: pass limits=False (thesis mode's explicit "
+                              "steps have no corrector to hold them)")
+        return limits
 
     def step(self) -> None:  # replaced by the stepper's own bound method in __init__ (no extra call)
         """One time step: from (q, lambda) at t to t + dt."""

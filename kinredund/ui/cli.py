@@ -184,7 +184,8 @@ def _cmd_track(args) -> int:
     # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
     span = {} if duration is None else {"duration": duration, "steps": args.steps}
     traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
-                 loops=args.loops, progress=_progress("tracking"), **span)
+                 loops=args.loops, progress=_progress("tracking"), **span,
+                 limits=args.mode == "default" and args.scheme in ("augmented", "velocity"))
     print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode")
     _print_summary(traj.summary())
     if args.json:
