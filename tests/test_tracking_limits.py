@@ -31,30 +31,38 @@ CASES = {
     "xarm7_circle": ("xarm7", [-0.4007, -0.187, 0.1197, 0.0733, 0.0738, 1.2542, -0.4195],
                      [0.1246, 0.7365, 0.6649], [0.9873, -0.0254, -0.157], 0.0636),
 }
+#: pose-task cases (the tool keeps the orientation it has at the given configuration)
+POSE_CASES = {
+    "panda_pose_circle": ("panda", [-0.0777, -1.1391, 0.2501, -2.9447, -0.306, 2.1239, 1.2622],
+                          [-0.0675, 0.2596, 0.9633], [0.9464, -0.289, 0.1442], 0.0626),
+}
 
 
 @functools.cache
 def case(name):
     """(robot, path, index, q0): the circle and the bounded optimum at its start."""
-    rname, qs, n, ax, rad = CASES[name]
-    r = robot(rname, "position")
+    pose = name in POSE_CASES
+    rname, qs, n, ax, rad = (POSE_CASES if pose else CASES)[name]
+    r = robot(rname, "pose" if pose else "position")
     qs, n, ax = np.array(qs), np.array(n, float), np.array(ax, float)
     n /= np.linalg.norm(n)
     ax -= (ax @ n) * n
     ax /= np.linalg.norm(ax)
-    p = r.fk(qs)[:3, 3]
-    path = Circle(p - rad * ax, rad, 0.1, normal=tuple(n), axis_x=tuple(ax))
+    T = r.fk(qs)
+    p = T[:3, 3]
+    path = Circle(p - rad * ax, rad, 0.1, normal=tuple(n), axis_x=tuple(ax), orientation=T[:3, :3] if pose else None)
     index = JointDeviation(r.home.copy())
-    free = kinredund.solve_ik(r, p, index, q0=qs)
-    start = kinredund.solve_ik(r, p, index, q0=free.q, bounds=True)
+    target = (T[:3, :3], p) if pose else p
+    free = kinredund.solve_ik(r, target, index, q0=qs)
+    start = kinredund.solve_ik(r, target, index, q0=free.q, bounds=True)
     assert start.converged
     return r, path, index, start.q
 
 
 @functools.cache
-def run(name, loops=10, limits=True):
+def run(name, loops=10, limits=True, scheme="augmented"):
     r, path, index, q0 = case(name)
-    return track(r, path, index, q0, loops=loops, limits=limits)
+    return track(r, path, index, q0, loops=loops, limits=limits, scheme=scheme)
 
 
 def excess(r, q):
@@ -63,7 +71,10 @@ def excess(r, q):
     return float(np.max(np.maximum(q - r.upper, r.lower - q)))
 
 
-@pytest.mark.parametrize("name", list(CASES))
+ALL = [*CASES, *POSE_CASES]
+
+
+@pytest.mark.parametrize("name", ALL)
 def test_unconstrained_optimum_leaves_the_limits(name):
     r, path, index, q0 = case(name)
     free = run(name, loops=1, limits=False)
@@ -71,11 +82,13 @@ def test_unconstrained_optimum_leaves_the_limits(name):
     assert excess(r, q0) <= 0.0
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_limited_run_is_inside_closed_and_on_the_path(name):
+@pytest.mark.parametrize("scheme", ["augmented", "velocity"])
+@pytest.mark.parametrize("name", ALL)
+def test_limited_run_is_inside_closed_and_on_the_path(name, scheme):
     r, path, index, q0 = case(name)
-    tr = run(name)
+    tr = run(name, scheme=scheme)
     assert excess(r, tr.q) <= 1e-10  # at every step
+    assert tr.trace_error.max() <= 1e-10 and tr.vect_error.max() <= 1e-10  # zero for position tasks
     switches = tr.meta["switches"]
     assert len(switches) >= 20 and len(tr.switch_times) == len(switches)  # >= 2 per loop: reach and release
     assert {w["kind"] for w in switches} == {"reach", "release"}
@@ -88,14 +101,15 @@ def test_limited_run_is_inside_closed_and_on_the_path(name):
     assert np.all(np.isfinite(tr.meta["joint_speed_max"])) and tr.meta["speed_over_velocity_limit_max"] > 0
 
 
-@pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.parametrize("name", ALL)
 def test_bounded_first_order_conditions_hold_independently(name):
     """kinredund.ik.check_optimality with the bounds (its own active-set and sign test) at every point."""
     r, path, index, _ = case(name)
     tr = run(name, loops=1)
     worst = 0.0
-    for q, p_d, act in zip(tr.q, tr.p_desired, tr.active_bounds, strict=True):
-        opt = kinredund.check_optimality(r, p_d, q, index, bounds=True)
+    for t, q, act in zip(tr.t, tr.q, tr.active_bounds, strict=True):
+        s = path(t)
+        opt = kinredund.check_optimality(r, (s.Q, s.p) if r.task == "pose" else s.p, q, index, bounds=True)
         worst = max(worst, opt.normality_residual)
         assert opt.residual <= 1e-10
         assert np.array_equal(opt.active, act != 0)  # the same active set, the multipliers' signs right
@@ -166,6 +180,13 @@ def test_equals_the_bounded_joint_level_ik_solved_afresh():
         res = kinredund.solve_ik(r, tr.p_desired[k], index, q0=seed, bounds=True)
         assert res.converged
         assert np.abs(res.q - tr.q[k]).max() <= 1e-9
+
+
+def test_velocity_form_follows_the_same_constrained_optimum():
+    """The displacement and velocity-Jacobian forms (Eqs. 4.24 and 4.36) reach the same joints, with limits."""
+    a, b = run("panda_pose_circle"), run("panda_pose_circle", scheme="velocity")
+    assert np.abs(a.q - b.q).max() <= 1e-9
+    assert np.abs(a.switch_times - b.switch_times).max() <= 1e-9
 
 
 def test_limits_inactive_give_the_unconstrained_run():
