@@ -55,8 +55,11 @@ class LimitedPredictorCorrector(PredictorCorrector):
         n = evaluator.n
         self._m = evaluator.robot.task_dim
         self.lo, self.hi = limits.lower, limits.upper
+        # a free joint beyond its bound by more than 1e-13 rad is a switch (rounding below that is not)
+        self._lo_tol, self._hi_tol = self.lo - 1e-13, self.hi + 1e-13
         self.fixed, self.side = np.zeros(n, bool), np.zeros(n)
-        self.mu = np.zeros(n)
+        self.mu = self._no_mu = np.zeros(n)
+        self._no_mu.flags.writeable = False
         self.switches: list[dict] = []
         self._sel = None  # the free rows of R (None: all joints free)
         q0 = self._start_inside(q0, evaluator)
@@ -103,7 +106,9 @@ class LimitedPredictorCorrector(PredictorCorrector):
         self._update_sel()
 
     def _free(self, i: int) -> None:
-        self.fixed[i], self.side[i], self.mu[i] = False, 0.0, 0.0
+        self.fixed[i], self.side[i] = False, 0.0
+        self.mu = self.mu.copy()
+        self.mu[i] = 0.0
         self._update_sel()
 
     def _update_sel(self) -> None:
@@ -189,7 +194,7 @@ class LimitedPredictorCorrector(PredictorCorrector):
     def _update_mu(self) -> None:
         """mu_i = s_i (grad z + J^T lambda)_i on the active joints (the multipliers of the bounds), at q."""
         if self._sel is None:
-            self.mu = np.zeros(self.n)
+            self.mu = self._no_mu
             return
         pt = self.pt
         if pt.q is not self.q:
@@ -207,21 +212,26 @@ class LimitedPredictorCorrector(PredictorCorrector):
     _STATE = ("t", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "mu")
 
     def _snapshot(self) -> dict:
-        snap = {name: getattr(self, name) for name in self._STATE}
-        snap.update(prev=list(self.prev), fixed=self.fixed.copy(), side=self.side.copy())
-        return snap
+        """The state to come back to (the step's start, a switching time); arrays are never changed in place."""
+        return {"t": self.t, "q": self.q, "lam": self.lam, "qdot": self.qdot, "lamdot": self.lamdot, "_y": self._y,
+                "_yd": self._yd, "pt": self.pt, "M": self.M, "_solver": self._solver, "mu": self.mu,
+                "prev": list(self.prev), "fixed": self.fixed.copy() if self._sel is not None else None,
+                "side": self.side.copy() if self._sel is not None else None}
 
     def _restore(self, snap: dict) -> None:
         for name in self._STATE:
             setattr(self, name, snap[name])
         self.prev[:] = snap["prev"]
-        self.fixed[:], self.side[:] = snap["fixed"], snap["side"]
+        if snap["fixed"] is None:
+            self.fixed[:], self.side[:] = False, 0.0
+        else:
+            self.fixed[:], self.side[:] = snap["fixed"], snap["side"]
         self._update_sel()
 
     def step(self) -> None:
         """One step to t + dt; a switch of the active set within it is located and stepped to exactly."""
         snap = self._snapshot()
-        bounded = self._sel is not None or bool(self.switches)
+        bounded = self._sel is not None or bool(self.switches)  # a failure then is the limits' to name
         try:
             super().step()
             self._resolve_switches(snap)
@@ -242,10 +252,14 @@ class LimitedPredictorCorrector(PredictorCorrector):
 
     def _events(self) -> list[tuple[int, str]]:
         """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``)."""
+        q = self.q
+        if self._sel is None:  # no joint on a bound: one comparison per side (the common case)
+            if not ((q < self._lo_tol).any() or (q > self._hi_tol).any()):
+                return []
         free = ~self.fixed
         scale = max(1.0, float(np.abs(self.pt.grad).max()))
-        out = [(int(i), "lower") for i in np.flatnonzero(free & (self.q < self.lo - 1e-13))]
-        out += [(int(i), "upper") for i in np.flatnonzero(free & (self.q > self.hi + 1e-13))]
+        out = [(int(i), "lower") for i in np.flatnonzero(free & (q < self._lo_tol))]
+        out += [(int(i), "upper") for i in np.flatnonzero(free & (q > self._hi_tol))]
         out += [(int(i), "release") for i in np.flatnonzero(self.fixed & (self.mu < -1e-12 * scale))]
         return out
 
