@@ -35,6 +35,9 @@ CASES = {
 POSE_CASES = {
     "panda_pose_circle": ("panda", [-0.0777, -1.1391, 0.2501, -2.9447, -0.306, 2.1239, 1.2622],
                           [-0.0675, 0.2596, 0.9633], [0.9464, -0.289, 0.1442], 0.0626),
+    # one degree of redundancy: a second bound would fix the arm, so the path cannot be followed inside
+    "panda_pose_infeasible": ("panda", [-0.2906, -0.4692, 0.2375, -2.8016, -0.1485, 1.4761, 0.983],
+                              [-0.528, 0.34, 0.7782], [0.7265, -0.2938, 0.6212], 0.0868),
 }
 
 
@@ -71,7 +74,7 @@ def excess(r, q):
     return float(np.max(np.maximum(q - r.upper, r.lower - q)))
 
 
-ALL = [*CASES, *POSE_CASES]
+ALL = [*CASES, "panda_pose_circle"]
 
 
 @pytest.mark.parametrize("name", ALL)
@@ -230,3 +233,37 @@ def test_margin_keeps_the_joints_further_in():
         pytest.skip("the start sits within the margin of a limit")
     tr = track(r, path, index, res.q, limits=lim)
     assert np.min(np.minimum(tr.q - r.lower, r.upper - tr.q)) >= 0.02 - 1e-10
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_rate_qp_agrees_with_the_active_set_after_each_switch(name):
+    """The rate QP (proxsuite, the decider where the LU route cannot tell) keeps a bound just reached and
+    lets go of one just released, as the switch itself decided."""
+    r, path, index, q0 = case(name)
+    tracker = Tracker(r, path, index, q0, path.period / 200)
+    s, seen = tracker.stepper, 0
+    for _ in range(200):
+        tracker.step()
+        if len(s.switches) > seen:
+            w = s.switches[-1]
+            seen = len(s.switches)
+            side = 1.0 if w["bound"] == "lower" else -1.0
+            assert s._qp_keeps_bound(w["joint"], side) == (w["kind"] == "reach") == bool(s.fixed[w["joint"]])
+    assert seen >= 2
+
+
+def test_a_path_that_cannot_be_followed_inside_stops_with_the_last_good_state():
+    r, path, index, q0 = case("panda_pose_infeasible")
+    with pytest.raises(TrackingError) as info:
+        track(r, path, index, q0, loops=2)
+    err = info.value
+    assert err.cause == "limits_infeasible" and 0 < err.t < path.period
+    q = np.array(err.q)
+    assert excess(r, q) <= 1e-10  # inside the limits
+    T, s = r.fk(q), path(err.t)
+    assert np.linalg.norm(T[:3, 3] - s.p) <= 1e-10 and np.abs(T[:3, :3] - s.Q).max() <= 1e-10  # on the path
+    assert set(err.watched) == {"active", "bound_multipliers", "limit_margins"}
+    assert min(err.watched["bound_multipliers"]) >= 0.0
+    part = err.partial.checked(r.nq)  # a valid record: plots and playback accept it
+    assert part.t[-1] == pytest.approx(err.t) and np.array_equal(part.q[-1], q)
+    assert excess(r, part.q) <= 1e-10
