@@ -28,3 +28,4 @@ for _ in range(steps):
 
 print(f"t = {tracker.t:.3f} s after {steps} steps: largest position error {worst:.2e} m, "
       f"joints {np.abs(tracker.q - q0).max():.2e} rad from where they started")
+print("ok")

@@ -40,10 +40,11 @@ class URDFError(KinredundError, ValueError):
 class FrameNotFoundError(KinredundError, KeyError):
     """An end-effector frame name that the model does not have; ``frames`` lists those it has."""
 
-    def __init__(self, frame: str, frames: Sequence[str]):
+    def __init__(self, frame: str, frames: Sequence[str], note: str = ""):
         self.frame = frame
         self.frames = list(frames)
-        super().__init__(f"no frame {frame!r} in the model; its frames are: {', '.join(self.frames)}")
+        tail = f" ({note})" if note else ""
+        super().__init__(f"no frame {frame!r} in the model; its frames are: {', '.join(self.frames)}{tail}")
 
     def __str__(self) -> str:
         return self.args[0]

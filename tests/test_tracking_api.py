@@ -17,11 +17,9 @@ from kinredund.errors import OptionError
 from kinredund.indices import minimum_norm
 from kinredund.paths import Circle
 from kinredund.problems import panda_circle
-from kinredund.tasks.target import Target, pose_errors
 from kinredund.thesis.chapter4 import load_example
 from kinredund.tracking import MAX_STEPS, Tracker, track
 from kinredund.tracking.linalg import classify, eigs_many, labels_many, multipliers, null_space_eigs
-from kinredund.tracking.recorder import pose_errors_many
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -91,7 +89,7 @@ def test_open_path_steps_must_be_an_integer():
 def test_q0_is_a_required_argument():
     r, path, index, _ = _planar()
     with pytest.raises(TypeError):
-        track(r, path, index)  # the point of the test: no default for q0
+        track(r, path, index)  # q0 missing: the point of the test
 
 
 def test_thesis_mode_does_not_report_metre_errors_as_success():
@@ -102,7 +100,12 @@ def test_thesis_mode_does_not_report_metre_errors_as_success():
     assert err.value.t is not None and err.value.t > 0
 
 
-def test_batched_pose_errors_equal_the_one_point_form():
+def test_batched_task_errors_against_the_invariants():
+    """Task.errors_many against independent one-point formulas: ||p - p_d||, |tr Q - tr Q_d| and
+    ||vect Q - vect Q_d|| (Eq. 2.8, closure.vect), and the axis angle arccos(a . a_d)."""
+    from kinredund.kinematics import closure
+    from kinredund.tasks import get_task
+
     r, path, _, q0 = panda_circle(wrist_amplitude=np.radians(15))
     rng = np.random.default_rng(3)
     qs = [q0 + 0.05 * rng.normal(size=7) for _ in range(5)]
@@ -110,11 +113,18 @@ def test_batched_pose_errors_equal_the_one_point_form():
     Qp = [r.kinematics.pose(q) for q in qs]
     samples = [path(t) for t in ts]
     Q, p = np.array([a for a, _ in Qp]), np.array([b for _, b in Qp])
-    for task in ("pose", "position"):
-        got = pose_errors_many(task, Q, p, np.array([s.Q for s in samples]), np.array([s.p for s in samples]))
-        want = [pose_errors(Q[k], p[k], Target(task, samples[k].p, samples[k].Q if task == "pose" else None))
-                for k in range(5)]
-        assert np.abs(got - np.array(want)).max() < 1e-15  # the same few floating-point operations
+    Q_d, p_d = np.array([s.Q for s in samples]), np.array([s.p for s in samples])
+    pose = get_task("pose").errors_many(Q, p, Q_d, p_d)
+    axis = get_task("axis").errors_many(Q, p, Q_d, p_d)
+    planar = get_task("planar").errors_many(Q, p, None, p_d)
+    for k in range(5):
+        assert abs(pose["position_error"][k] - np.linalg.norm(p[k] - p_d[k])) < 1e-15
+        assert abs(planar["position_error"][k] - np.linalg.norm(p[k, :2] - p_d[k, :2])) < 1e-15
+        assert abs(pose["trace_error"][k] - abs(np.trace(Q[k]) - np.trace(Q_d[k]))) < 1e-14
+        assert abs(pose["vect_error"][k] - np.linalg.norm(closure.vect(Q[k]) - closure.vect(Q_d[k]))) < 1e-14
+        # arccos loses digits near 0 (here the angles are ~0.05-0.3 rad): 1e-12
+        assert abs(axis["axis_error"][k] - np.arccos(np.clip(Q[k][:, 2] @ Q_d[k][:, 2], -1, 1))) < 1e-12
+    assert set(axis) == {"position_error", "axis_error"} and set(planar) == {"position_error"}
 
 
 def test_batched_diagnostics_equal_the_one_point_forms():

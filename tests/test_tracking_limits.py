@@ -216,7 +216,8 @@ def test_thesis_mode_and_baselines_refuse_limits():
     r, path, index, q0 = case("panda_elbow_circle")
     for kw in ({"mode": "thesis"}, {"scheme": "pseudoinverse"}, {"scheme": "liegeois"}):
         with pytest.raises(OptionError, match="limits=False"):
-            Tracker(r, path, index, q0, 0.01, **kw)
+            Tracker(r, path, index, q0, 0.01, limits=True, **kw)
+        assert Tracker(r, path, index, q0, 0.01, **kw).limits is None  # the default: without them there
     with pytest.raises(OptionError, match="margin"):
         JointLimits(r, margin=-0.1)
     with pytest.raises(OptionError, match="no room"):
@@ -267,3 +268,36 @@ def test_a_path_that_cannot_be_followed_inside_stops_with_the_last_good_state():
     part = err.partial.checked(r.nq)  # a valid record: plots and playback accept it
     assert part.t[-1] == pytest.approx(err.t) and np.array_equal(part.q[-1], q)
     assert excess(r, part.q) <= 1e-10
+
+
+def test_the_limits_record_survives_json(tmp_path):
+    tr = run("panda_elbow_circle", loops=1)
+    path = tmp_path / "run.json"
+    tr.save_json(path)
+    back = kinredund.Trajectory.load_json(path)
+    assert np.array_equal(back.active_bounds, tr.active_bounds)
+    assert np.abs(back.bound_multipliers - tr.bound_multipliers).max() == 0.0
+    assert np.abs(back.switch_times - tr.switch_times).max() == 0.0
+    assert [w["t"] for w in back.meta["switches"]] == list(tr.switch_times)
+
+
+def test_a_start_on_a_bound_stays_on_it():
+    """solve_ik(bounds=True) puts a joint on its limit (within its tolerance, here 1e-11 outside): the tracker
+    fixes it there instead of letting the first steps carry it outside."""
+    r, path, index, _ = case("panda_elbow_circle")
+    tr = run("panda_elbow_circle", loops=1)
+    reach, release = tr.meta["switches"][:2]
+    t_mid = 0.5 * (reach["t"] + release["t"])
+    k = int(np.argmin(np.abs(tr.t - t_mid)))
+    start = kinredund.solve_ik(r, path(tr.t[k]).p, index, q0=tr.q[k], bounds=True)
+    j, side = reach["joint"], (1.0 if reach["bound"] == "lower" else -1.0)
+    bound = r.lower[j] if side > 0 else r.upper[j]
+    assert abs(start.q[j] - bound) <= 1e-9  # on the bound
+    q0 = start.q.copy()
+    q0[j] = bound - side * 1e-11  # just outside, as an iterative solver may leave it
+    tracker = Tracker(r, path, index, q0, path.period / 200, t0=tr.t[k])
+    assert tracker.stepper.fixed[j] and tracker.q[j] == bound
+    for _ in range(5):
+        tracker.step()
+        assert excess(r, tracker.q) <= 1e-10
+    assert np.abs(tracker.q - tr.q[k + 5]).max() <= 1e-9  # the same constrained optimum as the run

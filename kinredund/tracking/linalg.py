@@ -152,11 +152,12 @@ def labels_many(Ms: list, Js: list, rule: str, symmetric: bool, m_eigs: np.ndarr
     out = []
     for M, J, e, en in zip(Ms, Js, m_eigs, m_null_eigs, strict=True):
         margin = 1e-8 * max(1.0, abs(e[0]), abs(e[-1]))
+        en0 = en[0] if len(en) else np.inf  # n = m: no null space, the projection is vacuously definite
         if e[0] > margin:
             out.append("qp")
-        elif e[0] < -margin and (rule == "thesis" or en[0] < -margin):
+        elif e[0] < -margin and (rule == "thesis" or en0 < -margin):
             out.append("lu")
-        elif e[0] < -margin and en[0] > margin:
+        elif e[0] < -margin and en0 > margin:
             out.append("qp_aug")
         else:
             out.append(classify(M, J, rule, symmetric))

@@ -13,7 +13,7 @@ import numpy as np
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
-from kinredund.tasks.terms import task_terms
+from kinredund.tasks import task_terms
 
 
 class Point:

@@ -4,7 +4,7 @@
 step's J and path sample, its evaluation where it was made at the recorded point). At the end,
 :meth:`Recorder.trajectory` evaluates afresh where needed (the default mode's evaluation is at the
 predicted point: there the pose and K, and grad z, at the corrected joints) and computes the
-diagnostics in a few batched numpy calls per run: the pose errors (the invariants of Example 4.3), the
+diagnostics in a few batched numpy calls per run: the task's errors (:meth:`kinredund.tasks.Task.errors_many`), the
 normality residual ||(1 - J^+ J) grad z|| (Eq. 4.5), the solver labels of Theorem 2 and, with
 ``diagnostics``, the eigenvalues of M and of its projection on the null space of J. Recording then costs
 little next to the step itself (``benchmarks/resolved_rate.py``: ``track_over_step``).
@@ -15,33 +15,10 @@ from __future__ import annotations
 import numpy as np
 
 from kinredund.kinematics.angles import joint_drift
+from kinredund.tasks import get_task
 from kinredund.tracking.linalg import eigs_many, labels_many, normality_many, null_space_bases, null_space_eigs_many
 from kinredund.tracking.stepper import Stepper
 from kinredund.trajectory import Trajectory
-
-#: the rows of K ([omega; pdot], Eq. 2.16) whose span is the row space of the task's J: J is these rows
-#: (planar, position), K itself (velocity-form pose), or H K with the closure rows' H invertible near
-#: the path (augmented pose, Eq. 2.14, target frame: H = diag(2 1, 1) at the target), so the null space
-#: of J, and with it the normality residual of Eq. (4.5), follows from K alone
-_K_ROWS = {"planar": slice(3, 5), "position": slice(3, 6), "pose": slice(0, 6)}
-
-
-def pose_errors_many(task: str, Q: np.ndarray, p: np.ndarray, Q_d: np.ndarray | None, p_d: np.ndarray) -> np.ndarray:
-    """(N, 3): position error [m], |tr Q - tr Q_d| and ||vect Q - vect Q_d|| per point (Eq. 2.8).
-
-    The batched form of :func:`kinredund.tasks.target.pose_errors` (a test checks they agree): the
-    position error over the task's coordinates (x, y for planar tasks), orientation errors zero
-    except for pose tasks.
-    """
-    rows = slice(0, 2) if task == "planar" else slice(0, 3)
-    out = np.zeros((len(p), 3))
-    out[:, 0] = np.linalg.norm(p[:, rows] - p_d[:, rows], axis=1)
-    if task == "pose":
-        out[:, 1] = np.abs(np.trace(Q, axis1=1, axis2=2) - np.trace(Q_d, axis1=1, axis2=2))
-        D = Q - Q_d
-        v = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], axis=1)
-        out[:, 2] = np.linalg.norm(v, axis=1)
-    return out
 
 
 class Recorder:
@@ -93,14 +70,16 @@ class Recorder:
         """Per point (Q, p, J or the rows of K with J's row space, grad z, sample): the step's own
         evaluation where it was made at the recorded point, else afresh at the recorded joints."""
         ev = self.stepper.ev
-        kin, rows = ev.robot.kinematics, _K_ROWS[ev.task]
+        kin, task = ev.robot.kinematics, get_task(ev.task)
         Qs, ps, Js, grads, samples = [], [], [], [], []
         for t, q, item in zip(self.t, self.q, self.points, strict=True):
             if hasattr(item, "terms"):
                 Q, p, J, grad, sample = item.Q, item.p, item.J, item.grad, item.sample
             else:
                 Q, p, K = kin.jacobian(q)
-                J, grad, sample = K[rows], ev.gradient(q, t), item
+                # rows with J's row space on the path: the null space of J, and with it the normality
+                # residual of Eq. (4.5), follows from K alone (Task.span_rows)
+                J, grad, sample = task.span_rows(Q, K, item), ev.gradient(q, t), item
             Qs.append(Q)
             ps.append(p)
             Js.append(J)
@@ -112,12 +91,13 @@ class Recorder:
                    period: float | None, meta: dict) -> Trajectory:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
-        task = s.ev.task
+        task = get_task(s.ev.task)
         Q, p, J, grad, samples = self._evaluate()
         Z = null_space_bases(J)
         p_d = np.array([x.p for x in samples])
-        Q_d = np.array([x.Q for x in samples]) if task == "pose" else None
-        errors = pose_errors_many(task, Q, p, Q_d, p_d)
+        Q_d = np.array([x.Q for x in samples]) if task.has_orientation else None
+        errors = task.errors_many(Q, p, Q_d, p_d)
+        zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
         m_eigs = m_null = None
         if self.diagnostics and all(M is not None for M in self.M):
             M = np.array(self.M)
@@ -140,7 +120,9 @@ class Recorder:
                               for i in range(loops)])
         extra = self._limits_record(q, meta) if self.limited else {}
         return Trajectory(
-            **extra, robot=robot_name, task=task, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme, mode=mode,
+            **extra, robot=robot_name, task=task.name, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme,
+            mode=mode,
             solver=tuple(solver), lam=np.array(self.lam), m_eigs=m_eigs, m_null_eigs=m_null,
-            position_error=errors[:, 0], trace_error=errors[:, 1], vect_error=errors[:, 2],
+            position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
+            vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
             normality_residual=normality_many(Z, grad), loop_drift=drift, loop_period=period, meta=meta)

@@ -50,14 +50,15 @@ def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, in
 def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "augmented", mode: str = "default",
           steps_per_loop: int = 200, loops: int = 1, duration: float | None = None, steps: int | None = None,
           linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
-          diagnostics: bool = True, liegeois_gain: float = 1.0, limits=True, project_start: bool = False,
+          diagnostics: bool = True, liegeois_gain: float = 1.0, limits=None, project_start: bool = False,
           progress=None, meta: dict | None = None) -> Trajectory:
     """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
 
     Args:
         robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, limits,
-            project_start: as for :class:`~kinredund.tracking.tracker.Tracker` (``limits=True`` by default:
-            the joints stay within the robot's limits; ``limits=False`` is the thesis's unconstrained scheme).
+            project_start: as for :class:`~kinredund.tracking.tracker.Tracker` (by default the default
+            mode's optimal schemes keep the joints within the robot's limits; ``limits=False`` is the
+            thesis's unconstrained scheme).
         steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most
             :data:`MAX_STEPS` steps in all).
         duration, steps: an open path's duration [s] and steps.

@@ -32,6 +32,7 @@ from kinredund.errors import OptionError, PathError, check_choice, check_positiv
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
+from kinredund.tasks import get_task
 from kinredund.tracking.baselines import Liegeois, Pseudoinverse
 from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.tracking.explicit import ExplicitEuler
@@ -87,11 +88,12 @@ class Tracker:
         tol: the corrector's tolerance on ||F||, in (0, 1) (default mode).
         liegeois_gain: the gradient-projection gain k >= 0 of the Liegeois baseline [1/s].
         t0: the starting time [s].
-        limits: hold the robot's joint position limits (``True``, the default), a
-            :class:`~kinredund.tracking.constraints.JointLimits` (e.g. with a margin), or ``False`` for the
-            unconstrained scheme of Chapter 4 (the thesis's). Limits are held by the default mode's
-            optimal schemes (:mod:`kinredund.tracking.limited`); thesis mode and the baselines refuse them
-            (pass ``limits=False``).
+        limits: hold the robot's joint position limits: ``True``, or a
+            :class:`~kinredund.tracking.constraints.JointLimits` (e.g. with a margin); ``False`` for the
+            unconstrained scheme of Chapter 4 (the thesis's). The default (``None``) holds them wherever
+            the scheme can: the default mode's augmented and velocity schemes
+            (:mod:`kinredund.tracking.limited`); thesis mode and the baselines run without them, and
+            refuse ``limits=True`` (explicit steps have no corrector to hold the bounds).
         project_start: put a ``q0`` outside the limits on them instead of raising.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
@@ -109,8 +111,8 @@ class Tracker:
 
     def __init__(self, robot: Robot, path: Path, index: Index | None, q0, dt: float, *, scheme: str = "augmented",
                  mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
-                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0, limits: bool | JointLimits = True,
-                 project_start: bool = False):
+                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0,
+                 limits: bool | JointLimits | None = None, project_start: bool = False):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -120,8 +122,8 @@ class Tracker:
         if mode == "default":  # it solves with R's LU factors, which its corrector needs
             check_choice("QP backend of mode='default' (proxsuite is for mode='thesis')", qp_backend, ("kkt",))
         tol, gain = check_tolerance(tol), check_gain(liegeois_gain)
-        if robot.task == "pose" and not path.has_orientation:
-            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
+        if get_task(robot.task).has_orientation and not path.has_orientation:
+            raise PathError(f"a {robot.task} task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
             raise PathError(f"the {scheme} scheme needs a performance index")
         dt = check_positive(dt, "the time step [s]", PathError)
@@ -148,13 +150,16 @@ class Tracker:
 
     @staticmethod
     def _limits(robot: Robot, limits, mode: str, scheme: str) -> JointLimits | None:
-        if limits is False or limits is None:
+        holds = mode == "default" and scheme in ("augmented", "velocity")
+        if limits is None:  # the default: held wherever the scheme can hold them
+            return JointLimits(robot) if holds else None
+        if limits is False:
             return None
         if limits is True:
             limits = JointLimits(robot)
         if not isinstance(limits, JointLimits):
-            raise OptionError(f"limits must be True, False or a JointLimits, got {limits!r}")
-        if mode != "default" or scheme not in ("augmented", "velocity"):
+            raise OptionError(f"limits must be None, True, False or a JointLimits, got {limits!r}")
+        if not holds:
             raise OptionError(f"joint limits are held by the default mode's augmented and velocity schemes only, "
                               f"not by mode={mode!r}, scheme={scheme!r}: pass limits=False (thesis mode's explicit "
                               "steps have no corrector to hold them)")
