@@ -38,6 +38,9 @@ POSE_CASES = {
     # one degree of redundancy: a second bound would fix the arm, so the path cannot be followed inside
     "panda_pose_infeasible": ("panda", [-0.2906, -0.4692, 0.2375, -2.8016, -0.1485, 1.4761, 0.983],
                               [-0.528, 0.34, 0.7782], [0.7265, -0.2938, 0.6212], 0.0868),
+    # with a joint on its limit the six free joints turn singular for the pose (LICQ fails): a fold
+    "panda_pose_fold": ("panda", [-0.5075, -0.7989, -0.3446, -2.7968, 0.0073, 1.9131, 0.539],
+                        [-0.4087, 0.7602, 0.505], [-0.6608, -0.6281, 0.4109], 0.1347),
 }
 
 
@@ -253,12 +256,14 @@ def test_rate_qp_agrees_with_the_active_set_after_each_switch(name):
     assert seen >= 2
 
 
-def test_a_path_that_cannot_be_followed_inside_stops_with_the_last_good_state():
-    r, path, index, q0 = case("panda_pose_infeasible")
+@pytest.mark.parametrize(("name", "cause"), [("panda_pose_infeasible", "limits_infeasible"),
+                                           ("panda_pose_fold", "not_strongly_stable")])
+def test_a_path_that_cannot_be_followed_inside_stops_with_the_last_good_state(name, cause):
+    r, path, index, q0 = case(name)
     with pytest.raises(TrackingError) as info:
         track(r, path, index, q0, loops=2)
     err = info.value
-    assert err.cause == "limits_infeasible" and 0 < err.t < path.period
+    assert err.cause == cause and 0 < err.t < path.period
     q = np.array(err.q)
     assert excess(r, q) <= 1e-10  # inside the limits
     T, s = r.fk(q), path(err.t)
