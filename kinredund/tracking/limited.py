@@ -28,7 +28,7 @@ from scipy.optimize import brentq
 
 from kinredund.errors import KinredundError, PathError, SingularityError, TrackingError
 from kinredund.tracking.constraints.joint_limits import JointLimits
-from kinredund.tracking.linalg import classify, lu_solve
+from kinredund.tracking.linalg import bound_rate_qp, classify, lu_solve
 from kinredund.tracking.point import Evaluator, Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 
@@ -357,37 +357,22 @@ class LimitedPredictorCorrector(PredictorCorrector):
         self._rates()
 
     def _qp_keeps_bound(self, joint: int, side: float) -> bool:
-        """The rate QP at a weakly active bound: min 1/2 v^T M v - top^T v s.t. J v = xdot, s v_joint >= 0.
-
-        Solved with proxsuite over the free joints and ``joint`` (M + rho J^T J on the constraint, as for
-        Eq. 4.28); True where the bound stays active (its rate 0 with a positive multiplier).
-        """
-        import proxsuite
-
-        from kinredund.tracking.linalg import cholesky_ok
-
+        """The rate QP at a weakly active bound (:func:`~kinredund.tracking.linalg.bound_rate_qp`) over the
+        free joints and ``joint``: True where the bound stays active (its rate 0, its multiplier > 0)."""
         pt = self.evaluate(self.q, self.t)
         M, top = pt.system(self.lam)
         keep = np.flatnonzero(~self.fixed | (np.arange(self.n) == joint))
-        Ms, J = 0.5 * (M + M.T)[np.ix_(keep, keep)], pt.J[:, keep]
-        H, rho = Ms, 1.0
-        while not cholesky_ok(H) and rho < 1e12:
-            H, rho = Ms + rho * J.T @ J, rho * 4.0
-        C = np.zeros((1, len(keep)))
-        C[0, int(np.flatnonzero(keep == joint)[0])] = side
-        qp = proxsuite.proxqp.dense.QP(len(keep), J.shape[0], 1)
-        qp.settings.eps_abs, qp.settings.eps_rel, qp.settings.verbose = 1e-12, 0.0, False
-        qp.init(H, -top[keep], J, pt.xdot, C, np.zeros(1), np.full(1, 1e20))
-        qp.solve()
-        if qp.results.info.status != proxsuite.proxqp.PROXQP_SOLVED:
-            raise self._failure("not_strongly_stable", f"the rate QP at the switch of joint "
-                                f"{self.limits.joint_names[joint]} (t = {self.t:.6g} s) has no solution")
-        v = float(C[0] @ qp.results.x)
-        z = float(-qp.results.z[0])  # proxsuite's z <= 0 on an active lower inequality
-        if abs(v) <= 1e-12 and abs(z) <= 1e-12:
-            raise self._failure("not_strongly_stable", f"joint {self.limits.joint_names[joint]} is weakly active at "
-                                f"t = {self.t:.6g} s (rate and multiplier both zero): the active set is not determined")
-        return v <= 1e-12
+        out = bound_rate_qp(M[np.ix_(keep, keep)], top[keep], pt.J[:, keep], pt.xdot,
+                            int(np.flatnonzero(keep == joint)[0]), side)
+        name = self.limits.joint_names[joint]
+        if out is None:
+            raise self._failure("not_strongly_stable", f"the rate QP at the switch of joint {name} "
+                                f"(t = {self.t:.6g} s) has no solution")
+        rate, mult = out
+        if abs(rate) <= 1e-12 and abs(mult) <= 1e-12:
+            raise self._failure("not_strongly_stable", f"joint {name} is weakly active at t = {self.t:.6g} s "
+                                "(rate and multiplier both zero): the active set is not determined")
+        return rate <= 1e-12
 
     # -- failures ------------------------------------------------------------------------------------
     def _watched(self, snap: dict | None = None) -> dict:
