@@ -345,6 +345,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("robots", help="list the robots load_robot knows")
     p.set_defaults(func=_cmd_robots)
+    from kinredund.ui.cli_retime import add_parsers as add_retime_parsers  # retime, export (issue 16)
+    add_retime_parsers(sub)
+    from kinredund.ui.cli_sweep import add_parser as add_sweep_parser  # the placement sweep (its own module)
+    add_sweep_parser(sub)
     return parser
 
 
