@@ -131,6 +131,11 @@ class LimitedPredictorCorrector(PredictorCorrector):
     def _bound_values(self) -> np.ndarray:
         return np.where(self.side > 0, self.lo, self.hi)
 
+    @property
+    def any_active(self) -> bool:
+        """Is any joint on a bound now?"""
+        return self._sel is not None
+
     def active_bounds(self) -> np.ndarray:
         """(n,) ints: -1 at the lower limit, +1 at the upper limit, 0 free."""
         return (-self.side).astype(int)

@@ -31,21 +31,26 @@ class Recorder:
         self.active, self.mu, self.qdot = [], [], []
 
     def add(self) -> None:
-        """Record the stepper's current point (M and J may come from the step's predicted point)."""
+        """Record the stepper's current point (M and J may come from the step's predicted point).
+
+        The steppers assign new arrays at every step and never change q, lambda, M, the rates or the
+        bound multipliers in place, so the record keeps references (the active set, changed in place at
+        a switch, is copied only while a bound is active).
+        """
         s = self.stepper
-        self.t.append(s.t)
-        self.q.append(s.q.copy())
-        self.lam.append(np.array(s.lam_full(), dtype=float))
+        pt = s.pt
         pending = s.label_pending
+        self.t.append(s.t)
+        self.q.append(s.q)
+        self.lam.append(s.lam_full())
         self.solver.append(None if pending else s.solver)
         self.M.append(s.M)
-        pt = s.pt
         self.J_step.append(pt.J if pending else None)
         self.points.append(pt if pt.q is s.q and pt.t == s.t else pt.sample)
         if self.limited:
-            self.active.append(s.active_bounds())
-            self.mu.append(s.mu.copy())
-            self.qdot.append(s.qdot.copy())
+            self.active.append(s.active_bounds() if s.any_active else None)
+            self.mu.append(s.mu)
+            self.qdot.append(s.qdot)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -62,8 +67,9 @@ class Recorder:
         meta.update(switches=list(s.switches), joint_speed_max=fastest.tolist(), velocity_limit=vmax.tolist(),
                     speed_over_velocity_limit_max=float(np.max(ratio)) if np.all(np.isfinite(ratio)) else None,
                     limit_margin=lim.margin)
-        return {"active_bounds": np.array(self.active), "bound_multipliers": np.array(self.mu),
-                "limit_margins": np.minimum(np.array([lim.margins(x) for x in q]), 1e10),
+        free = np.zeros(len(q[0]), dtype=int)
+        return {"active_bounds": np.array([free if a is None else a for a in self.active]),
+                "bound_multipliers": np.array(self.mu), "limit_margins": np.minimum(lim.margins(q), 1e10),
                 "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
     def _evaluate(self):
