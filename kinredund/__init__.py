@@ -23,10 +23,12 @@ from kinredund.errors import (
     HDTableError,
     JointVectorError,
     KinredundError,
+    OptionError,
     PathError,
     SingularityError,
     SolverError,
     TaskError,
+    TrackingError,
     UnknownRobotError,
     URDFError,
 )
@@ -46,7 +48,7 @@ from kinredund.paths import (
     read_path_file,
 )
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking import track
+from kinredund.tracking import JointLimits, Tracker, track
 from kinredund.trajectory import Trajectory
 
 __version__ = "0.1.0"
@@ -65,8 +67,10 @@ __all__ = [
     "IKResult",
     "Index",
     "JointDeviation",
+    "JointLimits",
     "JointVectorError",
     "KinredundError",
+    "OptionError",
     "Path",
     "PathError",
     "PathSample",
@@ -77,6 +81,8 @@ __all__ = [
     "Task",
     "TaskError",
     "TimeVaryingReference",
+    "Tracker",
+    "TrackingError",
     "Trajectory",
     "URDFError",
     "UnknownRobotError",
