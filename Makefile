@@ -21,6 +21,7 @@ $(DEPS_STAMP): pyproject.toml | $(BIN)/python
 # The pytest script (not python -m pytest) keeps the checkout off sys.path: tests import the installed wheel.
 # Always reinstall the package itself as a built wheel (not editable), so the tests see what users get.
 install: $(DEPS_STAMP)
+	rm -rf build  # setuptools' build/lib keeps modules deleted since: never ship them
 	$(BIN)/python -m pip install --quiet --no-deps --force-reinstall .
 
 demo: install
