@@ -23,10 +23,12 @@ from kinredund.errors import (
     HDTableError,
     JointVectorError,
     KinredundError,
+    OptionError,
     PathError,
     SingularityError,
     SolverError,
     TaskError,
+    TrackingError,
     UnknownRobotError,
     URDFError,
 )
@@ -47,7 +49,7 @@ from kinredund.paths import (
 )
 from kinredund.planning.cyclic import CyclicPlan, plan
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking import track
+from kinredund.tracking import JointLimits, Tracker, track
 from kinredund.trajectory import Trajectory
 
 __version__ = "0.1.0"
@@ -67,8 +69,10 @@ __all__ = [
     "IKResult",
     "Index",
     "JointDeviation",
+    "JointLimits",
     "JointVectorError",
     "KinredundError",
+    "OptionError",
     "Path",
     "PathError",
     "PathSample",
@@ -79,6 +83,8 @@ __all__ = [
     "Task",
     "TaskError",
     "TimeVaryingReference",
+    "Tracker",
+    "TrackingError",
     "Trajectory",
     "URDFError",
     "UnknownRobotError",

@@ -12,7 +12,6 @@ import pinocchio as pin
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from kinredund.tracking import track
 
 import kinredund
 from kinredund.errors import (
@@ -29,6 +28,7 @@ from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.loader import HOME_CONDITION, conditioning, known_robots, load_robot, robot_table
 from kinredund.model.urdf import load_urdf
 from kinredund.paths import Circle
+from kinredund.tracking import track
 
 #: a tracked record at these step counts agrees with the path to round-off: the default mode corrects
 #: every step to the closure tolerance (1e-12 on a ~1 m scale); 1e-9 m leaves room for a long arm

@@ -70,7 +70,7 @@ def run_example(ex: Example, *, loops: int = 1, steps_per_loop: int = 200, mode:
                 scheme: str = "augmented", diagnostics: bool = True, progress=None) -> Trajectory:
     """Track the example's path from its optimal start."""
     return track(ex.robot, ex.path, ex.index, ex.q0, scheme=scheme, mode=mode, steps_per_loop=steps_per_loop,
-                 loops=loops, diagnostics=diagnostics, progress=progress,
+                 loops=loops, diagnostics=diagnostics, progress=progress, limits=False,
                  meta={"example": ex.name, "start_normality": ex.start_normality})
 
 
