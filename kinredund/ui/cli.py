@@ -197,8 +197,9 @@ def _cmd_track(args) -> int:
         print(f"wrote {args.plot}")
     if args.html:
         from kinredund.ui.viz import replay_html
+        from kinredund.ui.viz.page import replay_title
 
-        replay_html(traj, args.html, robot=robot)
+        replay_html(traj, args.html, robot=robot, title=replay_title(traj, args.path))
         print(f"wrote {args.html}")
     return EXIT_OK
 
