@@ -50,7 +50,7 @@ def import_meshcat() -> SimpleNamespace:
     """Import meshcat and Pinocchio's meshcat visualizer, hiding meshcat's zmq DeprecationWarning.
 
     Raises:
-        KinredundError: meshcat is not installed (``pip install kinredund[viz]``).
+        KinredundError: meshcat is not installed (a core dependency: reinstall kinredund).
     """
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*zmq.eventloop.*", category=DeprecationWarning)
@@ -62,7 +62,7 @@ def import_meshcat() -> SimpleNamespace:
             import meshcat.transformations
             from pinocchio.visualize import MeshcatVisualizer
         except ImportError as err:
-            raise KinredundError(f"playback needs meshcat: pip install 'kinredund[viz]' ({err})") from err
+            raise KinredundError(f"playback needs meshcat, a dependency of kinredund: pip install meshcat ({err})") from err
     return SimpleNamespace(
         meshcat=meshcat, geometry=meshcat.geometry, animation=meshcat.animation,
         tf=meshcat.transformations, MeshcatVisualizer=MeshcatVisualizer,
