@@ -322,7 +322,8 @@ def _track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model
             "tool_tip": float(tool_tip), **meta}
     try:
         traj = track(robot, path, TimeVaryingReference(spl, spl.rate), smp.q[0], steps_per_loop=steps_per_loop,
-                     loops=1, progress=progress, meta=info)
+                     loops=1, progress=None if progress is None else lambda d, n: progress(d, n, "tracking"),
+                     meta=info)
     except KinredundError as err:
         timings["tracking_s"] = perf_counter() - t1
         return _failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)
@@ -332,9 +333,13 @@ def _track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model
 
     # -- step 4: verification, independent of the indices ----------------------------------------
     t2 = perf_counter()
+    if progress is not None:
+        progress(0, 1, "clearance")
     rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, radius=link_radius,
                         tool_tip=tool_tip, check_doubling=check_doubling, path=path)
     timings["clearance_s"] = perf_counter() - t2
+    if progress is not None:
+        progress(1, 1, "clearance")
     timings["total_s"] = perf_counter() - t_start
     reason = ""
     if not rep.collision_free:
@@ -411,7 +416,8 @@ def plan(
             (:func:`wrist_reach`): the policy's last link cannot lie along the normal there (Eq. 6.44),
             and the branches found with it tilted do not join into a loop (Section 6.3 at scale 8).
             A sample whose end point itself is out of reach fails whatever this flag.
-        progress: ``progress(done, total)`` during the tracking.
+        progress: ``progress(done, total, stage)`` through the run; ``stage`` is ``samples``,
+            ``transitions``, ``tracking`` or ``clearance``.
         meta: extra entries for ``Trajectory.meta``.
 
     Returns:
@@ -450,6 +456,8 @@ def plan(
             timings["samples_s"] = perf_counter() - t_start
             return _failure(_reach_reason(wr, ts, ps, names), names, timings)
     for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
+        if progress is not None:
+            progress(k, len(ts), "samples")
         index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
         user = seeds.get(k)
         user = [] if user is None else ([user] if np.ndim(user) == 1 else list(user))
@@ -468,6 +476,8 @@ def plan(
     n = ts.size
     trans: list[list[list[Transition]]] = []
     for k in range(n):
+        if progress is not None:
+            progress(k, n, "transitions")
         tb = ts[k + 1] if k + 1 < n else period
         nxt = cands[k + 1] if k + 1 < n else cands[0]
         trans.append([[transition(robot, path, ts[k], a, tb, b, model=model, obstacle=obstacle,

@@ -62,7 +62,8 @@ def import_meshcat() -> SimpleNamespace:
             import meshcat.transformations
             from pinocchio.visualize import MeshcatVisualizer
         except ImportError as err:
-            raise KinredundError(f"playback needs meshcat, a dependency of kinredund: pip install meshcat ({err})") from err
+            raise KinredundError(f"playback needs meshcat (a dependency of kinredund): pip install meshcat ({err})") \
+                from err
     return SimpleNamespace(
         meshcat=meshcat, geometry=meshcat.geometry, animation=meshcat.animation,
         tf=meshcat.transformations, MeshcatVisualizer=MeshcatVisualizer,
