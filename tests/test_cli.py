@@ -371,3 +371,32 @@ def test_quiet_prints_no_progress(tmp_path):
     assert run.returncode == 0 and run.stderr.startswith("reproduce 4.1: starting")
     assert "reproduce 4.1: tracking" in run.stderr and run.stderr.rstrip().splitlines()[-1].startswith(
         "reproduce 4.1: done")
+
+
+def test_progress_lines_off_a_terminal_and_a_bar_on_one():
+    import io
+
+    from kinredund.ui.progress import Progress
+
+    log = io.StringIO()
+    bar = Progress("plan 6.3", stream=log, interval=1e9)  # no timed lines: one per stage
+    for stage, total in (("roadmap", 50), ("tracking", 720), ("clearance", 1)):
+        for k in range(total + 1):
+            bar(k, total, stage)
+    bar.close()
+    lines = log.getvalue().splitlines()
+    assert [line.split(": ")[1].split(" ")[0] for line in lines[:-1]] == ["roadmap", "tracking", "clearance"]
+    assert lines[0].startswith("plan 6.3: roadmap 0/50 (0%)") and lines[-1].startswith("plan 6.3: done")
+    quiet = io.StringIO()
+    bar = Progress("x", stream=quiet, quiet=True)
+    bar(1, 2, "a")
+    bar.close()
+    assert quiet.getvalue() == ""
+    term = io.StringIO()
+    bar = Progress("track panda", stream=term)
+    bar.terminal = True  # as on a terminal: tqdm draws on the stream
+    bar(0, 1, "the optimal start (IK)")
+    bar(100, 200, "tracking")
+    bar.close()
+    drawn = term.getvalue()
+    assert "track panda: the optimal start (IK)" in drawn and "track panda: tracking" in drawn and "100/200" in drawn

@@ -200,7 +200,7 @@ def _plan(case: str, args, label: str) -> int:
     finally:
         bar.close()
     print(f"Section {case}: off-line plan with collision avoidance")
-    _print_summary(result.summary())
+    _print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
     _wrote(args.json, args.plot)
     if args.plot is not None and result.trajectory is not None:
         _wrote(snapshot_path(args.plot))

@@ -10,6 +10,7 @@ stage and then every ``interval`` seconds; with ``quiet`` nothing.
 
 from __future__ import annotations
 
+import shutil
 import sys
 import time
 
@@ -59,7 +60,10 @@ class Progress:
         from tqdm import tqdm
 
         if self._bar is None:
-            self._bar = tqdm(total=total, file=self.stream, leave=False, dynamic_ncols=True, mininterval=0.1,
+            # a terminal that reports no width (a bare pty) gets 80 columns
+            wide = shutil.get_terminal_size((0, 0)).columns > 0
+            self._bar = tqdm(total=total, file=self.stream, leave=False, dynamic_ncols=wide, ncols=None if wide else 80,
+                             mininterval=0.1, desc=f"{self.label}: {self.stage}",
                              bar_format="{desc} {bar} {n_fmt}/{total_fmt} [{elapsed}]")
         if new_stage or self._bar.total != total:
             self._bar.reset(total=total)
