@@ -42,7 +42,7 @@ from _bench import parser, print_table, summary_us, write_json
 from kinredund.errors import check_choice
 from kinredund.kinematics.angles import joint_drift
 from kinredund.problems import panda_circle
-from kinredund.tasks.target import orientation_error
+from kinredund.tasks import orientation_error
 from kinredund.tracking.resolved_rate import ResolvedRate, multipliers
 from kinredund.ui.plots import LOG_FLOOR
 

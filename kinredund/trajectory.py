@@ -27,13 +27,12 @@ from kinredund.errors import (
     check_positive,
 )
 from kinredund.io import json_ready, read_json_object, write_json
+from kinredund.tasks import task_names
 
 SCHEMA_VERSION = 1
-#: Task kinds a record can hold.
-TASKS = ("planar", "position", "pose")
 #: Optional arrays with one row per recorded point, and their shape after the first axis.
 _PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "position_error": (),
-              "trace_error": (), "vect_error": (), "normality_residual": ()}
+              "trace_error": (), "vect_error": (), "axis_error": (), "normality_residual": ()}
 
 
 @dataclass(frozen=True)
@@ -42,7 +41,7 @@ class Trajectory:
 
     Attributes:
         robot: the robot's name (or URDF path) for :func:`kinredund.load_robot`.
-        task: the task kind (``planar``, ``position``, ``pose``).
+        task: the task kind (``planar``, ``position``, ``pose``, ``axis``).
         t: times [s], shape (N,).
         q: joint values, shape (N, n) [rad or m].
         p: end-effector positions reached, shape (N, 3) [m].
@@ -56,7 +55,8 @@ class Trajectory:
         m_eigs: eigenvalues of (the symmetric part of) M per step, shape (N, n), or None.
         m_null_eigs: eigenvalues of M projected on the null space of J, shape (N, n - m), or None.
         position_error: |p - p_desired| per step [m].
-        trace_error, vect_error: orientation errors in the invariants (Example 4.3), per step.
+        trace_error, vect_error: orientation errors in the invariants (Example 4.3), per step (pose tasks).
+        axis_error: the angle between the tool axis and the desired one per step [rad] (axis tasks), or None.
         normality_residual: the norm of the first-order normality residual per step (Eq. 4.5).
         loop_drift: joint drift at the end of each loop [rad], revolute joints compared modulo 2 pi.
         loop_period: the period of the closed path [s], or None for open paths.
@@ -78,6 +78,7 @@ class Trajectory:
     position_error: np.ndarray | None = None
     trace_error: np.ndarray | None = None
     vect_error: np.ndarray | None = None
+    axis_error: np.ndarray | None = None
     normality_residual: np.ndarray | None = None
     loop_drift: np.ndarray | None = None
     loop_period: float | None = None
@@ -102,6 +103,7 @@ class Trajectory:
             "position_error_max": mx(self.position_error),
             "trace_error_max": mx(self.trace_error),
             "vect_error_max": mx(self.vect_error),
+            "axis_error_max": mx(self.axis_error),
             "normality_residual_max": mx(self.normality_residual),
             "loop_drift": None if self.loop_drift is None else [float(v) for v in self.loop_drift],
             "lu_steps": int(sum(1 for s in self.solver[1:] if s == "lu")),
@@ -132,9 +134,9 @@ class Trajectory:
         Checks: ``t`` a non-empty, finite, strictly increasing 1-D array; ``q`` finite of shape (N, n)
         (n = ``nq`` when given); ``p`` and ``p_desired`` finite of shape (N, 3); each optional per-point
         array (``lam``, ``m_eigs``, ``m_null_eigs``, ``position_error``, ``trace_error``, ``vect_error``,
-        ``normality_residual``) finite with N rows; ``solver`` empty or N strings; ``loop_drift`` finite
-        and 1-D; ``loop_period`` None or > 0; ``task`` one of :data:`TASKS`; ``robot`` a string and
-        ``meta`` a dict.
+        ``axis_error``, ``normality_residual``) finite with N rows; ``solver`` empty or N strings; ``loop_drift`` finite
+        and 1-D; ``loop_period`` None or > 0; ``task`` a task kind (:func:`kinredund.tasks.task_names`);
+        ``robot`` a string and ``meta`` a dict.
 
         Raises:
             PathError: bad times, positions or loop figures.
@@ -143,7 +145,7 @@ class Trajectory:
         """
         if not isinstance(self.robot, str):
             raise TaskError(f"a trajectory's robot must be a name or URDF path (a string), got {self.robot!r}")
-        check_choice("trajectory task", self.task, TASKS)
+        check_choice("trajectory task", self.task, task_names())
         if not isinstance(self.meta, dict):
             raise TaskError(f"a trajectory's meta must be a dict, got {type(self.meta).__name__}")
         t = check_array(self.t, (None,), "trajectory times t [s]", PathError)
@@ -197,4 +199,4 @@ class Trajectory:
         return cls.from_json_dict(read_json_object(path))
 
 
-__all__ = ["TASKS", "Trajectory"]
+__all__ = ["Trajectory"]

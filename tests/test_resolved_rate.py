@@ -12,7 +12,7 @@ import kinredund
 from kinredund.indices import CustomIndex, JointDeviation, minimum_norm
 from kinredund.kinematics.finite_diff import central_difference
 from kinredund.paths import Circle, FunctionPath
-from kinredund.tasks.terms import task_terms
+from kinredund.tasks import task_terms
 from kinredund.thesis.chapter4 import indefinite_interval, load_example, run_example
 from kinredund.tracking.resolved_rate import ResolvedRate, _ProxQP, classify, hermite_weights, solve_rates, track
 
@@ -137,7 +137,7 @@ def test_task_jacobians_and_their_derivatives_match_finite_differences(name, sch
 def test_lambda_of_the_pose_task_is_the_contraction_of_the_checked_tensor():
     """No second derivative code: the fused Lambda equals lam . dJ with dJ from closure (foundation-tested)."""
     from kinredund.kinematics import closure
-    from kinredund.tasks.terms import _U_REL
+    from kinredund.tasks.pose import U_REL
 
     r = robot("panda")
     rng = np.random.default_rng(5)
@@ -151,7 +151,7 @@ def test_lambda_of_the_pose_task_is_the_contraction_of_the_checked_tensor():
         dK = dk.tensor()
         dK_rel = np.concatenate([np.einsum("ab,bik->aik", Q_d.T, dK[:3]), dK[3:]])
         dJ = closure.displacement_jacobian_derivative(Q_d.T @ Q, K_rel, dK_rel)
-        want = closure.contract(_U_REL @ lam, dJ)
+        want = closure.contract(U_REL @ lam, dJ)
         assert np.abs(task_terms("pose", "augmented", Q, p, K, dk, sample).Lambda(lam) - want).max() < 1e-12
 
 

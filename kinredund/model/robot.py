@@ -22,16 +22,13 @@ from kinredund.errors import (
     JointVectorError,
     KinredundError,
     UnknownRobotError,
-    check_choice,
     check_joint_vector,
 )
 from kinredund.kinematics.hd import REVOLUTE, HDTable
 from kinredund.kinematics.state import Kinematics
 from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
 from kinredund.model.urdf import EE_FRAME, load_urdf_model
-
-TASK_DIMS = {"planar": 2, "position": 3, "pose": 6}
-TASK_KINDS = tuple(TASK_DIMS)
+from kinredund.tasks import get_task
 
 
 @dataclass(frozen=True)
@@ -108,7 +105,7 @@ class Robot:
         package_dirs: tuple[str, ...] = (),
         home: np.ndarray | None = None,
     ):
-        check_choice("task kind", task, TASK_KINDS)
+        get_task(task)  # ChoiceError for an unknown kind
         if not model.existFrame(ee_frame):
             raise FrameNotFoundError(ee_frame, [f.name for f in model.frames])
         if model.nq != model.nv:
@@ -146,7 +143,7 @@ class Robot:
     @property
     def task_dim(self) -> int:
         """The task dimension m: 2 (planar), 3 (position) or 6 (pose)."""
-        return TASK_DIMS[self.task]
+        return get_task(self.task).dim
 
     @property
     def joint_names(self) -> list[str]:
@@ -243,7 +240,7 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, task: str 
         FrameNotFoundError: ``ee_frame`` is not in the model (lists the frames).
     """
     if task is not None:
-        check_choice("task kind", task, TASK_KINDS)
+        get_task(task)
     key = str(name_or_path)
     if key in SHIPPED_TABLES:
         path = shipped_robot_dir() / f"{key}.urdf"

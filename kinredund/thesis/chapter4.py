@@ -1,4 +1,4 @@
-"""Examples 4.1-4.3 of Chapter 4, with the parameters adopted in ``../shared/thesis/NOTES.md``.
+"""Examples 4.1-4.3 of Chapter 4, with the parameters adopted in ``docs/thesis_readings.md``.
 
 - 4.1: planar 3R (links 2 m); circle of radius 0.8 m about (3, 3) m from (3.8, 3) m, counter-clockwise,
   1 m/s; z = 1/2 sum theta_i^2 (Eq. 4.45).

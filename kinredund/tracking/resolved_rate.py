@@ -42,8 +42,7 @@ from kinredund.indices import Index
 from kinredund.kinematics.angles import joint_drift
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
-from kinredund.tasks.target import Target, pose_errors
-from kinredund.tasks.terms import task_terms
+from kinredund.tasks import get_task, task_terms
 from kinredund.trajectory import Trajectory
 
 SCHEMES = ("augmented", "velocity", "pseudoinverse", "liegeois")
@@ -282,9 +281,10 @@ class _Recorder:
     def __init__(self, diagnostics: bool):
         self.diagnostics = diagnostics
         self.rows = {k: [] for k in ("t", "q", "p", "p_desired", "lam", "solver", "m_eigs", "m_null_eigs",
-                                     "position_error", "trace_error", "vect_error", "normality_residual")}
+                                     "position_error", "trace_error", "vect_error", "axis_error",
+                                     "normality_residual")}
 
-    def add(self, pt: _Point, lam_full, solver: str, M: np.ndarray | None, task: str):
+    def add(self, pt: _Point, lam_full, solver: str, M: np.ndarray | None, task):
         """Record the point; M may come from the step's predictor (within the corrector's step of pt)."""
         rows = self.rows
         rows["t"].append(pt.t)
@@ -293,11 +293,10 @@ class _Recorder:
         rows["p_desired"].append(pt.sample.p.copy())
         rows["lam"].append(None if lam_full is None else np.asarray(lam_full, float).copy())
         rows["solver"].append(solver)
-        s = pt.sample  # already a valid sample: no need to re-validate it through make_target
-        e = pose_errors(pt.Q, pt.p, Target(task, s.p, s.Q if task == "pose" else None))
-        rows["position_error"].append(e[0])
-        rows["trace_error"].append(e[1])
-        rows["vect_error"].append(e[2])
+        s = pt.sample  # already a valid sample: target_from_sample does not re-validate it
+        e = task.error_values(pt.Q, pt.p, task.target_from_sample(s))
+        for name in ("position_error", "trace_error", "vect_error", "axis_error"):
+            rows[name].append(e.get(name))
         rows["normality_residual"].append(multipliers(pt.J, pt.grad)[1])
         if self.diagnostics and M is not None:
             rows["m_eigs"].append(np.sort(np.linalg.eigvals(M).real) if not np.allclose(M, M.T)
@@ -334,8 +333,8 @@ class ResolvedRate:
         check_choice("QP backend", qp_backend, QP_BACKENDS)
         if mode == "default":  # it solves with R's LU factors, which its corrector needs
             check_choice("QP backend of mode='default' (proxsuite is for mode='thesis')", qp_backend, ("kkt",))
-        if robot.task == "pose" and not path.has_orientation:
-            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
+        if get_task(robot.task).has_orientation and not path.has_orientation:
+            raise PathError(f"a {robot.task} task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
             raise PathError(f"the {scheme} scheme needs a performance index")
         dt = check_positive(dt, "the time step [s]", PathError)
@@ -609,6 +608,15 @@ class ResolvedRate:
         return self.pt.basis @ self.lam if self.pt.basis is not None else self.lam
 
 
+def _errors(name: str, values: list) -> np.ndarray | None:
+    """A recorded error series. The task's own errors as recorded; where the task does not hold one, the
+    trace and vect errors are zeros (as the record has always held them for point tasks) and the axis
+    error is None."""
+    if values and values[0] is None:
+        return None if name == "axis_error" else np.zeros(len(values))
+    return np.array(values)
+
+
 def _loadable_name(robot: Robot) -> str:
     """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
     from kinredund.model.robot import known_robots
@@ -646,10 +654,11 @@ def track(robot: Robot, path: Path, index: Index | None = None, q0=None, *, sche
     rr = ResolvedRate(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
                       qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain)
     rec = _Recorder(diagnostics)
-    rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, robot.task)
+    task = get_task(robot.task)
+    rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, task)
     for k in range(total):
         rr.advance()
-        rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, robot.task)
+        rec.add(rr.record_point(), rr.lam_full(), rr.solver, rr.M, task)
         if progress is not None:
             progress(k + 1, total)
     rows = rec.rows
@@ -664,7 +673,7 @@ def track(robot: Robot, path: Path, index: Index | None = None, q0=None, *, sche
         scheme=scheme, mode=mode, solver=tuple(rows["solver"]), lam=lam,
         m_eigs=np.array(rows["m_eigs"]) if rows["m_eigs"] else None,
         m_null_eigs=np.array(rows["m_null_eigs"]) if rows["m_null_eigs"] else None,
-        position_error=np.array(rows["position_error"]), trace_error=np.array(rows["trace_error"]),
-        vect_error=np.array(rows["vect_error"]), normality_residual=np.array(rows["normality_residual"]),
+        **{name: _errors(name, rows[name]) for name in ("position_error", "trace_error", "vect_error", "axis_error")},
+        normality_residual=np.array(rows["normality_residual"]),
         loop_drift=drift, loop_period=path.period, meta=dict(meta or {}, dt=dt, steps=total),
     )

@@ -18,6 +18,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError
 from kinredund.io import json_ready, write_json
+from kinredund.tasks import get_task, task_names
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
 REPRODUCIBLE = ("3.2", "4.1", "4.2", "4.3", "6.2", "6.3")
@@ -241,17 +242,16 @@ def _path_for(args, robot, q_start: np.ndarray):
     normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
     center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
     if center.shape == (2,):
-        center = np.append(center, p0[2] if robot.task != "planar" else 0.0)
+        center = np.append(center, p0[2] if not get_task(robot.task).planar else 0.0)
     # pose tasks hold the start orientation along the circle
     return paths.Circle(center, args.radius, args.speed, normal=tuple(normal),
-                        orientation=T0[:3, :3] if robot.task == "pose" else None), None
+                        orientation=T0[:3, :3] if get_task(robot.task).has_orientation else None), None
 
 
 def _cmd_track(args) -> int:
     bar = _progress(f"track {args.robot}", args)
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
-    from kinredund.tasks.target import make_target
     from kinredund.tracking.resolved_rate import track
 
     try:
@@ -262,7 +262,7 @@ def _cmd_track(args) -> int:
         # the baselines ignore the index while they step; their normality residual is measured against it
         index = _index_for(robot, args.index)
         s0 = path(0.0)
-        target = make_target(robot.task, (s0.Q, s0.p) if robot.task == "pose" else s0.p[: robot.task_dim])
+        target = get_task(robot.task).target_from_sample(s0)
         bar(0, 1, "the optimal start (IK)")
         res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts)
         if not res.converged:
@@ -296,7 +296,7 @@ def _cmd_ik(args) -> int:
     from kinredund.model.robot import load_robot
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
-    if robot.task == "pose":
+    if get_task(robot.task).has_orientation:
         if args.target.shape != (3,) or args.rpy is None or args.rpy.shape != (3,):
             raise KinredundError(
                 f"{robot.name} has a pose task: give --target x,y,z [m] and --rpy roll,pitch,yaw [rad], "
@@ -306,7 +306,7 @@ def _cmd_ik(args) -> int:
         r_, p_, y_ = args.rpy
         Q = (rotation_from_invariants([0, 0, 1], y_) @ rotation_from_invariants([0, 1, 0], p_)
              @ rotation_from_invariants([1, 0, 0], r_))
-        target = (Q, args.target)  # what kinredund.tasks.target.make_target takes
+        target = (Q, args.target)  # what kinredund.tasks.make_target takes
     else:
         target = args.target
     index = None if args.index == "none" else _index_for(robot, args.index)
@@ -431,9 +431,10 @@ def build_parser() -> argparse.ArgumentParser:
               "kinredund track xarm7 --task position --scheme pseudoinverse --json run.json"])
     p.add_argument("robot", help="a robot name (see `kinredund robots`) or the path of a URDF file")
     p.add_argument("--ee-frame", metavar="FRAME", help="the end-effector frame of a URDF (default: the robot's own)")
-    p.add_argument("--task", choices=("planar", "position", "pose"),
-                   help="what the end effector must follow: a planar point, a 3-D point, or a point and an "
-                        "orientation (default: the robot's own task)")
+    p.add_argument("--task", choices=task_names(),
+                   help="what the end effector must follow: planar (a point in the plane), position (a 3-D point), "
+                        "pose (a point and an orientation) or axis (a point and the tool's axis) (default: the "
+                        "robot's own task)")
     p.add_argument("--path", choices=("circle", "ellipse", "file"), default="circle",
                    help="circle and ellipse start at the end effector's start pose; file reads --path-file "
                         "(default: %(default)s)")
@@ -476,8 +477,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="roll, pitch, yaw of the target orientation [rad], for pose tasks (default: none; "
                         "without it use --task position)")
     p.add_argument("--ee-frame", metavar="FRAME", help="the end-effector frame of a URDF (default: the robot's own)")
-    p.add_argument("--task", choices=("planar", "position", "pose"),
-                   help="planar point, 3-D point, or point and orientation (default: the robot's own task)")
+    p.add_argument("--task", choices=task_names(),
+                   help="planar, position (a 3-D point), pose (point and orientation) or axis (point and tool axis) "
+                        "(default: the robot's own task)")
     p.add_argument("--index", choices=("none", "home", "min-norm", "mid-range"), default="none",
                    help="the performance index to minimise; none: any solution (default: %(default)s)")
     p.add_argument("--q0", type=_vector, metavar="Q1,Q2,...",

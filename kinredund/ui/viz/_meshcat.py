@@ -19,6 +19,7 @@ import numpy as np
 from kinredund.errors import KinredundError, SolverError, URDFError
 from kinredund.model.robot import Robot
 from kinredund.model.urdf import hd_to_urdf, load_urdf_model, load_urdf_text_model
+from kinredund.tasks import get_task
 from kinredund.trajectory import Trajectory
 from kinredund.ui.viz.meshes import MeshPart, compact_mesh
 from kinredund.ui.viz.scene import (
@@ -327,7 +328,7 @@ def build_scene(
         node.set_transform(unit_cylinder_transform(obstacle))
         vis["obstacle_outline"].set_object(_line(mc, obstacle_outline(obstacle), OBSTACLE_COLOR))
 
-    center, offset = camera_view(np.vstack(scene_points), planar=robot.task == "planar")
+    center, offset = camera_view(np.vstack(scene_points), planar=get_task(robot.task).planar)
     # meshcat 0.3.2's orbit controls always look at the world origin (whatever the transform of
     # /Cameras/default), so the scene is shifted instead: the centre of attention becomes the origin.
     shift = mc.tf.translation_matrix(-center)
