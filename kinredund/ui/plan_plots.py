@@ -72,7 +72,9 @@ def plan_figure(case: str, result, extra: dict, robot_name: str = ""):
     ax1.grid(True, alpha=0.3)
     if result.clearance is not None:
         for k, name in enumerate(result.clearance.names):
-            ax2.plot(result.clearance.t, result.clearance.clearance[:, k], label=str(name))
+            # line styles as well as colours: links at the same clearance (6.3's links 1 and 2) stay visible
+            ax2.plot(result.clearance.t, result.clearance.clearance[:, k], label=str(name),
+                     linestyle=("-", "--", "-.", ":")[k % 4])
     ax2.axhline(0.0, color="k", lw=0.8, label="contact (0 m)")
     ax2.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small", frameon=False)
     ax2.set_xlabel("time [s]")
