@@ -240,9 +240,10 @@ def _floor_segments(center_xy: np.ndarray, half: float, spacing: float) -> np.nd
 def draw_floor(vis, mc, points: np.ndarray) -> FloorGrid:
     """A grid on the plane z = 0 of the robot's base frame, under the scene, replacing meshcat's ``/Grid``.
 
-    meshcat's own grid is a 20 m square: from a camera a metre from the robot, most of its lines pass
-    behind the camera and are lost, leaving a thin edge-on strip near the horizon (what the replays
-    showed above the robot). This grid spans the scene's footprint instead (:func:`floor_grid`) and is
+    meshcat's own grid is a 20 m square: from a camera a metre from the robot, most of its lines have an
+    end behind the camera, and such lines are not drawn at all (seen in headless Chromium: a 2 m grid
+    draws whole, a 5 m one loses its near lines, the 20 m one keeps only a thin strip near the horizon,
+    which the replays showed above the robot; the camera's near plane makes no difference). This grid spans the scene's footprint instead (:func:`floor_grid`) and is
     drawn in the robot's frame, so it stays on z = 0 whatever the camera shift.
     """
     grid = floor_grid(points)
