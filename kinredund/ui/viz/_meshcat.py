@@ -244,7 +244,8 @@ def draw_floor(vis, mc, points: np.ndarray) -> FloorGrid:
     end behind the camera, and such lines are not drawn at all (seen in headless Chromium: a 2 m grid
     draws whole, a 5 m one loses its near lines, the 20 m one keeps only a thin strip near the horizon,
     which the replays showed above the robot; the camera's near plane makes no difference). This grid
-    spans the scene's footprint instead (:func:`floor_grid`) and is drawn in the robot's frame, so it stays on z = 0 whatever the camera shift.
+    spans the scene's footprint instead (:func:`floor_grid`) and is drawn in the robot's frame, so it
+    stays on z = 0 whatever the camera shift.
     """
     grid = floor_grid(points)
     segs = _floor_segments(grid.center, grid.half, grid.spacing)
