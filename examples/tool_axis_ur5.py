@@ -8,11 +8,10 @@ Run: python examples/tool_axis_ur5.py
 import numpy as np
 
 import kinredund as kr
-from kinredund.model.robot import erd_share_dir
 from kinredund.tasks.axis import frame_with_axis
 
-robot = kr.load_robot(erd_share_dir() / "ur_description/urdf/ur5_robot.urdf", task="axis")
-q_seed = np.array([0.3, -1.2, 1.5, -1.9, -1.57, 0.3])  # regular (the URDF's zero pose is singular)
+robot = kr.load_robot("ur5")  # its default task is the tool axis (m = 5): redundant by one
+q_seed = robot.home  # a regular pose (the URDF's zero pose is singular)
 p0 = robot.fk(q_seed)[:3, 3]
 path = kr.Circle(p0 - np.array([0.06, 0.0, 0.0]), 0.06, 0.12, orientation=frame_with_axis([0.0, 0.0, -1.0]))
 index = kr.JointDeviation(q_seed + 0.2)

@@ -34,14 +34,25 @@ from kinredund.ik import IKResult, check_optimality, solve_ik
 from kinredund.indices import CustomIndex, Index, JointDeviation, TimeVaryingReference, mid_range, minimum_norm
 from kinredund.kinematics.hd import HDTable
 from kinredund.model.robot import Robot, known_robots, load_robot, robot_from_hd
-from kinredund.paths import Circle, Ellipse, FunctionPath, Helix, Path, PathSample, SampledPath, read_path_file
+from kinredund.paths import (
+    AxisPath,
+    Circle,
+    Ellipse,
+    FunctionPath,
+    Helix,
+    Path,
+    PathSample,
+    SampledPath,
+    read_path_file,
+)
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "AxisPath",
     "ChoiceError",
     "Circle",
     "CustomIndex",

@@ -208,7 +208,7 @@ def test_every_option_has_help_with_its_default():
             label = f"{name} {'/'.join(action.option_strings) or action.dest}"
             if not action.help or not action.help.strip():
                 missing.append(label)
-            elif action.option_strings and "default" not in action.help and "required" not in action.help:
+            elif action.option_strings and not action.required and "default" not in action.help:
                 no_default.append(label)
     assert not missing, f"options without help text: {missing}"
     assert not no_default, f"options whose help does not give the default: {no_default}"

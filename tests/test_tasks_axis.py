@@ -10,7 +10,6 @@ from conftest import configurations, robot
 import kinredund
 from kinredund.kinematics.finite_diff import central_difference
 from kinredund.kinematics.hd import HDTable
-from kinredund.model.robot import erd_share_dir
 from kinredund.paths import Circle
 from kinredund.tasks import TASKS, get_task, make_target, task_residual
 from kinredund.tasks.axis import axis_angle_error, frame_with_axis
@@ -21,7 +20,7 @@ FD_BAR = 1e-7
 
 
 def _ur5():
-    return kinredund.load_robot(erd_share_dir() / "ur_description/urdf/ur5_robot.urdf", task="axis")
+    return kinredund.load_robot("ur5", task="axis")
 
 
 def _random_hd(seed: int):

@@ -305,6 +305,10 @@ def solve_ik(
         bad = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper)).tolist()
         q0 = np.clip(q0, robot.lower, robot.upper)
         notes = f"q0 was outside the joint limits at joints {bad}: projected into them"
+    if index is not None and robot.nq == robot.task_dim:  # n = m: no self-motion for z to act on (Eq. 4.3)
+        index, notes = None, "; ".join(filter(None, [notes, (
+            f"n = m = {robot.nq}: the task leaves no redundancy, so the index is irrelevant; the solution "
+            "nearest the seed (of the first converged start) is returned")]))
     res = task_residual(tgt)
     setup = Setup(
         kin=robot.kinematics, res=res, index=index, lower=np.asarray(robot.lower), upper=np.asarray(robot.upper),

@@ -13,7 +13,7 @@
 2. **Estimates** (Section 6.2.2.2): a cubic spline through the samples (:mod:`.spline`).
 3. **Tracking** (Section 6.2.2.3): the resolved-rate scheme of Chapter 4 with the time-varying index
    h = 1/2 ||theta - theta*(t)||^2 and the spline's rate as feed-forward (Eqs. 6.23-6.28), through
-   :func:`kinredund.tracking.resolved_rate.track`: the tracked joints are the constrained optimum of h at each
+   :func:`kinredund.tracking.track`: the tracked joints are the constrained optimum of h at each
    time, so where the branch switch happens is found by the tracking itself.
 4. **Verification** (:mod:`.clearance`): every link against the obstacle along the whole tracked
    motion, finer than the tracking steps. A plan with any penetration, or with a certified clearance

@@ -21,7 +21,7 @@ from kinredund.planning.clearance import ClearanceReport, LinkModel, verify_moti
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.spline import JointSpline
 from kinredund.tasks import get_task
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
 

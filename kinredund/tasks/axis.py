@@ -66,10 +66,10 @@ def frame_with_axis(axis) -> np.ndarray:
     return np.column_stack([x, _cross(a, x), a])
 
 
-def axis_angle_error(Q: np.ndarray, Q_d: np.ndarray) -> float:
-    """The angle [rad] between the tool axes Q e_z and Q_d e_z."""
-    a, b = Q[:, 2], Q_d[:, 2]
-    return float(math.atan2(np.linalg.norm(_cross(a, b)), float(a @ b)))
+def axis_angle_error(Q: np.ndarray, Q_d: np.ndarray) -> np.ndarray:
+    """The angle [rad] between the tool axes Q e_z and Q_d e_z, for rotations (3, 3) or stacks (N, 3, 3)."""
+    a, b = Q[..., :, 2], Q_d[..., :, 2]
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
 
 
 class AxisTerms(TaskTerms):
@@ -191,8 +191,14 @@ class AxisTask(Task):
         pose = PoseTask().make_target(target)
         return Target(self.name, pose.p, pose.Q)
 
-    def error_values(self, Q, p, target) -> dict[str, float]:
-        return {"position_error": self.position_error(p, target), "axis_error": axis_angle_error(Q, target.Q)}
+    def errors_many(self, Q, p, Q_d, p_d):
+        out = super().errors_many(Q, p, Q_d, p_d)
+        out["axis_error"] = axis_angle_error(Q, Q_d)
+        return out
+
+    def span_rows(self, Q, K, sample):
+        """The velocity form's rows [S (-[e_z]x) Q_d^T K_omega; K_pdot]: J's row space on the path."""
+        return np.concatenate((_PERP @ (sample.Q.T @ K[:3]), K[3:]))
 
     def ik_residual(self, target: Target) -> AxisResidual:
         return AxisResidual(target)

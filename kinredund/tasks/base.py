@@ -169,16 +169,28 @@ class Task(ABC):
         """The IK target of an end point p (3,): the point's coordinates that the task holds."""
         return np.asarray(p, float)[self.point_rows - 3]
 
-    def position_error(self, p: np.ndarray, target: Target) -> float:
-        """||p - p_d|| over the task's point coordinates [m]."""
+    def errors_many(self, Q: np.ndarray, p: np.ndarray, Q_d: np.ndarray | None, p_d: np.ndarray) -> dict:
+        """The task's errors at N points by the record's names (:attr:`error_names`), arrays (N,):
+        ``position_error`` [m] over the task's point coordinates, and where the task holds an
+        orientation ``trace_error`` and ``vect_error`` (the thesis's invariants, Example 4.3) or
+        ``axis_error`` [rad].
+
+        Args:
+            Q, Q_d: reached and desired rotations (N, 3, 3) (Q_d None where the task has none).
+            p, p_d: reached and desired points (N, 3) [m].
+        """
         i = self.point_rows - 3
-        return float(np.linalg.norm(np.asarray(p)[i] - target.p[i]))
+        return {"position_error": np.linalg.norm(p[:, i] - p_d[:, i], axis=1)}
 
     def error_values(self, Q: np.ndarray, p: np.ndarray, target: Target) -> dict[str, float]:
-        """The task's errors by the record's names (:attr:`error_names`): ``position_error`` [m], and
-        where the task holds an orientation ``trace_error`` and ``vect_error`` (the thesis's invariants,
-        Example 4.3) or ``axis_error`` [rad]."""
-        return {"position_error": self.position_error(p, target)}
+        """:meth:`errors_many` at one point against a target."""
+        Q_d = None if target.Q is None else target.Q[None]
+        return {k: float(v[0]) for k, v in self.errors_many(Q[None], np.asarray(p)[None], Q_d, target.p[None]).items()}
+
+    def span_rows(self, Q: np.ndarray, K: np.ndarray, sample: PathSample) -> np.ndarray:
+        """Rows with the row space of the tracking Jacobian J on the path, from K alone (the normality
+        residual of Eq. (4.5) needs only that space): the point rows of K by default."""
+        return K[self.point_rows]
 
     def errors(self, Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:
         """(position error [m], trace error |tr Q - tr Q_d|, vect error ||vect Q - vect Q_d||), the last

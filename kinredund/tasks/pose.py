@@ -238,10 +238,17 @@ class PoseTask(Task):
             raise TaskError("the pose target's rotation is not a proper orthonormal matrix (Q Q^T = 1, det Q = +1)")
         return Target(self.name, p.copy(), Q.copy())
 
-    def error_values(self, Q, p, target):
-        tr = float(abs(np.trace(Q) - np.trace(target.Q)))
-        ve = float(np.linalg.norm(closure.vect(Q) - closure.vect(target.Q)))
-        return {"position_error": self.position_error(p, target), "trace_error": tr, "vect_error": ve}
+    def errors_many(self, Q, p, Q_d, p_d):
+        out = super().errors_many(Q, p, Q_d, p_d)
+        out["trace_error"] = np.abs(np.trace(Q, axis1=1, axis2=2) - np.trace(Q_d, axis1=1, axis2=2))
+        D = Q - Q_d  # vect(Q) - vect(Q_d) = vect(Q - Q_d), Eq. (2.8)
+        v = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], axis=1)
+        out["vect_error"] = np.linalg.norm(v, axis=1)
+        return out
+
+    def span_rows(self, Q, K, sample):
+        """K itself: J = K (velocity form) or H K with H invertible near the path (Eq. 2.14)."""
+        return K
 
     def ik_residual(self, target: Target) -> PoseResidual:
         return PoseResidual(target)

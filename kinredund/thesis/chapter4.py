@@ -25,7 +25,7 @@ from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.thesis import starts
 from kinredund.thesis.starts import EXAMPLES, example_path
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
 #: what the thesis reports for each example (thesis mode, 200 steps per loop)

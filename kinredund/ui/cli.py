@@ -96,12 +96,12 @@ def _cmd_generate_robots(args) -> int:
 
 
 def _cmd_robots(args) -> int:
-    from kinredund.model.robot import known_robots, load_robot
+    from kinredund.model.loader import robot_table
 
-    print(f"{'name':16s} {'joints':>6s}  {'task':8s} {'task rows':>9s}  end-effector frame")
-    for name in known_robots():
-        r = load_robot(name)
-        print(f"{name:16s} {r.nq:6d}  {r.task:8s} {r.task_dim:9d}  {r.ee_frame}")
+    print(f"{'name':14s} {'n':>2s}  {'task':8s} {'m':>1s}  {'redundancy':10s} {'default frame':24s} source")
+    for row in robot_table():
+        print(f"{row.name:14s} {row.n:2d}  {row.task:8s} {row.m:1d}  n - m = {row.n - row.m:<3d}"
+              f"{row.ee_frame:24s} {row.note}")
     return EXIT_OK
 
 
@@ -197,7 +197,7 @@ def _cmd_track(args) -> int:
     bar = _progress(f"track {args.robot}", args)
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
-    from kinredund.tracking.resolved_rate import track
+    from kinredund.tracking import track
 
     try:
         bar(0, 1, "loading the robot")

@@ -238,4 +238,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p = _sub(sub, commands, "robots", "list the robots load_robot knows",
              "List the robot names that track, ik and the Python API accept, with their joints and task.",
              ["kinredund robots"])
+    from kinredund.ui.cli_retime import add_parsers as add_retime_parsers  # retime, export (issue 16)
+
+    add_retime_parsers(sub)
     return parser

@@ -107,7 +107,7 @@ class RobotVisuals:
 
     The visuals are parsed from ``robot.urdf_path`` (meshes through ``robot.package_dirs``) into a
     model of their own: for the Panda that model keeps the finger joints that ``load_robot`` drops,
-    so joint values are copied across by joint name (the fingers stay at their neutral value).
+    so joint values are copied across by joint name (the locked joints at ``robot.locked``).
     Robots without a URDF file are drawn from the URDF of their HD table.
 
     Raises:
@@ -144,6 +144,9 @@ class RobotVisuals:
             self.index.append(model.joints[model.getJointId(name)].idx_q)
         self.index = np.array(self.index, dtype=int)
         self.neutral = pin.neutral(model)
+        for name, value in robot.locked.items():  # the joints load_robot locked sit where it locked them
+            if model.existJointName(name) and model.joints[model.getJointId(name)].nq == 1:
+                self.neutral[model.joints[model.getJointId(name)].idx_q] = value
         self.viz = mc.MeshcatVisualizer(model, None, visual)
         self.viz.initViewer(viewer=vis)
         # what loadViewerModel sets, without its loading: meshes go in compact (mesh_object), the rest
