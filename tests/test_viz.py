@@ -504,3 +504,13 @@ def test_live_viewer_plays_in_headless_chromium(tmp_path):
         stop_live(url)
     assert children() == before  # browser and server are gone
     assert_robot_plays(*frames)
+
+
+def test_replay_titles_name_robot_path_and_method():
+    from kinredund.ui.viz.page import replay_title
+
+    traj = synthetic(steps=11)
+    assert replay_title(traj, "circle") == "planar3r: circle, augmented scheme (default mode)"
+    assert replay_title(dataclasses.replace(traj, meta={"example": "4.3"})).startswith("planar3r: Example 4.3,")
+    plan = dataclasses.replace(traj, scheme="planner", meta={"example": "6.3"})
+    assert replay_title(plan) == "planar3r: Section 6.3, planned motion around the obstacle"

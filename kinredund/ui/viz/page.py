@@ -33,6 +33,10 @@ def replay_title(traj: Trajectory, path_label: str | None = None) -> str:
             path_label = f"{'Section' if str(example).startswith(('3', '6')) else 'Example'} {example}"
         else:
             path_label = "closed path" if traj.loop_period is not None else "open path"
+    if traj.scheme == "planner":
+        return f"{traj.robot}: {path_label}, planned motion around the obstacle"
+    if traj.scheme == "closed_form":
+        return f"{traj.robot}: {path_label}, closed-form IK"
     return f"{traj.robot}: {path_label}, {traj.scheme} scheme ({traj.mode} mode)"
 
 
