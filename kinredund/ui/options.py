@@ -241,4 +241,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     from kinredund.ui.cli_retime import add_parsers as add_retime_parsers  # retime, export (issue 16)
 
     add_retime_parsers(sub)
+    from kinredund.ui.cli_sweep import add_parser as add_sweep_parser  # the placement sweep (its own module)
+
+    add_sweep_parser(sub)
     return parser
