@@ -16,6 +16,8 @@ What a user needs is exported here::
     traj = kr.track(robot, path, index, start.q, loops=2)
 """
 
+from importlib.metadata import version as _version
+
 from kinredund import indices, paths, tasks
 from kinredund.errors import (
     ChoiceError,
@@ -52,7 +54,7 @@ from kinredund.tasks import Task, get_task, task_names
 from kinredund.tracking import JointLimits, Tracker, track
 from kinredund.trajectory import Trajectory
 
-__version__ = "0.1.0"
+__version__ = _version("kinredund")
 
 __all__ = [
     "AxisPath",

@@ -171,7 +171,7 @@ def track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model:
     try:
         traj = track(robot, path, TimeVaryingReference(spl, spl.rate), smp.q[0], steps_per_loop=steps_per_loop,
                      loops=1, progress=None if progress is None else lambda d, n: progress(d, n, "tracking"),
-                     meta=info)
+                     meta=info, limits=False)
     except KinredundError as err:
         timings["tracking_s"] = perf_counter() - t1
         return failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)

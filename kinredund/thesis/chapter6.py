@@ -26,7 +26,6 @@ Both are reported as the failure's reason; the plan is never called done.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
@@ -142,37 +141,15 @@ def to_json_dict(case: str, result: PlanResult, extra: dict) -> dict:
     }
 
 
-def plot_case(case: str, result: PlanResult, extra: dict, path) -> None:
-    """Joint histories with the spline estimates and clearance per link (Figs. 6.6-6.8, 6.12-6.13), or,
-    when there is no tracked motion, the obstacle, the path and the reach that the policy needs
-    (:func:`kinredund.ui.plan_plots.plot_plan`)."""
-    from kinredund.ui.plan_plots import plot_plan
+def reproduce(case: str, json_path=None, progress=None, samples: int = 9) -> tuple[PlanResult, dict, Robot, Obstacle]:
+    """Run Section 6.2 or 6.3 and write its JSON (atomically, also for a failed plan); returns the result,
+    the extra figures, the robot and the obstacle (:func:`kinredund.ui.reproduce.plan_case` adds the plots).
 
-    plot_plan(case, result, extra, path, robot_name=case_robot(case).name)
-
-
-def snapshot_path(plot_path) -> Path:
-    """Where :func:`reproduce` saves the configuration snapshots beside ``plot_path``: ``NAME_snapshots.EXT``."""
-    p = Path(plot_path)
-    return p.with_name(f"{p.stem}_snapshots{p.suffix}")
-
-
-def reproduce(case: str, json_path=None, plot_path=None, progress=None, samples: int = 9) -> PlanResult:
-    """Run Section 6.2 or 6.3, write its JSON (atomically, also for a failed plan) and plot.
-
-    With ``plot_path``, a tracked plan also gets its configuration snapshots at :func:`snapshot_path`.
     ``progress(done, total, stage)`` follows the whole run (see :func:`kinredund.planning.planner.plan`).
     """
     result, extra, robot, obstacle = _run(case, samples, progress)
-    if progress is not None and (json_path is not None or plot_path is not None):
-        progress(0, 1, "writing the JSON and the plots")
     if json_path is not None:
+        if progress is not None:
+            progress(0, 1, "writing the JSON")
         write_json(json_path, to_json_dict(case, result, extra))
-    if plot_path is not None:
-        from kinredund.ui.plan_plots import plot_plan, snapshot_figure
-
-        plot_plan(case, result, extra, plot_path, robot_name=robot.name)
-        if result.trajectory is not None:  # configuration snapshots (Figs. 6.14-6.22) beside the main plot
-            snapshot_figure(result, robot, obstacle, snapshot_path(plot_path),
-                            title=f"Section {case}: {robot.name} at six times over the loop")
-    return result
+    return result, extra, robot, obstacle

@@ -111,10 +111,10 @@ def _cmd_reproduce(args) -> int:
         return _plan(name, args, label=f"reproduce {name}")
     bar = _progress(f"reproduce {name}", args)
     if name in ("4.1", "4.2", "4.3"):
-        from kinredund.thesis.chapter4 import reproduce
+        from kinredund.ui.reproduce import example
 
         try:
-            traj = reproduce(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
+            traj = example(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
                              json_path=args.json, plot_path=args.plot,
                              progress=lambda d, n: bar(d, n, "tracking"))
         finally:
@@ -122,11 +122,11 @@ def _cmd_reproduce(args) -> int:
         print(f"Example {name}: {args.scheme} scheme, {args.mode} mode, {args.loops} loop(s) of {args.steps} steps")
         _print_summary(traj.summary())
     else:
-        from kinredund.thesis.helix_3_2 import reproduce
+        from kinredund.ui.reproduce import helix
 
         bar(0, 1, "closed-form solutions along the helix")
         try:
-            out = reproduce(json_path=args.json, plot_path=args.plot)
+            out = helix(json_path=args.json, plot_path=args.plot)
         finally:
             bar.close()
         print("Section 3.2: helix tracked by the hybrid closed-form IK")
@@ -138,11 +138,11 @@ def _cmd_reproduce(args) -> int:
 def _plan(case: str, args, label: str) -> int:
     """Run a Chapter 6 case (``reproduce 6.x`` and ``plan``); EXIT_FAILED when the plan fails its check."""
     bar = _progress(label, args)
-    from kinredund.thesis.chapter6 import reproduce, snapshot_path
+    from kinredund.ui.reproduce import plan_case, snapshot_path
 
     more = {} if getattr(args, "samples", None) is None else {"samples": args.samples}
     try:
-        result = reproduce(case, json_path=args.json, plot_path=args.plot, progress=bar, **more)
+        result = plan_case(case, json_path=args.json, plot_path=args.plot, progress=bar, **more)
     finally:
         bar.close()
     print(f"Section {case}: off-line plan with collision avoidance")

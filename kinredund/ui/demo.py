@@ -68,11 +68,11 @@ def _chapter4(out: Path, loops: int, rows: list, data: dict, log, bar) -> None:
 
 
 def _chapter3(out: Path, rows: list, data: dict, log, bar) -> None:
-    from kinredund.thesis.helix_3_2 import reproduce
+    from kinredund.ui.reproduce import helix
 
     bar(0, 1, "Section 3.2")
     t0 = time.perf_counter()
-    res = reproduce(json_path=out / "section_3_2.json", plot_path=out / "section_3_2_joints.png")
+    res = helix(json_path=out / "section_3_2.json", plot_path=out / "section_3_2_joints.png")
     scalars = {k: v for k, v in res.items() if isinstance(v, (int, float, str, bool)) or v is None}
     data["3.2"] = scalars
     refs = scalars.get("theta3_ref_deg"), scalars.get("theta4_ref_deg")
@@ -83,13 +83,14 @@ def _chapter3(out: Path, rows: list, data: dict, log, bar) -> None:
 
 
 def _chapter6(out: Path, rows: list, data: dict, log, bar) -> None:
-    from kinredund.thesis.chapter6 import case_robot, reproduce
+    from kinredund.thesis.chapter6 import case_robot
+    from kinredund.ui.reproduce import plan_case
     from kinredund.ui.viz import replay_html
 
     for case in ("6.2", "6.3"):
         t0 = time.perf_counter()
         tag = case.replace(".", "_")
-        res = reproduce(case, json_path=out / f"section_{tag}.json", plot_path=out / f"section_{tag}.png",
+        res = plan_case(case, json_path=out / f"section_{tag}.json", plot_path=out / f"section_{tag}.png",
                         progress=bar.prefixed(f"Section {case}"))
         s = res.summary()
         data[case] = s

@@ -122,8 +122,9 @@ def _add_tracking(p) -> None:
 
 def build_parser(commands: dict) -> argparse.ArgumentParser:
     """The argument parser of every subcommand; ``commands`` maps each subcommand's name to its function."""
-    from kinredund import __version__
+    from importlib.metadata import version
 
+    __version__ = version("kinredund")  # the installed distribution's, from pyproject.toml
     parser = _Parser(prog="kinredund", description=DESCRIPTION, epilog=EPILOG, formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=f"kinredund {__version__}",
                         help="print the version and exit")
