@@ -1,4 +1,27 @@
-"""Shared fixtures: robots are loaded once per session (loading the Panda's URDF takes ~50 ms)."""
+"""Shared fixtures (robots are loaded once per session: the Panda's URDF takes ~50 ms) and the tolerance policy.
+
+Tolerance policy: every bar says where it comes from, next to it, in one of these kinds (after the way
+qpsolvers documents its test tolerances). The suite must give the same verdicts under any BLAS kernel
+(OPENBLAS_CORETYPE) and CPU, and in any order.
+
+1. Rounding: two computations that agree in exact arithmetic (a quantity computed two ways, two passes
+   of Pinocchio, a value that is 0 by construction) differ by rounding only: bar ``ROUND_ULPS * EPS *
+   scale`` (:func:`rounding`), scale the size of the numbers involved (1 m, 1 rad, |grad z|, ...). Never
+   ``==`` on a computed float: a different kernel sums in another order. ``==`` stays right for values
+   that are copied, not computed (a stored record read back, a clipped joint equal to its limit, a
+   count, an exact literal the code returns as such).
+2. An iterative method: bar from what the method guarantees at its stopping test, not the stopping
+   tolerance itself asserted back: e.g. a Newton-corrected tracker that stops at residual r has the
+   pose error it reports; an optimiser that resolves z to ``d`` places its point only to
+   ``sqrt(2 d / curvature)`` (SLSQP against the closed form in test_closed_form.py).
+3. Finite differences: central differences of step h carry O(h^2) truncation and O(EPS / h) rounding;
+   bars are a stated multiple of that (kinredund.kinematics.finite_diff).
+4. A physical allowance from the thesis or the code (a clearance, PENETRATION_TOL, a joint limit) is
+   asserted with its name, not a fresh literal.
+5. No wall-clock bar in a test: speed is measured by benchmarks/. A test may compare two clocks of the
+   same run (a sum of per-step times within the run's wall time) or give a solver a timeout of 1e-9 s
+   (which must time out on any machine), never assert that something is fast.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +34,18 @@ import numpy as np
 import pytest
 
 import kinredund
+
+#: machine epsilon of float64
+EPS = float(np.finfo(float).eps)
+#: units of round-off allowed between two computations that agree in exact arithmetic: a chain of up to
+#: ~100 floating-point operations on numbers of the scale given, each rounding by at most EPS/2
+ROUND_ULPS = 64
+
+
+def rounding(scale: float = 1.0) -> float:
+    """The rounding bar of kind 1 of the tolerance policy, for numbers of size ``scale``."""
+    return ROUND_ULPS * EPS * max(1.0, abs(scale))
+
 
 SHIPPED = ["planar3r", "planar3r_ch6", "puma7", "cybotech_p15"]
 ALL_ROBOTS = SHIPPED + ["panda", "xarm7"]
