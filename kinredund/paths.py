@@ -22,6 +22,9 @@ import numpy as np
 
 from kinredund.errors import PathError, check_array, check_positive
 
+#: largest |Q Q^T - 1| entry accepted for a sampled rotation (6 significant digits in a file give ~1e-6)
+ROTATION_TOL = 1e-5
+
 
 @dataclass(frozen=True)
 class PathSample:
@@ -116,8 +119,8 @@ class Circle(Path):
     roll_amplitude: float = 0.0
 
     def __post_init__(self) -> None:
+        _positive("circle", radius=self.radius, speed=self.speed)  # first: a NaN radius is not the centre's fault
         c = _center3(self.center, "circle")
-        _positive("circle", radius=self.radius, speed=self.speed)
         e1, e2, n = _frame(self.normal)
         if self.axis_x is not None:
             e1 = _unit(self.axis_x, "circle axis_x")
@@ -292,6 +295,14 @@ class SampledPath(Path):
             from scipy.spatial.transform import Rotation, RotationSpline
 
             Q = check_array(Q, (t.shape[0], 3, 3), "sampled rotations", PathError)
+            # rotations, not merely matrices (Rotation.from_matrix would quietly orthonormalise 2 I): entries
+            # read from a file carry ~1e-9 of rounding at most, so ROTATION_TOL leaves room for 6 printed digits
+            gap = np.abs(Q @ Q.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+            bad = np.flatnonzero((gap > ROTATION_TOL) | (np.linalg.det(Q) <= 0))
+            if bad.size:
+                k = int(bad[0])
+                raise PathError(f"sampled rotation {k} (of {len(Q)}) is not a rotation matrix (orthonormal, det +1): "
+                                f"|Q Q^T - 1| = {gap[k]:.3g}, det = {np.linalg.det(Q[k]):.3g}", t=float(t[k]))
             if closed and np.abs(Q[0] - Q[-1]).max() > 1e-9:
                 raise PathError("a closed sampled path must end with the rotation it starts with")
             self._rot = RotationSpline(t, Rotation.from_matrix(Q))
