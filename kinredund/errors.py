@@ -195,8 +195,8 @@ def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
 
 
 def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:
-    """Return ``value`` if it is one of ``allowed``, else raise :class:`ChoiceError`."""
-    if value not in allowed:
+    """Return ``value`` if it is one of ``allowed`` (a string), else raise :class:`ChoiceError`."""
+    if not isinstance(value, str) or value not in allowed:  # an array would make `in` ambiguous
         raise ChoiceError(what, value, allowed)
     return value
 

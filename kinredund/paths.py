@@ -133,8 +133,10 @@ class Circle(Path):
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
-        if not math.isfinite(float(self.roll_amplitude)):
-            raise PathError(f"circle roll_amplitude must be a finite angle [rad], got {self.roll_amplitude!r}")
+        object.__setattr__(self, "start_angle", float(check_array(self.start_angle, (), "circle start_angle [rad]",
+                                                                  PathError)))
+        object.__setattr__(self, "roll_amplitude", float(check_array(self.roll_amplitude, (),
+                                                                     "circle roll_amplitude [rad]", PathError)))
         if self.orientation is not None:
             Q0 = check_array(self.orientation, (3, 3), "circle orientation", PathError)
             if self.frenet or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9 or np.linalg.det(Q0) <= 0:
@@ -193,6 +195,9 @@ class Ellipse(Path):
 
     def __post_init__(self) -> None:
         _positive("ellipse", a=self.a, b=self.b, rate=self.rate)
+        for name in ("angle", "start"):
+            value = check_array(getattr(self, name), (), f"ellipse {name} [rad]", PathError)
+            object.__setattr__(self, name, float(value))
         object.__setattr__(self, "center", _center3(self.center, "ellipse"))
         object.__setattr__(self, "period", 2 * np.pi / self.rate)
 
@@ -217,8 +222,8 @@ class Helix(Path):
 
     def __post_init__(self) -> None:
         _positive("helix", radius=self.radius, rate=self.rate)
-        if not (math.isfinite(self.pitch) and math.isfinite(self.z0)):
-            raise PathError(f"helix pitch and z0 must be finite, got {self.pitch!r}, {self.z0!r}")
+        check_array(self.pitch, (), "helix pitch [m/rad]", PathError)
+        check_array(self.z0, (), "helix z0 [m]", PathError)
 
     def sample(self, t: float) -> PathSample:
         beta = self.rate * t
@@ -276,6 +281,8 @@ class SampledPath(Path):
     def __init__(self, t, p, Q=None, closed: bool = True):
         from scipy.interpolate import CubicSpline
 
+        if not isinstance(closed, (bool, np.bool_)):
+            raise PathError(f"closed must be True or False, got {closed!r}")
         t = check_array(t, (None,), "sample times", PathError)
         if t.shape[0] < 4 or np.any(np.diff(t) <= 0):
             raise PathError("a sampled path needs at least 4 strictly increasing, finite times")
