@@ -47,6 +47,28 @@ def rounding(scale: float = 1.0) -> float:
     return ROUND_ULPS * EPS * max(1.0, abs(scale))
 
 
+#: kinredund.ik.solve.solve_ik's default tol (residual and normality residual) [m, and task units]
+IK_TOL = 1e-10
+
+
+def assert_ik_converged(r: kinredund.Robot, target, res, tol: float = IK_TOL) -> None:
+    """An IK result checked by what convergence guarantees, not by its own numbers asserted back (kind 2).
+
+    ``converged`` means the solver's residual and normality residual passed its test at ``tol``. Checked
+    independently: a fresh forward kinematics pass puts the end point within ``tol`` of the target (the
+    position error is a part of the residual) plus the rounding of that pass.
+    """
+    assert res.converged, res.reason
+    T = r.fk(res.q)
+    if isinstance(target, tuple):
+        p_d = np.asarray(target[1], dtype=float)
+    else:
+        target = np.asarray(getattr(target, "vector", target), dtype=float)
+        p_d = target[:3, 3] if target.shape == (4, 4) else target
+    err = float(np.linalg.norm(T[: p_d.size, 3] - p_d))
+    assert err <= tol + rounding(float(np.abs(p_d).max())), f"position error {err:.3g} m"
+
+
 SHIPPED = ["planar3r", "planar3r_ch6", "puma7", "cybotech_p15"]
 ALL_ROBOTS = SHIPPED + ["panda", "xarm7"]
 
