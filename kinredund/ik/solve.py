@@ -285,7 +285,11 @@ def solve_ik(
 
     Returns:
         An :class:`IKResult`. An unreachable target gives ``converged=False``, the configuration with
-        the smallest residual found and a reason.
+        the smallest residual found and a reason. A start that was on the target and left it (an index
+        unbounded below along the self-motion, e.g. a negative-definite one) returns its lowest-z point
+        on the target, never one worse than its seed; an index that turns non-finite stops the start at
+        the last point where it was finite; a start on the target at a singular configuration is
+        converged when the gradient vanishes on the SVD null space there. Every reason says which.
 
     Raises:
         TaskError: wrong-size or non-finite target, a target for another task kind, bad options (``starts``
