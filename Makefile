@@ -36,7 +36,7 @@ test-all: install browser
 	$(BIN)/pytest $(PYTEST_ARGS)
 
 lint: $(DEPS_STAMP)
-	$(BIN)/ruff check kinredund tests benchmarks
+	$(BIN)/ruff check kinredund tests benchmarks examples
 
 robots: install
 	$(BIN)/kinredund generate-robots --out robots

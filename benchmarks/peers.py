@@ -26,7 +26,7 @@ included, the recording excluded; methods are stepped in turn, so background loa
 garbage collection is off while stepping); max position error [m] and orientation error [rad] (angle
 of Q_d^T Q) over all steps; the joint drift max |q(kT) - q(0)| [rad] after each loop; and the max
 normality residual min over lambda of ||grad z + K^T lambda|| = ||(1 - K^+ K) grad z|| (zero exactly on the
-constrained optimum; K the 6 x n velocity Jacobian; ``kinredund.tracking.resolved_rate.multipliers``, as
+constrained optimum; K the 6 x n velocity Jacobian; ``kinredund.tracking.linalg.multipliers``, as
 ``Trajectory.normality_residual``). Peers whose package is missing are skipped and listed.
 """
 
@@ -42,8 +42,9 @@ from _bench import parser, print_table, summary_us, write_json
 from kinredund.errors import check_choice
 from kinredund.kinematics.angles import joint_drift
 from kinredund.problems import panda_circle
-from kinredund.tasks.target import orientation_error
-from kinredund.tracking.resolved_rate import ResolvedRate, multipliers
+from kinredund.tasks import orientation_error
+from kinredund.tracking import Tracker
+from kinredund.tracking.linalg import multipliers
 from kinredund.ui.plots import LOG_FLOOR
 
 STEPS_PER_LOOP = 200
@@ -58,11 +59,11 @@ POSTURE_COST = 1e-3  # [cost] / [rad], pink's README value; the frame task costs
 
 
 class _Ours:
-    """One of our schemes through :class:`ResolvedRate`."""
+    """One of our schemes through :class:`~kinredund.tracking.Tracker`."""
 
     def __init__(self, robot, path, index, q0, dt, scheme, mode):
-        self.rr = ResolvedRate(robot, path, index, q0, dt, scheme=scheme, mode=mode)
-        self.step = self.rr.advance
+        self.rr = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode)
+        self.step = self.rr.step
 
     def state(self):
         return self.rr.t, self.rr.q.copy()

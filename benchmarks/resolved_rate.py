@@ -10,16 +10,19 @@ Per robot, medians over one run of:
   composed of the library's own pieces: ``Kinematics.jacobian_hessian`` (K, dK), ``Index.evaluate``,
   ``multipliers`` (lambda* by Householder QR), ``HessianContraction.contract`` (Lambda*), ``kkt_matrix``
   and LAPACK dgesv;
-- ``eval_stepper_us``, one evaluation as the stepper itself makes it: ``ResolvedRate._rates()`` of a
-  ``ResolvedRate(scheme="velocity", mode="thesis", qp_backend="kkt")`` at the start of the path (K and dK
+- ``eval_stepper_us``, one evaluation as the stepper itself makes it: ``ExplicitEuler._rates()`` of a
+  ``Tracker(scheme="velocity", mode="thesis", qp_backend="kkt").stepper`` at the start of the path (K and dK
   from Pinocchio, the path sample, the task terms and the velocity correction of Eq. 4.29, grad z and
   Hess z, lambda* by Householder QR (Eqs. 4.33-4.34, recomputed at every call in thesis mode),
   M* = Hess z + Lambda* (Eqs. 4.37, 4.42), the LU factorisation of R with its condition estimate, and
   the solve of Eq. (4.36) for the joint and multiplier rates; the velocity form's M* is not symmetric,
   so the solve is always the LU one);
-- one whole step (``ResolvedRate.advance``) in the default mode (predictor + corrector; the augmented
+- one whole step (``Tracker.step``) in the default mode (predictor + corrector; the augmented
   form ``step_default_us`` and the velocity-Jacobian form ``step_default_velocity_us``), in thesis mode
-  (``step_thesis_us``, augmented), and one plain pseudoinverse step (``pinv_us``).
+  (``step_thesis_us``, augmented), and one plain pseudoinverse step (``pinv_us``);
+- ``track_step_us``: a whole ``track()`` run with its defaults (two loops), per step, against
+  ``tracker_step_us``, the bare ``Tracker.step()`` over the same two loops (the same steps, no record):
+  ``track_over_step`` is their ratio (the recorder's cost; target <= 1.3).
 
 On the Panda, the same run times pink's QP step on the same path (``pink_step_us``: FrameTask, proxqp, no
 limits - the plain QP step the issue's 75 us target names; ``pink_limits_step_us``: with pink's default
@@ -43,24 +46,29 @@ from scipy.linalg import lapack
 
 from kinredund.problems import panda_circle
 from kinredund.thesis.chapter4 import example_path
-from kinredund.tracking.resolved_rate import ResolvedRate, kkt_matrix, multipliers
+from kinredund.tracking import Tracker, track
+from kinredund.tracking.explicit import ExplicitEuler
+from kinredund.tracking.linalg import kkt_matrix, multipliers
 
 #: what each figure of :func:`bench` times (written to the JSON as ``keys``)
 KEYS = {
     "eval_us": "one evaluation (the issue's list): jacobian_hessian, Index.evaluate, multipliers (QR), "
                "HessianContraction.contract, kkt_matrix, dgesv",
-    "eval_stepper_us": "one evaluation as the stepper makes it: ResolvedRate(scheme='velocity', mode='thesis', "
-                       "qp_backend='kkt')._rates() at the path's start - K, dK, path sample, task terms, "
+    "eval_stepper_us": "one evaluation as the stepper makes it: Tracker(scheme='velocity', mode='thesis', "
+                       "qp_backend='kkt').stepper._rates() at the path's start - K, dK, path sample, task terms, "
                        "grad/Hess z, lambda* by Householder QR, M* = Hess z + Lambda*, LU of R (dgetrf + "
                        "dgecon), solve of Eq. (4.36)",
-    "step_default_us": "ResolvedRate.advance(), augmented scheme, default mode (predictor + Newton corrector)",
-    "step_default_velocity_us": "ResolvedRate.advance(), velocity scheme, default mode",
-    "step_thesis_us": "ResolvedRate.advance(), augmented scheme, thesis mode (Euler step, QP or LU)",
-    "pinv_us": "ResolvedRate.advance(), pseudoinverse scheme, thesis mode",
+    "step_default_us": "Tracker.step(), augmented scheme, default mode (predictor + Newton corrector)",
+    "step_default_velocity_us": "Tracker.step(), velocity scheme, default mode",
+    "step_thesis_us": "Tracker.step(), augmented scheme, thesis mode (Euler step, QP or LU)",
+    "pinv_us": "Tracker.step(), pseudoinverse scheme, thesis mode",
     "pink_step_us": "pink FrameTask step, solve_ik with proxqp, no limits (Panda)",
     "pink_limits_step_us": "pink FrameTask step, solve_ik with proxqp, pink's default limits (Panda)",
     "in_turn_us": "the default steps (augmented, velocity) and pink's QP step timed in turn, one step each per "
                   "round (Panda)",
+    "tracker_step_us": "median per step of the bare Tracker.step() over two loops (augmented, default mode)",
+    "track_step_us": "median per step of track() with its defaults over two loops (the step and its record)",
+    "track_over_step": "track_step_us / tracker_step_us (target <= 1.3)",
     "evals_per_step": "evaluations of the scheme per default-mode step (augmented), two loops",
     "predictor_miss_median": "median |q_predicted - q_corrected| [rad] of the default mode's predictor, second loop",
     "predictor_miss_max": "largest |q_predicted - q_corrected| [rad], second loop",
@@ -89,7 +97,7 @@ def _eval_once(robot, index, q, s_twist):
     return lapack.dgesv(kkt_matrix(M, K), rhs)[2]  # Eq. (4.36), LU with partial pivoting
 
 
-def _evaluator(robot, path, index, q0, dt) -> ResolvedRate:
+def _evaluator(robot, path, index, q0, dt) -> ExplicitEuler:
     """The stepper whose ``_rates()`` is "one evaluation as the stepper makes it" (``eval_stepper_us``).
 
     Thesis mode recomputes lambda* by QR at every evaluation (Eqs. 4.33-4.34) instead of integrating it;
@@ -97,7 +105,7 @@ def _evaluator(robot, path, index, q0, dt) -> ResolvedRate:
     (Eq. 4.36); ``qp_backend="kkt"`` says so explicitly. ``_rates()`` leaves q and t alone: every call
     evaluates the same point and sets ``qdot``, ``lamdot`` and ``lam``.
     """
-    return ResolvedRate(robot, path, index, q0, dt, scheme="velocity", mode="thesis", qp_backend="kkt")
+    return Tracker(robot, path, index, q0, dt, scheme="velocity", mode="thesis", qp_backend="kkt").stepper
 
 
 def _pink_steps(robot, path, q0, dt, limits: bool):
@@ -116,9 +124,9 @@ def predictor_figures(robot, path, index, q0, dt, loops: int = 2) -> dict:
     more where chord iterations follow); ``predictor_miss_median`` / ``_max``: |q_predicted -
     q_corrected| [rad] over the steps after the first loop (the predictor's start-up excluded).
     """
-    rr = ResolvedRate(robot, path, index, q0, dt)
+    rr = Tracker(robot, path, index, q0, dt).stepper
     n, calls, misses = robot.nq, [0], []
-    point, correct = rr.sys.point, rr._correct
+    point, correct = rr.ev.point, rr._correct
 
     def counted_point(*args, **kwargs):
         calls[0] += 1
@@ -128,10 +136,10 @@ def predictor_figures(robot, path, index, q0, dt, loops: int = 2) -> dict:
         correct(y)
         misses.append(float(np.abs(y[:n] - rr.q).max()))
 
-    rr.sys.point, rr._correct = counted_point, measured_correct
+    rr.ev.point, rr._correct = counted_point, measured_correct
     steps = loops * round(path.period / dt)
     for _ in range(steps):
-        rr.advance()
+        rr.step()
     tail = np.array(misses[steps // loops:])
     return {"evals_per_step": calls[0] / steps, "predictor_miss_median": float(np.median(tail)),
             "predictor_miss_max": float(tail.max())}
@@ -144,7 +152,7 @@ def bench(name: str, steps: int) -> dict:
     twist = np.concatenate([s.omega, s.v])
     out = {"eval_us": time_calls(lambda: _eval_once(robot, index, q0, twist))["median_us"],
            "eval_stepper_us": time_calls(_evaluator(robot, path, index, q0, dt)._rates)["median_us"]}
-    steppers = {key: ResolvedRate(robot, path, index, q0, dt, mode=mode, scheme=scheme).advance
+    steppers = {key: Tracker(robot, path, index, q0, dt, mode=mode, scheme=scheme).step
                 for key, mode, scheme in [("step_default_us", "default", "augmented"),
                                           ("step_default_velocity_us", "default", "velocity"),
                                           ("step_thesis_us", "thesis", "augmented"),
@@ -167,7 +175,39 @@ def bench(name: str, steps: int) -> dict:
         out["default_over_pink"] = turn["step_default_us"] / turn["pink_step_us"]
         out["default_velocity_over_pink"] = turn["step_default_velocity_us"] / turn["pink_step_us"]
     out.update(predictor_figures(robot, path, index, q0, dt))
+    out.update(record_figures(robot, path, index, q0, repeat=max(1, min(5, steps // 200))))
     return out
+
+
+def record_figures(robot, path, index, q0, repeat: int = 5, loops: int = 2) -> dict:
+    """``track()`` with its defaults against the bare ``Tracker.step()`` over the same run, per step.
+
+    Each of ``repeat`` rounds times one whole ``track()`` run of ``loops`` loops (200 steps each) and one
+    loop of bare steps over the same run, in turn; the figures are the medians over the rounds of the
+    time per step, so the ratio is the recorder's share, drift and load hitting both alike.
+    """
+    import gc
+    import time
+
+    steps = 200 * loops
+    dt = path.period / 200
+    per_track, per_step = [], []
+    gc.disable()
+    try:
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            track(robot, path, index, q0, loops=loops)
+            per_track.append((time.perf_counter() - t0) / steps)
+            tracker = Tracker(robot, path, index, q0, dt)
+            step = tracker.step
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                step()
+            per_step.append((time.perf_counter() - t0) / steps)
+    finally:
+        gc.enable()
+    a, b = float(np.median(per_track) * 1e6), float(np.median(per_step) * 1e6)
+    return {"track_step_us": a, "tracker_step_us": b, "track_over_step": a / b}
 
 
 def write_plot(results: dict, path: Path) -> None:
@@ -219,6 +259,8 @@ def main() -> None:
               f"step: {panda['default_over_pink']:.2f} (augmented), {panda['default_velocity_over_pink']:.2f} "
               "(velocity form); target <= 1")
     for name, r in results.items():
+        print(f"{name}: track() {r['track_step_us']:.3g} us per step against Tracker.step() {r['tracker_step_us']:.3g} "
+              f"us: ratio {r['track_over_step']:.2f} (target <= 1.3)")
         print(f"{name}: default-mode predictor misses by {r['predictor_miss_median']:.2g} rad (median, largest "
               f"{r['predictor_miss_max']:.2g}); {r['evals_per_step']:.2f} evaluations per step")
     write_json(args.json, {"robots": results, "keys": KEYS})

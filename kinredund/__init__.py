@@ -1,9 +1,22 @@
 """kinredund: kinematic control of redundant manipulators on Pinocchio.
 
 After S. Mathur, *Algorithms for the Kinematic Control of Redundant Manipulators*, M.Eng. thesis,
-McGill University, 1989. See the README for the map from thesis chapters to modules.
+McGill University, 1989. See the README for the map from thesis chapters to modules and
+docs/architecture.md for the layers.
+
+What a user needs is exported here::
+
+    import kinredund as kr
+
+    robot = kr.load_robot("panda")
+    index = kr.JointDeviation(robot.home)
+    path = kr.Circle(robot.fk(robot.home)[:3, 3] - (0.05, 0, 0), 0.05, 0.1,
+                     orientation=robot.fk(robot.home)[:3, :3])
+    start = kr.solve_ik(robot, robot.fk(robot.home), index)
+    traj = kr.track(robot, path, index, start.q, loops=2)
 """
 
+from kinredund import indices, paths, tasks
 from kinredund.errors import (
     ChoiceError,
     FrameNotFoundError,
@@ -17,30 +30,68 @@ from kinredund.errors import (
     UnknownRobotError,
     URDFError,
 )
-from kinredund.ik.solve import IKResult, check_optimality, solve_ik
+from kinredund.ik import IKResult, check_optimality, solve_ik
+from kinredund.indices import CustomIndex, Index, JointDeviation, TimeVaryingReference, mid_range, minimum_norm
 from kinredund.kinematics.hd import HDTable
 from kinredund.model.robot import Robot, known_robots, load_robot, robot_from_hd
+from kinredund.paths import (
+    AxisPath,
+    Circle,
+    Ellipse,
+    FunctionPath,
+    Helix,
+    Path,
+    PathSample,
+    SampledPath,
+    read_path_file,
+)
+from kinredund.tasks import Task, get_task, task_names
+from kinredund.tracking import track
+from kinredund.trajectory import Trajectory
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "AxisPath",
     "ChoiceError",
+    "Circle",
+    "CustomIndex",
+    "Ellipse",
     "FrameNotFoundError",
+    "FunctionPath",
     "HDTable",
-    "IKResult",
     "HDTableError",
+    "Helix",
+    "IKResult",
+    "Index",
+    "JointDeviation",
     "JointVectorError",
     "KinredundError",
+    "Path",
     "PathError",
+    "PathSample",
     "Robot",
+    "SampledPath",
     "SingularityError",
     "SolverError",
+    "Task",
     "TaskError",
+    "TimeVaryingReference",
+    "Trajectory",
     "URDFError",
     "UnknownRobotError",
     "check_optimality",
+    "get_task",
+    "indices",
     "known_robots",
     "load_robot",
+    "mid_range",
+    "minimum_norm",
+    "paths",
+    "read_path_file",
     "robot_from_hd",
     "solve_ik",
+    "task_names",
+    "tasks",
+    "track",
 ]

@@ -40,10 +40,11 @@ class URDFError(KinredundError, ValueError):
 class FrameNotFoundError(KinredundError, KeyError):
     """An end-effector frame name that the model does not have; ``frames`` lists those it has."""
 
-    def __init__(self, frame: str, frames: Sequence[str]):
+    def __init__(self, frame: str, frames: Sequence[str], note: str = ""):
         self.frame = frame
         self.frames = list(frames)
-        super().__init__(f"no frame {frame!r} in the model; its frames are: {', '.join(self.frames)}")
+        tail = f" ({note})" if note else ""
+        super().__init__(f"no frame {frame!r} in the model; its frames are: {', '.join(self.frames)}{tail}")
 
     def __str__(self) -> str:
         return self.args[0]
@@ -92,6 +93,34 @@ class PathError(KinredundError, ValueError):
 
 class SolverError(KinredundError, RuntimeError):
     """A numerical backend failed in a way that is not the user's input."""
+
+
+class OptionError(KinredundError, ValueError):
+    """A numeric option outside its allowed range (the message names the option and the range)."""
+
+
+class TrackingError(KinredundError, RuntimeError):
+    """A tracking run stopped: why, when, the last good state and the record up to there.
+
+    Attributes:
+        cause: a short machine-readable string: ``limits_infeasible`` (the path cannot be followed within
+            the joint limits, or the start is outside them), ``not_strongly_stable`` (the constrained
+            optimum loses linear independence of the active constraints or second-order sufficiency),
+            ``switch_not_resolved`` (a switching time of the active set could not be located).
+        t: the time [s] of the last good state.
+        q: the last good configuration (on the path, inside the limits), or None.
+        watched: the watched quantities there (a dict of floats and lists).
+        partial: the :class:`~kinredund.trajectory.Trajectory` up to ``t``, or None.
+    """
+
+    def __init__(self, message: str, *, cause: str, t: float | None = None, q=None, watched: dict | None = None,
+                 partial=None):
+        self.cause = cause
+        self.t = t
+        self.q = None if q is None else [float(v) for v in q]
+        self.watched = dict(watched or {})
+        self.partial = partial
+        super().__init__(message)
 
 
 def check_array(value, shape: tuple, what: str, error: type[KinredundError] = TaskError, owner: str = ""):

@@ -27,13 +27,14 @@ from kinredund.errors import (
     check_positive,
 )
 from kinredund.io import json_ready, read_json_object, write_json
+from kinredund.tasks import get_task, task_names
 
 SCHEMA_VERSION = 1
-#: Task kinds a record can hold.
-TASKS = ("planar", "position", "pose")
 #: Optional arrays with one row per recorded point, and their shape after the first axis.
 _PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "position_error": (),
-              "trace_error": (), "vect_error": (), "normality_residual": ()}
+              "trace_error": (), "vect_error": (), "axis_error": (), "normality_residual": ()}
+#: The names of those optional per-point arrays (functions of the point on the path, not of its time).
+PER_POINT_FIELDS = tuple(_PER_POINT)
 
 
 @dataclass(frozen=True)
@@ -42,7 +43,7 @@ class Trajectory:
 
     Attributes:
         robot: the robot's name (or URDF path) for :func:`kinredund.load_robot`.
-        task: the task kind (``planar``, ``position``, ``pose``).
+        task: the task kind (``planar``, ``position``, ``pose``, ``axis``).
         t: times [s], shape (N,).
         q: joint values, shape (N, n) [rad or m].
         p: end-effector positions reached, shape (N, 3) [m].
@@ -56,10 +57,14 @@ class Trajectory:
         m_eigs: eigenvalues of (the symmetric part of) M per step, shape (N, n), or None.
         m_null_eigs: eigenvalues of M projected on the null space of J, shape (N, n - m), or None.
         position_error: |p - p_desired| per step [m].
-        trace_error, vect_error: orientation errors in the invariants (Example 4.3), per step.
+        trace_error, vect_error: orientation errors in the invariants (Example 4.3), per step (pose tasks).
+        axis_error: the angle between the tool axis and the desired one per step [rad] (axis tasks), or None.
         normality_residual: the norm of the first-order normality residual per step (Eq. 4.5).
         loop_drift: joint drift at the end of each loop [rad], revolute joints compared modulo 2 pi.
         loop_period: the period of the closed path [s], or None for open paths.
+        qdot: joint velocities, shape (N, n) [rad/s or m/s], or None (a retimed record has them:
+            :func:`kinredund.retime.retime`).
+        qddot: joint accelerations, shape (N, n) [rad/s^2 or m/s^2], or None.
         meta: free-form parameters (example, index, obstacle, step count, timing).
     """
 
@@ -78,10 +83,13 @@ class Trajectory:
     position_error: np.ndarray | None = None
     trace_error: np.ndarray | None = None
     vect_error: np.ndarray | None = None
+    axis_error: np.ndarray | None = None
     normality_residual: np.ndarray | None = None
     loop_drift: np.ndarray | None = None
     loop_period: float | None = None
     meta: dict = field(default_factory=dict)
+    qdot: np.ndarray | None = None
+    qddot: np.ndarray | None = None
 
     @property
     def q0(self) -> np.ndarray:
@@ -89,7 +97,8 @@ class Trajectory:
         return self.q[0]
 
     def summary(self) -> dict:
-        """Scalar figures: maxima of the errors, the drift per loop, the number of LU steps.
+        """Scalar figures: maxima of the errors (None for an error the task does not hold), the drift per
+        loop, the number of LU steps.
 
         ``lu_steps`` counts the steps (``solver[1:]``, one label per step; ``solver[0]`` is the start's)
         labelled ``lu``, so a run of 200 steps has at most 200.
@@ -97,11 +106,17 @@ class Trajectory:
         def mx(a):
             return None if a is None or len(a) == 0 else float(np.max(a))
 
+        held = get_task(self.task).error_names  # an error the task does not hold is None, not 0
+
+        def err(name):
+            return mx(getattr(self, name)) if name in held else None
+
         return {
             "steps": int(len(self.t) - 1),
             "position_error_max": mx(self.position_error),
-            "trace_error_max": mx(self.trace_error),
-            "vect_error_max": mx(self.vect_error),
+            "trace_error_max": err("trace_error"),
+            "vect_error_max": err("vect_error"),
+            "axis_error_max": err("axis_error"),
             "normality_residual_max": mx(self.normality_residual),
             "loop_drift": None if self.loop_drift is None else [float(v) for v in self.loop_drift],
             "lu_steps": int(sum(1 for s in self.solver[1:] if s == "lu")),
@@ -133,9 +148,9 @@ class Trajectory:
         Checks: ``t`` a non-empty, finite, strictly increasing 1-D array; ``q`` finite of shape (N, n)
         (n = ``nq`` when given); ``p`` and ``p_desired`` finite of shape (N, 3); each optional per-point
         array (``lam``, ``m_eigs``, ``m_null_eigs``, ``position_error``, ``trace_error``, ``vect_error``,
-        ``normality_residual``) finite with N rows; ``solver`` empty or N strings; ``loop_drift`` finite
-        and 1-D; ``loop_period`` None or > 0; ``task`` one of :data:`TASKS`; ``robot`` a string and
-        ``meta`` a dict.
+        ``axis_error``, ``normality_residual``) finite with N rows; ``qdot`` and ``qddot`` None or finite of
+        q's shape; ``solver`` empty or N strings; ``loop_drift`` finite and 1-D; ``loop_period`` None or
+        > 0; ``task`` a task kind (:func:`kinredund.tasks.task_names`); ``robot`` a string and ``meta`` a dict.
 
         Raises:
             PathError: bad times, positions or loop figures.
@@ -144,7 +159,7 @@ class Trajectory:
         """
         if not isinstance(self.robot, str):
             raise TaskError(f"a trajectory's robot must be a name or URDF path (a string), got {self.robot!r}")
-        check_choice("trajectory task", self.task, TASKS)
+        check_choice("trajectory task", self.task, task_names())
         if not isinstance(self.meta, dict):
             raise TaskError(f"a trajectory's meta must be a dict, got {type(self.meta).__name__}")
         t = check_array(self.t, (None,), "trajectory times t [s]", PathError)
@@ -159,6 +174,10 @@ class Trajectory:
                                           f"robot {self.robot!r} (one row per time)")}
         for name in ("p", "p_desired"):
             out[name] = check_array(getattr(self, name), (n, 3), f"trajectory {name} [m]", PathError)
+        for name in ("qdot", "qddot"):
+            if getattr(self, name) is not None:
+                out[name] = check_array(getattr(self, name), out["q"].shape, f"trajectory {name}", JointVectorError,
+                                        f"robot {self.robot!r} (q's shape: one row per time)")
         for name, rest in _PER_POINT.items():
             value = getattr(self, name)
             if value is not None:
@@ -198,7 +217,7 @@ class Trajectory:
         return cls.from_json_dict(read_json_object(path))
 
 
-__all__ = ["TASKS", "Trajectory"]
+__all__ = ["PER_POINT_FIELDS", "Trajectory"]
 
 
 def _absolute_urdf(robot: str) -> str:

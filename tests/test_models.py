@@ -188,7 +188,7 @@ def test_bad_joint_vectors(q, needle):
 
 
 def test_bad_task_kind():
-    with pytest.raises(kinredund.ChoiceError, match="planar, position, pose"):
+    with pytest.raises(kinredund.ChoiceError, match="planar, position, pose, axis"):
         kinredund.load_robot("planar3r", task="orientation")
 
 

@@ -55,7 +55,7 @@ def test_one_loop_constant_orientation(tmp_path):
 
 
 def test_normality_residual_is_the_null_space_part_of_the_gradient():
-    """_evaluate's normality residual (resolved_rate.multipliers) equals ||(1 - K^+ K) grad z||, computed apart."""
+    """_evaluate's normality residual (tracking.linalg.multipliers) equals ||(1 - K^+ K) grad z||, computed apart."""
     from kinredund.problems import panda_circle
 
     robot, path, index, q0 = panda_circle(wrist_amplitude=0.0)

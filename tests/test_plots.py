@@ -51,7 +51,7 @@ def synthetic(period: float = 2.0, loops: int = 3, steps_per_loop: int = 100, dr
     null = 0.4 * np.sin(w) - 0.1
     m_eigs = np.column_stack([null, 1.0 + 0.2 * np.cos(w), 3.0 + 0.1 * np.sin(2 * w)])
     solver = tuple("lu" if v < 0 else "qp" for v in null)
-    # the drift at the end of each loop, as kinredund.tracking.resolved_rate.track records it
+    # the drift at the end of each loop, as kinredund.tracking.track records it
     drift_per_loop = [joint_drift(q[0], q[k * steps_per_loop], True) for k in range(1, loops + 1)]
     return Trajectory(
         robot="planar3r", task="planar", t=t, q=q, p=p, p_desired=p_desired, scheme=scheme, mode=mode,

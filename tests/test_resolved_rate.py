@@ -12,9 +12,11 @@ import kinredund
 from kinredund.indices import CustomIndex, JointDeviation, minimum_norm
 from kinredund.kinematics.finite_diff import central_difference
 from kinredund.paths import Circle, FunctionPath
-from kinredund.tasks.terms import task_terms
+from kinredund.tasks import task_terms
 from kinredund.thesis.chapter4 import indefinite_interval, load_example, run_example
-from kinredund.tracking.resolved_rate import ResolvedRate, _ProxQP, classify, hermite_weights, solve_rates, track
+from kinredund.tracking import Tracker, track
+from kinredund.tracking.linalg import RateQP, classify, hermite_weights, solve_rates
+from kinredund.tracking.predictor_corrector import PredictorCorrector
 
 
 @functools.cache
@@ -94,12 +96,12 @@ def test_thesis_mode_errors_are_of_the_thesis_order(name):
 
 def test_qp_and_lu_give_the_same_rates():
     ex = example("4.2")
-    rr = ResolvedRate(ex.robot, ex.path, ex.index, ex.q0, ex.path.period / 200)
-    prox = _ProxQP(3, 2)
+    rr = Tracker(ex.robot, ex.path, ex.index, ex.q0, ex.path.period / 200)
+    prox = RateQP(3, 2)
     checked = {"qp": 0, "qp_aug": 0}
     for _ in range(200):
-        rr.advance()
-        pt = rr.sys.point(rr.q, rr.t)
+        rr.step()
+        pt = rr.stepper.ev.point(rr.q, rr.t)
         M, top = pt.system(rr.lam)
         label = classify(M, pt.J, "auto")
         if label == "lu":
@@ -137,7 +139,7 @@ def test_task_jacobians_and_their_derivatives_match_finite_differences(name, sch
 def test_lambda_of_the_pose_task_is_the_contraction_of_the_checked_tensor():
     """No second derivative code: the fused Lambda equals lam . dJ with dJ from closure (foundation-tested)."""
     from kinredund.kinematics import closure
-    from kinredund.tasks.terms import _U_REL
+    from kinredund.tasks.pose import U_REL
 
     r = robot("panda")
     rng = np.random.default_rng(5)
@@ -151,7 +153,7 @@ def test_lambda_of_the_pose_task_is_the_contraction_of_the_checked_tensor():
         dK = dk.tensor()
         dK_rel = np.concatenate([np.einsum("ab,bik->aik", Q_d.T, dK[:3]), dK[3:]])
         dJ = closure.displacement_jacobian_derivative(Q_d.T @ Q, K_rel, dK_rel)
-        want = closure.contract(_U_REL @ lam, dJ)
+        want = closure.contract(U_REL @ lam, dJ)
         assert np.abs(task_terms("pose", "augmented", Q, p, K, dk, sample).Lambda(lam) - want).max() < 1e-12
 
 
@@ -223,8 +225,9 @@ def test_corrector_recovers_from_a_jump_in_the_path(jump, monkeypatch):
         return p, np.array([0.1, 0.0])
 
     fresh = []
-    newton = ResolvedRate._newton
-    monkeypatch.setattr(ResolvedRate, "_newton", lambda self, *a, **k: (fresh.append(self.t), newton(self, *a, **k))[1])
+    newton = PredictorCorrector._newton
+    monkeypatch.setattr(PredictorCorrector, "_newton",
+                        lambda self, *a, **k: (fresh.append(self.t), newton(self, *a, **k))[1])
     tr = track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40)
     assert tr.position_error.max() < 1e-11 and tr.normality_residual.max() < 1e-11
     assert fresh[0] == 0.0 and (jump < 0.1 or 0.5 in fresh)  # the start, then the jump for the larger one
@@ -347,10 +350,10 @@ def test_default_mode_rates_are_the_time_derivative_of_the_path(name):
         ex = example(name)
         r, path, index, q0 = ex.robot, ex.path, ex.index, ex.q0
     dt = path.period / 2000
-    rr = ResolvedRate(r, path, index, q0, dt)
+    rr = Tracker(r, path, index, q0, dt)
     ys, yds = [], []
     for _ in range(300):
-        rr.advance()
+        rr.step()
         ys.append(np.concatenate([rr.q, rr.lam]))
         yds.append(np.concatenate([rr.qdot, rr.lamdot]))
     ys, yds = np.array(ys), np.array(yds)

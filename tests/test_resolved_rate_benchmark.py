@@ -30,7 +30,7 @@ def test_kernel_evaluation_solves_the_velocity_form_system():
     import numpy as np
 
     from kinredund.kinematics.closure import contract
-    from kinredund.tracking.resolved_rate import multipliers
+    from kinredund.tracking.linalg import multipliers
 
     robot, path, index, q0 = bench._setup("panda")
     q = q0 + 0.05  # off q_home, where grad z = 0
@@ -61,7 +61,7 @@ def test_evaluation_solves_the_velocity_form_system():
     rr = bench._evaluator(robot, path, index, q0, dt)
     assert not index.time_varying
     for _ in range(10):  # off q_home, where grad z = 0 and lambda* = 0 would make the check trivial
-        rr.advance()
+        rr.step()
     q, t = rr.q.copy(), rr.t
     rr.qdot = rr.lamdot = rr.lam = None
     rr._rates()  # what eval_stepper_us times

@@ -34,7 +34,7 @@ from kinredund.closed_form.wrist import rot_x, solve_wrist
 from kinredund.errors import JointVectorError, check_array, check_choice
 from kinredund.kinematics.angles import turn_into_limits, wrap_joints
 from kinredund.kinematics.recursive import rotation_products
-from kinredund.tasks.target import make_target
+from kinredund.tasks import make_target
 
 PICKS = ("lowest", "nearest")
 
@@ -198,7 +198,7 @@ class ClosedFormIK:
 
         Raises:
             TaskError: not a 4x4 homogeneous matrix (last row (0, 0, 0, 1)) with a rotation block
-                (:func:`kinredund.tasks.target.make_target`).
+                (:func:`kinredund.tasks.make_target`).
             UnreachableError: the wrist centre is out of reach.
         """
         target = make_target("pose", pose)
@@ -206,7 +206,7 @@ class ClosedFormIK:
         return self._solve_all(target, hint)
 
     def _solve_all(self, target, hint: np.ndarray) -> list[IKBranch]:
-        """:meth:`solve_all` for a validated pose :class:`~kinredund.tasks.target.Target` and hint (n,)."""
+        """:meth:`solve_all` for a validated pose :class:`~kinredund.tasks.Target` and hint (n,)."""
         theta0 = np.array(self.geometry.theta0)
         rest = np.zeros(self.robot.nq - 4)
         target_w = target.Q @ rot_x(self.geometry.alpha7).T

@@ -44,7 +44,7 @@ from scipy.linalg import lapack
 
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
-from kinredund.tasks.residual import TaskResidual
+from kinredund.tasks import TaskResidual
 
 #: Armijo sufficient-decrease constant
 ARMIJO = 1e-4
@@ -131,6 +131,8 @@ class OptimalityTerms:
         null_space: L (n x k), orthonormal basis of the null space of the constraint Jacobian and the
             held limits.
         active: mask (n,) of the joint limits that hold.
+        extra: the part of d(G^T lambda)/dtheta that d(K^T lambda*)/dtheta at fixed lambda* leaves out
+            (:meth:`kinredund.tasks.TaskResidual.extra_hessian`), or None.
     """
 
     normality: float
@@ -140,6 +142,7 @@ class OptimalityTerms:
     multipliers: np.ndarray
     null_space: np.ndarray
     active: np.ndarray
+    extra: np.ndarray | None = None
 
 
 @dataclass
@@ -275,7 +278,7 @@ def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
     pushes out is frozen there (its column of G dropped, the step recomputed) and the rest is clipped
     into the limits (the joint-limit handling of KDL's Newton-Raphson solver, as in TRAC-IK).
     """
-    res, jac, terms, rows = s.res, s.kin.jacobian, s.res.error_terms, None if s.res.pose else s.res.rows
+    res, jac, terms, rows = s.res, s.kin.jacobian, s.res.error_terms, s.res.row_selection
     eye, bounds, lower_list, upper_list = s.eye, s.bounds, s.lower_list, s.upper_list
     rtol2 = s.rtol * s.rtol
     quick = s.quick_exit
@@ -476,7 +479,8 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
         if r < s.rtol and float(e @ e) < s.rtol * s.rtol and normality < ntol:
             if active is None:
                 active = np.zeros(q.shape[0], dtype=bool)
-            terms = OptimalityTerms(normality, float(z), H, dk, lam_k, L_kkt, active)  # for the report
+            extra = res.extra_hessian(K, lam, jl)
+            terms = OptimalityTerms(normality, float(z), H, dk, lam_k, L_kkt, active, extra)  # for the report
             return StartOutcome(q, True, it, "", r, terms)
         if it == s.max_iter:
             why = f"max_iter={s.max_iter} reached at residual {r:.3g}, normality residual {normality:.3g}"
@@ -503,6 +507,9 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
         enorm = math.sqrt(float(e @ e))
         rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1.0)  # exact penalty > ||lambda||; > 0 at grad z = 0
         M = H + dk.contract(lam_k, rows)  # Hess z + Lambda, Eqs. (4.20)-(4.26)
+        extra = res.extra_hessian(K, lam, jl)
+        if extra is not None:
+            M = M + extra
         Br = L.T @ M @ L
         w, V = np.linalg.eigh(0.5 * (Br + Br.T))
         wmod = np.maximum(np.abs(w), 1e-8 * max(1.0, float(np.abs(w).max())))  # PD where D.33 fails

@@ -11,7 +11,7 @@ within lb <= d <= ub:
   constraints alone.
 
 proxsuite's default ``eps_abs`` is 1e-5, far too loose for kinematics: it is set to 1e-11 here (see
-``../shared/STACK.md``). Solver objects are created once per solve and reused with ``update``; no warm
+``docs/design.md``). Solver objects are created once per solve and reused with ``update``; no warm
 start is passed (each step is a new problem).
 
 Speed: before calling proxsuite, the least-squares form tries a cheap guess of the active set (the

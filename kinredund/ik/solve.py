@@ -38,8 +38,8 @@ from kinredund.ik.newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, 
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
 from kinredund.kinematics.angles import turn_into_limits
-from kinredund.tasks.residual import TaskResidual
-from kinredund.tasks.target import Target, make_target
+from kinredund.paths import PathSample
+from kinredund.tasks import Target, TaskResidual, get_task, make_target, task_residual
 
 #: residuals are never asked to be smaller than this many units of round-off times the target scale
 ROUNDING = 64.0 * float(np.finfo(float).eps)
@@ -59,7 +59,7 @@ class IKResult:
         normality_residual: ||L^T grad z||, Eqs. (D.9)/(D.30) (with bounds: the KKT residual including
             the multipliers of the limits that hold); 0.0 without an index. For a converged result this
             and the second-order fields come from the last iteration (L the null space of its G, which
-            equals K[rows] up to O(||e||), :mod:`kinredund.tasks.residual`); :func:`check_optimality`
+            equals K[rows] up to O(||e||), :meth:`kinredund.tasks.Task.ik_residual`); :func:`check_optimality`
             evaluates them on K itself.
         objective: z(q); 0.0 without an index.
         reduced_hessian_pd: Eq. (D.33): L^T (Hess z + Lambda) L positive definite (False without an
@@ -115,6 +115,11 @@ def _target(robot, target) -> Target:
         if target.task != robot.task:
             raise TaskError(f"the target is for a {target.task!r} task but {robot.name} has task {robot.task!r}")
         return target
+    if isinstance(target, PathSample):  # a path's sample: its point, and its rotation where the task has one
+        task = get_task(robot.task)
+        if task.has_orientation:
+            return task.make_target((target.Q, target.p))
+        return task.make_target(task.point_target(target.p), z=float(target.p[2]))
     return make_target(robot.task, target)
 
 
@@ -147,7 +152,8 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
 
     Args:
         robot: a :class:`kinredund.Robot`.
-        target: what :func:`kinredund.tasks.target.make_target` accepts, or a Target.
+        target: what :func:`kinredund.tasks.make_target` accepts, a Target, or a path's sample
+            (:class:`kinredund.paths.PathSample`: its point, and its rotation where the task holds one).
         q: joint vector (n,) [rad or m].
         index: the objective z; None gives only the residual.
         bounds: count the joint limits that q sits on (within 1e-9) as constraints.
@@ -156,7 +162,7 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
         TaskError: bad target; JointVectorError: bad q.
     """
     q = robot.check_q(q, "q")
-    res = TaskResidual(_target(robot, target))
+    res = task_residual(_target(robot, target))
     return _optimality(robot, res, q, index, bounds, _check_index(robot, index, q))
 
 
@@ -172,14 +178,19 @@ def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bo
         )
     Q, p, K, dk = robot.kinematics.jacobian_hessian(q)
     z, grad, H = index.evaluate(q) if zgh is None else zgh
-    normality, lam, L, active = bound_kkt(K[res.rows], grad, q, robot.lower, robot.upper, bounds)  # Eq. (D.30)
-    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam, L, active), res.rows)
+    _, aux = res.error(Q, p)
+    normality, lam, L, active = bound_kkt(res.normal_rows(K, aux), grad, q, robot.lower, robot.upper, bounds)  # (D.30)
+    lam_k, extra = res.normal_multipliers(K, lam, aux)
+    return _second_order(res.residual(Q, p), OptimalityTerms(normality, float(z), H, dk, lam_k, L, active, extra),
+                         res.rows)
 
 
 def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Optimality:
     """The report of Eq. (D.33) from the first-order terms at one q (:func:`_optimality`, or the
     converged iteration of a start)."""
     M = t.hessian + t.dk.contract(t.multipliers, rows)  # Hess z + Lambda*, Eq. (4.37)
+    if t.extra is not None:
+        M = M + t.extra
     L = t.null_space
     Br = L.T @ M @ L
     Br = 0.5 * (Br + Br.T)  # symmetric on the null space of K (Section 4.2)
@@ -261,7 +272,7 @@ def solve_ik(
     Args:
         robot: a :class:`kinredund.Robot`; its task kind sets what ``target`` is.
         target: (x, y) for planar, p (3,) for position, a 4x4 pose (or (Q, p)) for pose tasks [m], or
-            a :class:`kinredund.tasks.target.Target`.
+            a :class:`kinredund.tasks.Target`.
         index: the performance index z (:mod:`kinredund.indices`); None solves the pose only.
         q0: the first seed (n,); default ``robot.home``.
         bounds: keep the joints within the robot's limits. A seed outside them is projected into them
@@ -306,7 +317,11 @@ def solve_ik(
         bad = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper)).tolist()
         q0 = np.clip(q0, robot.lower, robot.upper)
         notes = f"q0 was outside the joint limits at joints {bad}: projected into them"
-    res = TaskResidual(tgt)
+    if index is not None and robot.nq == robot.task_dim:  # n = m: no self-motion for z to act on (Eq. 4.3)
+        index, notes = None, "; ".join(filter(None, [notes, (
+            f"n = m = {robot.nq}: the task leaves no redundancy, so the index is irrelevant; the solution "
+            "nearest the seed (of the first converged start) is returned")]))
+    res = task_residual(tgt)
     setup = Setup(
         kin=robot.kinematics, res=res, index=index, lower=np.asarray(robot.lower), upper=np.asarray(robot.upper),
         bounds=bool(bounds), rtol=max(float(tol), ROUNDING * (1.0 + res.scale())), tol=float(tol),

@@ -8,7 +8,7 @@ plain numpy arrays:
   [v; omega]), taken in world axes at point P;
 - its derivative tensor dK[a, i, k] = dK[a, i] / dtheta_k from Pinocchio's kinematic Hessian
   (Eqs. 4.38-4.41 and Appendix E computed by Pinocchio), with the memory-layout fix of eigenpy
-  issue #557 (see ``../shared/STACK.md``).
+  issue #557 (see ``docs/design.md``).
 
 No other module calls ``pinocchio`` compute functions; solvers receive arrays.
 """

@@ -34,7 +34,7 @@ def planar3r() -> HDTable:
 
 def planar3r_ch6() -> HDTable:
     """Planar 3R of Chapter 6 (Section 6.2): links 0.5, 0.6 and 0.3 m (the middle value is read from
-    a blurred figure, see ``../shared/thesis/NOTES.md``)."""
+    a blurred figure, see ``docs/thesis_readings.md``)."""
     return HDTable(
         alpha=np.zeros(3), a=[0.5, 0.6, 0.3], b=np.zeros(3),
         lower=[-2 * PI] * 3, upper=[2 * PI] * 3, name="planar3r_ch6",

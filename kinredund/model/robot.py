@@ -1,84 +1,39 @@
 """Robots: a Pinocchio model, its end-effector frame, joint limits and task kind (Chapter 2).
 
-:func:`load_robot` is the entry point. It accepts a shipped name (the thesis's robots in ``robots/``),
-a 7-axis arm of example-robot-data by name, or the path of any URDF file.
+:func:`~kinredund.model.loader.load_robot` (also importable from here and from ``kinredund``) is the
+entry point: it accepts a shipped name (the thesis's robots in ``robots/``), an arm of
+example-robot-data by name (``kinredund.model.erd``), or the path of any URDF file.
 
 Task kinds set the task dimension m of Chapter 4: ``planar`` (x, y of point P: m = 2), ``position``
-(p: m = 3) and ``pose`` (orientation and position: m = 6).
+(p: m = 3), ``axis`` (p and the direction of a tool axis, the spin about it free: m = 5) and ``pose``
+(orientation and position: m = 6).
+
+Threads: a :class:`Robot` may be shared between threads. Its model is never modified, and
+``robot.kinematics`` (the Pinocchio ``Data`` workspace every solver computes in) is one
+:class:`~kinredund.kinematics.state.Kinematics` per thread, made on first use in that thread.
 """
 
 from __future__ import annotations
 
-import sys
-from dataclasses import dataclass
-from importlib import resources
-from pathlib import Path
+import threading
 
 import numpy as np
 import pinocchio as pin
 
-from kinredund.errors import (
-    FrameNotFoundError,
-    JointVectorError,
-    KinredundError,
-    UnknownRobotError,
-    check_choice,
-    check_joint_vector,
-)
+from kinredund.errors import JointVectorError, check_joint_vector
 from kinredund.kinematics.hd import REVOLUTE, HDTable
 from kinredund.kinematics.state import Kinematics
-from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
-from kinredund.model.urdf import EE_FRAME, load_urdf_model
+from kinredund.model.frames import resolve_frame
+from kinredund.model.urdf import EE_FRAME
+from kinredund.tasks import get_task
 
-TASK_DIMS = {"planar": 2, "position": 3, "pose": 6}
-TASK_KINDS = tuple(TASK_DIMS)
-
-
-@dataclass(frozen=True)
-class _ERDArm:
-    urdf: str
-    ee_frame: str
-    drop_joints: tuple[str, ...] = ()
-    home: tuple[float, ...] | None = None
+_PRISMATIC_SHORTNAMES = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}
 
 
-#: 7-axis arms of example-robot-data (6.0.0 ships URDFs only; loaded by path, see STACK.md)
-ERD_ARMS = {
-    "panda": _ERDArm(
-        "panda_description/urdf/panda.urdf", "panda_hand",
-        ("panda_finger_joint1", "panda_finger_joint2"),
-        (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785),
-    ),
-    "xarm7": _ERDArm("xarm_description/urdf/xarm7.urdf", "link_eef", (), (0.0, -0.5, 0.0, 0.5, 0.0, 1.0, 0.0)),
-}
-
-
-def known_robots() -> list[str]:
-    """Every name :func:`load_robot` accepts."""
-    return sorted(SHIPPED_TABLES) + sorted(ERD_ARMS)
-
-
-def shipped_robot_dir() -> Path:
-    """The folder of the shipped URDF files: package data when installed, ``robots/`` in a checkout."""
-    try:
-        path = Path(str(resources.files("kinredund.robots")))
-        if (path / "planar3r.urdf").exists():
-            return path
-    except ModuleNotFoundError:
-        pass
-    return Path(__file__).resolve().parent.parent / "robots"
-
-
-def erd_share_dir() -> Path:
-    """example-robot-data's ``robots`` folder (inside ``cmeel.prefix/share``)."""
-    for entry in sys.path:
-        candidate = Path(entry or ".") / "cmeel.prefix" / "share" / "example-robot-data" / "robots"
-        if candidate.is_dir():
-            return candidate
-    raise KinredundError(
-        "example-robot-data is not installed (pip install example-robot-data): "
-        "no robots/ folder under cmeel.prefix/share on sys.path"
-    )
+def robot_revolute(model: pin.Model) -> np.ndarray:
+    """Which joints of the model are revolute (True) rather than prismatic (False)."""
+    return np.array([model.joints[j].shortname() not in _PRISMATIC_SHORTNAMES for j in range(1, model.njoints)],
+                    dtype=bool)
 
 
 class Robot:
@@ -88,12 +43,20 @@ class Robot:
         name: a short name.
         model: the Pinocchio model (never modified).
         ee_frame: the end-effector frame's name; point P is its origin.
-        task: ``planar``, ``position`` or ``pose``.
-        lower, upper: joint limits [rad or m], shape (nq,).
+        ee_frame_id: its index in ``model.frames``; ``ee_frame_info`` says which frame was taken
+            when a joint and a link share the name (the link is preferred).
+        task: ``planar``, ``position``, ``axis`` or ``pose``.
+        tool_axis: the tool axis given to ``load_robot`` (unit, shape (3,)) in the frame it was given
+            in; the ``axis`` task holds the z axis of ``ee_frame`` (a frame turned onto that axis).
+        lower, upper: joint limits [rad or m], shape (nq,); +-1e12 for a joint without limits
+            (a continuous joint, loaded as a revolute one).
         hd: the HD table the model was built from, or None for URDF robots.
         urdf_path: the URDF file, when there is one (used by playback).
         package_dirs: folders for ``package://`` mesh paths.
         home: a default configuration inside the limits.
+        locked: joint name -> value of the joints of the file that were locked (``load_robot(joints=)``).
+        continuous: the names of the joints that were continuous in the URDF.
+        kinematics: this thread's :class:`~kinredund.kinematics.state.Kinematics` (one per thread).
     """
 
     def __init__(
@@ -104,18 +67,21 @@ class Robot:
         task: str,
         *,
         hd: HDTable | None = None,
-        urdf_path: Path | None = None,
+        urdf_path=None,
         package_dirs: tuple[str, ...] = (),
         home: np.ndarray | None = None,
+        tool_axis: np.ndarray | None = None,
+        locked: dict | None = None,
+        continuous: tuple[str, ...] = (),
     ):
-        check_choice("task kind", task, TASK_KINDS)
-        if not model.existFrame(ee_frame):
-            raise FrameNotFoundError(ee_frame, [f.name for f in model.frames])
+        get_task(task)  # ChoiceError for an unknown kind
         if model.nq != model.nv:
+            odd = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq != model.joints[j].nv]
             raise JointVectorError(
-                f"model {name!r} has nq={model.nq} != nv={model.nv}: only revolute and prismatic joints "
-                "(one coordinate each) are supported"
+                f"model {name!r} has nq={model.nq} != nv={model.nv} (joints {', '.join(odd)}): only revolute and "
+                "prismatic joints (one coordinate each) are supported; lock the others with load_robot(joints=...)"
             )
+        self.ee_frame_id, self.ee_frame_info = resolve_frame(model, ee_frame)
         self.name = name
         self.model = model
         self.ee_frame = ee_frame
@@ -123,19 +89,42 @@ class Robot:
         self.hd = hd
         self.urdf_path = urdf_path
         self.package_dirs = package_dirs
+        self.tool_axis = np.array((0.0, 0.0, 1.0) if tool_axis is None else tool_axis, dtype=float)
+        self.locked = dict(locked or {})
+        self.continuous = tuple(continuous)
         self.lower = np.array(model.lowerPositionLimit, dtype=float)
         self.upper = np.array(model.upperPositionLimit, dtype=float)
-        self.lower.flags.writeable = False
-        self.upper.flags.writeable = False
-        self.kinematics = Kinematics(model, model.getFrameId(ee_frame))
+        for a in (self.lower, self.upper, self.tool_axis):
+            a.flags.writeable = False
+        self._local = threading.local()
         mid = 0.5 * (self.lower + self.upper)
         self.home = np.array(home, dtype=float) if home is not None else np.where(np.isfinite(mid), mid, 0.0)
         if hd is not None:
             self.revolute = np.array([k == REVOLUTE for k in hd.kinds])
         else:
-            self.revolute = np.array(
-                [model.joints[j].shortname() not in _PRISMATIC_SHORTNAMES for j in range(1, model.njoints)]
-            )
+            self.revolute = robot_revolute(model)
+
+    @property
+    def kinematics(self) -> Kinematics:
+        """This thread's kinematics workspace (a Pinocchio ``Data``), made on first use in the thread.
+
+        Solvers compute in it; a workspace shared between threads would mix their forward-kinematics
+        passes (wrong poses with right joint values), so every thread gets its own.
+        """
+        try:
+            return self._local.kinematics
+        except AttributeError:
+            kin = self._local.kinematics = Kinematics(self.model, self.ee_frame_id)
+            return kin
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        del state["_local"]  # a thread's workspace is not part of the robot
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._local = threading.local()
 
     # -- basic facts ------------------------------------------------------------------------------
     @property
@@ -145,8 +134,8 @@ class Robot:
 
     @property
     def task_dim(self) -> int:
-        """The task dimension m: 2 (planar), 3 (position) or 6 (pose)."""
-        return TASK_DIMS[self.task]
+        """The task dimension m: 2 (planar), 3 (position), 5 (axis) or 6 (pose)."""
+        return get_task(self.task).dim
 
     @property
     def joint_names(self) -> list[str]:
@@ -157,7 +146,8 @@ class Robot:
         """The same robot with another task kind (a new workspace; the model is shared)."""
         return Robot(
             self.name, self.model, self.ee_frame, task, hd=self.hd, urdf_path=self.urdf_path,
-            package_dirs=self.package_dirs, home=self.home,
+            package_dirs=self.package_dirs, home=self.home, tool_axis=self.tool_axis, locked=self.locked,
+            continuous=self.continuous,
         )
 
     def __repr__(self) -> str:
@@ -203,71 +193,22 @@ class Robot:
         return rng.uniform(*self.sample_box(margin))
 
 
-_PRISMATIC_SHORTNAMES = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}
-
-
-def _load_erd(name: str, task: str | None, ee_frame: str | None) -> Robot:
-    spec = ERD_ARMS[name]
-    share = erd_share_dir()
-    path = share / spec.urdf
-    model, _ = load_urdf_model(path)
-    if spec.drop_joints:
-        ids = [model.getJointId(j) for j in spec.drop_joints]
-        model = pin.buildReducedModel(model, ids, pin.neutral(model))
-    return Robot(
-        name, model, ee_frame or spec.ee_frame, task or "pose", urdf_path=path,
-        package_dirs=(str(share.parent.parent),), home=np.array(spec.home) if spec.home else None,
-    )
-
-
-def _default_ee_frame(model: pin.Model) -> str:
-    if model.existFrame(EE_FRAME):
-        return EE_FRAME
-    return model.frames[len(model.frames) - 1].name
-
-
-def load_robot(name_or_path: str | Path, ee_frame: str | None = None, task: str | None = None) -> Robot:
-    """Load a robot by shipped name, example-robot-data name, or URDF path.
-
-    Args:
-        name_or_path: ``planar3r``, ``planar3r_ch6``, ``puma7``, ``cybotech_p15``, ``panda``,
-            ``xarm7``, or the path of a URDF file.
-        ee_frame: the end-effector frame (point P is its origin). Default: ``ee`` for the shipped
-            robots, the hand or flange for example-robot-data arms, and for a URDF file a frame
-            named ``ee`` if there is one, else the last frame.
-        task: ``planar``, ``position`` or ``pose``; default: the robot's own (``pose`` for URDF files).
-
-    Raises:
-        UnknownRobotError: the name is not known and no such file exists (lists the known names).
-        URDFError: the file does not parse; the message says why.
-        FrameNotFoundError: ``ee_frame`` is not in the model (lists the frames).
-    """
-    if task is not None:
-        check_choice("task kind", task, TASK_KINDS)
-    key = str(name_or_path)
-    if key in SHIPPED_TABLES:
-        path = shipped_robot_dir() / f"{key}.urdf"
-        model, _ = load_urdf_model(path)
-        return Robot(
-            key, model, ee_frame or EE_FRAME, task or SHIPPED_TASKS[key], hd=SHIPPED_TABLES[key](),
-            urdf_path=path, home=np.array(SHIPPED_HOMES[key]),
-        )
-    if key in ERD_ARMS:
-        return _load_erd(key, task, ee_frame)
-    path = Path(key)
-    if path.suffix.lower() in (".urdf", ".xml") or path.exists():
-        if not path.exists():
-            raise UnknownRobotError(key, known_robots())
-        model, _ = load_urdf_model(path)
-        return Robot(
-            path.stem, model, ee_frame or _default_ee_frame(model), task or "pose", urdf_path=path,
-            package_dirs=(str(path.parent),),
-        )
-    raise UnknownRobotError(key, known_robots())
-
-
 def robot_from_hd(table: HDTable, task: str = "pose") -> Robot:
     """A robot built straight from an HD table (no URDF on disk)."""
     from kinredund.model.urdf import hd_to_model
 
     return Robot(table.name, hd_to_model(table), EE_FRAME, task, hd=table)
+
+
+_MOVED = {"load_robot": "loader", "known_robots": "loader", "shipped_robot_dir": "loader",
+          "ERD_ARMS": "erd", "erd_share_dir": "erd"}
+
+
+def __getattr__(name: str):
+    """The loader's names (:mod:`kinredund.model.loader`, which builds on this module, and the catalogue
+    :mod:`kinredund.model.erd`) stay importable from here."""
+    if name in _MOVED:
+        from importlib import import_module
+
+        return getattr(import_module(f"kinredund.model.{_MOVED[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -12,6 +12,8 @@ import contextlib
 import io
 import os
 import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -135,8 +137,6 @@ def hd_to_urdf(table: HDTable) -> str:
     text = urdf.write_xml_string()
     if isinstance(text, bytes):
         text = text.decode()
-    import xml.etree.ElementTree as ET
-
     root = ET.fromstring(text.split("?>", 1)[-1])
     ET.indent(root, space="  ")
     header = (
@@ -165,25 +165,158 @@ def _capture_stderr_fd(fn):
     return result, error, text
 
 
-def load_urdf_model(path: str | os.PathLike, package_dirs=None) -> tuple[pin.Model, str]:
-    """Parse a URDF file with Pinocchio; on failure raise :class:`URDFError` with urdfdom's reason.
+#: the limits [rad] given to a continuous joint turned into a revolute one: finite, so that every
+#: difference of limits stays finite, and beyond the 1e10 above which ``Robot.sample_box`` treats a
+#: limit as absent
+UNBOUNDED_LIMIT = 1e12
+_MOVING = ("revolute", "continuous", "prismatic")
 
-    Returns:
-        The model and the URDF text.
+
+@dataclass(frozen=True)
+class Mimic:
+    """A URDF ``<mimic>`` element: joint = multiplier * master + offset."""
+
+    master: str
+    multiplier: float
+    offset: float
+
+
+@dataclass(frozen=True)
+class URDFModel:
+    """A parsed URDF: the Pinocchio model, the text it was built from, and facts Pinocchio drops.
+
+    Attributes:
+        model: the model; continuous joints are revolute joints with limits +-``UNBOUNDED_LIMIT``.
+        text: the URDF text given to Pinocchio (after the continuous joints were rewritten).
+        mimic: joint name -> :class:`Mimic`, for every joint with a ``<mimic>`` element.
+        continuous: the names of the joints that were continuous in the file.
     """
-    path = Path(path)
+
+    model: pin.Model
+    text: str
+    mimic: dict
+    continuous: tuple
+
+
+def _read_text(path: Path) -> str:
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except OSError as err:
         raise URDFError(str(path), f"cannot read the file ({err.strerror})") from err
     try:
-        import xml.etree.ElementTree as ET
+        return data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise URDFError(
+            str(path), f"not UTF-8 text (byte 0x{data[err.start]:02x} at offset {err.start}): save it as UTF-8"
+        ) from err
 
+
+def _float_attr(element, name: str, default: float, where: str, path: str) -> float:
+    raw = element.get(name)
+    if raw is None:
+        return default
+    try:
+        return float(raw)
+    except ValueError as err:
+        raise URDFError(path, f"{where}: {name}={raw!r} is not a number") from err
+
+
+def _check_joints(root, path: str) -> dict:
+    """Refuse what Pinocchio accepts silently; return the mimic relations.
+
+    - two joints of one name (a closed chain written as a second joint to a link, or a copy-paste slip):
+      Pinocchio keeps one of them without a word;
+    - two joints with the same child link (a closed chain: URDF describes trees only);
+    - a moving joint with a zero axis (the forward kinematics is then not a rigid motion);
+    - lower > upper in a joint's ``<limit>``.
+    """
+    names, children, mimic = set(), {}, {}
+    for joint in root.findall("joint"):  # children of <robot>: a <transmission>'s <joint> defines none
+        name = joint.get("name")
+        if name in names:
+            raise URDFError(path, f"two joints are named {name!r} (a closed chain? URDF describes trees only)")
+        names.add(name)
+        child = joint.find("child")
+        link = None if child is None else child.get("link")
+        if link in children:
+            raise URDFError(
+                path, f"link {link!r} is the child of two joints, {children[link]!r} and {name!r}: a closed "
+                "chain, which URDF (a tree) cannot describe"
+            )
+        children[link] = name
+        kind = joint.get("type")
+        if kind in _MOVING:
+            axis = joint.find("axis")
+            xyz = "1 0 0" if axis is None or axis.get("xyz") is None else axis.get("xyz")
+            try:
+                v = np.array([float(x) for x in xyz.split()])
+            except ValueError as err:
+                raise URDFError(path, f"joint {name!r}: axis {xyz!r} is not three numbers") from err
+            if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+                raise URDFError(path, f"joint {name!r} ({kind}) has axis {xyz!r}: it needs a non-zero finite 3-vector")
+        limit = joint.find("limit")
+        if limit is not None and kind in ("revolute", "prismatic"):
+            where = f"joint {name!r}"
+            lo = _float_attr(limit, "lower", 0.0, where, path)
+            hi = _float_attr(limit, "upper", 0.0, where, path)
+            if lo > hi:
+                raise URDFError(path, f"joint {name!r} has lower limit {lo} > upper limit {hi}")
+        tag = joint.find("mimic")
+        if tag is not None:
+            where = f"joint {name!r}: <mimic>"
+            mimic[name] = Mimic(
+                tag.get("joint", ""), _float_attr(tag, "multiplier", 1.0, where, path),
+                _float_attr(tag, "offset", 0.0, where, path),
+            )
+    for name, m in mimic.items():
+        if m.master not in names:
+            raise URDFError(path, f"joint {name!r} mimics {m.master!r}, which is not a joint of the file")
+    return mimic
+
+
+def _continuous_as_revolute(root) -> tuple[str, ...]:
+    """Rewrite every continuous joint as a revolute one with limits +-UNBOUNDED_LIMIT (in place).
+
+    Pinocchio models a continuous joint by (cos, sin) (nq = 2, nv = 1); as a revolute joint its
+    coordinate is the angle itself, so that nq = nv and the drift, limits and plots treat it as every
+    other revolute joint. The forward kinematics is the same (same axis and placement).
+    """
+    names = []
+    for joint in root.findall("joint"):
+        if joint.get("type") != "continuous":
+            continue
+        joint.set("type", "revolute")
+        limit = joint.find("limit")
+        if limit is None:
+            limit = ET.SubElement(joint, "limit", {"effort": "0", "velocity": "0"})
+        limit.set("lower", repr(-UNBOUNDED_LIMIT))
+        limit.set("upper", repr(UNBOUNDED_LIMIT))
+        names.append(joint.get("name"))
+    return tuple(names)
+
+
+def load_urdf(path: str | os.PathLike) -> URDFModel:
+    """Parse a URDF file with Pinocchio, after the checks Pinocchio does not make.
+
+    Continuous joints become revolute joints without limits (see :data:`UNBOUNDED_LIMIT`).
+
+    Raises:
+        URDFError: the file cannot be read, is not UTF-8, is not a URDF, has duplicated joint names, a
+            closed chain, a zero joint axis, lower > upper limits, a mimic of a missing joint, or
+            Pinocchio (urdfdom) refuses it; the message says which and why.
+    """
+    path = Path(path)
+    text = _read_text(path)
+    try:
         root = ET.fromstring(text)
     except ET.ParseError as err:
         raise URDFError(str(path), f"not well-formed XML: {err}") from err
     if root.tag != "robot":
         raise URDFError(str(path), f"the root element is <{root.tag}>, a URDF needs <robot>")
+    mimic = _check_joints(root, str(path))
+    continuous = _continuous_as_revolute(root)
+    if continuous:
+        text = ET.tostring(root, encoding="unicode")
 
     def build():
         with contextlib.redirect_stderr(io.StringIO()):
@@ -193,7 +326,17 @@ def load_urdf_model(path: str | os.PathLike, package_dirs=None) -> tuple[pin.Mod
     if error is not None:
         detail = reason or str(error)
         raise URDFError(str(path), detail.replace("\n", " ")) from error
-    return model, text
+    return URDFModel(model, text, mimic, continuous)
+
+
+def load_urdf_model(path: str | os.PathLike, package_dirs=None) -> tuple[pin.Model, str]:
+    """:func:`load_urdf`'s model and text (continuous joints as revolute ones).
+
+    Returns:
+        The model and the URDF text.
+    """
+    parsed = load_urdf(path)
+    return parsed.model, parsed.text
 
 
 def load_urdf_text_model(text: str) -> pin.Model:

@@ -32,6 +32,7 @@ from kinredund.kinematics.angles import wrap_joints
 from kinredund.planning.clearance import PENETRATION_TOL, LinkModel, link_clearance, link_segments
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.selfmotion import routes
+from kinredund.tasks import get_task
 
 #: two candidate configurations closer than this (wrapped, max-abs) are the same [rad]
 SAME_CONFIGURATION = 1e-6
@@ -70,7 +71,7 @@ class Transition:
 
 def target_of(robot, p: np.ndarray):
     """The IK target of an end point: (x, y) for planar tasks, p otherwise."""
-    return p[:2] if robot.task == "planar" else p
+    return get_task(robot.task).point_target(p)
 
 
 def fit_limits(q: np.ndarray, lower, upper, revolute) -> np.ndarray | None:

@@ -13,7 +13,7 @@
 2. **Estimates** (Section 6.2.2.2): a cubic spline through the samples (:mod:`.spline`).
 3. **Tracking** (Section 6.2.2.3): the resolved-rate scheme of Chapter 4 with the time-varying index
    h = 1/2 ||theta - theta*(t)||^2 and the spline's rate as feed-forward (Eqs. 6.23-6.28), through
-   :func:`kinredund.tracking.resolved_rate.track`: the tracked joints are the constrained optimum of h at each
+   :func:`kinredund.tracking.track`: the tracked joints are the constrained optimum of h at each
    time, so where the branch switch happens is found by the tracking itself.
 4. **Verification** (:mod:`.clearance`): every link against the obstacle along the whole tracked
    motion, finer than the tracking steps. A plan with any penetration, or with a certified clearance
@@ -33,120 +33,25 @@ Units: times [s], joints [rad or m], lengths [m].
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import KinredundError, TaskError
-from kinredund.indices import Index, TimeVaryingReference
-from kinredund.io import json_ready
+from kinredund.errors import TaskError
+from kinredund.indices import Index
 from kinredund.paths import Path
 from kinredund.planning.branches import Candidate, Transition, candidates, choose, target_of, transition
-from kinredund.planning.clearance import ClearanceReport, LinkModel, link_model, verify_motion
+from kinredund.planning.clearance import link_model
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, check_weights
-from kinredund.planning.spline import JointSpline
-from kinredund.tracking.resolved_rate import track
-from kinredund.trajectory import Trajectory
+from kinredund.planning.stages import PlanResult, Samples, failure, tool_tip_length, track_and_verify
+from kinredund.tasks import get_task
 
 #: (w1 [m^2], w2) of Eq. (6.21): the thesis's example values for sample point S5
 DEFAULT_WEIGHTS = (1e-3, 1.0)
 
 PolicyFactory = Callable[[object, Obstacle, np.ndarray, tuple], Index]
-
-
-@dataclass(frozen=True)
-class Samples:
-    """The sample points S1..SN and the configurations chosen there.
-
-    Attributes:
-        t: sample times [s], shape (N,).
-        p: end-point targets [m], shape (N, 3).
-        q: chosen configurations, unwrapped one after the other, shape (N, n).
-        turns: joint change over the loop (whole turns for revolute joints) [rad], shape (n,).
-        candidates: the number of distinct collision-free local minima found at each sample.
-        objective: the policy index at the chosen configurations.
-        clearance: per-link clearance at the chosen configurations [m], shape (N, k).
-        weights: (w1, w2) per sample, shape (N, 2) (nan for refinement samples).
-        kind: per sample, ``policy`` (a local minimum of the policy index, Eq. 6.21/6.44) or ``refined``
-            (inserted where consecutive samples jump: the configuration closest to the interpolated
-            estimate, see :func:`plan`).
-    """
-
-    t: np.ndarray
-    p: np.ndarray
-    q: np.ndarray
-    turns: np.ndarray
-    candidates: tuple[int, ...]
-    objective: np.ndarray
-    clearance: np.ndarray
-    weights: np.ndarray
-    kind: tuple[str, ...] = ()
-
-    def to_dict(self) -> dict:
-        """JSON-ready form (arrays to lists, nan becomes None)."""
-        return json_ready({f.name: getattr(self, f.name) for f in fields(self)})
-
-
-@dataclass(frozen=True)
-class PlanResult:
-    """The outcome of :func:`plan`.
-
-    Attributes:
-        trajectory: the tracked motion (``meta["obstacle"]`` holds the obstacle), or None when the
-            plan stopped before tracking.
-        samples: the sample points and their configurations, or None when they could not be solved.
-        q_spline: the spline's estimates at the trajectory's times, shape (N, n), or None.
-        clearance: the full :class:`~kinredund.planning.clearance.ClearanceReport` (history), or None.
-        link_names: the link names.
-        spline_gap_max: the largest |q - q_spline| over the motion [rad] (nan without a trajectory).
-        ok: the plan is complete and collision-free (certified positive clearance, no penetration).
-        reason: "" when ok, else why not.
-        timings: wall times of the stages [s].
-        notes: remarks that are not failures.
-    """
-
-    trajectory: Trajectory | None
-    samples: Samples | None
-    q_spline: np.ndarray | None
-    clearance: ClearanceReport | None
-    link_names: tuple[str, ...]
-    spline_gap_max: float
-    ok: bool
-    reason: str
-    timings: dict = field(default_factory=dict)
-    notes: tuple[str, ...] = ()
-
-    @property
-    def clearance_min(self) -> np.ndarray | None:
-        """Per-link minimum clearance along the motion [m] (the last link without its tool tip), shape
-        (k,): ``clearance.minimum``, or None without a verified motion."""
-        return None if self.clearance is None else self.clearance.minimum
-
-    def summary(self) -> dict:
-        """Scalars and short lists: the figures a report or the CLI prints."""
-        tr = self.trajectory
-        c = self.clearance
-        out = {
-            "ok": self.ok,
-            "reason": self.reason,
-            "samples": 0 if self.samples is None else int(len(self.samples.t)),
-            "candidates": None if self.samples is None else list(self.samples.candidates),
-            "links": list(self.link_names),
-            "clearance_min": None if self.clearance_min is None else [float(v) for v in self.clearance_min],
-            "clearance_lower_bound": None if c is None else [float(v) for v in c.lower_bound],
-            "clearance_doubling_change": None if c is None or c.doubling_change is None
-            else [float(v) for v in c.doubling_change],
-            "penetration_max": None if c is None else float(c.penetration.max()),
-            "spline_gap_max": float(self.spline_gap_max),
-            "steps": None if tr is None else int(len(tr.t) - 1),
-            "position_error_max": None if tr is None else float(np.max(tr.position_error)),
-            "normality_residual_max": None if tr is None else float(np.max(tr.normality_residual)),
-            "loop_drift": None if tr is None or tr.loop_drift is None else float(tr.loop_drift[0]),
-            "timings_s": {k: float(v) for k, v in self.timings.items()},
-        }
-        return out
 
 
 def default_policy(robot, obstacle: Obstacle, normal: np.ndarray, weights) -> Index:
@@ -155,13 +60,14 @@ def default_policy(robot, obstacle: Obstacle, normal: np.ndarray, weights) -> In
     Raises:
         TaskError: a robot for which the thesis gives no policy (give ``policy=`` to :func:`plan`).
     """
-    if robot.task == "planar":
+    task = get_task(robot.task)
+    if task.planar:
         hd = robot.hd
         if hd is None or hd.n != 3 or np.any(np.abs(hd.alpha) > 1e-12) or np.any(hd.b != 0) or hd.kinds != "RRR":
             raise TaskError("the planar policy (Eq. 6.21) needs a planar 3R arm built from an HD table; "
                             "give plan(..., policy=...) for other arms")
         return PlanarPolicy(obstacle, float(hd.a[0]), normal, weights, theta0=hd.theta0)
-    if robot.task == "position":
+    if not task.has_orientation:
         pair = link_model(robot).pairs[-1]
         return SpatialPolicy(robot, obstacle, normal, link=(int(pair[0]), int(pair[1])), weights=weights)
     raise TaskError(f"plan() needs a planar or position task, got {robot.task!r} (use robot.with_task('position'))")
@@ -270,88 +176,6 @@ def _weights(weights, n: int) -> np.ndarray:
     return w
 
 
-def _tool_tip(model: LinkModel, tool_tip) -> float:
-    """The last link's tip left out of its clearance [m]: default 1/6 of its length, else checked in
-    [0, length)."""
-    length = float(model.lengths[-1])
-    if tool_tip is None:
-        return length / 6.0
-    try:
-        tip = float(tool_tip)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"tool_tip must be a length [m], got {tool_tip!r}") from err
-    if not (0.0 <= tip < length):
-        raise TaskError(f"tool_tip must be in [0, {length:.4g}) m (the last link), got {tool_tip!r}")
-    return tip
-
-
-def _winding(path: Path, obstacle: Obstacle, period: float, count: int = 720) -> float:
-    """How many times the path goes around the obstacle's centre in the xy-plane over one period."""
-    ts = np.linspace(0.0, period, count + 1)
-    xy = np.array([path(t).p[:2] for t in ts]) - obstacle.center[:2]
-    ang = np.unwrap(np.arctan2(xy[:, 1], xy[:, 0]))
-    return float((ang[-1] - ang[0]) / (2 * np.pi))
-
-
-def _failure(reason, names, timings, samples=None, trajectory=None, notes=()) -> PlanResult:
-    """A :class:`PlanResult` with ``ok=False`` and ``reason``, without a verified motion."""
-    return PlanResult(trajectory, samples, None, None, names, float("nan"), False, reason, timings, tuple(notes))
-
-
-def _track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model: LinkModel, *, planner: str,
-                      spline: str, steps_per_loop: int, substeps: int, link_radius: float, tool_tip: float,
-                      check_doubling: bool, progress, meta: dict, timings: dict, t_start: float,
-                      notes=()) -> PlanResult:
-    """Steps 2-4 of the off-line procedure from the samples, for :func:`plan` and
-    :func:`~kinredund.planning.roadmap.plan_roadmap`.
-
-    The spline estimates theta*(t) (Section 6.2.2.2), the resolved-rate tracking of
-    h = 1/2 ||theta - theta*(t)||^2 with the spline's rate as feed-forward (Eqs. 6.23-6.28), and the
-    clearance verification, independent of the indices. ``planner`` and ``meta`` (the caller's entries,
-    then the user's) go into ``Trajectory.meta``; the stages' wall times are added to ``timings``.
-    """
-    names = model.names
-    notes = list(notes)
-    # -- step 2: the spline estimates (Section 6.2.2.2) -------------------------------------------
-    spl = JointSpline(smp.t, smp.q, float(path.period), smp.turns, spline)
-
-    # -- step 3: resolved-rate tracking of h = 1/2 ||theta - theta*(t)||^2 (Eqs. 6.23-6.28) -------
-    t1 = perf_counter()
-    info = {"planner": planner, "obstacle": obstacle.to_dict(), "samples": smp.to_dict(), "spline": spline,
-            "links": list(names), "link_lengths": model.lengths.tolist(), "link_radius": float(link_radius),
-            "tool_tip": float(tool_tip), **meta}
-    try:
-        traj = track(robot, path, TimeVaryingReference(spl, spl.rate), smp.q[0], steps_per_loop=steps_per_loop,
-                     loops=1, progress=progress, meta=info)
-    except KinredundError as err:
-        timings["tracking_s"] = perf_counter() - t1
-        return _failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)
-    timings["tracking_s"] = perf_counter() - t1
-    q_spline = spl.values(traj.t)
-    gap = float(np.abs(traj.q - q_spline).max())
-
-    # -- step 4: verification, independent of the indices ----------------------------------------
-    t2 = perf_counter()
-    rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, radius=link_radius,
-                        tool_tip=tool_tip, check_doubling=check_doubling, path=path)
-    timings["clearance_s"] = perf_counter() - t2
-    timings["total_s"] = perf_counter() - t_start
-    reason = ""
-    if not rep.collision_free:
-        parts = [f"{nm} for t in [{a:.4g}, {b:.4g}] s (depth {d:.3g} m)" for nm, a, b, d in rep.intervals()[:6]]
-        if not parts:
-            k = int(np.argmin(rep.lower_bound))
-            parts.append(f"{names[k]}: certified clearance {rep.lower_bound[k]:.3g} m is not positive")
-        reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
-        if robot.task == "planar" and abs(_winding(path, obstacle, float(path.period))) > 0.5:
-            reason += (" - unavoidable here: a planar arm whose end point goes around a convex obstacle and "
-                       "whose joints return to their start sweeps over every point of the obstacle "
-                       "(see kinredund.planning.planner)")
-    if traj.loop_drift is not None and traj.loop_drift[0] > 1e-6:
-        notes.append(f"the joint path does not close: drift {traj.loop_drift[0]:.3g} rad after one loop")
-    return PlanResult(traj, smp, q_spline, rep, names, gap, not reason, reason, timings, tuple(notes))
-
-
 def plan(
     robot,
     path: Path,
@@ -433,7 +257,7 @@ def plan(
     factory = policy or default_policy
     model = link_model(robot)
     names = model.names
-    tool_tip = _tool_tip(model, tool_tip)
+    tool_tip = tool_tip_length(model, tool_tip)
     if not (np.isfinite(link_radius) and link_radius >= 0):
         raise TaskError(f"link_radius must be a number >= 0 [m], got {link_radius!r}")
     seeds = dict(seeds or {})
@@ -444,11 +268,11 @@ def plan(
     lo, hi = robot.sample_box()
     cands: list[list[Candidate]] = []
     ps = np.array([path(t).p for t in ts])
-    if robot.task == "position":
+    if not get_task(robot.task).planar and not get_task(robot.task).has_orientation:
         wr = wrist_reach(robot, ps, obstacle.normal_at(ps))
         if wr is not None and (wr.end_margin.min() < 0 or (check_reach and policy is None and wr.margin.min() < 0)):
             timings["samples_s"] = perf_counter() - t_start
-            return _failure(_reach_reason(wr, ts, ps, names), names, timings)
+            return failure(_reach_reason(wr, ts, ps, names), names, timings)
     for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
         index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
         user = seeds.get(k)
@@ -460,7 +284,7 @@ def plan(
                            limit=max_candidates)
         if not found:
             timings["samples_s"] = perf_counter() - t_start
-            return _failure(
+            return failure(
                 f"sample S{k + 1} (t = {t:.4g} s, p = {np.round(p, 4).tolist()}) has no collision-free "
                 f"configuration at a local minimum of the policy ({len(pool)} seeds): the point may be out of "
                 "reach, or the obstacle too large for the arm", names, timings)
@@ -479,7 +303,7 @@ def plan(
         timings["samples_s"] = perf_counter() - t_start
         bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
         where = f" (none between S{bad[0] + 1} and S{(bad[0] + 1) % n + 1})" if bad else ""
-        return _failure(f"no cyclic sequence of sample configurations with continuous transitions{where}: "
+        return failure(f"no cyclic sequence of sample configurations with continuous transitions{where}: "
                         "try more samples or other sample times", names, timings)
     rows = []  # (t, q, kind, candidate count, objective, clearance, weights)
     acc = np.zeros(robot.nq)
@@ -497,7 +321,7 @@ def plan(
                   np.array([r[1] for r in rows]), acc, tuple(r[3] for r in rows), np.array([r[4] for r in rows]),
                   np.array([r[5] for r in rows]), np.array([r[6] for r in rows]), tuple(r[2] for r in rows))
     timings["samples_s"] = perf_counter() - t_start
-    return _track_and_verify(robot, path, obstacle, smp, model, planner="chapter6", spline=spline,
+    return track_and_verify(robot, path, obstacle, smp, model, planner="chapter6", spline=spline,
                              steps_per_loop=steps_per_loop, substeps=substeps, link_radius=link_radius,
                              tool_tip=tool_tip, check_doubling=check_doubling, progress=progress,
                              meta=dict(meta or {}), timings=timings, t_start=t_start, notes=notes)

@@ -44,8 +44,8 @@ from kinredund.kinematics.angles import wrap_joints
 from kinredund.planning.branches import closest_on_path
 from kinredund.planning.clearance import PENETRATION_TOL, link_clearance, link_model
 from kinredund.planning.obstacles import EllipticCylinder
-from kinredund.planning.planner import PlanResult, Samples, _failure, _tool_tip, _track_and_verify
 from kinredund.planning.spline import unwrap_samples
+from kinredund.planning.stages import PlanResult, Samples, failure, tool_tip_length, track_and_verify
 
 #: cost of a move along the self-motion within one time slice, against squared joint steps [rad^2]: the
 #: search advances in time wherever it can (the closest-point tracking follows slow self-motions only)
@@ -281,7 +281,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         raise TaskError("plan_roadmap() needs a closed path (one with a period)")
     model = link_model(robot)
     names = model.names
-    tool_tip = _tool_tip(model, tool_tip)
+    tool_tip = tool_tip_length(model, tool_tip)
     timings: dict[str, float] = {}
     try:
         rm = roadmap_cycle(robot, path, obstacle, slices=slices, grid=grid, tool_tip=tool_tip, max_jump=max_jump)
@@ -289,7 +289,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         if isinstance(err, TaskError):
             raise
         timings["roadmap_s"] = perf_counter() - t_start
-        return _failure(str(err), names, timings)
+        return failure(str(err), names, timings)
     timings["roadmap_s"] = perf_counter() - t_start
     n_wrist = robot.nq - 4
     qs = []
@@ -306,7 +306,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
              "hd": {"alpha": robot.hd.alpha.tolist(), "a": robot.hd.a.tolist(), "b": robot.hd.b.tolist()}}
     notes = (f"branch chosen on a roadmap of the self-motion manifold ({slices} times x {grid} azimuths x 4 "
              f"branches), clearance margin >= {rm.margin:.3g} m at its nodes",)
-    return _track_and_verify(robot, path, obstacle, smp, model, planner="chapter6-roadmap", spline=spline,
+    return track_and_verify(robot, path, obstacle, smp, model, planner="chapter6-roadmap", spline=spline,
                              steps_per_loop=steps_per_loop, substeps=substeps, link_radius=0.0, tool_tip=tool_tip,
                              check_doubling=check_doubling, progress=progress, meta={**extra, **(meta or {})},
                              timings=timings, t_start=t_start, notes=notes)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinredund.kinematics.angles import wrap_joints
-from kinredund.tasks.target import TASK_ROWS
+from kinredund.tasks import get_task
 
 #: corrector tolerance on the task residual [m]
 CORRECTOR_TOL = 1e-11
@@ -93,7 +93,7 @@ def trace(robot, target, q0, direction: int, goal=None, *, step: float = 0.05, m
     :func:`active_joints` of the robot (computed when not given).
     """
     act = active_joints(robot) if active is None else active
-    rows = TASK_ROWS.get(robot.task, TASK_ROWS["position"])  # the end point's rows of K (x, y for planar)
+    rows = get_task(robot.task).point_rows  # the end point's rows of K (x, y for planar)
     target = np.asarray(target, float)
     q = np.asarray(q0, float).copy()
     goal = None if goal is None else np.asarray(goal, float)

@@ -1,1 +1,1 @@
-"""Thesis examples, one module each: parameters from ``../shared/thesis/NOTES.md`` and a ``reproduce`` entry."""
+"""Thesis examples, one module each: parameters from ``docs/thesis_readings.md`` and a ``reproduce`` entry."""

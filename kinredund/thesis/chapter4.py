@@ -1,4 +1,4 @@
-"""Examples 4.1-4.3 of Chapter 4, with the parameters adopted in ``../shared/thesis/NOTES.md``.
+"""Examples 4.1-4.3 of Chapter 4, with the parameters adopted in ``docs/thesis_readings.md``.
 
 - 4.1: planar 3R (links 2 m); circle of radius 0.8 m about (3, 3) m from (3.8, 3) m, counter-clockwise,
   1 m/s; z = 1/2 sum theta_i^2 (Eq. 4.45).
@@ -25,7 +25,7 @@ from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.thesis import starts
 from kinredund.thesis.starts import EXAMPLES, example_path
-from kinredund.tracking.resolved_rate import track
+from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
 #: what the thesis reports for each example (thesis mode, 200 steps per loop)

@@ -1,6 +1,6 @@
 """Chapter 6 examples: off-line planning with collision avoidance, planar (6.2) and spatial (6.3).
 
-Parameters adopted (``../shared/thesis/NOTES.md``; the OCR lost several):
+Parameters adopted (``docs/thesis_readings.md``; the OCR lost several):
 
 - 6.2: the planar 3R of Chapter 6 (links 0.5, 0.6, 0.3 m); the obstacle is the region inside an ellipse
   centred at (0.9, 0) m with its major axis at 20 deg to X; we choose semi-axes a = 0.3 m, b = 0.15 m
@@ -37,8 +37,9 @@ from kinredund.paths import Ellipse
 from kinredund.planning import spatial
 from kinredund.planning.clearance import link_model
 from kinredund.planning.obstacles import EllipseObstacle, Obstacle, obstacle_from_dict
-from kinredund.planning.planner import PlanResult, _failure, plan, wrist_reach
+from kinredund.planning.planner import plan, wrist_reach
 from kinredund.planning.roadmap import plan_roadmap
+from kinredund.planning.stages import PlanResult, failure
 
 CASES = ("6.2", "6.3")
 PLANAR_CENTER = (0.9, 0.0)
@@ -101,7 +102,7 @@ def _run(case: str, samples: int, progress) -> tuple[PlanResult, dict, Robot, Ob
         extra = {"links": [float(v) for v in np.abs(robot.hd.a)], "feasibility": check,
                  "obstacle": obstacle.to_dict()}
         if not check["reachable"]:
-            return _failure(check["reason"], link_model(robot).names, {}), extra, robot, obstacle
+            return failure(check["reason"], link_model(robot).names, {}), extra, robot, obstacle
         result = plan(robot, path, obstacle, samples=samples, progress=progress, meta={"example": "6.2"})
         return result, extra, robot, obstacle
     # the policy's optima at the samples do not join into a collision-free loop on this arm; the branch

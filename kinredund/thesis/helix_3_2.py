@@ -1,6 +1,6 @@
 """Section 3.2: the wrist centre of the PUMA-derived arm traces a helix (thesis Figs. 3.5-3.6).
 
-Parameters (``../shared/thesis/NOTES.md``, Chapter 3): links b1 = 2 m, a2 = 2 m, a3 = sqrt(2) m,
+Parameters (``docs/thesis_readings.md``, Chapter 3): links b1 = 2 m, a2 = 2 m, a3 = sqrt(2) m,
 a4 = 1 m, no shoulder offset; the wrist centre follows
 
     x = 1.5 cos(beta),   y = 1.5 sin(beta),   z = (3 / pi) beta + 2,   0 <= beta <= pi/2   [m];

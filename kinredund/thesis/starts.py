@@ -5,7 +5,7 @@ The thesis finds each starting configuration as the constrained minimum of the e
 path's first point (with QUADMIN; here :func:`kinredund.ik.solve_ik`, multi-start for the global
 minimum). Each function returns ``(robot, target, index)`` ready for ``solve_ik(robot, target, index)``,
 the target taken from :func:`example_path` at t = 0; the parameters are those adopted in
-``../shared/thesis/NOTES.md``.
+``docs/thesis_readings.md``.
 
 Example::
 

@@ -1,1 +1,16 @@
-"""Tracking (Chapter 4): the resolved-rate scheme that follows the constrained optimum along a path."""
+"""Tracking (Chapter 4): the resolved-rate schemes that follow the constrained optimum along a path.
+
+- :class:`Tracker` (:mod:`.tracker`): the public stepper for control loops (``step()``, ``q``, ``t``);
+- :func:`track` (:mod:`.run`): a whole run, recorded as a :class:`~kinredund.trajectory.Trajectory`;
+- the schemes, one class each: :mod:`.predictor_corrector` (default mode), :mod:`.explicit` (thesis
+  mode, Eq. 4.29), :mod:`.baselines` (pseudoinverse, Liegeois); their shared state in :mod:`.stepper`
+  and their evaluation at a point in :mod:`.point`;
+- :mod:`.linalg`: R of Eq. (4.24), its LU and QP solutions, multipliers, the predictor's weights;
+- :mod:`.recorder`: the per-step record and its diagnostics;
+- :mod:`.constraints`: constraints on the joints (joint limits first).
+"""
+
+from kinredund.tracking.run import MAX_STEPS, track
+from kinredund.tracking.tracker import LINEAR_SOLVERS, MODES, QP_BACKENDS, SCHEMES, Tracker
+
+__all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Tracker", "track"]

@@ -19,6 +19,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError
 from kinredund.io import json_ready, write_json
+from kinredund.tasks import get_task, task_names
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
 REPRODUCIBLE = ("3.2", "4.1", "4.2", "4.3", "6.2", "6.3")
@@ -56,7 +57,7 @@ def _at_least(minimum: int):
     return parse
 
 
-_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.resolved_rate.track and kinredund.ik.solve_ik
+_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.track and kinredund.ik.solve_ik
 
 
 def _progress(label: str):
@@ -84,11 +85,12 @@ def _cmd_generate_robots(args) -> int:
 
 
 def _cmd_robots(args) -> int:
-    from kinredund.model.robot import known_robots, load_robot
+    from kinredund.model.loader import robot_table
 
-    for name in known_robots():
-        r = load_robot(name)
-        print(f"{name:14s} n={r.nq}  task={r.task:8s} m={r.task_dim}  ee={r.ee_frame}")
+    print(f"{'name':14s} {'n':>2s}  {'task':8s} {'m':>1s}  {'redundancy':10s} {'default frame':24s} source")
+    for row in robot_table():
+        print(f"{row.name:14s} {row.n:2d}  {row.task:8s} {row.m:1d}  n - m = {row.n - row.m:<3d}"
+              f"{row.ee_frame:24s} {row.note}")
     return EXIT_OK
 
 
@@ -162,24 +164,23 @@ def _path_for(args, robot, q_start: np.ndarray):
     normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
     center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
     if center.shape == (2,):
-        center = np.append(center, p0[2] if robot.task != "planar" else 0.0)
+        center = np.append(center, p0[2] if not get_task(robot.task).planar else 0.0)
     # pose tasks hold the start orientation along the circle
     return paths.Circle(center, args.radius, args.speed, normal=tuple(normal),
-                        orientation=T0[:3, :3] if robot.task == "pose" else None), None
+                        orientation=T0[:3, :3] if get_task(robot.task).has_orientation else None), None
 
 
 def _cmd_track(args) -> int:
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
-    from kinredund.tasks.target import make_target
-    from kinredund.tracking.resolved_rate import track
+    from kinredund.tracking import track
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
     seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
     path, duration = _path_for(args, robot, seed_q)
     index = None if args.scheme == "pseudoinverse" else _index_for(robot, args.index)
     s0 = path(0.0)
-    target = make_target(robot.task, (s0.Q, s0.p) if robot.task == "pose" else s0.p[: robot.task_dim])
+    target = get_task(robot.task).target_from_sample(s0)
     res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts)
     if not res.converged:
         raise KinredundError(f"no starting configuration on the path: {res.reason}")
@@ -210,7 +211,7 @@ def _cmd_ik(args) -> int:
     from kinredund.model.robot import load_robot
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
-    if robot.task == "pose":
+    if get_task(robot.task).has_orientation:
         if args.target.shape != (3,) or args.rpy is None or args.rpy.shape != (3,):
             raise KinredundError("a pose target needs --target x,y,z and --rpy roll,pitch,yaw [rad]")
         from kinredund.kinematics.closure import rotation_from_invariants
@@ -218,7 +219,7 @@ def _cmd_ik(args) -> int:
         r_, p_, y_ = args.rpy
         Q = (rotation_from_invariants([0, 0, 1], y_) @ rotation_from_invariants([0, 1, 0], p_)
              @ rotation_from_invariants([1, 0, 0], r_))
-        target = (Q, args.target)  # what kinredund.tasks.target.make_target takes
+        target = (Q, args.target)  # what kinredund.tasks.make_target takes
     else:
         target = args.target
     index = None if args.index == "none" else _index_for(robot, args.index)
@@ -292,7 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("track", help="track a path with a robot")
     p.add_argument("robot", help="a robot name (see `kinredund robots`) or a URDF path")
     p.add_argument("--ee-frame")
-    p.add_argument("--task", choices=("planar", "position", "pose"))
+    p.add_argument("--task", choices=task_names())
     p.add_argument("--path", choices=("circle", "ellipse", "file"), default="circle")
     p.add_argument("--path-file", type=Path,
                    help="for --path file: JSON with 't' [s], 'p' [m] and optionally 'Q', 'closed' (default true); "
@@ -319,7 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target", type=_vector, required=True, help="x,y (planar) or x,y,z [m]")
     p.add_argument("--rpy", type=_vector, help="roll,pitch,yaw [rad] for pose tasks")
     p.add_argument("--ee-frame")
-    p.add_argument("--task", choices=("planar", "position", "pose"))
+    p.add_argument("--task", choices=task_names())
     p.add_argument("--index", choices=("none", "home", "min-norm", "mid-range"), default="none")
     p.add_argument("--q0", type=_vector)
     p.add_argument("--bounds", action="store_true", help="respect the joint limits")
@@ -349,11 +350,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("robots", help="list the robots load_robot knows")
     p.set_defaults(func=_cmd_robots)
+    from kinredund.ui.cli_retime import add_parsers as add_retime_parsers  # retime, export (issue 16)
+    add_retime_parsers(sub)
+    from kinredund.ui.cli_sweep import add_parser as add_sweep_parser  # the placement sweep (its own module)
+    add_sweep_parser(sub)
     return parser
 
 
 #: the options that name an output file; every one is checked before any work (kinredund.io.check_output_path)
-OUTPUT_OPTIONS = ("json", "plot", "html")
+OUTPUT_OPTIONS = ("json", "plot", "html", "csv")  # --bag is a folder: kinredund.ui.cli_retime checks it
 #: 128 + the signal number, as a shell reports a process ended by SIGINT or SIGPIPE
 EXIT_SIGINT, EXIT_SIGPIPE = 130, 141
 

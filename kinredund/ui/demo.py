@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from kinredund.io import atomic_write_text, write_json
+from kinredund.tasks import get_task
 
 
 def _fmt(v) -> str:
@@ -42,8 +43,8 @@ def _chapter4(out: Path, loops: int, rows: list, data: dict, log) -> None:
         for label, tr in runs.items():
             s = tr.summary()
             rows.append([f"Example {name}", label, _fmt(s["position_error_max"]),
-                         _fmt(s["trace_error_max"] if tr.task == "pose" else None),
-                         _fmt(s["vect_error_max"] if tr.task == "pose" else None),
+                         _fmt(s["trace_error_max"] if get_task(tr.task).has_orientation else None),
+                         _fmt(s["vect_error_max"] if get_task(tr.task).has_orientation else None),
                          _fmt(s["normality_residual_max"]), _fmt(float(tr.loop_drift[-1])),
                          str(s["lu_steps"])])
             data[f"{name}/{label}"] = s

@@ -19,6 +19,7 @@ import numpy as np
 from kinredund.errors import KinredundError, SolverError, URDFError
 from kinredund.model.robot import Robot
 from kinredund.model.urdf import hd_to_urdf, load_urdf_model, load_urdf_text_model
+from kinredund.tasks import get_task
 from kinredund.trajectory import Trajectory
 from kinredund.ui.viz.scene import (
     MAX_FRAMES,
@@ -98,7 +99,7 @@ class RobotVisuals:
 
     The visuals are parsed from ``robot.urdf_path`` (meshes through ``robot.package_dirs``) into a
     model of their own: for the Panda that model keeps the finger joints that ``load_robot`` drops,
-    so joint values are copied across by joint name (the fingers stay at their neutral value).
+    so joint values are copied across by joint name (the locked joints at ``robot.locked``).
     Robots without a URDF file are drawn from the URDF of their HD table.
 
     Raises:
@@ -135,6 +136,9 @@ class RobotVisuals:
             self.index.append(model.joints[model.getJointId(name)].idx_q)
         self.index = np.array(self.index, dtype=int)
         self.neutral = pin.neutral(model)
+        for name, value in robot.locked.items():  # the joints load_robot locked sit where it locked them
+            if model.existJointName(name) and model.joints[model.getJointId(name)].nq == 1:
+                self.neutral[model.joints[model.getJointId(name)].idx_q] = value
         self.viz = mc.MeshcatVisualizer(model, None, visual)
         self.viz.initViewer(viewer=vis)
         with warnings.catch_warnings():
@@ -206,7 +210,7 @@ def build_scene(
         node.set_transform(unit_cylinder_transform(obstacle))
         vis["obstacle_outline"].set_object(_line(mc, obstacle_outline(obstacle), OBSTACLE_COLOR))
 
-    center, offset = camera_view(np.vstack(scene_points), planar=robot.task == "planar")
+    center, offset = camera_view(np.vstack(scene_points), planar=get_task(robot.task).planar)
     # meshcat 0.3.2's orbit controls always look at the world origin (whatever the transform of
     # /Cameras/default), so the scene is shifted instead: the centre of attention becomes the origin.
     shift = mc.tf.translation_matrix(-center)

@@ -1,0 +1,66 @@
+"""CSV export: one row per sample, columns t, q_<joint>..., qdot_<joint>..., qddot_<joint>....
+
+The header names the columns after the robot's joints (``q_panda_joint1``); ``qdot_`` and ``qddot_``
+columns are there when the record has velocities and accelerations (a retimed record has both). Numbers
+are printed as Python's ``repr`` of the float, the shortest text that reads back to the same double,
+so :func:`read_csv` gives back exactly the numbers written. Units: [s], [rad or m], [rad/s or m/s],
+[rad/s^2 or m/s^2]. The file is written atomically (a temporary file, then a rename).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from kinredund.export.samples import ExportError, JointSamples
+from kinredund.io import atomic_write_text
+from kinredund.trajectory import Trajectory
+
+_GROUPS = ("q", "qdot", "qddot")
+
+
+def write_csv(data: JointSamples | Trajectory, path: str | Path, joint_names=None) -> Path:
+    """Write the samples (or a record's: ``joint_names`` default to its robot's) as CSV; return the path.
+
+    Raises:
+        ExportError: a record that is not a joint trajectory.
+    """
+    samples = data.checked() if isinstance(data, JointSamples) else JointSamples.from_trajectory(data, joint_names)
+    groups = [g for g in _GROUPS if getattr(samples, g) is not None]
+    header = ["t"] + [f"{g}_{name}" for g in groups for name in samples.joint_names]
+    table = np.column_stack([samples.t] + [getattr(samples, g) for g in groups])
+    lines = [",".join(header)] + [",".join(repr(float(v)) for v in row) for row in table]
+    path = Path(path)
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return path
+
+
+def read_csv(path: str | Path) -> JointSamples:
+    """The samples of a CSV file written by :func:`write_csv`.
+
+    Raises:
+        ExportError: the file cannot be read, or its header or rows are not those of a kinredund export.
+    """
+    try:
+        lines = [line for line in Path(path).read_text().splitlines() if line.strip()]
+    except (OSError, UnicodeDecodeError) as err:
+        raise ExportError(f"cannot read {path}: {err}") from err
+    if len(lines) < 2:
+        raise ExportError(f"{path} holds no samples (a header and one row per sample are expected)")
+    header = [c.strip() for c in lines[0].split(",")]
+    names = [c[2:] for c in header[1:] if c.startswith("q_")]
+    groups = [g for g in _GROUPS if f"{g}_{names[0] if names else ''}" in header]
+    expected = ["t"] + [f"{g}_{name}" for g in groups for name in names]
+    if not names or header != expected:
+        raise ExportError(f"{path} is not a kinredund CSV export: its header must be t, q_<joint>..., then optionally "
+                          f"qdot_<joint>... and qddot_<joint>...; got {lines[0][:200]!r}")
+    try:
+        table = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    except ValueError as err:
+        raise ExportError(f"{path} has a row that is not numbers: {err}") from err
+    if table.ndim != 2 or table.shape[1] != len(header):
+        raise ExportError(f"{path}: every row must have {len(header)} numbers, as the header")
+    n = len(names)
+    arrays = {g: table[:, 1 + k * n: 1 + (k + 1) * n] for k, g in enumerate(groups)}
+    return JointSamples(tuple(names), table[:, 0], **arrays).checked()

@@ -1,0 +1,114 @@
+"""ROS 2 bag export: one ``trajectory_msgs/msg/JointTrajectory`` message, written with ``rosbags``.
+
+The bag (rosbag2 format version 8, sqlite3 storage: what ``ros2 bag play`` and the usual bag viewers
+read) holds one message on :data:`DEFAULT_TOPIC`, the topic ros2_control's
+``joint_trajectory_controller`` listens on: the robot's joint names, and one
+``JointTrajectoryPoint`` per sample with positions, velocities and accelerations (empty when the record
+has none) and ``time_from_start``. A ROS Duration holds whole nanoseconds: the times are rounded to them
+(:func:`kinredund.retime.retime` already gives whole nanoseconds, which then read back exactly).
+The message's bag timestamp and header stamp are 0.
+
+The bag is written into a temporary folder beside the destination, then renamed: a failed write
+leaves nothing, and a destination that exists is refused before anything is written.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from kinredund.export.samples import ExportError, JointSamples
+from kinredund.trajectory import Trajectory
+
+MSGTYPE = "trajectory_msgs/msg/JointTrajectory"
+DEFAULT_TOPIC = "/joint_trajectory_controller/joint_trajectory"
+BAG_VERSION = 8
+
+
+def _typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def _message(samples: JointSamples, store):
+    types = store.types
+    Duration, Time = types["builtin_interfaces/msg/Duration"], types["builtin_interfaces/msg/Time"]
+    Point = types["trajectory_msgs/msg/JointTrajectoryPoint"]
+    empty = np.zeros(0)
+    ns = np.round(samples.t * 1e9).astype(np.int64)
+    if ns[0] < 0:
+        raise ExportError(f"a JointTrajectory's times start at 0 or later, got t[0] = {samples.t[0]} s")
+    points = []
+    for k in range(len(ns)):
+        sec, nsec = divmod(int(ns[k]), 1_000_000_000)
+        points.append(Point(positions=samples.q[k].copy(),
+                            velocities=empty if samples.qdot is None else samples.qdot[k].copy(),
+                            accelerations=empty if samples.qddot is None else samples.qddot[k].copy(),
+                            effort=empty, time_from_start=Duration(sec=sec, nanosec=nsec)))
+    header = types["std_msgs/msg/Header"](stamp=Time(sec=0, nanosec=0), frame_id="")
+    return types[MSGTYPE](header=header, joint_names=list(samples.joint_names), points=points)
+
+
+def write_bag(data: JointSamples | Trajectory, folder: str | Path, joint_names=None,
+              topic: str = DEFAULT_TOPIC) -> Path:
+    """Write the samples (or a record's) as a ROS 2 bag folder; return the folder.
+
+    Raises:
+        ExportError: the folder exists already, or the record is not a joint trajectory.
+    """
+    from rosbags.rosbag2 import Writer
+
+    folder = Path(folder)
+    if folder.exists() or folder.is_symlink():
+        raise ExportError(f"the bag folder {folder} exists already: give a new folder (a bag is never overwritten)")
+    samples = data.checked() if isinstance(data, JointSamples) else JointSamples.from_trajectory(data, joint_names)
+    store = _typestore()
+    raw = store.serialize_cdr(_message(samples, store), MSGTYPE)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp"))
+    try:
+        with Writer(tmp / folder.name, version=BAG_VERSION) as writer:
+            conn = writer.add_connection(topic, MSGTYPE, typestore=store)
+            writer.write(conn, 0, raw)
+        if folder.exists():
+            raise ExportError(f"the bag folder {folder} appeared while writing: not overwriting it")
+        os.rename(tmp / folder.name, folder)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return folder
+
+
+def read_bag(folder: str | Path, topic: str | None = None) -> JointSamples:
+    """The samples of the first JointTrajectory message in a bag (on ``topic`` if given).
+
+    Raises:
+        ExportError: not a readable bag, or no JointTrajectory message in it.
+    """
+    from rosbags.rosbag2 import Reader
+
+    store = _typestore()
+    try:
+        with Reader(folder) as reader:
+            conns = [c for c in reader.connections if c.msgtype == MSGTYPE and (topic is None or c.topic == topic)]
+            if not conns:
+                raise ExportError(f"no {MSGTYPE} message{'' if topic is None else f' on {topic}'} in the bag {folder}")
+            for _conn, _stamp, raw in reader.messages(connections=conns):
+                msg = store.deserialize_cdr(raw, MSGTYPE)
+                break
+    except ExportError:
+        raise
+    except Exception as err:  # noqa: BLE001 - rosbags raises its own errors and OSError: report them as ours
+        raise ExportError(f"cannot read the bag {folder}: {err}") from err
+    pts = msg.points
+    ns = np.array([p.time_from_start.sec * 1_000_000_000 + p.time_from_start.nanosec for p in pts], dtype=np.int64)
+    more = {}
+    for key, attr in (("qdot", "velocities"), ("qddot", "accelerations")):
+        rows = [np.asarray(getattr(p, attr), float) for p in pts]
+        more[key] = np.array(rows) if rows and all(len(r) == len(msg.joint_names) for r in rows) else None
+    q = np.array([np.asarray(p.positions, float) for p in pts])
+    return JointSamples(tuple(msg.joint_names), ns / 1e9, q, **more).checked()

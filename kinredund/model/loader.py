@@ -1,0 +1,364 @@
+"""Loading a robot: by name (the thesis's robots, the arms of example-robot-data) or from a URDF file.
+
+:func:`load_robot` is the entry point. Beyond parsing (:func:`kinredund.model.urdf.load_urdf`) it
+
+- keeps a chain of joints (``joints=``) and locks the others (``locked=`` gives their values) through
+  ``pin.buildReducedModel``;
+- resolves the end-effector frame when a joint and a link share its name (:func:`resolve_frame`);
+- chooses a home configuration that is not singular for the task (:func:`choose_home`).
+
+Continuous joints arrive as revolute joints without limits (see ``urdf.UNBOUNDED_LIMIT``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from importlib import resources
+from numbers import Real
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from kinredund.errors import (
+    ChoiceError,
+    JointVectorError,
+    TaskError,
+    UnknownRobotError,
+    URDFError,
+    check_choice,
+)
+from kinredund.kinematics.state import Kinematics
+from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
+from kinredund.model.erd import ERD_ARMS, erd_share_dir
+from kinredund.model.frames import resolve_frame
+from kinredund.model.robot import Robot, robot_revolute
+from kinredund.model.urdf import EE_FRAME, load_urdf
+from kinredund.tasks import get_task
+from kinredund.tasks.axis import frame_with_axis
+
+#: a home is accepted when the task Jacobian's smallest singular value is at least this fraction of
+#: its largest (1 / condition number); otherwise :func:`choose_home` searches nearby
+HOME_CONDITION = 0.05
+#: the number of seeded candidates :func:`choose_home` tries near the middle of the ranges
+HOME_CANDIDATES = 64
+#: limits beyond this are absent (continuous joints, +-1.8e308 defaults): a box of +-pi or +-1 m is used
+_UNBOUNDED = 1e10
+
+
+def known_robots() -> list[str]:
+    """Every name :func:`load_robot` accepts: the thesis's robots, then the example-robot-data arms."""
+    return sorted(SHIPPED_TABLES) + sorted(ERD_ARMS)
+
+
+@dataclass(frozen=True)
+class RobotRow:
+    """One line of ``kinredund robots``: a name, its joint count n, default task (dimension m) and frame."""
+
+    name: str
+    n: int
+    task: str
+    m: int
+    ee_frame: str
+    note: str
+
+
+def robot_table() -> list[RobotRow]:
+    """Every name of :func:`known_robots`, loaded, with its joints, default task and default frame.
+
+    Raises:
+        KinredundError: a catalogue arm does not load (example-robot-data missing or changed).
+    """
+    rows = []
+    for name in known_robots():
+        r = load_robot(name)
+        note = ERD_ARMS[name].note if name in ERD_ARMS else "thesis robot (shipped)"
+        rows.append(RobotRow(name, r.nq, r.task, r.task_dim, r.ee_frame, note))
+    return rows
+
+
+def shipped_robot_dir() -> Path:
+    """The folder of the shipped URDF files: package data when installed, ``robots/`` in a checkout."""
+    try:
+        path = Path(str(resources.files("kinredund.robots")))
+        if (path / "planar3r.urdf").exists():
+            return path
+    except ModuleNotFoundError:
+        pass
+    return Path(__file__).resolve().parent.parent.parent / "robots"
+
+
+# -- joints: keep a chain, lock the rest --------------------------------------------------------------
+def _finite_mid(lo: float, hi: float) -> float:
+    if abs(lo) < _UNBOUNDED and abs(hi) < _UNBOUNDED:
+        return 0.5 * (lo + hi)
+    return float(np.clip(0.0, lo, hi))
+
+
+def reduce_model(model: pin.Model, joints, locked, mimic: dict, frame_id: int, source: str
+                 ) -> tuple[pin.Model, dict[str, float]]:
+    """Keep ``joints`` (names, or None for all), lock the others; return (model, locked values).
+
+    A locked joint sits at ``locked[name]`` if given, else at a mimic's law of its (locked) master,
+    else at the middle of its limits (0 where they are absent).
+
+    Raises:
+        ChoiceError: a kept or locked name is not a joint of the model.
+        JointVectorError: a locked value is not a finite number inside the joint's limits.
+        URDFError: a kept joint is a mimic joint, or a locked mimic joint on the end-effector's chain
+            follows a kept joint (its motion would be lost).
+    """
+    names = list(model.names)[1:]
+    keep = names if joints is None else _joint_list(joints, names)
+    if locked is not None and not isinstance(locked, Mapping):
+        raise ChoiceError("locked (a dict joint name -> value)", locked, [n for n in names if n not in keep])
+    locked = {} if locked is None else dict(locked)
+    for key in locked:
+        check_choice("locked joint", key, [n for n in names if n not in keep])
+    mimics = [n for n in keep if n in mimic]
+    if mimics:
+        chain = [names[j - 1] for j in model.supports[model.frames[frame_id].parentJoint][1:]]
+        raise URDFError(source, (
+            f"joint(s) {', '.join(mimics)} mimic another joint: every kept joint needs its own coordinate. "
+            f"Keep a chain without them, e.g. joints={[n for n in chain if n not in mimic]}"
+        ))
+    on_chain = set(model.supports[model.frames[frame_id].parentJoint])
+    values, q = {}, pin.neutral(model)
+    order = sorted((n for n in names if n not in keep), key=lambda n: n in mimic)  # masters first
+    for n in order:
+        jid = model.getJointId(n)
+        lo, hi = float(model.lowerPositionLimit[model.idx_qs[jid]]), float(model.upperPositionLimit[model.idx_qs[jid]])
+        if model.joints[jid].nq != 1:  # a floating or planar joint: at its neutral configuration
+            if n in locked:
+                raise JointVectorError(f"joint {n!r} has {model.joints[jid].nq} coordinates: it locks at its neutral")
+            continue
+        if n in locked:
+            v = locked[n]
+            if isinstance(v, bool) or not isinstance(v, Real) or not np.isfinite(v) or not lo <= v <= hi:
+                raise JointVectorError(f"locked value of {n!r} must be a finite number in [{lo:g}, {hi:g}], got {v!r}")
+        elif n in mimic and mimic[n].master in values:
+            v = mimic[n].multiplier * values[mimic[n].master] + mimic[n].offset
+        else:
+            if n in mimic and jid in on_chain:
+                raise URDFError(source, (
+                    f"joint {n!r} mimics the kept joint {mimic[n].master!r} and moves the end-effector frame: "
+                    "locking it would lose that motion; lock its master too"
+                ))
+            v = _finite_mid(lo, hi)
+        values[n] = float(v)
+        q[model.idx_qs[jid]] = v
+    lock_ids = [model.getJointId(n) for n in order]
+    if not lock_ids:
+        return model, values
+    # buildReducedModel looks joint frames up by name and fails where a link shares the name (the
+    # SO-100's ``gripper``): rename such joints for the call, and back in the reduced model
+    shared = {f.name for f in model.frames if f.type != pin.FrameType.JOINT} & set(names)
+    model = pin.Model(model)
+    _rename_joints(model, {n: n + _TEMP for n in shared})
+    reduced = pin.buildReducedModel(model, lock_ids, q)
+    _rename_joints(reduced, {n + _TEMP: n for n in shared})
+    return reduced, values
+
+
+_TEMP = "#joint"
+
+
+def _rename_joints(model: pin.Model, mapping: dict[str, str]) -> None:
+    """Rename joints and their (joint or fixed-joint) frames in place: old name -> new name."""
+    for j in range(model.njoints):
+        if model.names[j] in mapping:
+            model.names[j] = mapping[model.names[j]]
+    for i, f in enumerate(model.frames):
+        if f.name in mapping and f.type in (pin.FrameType.JOINT, pin.FrameType.FIXED_JOINT):
+            renamed = pin.Frame(f)
+            renamed.name = mapping[f.name]
+            model.frames[i] = renamed
+
+
+def _joint_list(joints, names: list[str]) -> list[str]:
+    if not isinstance(joints, (list, tuple)) or not all(isinstance(j, str) for j in joints):
+        raise ChoiceError("joints (a list of joint names)", joints, names)
+    keep = [check_choice("joint", j, names) for j in joints]
+    if not keep:
+        raise ChoiceError("joints (an empty list keeps nothing)", joints, names)
+    if len(set(keep)) != len(keep):
+        raise ChoiceError("joints (a name repeated)", joints, names)
+    return [n for n in names if n in keep]  # q follows the model's order
+
+
+# -- tool axis and home -----------------------------------------------------------------------------
+_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def check_tool_axis(tool_axis) -> np.ndarray:
+    """The unit tool axis in the end-effector frame from ``"x"``, ``"y"``, ``"z"`` (or ``"-z"``...) or a 3-vector."""
+    if isinstance(tool_axis, str):
+        sign, key = (-1.0, tool_axis[1:]) if tool_axis.startswith("-") else (1.0, tool_axis)
+        if key not in _AXES:
+            raise ChoiceError("tool axis", tool_axis, ["x", "y", "z", "-x", "-y", "-z", "a 3-vector"])
+        return sign * np.array(_AXES[key])
+    try:
+        v = np.asarray(tool_axis, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise TaskError(f"tool axis must be 'x', 'y', 'z' or a 3-vector, got {tool_axis!r}") from err
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+        raise TaskError(f"tool axis must be a finite non-zero 3-vector, got {tool_axis!r}")
+    return v / np.linalg.norm(v)
+
+
+def task_jacobian(K: np.ndarray, R: np.ndarray, task: str) -> np.ndarray:
+    """The rows of K (Eq. 2.16, [omega; pdot]) that a task constrains, for conditioning checks.
+
+    ``axis``: pdot and the two components of omega normal to the tool axis a = R e_z, the frame's z
+    axis (the rate of a is omega x a; the spin about a is free).
+    """
+    if task == "planar":
+        return K[3:5]
+    if task == "position":
+        return K[3:6]
+    if task == "axis":
+        a = R[:, 2]
+        helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        b1 = np.cross(a, helper)
+        b1 /= np.linalg.norm(b1)
+        return np.vstack([np.vstack([b1, np.cross(a, b1)]) @ K[:3], K[3:6]])
+    return K
+
+
+def conditioning(kin: Kinematics, q: np.ndarray, task: str) -> float:
+    """sigma_min / sigma_max of the task Jacobian at q (0 at a singularity)."""
+    R, _, K = kin.jacobian(q)
+    s = np.linalg.svd(task_jacobian(K, R, task), compute_uv=False)
+    return float(s[-1] / s[0]) if s[0] > 0 else 0.0
+
+
+def choose_home(model: pin.Model, frame_id: int, task: str, revolute: np.ndarray) -> np.ndarray:
+    """A home configuration inside the limits where the task Jacobian is well conditioned.
+
+    The middle of the limits (0 for a joint without limits) when the task Jacobian's conditioning
+    there is at least :data:`HOME_CONDITION`; otherwise, of :data:`HOME_CANDIDATES` configurations
+    drawn with seed 0 within a quarter of each range about the middle (at most pi/4 rad, or 0.25 m),
+    the best conditioned. A UR5's all-zero configuration (arm stretched) is singular and is replaced.
+    """
+    lo, hi = np.array(model.lowerPositionLimit, float), np.array(model.upperPositionLimit, float)
+    wide = np.where(revolute, np.pi, 1.0)
+    lo_box = np.where(np.abs(lo) < _UNBOUNDED, lo, np.maximum(lo, -wide))
+    hi_box = np.where(np.abs(hi) < _UNBOUNDED, hi, np.minimum(hi, wide))
+    mid = np.array([_finite_mid(a, b) for a, b in zip(lo, hi, strict=True)])
+    kin = Kinematics(model, frame_id)
+    if conditioning(kin, mid, task) >= HOME_CONDITION:
+        return mid
+    reach = np.minimum(0.25 * (hi_box - lo_box), 0.25 * wide)
+    rng = np.random.default_rng(0)
+    cands = np.clip(mid + rng.uniform(-1.0, 1.0, (HOME_CANDIDATES, model.nq)) * reach, lo_box, hi_box)
+    scores = [conditioning(kin, q, task) for q in cands]
+    return cands[int(np.argmax(scores))]
+
+
+# -- the entry point --------------------------------------------------------------------------------
+def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: str | None = None,
+               tool_axis=None, joints=None, locked=None) -> Robot:
+    """Load a robot by shipped name, example-robot-data name, or URDF path.
+
+    Args:
+        name_or_path: a name of :func:`known_robots` (``kinredund robots`` lists them with their joints,
+            default frame and task) or the path of a URDF file.
+        ee_frame: the end-effector frame (point P is its origin). Default: ``ee`` for the shipped
+            robots, the catalogue's frame for example-robot-data arms (``kinredund.model.erd``), and
+            for a URDF file a frame named ``ee`` if there is one, else the last frame. Where a joint
+            and a link share the name, the link is taken (``robot.ee_frame_info`` says which).
+        task: ``planar``, ``position``, ``axis`` (tool point and tool axis, m = 5) or ``pose``.
+            Default: the robot's own; for an example-robot-data arm the task that makes it redundant;
+            ``pose`` for URDF files.
+        tool_axis: for ``task="axis"``: the tool's axis in the end-effector frame, ``"x"``, ``"y"``,
+            ``"z"`` (default), ``"-z"``... or a 3-vector. The axis task holds the z axis of the
+            end-effector frame: for another axis a frame ``<ee_frame>_tool_axis`` is added at the same
+            origin, its z axis along the tool axis, and becomes ``robot.ee_frame``.
+        joints: the joints to keep, by name (q follows the model's order); the others are locked.
+            Default: the catalogue's chain for a named arm, every joint for a URDF file.
+        locked: joint name -> value [rad or m] for locked joints; default: a mimic joint follows its
+            master, any other sits at the middle of its limits (0 without limits).
+
+    Raises:
+        UnknownRobotError: the name is not known and no such file exists (lists the known names).
+        URDFError: the file does not parse or is refused; the message says why.
+        FrameNotFoundError: ``ee_frame`` is not in the model (lists the frames) or no joint moves it.
+        ChoiceError, JointVectorError, TaskError: a bad task, tool axis, joint name or locked value.
+    """
+    if task is not None:
+        get_task(task)  # ChoiceError for an unknown kind
+    if tool_axis is not None and task not in (None, "axis"):
+        raise TaskError(f"tool_axis is for task='axis', not {task!r}")
+    axis = None if tool_axis is None else check_tool_axis(tool_axis)
+    turned = axis is not None and not np.array_equal(axis, _AXES["z"])
+    if isinstance(name_or_path, Path):
+        key = str(name_or_path)
+    elif isinstance(name_or_path, str):
+        key = name_or_path
+    else:
+        raise UnknownRobotError(repr(name_or_path), known_robots())
+    if key in SHIPPED_TABLES:
+        if joints is not None or locked is not None:
+            raise ChoiceError("option for a thesis robot (joints=/locked= are for URDF arms)", key, ["none"])
+        path = shipped_robot_dir() / f"{key}.urdf"
+        task = task or SHIPPED_TASKS[key]
+        model, frame = _with_tool_axis(load_urdf(path).model, EE_FRAME if ee_frame is None else ee_frame, axis, task)
+        return Robot(key, model, frame, task, hd=SHIPPED_TABLES[key](), urdf_path=path,
+                     home=np.array(SHIPPED_HOMES[key]), tool_axis=axis)
+    if key in ERD_ARMS:
+        spec = ERD_ARMS[key]
+        share = erd_share_dir()
+        custom = joints is not None or locked is not None
+        # a record names its robot for reloading: a custom chain must not reload as the catalogue's
+        frame = spec.ee_frame if ee_frame is None else ee_frame
+        own = spec.home is not None and not custom and ee_frame is None and not turned
+        return _from_urdf(
+            f"{key}:custom" if custom else key, share / spec.urdf, frame, task or spec.task, axis,
+            spec.joints if joints is None else joints, locked, (str(share.parent.parent),),
+            np.array(spec.home) if own else None,
+        )
+    path = Path(key)
+    if path.suffix.lower() in (".urdf", ".xml") or path.exists():
+        if not path.exists():
+            raise UnknownRobotError(key, known_robots())
+        path = path.resolve()  # a record names the file: absolute, so that it reloads from any folder
+        name = path.stem if path.stem not in known_robots() else str(path)  # never reloads as a catalogue arm
+        return _from_urdf(name, path, ee_frame, task or "pose", axis, joints, locked, (str(path.parent),), None)
+    raise UnknownRobotError(key, known_robots())
+
+
+def _default_ee_frame(model: pin.Model) -> str:
+    if model.existFrame(EE_FRAME):
+        return EE_FRAME
+    return model.frames[len(model.frames) - 1].name
+
+
+def _with_tool_axis(model: pin.Model, frame: str, axis: np.ndarray | None, task: str) -> tuple[pin.Model, str]:
+    """(model, end-effector frame): for a tool axis other than z, a copy of the model with a frame at
+    ``frame``'s origin whose z axis is the tool axis (the axis task holds the frame's z axis)."""
+    if axis is not None and task != "axis":
+        raise TaskError(f"tool_axis is for task='axis', and this robot's task is {task!r}: give task='axis'")
+    if axis is None or np.array_equal(axis, _AXES["z"]):
+        return model, frame
+    fid, _ = resolve_frame(model, frame)
+    base = model.frames[fid]
+    name = f"{frame}_tool_axis"
+    model = pin.Model(model)
+    turn = pin.SE3(frame_with_axis(axis), np.zeros(3))
+    model.addFrame(pin.Frame(name, base.parentJoint, fid, base.placement * turn, pin.FrameType.OP_FRAME))
+    return model, name
+
+
+def _from_urdf(name, path, ee_frame, task, axis, joints, locked, package_dirs, home) -> Robot:
+    parsed = load_urdf(path)
+    frame = _default_ee_frame(parsed.model) if ee_frame is None else ee_frame
+    fid, _ = resolve_frame(parsed.model, frame)
+    model, values = reduce_model(parsed.model, joints, locked, parsed.mimic, fid, str(path))
+    model, frame = _with_tool_axis(model, frame, axis, task)
+    if home is None and model.nq == model.nv:
+        fid, _ = resolve_frame(model, frame)
+        home = choose_home(model, fid, task, robot_revolute(model))
+    continuous = tuple(n for n in parsed.continuous if model.existJointName(n))
+    return Robot(name, model, frame, task, urdf_path=path, package_dirs=package_dirs, home=home,
+                 tool_axis=axis, locked=values, continuous=continuous)

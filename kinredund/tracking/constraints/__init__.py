@@ -1,0 +1,12 @@
+"""Constraints on the joints while tracking: one base class, one file per kind (as pink's ``limits/``).
+
+- :class:`~kinredund.tracking.constraints.base.Constraint`: inequalities c(theta) >= 0 with their
+  gradients, names and margins;
+- :class:`~kinredund.tracking.constraints.joint_limits.JointLimits`: the robot's position limits (the
+  first kind; obstacle constraints come later as further files).
+"""
+
+from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.constraints.joint_limits import JointLimits
+
+__all__ = ["Constraint", "JointLimits"]

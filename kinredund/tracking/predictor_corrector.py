@@ -1,0 +1,148 @@
+"""The default mode of the optimal schemes: predictor along the optimal path, Newton corrector (Chapter 4).
+
+Each step predicts y = [theta; lambda] at t + dt by Hermite extrapolation through the last points and
+their rates (quintic once three are known; Euler at the first step), then corrects onto the first-order
+system F(theta, lambda) = [grad z + J^T lambda; g(theta) - x(t)] = 0 (Eq. 4.5 and the task) with R of
+Eq. (4.24) factorised at the predicted point; the same LU factors give the rates for the next
+prediction. The task and the normality condition are then both held to ~1e-12 and the joints close to
+machine precision loop after loop. Both the displacement form (``augmented``: J, M = Hess z + Lambda)
+and the velocity form (``velocity``: K, lambda*, M* = Hess z + Lambda*, Eqs. 4.30-4.42) run here; the
+:class:`~kinredund.tracking.point.Evaluator`'s formulation says which.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from kinredund.errors import PathError
+from kinredund.tracking.linalg import hermite_weights, lu_solve
+from kinredund.tracking.point import Evaluator, Point
+from kinredund.tracking.stepper import Stepper
+
+#: points (values and slopes) of the default mode's Hermite predictor: 3 gives the quintic, whose O(h^6)
+#: error lets one Newton update end the corrector on smooth paths at 200 steps per loop (median miss
+#: ~1e-10 rad on Examples 4.1, 4.2 and the Panda circle; ~1e-5 on the fast Example 4.3, which needs
+#: chord iterations): ``python benchmarks/resolved_rate.py`` prints both figures per robot
+PREDICTOR_POINTS = 3
+
+
+class PredictorCorrector(Stepper):
+    """The default mode's stepper (augmented or velocity form): Hermite predictor, Newton corrector.
+
+    State besides :class:`~kinredund.tracking.stepper.Stepper`'s: ``prev`` (y and ydot of up to
+    ``PREDICTOR_POINTS - 1`` earlier points, oldest first, a flat list) and ``_y``, ``_yd`` (the current
+    point and its rates). The start is corrected onto the optimal manifold before the first step.
+    """
+
+    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, **kwargs):
+        super().__init__(evaluator, q0, dt, **kwargs)
+        self.symmetric = evaluator.formulation == "augmented"
+        self.prev: list[np.ndarray] = []
+        self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
+        self._newton(self.pt)  # put the start exactly on the optimal manifold
+        self._rates()
+
+    def step(self) -> None:
+        """Predict y at t + dt (Euler at the first step, then Hermite: cubic, then quintic) and correct."""
+        h = self.dt
+        y, yd = self._y, self._yd
+        prev = self.prev  # [y, ydot, y, ydot, ...], oldest first
+        y_p = self._hermite[len(prev) // 2] @ np.array(prev + [y, yd]) if prev else y + h * yd
+        prev += (y, yd)
+        if len(prev) == 2 * PREDICTOR_POINTS:
+            del prev[:2]
+        self.t = self._next_time()
+        self._correct(y_p)  # checks its results for non-finite values
+
+    def _rates(self) -> None:
+        """Evaluate the full system at the current point and solve Eq. (4.24) for the rates."""
+        pt = self.evaluate(self.q, self.t)
+        self._solve_rates(pt, pt.xdot)
+        self._y, self._yd = np.concatenate([self.q, self.lam]), np.concatenate([self.qdot, self.lamdot])
+
+    def _tol(self, pt: Point) -> float:
+        """The corrector's tolerance on ||F||_2, scaled by the gradient: tol max(1, ||grad z||)."""
+        return self.tol * max(1.0, math.sqrt(float(pt.grad @ pt.grad)))
+
+    def _newton(self, pt: Point | None = None, max_fresh: int = 6) -> None:
+        """Corrector onto F(theta, lambda) = [grad z + J^T lambda; r] = 0 at self.t from (self.q, self.lam).
+
+        Rounds of chord iterations (:meth:`_chord`), each with R factorised afresh at its first iterate;
+        ``pt`` is the full evaluation at the current point when the caller has it.
+        """
+        n = self.n
+        y = np.concatenate([self.q, self.lam])
+        for _ in range(max_fresh + 1):
+            if pt is None:
+                pt = self.evaluate(y[:n], self.t)
+            lu = self._factor(pt, pt.system(y[n:])[0])
+            y, ok = self._chord(y, lu, self._tol(pt), F=pt.residual(y[n:]))
+            if ok:
+                self.q, self.lam = y[:n], y[n:]
+                return
+            pt = None
+            if not math.isfinite(float(y @ y)):
+                break
+        raise PathError(
+            f"the corrector did not converge at t = {self.t:.6g} s: the path leaves the workspace or crosses a "
+            "singularity", t=self.t, q=self.q)
+
+    def _correct(self, y: np.ndarray) -> None:
+        """Corrector at self.t from the predicted y = [q; lambda], then the rates for the next step.
+
+        One evaluation at the predicted point gives R (Eq. 4.24), the residual F = [grad z + J^T lambda; r]
+        and the right-hand side of Eq. (4.24); R's LU factors give both the Newton update d and the rates
+        (all at the predicted point, within the corrector's step of the corrected one).
+        A Newton update with |d|^2 <= tol (scaled) leaves an error of order tol (quadratic convergence)
+        and ends the iteration - the tests check the recorded residuals, evaluated afresh, stay ~1e-12;
+        otherwise chord iterations with fresh residuals follow, then fresh factorisations
+        (:meth:`_newton`). Norms are 2-norms (one dot product each).
+        """
+        n = self.n
+        lam = y[n:]
+        pt = self.evaluate(y[:n], self.t)
+        M, top = pt.system(lam)  # Eqs. (4.23), (4.37)
+        lu, piv = self._factor(pt, M)
+        # one right-hand side per solve: dgetrs with two goes through a level-3 triangular solve, slower
+        # on these sizes and, with OpenBLAS threads, prone to millisecond waits on a busy machine
+        sol = lu_solve((lu, piv), np.concatenate((top, pt.xdot)))  # Eq. (4.24)
+        if not math.isfinite(float(sol @ sol)):  # the rates are finite iff the step's terms are
+            self.ev.check_sample(self.t)
+            raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
+        F = pt.residual(lam)
+        tol = self._tol(pt)
+        if not float(F @ F) <= tol * tol:  # "not <=": a NaN residual is not converged
+            d = lu_solve((lu, piv), F)
+            y_pred, y = y, y - d
+            if not float(d @ d) <= tol:
+                y, ok = self._chord(y, (lu, piv), tol)
+                if not ok:  # no convergence with this factorisation: fresh ones from the prediction
+                    self.q, self.lam = y_pred[:n], y_pred[n:]
+                    self.prev.clear()  # the predictor missed (a jump in the path?): restart it with Euler
+                    self._newton()
+                    self._rates()
+                    return
+        self.q, self.lam = y[:n], y[n:]
+        self._y, self._yd = y, sol
+        self.qdot, self.lamdot, self._solver, self.M, self.pt = sol[:n], sol[n:], None, M, pt
+
+    def _chord(self, y: np.ndarray, lu, tol: float, F: np.ndarray | None = None,
+               max_iter: int = 8) -> tuple[np.ndarray, bool]:
+        """Chord iterations on F with fresh residuals and R's factors kept: (last iterate, converged).
+
+        The factors belong to another point, so the iteration converges only linearly: it ends on the
+        residual itself (||F|| <= tol), never on the size of the update. ``F``: the residual at ``y``
+        if the caller has it. A non-finite path sample is reported (PathError) when it fails.
+        """
+        n = self.n
+        for _ in range(max_iter):
+            if F is None:
+                F = self.ev.point(y[:n], self.t, need_dJ=False).residual(y[n:])
+            if float(F @ F) <= tol * tol:
+                return y, True
+            y = y - lu_solve(lu, F)
+            F = None
+        self.ev.check_sample(self.t)  # a non-finite path sample says so itself
+        return y, False

@@ -1,0 +1,84 @@
+"""A whole tracking run: :func:`track` steps a :class:`~kinredund.tracking.tracker.Tracker` and records it.
+
+Closed paths (with a ``period``) run ``loops`` loops of ``steps_per_loop`` steps and record the joint
+drift at the end of each loop; open paths need ``duration`` [s] and ``steps``. Every argument is
+checked before any work, and the run's length is bounded (:data:`MAX_STEPS`): a typo cannot make it
+endless.
+"""
+
+from __future__ import annotations
+
+from kinredund.errors import OptionError, PathError, check_count, check_positive
+from kinredund.indices import Index
+from kinredund.model.robot import Robot
+from kinredund.paths import Path
+from kinredund.tracking.recorder import Recorder
+from kinredund.tracking.tracker import Tracker
+from kinredund.trajectory import Trajectory
+
+#: the most steps one run records (the record holds every step: about 1.5 KiB each on a 7-axis arm)
+MAX_STEPS = 1_000_000
+
+
+def _loadable_name(robot: Robot) -> str:
+    """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
+    from kinredund.model.robot import known_robots
+
+    if robot.name in known_robots() or robot.urdf_path is None:
+        return robot.name
+    return str(robot.urdf_path)
+
+
+def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:
+    """(dt [s], total steps, loops or None for an open run), the arguments checked."""
+    if path.period is not None and duration is None:
+        spl = check_count(steps_per_loop, 1, "steps_per_loop", OptionError)
+        loops = check_count(loops, 1, "loops", OptionError)
+        if spl * loops > MAX_STEPS:
+            raise OptionError(f"loops x steps_per_loop must be at most {MAX_STEPS} (the record holds every step), "
+                              f"got {loops} x {spl} = {loops * spl}")
+        return path.period / spl, spl * loops, loops
+    if duration is None or steps is None:
+        raise PathError("an open path needs duration > 0 [s] and steps >= 1")
+    duration = check_positive(duration, "duration [s] of an open path", PathError)
+    steps = check_count(steps, 1, "steps", OptionError)
+    if steps > MAX_STEPS:
+        raise OptionError(f"steps must be at most {MAX_STEPS} (the record holds every step), got {steps}")
+    return duration / steps, steps, None
+
+
+def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "augmented", mode: str = "default",
+          steps_per_loop: int = 200, loops: int = 1, duration: float | None = None, steps: int | None = None,
+          linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
+          diagnostics: bool = True, liegeois_gain: float = 1.0, progress=None, meta: dict | None = None) -> Trajectory:
+    """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
+
+    Args:
+        robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain: as for
+            :class:`~kinredund.tracking.tracker.Tracker`.
+        steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most
+            :data:`MAX_STEPS` steps in all).
+        duration, steps: an open path's duration [s] and steps.
+        diagnostics: record the eigenvalues of M and of its projection (``m_eigs``, ``m_null_eigs``).
+        progress: ``progress(done, total)`` after each step.
+        meta: free-form entries for the record's ``meta``.
+
+    Raises:
+        OptionError, ChoiceError: an argument out of its range (checked before any work).
+        PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
+        SingularityError: R or J becomes singular (time, configuration, smallest singular value).
+    """
+    dt, total, loops_run = _span(path, steps_per_loop, loops, duration, steps)
+    tracker = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
+                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain)
+    rec = Recorder(tracker.stepper, diagnostics)
+    rec.add()
+    step = tracker.step
+    for k in range(total):
+        step()
+        rec.add()
+        if progress is not None:
+            progress(k + 1, total)
+    return rec.trajectory(robot_name=_loadable_name(robot), scheme=scheme, mode=mode, loops=loops_run,
+                          steps_per_loop=None if loops_run is None else total // loops_run,
+                          period=path.period, meta=dict(meta or {}, dt=dt, steps=total))

@@ -1,0 +1,171 @@
+"""The state and the checks every tracking scheme shares (Chapter 4).
+
+A :class:`Stepper` holds the explicit state of one run: the time ``t = t0 + k dt`` (no accumulated
+rounding), the joints ``q``, the multipliers ``lam``, the rates ``qdot`` and ``lamdot``, and the last
+evaluation ``pt``. Its subclasses are the schemes (one class per mode and scheme):
+:class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` (default mode, augmented and velocity
+forms), :class:`~kinredund.tracking.explicit.ExplicitEuler` (thesis mode, Eq. 4.29) and the baselines of
+:mod:`kinredund.tracking.baselines`. Each implements :meth:`Stepper.step`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.linalg import lapack
+
+from kinredund.errors import PathError, SingularityError
+from kinredund.tracking.linalg import RateQP, classify, multipliers, solve_rates
+from kinredund.tracking.point import Evaluator, Point
+
+
+class Stepper:
+    """One run's state, advanced by :meth:`step`; the start is checked on the path and regular.
+
+    Args:
+        evaluator: the terms of the scheme (robot, path, index, formulation).
+        q0: the checked starting configuration (a fresh array, owned by the stepper).
+        dt: the time step [s].
+        t0: the starting time [s].
+        tol: the corrector's tolerance on ||F|| (default mode) or the projection's (baselines).
+        linear_solver: the rule of :func:`~kinredund.tracking.linalg.classify`.
+        qp_backend: ``proxsuite`` or ``kkt``.
+    """
+
+    #: is M symmetric (the augmented form) or not (the velocity form's M*)
+    symmetric = True
+
+    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, t0: float = 0.0, tol: float = 1e-12,
+                 linear_solver: str = "auto", qp_backend: str = "kkt"):
+        self.ev, self.dt, self.n = evaluator, dt, evaluator.n
+        self.tol, self.linear_solver, self.qp_backend = tol, linear_solver, qp_backend
+        self.prox: RateQP | None = None
+        self.t0, self.k = float(t0), 0  # t = t0 + k dt (no accumulated rounding in the clock)
+        self.t = self.t0
+        self.q = q0
+        self.qdot = self.lamdot = self.M = None
+        self._solver: str | None = None
+        evaluator.check_sample(self.t)
+        self.pt = self.evaluate(self.q, self.t)
+        self._check_on_path(self.pt, "the starting configuration")
+        self._check_rank(self.pt)
+        self.lam = multipliers(self.pt.J, self.pt.grad)[0] if evaluator.index is not None else np.zeros(len(self.pt.r))
+        m = len(self.pt.r)
+        self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
+
+    def evaluate(self, q: np.ndarray, t: float) -> Point:
+        """The scheme's evaluation at (q, t) (with dK: the optimal schemes need Lambda)."""
+        return self.ev.point(q, t)
+
+    def step(self) -> None:
+        """One time step: from (q, lambda) at t to t + dt."""
+        raise NotImplementedError
+
+    def _next_time(self) -> float:
+        self.k += 1
+        return self.t0 + self.k * self.dt
+
+    @property
+    def solver(self) -> str:
+        """The step's linear-solver label (``qp``, ``qp_aug``, ``lu``; ``lstsq`` for the baselines).
+
+        The default mode's corrector solves with R's LU factors and labels the step by the rule of
+        :func:`~kinredund.tracking.linalg.classify` only when asked (:attr:`label_pending`).
+        """
+        if self._solver is None:
+            self._solver = classify(self.M, self.pt.J, self.linear_solver, symmetric=self.symmetric)
+        return self._solver
+
+    @property
+    def label_pending(self) -> bool:
+        """True where :attr:`solver` would classify (the recorder then classifies all steps at the end)."""
+        return self._solver is None
+
+    def record_point(self) -> Point:
+        """The terms at the current (q, t), for the record: the step's own evaluation where it was made
+        there, else a fresh one (without dK)."""
+        if self.pt.q is self.q and self.pt.t == self.t:
+            return self.pt
+        return self.ev.point(self.q, self.t, need_dJ=False)
+
+    def lam_full(self) -> np.ndarray:
+        """lambda in the closure 7-vector's coordinates (augmented pose task), else lambda itself."""
+        return self.pt.basis @ self.lam if self.pt.basis is not None else self.lam
+
+    # -- the optimal schemes' rates (Eq. 4.24) ----------------------------------------------------
+    def _solve_rates(self, pt: Point, xdot: np.ndarray) -> None:
+        """Solve Eq. (4.24) at pt for the rates with the current lambda (LU of R, or the QP of Eq. 4.28)."""
+        self.pt = pt
+        M, top = pt.system(self.lam)  # Eqs. (4.23), (4.37)
+        lu = self._factor(pt, M)
+        label = classify(M, pt.J, self.linear_solver, symmetric=self.symmetric)
+        if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
+            self.prox = RateQP(self.n, len(pt.r))
+        rs = solve_rates(M, pt.J, top, xdot, label=label, backend=self.qp_backend, prox=self.prox, lu=lu)
+        self.qdot, self.lamdot, self._solver, self.M = rs.thetadot, rs.lamdot, rs.solver, M
+
+    # -- checks -------------------------------------------------------------------------------------
+    def _check_on_path(self, pt: Point, what: str, limit: float | None = None) -> None:
+        """Raise PathError if pt is farther than ``limit`` (default 1e-6 of the path's scale) from the path."""
+        err = float(np.abs(pt.r).max())
+        scale = max(1.0, float(np.abs(pt.sample.p).max()))
+        if limit is None:
+            limit = 1e-6 * scale
+        if not np.isfinite(err) or err > limit:
+            raise PathError(
+                f"{what} is {err:.3g} away from the path at t = {pt.t:.6g} s (allowed {limit:.3g}); "
+                "the path may leave the workspace, or the steps are too coarse", t=pt.t, q=pt.q)
+
+    def _check_rank(self, pt: Point) -> None:
+        """Raise SingularityError where J loses rank (a kinematic singularity)."""
+        sJ = np.linalg.svd(pt.J, compute_uv=False)
+        if sJ[-1] < 1e-8 * max(1.0, sJ[0]):
+            raise SingularityError(
+                f"kinematic singularity at t = {pt.t:.6g} s: smallest singular value of J {sJ[-1]:.3g}; "
+                f"q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sJ[-1]))
+
+    def _check_finite(self, q_before: np.ndarray) -> None:
+        """Raise PathError (the path's own message if its sample is not finite) on non-finite joints or rates."""
+        if not math.isfinite(float(self.q @ self.q) + float(self.qdot @ self.qdot)):  # BLAS: no FP warnings
+            self.ev.check_sample(self.t)
+            raise PathError(f"non-finite joint values or rates at t = {self.t:.6g} s", t=self.t, q=q_before)
+
+    def _singularity(self, pt: Point, R: np.ndarray, J: np.ndarray, force: bool = False) -> None:
+        """Raise SingularityError (kinematic or algorithmic) unless R turns out regular enough."""
+        if not np.all(np.isfinite(R)):
+            self.ev.check_sample(pt.t)  # a non-finite path sample says so itself
+            raise PathError(f"non-finite terms of Eq. (4.24) at t = {pt.t:.6g} s; q = {np.round(pt.q, 6).tolist()}",
+                            t=pt.t, q=pt.q)
+        sR = np.linalg.svd(R, compute_uv=False)
+        if not force and sR[-1] > 1e-11 * sR[0]:
+            return  # the estimate was pessimistic: R is regular enough
+        sJ = np.linalg.svd(J, compute_uv=False)
+        kind = "kinematic (J rank-deficient)" if sJ[-1] < 1e-8 * max(1.0, sJ[0]) else \
+            "algorithmic (R singular while J has full rank)"
+        raise SingularityError(
+            f"{kind} singularity at t = {pt.t:.6g} s: smallest singular value of R {sR[-1]:.3g}, "
+            f"of J {sJ[-1]:.3g}; q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sR[-1]))
+
+    def _factor(self, pt: Point, M: np.ndarray):
+        """The LU factors of R (Eq. 4.24) at pt with M; raises SingularityError where R is (numerically) singular.
+
+        LAPACK dgetrf (partial pivoting) and its 1-norm condition estimate dgecon; the exact SVD only
+        when the estimate says R is near singular.
+        """
+        n = self.n
+        R = self._R
+        R[:n, :n] = M  # R of Eq. (4.24): [[M, J^T], [J, 0]]
+        R[:n, n:] = pt.J.T
+        R[n:, :n] = pt.J
+        return self._factor_matrix(pt, R, pt.J)
+
+    def _factor_matrix(self, pt: Point, R: np.ndarray, J: np.ndarray):
+        """dgetrf of R with the singularity checks of :meth:`_factor`; ``J`` names the constraint rows."""
+        lu, piv, info = lapack.dgetrf(R)
+        if info > 0:
+            self._singularity(pt, R, J, force=True)
+        rcond = lapack.dgecon(lu, lapack.dlange("1", R))[0]
+        if not rcond > 1e-12:  # also catches NaN
+            self._singularity(pt, R, J)
+        return lu, piv

@@ -1,0 +1,162 @@
+"""The public stepper of Chapter 4's tracking schemes, for control loops: :class:`Tracker`.
+
+    tracker = Tracker(robot, path, index, q0, dt)
+    while running:
+        tracker.step()            # from t to t + dt
+        send(tracker.q, tracker.qdot)
+
+Modes and schemes (one stepper class each, chosen here once):
+
+- ``mode="default"``, ``scheme="augmented"`` or ``"velocity"``: predictor along the optimal path and Newton
+  corrector on the first-order conditions (:class:`~kinredund.tracking.predictor_corrector.PredictorCorrector`);
+- ``mode="thesis"``: explicit Euler steps with the velocity correction of Eq. (4.29), as the thesis ran
+  (:class:`~kinredund.tracking.explicit.ExplicitEuler`);
+- ``scheme="pseudoinverse"`` or ``"liegeois"``: the baselines (:mod:`kinredund.tracking.baselines`).
+
+Linear solver per step (Theorem 2): where M projected on the null space of J is positive definite the
+rates solve the QP min 1/2 thetadot^T M thetadot s.t. J thetadot = xdot (4.28), solved either with
+proxsuite on M + rho J^T J (same minimiser on the constraint) or by a direct factorisation of its KKT
+system (``qp_backend="kkt"``); elsewhere LU of R. The step records ``qp``, ``qp_aug`` or ``lu``. The
+default mode solves every step with the LU factors of R, which its corrector needs anyway; its record
+labels each step by where the QP form holds (the rule ``linear_solver``), and ``qp_backend="proxsuite"``
+is for thesis mode only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from kinredund.errors import OptionError, PathError, check_choice, check_positive
+from kinredund.indices import Index
+from kinredund.model.robot import Robot
+from kinredund.paths import Path
+from kinredund.tasks import get_task
+from kinredund.tracking.baselines import Liegeois, Pseudoinverse
+from kinredund.tracking.explicit import ExplicitEuler
+from kinredund.tracking.point import Evaluator
+from kinredund.tracking.predictor_corrector import PredictorCorrector
+from kinredund.tracking.stepper import Stepper
+
+SCHEMES = ("augmented", "velocity", "pseudoinverse", "liegeois")
+MODES = ("default", "thesis")
+QP_BACKENDS = ("proxsuite", "kkt")
+LINEAR_SOLVERS = ("auto", "thesis", "lu", "qp")
+#: the stepper class of each (mode, scheme)
+STEPPERS = {("default", "augmented"): PredictorCorrector, ("default", "velocity"): PredictorCorrector,
+            ("thesis", "augmented"): ExplicitEuler, ("thesis", "velocity"): ExplicitEuler,
+            ("default", "pseudoinverse"): Pseudoinverse, ("thesis", "pseudoinverse"): Pseudoinverse,
+            ("default", "liegeois"): Liegeois, ("thesis", "liegeois"): Liegeois}
+
+
+def check_tolerance(tol) -> float:
+    """``tol`` as a float in (0, 1), else :class:`~kinredund.errors.OptionError` naming the allowed range."""
+    if isinstance(tol, (str, bytes, bool)) or not isinstance(tol, (int, float, np.floating, np.integer)) \
+            or not (math.isfinite(float(tol)) and 0.0 < float(tol) < 1.0):
+        raise OptionError(f"tol (the corrector's tolerance on ||F||) must be a finite number in (0, 1), e.g. 1e-12; "
+                          f"got {tol!r}")
+    return float(tol)
+
+
+def check_gain(gain) -> float:
+    """The Liegeois gain k >= 0 [1/s] as a float, else :class:`~kinredund.errors.OptionError`."""
+    if isinstance(gain, (str, bytes, bool)) or not isinstance(gain, (int, float, np.floating, np.integer)) \
+            or not (math.isfinite(float(gain)) and float(gain) >= 0.0):
+        raise OptionError(f"liegeois_gain (the gradient-projection gain k [1/s]) must be a finite number >= 0; "
+                          f"got {gain!r}")
+    return float(gain)
+
+
+class Tracker:
+    """Tracks ``path`` from ``q0`` step by step: :meth:`step` advances by ``dt``.
+
+    Args:
+        robot: the arm (its ``task`` sets m).
+        path: the path; pose tasks need a path with orientation.
+        index: the performance index z (required for ``augmented``/``velocity``/``liegeois``).
+        q0: the starting configuration (on the path; for the optimal schemes, at the constrained
+            minimum - see :func:`kinredund.ik.solve_ik`; the default mode corrects it onto the optimum).
+        dt: the time step [s].
+        scheme, mode: see the module docstring.
+        linear_solver: the rule of :func:`~kinredund.tracking.linalg.classify`: ``auto`` (default mode's
+            default), ``thesis`` (thesis mode's default), ``lu`` or ``qp``.
+        qp_backend: ``proxsuite`` or ``kkt`` (default: proxsuite in thesis mode, kkt in default mode, which
+            solves with R's LU factors and does not take ``proxsuite``).
+        tol: the corrector's tolerance on ||F||, in (0, 1) (default mode).
+        liegeois_gain: the gradient-projection gain k >= 0 of the Liegeois baseline [1/s].
+        t0: the starting time [s].
+
+    Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
+    ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label) and
+    ``stepper`` (the scheme's own object).
+
+    Raises:
+        ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range.
+        PathError: the start is off the path, or the path is unsuitable (says why).
+        SingularityError: the start is singular.
+    """
+
+    def __init__(self, robot: Robot, path: Path, index: Index | None, q0, dt: float, *, scheme: str = "augmented",
+                 mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
+                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0):
+        check_choice("scheme", scheme, SCHEMES)
+        check_choice("mode", mode, MODES)
+        linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
+        check_choice("linear solver", linear_solver, LINEAR_SOLVERS)
+        qp_backend = qp_backend or ("proxsuite" if mode == "thesis" else "kkt")
+        check_choice("QP backend", qp_backend, QP_BACKENDS)
+        if mode == "default":  # it solves with R's LU factors, which its corrector needs
+            check_choice("QP backend of mode='default' (proxsuite is for mode='thesis')", qp_backend, ("kkt",))
+        tol, gain = check_tolerance(tol), check_gain(liegeois_gain)
+        if get_task(robot.task).has_orientation and not path.has_orientation:
+            raise PathError(f"a {robot.task} task needs a path with orientation (e.g. Circle(..., frenet=True))")
+        if index is None and scheme in ("augmented", "velocity", "liegeois"):
+            raise PathError(f"the {scheme} scheme needs a performance index")
+        dt = check_positive(dt, "the time step [s]", PathError)
+        if not math.isfinite(float(t0)):
+            raise OptionError(f"t0 (the starting time [s]) must be finite, got {t0!r}")
+        self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
+        ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
+        q = robot.check_q(q0, "starting configuration").copy()
+        kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
+        if scheme in ("pseudoinverse", "liegeois"):
+            kwargs["project"] = mode == "default"
+        if scheme == "liegeois":
+            kwargs["gain"] = gain
+        self.stepper: Stepper = STEPPERS[mode, scheme](ev, q, dt, **kwargs)
+        self.step = self.stepper.step
+
+    def step(self) -> None:  # replaced by the stepper's own bound method in __init__ (no extra call)
+        """One time step: from (q, lambda) at t to t + dt."""
+        self.stepper.step()
+
+    @property
+    def q(self) -> np.ndarray:
+        """The joint values at :attr:`t` [rad or m]."""
+        return self.stepper.q
+
+    @property
+    def t(self) -> float:
+        """The current time [s]."""
+        return self.stepper.t
+
+    @property
+    def lam(self) -> np.ndarray:
+        """The multipliers lambda at :attr:`t` (Eq. 4.5; lambda* in the velocity form)."""
+        return self.stepper.lam
+
+    @property
+    def qdot(self) -> np.ndarray:
+        """The joint rates [rad/s] at :attr:`t` (the default mode's: at the step's predicted point)."""
+        return self.stepper.qdot
+
+    @property
+    def lamdot(self) -> np.ndarray:
+        """The multipliers' rates at :attr:`t`."""
+        return self.stepper.lamdot
+
+    @property
+    def solver(self) -> str:
+        """The step's linear-solver label (``qp``, ``qp_aug``, ``lu``; ``lstsq`` for the baselines)."""
+        return self.stepper.solver

@@ -1,0 +1,188 @@
+"""``kinredund sweep``: where can the task run? A placement sweep from the command line.
+
+Parses the arguments, builds the part path, the grid of placements and the index, and calls
+:func:`kinredund.sweep.sweep` (serially, on a local Dask cluster, or on the cluster at ``--scheduler``);
+prints the feasibility counts and the best placements, writes the sweep file (``--json``) and the map
+(``--plot``). No logic lives here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from kinredund.errors import KinredundError, check_count
+
+GRID_HELP = ("the placements: x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw] - nx values from x0 to x1 [m] (both included), "
+             "ny from y0 to y1 [m], nyaw yaws from yaw0 to yaw1 [deg] about the base z axis (default yaw 0); "
+             "the part origin's position in the robot's base frame")
+
+
+def parse_grid(text: str) -> dict:
+    """``x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw]`` -> {"x": values [m], "y": values [m], "yaw": values [rad]}."""
+    parts = text.replace(" ", "").split(",")
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(f"expected x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw], got {text!r}")
+    axes = {}
+    for name, part in zip(("x", "y", "yaw"), parts, strict=False):
+        fields = part.split(":")
+        try:
+            lo, hi, count = float(fields[0]), float(fields[1]), int(fields[2])
+            if len(fields) != 3:
+                raise ValueError(part)
+        except (ValueError, IndexError) as err:
+            raise argparse.ArgumentTypeError(f"the {name} range must be start:stop:count, got {part!r}") from err
+        if not (math.isfinite(lo) and math.isfinite(hi)) or count < 1:
+            raise argparse.ArgumentTypeError(f"the {name} range needs finite ends and a count >= 1, got {part!r}")
+        values = np.linspace(lo, hi, count)
+        axes[name] = np.radians(values) if name == "yaw" else values
+    axes.setdefault("yaw", np.zeros(1))
+    return axes
+
+
+def _numbers(text: str) -> np.ndarray:
+    try:
+        values = np.array([float(v) for v in text.replace(" ", "").split(",") if v])
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from err
+    if values.size == 0 or not np.all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"expected finite comma-separated numbers, got {text!r}")
+    return values
+
+
+def _count(minimum: int):
+    """An argparse type: an integer >= ``minimum``, checked as the library checks it (``check_count``)."""
+    def parse(text: str) -> int:
+        try:
+            return check_count(int(text), minimum, "the value", KinredundError)
+        except (ValueError, KinredundError) as err:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}") from err
+
+    return parse
+
+
+def add_parser(sub) -> None:
+    """Register the ``sweep`` subcommand on the subparsers ``sub`` of :func:`kinredund.ui.cli.build_parser`."""
+    from kinredund.sweep.record import CRITERIA
+    from kinredund.tasks import task_names
+
+    p = sub.add_parser("sweep", help="placement sweep: track a part's closed path at many part poses (Dask)",
+                       description="Track a closed path given in a part frame with the part at every placement "
+                                   "of a grid; report which placements are feasible and the best ones.")
+    p.add_argument("robot", help="a robot name (see `kinredund robots`) or a URDF path")
+    p.add_argument("--ee-frame", help="the end-effector frame (default: the robot's)")
+    p.add_argument("--task", choices=task_names(), help="task kind (default: the robot's)")
+    p.add_argument("--path", choices=("circle", "file"), default="circle",
+                   help="circle: a circle about the part origin; file: a JSON path in part coordinates")
+    p.add_argument("--path-file", type=Path, help="for --path file: JSON with 't' [s], 'p' [m], optionally 'Q'")
+    p.add_argument("--radius", type=float, default=0.1, help="circle radius [m] (default 0.1)")
+    p.add_argument("--speed", type=float, default=0.1, help="circle speed [m/s] (default 0.1)")
+    p.add_argument("--normal", type=_numbers, help="circle normal in the part frame (default 0,0,1)")
+    p.add_argument("--grid", type=parse_grid, required=True, help=GRID_HELP)
+    p.add_argument("--z", type=float, help="the part origin's height [m] (default: the end effector's at home)")
+    p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
+                   help="the performance index z (default home: 1/2 ||q - q_home||^2)")
+    p.add_argument("--steps", type=_count(1), default=200, help="steps per loop (default 200)")
+    p.add_argument("--loops", type=_count(1), default=1, help="loops per placement (default 1)")
+    p.add_argument("--starts", type=_count(1), default=8, help="IK starts for each start configuration (default 8)")
+    p.add_argument("--seed", type=_count(0), default=0, help="seed of the IK multi-start (default 0)")
+    p.add_argument("--no-limits", action="store_true", help="do not ask the tracker to hold the joint limits "
+                   "(a run leaving them is still infeasible)")
+    p.add_argument("--speed-limit", action="store_true", help="a joint above its velocity limit is infeasible")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_count(0), help="worker processes of the local Dask cluster "
+                       "(default: this machine's cores; 0: serially in this process)")
+    where.add_argument("--scheduler", help="run on an existing Dask cluster: its scheduler's address (tcp://host:port)")
+    p.add_argument("--batch-size", type=_count(1),
+                   help="placements per Dask task (default: guided - large batches first, single placements last)")
+    p.add_argument("--json", type=Path, help="the sweep file, written as batches complete (.jsonl: JSON lines)")
+    p.add_argument("--resume", action="store_true", help="resume the sweep in --json, running only what it lacks")
+    p.add_argument("--plot", type=Path, help="the feasibility and quality map (.png, .pdf or .svg)")
+    p.add_argument("--criterion", choices=tuple(CRITERIA), default="margin",
+                   help="what ranks the feasible placements (default margin: farthest from the joint limits)")
+    p.add_argument("--top", type=_count(0), default=5, help="best placements to print (default 5)")
+    p.set_defaults(func=run)
+
+
+def _index(robot, name: str):
+    from kinredund import indices
+
+    if name == "min-norm":
+        return indices.minimum_norm(robot.nq)
+    return indices.mid_range(robot.lower, robot.upper) if name == "mid-range" else indices.JointDeviation(robot.home)
+
+
+def _part_path(args, robot):
+    from kinredund.paths import read_path_file
+    from kinredund.sweep.placement import part_circle
+
+    if args.path == "file":
+        if args.path_file is None:
+            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q')")
+        path, _ = read_path_file(args.path_file)
+        if path.period is None:
+            raise KinredundError(f"{args.path_file}: a sweep needs a closed path ('closed': true)")
+        return path
+    normal = (0.0, 0.0, 1.0) if args.normal is None else tuple(args.normal)
+    return part_circle(robot, args.radius, args.speed, normal=normal)
+
+
+class _Bar:
+    """tqdm as a ``progress(done, total)`` callback (quiet when standard error is not a terminal)."""
+
+    def __init__(self):
+        self.bar = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc="sweep", unit="placement", disable=None)
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def run(args) -> int:
+    """The ``sweep`` command; exit code 0 if some placement is feasible, else 1."""
+    from kinredund.model.robot import load_robot
+    from kinredund.sweep import best, grid, sweep
+    from kinredund.ui.cli import EXIT_FAILED, EXIT_OK
+
+    robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
+    path = _part_path(args, robot)
+    z = float(robot.fk(robot.home)[2, 3]) if args.z is None else args.z
+    placements = grid(x=args.grid["x"], y=args.grid["y"], z=z, yaw=args.grid["yaw"])
+    if args.resume and args.json is None:
+        raise KinredundError("--resume needs --json FILE (the sweep file to resume)")
+    bar = _Bar()
+    try:
+        records = sweep(robot, path, _index(robot, args.index), placements, steps_per_loop=args.steps,
+                        loops=args.loops, limits=not args.no_limits, speed_limit=args.speed_limit,
+                        starts=args.starts, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
+                        batch_size=args.batch_size, out=args.json, resume=args.resume, progress=bar)
+    finally:
+        bar.close()
+    causes = Counter(r.cause for r in records if not r.feasible)
+    feasible = sum(r.feasible for r in records)
+    print(f"{robot.name}: {len(records)} placements at z = {z:.3f} m, {feasible} feasible"
+          + "".join(f", {n} {c}" for c, n in sorted(causes.items())))
+    top = best(records, args.criterion, args.top)
+    if top:
+        print(f"best by {args.criterion}:")
+        for r in top:
+            print(f"  #{r.placement:<5d} x {r.x:+.3f} m  y {r.y:+.3f} m  yaw {math.degrees(r.yaw):+7.1f} deg  "
+                  f"{args.criterion} {r.value(args.criterion):.4g}")
+    if args.json:
+        print(f"wrote {args.json}")
+    if args.plot:
+        from kinredund.ui.plots_sweep import plot_sweep_map
+
+        print(f"wrote {plot_sweep_map(records, args.plot, args.criterion, title=f'{robot.name}: placement sweep')}")
+    return EXIT_OK if feasible else EXIT_FAILED

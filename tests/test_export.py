@@ -1,0 +1,195 @@
+"""Export (issue 16): CSV, JSON and ROS 2 bag give back the same numbers; bad outputs leave nothing behind.
+
+Also the ``kinredund retime`` and ``kinredund export`` commands, run as a user runs them (a subprocess of
+the installed console script).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import robot as cached_robot
+
+from kinredund.export import DEFAULT_TOPIC, ExportError, JointSamples, read_bag, read_csv, write_bag, write_csv
+from kinredund.problems import panda_circle
+from kinredund.retime import limits_for, retime
+from kinredund.tracking import track
+from kinredund.trajectory import Trajectory
+
+PANDA_AMAX = "15,7.5,10,12.5,15,20,20"
+SCRIPT = Path(sys.executable).parent / "kinredund"
+
+
+@functools.cache
+def records() -> tuple[Trajectory, Trajectory]:
+    """(tracked, retimed): the Panda circle at 1 m/s, retimed over two loops."""
+    robot, path, index, q0 = panda_circle(cached_robot("panda"), speed=1.0)
+    tr = track(robot, path, index, q0, steps_per_loop=100)
+    res = retime(tr, limits_for(robot, [float(v) for v in PANDA_AMAX.split(",")]), robot=robot, loops=2)
+    return tr, res.trajectory
+
+
+def names() -> list[str]:
+    return cached_robot("panda").joint_names
+
+
+def samples() -> JointSamples:
+    return JointSamples.from_trajectory(records()[1], names())
+
+
+def test_csv_round_trip_is_exact(tmp_path):
+    s = samples()
+    write_csv(s, tmp_path / "r.csv")
+    back = read_csv(tmp_path / "r.csv")
+    assert back.equal_to(s) == 0.0  # repr-precision text reads back to the same doubles
+    header = (tmp_path / "r.csv").read_text().splitlines()[0].split(",")
+    assert header[:2] == ["t", "q_panda_joint1"] and header[-1] == "qddot_panda_joint7" and len(header) == 22
+
+
+def test_bag_round_trip_message_type_and_joint_names(tmp_path):
+    from rosbags.rosbag2 import Reader
+
+    s = samples()
+    write_bag(s, tmp_path / "bag")
+    back = read_bag(tmp_path / "bag")
+    assert back.equal_to(s) <= 1e-12  # times are whole nanoseconds; the rest are the same doubles
+    assert back.joint_names == tuple(names()) == tuple(f"panda_joint{k}" for k in range(1, 8))
+    with Reader(tmp_path / "bag") as reader:
+        assert [(c.topic, c.msgtype, c.msgcount) for c in reader.connections] == [
+            (DEFAULT_TOPIC, "trajectory_msgs/msg/JointTrajectory", 1)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]  # the temporary folder is gone
+
+
+def test_json_csv_and_bag_agree(tmp_path):
+    tr = records()[1]
+    tr.save_json(tmp_path / "r.json")
+    via_json = JointSamples.from_trajectory(Trajectory.load_json(tmp_path / "r.json"), names())
+    write_csv(tr, tmp_path / "r.csv", names())
+    write_bag(tr, tmp_path / "bag", names())
+    for other in (read_csv(tmp_path / "r.csv"), read_bag(tmp_path / "bag")):
+        assert other.equal_to(via_json) <= 1e-12
+
+
+def test_a_record_without_rates_exports_positions_only(tmp_path):
+    tr = records()[0]
+    write_csv(tr, tmp_path / "t.csv", names())
+    write_bag(tr, tmp_path / "bag", names())
+    for back in (read_csv(tmp_path / "t.csv"), read_bag(tmp_path / "bag")):
+        assert back.qdot is None and back.qddot is None
+        assert np.abs(back.q - tr.q).max() == 0.0
+    # the bag holds whole nanoseconds: the tracked times (multiples of T/100) move by < 0.5 ns
+    assert np.abs(read_bag(tmp_path / "bag").t - tr.t).max() <= 0.5e-9
+
+
+def test_an_existing_bag_folder_is_refused_and_left_alone(tmp_path):
+    (tmp_path / "bag").mkdir()
+    (tmp_path / "bag" / "mine.txt").write_text("keep")
+    with pytest.raises(ExportError, match="exists already"):
+        write_bag(samples(), tmp_path / "bag")
+    assert [p.name for p in (tmp_path / "bag").iterdir()] == ["mine.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
+
+
+def test_a_failed_bag_write_leaves_nothing(tmp_path, monkeypatch):
+    from rosbags.rosbag2 import Writer
+
+    def broken(self, *args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Writer, "write", broken)
+    with pytest.raises(OSError, match="disk full"):
+        write_bag(samples(), tmp_path / "bag")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_files_that_are_not_exports_are_refused(tmp_path):
+    (tmp_path / "a.csv").write_text("time,x\n0,1\n")
+    with pytest.raises(ExportError, match="not a kinredund CSV export"):
+        read_csv(tmp_path / "a.csv")
+    (tmp_path / "b.csv").write_text("t,q_j1\n0,nan\n")
+    with pytest.raises(ExportError, match="non-finite"):
+        read_csv(tmp_path / "b.csv")
+    with pytest.raises(ExportError, match="cannot read the bag"):
+        read_bag(tmp_path)
+    with pytest.raises(ExportError, match="Trajectory"):
+        JointSamples.from_trajectory({"t": [0.0]}, names())
+    with pytest.raises(ExportError, match="joint names"):
+        JointSamples(("a", "a"), np.zeros(1), np.zeros((1, 2))).checked()
+
+
+# -- the commands, as a user runs them -------------------------------------------------------------
+def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(SCRIPT), *args], capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+def test_cli_retime_writes_json_csv_bag_and_plot(tmp_path):
+    records()[0].save_json(tmp_path / "tr.json")
+    out = run("retime", "tr.json", "--amax", PANDA_AMAX, "--loops", "3", "--json", "r.json", "--csv", "r.csv",
+              "--bag", "rb", "--plot", "r.png", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "time-optimal" in out.stdout and "periodic" in out.stdout
+    rec = Trajectory.load_json(tmp_path / "r.json")
+    assert len(rec.t) == 3 * 100 + 1 and rec.qdot is not None
+    vmax = np.asarray(cached_robot("panda").model.velocityLimit)
+    assert np.max(np.abs(rec.qdot) / vmax) <= 1 + 1e-6
+    s = JointSamples.from_trajectory(rec, names())
+    assert read_csv(tmp_path / "r.csv").equal_to(s) == 0.0
+    assert read_bag(tmp_path / "rb").equal_to(s) <= 1e-12
+    assert (tmp_path / "r.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_cli_retime_rest_to_rest_bag_starts_and_ends_at_rest(tmp_path):
+    records()[0].save_json(tmp_path / "tr.json")
+    out = run("retime", "tr.json", "--amax", PANDA_AMAX, "--loops", "2", "--rest-to-rest", "--bag", "rb", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "from rest to rest" in out.stdout
+    back = read_bag(tmp_path / "rb")
+    assert back.t[0] == 0.0 and len(back.t) == 2 * 100 + 1
+    assert np.abs(back.qdot[0]).max() == 0.0 and np.abs(back.qdot[-1]).max() == 0.0
+
+
+def test_cli_export(tmp_path):
+    records()[1].save_json(tmp_path / "r.json")
+    out = run("export", "r.json", "--csv", "r.csv", "--bag", "rb", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert read_csv(tmp_path / "r.csv").equal_to(samples()) == 0.0
+    assert read_bag(tmp_path / "rb").equal_to(samples()) <= 1e-12
+    out = run("export", "r.json", cwd=tmp_path)
+    assert out.returncode == 2 and "--csv FILE and/or --bag FOLDER" in out.stderr
+
+
+@pytest.mark.parametrize("amax", ["0", "-1", "nan", "1,2"])
+def test_cli_bad_limits_write_nothing(tmp_path, amax):
+    records()[0].save_json(tmp_path / "tr.json")
+    out = run("retime", "tr.json", f"--amax={amax}", "--json", "r.json", "--csv", "r.csv", "--bag", "rb", cwd=tmp_path)
+    assert out.returncode == 2 and "kinredund: error:" in out.stderr and "acceleration limit" in out.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tr.json"]
+
+
+def test_cli_existing_bag_folder_writes_nothing(tmp_path):
+    records()[0].save_json(tmp_path / "tr.json")
+    (tmp_path / "rb").mkdir()
+    out = run("retime", "tr.json", "--amax", "10", "--json", "r.json", "--bag", "rb", cwd=tmp_path)
+    assert out.returncode == 2 and "exists already" in out.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rb", "tr.json"] and not any((tmp_path / "rb").iterdir())
+
+
+def test_cli_input_that_is_not_a_joint_trajectory(tmp_path):
+    (tmp_path / "ik.json").write_text(json.dumps({"robot": "panda", "q": [0.0] * 7}))
+    out = run("retime", "ik.json", "--amax", "10", "--csv", "r.csv", cwd=tmp_path)
+    assert out.returncode == 2 and "not a kinredund trajectory" in out.stderr
+    assert not (tmp_path / "r.csv").exists()
+
+
+def test_cli_help_texts():
+    out = subprocess.run([str(SCRIPT), "retime", "--help"], capture_output=True, text=True)
+    text = " ".join(out.stdout.split())  # argparse wraps lines (and breaks words at hyphens)
+    assert out.returncode == 0 and "--amax" in text and "--tool-speed" in text and "same optimal joint path" in text
+    out = subprocess.run([str(SCRIPT), "export", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "--bag" in out.stdout and "JointTrajectory" in out.stdout

@@ -1,0 +1,175 @@
+"""The tracking package's public API: Tracker as a control-loop stepper, track()'s argument checks, the
+example script, and the recorder's batched diagnostics against their one-point forms."""
+
+from __future__ import annotations
+
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import robot
+
+import kinredund
+from kinredund.errors import OptionError
+from kinredund.indices import minimum_norm
+from kinredund.paths import Circle
+from kinredund.problems import panda_circle
+from kinredund.thesis.chapter4 import load_example
+from kinredund.tracking import MAX_STEPS, Tracker, track
+from kinredund.tracking.linalg import classify, eigs_many, labels_many, multipliers, null_space_eigs
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def test_tracker_steps_like_track_records():
+    """Tracker.step() gives the joints track() records, step for step (the same stepper underneath)."""
+    r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    tr = track(r, path, index, q0, steps_per_loop=100)
+    tracker = Tracker(r, path, index, q0, path.period / 100)
+    assert tracker.t == 0.0 and np.abs(tracker.q - tr.q[0]).max() == 0.0
+    for k in range(1, 101):
+        tracker.step()
+        assert tracker.t == pytest.approx(tr.t[k], abs=1e-15)
+        assert np.array_equal(tracker.q, tr.q[k])  # the same arithmetic: identical
+    assert tracker.qdot.shape == (7,) and tracker.lam.shape == (6,) and tracker.solver in ("qp", "qp_aug", "lu")
+
+
+def test_control_loop_example_runs_and_closes():
+    out = subprocess.run([sys.executable, str(EXAMPLES / "control_loop.py")], capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    assert "largest position error" in out
+    ns = runpy.run_path(str(EXAMPLES / "control_loop.py"))
+    assert ns["worst"] < 1e-10  # the corrector holds the task to ~1e-12 m
+    assert np.abs(ns["tracker"].q - ns["q0"]).max() < 1e-10  # a closed path gives a closed joint path
+
+
+def _planar():
+    r = robot("planar3r")
+    ex = load_example("4.1")
+    return r, ex.path, ex.index, ex.q0
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"loops": 2.0}, "loops must be an integer >= 1"),
+    ({"loops": 0}, "loops must be an integer >= 1"),
+    ({"steps_per_loop": 20.5}, "steps_per_loop must be an integer >= 1"),
+    ({"loops": 10**9}, f"at most {MAX_STEPS}"),
+    ({"tol": 0.0}, r"tol .* in \(0, 1\)"),
+    ({"tol": float("nan")}, r"tol .* in \(0, 1\)"),
+    ({"tol": -1e-12}, r"tol .* in \(0, 1\)"),
+    ({"tol": 1.0}, r"tol .* in \(0, 1\)"),
+    ({"tol": "1e-12"}, r"tol .* in \(0, 1\)"),
+    ({"liegeois_gain": float("nan"), "scheme": "liegeois"}, "liegeois_gain"),
+])
+def test_bad_track_arguments_are_named_before_any_work(kwargs, match, monkeypatch):
+    r, path, index, q0 = _planar()
+    import kinredund.tracking.run as run
+
+    monkeypatch.setattr(run, "Recorder", None)  # no work may start: the check comes first
+    with pytest.raises(OptionError, match=match):
+        track(r, path, index, q0, **kwargs)
+
+
+def test_open_path_steps_must_be_an_integer():
+    from kinredund.paths import FunctionPath
+
+    r, _, index, q0 = _planar()
+    p0 = r.fk(q0)[:2, 3]
+    path = FunctionPath(lambda t: (p0 + np.array([0.1 * t, 0.0]), np.array([0.1, 0.0])))
+    with pytest.raises(OptionError, match="steps must be an integer"):
+        track(r, path, index, q0, duration=1.0, steps=10.5)
+    with pytest.raises(kinredund.PathError, match="duration"):
+        track(r, path, index, q0, duration=float("nan"), steps=10)
+    assert len(track(r, path, index, q0, duration=1.0, steps=10).t) == 11
+
+
+def test_q0_is_a_required_argument():
+    r, path, index, _ = _planar()
+    with pytest.raises(TypeError):
+        track(r, path, index)  # q0 missing: the point of the test
+
+
+def test_thesis_mode_does_not_report_metre_errors_as_success():
+    """At 4 steps per loop the explicit scheme leaves the path by metres: an error, not a record."""
+    ex = load_example("4.1")
+    with pytest.raises(kinredund.PathError, match="away from the path") as err:
+        track(ex.robot, ex.path, ex.index, ex.q0, mode="thesis", steps_per_loop=4)
+    assert err.value.t is not None and err.value.t > 0
+
+
+def test_batched_task_errors_against_the_invariants():
+    """Task.errors_many against independent one-point formulas: ||p - p_d||, |tr Q - tr Q_d| and
+    ||vect Q - vect Q_d|| (Eq. 2.8, closure.vect), and the axis angle arccos(a . a_d)."""
+    from kinredund.kinematics import closure
+    from kinredund.tasks import get_task
+
+    r, path, _, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    rng = np.random.default_rng(3)
+    qs = [q0 + 0.05 * rng.normal(size=7) for _ in range(5)]
+    ts = rng.uniform(0, path.period, size=5)
+    Qp = [r.kinematics.pose(q) for q in qs]
+    samples = [path(t) for t in ts]
+    Q, p = np.array([a for a, _ in Qp]), np.array([b for _, b in Qp])
+    Q_d, p_d = np.array([s.Q for s in samples]), np.array([s.p for s in samples])
+    pose = get_task("pose").errors_many(Q, p, Q_d, p_d)
+    axis = get_task("axis").errors_many(Q, p, Q_d, p_d)
+    planar = get_task("planar").errors_many(Q, p, None, p_d)
+    for k in range(5):
+        assert abs(pose["position_error"][k] - np.linalg.norm(p[k] - p_d[k])) < 1e-15
+        assert abs(planar["position_error"][k] - np.linalg.norm(p[k, :2] - p_d[k, :2])) < 1e-15
+        assert abs(pose["trace_error"][k] - abs(np.trace(Q[k]) - np.trace(Q_d[k]))) < 1e-14
+        assert abs(pose["vect_error"][k] - np.linalg.norm(closure.vect(Q[k]) - closure.vect(Q_d[k]))) < 1e-14
+        # arccos loses digits near 0 (here the angles are ~0.05-0.3 rad): 1e-12
+        assert abs(axis["axis_error"][k] - np.arccos(np.clip(Q[k][:, 2] @ Q_d[k][:, 2], -1, 1))) < 1e-12
+    assert set(axis) == {"position_error", "axis_error"} and set(planar) == {"position_error"}
+
+
+def test_batched_diagnostics_equal_the_one_point_forms():
+    """eigs_many / null_space_eigs / labels_many / the normality residual against their one-point forms."""
+    rng = np.random.default_rng(8)
+    Ms, Js, grads = [], [], []
+    for k in range(30):
+        A, Jk = rng.normal(size=(7, 7)), rng.normal(size=(6, 7))
+        z = np.linalg.svd(Jk)[2][6:]
+        # positive definite (qp), indefinite but positive on the null space of J (qp_aug), random (lu)
+        Ms.append([A @ A.T + np.eye(7), 2.0 * z.T @ z - Jk.T @ Jk, A + A.T][k % 3])
+        Js.append(Jk)
+        grads.append(rng.normal(size=7))
+    M, J = np.array(Ms), np.array(Js)
+    e = eigs_many(M)
+    assert np.abs(e - np.array([np.linalg.eigvalsh(m) for m in Ms])).max() < 1e-12
+    en = np.array([null_space_eigs(m, j) for m, j in zip(Ms, Js, strict=True)])
+    Z = np.linalg.svd(J)[2][:, 6:]  # an independent null basis (SVD)
+    want = np.array([np.linalg.eigvalsh(z @ m @ z.T) for z, m in zip(Z, Ms, strict=True)])
+    assert np.abs(en - want).max() < 1e-10
+    for rule in ("auto", "thesis"):
+        labels = labels_many(Ms, Js, rule, True, e, en)
+        assert labels == [classify(m, j, rule) for m, j in zip(Ms, Js, strict=True)]
+        assert len(set(labels)) == (3 if rule == "auto" else 2)
+    from kinredund.tracking.linalg import normality_many, null_space_bases
+
+    res = normality_many(null_space_bases(J), np.array(grads))
+    assert np.abs(res - [multipliers(j, g)[1] for j, g in zip(Js, grads, strict=True)]).max() < 1e-12
+
+
+def test_non_symmetric_M_eigs_are_the_sorted_real_parts():
+    rng = np.random.default_rng(1)
+    M = rng.normal(size=(4, 5, 5))
+    want = np.array([np.sort(np.linalg.eigvals(m).real) for m in M])
+    assert np.abs(eigs_many(M) - want).max() < 1e-12
+
+
+def test_tracker_checks_its_options():
+    r, path, index, q0 = _planar()
+    with pytest.raises(OptionError, match="t0"):
+        Tracker(r, path, index, q0, 0.01, t0=float("inf"))
+    with pytest.raises(kinredund.PathError, match="time step"):
+        Tracker(r, path, index, q0, 0.0)
+    with pytest.raises(kinredund.ChoiceError, match="kkt"):
+        Tracker(r, path, index, q0, 0.01, qp_backend="proxsuite")
+    with pytest.raises(kinredund.PathError, match="needs a performance index"):
+        Tracker(r, Circle((3.0, 3.0), 0.8, 1.0), None, q0, 0.01)
+    assert minimum_norm(3) is not None
