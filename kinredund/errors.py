@@ -201,8 +201,11 @@ def check_positive(value, what: str, error: type[KinredundError] = TaskError) ->
     if isinstance(value, (str, bytes, bool)):
         raise error(f"{what} must be a finite number > 0, got {value!r}")
     try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
+        arr = _real_array(value, what, error)  # no numpy booleans or complex values either
+        if arr.ndim:
+            raise TypeError("not a scalar")
+        v = float(arr)
+    except (TypeError, KinredundError) as err:
         raise error(f"{what} must be a finite number > 0, got {value!r}") from err
     if not (math.isfinite(v) and v > 0):
         raise error(f"{what} must be a finite number > 0, got {value!r}")

@@ -172,12 +172,12 @@ def test_json_is_not_left_behind_when_a_later_output_fails(tmp_path, monkeypatch
 
 
 def test_an_internal_error_exits_3_and_asks_for_a_report(monkeypatch, capsys):
-    import kinredund.model.robot as robot_module
+    import kinredund.model.loader as loader
 
     def bug():
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr(robot_module, "known_robots", bug)
+    monkeypatch.setattr(loader, "robot_table", bug)  # what `kinredund robots` lists
     assert main(["robots"]) == EXIT_INTERNAL
     err = capsys.readouterr().err
     assert "internal error: ZeroDivisionError" in err and "please report it" in err
