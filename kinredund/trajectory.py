@@ -142,6 +142,7 @@ class Trajectory:
             v = getattr(self, f.name)
             out[f.name] = json_ready(v)
         out["schema_version"] = SCHEMA_VERSION
+        out["robot"] = _absolute_urdf(self.robot)  # `kinredund play` reloads it from any folder
         out["q0"] = json_ready(self.q0)
         out["m_min_eig"] = None if self.m_eigs is None else json_ready(np.min(self.m_eigs, axis=1))
         out.update({k: v for k, v in self.summary().items() if k not in out})
@@ -232,3 +233,12 @@ class Trajectory:
 
 
 __all__ = ["PER_POINT_FIELDS", "Trajectory"]
+
+
+def _absolute_urdf(robot: str) -> str:
+    """A relative URDF path made absolute (against the current folder); a robot name as it is."""
+    import os
+
+    if Path(robot).suffix.lower() in (".urdf", ".xml") and not os.path.isabs(robot):
+        return os.path.abspath(robot)
+    return robot

@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import kinredund
+from kinredund import track
 from kinredund.errors import (
     ChoiceError,
     FrameNotFoundError,
@@ -28,7 +29,6 @@ from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.loader import HOME_CONDITION, conditioning, known_robots, load_robot, robot_table
 from kinredund.model.urdf import load_urdf
 from kinredund.paths import Circle
-from kinredund.tracking import track
 
 #: a tracked record at these step counts agrees with the path to round-off: the default mode corrects
 #: every step to the closure tolerance (1e-12 on a ~1 m scale); 1e-9 m leaves room for a long arm

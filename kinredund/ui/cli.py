@@ -1,8 +1,10 @@
 """The ``kinredund`` command line: parses arguments and calls the library (no logic lives here).
 
-Exit codes, for scripts: 0 success; 1 the run finished but its result failed its own check (IK not
-converged, a plan that collides); 2 bad arguments, input files or a run the library refused (an error
-of the kinredund family, printed as ``kinredund: error: ...``); 3 an unexpected internal error.
+Exit codes, for scripts (:func:`main`, docs/schema.md): 0 success; 1 the run finished but its result
+failed its own check (IK not converged, a plan that collides: stderr says which); 2 bad arguments, input
+files, output paths or a run the library refused (an error of the kinredund family, printed as
+``kinredund: error: ...``); 3 an internal error (a bug, with a request to report it); 130 interrupted;
+141 stdout closed by its reader.
 """
 
 from __future__ import annotations
@@ -262,7 +264,10 @@ def _cmd_ik(args) -> int:
     if args.json:
         write_json(args.json, out)
         _wrote(args.json)
-    return EXIT_OK if res.converged else EXIT_FAILED
+    if not res.converged:
+        print(f"kinredund: IK did not converge: {res.reason}", file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
 
 
 def _cmd_play(args) -> int:
@@ -311,18 +316,83 @@ def build_parser() -> argparse.ArgumentParser:
     return options.build_parser(COMMANDS)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the console script; returns the exit code."""
-    args = build_parser().parse_args(argv)
+#: the options that name an output file; every one is checked before any work (kinredund.io.check_output_path)
+OUTPUT_OPTIONS = ("json", "plot", "html", "csv")  # --bag is a folder: kinredund.ui.cli_retime checks it
+#: 128 + the signal number, as a shell reports a process ended by SIGINT or SIGPIPE
+EXIT_SIGINT, EXIT_SIGPIPE = 130, 141
+
+
+def _check_outputs(args) -> None:
+    """Refuse every bad output path before any work: a directory, a device, a FIFO, a dangling symlink,
+    a path under a file, a plot suffix matplotlib does not write, or two options naming one file."""
+    from kinredund.errors import check_choice
+    from kinredund.io import check_output_path
+
+    seen: dict = {}
+    for name in OUTPUT_OPTIONS:
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        target = check_output_path(value)
+        if name == "plot":
+            from kinredund.ui.plots import PLOT_FORMATS
+
+            check_choice("--plot format (file suffix)", Path(value).suffix.lower().lstrip("."), PLOT_FORMATS)
+        if target in seen:
+            raise KinredundError(f"--{seen[target]} and --{name} name the same file {str(value)!r}")
+        seen[target] = name
+
+
+def _quiet_stdout() -> None:
+    """After a broken pipe: point stdout at /dev/null so that the interpreter's last flush stays quiet."""
+    import os
+
     try:
-        return args.func(args)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # no real file descriptor (stdout replaced, e.g. under a test runner)
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script; returns the exit code.
+
+    Exit codes (docs/schema.md): 0 success; 1 a result that failed its own check (the message says
+    which); 2 bad arguments or input, output paths included (``kinredund: error: ...``); 3 an internal
+    error (a bug: please report it); 130 interrupted (Ctrl-C); 141 stdout closed by the reader (e.g.
+    ``| head``), quietly. The output files of one command (``--json``, ``--plot``, ``--html``) land
+    together or none does: every path is checked before the run, and the files are renamed into place
+    only when the command ends (:func:`kinredund.io.output_batch`). ``demo`` writes each file of its
+    folder as it is done.
+    """
+    from kinredund.io import output_batch
+
+    try:
+        args = build_parser().parse_args(argv)
+        _check_outputs(args)
+        if args.command == "demo":
+            code = args.func(args)
+        else:
+            with output_batch():
+                code = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+        return code
     except KinredundError as err:
         print(f"kinredund: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        return EXIT_FAILED
+        print("kinredund: interrupted; no output file was written", file=sys.stderr)
+        return EXIT_SIGINT
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EXIT_SIGPIPE
     except Exception as err:  # noqa: BLE001 - the last line of defence, reported as internal
-        print(f"kinredund: internal error: {type(err).__name__}: {err}", file=sys.stderr)
+        import traceback
+
+        traceback.print_exc(file=sys.stderr)
+        print(f"kinredund: internal error: {type(err).__name__}: {err}\n"
+              "This is a bug in kinredund, not in your input: please report it with the command line and the "
+              "traceback above.", file=sys.stderr)
         return EXIT_INTERNAL
 
 
