@@ -47,6 +47,7 @@ from kinredund.paths import (
     SampledPath,
     read_path_file,
 )
+from kinredund.planning.cyclic import CyclicPlan, plan
 from kinredund.tasks import Task, get_task, task_names
 from kinredund.tracking import JointLimits, Tracker, track
 from kinredund.trajectory import Trajectory
@@ -57,6 +58,7 @@ __all__ = [
     "AxisPath",
     "ChoiceError",
     "Circle",
+    "CyclicPlan",
     "CustomIndex",
     "Ellipse",
     "FrameNotFoundError",
@@ -94,6 +96,7 @@ __all__ = [
     "mid_range",
     "minimum_norm",
     "paths",
+    "plan",
     "read_path_file",
     "robot_from_hd",
     "solve_ik",
