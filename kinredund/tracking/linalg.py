@@ -241,7 +241,7 @@ def null_space_eigs_many(M: np.ndarray, J: np.ndarray, Z: np.ndarray | None = No
 
 def normality_many(Z: np.ndarray, grad: np.ndarray) -> np.ndarray:
     """||(1 - J^+ J) grad z|| for each step: the normality residual of Eq. (4.5), with Z a null basis of J."""
-    return np.linalg.norm(np.einsum("kij,ki->kj", Z, grad), axis=1)
+    return np.linalg.norm((grad[:, None, :] @ Z)[:, 0, :], axis=1)  # ||Z^T grad|| per step
 
 
 def hermite_weights(h: float, points: int) -> np.ndarray:

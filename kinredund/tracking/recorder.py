@@ -42,7 +42,7 @@ class Recorder:
         pending = s.label_pending
         self.t.append(s.t)
         self.q.append(s.q)
-        self.lam.append(s.lam_full())
+        self.lam.append(s.lam)  # in the closure 7-vector's coordinates at the end (lam_full, batched)
         self.solver.append(None if pending else s.solver)
         self.M.append(s.M)
         self.J_step.append(pt.J if pending else None)
@@ -51,6 +51,12 @@ class Recorder:
             self.active.append(s.active_bounds() if s.any_active else None)
             self.mu.append(s.mu)
             self.qdot.append(s.qdot)
+
+    def _lam_full(self) -> np.ndarray:
+        """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""
+        lam = np.array(self.lam)
+        basis = self.stepper.pt.basis
+        return lam if basis is None else lam @ basis.T
 
     def __len__(self) -> int:
         return len(self.t)
@@ -128,7 +134,7 @@ class Recorder:
         return Trajectory(
             **extra, robot=robot_name, task=task.name, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme,
             mode=mode,
-            solver=tuple(solver), lam=np.array(self.lam), m_eigs=m_eigs, m_null_eigs=m_null,
+            solver=tuple(solver), lam=self._lam_full(), m_eigs=m_eigs, m_null_eigs=m_null,
             position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
             vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
             normality_residual=normality_many(Z, grad), loop_drift=drift, loop_period=period, meta=meta)
