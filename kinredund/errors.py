@@ -164,16 +164,63 @@ def check_array(value, shape: tuple, what: str, error: type[KinredundError] = Ta
     """
     import numpy as np
 
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise error(f"{what} must be numeric, got {value!r}") from err
+    arr = _real_array(value, what, error)
     if arr.ndim != len(shape) or any(w is not None and g != w for g, w in zip(arr.shape, shape, strict=True)):
         want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + ("," if len(shape) == 1 else "") + ")"
         raise error(f"{what} must have shape {want}{f' for {owner}' if owner else ''}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise error(f"{what} has non-finite entries: {arr.tolist()}")
     return arr
+
+
+def _real_array(value, what: str, error: type[KinredundError]):
+    """``value`` as a float array, refusing what numpy would quietly turn into numbers: booleans, strings
+    (``"1"``), complex values (numpy drops the imaginary part with a warning) and non-numeric objects."""
+    import reprlib
+
+    import numpy as np
+
+    shown = reprlib.repr(value)
+    try:
+        raw = np.asarray(value)
+        kind = raw.dtype.kind
+        if not isinstance(value, np.ndarray) and kind in "iufO":  # [True, 0, 1] is an int array to numpy
+            kind = next((_kind_of(v) for v in _leaves(value) if _kind_of(v) != "f"), kind)
+        if kind == "b":
+            raise error(f"{what} must be numbers, not booleans; got {shown}")
+        if kind == "c":
+            raise error(f"{what} must be real numbers, got complex values {shown} (pass the real part)")
+        if kind not in "iufO":
+            raise error(f"{what} must be numeric, got {shown}")
+        return raw.astype(float) if kind == "O" else np.asarray(raw, dtype=float)
+    except (TypeError, ValueError, OverflowError) as err:
+        if isinstance(err, KinredundError):
+            raise
+        raise error(f"{what} must be numeric, got {shown}") from err
+
+
+def _leaves(value):
+    """The scalars of nested lists and tuples (numpy arrays inside are taken as they are)."""
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _leaves(v)
+    else:
+        yield value
+
+
+def _kind_of(v) -> str:
+    """'b' for a boolean, 'c' complex, 'U' a string or bytes, else 'f' (numpy judges the rest)."""
+    import numpy as np
+
+    if isinstance(v, (bool, np.bool_)):
+        return "b"
+    if isinstance(v, (complex, np.complexfloating)):
+        return "c"
+    if isinstance(v, (str, bytes)):
+        return "U"
+    if isinstance(v, np.ndarray) and v.dtype.kind in "bcUS":
+        return "c" if v.dtype.kind == "c" else "b" if v.dtype.kind == "b" else "U"
+    return "f"
 
 
 def check_positive(value, what: str, error: type[KinredundError] = TaskError) -> float:
@@ -183,8 +230,11 @@ def check_positive(value, what: str, error: type[KinredundError] = TaskError) ->
     if isinstance(value, (str, bytes, bool)):
         raise error(f"{what} must be a finite number > 0, got {value!r}")
     try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
+        arr = _real_array(value, what, error)  # no numpy booleans or complex values either
+        if arr.ndim:
+            raise TypeError("not a scalar")
+        v = float(arr)
+    except (TypeError, KinredundError) as err:
         raise error(f"{what} must be a finite number > 0, got {value!r}") from err
     if not (math.isfinite(v) and v > 0):
         raise error(f"{what} must be a finite number > 0, got {value!r}")
@@ -206,7 +256,22 @@ def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
 
 
 def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:
-    """Return ``value`` if it is one of ``allowed``, else raise :class:`ChoiceError`."""
-    if value not in allowed:
+    """Return ``value`` if it is one of ``allowed`` (a string), else raise :class:`ChoiceError`."""
+    if not isinstance(value, str) or value not in allowed:  # an array would make `in` ambiguous
         raise ChoiceError(what, value, allowed)
     return value
+
+
+class OutputPathError(KinredundError, OSError):
+    """An output path kinredund will not write: not a regular file or a new path, or the write failed.
+
+    ``path`` is the path given, ``reason`` why (the file system's words where it refused).
+    """
+
+    def __init__(self, path, reason: str):
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"cannot write {self.path!r}: {reason}")
+
+    def __str__(self) -> str:  # OSError would format its args as (errno, strerror)
+        return self.args[0]

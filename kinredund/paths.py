@@ -22,6 +22,9 @@ import numpy as np
 
 from kinredund.errors import PathError, check_array, check_positive
 
+#: largest |Q Q^T - 1| entry accepted for a sampled rotation (6 significant digits in a file give ~1e-6)
+ROTATION_TOL = 1e-5
+
 
 @dataclass(frozen=True)
 class PathSample:
@@ -116,8 +119,8 @@ class Circle(Path):
     roll_amplitude: float = 0.0
 
     def __post_init__(self) -> None:
+        _positive("circle", radius=self.radius, speed=self.speed)  # first: a NaN radius is not the centre's fault
         c = _center3(self.center, "circle")
-        _positive("circle", radius=self.radius, speed=self.speed)
         e1, e2, n = _frame(self.normal)
         if self.axis_x is not None:
             e1 = _unit(self.axis_x, "circle axis_x")
@@ -130,8 +133,10 @@ class Circle(Path):
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
-        if not math.isfinite(float(self.roll_amplitude)):
-            raise PathError(f"circle roll_amplitude must be a finite angle [rad], got {self.roll_amplitude!r}")
+        object.__setattr__(self, "start_angle", float(check_array(self.start_angle, (), "circle start_angle [rad]",
+                                                                  PathError)))
+        object.__setattr__(self, "roll_amplitude", float(check_array(self.roll_amplitude, (),
+                                                                     "circle roll_amplitude [rad]", PathError)))
         if self.orientation is not None:
             Q0 = check_array(self.orientation, (3, 3), "circle orientation", PathError)
             if self.frenet or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9 or np.linalg.det(Q0) <= 0:
@@ -190,6 +195,9 @@ class Ellipse(Path):
 
     def __post_init__(self) -> None:
         _positive("ellipse", a=self.a, b=self.b, rate=self.rate)
+        for name in ("angle", "start"):
+            value = check_array(getattr(self, name), (), f"ellipse {name} [rad]", PathError)
+            object.__setattr__(self, name, float(value))
         object.__setattr__(self, "center", _center3(self.center, "ellipse"))
         object.__setattr__(self, "period", 2 * np.pi / self.rate)
 
@@ -214,8 +222,8 @@ class Helix(Path):
 
     def __post_init__(self) -> None:
         _positive("helix", radius=self.radius, rate=self.rate)
-        if not (math.isfinite(self.pitch) and math.isfinite(self.z0)):
-            raise PathError(f"helix pitch and z0 must be finite, got {self.pitch!r}, {self.z0!r}")
+        check_array(self.pitch, (), "helix pitch [m/rad]", PathError)
+        check_array(self.z0, (), "helix z0 [m]", PathError)
 
     def sample(self, t: float) -> PathSample:
         beta = self.rate * t
@@ -273,6 +281,8 @@ class SampledPath(Path):
     def __init__(self, t, p, Q=None, closed: bool = True):
         from scipy.interpolate import CubicSpline
 
+        if not isinstance(closed, (bool, np.bool_)):
+            raise PathError(f"closed must be True or False, got {closed!r}")
         t = check_array(t, (None,), "sample times", PathError)
         if t.shape[0] < 4 or np.any(np.diff(t) <= 0):
             raise PathError("a sampled path needs at least 4 strictly increasing, finite times")
@@ -292,6 +302,14 @@ class SampledPath(Path):
             from scipy.spatial.transform import Rotation, RotationSpline
 
             Q = check_array(Q, (t.shape[0], 3, 3), "sampled rotations", PathError)
+            # rotations, not merely matrices (Rotation.from_matrix would quietly orthonormalise 2 I): entries
+            # read from a file carry ~1e-9 of rounding at most, so ROTATION_TOL leaves room for 6 printed digits
+            gap = np.abs(Q @ Q.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+            bad = np.flatnonzero((gap > ROTATION_TOL) | (np.linalg.det(Q) <= 0))
+            if bad.size:
+                k = int(bad[0])
+                raise PathError(f"sampled rotation {k} (of {len(Q)}) is not a rotation matrix (orthonormal, det +1): "
+                                f"|Q Q^T - 1| = {gap[k]:.3g}, det = {np.linalg.det(Q[k]):.3g}", t=float(t[k]))
             if closed and np.abs(Q[0] - Q[-1]).max() > 1e-9:
                 raise PathError("a closed sampled path must end with the rotation it starts with")
             self._rot = RotationSpline(t, Rotation.from_matrix(Q))

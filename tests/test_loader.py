@@ -12,9 +12,9 @@ import pinocchio as pin
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from kinredund.tracking.resolved_rate import track
 
 import kinredund
+from kinredund import track
 from kinredund.errors import (
     ChoiceError,
     FrameNotFoundError,

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import rounding
 from scipy.spatial import cKDTree
 
 from kinredund.indices import check_index
@@ -113,7 +114,8 @@ def test_jacobian_and_origins_is_one_pass_of_jacobian_and_joint_origins():
         for q in rng.uniform(-3, 3, (4, robot.nq)):
             K, origins = robot.kinematics.jacobian_and_origins(q)
             np.testing.assert_allclose(K, robot.kinematics.jacobian(q)[2], rtol=0, atol=1e-14)
-            np.testing.assert_array_equal(origins, robot.kinematics.joint_origins(q))
+            # two Pinocchio passes (kind 1 of the tolerance policy): equal up to rounding, not bit for bit
+            np.testing.assert_allclose(origins, robot.kinematics.joint_origins(q), rtol=0, atol=rounding())
 
 
 def _link4_error(alpha_deg, sign=1.0):
@@ -189,10 +191,10 @@ def test_screening_clearance_is_a_lower_bound_of_the_exact_one():
 
 @pytest.fixture(scope="module")
 def section_6_3(tmp_path_factory):
-    from kinredund.thesis.chapter6 import reproduce
+    from kinredund.ui.reproduce import plan_case
 
     out = tmp_path_factory.mktemp("ch6")
-    result = reproduce("6.3", json_path=out / "6.3.json", plot_path=out / "6.3.png")
+    result = plan_case("6.3", json_path=out / "6.3.json", plot_path=out / "6.3.png")
     return result, out
 
 
@@ -204,7 +206,10 @@ def test_section_6_3_plan_is_collision_free_cyclic_and_on_the_path(section_6_3):
     assert tr.loop_drift[0] < 1e-8  # the joint path closes after a loop
     c = result.clearance
     assert np.all(result.clearance_min > 0) and np.all(c.lower_bound > 0)
-    assert c.penetration.max() == 0.0
+    # the last link's deepest point is its end point here, so the penetration (whole-link depth minus end-point
+    # depth) is 0 in exact arithmetic; the two evaluations of the distance differ by rounding of ~1 m
+    # coordinates (a few eps: 2.8e-17 seen on AMD EPYC), far below the planner's own PENETRATION_TOL of 1e-9
+    assert c.penetration.max() <= rounding()
     # the check's resolution is fine enough: doubling it moves no minimum by more than the stated bound
     assert np.all(c.doubling_change <= 0.5 * c.motion_bound + 1e-12)
     assert result.spline_gap_max < 1e-2

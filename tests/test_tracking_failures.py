@@ -84,7 +84,11 @@ def test_fold(arm, scheme):
         track(arm, path, index, q0, strict=False, scheme=scheme)
     assert err.t < plain.value.t
     assert "e+" not in str(err)  # the message quotes no diverged corrector iterate
-    assert 0.0 < err.watched["reduced_hessian_min"] < 1e-2  # near zero, still positive: the last good point
+    # the nearest good sub-step point: the eigenvalue near zero, still positive; the error's own point is the
+    # last requested time before it (where the partial record ends)
+    assert 0.0 < err.watched["substep_reduced_hessian_min"] < 1e-2
+    assert err.t <= err.watched["substep_t"] < err.t + path.period / 200
+    assert err.t == err.partial.t[-1] and np.array_equal(err.q, err.partial.q[-1])
 
 
 @pytest.mark.parametrize("scheme", ["augmented", "velocity"])
@@ -94,8 +98,8 @@ def test_kinematic_singularity(arm, scheme):
     q0 = solve_ik(arm, path(0.0).p[:2], index, starts=12, seed=0).q
     err = _fails(arm, path, index, q0, scheme=scheme)
     _check_failure(arm, err, "kinematic_singularity")
-    assert abs(err.t - path.period / 2) < path.period / 200  # within a step of the stretched point
-    assert err.watched["sigma_min_J"] < 1e-2
+    assert abs(err.watched["substep_t"] - path.period / 2) < path.period / 200  # at the stretched point
+    assert err.watched["substep_sigma_min_J"] < 1e-2 and err.t <= err.watched["substep_t"]
 
 
 @pytest.mark.parametrize("scheme", ["augmented", "velocity"])

@@ -261,8 +261,10 @@ def _in_box(s: Setup, q: np.ndarray) -> bool:
     return not ((q < s.lower).any() or (q > s.upper).any())
 
 
-def _stall(q, it, r, what: str) -> StartOutcome:
-    return StartOutcome(q, False, it, f"{what}; residual stalled at {r:.3g} (target out of reach from here?)", r)
+def _stall(q, it, r, what: str, rtol: float = 0.0) -> StartOutcome:
+    """A start that stopped short; the reason says whether q is on the target (residual < ``rtol``)."""
+    where = ("on the target, so not for want of reach" if r < rtol else "target out of reach from here?")
+    return StartOutcome(q, False, it, f"{what}; residual stalled at {r:.3g} ({where})", r)
 
 
 def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
@@ -303,7 +305,7 @@ def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
             if turned is None:
                 r = res.residual(Q, p)
                 if since >= stall_iters:
-                    return _stall(q, it, r, f"no progress in {since} iterations")
+                    return _stall(q, it, r, f"no progress in {since} iterations", s.rtol)
                 return StartOutcome(q, False, it, f"max_iter={it} reached at residual {r:.3g}", r)
             q, held, turns = turned, [], turns + 1
             Q, p, K = jac(q)
@@ -340,7 +342,7 @@ def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
             scale *= nu
             nu *= 2.0
             if scale > MAX_SCALE:
-                return _stall(q, it, res.residual(Q, p), "no step decreases the residual")
+                return _stall(q, it, res.residual(Q, p), "no step decreases the residual", s.rtol)
         q, Q, p, K, ev, phi, held = qn, Qn, pn, Kn, evn, phin, new_held
         history.append(phi)
         it += 1
@@ -403,7 +405,7 @@ def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it
     d = cap_step(d)
     slope = float(e @ (G @ d))
     if not slope < 0.0:
-        return _stall(q, it, r, "no descent direction for the residual")
+        return _stall(q, it, r, "no descent direction for the residual", s.rtol)
     phi = 0.5 * float(e @ e)
     alpha = 1.0
     while alpha >= MIN_ALPHA:
@@ -411,7 +413,7 @@ def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it
         if 0.5 * s.res.error_terms(*s.kin.pose(qt))[1] <= phi + ARMIJO * alpha * slope:  # e only, no Jl^-1
             return qt
         alpha *= 0.5
-    return _stall(q, it, r, "line search failed")
+    return _stall(q, it, r, "line search failed", s.rtol)
 
 
 def _merit(s: Setup, q: np.ndarray, rho: float) -> tuple[float, tuple[float, ...]]:
@@ -421,25 +423,57 @@ def _merit(s: Setup, q: np.ndarray, rho: float) -> tuple[float, tuple[float, ...
 
 
 def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
-    """min z(theta) s.t. g(theta) = x by the orthogonal decomposition of Appendix D."""
+    """min z(theta) s.t. g(theta) = x by the orthogonal decomposition of Appendix D.
+
+    A start that does not converge returns the lowest-z iterate that was on the target (g = x within
+    the tolerance) if the run ended off it: an index unbounded below along the self-motion (e.g. a
+    negative-definite one) trades the residual for z, and the seed must not come back worse than it went in.
+    """
+    on_target: list = []  # [q, z, r] of the lowest-z iterate on the target so far
+
+    def give_up(out: StartOutcome) -> StartOutcome:
+        if not on_target or out.residual < s.rtol:
+            return out
+        q_on, z_on, r_on = on_target
+        what = out.reason.split("; residual stalled")[0]  # the stall's guess at an unreachable target is wrong here
+        return StartOutcome(q_on, False, out.iterations, f"{what}, after leaving the target (residual "
+                            f"{out.residual:.3g}) while z fell to {s.index.value(out.q):.6g}: is the index bounded "
+                            f"below along the self-motion? The lowest-z point on the target is returned "
+                            f"(z = {z_on:.6g})", r_on)
+
+    out = _iterate(s, q, on_target)
+    return out if out.converged else give_up(out)
+
+
+def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
+    """The iterations of :func:`_constrained_minimum`; ``on_target`` is updated with [q, z, r]."""
     kin, res, index, rows = s.kin, s.res, s.index, s.res.rows
     rho = 0.0
     r_ref, since = math.inf, 0
+    q_prev, r_prev = q, math.inf  # the last iterate where the index was finite, and its residual
     for it in range(s.max_iter + 1):
         Q, p, K, dk = kin.jacobian_hessian(q)
         e, jl = res.error(Q, p)
         r = res.residual(Q, p)
         z, grad, H = index.evaluate(q)
+        grad, H = np.asarray(grad, dtype=float), np.asarray(H, dtype=float)
+        if not (math.isfinite(z) and np.isfinite(grad).all() and np.isfinite(H).all()):
+            where = "the last point where it was finite is returned" if it else "a multi-start sample"
+            return StartOutcome(q_prev, False, max(it - 1, 0), f"the index turned non-finite at q = {q.tolist()} "
+                                f"(iteration {it}): {where}", r_prev)
+        q_prev, r_prev = q, r
+        if r < s.rtol and float(e @ e) < s.rtol * s.rtol and (not on_target or z < on_target[1]):
+            on_target[:] = [q.copy(), float(z), r]
         G = res.jacobian(K, jl)
         R, Y, L, ok = qr_split(G)  # G^T = Y R, G L = 0, Eq. (D.25)
         L_kkt, active = L, None  # the null space and the held limits of the first-order conditions
-        if s.bounds:
-            normality, lam, L_kkt, active = bound_kkt(G, grad, q, s.lower, s.upper, True)
-        elif ok:
+        if s.bounds or not ok:
+            # with bounds: the limits that hold count; G rank-deficient (a singular configuration): the SVD's
+            # null space, which holds every direction tangent to g = x, so the test is stricter, not looser
+            normality, lam, L_kkt, active = bound_kkt(G, grad, q, s.lower, s.upper, s.bounds)
+        else:
             lam = -solve_r(R, Y.T @ grad)  # least-squares multipliers, Eqs. (4.11)-(4.12)
             normality = float(np.linalg.norm(L.T @ grad))  # projected gradient, Eqs. (D.9), (D.30)
-        else:
-            lam, normality = np.zeros(res.m), math.inf
         lam_k = res.k_multipliers(lam, jl)  # G^T lambda = K[rows]^T lambda*
         ntol = max(s.tol, 1e-13 * (1.0 + float(np.abs(grad).max())))
         if r < s.rtol and float(e @ e) < s.rtol * s.rtol and normality < ntol:
@@ -456,8 +490,12 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
         if r < 0.5 * r_ref or r < 1e3 * s.rtol:
             r_ref, since = r, 0
         elif since >= 2 * STALL_ITERS:  # far from g = x and not getting closer
-            return _stall(q, it, r, f"the residual did not halve in {2 * STALL_ITERS} iterations")
+            return _stall(q, it, r, f"the residual did not halve in {2 * STALL_ITERS} iterations", s.rtol)
         since += 1
+        if not ok and r < s.rtol:
+            return StartOutcome(q, False, it, "on the target at a singular configuration (rank-deficient constraint "
+                                f"Jacobian), where z still changes along the null space (normality residual "
+                                f"{normality:.3g}): the step of Eq. (D.26) is undefined here; seed elsewhere", r)
         x0 = Y @ solve_rt(R, -e) if ok else None  # minimum-norm part, Eq. (D.24)
         if x0 is None or max(map(abs, x0.tolist())) > MAX_STEP:
             # near-singular G or far from g = x: a damped restoration step on the constraints alone
@@ -492,7 +530,7 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
         qn = _merit_search(s, q, d, rho, phi, slope, R, Y)
         if qn is None:
             why = "no descent direction for the merit function" if slope >= 0.0 else "line search failed"
-            return _stall(q, it, r, f"{why} (normality residual {normality:.3g})")
+            return _stall(q, it, r, f"{why} (normality residual {normality:.3g})", s.rtol)
         q = qn
     raise AssertionError("unreachable")  # pragma: no cover
 

@@ -203,11 +203,19 @@ def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Opti
     return Optimality(residual, t.normality, t.objective, pd, min_eig, t.multipliers, Br, L, t.active)
 
 
-def _check_options(robot, starts, tol, max_iter, timeout) -> None:
-    check_count(starts, 1, "starts", TaskError)
+#: the most starts one call runs (each is a whole local solve: a typo such as 1e8 would run for days);
+#: use ``timeout`` to bound a search by time instead
+MAX_STARTS = 10_000
+
+
+def _check_options(robot, starts, tol, max_iter, timeout, seed) -> None:
+    if check_count(starts, 1, "starts", TaskError) > MAX_STARTS:
+        raise TaskError(f"starts must be at most {MAX_STARTS} (each start is a whole local solve), got {starts}; "
+                        "bound a long search with timeout= instead")
+    check_count(seed, 0, "seed (of numpy.random.default_rng)", TaskError)
     check_count(max_iter, 1, "max_iter", TaskError)
     check_positive(tol, "tol", TaskError)
-    if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
+    if timeout is not None and (isinstance(timeout, bool) or not (isinstance(timeout, (int, float)) and timeout > 0)):
         raise TaskError(f"timeout must be None or a number of seconds > 0, got {timeout!r}")
     if robot.nq < robot.task_dim:
         raise TaskError(
@@ -277,7 +285,7 @@ def solve_ik(
             pose-only start whose squared error has not halved in 3 iterations (20 at most, 60 for a
             start already close and still gaining) is abandoned for the next one, after one try at
             turning a joint stuck at a limit through a full turn (:mod:`kinredund.ik.newton`).
-        seed: seed of the multi-start samples.
+        seed: seed of the multi-start samples, an integer >= 0.
         tol: convergence tolerance on the residual and, with an index, on the normality residual. It
             is raised to the round-off floor (64 eps times the target scale, and 1e-13 (1 + |grad z|)
             for the normality residual) when smaller.
@@ -288,15 +296,19 @@ def solve_ik(
 
     Returns:
         An :class:`IKResult`. An unreachable target gives ``converged=False``, the configuration with
-        the smallest residual found and a reason.
+        the smallest residual found and a reason. A start that was on the target and left it (an index
+        unbounded below along the self-motion, e.g. a negative-definite one) returns its lowest-z point
+        on the target, never one worse than its seed; an index that turns non-finite stops the start at
+        the last point where it was finite; a start on the target at a singular configuration is
+        converged when the gradient vanishes on the SVD null space there. Every reason says which.
 
     Raises:
-        TaskError: wrong-size or non-finite target, a target for another task kind, bad options, an
-            index of the wrong size.
+        TaskError: wrong-size or non-finite target, a target for another task kind, bad options (``starts``
+            outside 1..:data:`MAX_STARTS`, a negative ``seed``), an index of the wrong size.
         JointVectorError: q0 of the wrong size or non-finite.
     """
     t0 = perf_counter()
-    _check_options(robot, starts, tol, max_iter, timeout)
+    _check_options(robot, starts, tol, max_iter, timeout, seed)
     tgt = _target(robot, target)
     q0 = robot.home.copy() if q0 is None else robot.check_q(q0, "q0").copy()
     _check_index(robot, index, q0)
@@ -356,9 +368,13 @@ def solve_ik(
         opt = _optimality(robot, res, best.q, index, bounds)
     else:  # the converged iteration's terms: no second kinematics pass
         opt = _second_order(best.residual, best.terms, res.rows)
+    converged, reason = best.converged, best.reason
+    if not (np.isfinite(opt.normality_residual) and np.isfinite(opt.objective)):  # never a silent NaN
+        converged = False
+        reason = "; ".join(filter(None, [reason, "the index is not finite at the point returned"]))
     return IKResult(
-        q=best.q, converged=best.converged, iterations=best.iterations, residual=opt.residual,
+        q=best.q, converged=converged, iterations=best.iterations, residual=opt.residual,
         normality_residual=opt.normality_residual, objective=opt.objective,
         reduced_hessian_pd=opt.reduced_hessian_pd, reduced_hessian_min_eig=opt.reduced_hessian_min_eig,
-        reason=best.reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
+        reason=reason, starts=len(outcomes), time_s=perf_counter() - t0, notes=notes,
     )

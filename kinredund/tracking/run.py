@@ -42,13 +42,16 @@ def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, in
 def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "augmented", mode: str = "default",
           steps_per_loop: int = 200, loops: int = 1, duration: float | None = None, steps: int | None = None,
           linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
-          diagnostics: bool = True, liegeois_gain: float = 1.0, strict: bool = True, progress=None,
-          meta: dict | None = None) -> Trajectory:
+          diagnostics: bool = True, liegeois_gain: float = 1.0, limits=None, project_start: bool = False,
+          strict: bool = True, progress=None, meta: dict | None = None) -> Trajectory:
     """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
 
     Args:
-        robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, strict: as for
-            :class:`~kinredund.tracking.tracker.Tracker`.
+        robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, limits,
+            project_start, strict: as for :class:`~kinredund.tracking.tracker.Tracker` (by default the
+            default mode's optimal schemes keep the joints within the robot's limits; ``limits=False`` is
+            the thesis's unconstrained scheme; ``strict`` the step control and the fold and singularity
+            watch).
         steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most
             :data:`MAX_STEPS` steps in all).
         duration, steps: an open path's duration [s] and steps.
@@ -61,14 +64,18 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
         PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
         SingularityError: R or J becomes singular (time, configuration, smallest singular value).
         TrackingError: the run stopped (a subclass of both errors above): ``cause``, ``t`` and ``q`` of the
-            last good point, ``watched``, and ``partial``, the record up to the last requested time before it.
+            last good point (on the path, inside the limits), ``watched``, and ``partial``, the record up to
+            the last requested time before it.
     """
     dt, total, loops_run = _span(path, steps_per_loop, loops, duration, steps)
     tracker = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
-                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain, strict=strict)
+                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain, limits=limits,
+                      project_start=project_start, strict=strict)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()
     step = tracker.step
+    info = {"robot_name": loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
+            "meta": dict(meta or {}, dt=dt, steps=total)}
     try:
         for k in range(total):
             step()
@@ -77,10 +84,7 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
                 progress(k + 1, total)
     except TrackingError as err:
         if err.partial is None:  # the record up to the last requested time (a Trajectory that plays)
-            err.partial = rec.trajectory(robot_name=loadable_name(robot), scheme=scheme, mode=mode, loops=None,
-                                         steps_per_loop=None, period=path.period,
-                                         meta=dict(meta or {}, dt=dt, steps=len(rec) - 1, partial=True))
+            info["meta"].update(steps=len(rec) - 1, partial=True)
+            err.partial = rec.trajectory(loops=None, steps_per_loop=None, **info)
         raise
-    return rec.trajectory(robot_name=loadable_name(robot), scheme=scheme, mode=mode, loops=loops_run,
-                          steps_per_loop=None if loops_run is None else total // loops_run,
-                          period=path.period, meta=dict(meta or {}, dt=dt, steps=total))
+    return rec.trajectory(loops=loops_run, steps_per_loop=None if loops_run is None else total // loops_run, **info)

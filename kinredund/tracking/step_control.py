@@ -40,6 +40,8 @@ from __future__ import annotations
 import math
 from operator import attrgetter
 
+import numpy as np
+
 from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.tracking.failure import out_of_reach, path_jumps, watched_at
 from kinredund.tracking.watch import Watch
@@ -74,7 +76,7 @@ class StepControl:
         s = stepper
         self._sub = getattr(s, "_snapshot", None)
         sigma, eig = self.watch.measure(s.pt.J, s.M, getattr(s, "_lu", None), getattr(s, "fixed", None))
-        self.watch.push(s.t, sigma, eig)
+        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
         self._speed2 = float(s.qdot @ s.qdot)
 
     def start_verdict(self) -> str | None:
@@ -155,7 +157,7 @@ class StepControl:
         kind = self.watch.crossed(sigma, eig)
         if kind is not None:
             return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"
-        self.watch.push(s.t, sigma, eig)
+        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
         self._speed2 = speed2
         return None
 
@@ -198,38 +200,60 @@ class StepControl:
 
     # -- the stop ---------------------------------------------------------------------------------------
     def _exhausted(self, snap_step: dict, t_to: float, reason, t_fail: float) -> TrackingError:
-        """The error at the last good point (the current state), the stepper put back at the last requested time."""
+        """The error, the stepper put back at the last requested time (the last recorded, good point).
+
+        ``t`` and ``q`` are that point's (the partial record ends there); ``watched`` holds its quantities
+        and those of the nearest good sub-step point (``substep_t``, ``substep_q``, ``substep_sigma_min_J``,
+        ``substep_reduced_hessian_min``), the time of the failed attempt (``t_failed``) and the reason.
+        """
         s = self.s
         kind, why = reason
-        watched = watched_at(s)
-        watched.update(t_failed=float(t_fail), min_substep=self.floor, reason=why)
-        t_good, q_good = s.t, s.q.copy()
+        near = watched_at(s)
+        t_near, q_near = s.t, s.q.copy()
         cause = {"fold": "fold", "jump": "fold"}.get(kind)
-        if kind == "jump" and path_jumps(s.ev, t_good, t_fail):
+        if kind == "jump" and path_jumps(s.ev, t_near, t_fail):
             cause = "path_discontinuity"
         if kind == "corrector" and "algorithmic" in why:  # R singular, J of full rank: Z^T M Z singular (a fold)
             cause = "fold"
+        extra = {}
         if cause is None:
-            ahead = self._refreshed_ahead(t_good + s.dt)  # a crossing predicted within a whole step names it
+            ahead = self._refreshed_ahead(t_near + s.dt)  # a crossing predicted within a whole step names it
             if kind == "corrector" and ahead == "fold":
                 cause = "fold"
             else:
                 # an open path is not sampled beyond the requested step
-                probe = [t_to] if s.ev.path.period is None else [t_to, t_good + s.dt]
-                far, res, at = out_of_reach(s.ev, q_good, probe)
-                watched.update(reach_residual=res, reach_checked_at=at)
+                probe = [t_to] if s.ev.path.period is None else [t_to, t_near + s.dt]
+                far, res, at = out_of_reach(s.ev, q_near, probe)
+                extra = {"reach_residual": res, "reach_checked_at": at}
                 if far:
                     cause = "out_of_reach"
                 elif kind == "kinematic" or ahead == "kinematic":
                     cause = "kinematic_singularity"
                 else:
                     cause = "step_control_exhausted"
+        if cause == "kinematic_singularity" and _bounds_dependent(s, q_near, t_near):
+            cause = "not_strongly_stable"  # J of the free joints loses rank, J itself does not (LICQ fails)
         self._restore(snap_step)
         s.prev.clear()
+        watched = watched_at(s)
+        own = getattr(s, "_watched", None)  # a subclass's own quantities (the limits': active set, multipliers)
+        if own is not None:
+            watched.update(own())
+        watched.update(extra, t_failed=float(t_fail), min_substep=self.floor, reason=why, substep_t=float(t_near),
+                       substep_q=q_near.tolist(), substep_sigma_min_J=near.get("sigma_min_J"),
+                       substep_reduced_hessian_min=near.get("reduced_hessian_min"))
         return TrackingError(
-            f"tracking stopped after t = {t_good:.6g} s ({cause}): {why}; no sub-step down to {self.floor:.3g} s "
-            f"gets past it (last good point at t = {t_good:.6g} s: sigma_min(J) "
-            f"{watched.get('sigma_min_J', float('nan')):.3g}, reduced-Hessian eigenvalue "
-            f"{watched.get('reduced_hessian_min', float('nan')):.3g})",
-            cause=cause, t=t_good, q=q_good, watched=watched)
+            f"tracking stopped after t = {s.t:.6g} s ({cause}): {why}; no sub-step down to {self.floor:.3g} s "
+            f"gets past it (nearest good point at t = {t_near:.6g} s: sigma_min(J) "
+            f"{near.get('sigma_min_J', float('nan')):.3g}, reduced-Hessian eigenvalue "
+            f"{near.get('reduced_hessian_min', float('nan')):.3g})",
+            cause=cause, t=s.t, q=s.q.copy(), watched=watched)
 
+
+def _bounds_dependent(s, q, t) -> bool:
+    """With joints on bounds: is J itself regular at (q, t) while its free columns are (nearly) not?"""
+    fixed = getattr(s, "fixed", None)
+    if fixed is None or not fixed.any():
+        return False
+    sJ = np.linalg.svd(s.ev.point(q, t, need_dJ=False).J, compute_uv=False)
+    return bool(sJ[-1] > 1e-3 * sJ[0])

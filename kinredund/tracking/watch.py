@@ -93,6 +93,7 @@ class Watch:
         self._b = None
         self._safe = -math.inf  # nothing measured yet: ahead() checks the history itself
         self._exact_at = None
+        self._key = None  # the active set of the history (None: no joint on a bound)
 
     def due(self, rcond: float) -> bool:
         """Should this step be measured? (The cheap gate: R's condition estimate, see :data:`RCOND_NEAR`.)"""
@@ -134,7 +135,7 @@ class Watch:
         """Measure exactly at t and push it (before a prediction is acted on: the history may be stale)."""
         if self._exact_at == t:
             return
-        self.push(t, *self.measure_exact(J, M, fixed))
+        self.push(t, *self.measure_exact(J, M, fixed), fixed=fixed)
         self._exact_at = t
 
     def measure_exact(self, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> tuple[float, float]:
@@ -162,9 +163,18 @@ class Watch:
         self._J_ref, self._sigma_ref, self.sigma_max = J.copy(), float(s[-1]), float(s[0])
         return self._sigma_ref
 
-    def push(self, t: float, sigma: float, eig: float) -> None:
+    def push(self, t: float, sigma: float, eig: float, fixed: np.ndarray | None = None) -> None:
         """Keep (t, sigma, eig) as the newest measurement (two of each are kept; sigma_min(J) only where
-        it was computed afresh, so that its secant spans the steps since the previous exact value)."""
+        it was computed afresh, so that its secant spans the steps since the previous exact value).
+
+        ``fixed``: the joints on a bound there. Where the active set differs from the last measurement's,
+        the null space changed at a switching time and the history starts afresh (the quantities jump
+        there: a secant across the switch would predict a crossing that is not there).
+        """
+        key = None if fixed is None or not fixed.any() else fixed.tobytes()
+        if key != self._key:
+            self.reset()
+            self._key = key
         if self._fresh or not self.sigma:
             _keep(self.sigma_times, t, self.sigma, sigma)
         _keep(self.times, t, self.eig, eig)
