@@ -69,9 +69,11 @@ def _center3(center, what: str) -> np.ndarray:
     return c
 
 
-def _positive(what: str, **values) -> None:
-    for name, value in values.items():
-        check_positive(value, f"{what} {name}", PathError)
+def _positive(path, what: str, *names: str) -> None:
+    """Check the path's fields ``names`` are finite numbers > 0 and store them as floats (a frozen
+    dataclass keeps what it was given: an object array would reach every sample)."""
+    for name in names:
+        object.__setattr__(path, name, check_positive(getattr(path, name), f"{what} {name}", PathError))
 
 
 def _unit(v, what: str) -> np.ndarray:
@@ -119,7 +121,7 @@ class Circle(Path):
     roll_amplitude: float = 0.0
 
     def __post_init__(self) -> None:
-        _positive("circle", radius=self.radius, speed=self.speed)  # first: a NaN radius is not the centre's fault
+        _positive(self, "circle", "radius", "speed")  # first: a NaN radius is not the centre's fault
         c = _center3(self.center, "circle")
         e1, e2, n = _frame(self.normal)
         if self.axis_x is not None:
@@ -194,7 +196,7 @@ class Ellipse(Path):
     start: float = 0.0
 
     def __post_init__(self) -> None:
-        _positive("ellipse", a=self.a, b=self.b, rate=self.rate)
+        _positive(self, "ellipse", "a", "b", "rate")
         for name in ("angle", "start"):
             value = check_array(getattr(self, name), (), f"ellipse {name} [rad]", PathError)
             object.__setattr__(self, name, float(value))
@@ -221,9 +223,9 @@ class Helix(Path):
     rate: float = 1.0
 
     def __post_init__(self) -> None:
-        _positive("helix", radius=self.radius, rate=self.rate)
-        check_array(self.pitch, (), "helix pitch [m/rad]", PathError)
-        check_array(self.z0, (), "helix z0 [m]", PathError)
+        _positive(self, "helix", "radius", "rate")
+        object.__setattr__(self, "pitch", float(check_array(self.pitch, (), "helix pitch [m/rad]", PathError)))
+        object.__setattr__(self, "z0", float(check_array(self.z0, (), "helix z0 [m]", PathError)))
 
     def sample(self, t: float) -> PathSample:
         beta = self.rate * t
