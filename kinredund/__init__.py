@@ -84,6 +84,7 @@ __all__ = [
     "SolverError",
     "Task",
     "TaskError",
+    "TrackingError",
     "TimeVaryingReference",
     "Tracker",
     "TrackingError",

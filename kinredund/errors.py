@@ -99,28 +99,57 @@ class OptionError(KinredundError, ValueError):
     """A numeric option outside its allowed range (the message names the option and the range)."""
 
 
-class TrackingError(KinredundError, RuntimeError):
+class TrackingError(SingularityError, PathError, RuntimeError):
     """A tracking run stopped: why, when, the last good state and the record up to there.
 
+    A subclass of :class:`SingularityError` and :class:`PathError` (multiple inheritance), so callers that
+    caught the tracker's failures as those still catch them; input errors (a malformed or non-finite path,
+    an option out of range) keep their own classes and are never a TrackingError.
+
     Attributes:
-        cause: a short machine-readable string: ``limits_infeasible`` (the path cannot be followed within
-            the joint limits, or the start is outside them), ``not_strongly_stable`` (the constrained
-            optimum loses linear independence of the active constraints or second-order sufficiency),
-            ``switch_not_resolved`` (a switching time of the active set could not be located).
+        cause: one of :attr:`CAUSES`: ``kinematic_singularity`` (J loses rank: a stretched or folded arm),
+            ``fold`` (the smallest eigenvalue of the reduced Hessian Z^T M Z reaches zero: the local optimum
+            of z ceases to exist, or a step jumped to another branch), ``out_of_reach`` (the path leaves the
+            workspace: the task residual cannot be driven to zero), ``limits_infeasible`` (the path cannot be
+            followed within the joint limits, or the start is outside them), ``step_control_exhausted`` (the
+            corrector failed down to the smallest sub-step with no other cause found), ``non_optimal_start``
+            (the start is on the path but cannot be corrected onto a constrained minimum),
+            ``step_too_long`` (a time step longer than the path's period), ``not_strongly_stable`` (the
+            constrained optimum loses linear independence of the active constraints or second-order
+            sufficiency), ``switch_not_resolved`` (a switching time of the active set could not be located),
+            ``path_discontinuity`` (the path itself jumps: the joints cannot follow it continuously).
         t: the time [s] of the last good state.
-        q: the last good configuration (on the path, inside the limits), or None.
-        watched: the watched quantities there (a dict of floats and lists).
-        partial: the :class:`~kinredund.trajectory.Trajectory` up to ``t``, or None.
+        q: the last good configuration (on the path, inside the limits) as a float array, or None.
+        watched: the watched quantities there (``sigma_min_J``, ``reduced_hessian_min``, ...: floats and lists).
+        partial: the :class:`~kinredund.trajectory.Trajectory` up to ``t`` (on the requested times), or None.
+        sigma_min: the field of :class:`SingularityError`: ``watched["sigma_min_R"]`` (R's smallest singular
+            value, where an R singular at the failure reported it), else ``watched["sigma_min_J"]``, else None.
     """
+
+    CAUSES = ("kinematic_singularity", "fold", "out_of_reach", "limits_infeasible", "step_control_exhausted",
+              "non_optimal_start", "step_too_long", "not_strongly_stable", "switch_not_resolved",
+              "path_discontinuity")
 
     def __init__(self, message: str, *, cause: str, t: float | None = None, q=None, watched: dict | None = None,
                  partial=None):
+        import numpy as np
+
+        if cause not in self.CAUSES:
+            raise ChoiceError("tracking failure cause", cause, self.CAUSES)
         self.cause = cause
-        self.t = t
-        self.q = None if q is None else [float(v) for v in q]
+        self.t = None if t is None else float(t)
+        self.q = None if q is None else np.array(q, dtype=float)
         self.watched = dict(watched or {})
         self.partial = partial
-        super().__init__(message)
+        self.sigma_min = self.watched.get("sigma_min_R", self.watched.get("sigma_min_J"))
+        Exception.__init__(self, message)
+
+    def __reduce__(self):  # keyword-only fields: pickle (e.g. dask workers) through them
+        return (_tracking_error, (self.args[0], self.cause, self.t, self.q, self.watched, self.partial))
+
+
+def _tracking_error(message, cause, t, q, watched, partial) -> TrackingError:
+    return TrackingError(message, cause=cause, t=t, q=q, watched=watched, partial=partial)
 
 
 def check_array(value, shape: tuple, what: str, error: type[KinredundError] = TaskError, owner: str = ""):

@@ -228,7 +228,11 @@ def test_corrector_recovers_from_a_jump_in_the_path(jump, monkeypatch):
     newton = PredictorCorrector._newton
     monkeypatch.setattr(PredictorCorrector, "_newton",
                         lambda self, *a, **k: (fresh.append(self.t), newton(self, *a, **k))[1])
-    tr = track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40)
+    # the strict tracker (the default) reports the path's jump instead of following it (issue 15)
+    with pytest.raises(kinredund.TrackingError) as err:
+        track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40)
+    assert err.value.cause == "path_discontinuity" and err.value.t < 0.5
+    tr = track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40, strict=False)
     assert tr.position_error.max() < 1e-11 and tr.normality_residual.max() < 1e-11
     assert fresh[0] == 0.0 and (jump < 0.1 or 0.5 in fresh)  # the start, then the jump for the larger one
     # after the jump the joints sit at the constrained minimum of the shifted path

@@ -97,7 +97,8 @@ def test_thesis_mode_does_not_report_metre_errors_as_success():
     ex = load_example("4.1")
     with pytest.raises(kinredund.PathError, match="away from the path") as err:
         track(ex.robot, ex.path, ex.index, ex.q0, mode="thesis", steps_per_loop=4, limits=False)
-    assert err.value.t is not None and err.value.t > 0
+    # a TrackingError (issue 15): t is the last good point's, the failed step's time is watched
+    assert err.value.t is not None and err.value.watched["t_failed"] > err.value.t
 
 
 def test_batched_task_errors_against_the_invariants():

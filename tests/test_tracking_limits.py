@@ -268,7 +268,7 @@ def test_a_path_that_cannot_be_followed_inside_stops_with_the_last_good_state(na
     assert excess(r, q) <= 1e-10  # inside the limits
     T, s = r.fk(q), path(err.t)
     assert np.linalg.norm(T[:3, 3] - s.p) <= 1e-10 and np.abs(T[:3, :3] - s.Q).max() <= 1e-10  # on the path
-    assert set(err.watched) == {"active", "bound_multipliers", "limit_margins"}
+    assert {"active", "bound_multipliers", "limit_margins"} <= set(err.watched)  # and the strict watch's
     assert min(err.watched["bound_multipliers"]) >= 0.0
     part = err.partial.checked(r.nq)  # a valid record: plots and playback accept it
     assert part.t[-1] == pytest.approx(err.t) and np.array_equal(part.q[-1], q)

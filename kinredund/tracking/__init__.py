@@ -7,6 +7,8 @@
   and their evaluation at a point in :mod:`.point`;
 - :mod:`.linalg`: R of Eq. (4.24), its LU and QP solutions, multipliers, the predictor's weights;
 - :mod:`.recorder`: the per-step record and its diagnostics;
+- the strict tracker of the default mode: :mod:`.step_control` (sub-steps, the jump check), :mod:`.watch`
+  (the fold and singularity watch), :mod:`.failure` (the cause of a stop and its partial record);
 - :mod:`.constraints`: constraints on the joints (joint limits first), held by :mod:`.limited` (the
   default mode with hard joint limits: active sets, exact switching times).
 """

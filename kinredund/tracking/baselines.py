@@ -48,7 +48,7 @@ class Pseudoinverse(ExplicitStepper):
         self.qdot = self.direction(pt, np.linalg.pinv(pt.J), xdot)
         self.lamdot, self._solver, self.M = np.zeros_like(self.lam), "lstsq", None
 
-    def step(self) -> None:
+    def advance(self) -> None:
         q = self.q
         t_next = self._next_time()
         self.q = q + self.dt * self.qdot

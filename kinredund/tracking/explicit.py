@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinredund.errors import PathError, SingularityError, TrackingError
+from kinredund.tracking.failure import explicit_failure
 from kinredund.tracking.linalg import multipliers
 from kinredund.tracking.point import Point
 from kinredund.tracking.stepper import Stepper
@@ -33,6 +35,18 @@ class ExplicitStepper(Stepper):
         self._check_on_path(pt, "the tracked configuration", limit=ON_PATH_ALLOWANCE * scale)
         self._check_rank(pt)
 
+    def step(self) -> None:
+        """One explicit step (:meth:`advance`); a tracking failure is a TrackingError at the step's start."""
+        q, t, k = self.q, self.t, self.k
+        try:
+            self.advance()
+        except TrackingError:
+            raise
+        except (PathError, SingularityError) as err:
+            self.ev.check_sample(self.t)  # a non-finite path sample is the caller's input: its PathError propagates
+            self.q, self.t, self.k = q, t, k
+            raise explicit_failure(self, err) from err
+
 
 class ExplicitEuler(ExplicitStepper):
     """Thesis mode of the optimal schemes (augmented or velocity form): Euler steps, Eq. (4.29)."""
@@ -48,7 +62,7 @@ class ExplicitEuler(ExplicitStepper):
         self.lam = multipliers(pt.J, pt.grad)[0]  # Eqs. (4.11)-(4.12)
         self._solve_rates(pt, xdot)
 
-    def step(self) -> None:
+    def advance(self) -> None:
         q = self.q
         t_next = self._next_time()
         self.q = q + self.dt * self.qdot  # explicit Euler

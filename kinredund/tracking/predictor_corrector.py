@@ -16,9 +16,11 @@ import math
 
 import numpy as np
 
-from kinredund.errors import PathError
+from kinredund.errors import PathError, SingularityError
+from kinredund.tracking.failure import start_failure
 from kinredund.tracking.linalg import hermite_weights, lu_solve
 from kinredund.tracking.point import Evaluator, Point
+from kinredund.tracking.step_control import StepControl
 from kinredund.tracking.stepper import Stepper
 
 #: points (values and slopes) of the default mode's Hermite predictor: 3 gives the quintic, whose O(h^6)
@@ -34,17 +36,39 @@ class PredictorCorrector(Stepper):
     State besides :class:`~kinredund.tracking.stepper.Stepper`'s: ``prev`` (y and ydot of up to
     ``PREDICTOR_POINTS - 1`` earlier points, oldest first, a flat list) and ``_y``, ``_yd`` (the current
     point and its rates). The start is corrected onto the optimal manifold before the first step.
+    ``strict`` (default): each step runs through the :class:`~kinredund.tracking.step_control.StepControl`
+    (sub-steps, the jump check, the fold and singularity watch; failures are a
+    :class:`~kinredund.errors.TrackingError`); ``strict=False`` is the plain predictor-corrector step.
     """
 
-    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, **kwargs):
+    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, **kwargs):
         super().__init__(evaluator, q0, dt, **kwargs)
         self.symmetric = evaluator.formulation == "augmented"
         self.prev: list[np.ndarray] = []
         self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
-        self._newton(self.pt)  # put the start exactly on the optimal manifold
-        self._rates()
+        self.control = None
+        try:
+            self._newton(self.pt)  # put the start exactly on the optimal manifold
+            self._rates()
+            if strict and evaluator.index is not None:
+                self.control = StepControl(self)
+                if self.control.start_verdict() is not None:  # a saddle or maximum of z, or a singular start
+                    raise SingularityError(f"the corrected start is not a regular constrained minimum "
+                                           f"({self.control.start_verdict()})")
+        except (PathError, SingularityError) as err:
+            if not strict:
+                raise
+            evaluator.check_sample(self.t0)  # a non-finite path sample says so itself
+            raise start_failure(self, q0, err) from err
 
     def step(self) -> None:
+        """One step; with ``strict``, under the step control (:mod:`kinredund.tracking.step_control`)."""
+        if self.control is None:
+            self.plain_step()
+        else:
+            self.control.step()
+
+    def plain_step(self) -> None:
         """Predict y at t + dt (Euler at the first step, then Hermite: cubic, then quintic) and correct."""
         h = self.dt
         y, yd = self._y, self._yd
@@ -54,6 +78,7 @@ class PredictorCorrector(Stepper):
         if len(prev) == 2 * PREDICTOR_POINTS:
             del prev[:2]
         self.t = self._next_time()
+        self._q_pred = y_p[: self.n]  # the step control compares the corrected joints with it
         self._correct(y_p)  # checks its results for non-finite values
 
     def _rates(self) -> None:

@@ -12,21 +12,13 @@ from kinredund.errors import OptionError, PathError, TrackingError, check_count,
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
+from kinredund.tracking.failure import loadable_name
 from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.tracker import Tracker
 from kinredund.trajectory import Trajectory
 
 #: the most steps one run records (the record holds every step: about 1.5 KiB each on a 7-axis arm)
 MAX_STEPS = 1_000_000
-
-
-def _loadable_name(robot: Robot) -> str:
-    """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
-    from kinredund.model.robot import known_robots
-
-    if robot.name in known_robots() or robot.urdf_path is None:
-        return robot.name
-    return str(robot.urdf_path)
 
 
 def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:
@@ -51,14 +43,15 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
           steps_per_loop: int = 200, loops: int = 1, duration: float | None = None, steps: int | None = None,
           linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
           diagnostics: bool = True, liegeois_gain: float = 1.0, limits=None, project_start: bool = False,
-          progress=None, meta: dict | None = None) -> Trajectory:
+          strict: bool = True, progress=None, meta: dict | None = None) -> Trajectory:
     """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
 
     Args:
         robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, limits,
-            project_start: as for :class:`~kinredund.tracking.tracker.Tracker` (by default the default
-            mode's optimal schemes keep the joints within the robot's limits; ``limits=False`` is the
-            thesis's unconstrained scheme).
+            project_start, strict: as for :class:`~kinredund.tracking.tracker.Tracker` (by default the
+            default mode's optimal schemes keep the joints within the robot's limits; ``limits=False`` is
+            the thesis's unconstrained scheme; ``strict`` the step control and the fold and singularity
+            watch).
         steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most
             :data:`MAX_STEPS` steps in all).
         duration, steps: an open path's duration [s] and steps.
@@ -70,17 +63,18 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
         OptionError, ChoiceError: an argument out of its range (checked before any work).
         PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
         SingularityError: R or J becomes singular (time, configuration, smallest singular value).
-        TrackingError: with limits, the run cannot go on within them (``cause``, ``t``, the last good
-            ``q``, ``watched`` and ``partial``, the record up to there).
+        TrackingError: the run stopped (a subclass of both errors above): ``cause``, ``t`` and ``q`` of the
+            last good point (on the path, inside the limits), ``watched``, and ``partial``, the record up to
+            the last requested time before it.
     """
     dt, total, loops_run = _span(path, steps_per_loop, loops, duration, steps)
     tracker = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
                       qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain, limits=limits,
-                      project_start=project_start)
+                      project_start=project_start, strict=strict)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()
     step = tracker.step
-    info = {"robot_name": _loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
+    info = {"robot_name": loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
             "meta": dict(meta or {}, dt=dt, steps=total)}
     try:
         for k in range(total):
@@ -89,7 +83,8 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
             if progress is not None:
                 progress(k + 1, total)
     except TrackingError as err:
-        if err.partial is None:
+        if err.partial is None:  # the record up to the last requested time (a Trajectory that plays)
+            info["meta"].update(steps=len(rec) - 1, partial=True)
             err.partial = rec.trajectory(loops=None, steps_per_loop=None, **info)
         raise
     return rec.trajectory(loops=loops_run, steps_per_loop=None if loops_run is None else total // loops_run, **info)

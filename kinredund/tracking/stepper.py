@@ -16,6 +16,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from kinredund.errors import PathError, SingularityError
+from kinredund.tracking.failure import step_too_long
 from kinredund.tracking.linalg import RateQP, classify, multipliers, solve_rates
 from kinredund.tracking.point import Evaluator, Point
 
@@ -50,6 +51,9 @@ class Stepper:
         self.pt = self.evaluate(self.q, self.t)
         self._check_on_path(self.pt, "the starting configuration")
         self._check_rank(self.pt)
+        if evaluator.path.period is not None and dt > evaluator.path.period:
+            mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
+            raise step_too_long(evaluator, self.q, self.t, dt, mode=mode)
         self.lam = multipliers(self.pt.J, self.pt.grad)[0] if evaluator.index is not None else np.zeros(len(self.pt.r))
         m = len(self.pt.r)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
@@ -168,4 +172,5 @@ class Stepper:
         rcond = lapack.dgecon(lu, lapack.dlange("1", R))[0]
         if not rcond > 1e-12:  # also catches NaN
             self._singularity(pt, R, J)
-        return lu, piv
+        self._lu, self._rcond = (lu, piv), rcond  # the last factors and estimate (the watch reuses them)
+        return self._lu

@@ -95,6 +95,10 @@ class Tracker:
             (:mod:`kinredund.tracking.limited`); thesis mode and the baselines run without them, and
             refuse ``limits=True`` (explicit steps have no corrector to hold the bounds).
         project_start: put a ``q0`` outside the limits on them instead of raising.
+        strict: the default mode's step control, jump check and fold and singularity watch
+            (:mod:`kinredund.tracking.step_control`; on by default): a step the corrector fails is retried in
+            sub-steps, and the run stops before a fold or a singularity with a
+            :class:`~kinredund.errors.TrackingError`; ``strict=False`` is the plain predictor-corrector step.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
     ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label) and
@@ -107,12 +111,15 @@ class Tracker:
             and by how much), or no constrained optimum is found at the start.
         PathError: the start is off the path, or the path is unsuitable (says why).
         SingularityError: the start is singular.
+        TrackingError: the start cannot be corrected onto a constrained minimum (``non_optimal_start``), or
+            dt is longer than the path's period (``step_too_long``); from :meth:`step`, the run cannot go on
+            (the cause, the last good point; the stepper stays at the last requested time).
     """
 
     def __init__(self, robot: Robot, path: Path, index: Index | None, q0, dt: float, *, scheme: str = "augmented",
                  mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
                  tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0,
-                 limits: bool | JointLimits | None = None, project_start: bool = False):
+                 limits: bool | JointLimits | None = None, project_start: bool = False, strict: bool = True):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -138,13 +145,15 @@ class Tracker:
         if limits is not None:
             if project_start:
                 q = limits.project(q)
-            self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, **kwargs)
+            self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, strict=strict, **kwargs)
             self.step = self.stepper.step
             return
         if scheme in ("pseudoinverse", "liegeois"):
             kwargs["project"] = mode == "default"
         if scheme == "liegeois":
             kwargs["gain"] = gain
+        if mode == "default" and scheme in ("augmented", "velocity"):
+            kwargs["strict"] = strict
         self.stepper: Stepper = STEPPERS[mode, scheme](ev, q, dt, **kwargs)
         self.step = self.stepper.step
 

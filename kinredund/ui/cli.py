@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
 from kinredund.ui import options
@@ -195,6 +195,13 @@ def _path_for(args, robot, q_start: np.ndarray):
                         orientation=T0[:3, :3] if get_task(robot.task).has_orientation else None), None
 
 
+def _write_partial(out, err: TrackingError) -> None:
+    """``--partial FILE``: the record up to a tracking stop with the failure (cause, time, state) as JSON."""
+    failure = {"cause": err.cause, "t": err.t, "q": err.q, "watched": err.watched, "message": str(err)}
+    err.partial.save_json(out, extra={"failure": json_ready(failure)})
+    print(f"wrote the partial record up to t = {err.partial.t[-1]:.6g} s to {out}", file=sys.stderr)
+
+
 def _cmd_track(args) -> int:
     bar = _progress(f"track {args.robot}", args)
     from kinredund.ik.solve import solve_ik
@@ -216,8 +223,16 @@ def _cmd_track(args) -> int:
             raise KinredundError(f"no starting configuration on the path: {res.reason}")
         # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
         span = {} if duration is None else {"duration": duration, "steps": args.steps}
-        traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
-                     loops=args.loops, progress=lambda d, n: bar(d, n, "tracking"), **span)
+        try:
+            traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
+                         loops=args.loops, progress=lambda d, n: bar(d, n, "tracking"), **span)
+        except TrackingError as err:
+            if args.partial is None or err.partial is None:
+                raise
+            # the partial record is this command's output: returning (not raising) lets its batch land
+            _write_partial(args.partial, err)
+            print(f"kinredund: error: {err}", file=sys.stderr)
+            return EXIT_USAGE
         if args.html:
             bar(0, 1, "the HTML replay")
             from kinredund.ui.viz import replay_html
@@ -317,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: the options that name an output file; every one is checked before any work (kinredund.io.check_output_path)
-OUTPUT_OPTIONS = ("json", "plot", "html", "csv")  # --bag is a folder: kinredund.ui.cli_retime checks it
+OUTPUT_OPTIONS = ("json", "plot", "html", "csv", "partial")  # --bag is a folder: kinredund.ui.cli_retime checks it
 #: 128 + the signal number, as a shell reports a process ended by SIGINT or SIGPIPE
 EXIT_SIGINT, EXIT_SIGPIPE = 130, 141
 

@@ -186,6 +186,10 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p.add_argument("--starts", type=_COUNT, default=8, metavar="N",
                    help="IK starts tried for the optimal start configuration (default: %(default)s)")
     _add_outputs(p, html=True, quiet=True)
+    p.add_argument("--partial", type=Path, metavar="FILE",
+                   help="where tracking stops (a fold, a singularity, the path out of reach, ...), write the record "
+                        "up to there with the failure's cause, time and last good configuration as JSON, which "
+                        "`kinredund play` replays (default: not written)")
 
     p = _sub(sub, commands, "ik", "joint-level (constrained) inverse kinematics",
              "Solve the joint-level problem of Eq. (4.3): reach the target and, with --index, minimise a "

@@ -1,0 +1,207 @@
+"""Diagnosing a tracking failure: the cause, the watched quantities and a partial record (issue 15).
+
+- :func:`loadable_name`: what :func:`kinredund.load_robot` reloads the robot of a record from;
+- :func:`point_record`: a one-point :class:`~kinredund.trajectory.Trajectory` (a failure before the first
+  step still carries a record that plays);
+- :func:`task_residual_min`: the smallest task residual reachable at a time (Levenberg-Marquardt on
+  |r|^2 from a configuration): nonzero where the path has left the workspace;
+- :func:`start_failure`, :func:`step_too_long`: the :class:`~kinredund.errors.TrackingError` of a start
+  that cannot be corrected onto a constrained minimum, and of a step longer than the path's period.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from kinredund.errors import TrackingError
+from kinredund.model.robot import Robot
+from kinredund.tasks import get_task
+from kinredund.tracking.point import Evaluator
+from kinredund.tracking.watch import exact, reduce
+from kinredund.trajectory import Trajectory
+
+#: a path point whose smallest reachable task residual exceeds this (times max(1, |p_d|) [m]) is out of
+#: reach: the stepper's own on-path bar (1e-6 of the path's scale)
+REACH_TOL = 1e-6
+
+
+def loadable_name(robot: Robot) -> str:
+    """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
+    from kinredund.model.robot import known_robots
+
+    if robot.name in known_robots() or robot.urdf_path is None:
+        return robot.name
+    return str(robot.urdf_path)
+
+
+def point_record(ev: Evaluator, q: np.ndarray, t: float, *, scheme: str, mode: str,
+                 meta: dict | None = None) -> Trajectory:
+    """The one-point :class:`~kinredund.trajectory.Trajectory` at (q, t) (it plays: one frame)."""
+    pt = ev.point(np.asarray(q, float), t, need_dJ=False)
+    task = get_task(ev.task)
+    Q_d = pt.sample.Q[None] if task.has_orientation else None
+    errors = task.errors_many(pt.Q[None], pt.p[None], Q_d, pt.sample.p[None])
+    zeros = np.zeros(1)
+    return Trajectory(robot=loadable_name(ev.robot), task=task.name, t=np.array([float(t)]), q=np.array([q], float),
+                      p=pt.p[None].copy(), p_desired=pt.sample.p[None].copy(), scheme=scheme, mode=mode,
+                      solver=(), position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
+                      vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
+                      loop_period=ev.path.period, meta=dict(meta or {}, partial=True))
+
+
+def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 200) -> tuple[float, np.ndarray]:
+    """(min |r|, the configuration reaching it) at time t from q: Levenberg-Marquardt on 1/2 |r|^2 (task only).
+
+    The damping mu grows by 4 on a rejected step and shrinks by 3 on an accepted one; the iteration
+    ends where the gradient J^T r or the step is negligible. Where the path point is reachable the
+    residual falls to rounding level (quadratic convergence near a regular solution); where it is not, it
+    stays at the distance the arm cannot close (the workspace boundary's Gauss-Newton minimum).
+    """
+    q = np.array(q, float)
+    pt = ev.point(q, t, need_dJ=False)
+    f = float(pt.r @ pt.r)
+    mu = 1e-3
+    n = len(q)
+    for _ in range(max_iter):
+        J, r = pt.J, pt.r
+        g = J.T @ r
+        if not math.isfinite(f) or float(g @ g) <= 1e-30 or f <= 1e-30:
+            break
+        dq = np.linalg.solve(J.T @ J + mu * np.eye(n), -g)
+        trial = ev.point(q + dq, t, need_dJ=False)
+        f_new = float(trial.r @ trial.r)
+        if f_new < f:
+            q, pt, f, mu = q + dq, trial, f_new, max(mu / 3.0, 1e-12)
+            if float(dq @ dq) <= 1e-28:
+                break
+        else:
+            mu *= 4.0
+            if mu > 1e12:
+                break
+    return math.sqrt(f), q
+
+
+def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: int = 0) -> tuple[bool, float, float]:
+    """(out of reach at any of ``times``, the largest smallest residual there [m], at which time [s]).
+
+    From q first, then (where that leaves a residual) from ``restarts`` seeded perturbations of q (0.3 and
+    1 rad, clipped into the robot's limits): Levenberg-Marquardt from the last good point alone can end
+    on a singular configuration (J^T r = 0 with r != 0) although the point is reachable past the
+    singularity. The task-only residual uses the displacement form, whose J is the Jacobian of r.
+    """
+    if ev.formulation != "augmented":
+        ev = Evaluator(ev.robot, ev.path, ev.index, "augmented")
+    rng = np.random.default_rng(seed)
+    lo, hi = np.maximum(ev.robot.lower, -1e3), np.minimum(ev.robot.upper, 1e3)
+    worst, at = 0.0, float(times[0])
+    for tp in times:
+        scale = max(1.0, float(np.abs(ev.sample(tp).p).max()))
+        res, _ = task_residual_min(ev, q, tp)
+        for k in range(restarts):
+            if res <= REACH_TOL * scale:
+                break
+            start = np.clip(q + (0.3 if k % 2 == 0 else 1.0) * rng.standard_normal(len(q)), lo, hi)
+            res = min(res, task_residual_min(ev, start, tp)[0])
+        if not res <= worst:
+            worst, at = res, float(tp)
+    scale = max(1.0, float(np.abs(ev.sample(at).p).max()))
+    return not worst <= REACH_TOL * scale, worst, at
+
+
+def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> dict:
+    """The watched quantities at (q, t) (default: the stepper's current point), computed exactly.
+
+    ``sigma_min_J``, ``reduced_hessian_min`` (on the null space of J and of the fixed joints, when the
+    stepper has a ``fixed`` mask), ``task_residual`` [m] and ``normality_residual`` (|(1 - J^+ J) grad z|).
+    """
+    q = stepper.q if q is None else q
+    t = stepper.t if t is None else t
+    pt = stepper.ev.point(q, t)
+    out = {"task_residual": float(np.abs(pt.r).max())}
+    if stepper.ev.index is None:
+        return out
+    M = pt.system(stepper.lam)[0]
+    sigma, eig, _ = exact(*reduce(pt.J, M, getattr(stepper, "fixed", None)))
+    Z = np.linalg.qr(pt.J.T, mode="complete")[0][:, pt.J.shape[0]:]
+    out.update(sigma_min_J=sigma, reduced_hessian_min=eig, normality_residual=float(np.linalg.norm(Z.T @ pt.grad)))
+    return out
+
+
+def start_failure(stepper, q0: np.ndarray, err: Exception) -> TrackingError:
+    """The error of a start the default mode's corrector cannot put on a constrained minimum.
+
+    ``non_optimal_start`` where q0 is on the path (the stepper checked it) but not at the constrained
+    optimum (its normality residual above 1e-8 of max(1, |grad z|)); at an optimal start whose R is
+    singular, ``kinematic_singularity`` or ``fold`` by which watched quantity vanishes.
+    """
+    ev = stepper.ev
+    stepper.q, stepper.t = q0, stepper.t0
+    watched = watched_at(stepper, q0, stepper.t0)
+    if getattr(err, "sigma_min", None) is not None:
+        watched["sigma_min_R"] = float(err.sigma_min)
+    grad = ev.gradient(q0, stepper.t0)
+    optimal = watched.get("normality_residual", 0.0) <= 1e-8 * max(1.0, float(np.linalg.norm(grad)))
+    cause = "non_optimal_start"
+    if optimal:
+        cause = "kinematic_singularity" if watched.get("sigma_min_J", 1.0) <= 1e-8 else "fold"
+    partial = point_record(ev, q0, stepper.t0, scheme=ev.formulation, mode="default")
+    return TrackingError(f"the start at t = {stepper.t0:.6g} s cannot be corrected onto a constrained minimum of z "
+                         f"({cause}; normality residual {watched.get('normality_residual', float('nan')):.3g}): {err}",
+                         cause=cause, t=stepper.t0, q=q0, watched=watched, partial=partial)
+
+
+def _watched_start(ev: Evaluator, q: np.ndarray, t: float) -> dict:
+    """The watched quantities at a start (lambda by least squares, Eqs. 4.11-4.12)."""
+    from kinredund.tracking.linalg import multipliers
+
+    pt = ev.point(q, t)
+    out = {"task_residual": float(np.abs(pt.r).max())}
+    lam = multipliers(pt.J, pt.grad)[0]
+    sigma, eig, _ = exact(pt.J, pt.system(lam)[0])
+    return out | {"sigma_min_J": sigma, "reduced_hessian_min": eig}
+
+
+def step_too_long(ev: Evaluator, q0: np.ndarray, t0: float, dt: float, *, mode: str) -> TrackingError:
+    """The error of a time step longer than the closed path's period (the path would be aliased)."""
+    return TrackingError(f"the time step {dt:.6g} s is longer than the path's period {ev.path.period:.6g} s: "
+                         "take at least one step per loop", cause="step_too_long", t=t0, q=q0,
+                         watched=_watched_start(ev, q0, t0) | {"dt": float(dt), "period": float(ev.path.period)},
+                         partial=point_record(ev, q0, t0, scheme=ev.formulation, mode=mode))
+
+
+def path_jumps(ev: Evaluator, t_a: float, t_b: float, factor: float = 4.0) -> bool:
+    """Does the path's position move from t_a to t_b by more than ``factor`` times its speed allows?"""
+    a, b = ev.path(t_a), ev.path(t_b)
+    speed = max(float(np.linalg.norm(a.v)), float(np.linalg.norm(b.v)))
+    return float(np.linalg.norm(b.p - a.p)) > factor * (t_b - t_a) * speed + 1e-12 * max(1.0, float(np.abs(a.p).max()))
+
+
+def explicit_failure(stepper, err: Exception) -> TrackingError:
+    """The error of a failed explicit step (thesis mode, the baselines), the stepper at the step's start.
+
+    ``kinematic_singularity`` where J lost rank (or its smallest singular value is below 1e-2 of its
+    largest at the last good point: an explicit step past a stretched arm leaves the path instead),
+    ``fold`` where R turned singular with J of full rank (an algorithmic singularity), ``out_of_reach``
+    where the step left the path and the path point cannot be reached, else ``step_control_exhausted``
+    (the explicit schemes have no sub-steps: a finer step may help).
+    """
+    text = str(err)
+    t_next = stepper.t0 + (stepper.k + 1) * stepper.dt
+    watched = watched_at(stepper)
+    watched["t_failed"] = float(t_next)
+    if getattr(err, "sigma_min", None) is not None:
+        watched["sigma_min_R"] = float(err.sigma_min)
+    pt = stepper.ev.point(stepper.q, stepper.t, need_dJ=False)
+    sJ = np.linalg.svd(pt.J, compute_uv=False)
+    if "kinematic" in text or sJ[-1] < 1e-2 * sJ[0]:  # J rank-deficient, or nearly so at the last good point
+        cause = "kinematic_singularity"
+    elif "algorithmic" in text:
+        cause = "fold"
+    else:
+        far, res, _ = out_of_reach(stepper.ev, stepper.q, [t_next])
+        watched["reach_residual"] = res
+        cause = "out_of_reach" if far else "step_control_exhausted"
+    return TrackingError(f"tracking stopped after t = {stepper.t:.6g} s ({cause}): {text}", cause=cause,
+                         t=stepper.t, q=stepper.q.copy(), watched=watched)

@@ -1,0 +1,259 @@
+"""Step control of the strict tracker: sub-steps, the jump check and the watch's stop (issue 15).
+
+:class:`StepControl` runs each step of the default mode's
+:class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` (both forms) and accepts it only if
+
+1. the corrector converged (no ``PathError``/``SingularityError`` from the predictor-corrector step);
+2. it is no jump: the displacement agrees with the rates at both ends by the trapezoidal rule,
+   |Delta q - h (qdot_k + qdot_{k+1}) / 2| <= :data:`TRAPEZOID_TOL` max(|Delta q|, h max(|qdot_k|,
+   |qdot_{k+1}|)) (2-norms). On a smooth step the miss is h^3 |q'''| / 12 (the rule is exact for
+   quadratics), of relative size O(h^2); a step that lands on another branch of the optimum misses by
+   the jump itself, however large the rates are there. A smooth but under-resolved step is rejected
+   and sub-stepped too (the results at the requested times are the same); a jump that persists at the
+   floor is a discontinuity of the optimum (or of the path). A whole step whose corrected joints are
+   within :data:`PREDICTED_TOL` h |qdot| of the predictor's point (the Hermite extrapolation of the
+   past points) is consistent with the smooth past and skips this check (two vector operations);
+3. the watch (:mod:`kinredund.tracking.watch`) finds sigma_min(J) and the reduced Hessian's eigenvalue
+   nearest zero both above their floors at the new point (a step onto a branch where Z^T M Z is not
+   positive definite, a saddle or a maximum of z, is rejected).
+
+A rejected step, or one the watch predicts a crossing within, is retried from the last good point in
+sub-steps: h = dt/2, halved on each rejection, doubled back after each accepted sub-step (at most dt),
+down to the floor dt / 2**:data:`MAX_HALVINGS` (dt/64). Sub-steps use the Euler predictor (the Hermite
+history is cleared, as after a jump, and again at the end so the next step restarts it) and are not
+recorded: the record stays on the requested times t0 + k dt. Below the floor the run stops with a
+:class:`~kinredund.errors.TrackingError` at the last good point (on the path, optimal, inside the
+limits), the stepper put back at the last requested time: ``fold`` (the reduced Hessian's eigenvalue is
+predicted to cross, or the step keeps jumping at the floor: the optimum is discontinuous there),
+``kinematic_singularity`` or ``out_of_reach`` (sigma_min(J) predicted to cross; out of reach where the
+path point at the end of the step, or one step after the stop, cannot be reached: task-only
+Levenberg-Marquardt, :func:`~kinredund.tracking.failure.task_residual_min`), else (the corrector fails
+with neither quantity near zero) ``out_of_reach`` if the path cannot be reached there, else
+``step_control_exhausted``; a jump where the path's own position jumps is ``path_discontinuity``.
+
+On a step with no trouble the control costs the watch (see :mod:`kinredund.tracking.watch`), the jump
+check (three vector norms) and a snapshot of the state (references and a copy of the predictor's list).
+"""
+
+from __future__ import annotations
+
+import math
+from operator import attrgetter
+
+import numpy as np
+
+from kinredund.errors import PathError, SingularityError, TrackingError
+from kinredund.tracking.failure import out_of_reach, path_jumps, watched_at
+from kinredund.tracking.watch import Watch
+
+#: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
+MAX_HALVINGS = 6
+#: a step whose displacement misses the trapezoidal rule's h (qdot_k + qdot_{k+1}) / 2 by more than this
+#: fraction of max(|Delta q|, h |qdot|) is rejected (see the module docstring)
+TRAPEZOID_TOL = 0.25
+#: a whole step whose corrected joints lie within this fraction of h |qdot| of the predictor's point
+#: (extrapolated from the smooth past) is no jump, and the trapezoidal check is skipped
+PREDICTED_TOL = 0.01
+#: the stepper's state a rejected (sub-)step is undone to
+STATE = ("t", "k", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "_lu", "_rcond")
+_get_state = attrgetter(*STATE)
+
+
+class StepControl:
+    """Sub-stepping, jump check and watch for one :class:`PredictorCorrector` (``stepper``).
+
+    Attributes:
+        watch: the :class:`~kinredund.tracking.watch.Watch`.
+        substepped: the requested times whose step needed sub-steps [s].
+        floor: the smallest sub-step [s].
+    """
+
+    def __init__(self, stepper):
+        self.s = stepper
+        self.watch = Watch()
+        self.floor = stepper.dt / 2**MAX_HALVINGS
+        self.substepped: list[float] = []
+        s = stepper
+        self._sub = getattr(s, "_snapshot", None)
+        sigma, eig = self.watch.measure(s.pt.J, s.M, getattr(s, "_lu", None), getattr(s, "fixed", None))
+        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
+        self._speed2 = float(s.qdot @ s.qdot)
+
+    def start_verdict(self) -> str | None:
+        """``kinematic`` or ``fold`` where the corrected start is not a regular constrained minimum."""
+        return self.watch.crossed(self.watch.sigma[-1], self.watch.eig[-1])
+
+    # -- the state ------------------------------------------------------------------------------------
+    def _snapshot(self) -> dict:
+        s = self.s
+        snap = dict(zip(STATE, _get_state(s), strict=True))
+        snap["prev"], snap["speed2"] = list(s.prev), self._speed2
+        if self._sub is not None:  # a subclass's own state (e.g. the active set of the limits)
+            snap["sub"] = self._sub()
+        return snap
+
+    def _restore(self, snap: dict) -> None:
+        s = self.s
+        if "sub" in snap:
+            s._restore(snap["sub"])
+        for name in STATE:
+            setattr(s, name, snap[name])
+        s.prev[:] = snap["prev"]
+        self._speed2 = snap["speed2"]
+
+    # -- one step --------------------------------------------------------------------------------------
+    def step(self) -> None:
+        """One requested step from t to t0 + (k + 1) dt (see the module docstring)."""
+        s = self.s
+        t_to = s.t0 + (s.k + 1) * s.dt
+        snap = self._snapshot()
+        if self.watch.ahead(t_to) is None or self._refreshed_ahead(t_to) is None:
+            reason = self._attempt(s.plain_step, snap, s.dt)
+            if reason is None:
+                return
+            self._restore(snap)
+        else:
+            reason = (self.watch.ahead(t_to), "predicted within the step")
+            self._restore(snap)
+        self._substeps(snap, t_to, reason)
+
+    def _attempt(self, advance, snap: dict, h: float):
+        """Run ``advance`` and check its point: None if accepted (and pushed to the watch), else (kind, why)."""
+        s = self.s
+        try:
+            advance()
+        except TrackingError:
+            raise
+        except (PathError, SingularityError) as err:
+            s.ev.check_sample(s.t)  # a non-finite path sample is the caller's input: its PathError propagates
+            # the message without the diverged iterate: the error reports the last good point instead
+            return "corrector", str(err).split("; q = ")[0]
+        qd0, qd1 = snap["qdot"], s.qdot
+        speed2 = float(qd1 @ qd1)
+        if h == s.dt:  # a whole step: where the corrector ended next to the predictor's point, no jump
+            m = s.q - s._q_pred
+            if float(m @ m) <= (PREDICTED_TOL * h) ** 2 * max(self._speed2, speed2):
+                return self._watch_point(h, speed2)
+        dq = s.q - snap["q"]
+        e = dq - (0.5 * h) * (qd0 + qd1)  # the trapezoidal rule's miss: h^3 |q'''| / 12 on a smooth step
+        move2, miss2 = float(dq @ dq), float(e @ e)
+        scale2 = max(move2, h * h * max(self._speed2, speed2))
+        if not miss2 <= TRAPEZOID_TOL**2 * scale2 + 1e-24:
+            return "jump", (f"the joints moved {math.sqrt(move2):.3g} in {h:.3g} s, {math.sqrt(miss2):.3g} away from "
+                            "what the rates at both ends give (trapezoidal rule)")
+        return self._watch_point(h, speed2)
+
+    def _watch_point(self, h: float, speed2: float):
+        """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why)."""
+        s = self.s
+        if not (self.watch.due(s._rcond) or h < s.dt):
+            self._speed2 = speed2
+            return None
+        if h < s.dt:  # sub-steps (near trouble): exactly, at the corrected point (not the Euler prediction's)
+            pt = s.ev.point(s.q, s.t)
+            sigma, eig = self.watch.measure_exact(pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
+        else:
+            sigma, eig = self.watch.measure(s.pt.J, s.M, s._lu, getattr(s, "fixed", None))
+        kind = self.watch.crossed(sigma, eig)
+        if kind is not None:
+            return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"
+        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
+        self._speed2 = speed2
+        return None
+
+    def _refreshed_ahead(self, t_next: float) -> str | None:
+        """The prediction again after an exact measurement at the current point (the gated history may be old)."""
+        s = self.s
+        pt = s.ev.point(s.q, s.t)
+        self.watch.refresh(s.t, pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
+        return self.watch.ahead(t_next)
+
+    def _euler_to(self, t_next: float) -> None:
+        """One sub-step: Euler prediction from the current point to t_next, then the corrector."""
+        s = self.s
+        h = t_next - s.t
+        s.t = t_next
+        s._correct(s._y + h * s._yd)
+
+    def _substeps(self, snap_step: dict, t_to: float, reason) -> None:
+        s = self.s
+        self.substepped.append(t_to)
+        s.prev.clear()  # the Hermite history does not fit sub-steps: Euler, as after a jump
+        t, h, t_tried = snap_step["t"], 0.5 * s.dt, t_to
+        while t_to - t > 1e-12 * s.dt:
+            if h < self.floor * (1.0 - 1e-9):
+                raise self._exhausted(snap_step, t_to, reason, t_tried)
+            t_next = t_tried = t_to if h >= (t_to - t) * (1.0 - 1e-9) else t + h
+            kind = self.watch.ahead(t_next) and self._refreshed_ahead(t_next)
+            if kind is not None:
+                reason, h = (kind, f"predicted before t = {t_next:.6g} s"), 0.5 * h
+                continue
+            snap = self._snapshot()
+            why = self._attempt(lambda tn=t_next: self._euler_to(tn), snap, t_next - t)
+            if why is not None:
+                self._restore(snap)
+                reason, h = why, 0.5 * h
+                continue
+            t, h = t_next, min(2.0 * h, s.dt)
+        s.t, s.k = t_to, snap_step["k"] + 1
+        s.prev.clear()  # the next step restarts the predictor from this point
+
+    # -- the stop ---------------------------------------------------------------------------------------
+    def _exhausted(self, snap_step: dict, t_to: float, reason, t_fail: float) -> TrackingError:
+        """The error, the stepper put back at the last requested time (the last recorded, good point).
+
+        ``t`` and ``q`` are that point's (the partial record ends there); ``watched`` holds its quantities
+        and those of the nearest good sub-step point (``substep_t``, ``substep_q``, ``substep_sigma_min_J``,
+        ``substep_reduced_hessian_min``), the time of the failed attempt (``t_failed``) and the reason.
+        """
+        s = self.s
+        kind, why = reason
+        near = watched_at(s)
+        t_near, q_near = s.t, s.q.copy()
+        cause = {"fold": "fold", "jump": "fold"}.get(kind)
+        if kind == "jump" and path_jumps(s.ev, t_near, t_fail):
+            cause = "path_discontinuity"
+        if kind == "corrector" and "algorithmic" in why:  # R singular, J of full rank: Z^T M Z singular (a fold)
+            cause = "fold"
+        extra = {}
+        if cause is None:
+            ahead = self._refreshed_ahead(t_near + s.dt)  # a crossing predicted within a whole step names it
+            if kind == "corrector" and ahead == "fold":
+                cause = "fold"
+            else:
+                # an open path is not sampled beyond the requested step
+                probe = [t_to] if s.ev.path.period is None else [t_to, t_near + s.dt]
+                far, res, at = out_of_reach(s.ev, q_near, probe)
+                extra = {"reach_residual": res, "reach_checked_at": at}
+                if far:
+                    cause = "out_of_reach"
+                elif kind == "kinematic" or ahead == "kinematic":
+                    cause = "kinematic_singularity"
+                else:
+                    cause = "step_control_exhausted"
+        if cause == "kinematic_singularity" and _bounds_dependent(s, q_near, t_near):
+            cause = "not_strongly_stable"  # J of the free joints loses rank, J itself does not (LICQ fails)
+        self._restore(snap_step)
+        s.prev.clear()
+        watched = watched_at(s)
+        own = getattr(s, "_watched", None)  # a subclass's own quantities (the limits': active set, multipliers)
+        if own is not None:
+            watched.update(own())
+        watched.update(extra, t_failed=float(t_fail), min_substep=self.floor, reason=why, substep_t=float(t_near),
+                       substep_q=q_near.tolist(), substep_sigma_min_J=near.get("sigma_min_J"),
+                       substep_reduced_hessian_min=near.get("reduced_hessian_min"))
+        return TrackingError(
+            f"tracking stopped after t = {s.t:.6g} s ({cause}): {why}; no sub-step down to {self.floor:.3g} s "
+            f"gets past it (nearest good point at t = {t_near:.6g} s: sigma_min(J) "
+            f"{near.get('sigma_min_J', float('nan')):.3g}, reduced-Hessian eigenvalue "
+            f"{near.get('reduced_hessian_min', float('nan')):.3g})",
+            cause=cause, t=s.t, q=s.q.copy(), watched=watched)
+
+
+def _bounds_dependent(s, q, t) -> bool:
+    """With joints on bounds: is J itself regular at (q, t) while its free columns are (nearly) not?"""
+    fixed = getattr(s, "fixed", None)
+    if fixed is None or not fixed.any():
+        return False
+    sJ = np.linalg.svd(s.ev.point(q, t, need_dJ=False).J, compute_uv=False)
+    return bool(sJ[-1] > 1e-3 * sJ[0])

@@ -1,0 +1,253 @@
+"""The fold and singularity watch of the strict tracker (Chapter 4, Theorem 2; issue 15).
+
+Per accepted step the watch measures two quantities at the step's point and predicts whether either
+crosses zero within the next step:
+
+- ``sigma_min_J``, the smallest singular value of J (kinematic: where it reaches zero the arm is
+  stretched or folded and J loses rank);
+- ``reduced_hessian_min``, the eigenvalue nearest zero of the reduced Hessian Z^T M Z on the null space
+  of J (and of the active bounds: the columns of fixed joints are removed), M = Hess z + Lambda (Eq.
+  4.23; its symmetric part in the velocity form, whose Z^T M* Z equals the augmented one on the optimal
+  manifold). Where it reaches zero the local minimum of z on the self-motion manifold ceases to exist
+  (a fold; second-order sufficiency, Theorem 2, fails) and R of Eq. (4.24) is singular.
+
+Cost per step (the step already has J, M and R's LU factors): ``reduced_hessian_min`` by one step of
+inverse iteration with R's factors, warm-started from the previous step's vector: the top block of
+R^{-1} is P = Z (Z^T M Z)^{-1} Z^T, so one triangular solve (LAPACK dgetrs) gives u = P v, whose
+direction converges to the eigenvector of the eigenvalue nearest zero, and the Rayleigh quotient
+u^T M u / u^T u estimates it (exact when n - m = 1, and the more accurate the nearer that eigenvalue is
+to zero, where it matters; refreshed exactly every :data:`EXACT_EVERY` steps). ``sigma_min_J`` by an
+SVD of J (LAPACK dgesvd, no vectors) only when J has moved, in the Frobenius norm, by more than
+:data:`J_GATE` of the last exact value since it was taken: by Weyl's inequality sigma_min(J) changes by
+at most ||J - J_ref||_2 <= ||J - J_ref||_F, so between exact values it stays above 3/4 of the last one.
+Together about 6-8 us per step where J moves slowly (``benchmarks/resolved_rate.py``).
+
+The prediction extrapolates each quantity v from its last two values linearly, and v^2 linearly (a
+fold's eigenvalue and sigma_min at a workspace boundary behave like sqrt(t* - t), whose square is
+linear), to the next step's time; a value at or below its floor there is a predicted crossing. The
+step control (:mod:`kinredund.tracking.step_control`) then approaches with halved steps and stops
+before the crossing, at the last good point.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.linalg import lapack
+
+#: the watch measures where the condition estimate of R (dgecon's rcond, free with the step's LU) is below
+#: this, or fell below RCOND_DROP of the previous step's, or every EXACT_EVERY steps; elsewhere it skips
+RCOND_NEAR = 1e-4
+RCOND_DROP = 0.8
+#: an exact eigenvalue computation (QR null basis, eigvalsh) every this many measurements resets the
+#: inverse iteration's vector (where n - m > 1 a second eigenvalue may come nearer zero)
+EXACT_EVERY = 32
+#: the exact sigma_min(J) is recomputed once ||J - J_ref||_F exceeds this fraction of the last exact value
+J_GATE = 0.25
+#: sigma_min(J) at or below this fraction of sigma_max(J) (at least 1) is a kinematic singularity
+SIGMA_FLOOR = 1e-8
+#: an eigenvalue of Z^T M Z at or below this fraction of max(1, max |M_ij|) is a fold
+EIG_FLOOR = 1e-10
+
+
+def reduce(J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """J and M with the fixed joints' columns (and M's rows) removed (``fixed``: a bool mask, or None)."""
+    if fixed is None or not fixed.any():
+        return J, M
+    free = np.flatnonzero(~fixed)
+    return J[:, free], M[np.ix_(free, free)]
+
+
+def exact(J: np.ndarray, M: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """(sigma_min(J), smallest eigenvalue of Z^T sym(M) Z, its eigenvector in joint space), exactly."""
+    m, n = J.shape
+    sJ = np.linalg.svd(J, compute_uv=False)
+    if n == m:
+        return float(sJ[-1]), math.inf, np.zeros(n)
+    Z = np.linalg.qr(J.T, mode="complete")[0][:, m:]
+    w, V = np.linalg.eigh(Z.T @ (0.5 * (M + M.T)) @ Z)
+    return float(sJ[-1]), float(w[0]), Z @ V[:, 0]
+
+
+class Watch:
+    """The watched quantities along one run, their history and the crossing prediction.
+
+    Attributes:
+        times, eig: the last two measurement times [s] and reduced-Hessian values (oldest first).
+        sigma_times, sigma: the last two exact values of sigma_min(J) and their times.
+        sigma_max: the largest singular value of J at the last exact SVD (the kinematic floor's scale).
+        scale: max(1, max |M_ij|) at the last exact eigenvalue (the fold floor's scale).
+    """
+
+    def __init__(self):
+        self.times: list[float] = []
+        self.eig: list[float] = []
+        self.sigma_times: list[float] = []
+        self.sigma: list[float] = []
+        self._fresh = True
+        self._v = None
+        self._J_ref, self._sigma_ref, self.sigma_max, self.scale = None, 0.0, 1.0, 1.0
+        self._count = 0
+        self._rcond = math.inf
+        self._b = None
+        self._safe = -math.inf  # nothing measured yet: ahead() checks the history itself
+        self._exact_at = None
+        self._key = None  # the active set of the history (None: no joint on a bound)
+
+    def due(self, rcond: float) -> bool:
+        """Should this step be measured? (The cheap gate: R's condition estimate, see :data:`RCOND_NEAR`.)"""
+        prev, self._rcond = self._rcond, rcond
+        self._count += 1
+        return not rcond > RCOND_NEAR or rcond < RCOND_DROP * prev or self._count % EXACT_EVERY == 0
+
+    def reset(self) -> None:
+        """Forget the history (after a restart: the next prediction starts afresh)."""
+        for hist in (self.times, self.eig, self.sigma_times, self.sigma):
+            hist.clear()
+        self._safe = -math.inf
+
+    def measure(self, J: np.ndarray, M: np.ndarray, lu=None, fixed: np.ndarray | None = None) -> tuple[float, float]:
+        """(sigma_min_J, reduced_hessian_min) at a point with J (m, n), M (n, n) and R's LU factors there.
+
+        ``fixed``: the joints on a bound (their columns leave J and M, and ``lu`` must be the factors of
+        the reduced R). Without ``lu`` (or where its size does not fit) the eigenvalue is computed exactly.
+        """
+        J, M = reduce(J, M, fixed)
+        m, n = J.shape
+        v = self._v
+        if v is None or len(v) != n or lu is None or lu[0].shape[0] != n + m or self._count % EXACT_EVERY == 0:
+            return self._exact(J, M)
+        b = self._b
+        if b is None or len(b) != n + m:
+            b = self._b = np.zeros(n + m)
+        b[:n] = v
+        u = lapack.dgetrs(lu[0], lu[1], b)[0][:n]  # u = P v (top block of R^-1)
+        uu = float(u @ u)
+        if not (uu > 0.0 and math.isfinite(uu)):
+            return self._exact(J, M)
+        u /= math.sqrt(uu)
+        self._v = u
+        eig = float(u @ (M @ u))  # Rayleigh quotient on the null space of J (u = P v lies in it)
+        return self._sigma(J), eig
+
+    def refresh(self, t: float, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> None:
+        """Measure exactly at t and push it (before a prediction is acted on: the history may be stale)."""
+        if self._exact_at == t:
+            return
+        self.push(t, *self.measure_exact(J, M, fixed), fixed=fixed)
+        self._exact_at = t
+
+    def measure_exact(self, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> tuple[float, float]:
+        """(sigma_min_J, reduced_hessian_min) exactly (QR null basis and eigh, SVD), at the caller's point."""
+        self._exact_at = None
+        return self._exact(*reduce(J, M, fixed))
+
+    def _exact(self, J, M) -> tuple[float, float]:
+        sigma, eig, v = exact(J, M)
+        self._v = v
+        self.scale = max(1.0, float(np.abs(M).max()))
+        self._J_ref, self._sigma_ref, self._fresh = J.copy(), sigma, True
+        return sigma, eig
+
+    def _sigma(self, J: np.ndarray) -> float:
+        """sigma_min(J): the last exact value while J stays within :data:`J_GATE` of it (Weyl), else afresh."""
+        ref = self._J_ref
+        if ref is not None and ref.shape == J.shape:
+            D = (J - ref).ravel()
+            if float(D @ D) < (J_GATE * self._sigma_ref) ** 2:
+                self._fresh = False
+                return self._sigma_ref
+        self._fresh = True
+        s = lapack.dgesvd(J, compute_uv=0, full_matrices=0)[1]
+        self._J_ref, self._sigma_ref, self.sigma_max = J.copy(), float(s[-1]), float(s[0])
+        return self._sigma_ref
+
+    def push(self, t: float, sigma: float, eig: float, fixed: np.ndarray | None = None) -> None:
+        """Keep (t, sigma, eig) as the newest measurement (two of each are kept; sigma_min(J) only where
+        it was computed afresh, so that its secant spans the steps since the previous exact value).
+
+        ``fixed``: the joints on a bound there. Where the active set differs from the last measurement's,
+        the null space changed at a switching time and the history starts afresh (the quantities jump
+        there: a secant across the switch would predict a crossing that is not there).
+        """
+        key = None if fixed is None or not fixed.any() else fixed.tobytes()
+        if key != self._key:
+            self.reset()
+            self._key = key
+        if self._fresh or not self.sigma:
+            _keep(self.sigma_times, t, self.sigma, sigma)
+        _keep(self.times, t, self.eig, eig)
+        fs, fe = self.floors()
+        self._safe = min(_crossing_time(self.sigma_times, self.sigma, fs), _crossing_time(self.times, self.eig, fe))
+
+    def floors(self) -> tuple[float, float]:
+        """(kinematic floor, fold floor): values at or below them count as crossed."""
+        return SIGMA_FLOOR * max(1.0, self.sigma_max), EIG_FLOOR * self.scale
+
+    def crossed(self, sigma: float, eig: float) -> str | None:
+        """``kinematic``, ``fold`` or None: which quantity (if any) is at or below its floor."""
+        fs, fe = self.floors()
+        if not sigma > fs:  # "not >": NaN counts as crossed
+            return "kinematic"
+        if not eig > fe:
+            return "fold"
+        return None
+
+    def ahead(self, t_next: float) -> str | None:
+        """``kinematic``, ``fold`` or None: the quantity predicted to cross zero by ``t_next`` [s]."""
+        if t_next < self._safe:  # the earliest predicted crossing, computed at the last push
+            return None
+        fs, fe = self.floors()
+        for kind, times, hist, floor in (("kinematic", self.sigma_times, self.sigma, fs),
+                                         ("fold", self.times, self.eig, fe)):
+            if hist and _crosses(times, hist, t_next, floor):
+                return kind
+        return None
+
+    def values(self) -> dict:
+        """The newest measurement as the error's ``watched`` entries."""
+        if not self.times:
+            return {}
+        return {"sigma_min_J": self.sigma[-1], "reduced_hessian_min": self.eig[-1], "watched_at": self.times[-1]}
+
+
+def _keep(times: list[float], t: float, values: list[float], v: float) -> None:
+    if times and times[-1] == t:  # a second measurement at the same time (exact after estimated) replaces it
+        values[-1] = v
+        return
+    times.append(t)
+    values.append(v)
+    if len(times) > 2:
+        del times[0], values[0]
+
+
+def _crossing_time(times: list[float], values: list[float], floor: float) -> float:
+    """The earliest time [s] at which v or v^2, extrapolated linearly from its last two values, reaches ``floor``
+    (-inf where the last value is at or below it or not a number, +inf where v does not decrease)."""
+    if not values:
+        return math.inf
+    v1 = values[-1]
+    if not v1 > floor:
+        return -math.inf
+    if len(values) < 2:
+        return math.inf
+    v0, t0, t1 = values[-2], times[-2], times[-1]
+    if not (v1 < v0 and t1 > t0):
+        return math.inf
+    slope, slope2 = (v1 - v0) / (t1 - t0), (v1 * v1 - v0 * v0) / (t1 - t0)
+    return min(t1 + (floor - v1) / slope, t1 + (floor * floor - v1 * v1) / slope2)
+
+
+def _crosses(times: list[float], values: list[float], t_next: float, floor: float) -> bool:
+    """Does v (or v^2), extrapolated linearly from its last two values, reach ``floor`` by ``t_next``?"""
+    v1 = values[-1]
+    if not v1 > floor:
+        return True
+    if len(values) < 2:
+        return False
+    v0, t0, t1 = values[-2], times[-2], times[-1]
+    if not (v1 < v0 and t1 > t0):
+        return False
+    r = (t_next - t1) / (t1 - t0)
+    return v1 + r * (v1 - v0) <= floor or v1 * v1 + r * (v1 * v1 - v0 * v0) <= floor * floor
