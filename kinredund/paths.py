@@ -69,9 +69,16 @@ def _center3(center, what: str) -> np.ndarray:
     return c
 
 
-def _positive(what: str, **values) -> None:
-    for name, value in values.items():
-        check_positive(value, f"{what} {name}", PathError)
+def _positive(path, what: str, *names: str) -> None:
+    """Check that each named field of a (frozen) path is a finite number > 0 and store it as a float."""
+    for name in names:
+        object.__setattr__(path, name, check_positive(getattr(path, name), f"{what} {name}", PathError))
+
+
+def _real(path, what: str, *names: str) -> None:
+    """Check that each named field is a finite real number and store it as a float."""
+    for name in names:
+        object.__setattr__(path, name, float(check_array(getattr(path, name), (), f"{what} {name}", PathError)))
 
 
 def _unit(v, what: str) -> np.ndarray:
@@ -119,7 +126,7 @@ class Circle(Path):
     roll_amplitude: float = 0.0
 
     def __post_init__(self) -> None:
-        _positive("circle", radius=self.radius, speed=self.speed)  # first: a NaN radius is not the centre's fault
+        _positive(self, "circle", "radius", "speed")  # first: a NaN radius is not the centre's fault
         c = _center3(self.center, "circle")
         e1, e2, n = _frame(self.normal)
         if self.axis_x is not None:
@@ -133,10 +140,9 @@ class Circle(Path):
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
-        object.__setattr__(self, "start_angle", float(check_array(self.start_angle, (), "circle start_angle [rad]",
-                                                                  PathError)))
-        object.__setattr__(self, "roll_amplitude", float(check_array(self.roll_amplitude, (),
-                                                                     "circle roll_amplitude [rad]", PathError)))
+        _real(self, "circle", "start_angle", "roll_amplitude")  # [rad]
+        if not isinstance(self.frenet, (bool, np.bool_)):
+            raise PathError(f"circle frenet must be True or False, got {self.frenet!r}")
         if self.orientation is not None:
             Q0 = check_array(self.orientation, (3, 3), "circle orientation", PathError)
             if self.frenet or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9 or np.linalg.det(Q0) <= 0:
@@ -194,10 +200,8 @@ class Ellipse(Path):
     start: float = 0.0
 
     def __post_init__(self) -> None:
-        _positive("ellipse", a=self.a, b=self.b, rate=self.rate)
-        for name in ("angle", "start"):
-            value = check_array(getattr(self, name), (), f"ellipse {name} [rad]", PathError)
-            object.__setattr__(self, name, float(value))
+        _positive(self, "ellipse", "a", "b", "rate")
+        _real(self, "ellipse", "angle", "start")  # [rad]
         object.__setattr__(self, "center", _center3(self.center, "ellipse"))
         object.__setattr__(self, "period", 2 * np.pi / self.rate)
 
@@ -221,9 +225,8 @@ class Helix(Path):
     rate: float = 1.0
 
     def __post_init__(self) -> None:
-        _positive("helix", radius=self.radius, rate=self.rate)
-        check_array(self.pitch, (), "helix pitch [m/rad]", PathError)
-        check_array(self.z0, (), "helix z0 [m]", PathError)
+        _positive(self, "helix", "radius", "rate")
+        _real(self, "helix", "pitch", "z0")
 
     def sample(self, t: float) -> PathSample:
         beta = self.rate * t
