@@ -21,18 +21,21 @@ $(DEPS_STAMP): pyproject.toml | $(BIN)/python
 # The pytest script (not python -m pytest) keeps the checkout off sys.path: tests import the installed wheel.
 # Always reinstall the package itself as a built wheel (not editable), so the tests see what users get.
 install: $(DEPS_STAMP)
+	rm -rf build  # setuptools' build/lib keeps modules deleted since: never ship them
 	$(BIN)/python -m pip install --quiet --no-deps --force-reinstall .
 
 demo: install
 	$(BIN)/kinredund demo --out $(OUT)
 
+# Headless Chromium for the browser tests (tests/test_browser.py, tests/test_viz.py): Debian's package. Not
+# part of `make test`, which installs no system packages: without chromium those tests skip with the reason.
 browser:
-	@command -v chromium >/dev/null 2>&1 || (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || echo "chromium could not be installed: browser tests will be skipped"
+	@command -v chromium >/dev/null 2>&1 || (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || echo "chromium could not be installed: the browser tests will be skipped"
 
-test: install browser
+test: install
 	$(BIN)/pytest $(PYTEST_SELECT) $(PYTEST_ARGS)
 
-test-all: install browser
+test-all: install
 	$(BIN)/pytest $(PYTEST_ARGS)
 
 lint: $(DEPS_STAMP)

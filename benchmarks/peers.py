@@ -12,9 +12,13 @@ step, T / 200, for N loops (default 20). Methods:
 - ours: ``augmented`` and ``velocity`` in the default mode (predictor-corrector), ``augmented_thesis``
   (the thesis's Euler steps, Eq. 4.29), and the baselines ``pseudoinverse`` (Whitney 1972) and
   ``liegeois`` (Liegeois 1977, gain 1/s) in the default mode (Euler step + Newton projection on the task);
+- ours with limits: ``augmented_limits`` and ``velocity_limits`` (the default mode holding the URDF
+  joint limits, :mod:`kinredund.tracking.limited`; on this circle no bound is met, so they follow the
+  same joints as ``augmented`` and ``velocity`` and the figure is the cost of watching the limits);
 - ``pink`` (pin-pink): a plain differential-IK loop, ``FrameTask`` on the hand frame (position cost
-  1 /m, orientation cost 1 /rad, gain 1), ``solve_ik(..., solver="proxqp")`` with pink's default
-  configuration and velocity limits, ``integrate_inplace``. pink has no feed-forward input (its tasks
+  1 /m, orientation cost 1 /rad, gain 1), ``solve_ik(..., solver="daqp")`` (the solver pink's own
+  examples pick when it is installed) with pink's default configuration and velocity limits,
+  ``integrate_inplace``; ``pink_proxqp`` is the same with proxqp. pink has no feed-forward input (its tasks
   only impose J dq = -gain e(q)), so the target of each step is the path's pose at the step's end
   t + dt (dead-beat, gain 1). ``pink_posture`` adds a ``PostureTask`` (cost 1e-3 /rad, target q_home);
   ``pink_nolimits`` is ``pink`` with ``limits=[]`` (a timing reference: the cheapest pink step);
@@ -49,20 +53,23 @@ from kinredund.ui.plots import LOG_FLOOR
 
 STEPS_PER_LOOP = 200
 VARIANTS = {"constant": 0.0, "wrist15": float(np.radians(15.0))}
-OURS = {"augmented": ("augmented", "default"), "augmented_thesis": ("augmented", "thesis"),
-        "velocity": ("velocity", "default"), "pseudoinverse": ("pseudoinverse", "default"),
-        "liegeois": ("liegeois", "default")}
-PINK = {"pink": (False, True), "pink_posture": (True, True), "pink_nolimits": (False, False)}
+OURS = {"augmented": ("augmented", "default", False), "augmented_thesis": ("augmented", "thesis", False),
+        "velocity": ("velocity", "default", False), "pseudoinverse": ("pseudoinverse", "default", False),
+        "liegeois": ("liegeois", "default", False), "augmented_limits": ("augmented", "default", True),
+        "velocity_limits": ("velocity", "default", True)}
+#: pink's variants: (posture task, pink's default limits, QP solver); daqp is what pink's examples pick
+PINK = {"pink": (False, True, "daqp"), "pink_proxqp": (False, True, "proxqp"), "pink_posture": (True, True, "daqp"),
+        "pink_nolimits": (False, False, "daqp")}
 METHODS = (*OURS, *PINK, "rtb_whitney")
-OPTIMAL = ("augmented", "velocity")  # ours, on the constrained optimum by construction
+OPTIMAL = ("augmented", "velocity", "augmented_limits", "velocity_limits")  # ours, on the constrained optimum
 POSTURE_COST = 1e-3  # [cost] / [rad], pink's README value; the frame task costs 1 /m and 1 /rad
 
 
 class _Ours:
     """One of our schemes through :class:`~kinredund.tracking.Tracker`."""
 
-    def __init__(self, robot, path, index, q0, dt, scheme, mode):
-        self.rr = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode)
+    def __init__(self, robot, path, index, q0, dt, scheme, mode, limits):
+        self.rr = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, limits=limits)
         self.step = self.rr.step
 
     def state(self):
@@ -70,10 +77,15 @@ class _Ours:
 
 
 class _Pink:
-    """pink's differential IK: FrameTask (+ PostureTask), solve_ik with proxqp, integrate_inplace."""
+    """pink's differential IK: FrameTask (+ PostureTask), solve_ik with daqp or proxqp, integrate_inplace."""
 
-    def __init__(self, robot, path, q0, dt, posture: bool, limits: bool):
+    def __init__(self, robot, path, q0, dt, posture: bool, limits: bool, solver: str = "daqp"):
         import pink
+        import qpsolvers
+
+        if solver not in qpsolvers.available_solvers:
+            raise ImportError(f"the QP solver {solver!r} is not installed (pip install .[bench])")
+        self.solver = solver
         import pinocchio as pin
         from pink.tasks import FrameTask, PostureTask
 
@@ -93,7 +105,7 @@ class _Pink:
         t1 = self.t + self.dt
         s = self.path(t1)  # the pose at the end of the step (dead-beat target, no feed-forward input)
         self.frame.set_target(self._se3(s.Q, s.p))
-        v = self._solve_ik(self.conf, self.tasks, self.dt, solver="proxqp", limits=self.limits)
+        v = self._solve_ik(self.conf, self.tasks, self.dt, solver=self.solver, limits=self.limits)
         self.conf.integrate_inplace(v, self.dt)
         self.t = t1
 
@@ -216,7 +228,7 @@ def _versions() -> dict:
     from importlib.metadata import PackageNotFoundError, version
 
     v = {}
-    for pkg in ("pin", "numpy", "pin-pink", "roboticstoolbox-python", "proxsuite", "qpsolvers"):
+    for pkg in ("pin", "numpy", "pin-pink", "roboticstoolbox-python", "proxsuite", "qpsolvers", "daqp"):
         try:
             v[pkg] = version(pkg)
         except PackageNotFoundError:
@@ -240,9 +252,11 @@ def verdict(results: dict) -> dict:
             v["tracking_below_1e-9"] = a["position_error_max"] < 1e-9 and a["orientation_error_max"] < 1e-9
             v["normality_below_1e-9"] = a["normality_residual_max"] < 1e-9
             v["peers_normality_min"] = min((ok[m]["normality_residual_max"] for m in peers), default=None)
-            for p in ("pink", "pink_nolimits"):
+            for p in ("pink", "pink_proxqp", "pink_nolimits"):
                 if p in ok:
                     v[f"step_vs_{p}"] = a["step_us_median"] / ok[p]["step_us_median"]
+        if "augmented_limits" in ok and "pink" in ok:
+            v["limits_step_vs_pink"] = ok["augmented_limits"]["step_us_median"] / ok["pink"]["step_us_median"]
         out[variant] = v
     return out
 

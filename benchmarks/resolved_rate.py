@@ -24,12 +24,16 @@ Per robot, medians over one run of:
   ``tracker_step_us``, the bare ``Tracker.step()`` over the same two loops (the same steps, no record):
   ``track_over_step`` is their ratio (the recorder's cost; target <= 1.3).
 
-On the Panda, the same run times pink's QP step on the same path (``pink_step_us``: FrameTask, proxqp, no
-limits - the plain QP step the issue's 75 us target names; ``pink_limits_step_us``: with pink's default
-limits) and gives our default step's ratio to it: the target is relative to what pink takes on the same
-machine, because wall times on this VM drift by up to 2x between runs. Each stepper is first timed alone
-(the step figures); the ratios come from a second pass where our default steps and pink's take their
-steps in turn, one each per round, so that drift and background load hit them alike (``in_turn_us``). Run:
+On the Panda, the same run times pink's QP step on the same path (``pink_step_us``: FrameTask, daqp - the
+solver pink's own examples pick when it is installed - no limits: the plain QP step the issue's 75 us
+target names; ``pink_limits_step_us``: with pink's default limits) and gives our default step's ratio
+to it: the target is relative to what pink takes on the same machine, because wall times on this VM
+drift by up to 2x between runs. Each stepper is first timed alone (the step figures); the ratios come
+from a second pass where our default steps and pink's take their steps in turn, one each per round, so
+that drift and background load hit them alike (``in_turn_us``). With the joint limits held
+(``limits=True``): the step on the same path (``step_limits_us``, no bound is met there) in turn with
+pink's limited step (``limits_over_pink``), and the step over one loop of :data:`SWITCHING_CIRCLE`,
+where joint 4 meets its limit and leaves it (median, mean, the rate QP's share). Run:
 ``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
 ``pip install .[bench]``; without it the pink columns are left out). The JSON holds ``robots`` (the
 figures per robot) and ``keys`` (what each figure times).
@@ -62,8 +66,18 @@ KEYS = {
     "step_default_velocity_us": "Tracker.step(), velocity scheme, default mode",
     "step_thesis_us": "Tracker.step(), augmented scheme, thesis mode (Euler step, QP or LU)",
     "pinv_us": "Tracker.step(), pseudoinverse scheme, thesis mode",
-    "pink_step_us": "pink FrameTask step, solve_ik with proxqp, no limits (Panda)",
-    "pink_limits_step_us": "pink FrameTask step, solve_ik with proxqp, pink's default limits (Panda)",
+    "pink_step_us": "pink FrameTask step, solve_ik with daqp, no limits (Panda)",
+    "pink_limits_step_us": "pink FrameTask step, solve_ik with daqp, pink's default limits (Panda)",
+    "step_limits_us": "Tracker.step() with the joint limits held (limits=True), augmented, default mode; on the "
+                      "benchmark path no bound is met (the cost of watching them)",
+    "limits_in_turn_us": "step_limits_us and pink_limits_step_us timed in turn, one step each per round (Panda)",
+    "limits_over_pink": "limits_in_turn_us: step_limits_us / pink_limits_step_us (target <= 1)",
+    "switching_step_us": "median Tracker.step() with limits over one loop of SWITCHING_CIRCLE (a Panda pose "
+                         "circle on which joint 4 meets its lower limit and leaves it again)",
+    "switching_step_mean_us": "the mean of the same (the steps with a switch solve for its time: Brent's method)",
+    "switching_steps_with_switch": "steps of that loop with a switch in them",
+    "switching_qp_share": "share of that loop's step time spent in the rate QP (proxsuite, only at a switch "
+                          "the LU route cannot decide)",
     "in_turn_us": "the default steps (augmented, velocity) and pink's QP step timed in turn, one step each per "
                   "round (Panda)",
     "tracker_step_us": "median per step of the bare Tracker.step() over two loops (augmented, default mode)",
@@ -105,7 +119,7 @@ def _evaluator(robot, path, index, q0, dt) -> ExplicitEuler:
     (Eq. 4.36); ``qp_backend="kkt"`` says so explicitly. ``_rates()`` leaves q and t alone: every call
     evaluates the same point and sets ``qdot``, ``lamdot`` and ``lam``.
     """
-    return Tracker(robot, path, index, q0, dt, scheme="velocity", mode="thesis", qp_backend="kkt").stepper
+    return Tracker(robot, path, index, q0, dt, scheme="velocity", mode="thesis", qp_backend="kkt", limits=False).stepper
 
 
 def _pink_steps(robot, path, q0, dt, limits: bool):
@@ -124,7 +138,7 @@ def predictor_figures(robot, path, index, q0, dt, loops: int = 2) -> dict:
     more where chord iterations follow); ``predictor_miss_median`` / ``_max``: |q_predicted -
     q_corrected| [rad] over the steps after the first loop (the predictor's start-up excluded).
     """
-    rr = Tracker(robot, path, index, q0, dt).stepper
+    rr = Tracker(robot, path, index, q0, dt, limits=False).stepper
     n, calls, misses = robot.nq, [0], []
     point, correct = rr.ev.point, rr._correct
 
@@ -152,7 +166,7 @@ def bench(name: str, steps: int) -> dict:
     twist = np.concatenate([s.omega, s.v])
     out = {"eval_us": time_calls(lambda: _eval_once(robot, index, q0, twist))["median_us"],
            "eval_stepper_us": time_calls(_evaluator(robot, path, index, q0, dt)._rates)["median_us"]}
-    steppers = {key: Tracker(robot, path, index, q0, dt, mode=mode, scheme=scheme).step
+    steppers = {key: Tracker(robot, path, index, q0, dt, mode=mode, scheme=scheme, limits=False).step
                 for key, mode, scheme in [("step_default_us", "default", "augmented"),
                                           ("step_default_velocity_us", "default", "velocity"),
                                           ("step_thesis_us", "thesis", "augmented"),
@@ -174,12 +188,71 @@ def bench(name: str, steps: int) -> dict:
         out["in_turn_us"] = turn
         out["default_over_pink"] = turn["step_default_us"] / turn["pink_step_us"]
         out["default_velocity_over_pink"] = turn["step_default_velocity_us"] / turn["pink_step_us"]
+    if name == "panda":
+        steppers["step_limits_us"] = Tracker(robot, path, index, q0, dt, limits=True).step
+        out["step_limits_us"] = time_calls(steppers["step_limits_us"], repeat=steps, warmup=5)["median_us"]
+        if "pink_limits_step_us" in steppers:
+            keys = ("step_limits_us", "pink_limits_step_us")
+            turn = {k: v["median_us"] for k, v in time_in_turn({k: steppers[k] for k in keys}, steps, 5).items()}
+            out["limits_in_turn_us"] = turn
+            out["limits_over_pink"] = turn["step_limits_us"] / turn["pink_limits_step_us"]
+        out.update(switching_figures())
     out.update(predictor_figures(robot, path, index, q0, dt))
-    out.update(record_figures(robot, path, index, q0, repeat=max(1, min(5, steps // 200))))
+    # with their defaults (limits held) where the start is inside the limits; Example 4.3's is not
+    out.update(record_figures(robot, path, index, q0, repeat=max(1, min(5, steps // 200)), limits=name == "panda"))
     return out
 
 
-def record_figures(robot, path, index, q0, repeat: int = 5, loops: int = 2) -> dict:
+#: a Panda pose circle (z = 1/2 ||q - q_home||^2, 0.1 m/s) on which joint 4 meets its lower limit and
+#: leaves it again, twice per loop: a configuration on it, the normal, the x axis, the radius [m]
+#: (``tests/test_tracking_limits.py``'s ``panda_pose_circle``)
+SWITCHING_CIRCLE = ([-0.0777, -1.1391, 0.2501, -2.9447, -0.306, 2.1239, 1.2622], [-0.0675, 0.2596, 0.9633],
+                    [0.9464, -0.289, 0.1442], 0.0626)
+
+
+def switching_figures() -> dict:
+    """The limited step over one loop of :data:`SWITCHING_CIRCLE`: median, mean, and the QP's share."""
+    import time
+
+    import kinredund
+    from kinredund.indices import JointDeviation
+    from kinredund.paths import Circle
+    from kinredund.tracking.limited import LimitedPredictorCorrector
+
+    qs, n, ax, rad = (np.array(v, float) if isinstance(v, list) else v for v in SWITCHING_CIRCLE)
+    robot = kinredund.load_robot("panda")
+    n /= np.linalg.norm(n)
+    ax -= (ax @ n) * n
+    ax /= np.linalg.norm(ax)
+    T = robot.fk(qs)
+    path = Circle(T[:3, 3] - rad * ax, rad, 0.1, normal=tuple(n), axis_x=tuple(ax), orientation=T[:3, :3])
+    index = JointDeviation(robot.home.copy())
+    free = kinredund.solve_ik(robot, (T[:3, :3], T[:3, 3]), index, q0=qs)
+    start = kinredund.solve_ik(robot, (T[:3, :3], T[:3, 3]), index, q0=free.q, bounds=True)
+    tracker = Tracker(robot, path, index, start.q, path.period / 200)
+    stepper, qp_time = tracker.stepper, [0.0]
+    qp = LimitedPredictorCorrector._qp_keeps_bound
+
+    def timed_qp(*args):
+        t0 = time.perf_counter()
+        try:
+            return qp(stepper, *args)
+        finally:
+            qp_time[0] += time.perf_counter() - t0
+
+    stepper._qp_keeps_bound = timed_qp
+    times, with_switch = np.empty(200), 0
+    for k in range(200):
+        before = len(stepper.switches)
+        t0 = time.perf_counter()
+        tracker.step()
+        times[k] = time.perf_counter() - t0
+        with_switch += len(stepper.switches) > before
+    return {"switching_step_us": float(np.median(times) * 1e6), "switching_step_mean_us": float(times.mean() * 1e6),
+            "switching_steps_with_switch": with_switch, "switching_qp_share": qp_time[0] / float(times.sum())}
+
+
+def record_figures(robot, path, index, q0, repeat: int = 5, loops: int = 2, limits: bool = True) -> dict:
     """``track()`` with its defaults against the bare ``Tracker.step()`` over the same run, per step.
 
     Each of ``repeat`` rounds times one whole ``track()`` run of ``loops`` loops (200 steps each) and one
@@ -196,9 +269,9 @@ def record_figures(robot, path, index, q0, repeat: int = 5, loops: int = 2) -> d
     try:
         for _ in range(repeat):
             t0 = time.perf_counter()
-            track(robot, path, index, q0, loops=loops)
+            track(robot, path, index, q0, loops=loops, limits=limits)
             per_track.append((time.perf_counter() - t0) / steps)
-            tracker = Tracker(robot, path, index, q0, dt)
+            tracker = Tracker(robot, path, index, q0, dt, limits=limits)
             step = tracker.step
             t0 = time.perf_counter()
             for _ in range(steps):
@@ -258,6 +331,13 @@ def main() -> None:
               f"{turn['step_default_velocity_us']:.3g} us, pink {turn['pink_step_us']:.3g} us; default step / pink QP "
               f"step: {panda['default_over_pink']:.2f} (augmented), {panda['default_velocity_over_pink']:.2f} "
               "(velocity form); target <= 1")
+    if "step_limits_us" in panda:
+        print(f"Panda, limits held: step {panda['step_limits_us']:.3g} us"
+              + (f"; in turn with pink's limited step (daqp): {panda['limits_over_pink']:.2f} (target <= 1)"
+                 if "limits_over_pink" in panda else "")
+              + f"; on a circle with switches: median {panda['switching_step_us']:.3g} us, mean "
+              f"{panda['switching_step_mean_us']:.3g} us ({panda['switching_steps_with_switch']} steps with a switch), "
+              f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP")
     for name, r in results.items():
         print(f"{name}: track() {r['track_step_us']:.3g} us per step against Tracker.step() {r['tracker_step_us']:.3g} "
               f"us: ratio {r['track_over_step']:.2f} (target <= 1.3)")

@@ -16,6 +16,8 @@ What a user needs is exported here::
     traj = kr.track(robot, path, index, start.q, loops=2)
 """
 
+from importlib.metadata import version as _version
+
 from kinredund import indices, paths, tasks
 from kinredund.errors import (
     ChoiceError,
@@ -23,10 +25,12 @@ from kinredund.errors import (
     HDTableError,
     JointVectorError,
     KinredundError,
+    OptionError,
     PathError,
     SingularityError,
     SolverError,
     TaskError,
+    TrackingError,
     UnknownRobotError,
     URDFError,
 )
@@ -45,16 +49,18 @@ from kinredund.paths import (
     SampledPath,
     read_path_file,
 )
+from kinredund.planning.cyclic import CyclicPlan, plan
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking import track
+from kinredund.tracking import JointLimits, Tracker, track
 from kinredund.trajectory import Trajectory
 
-__version__ = "0.1.0"
+__version__ = _version("kinredund")
 
 __all__ = [
     "AxisPath",
     "ChoiceError",
     "Circle",
+    "CyclicPlan",
     "CustomIndex",
     "Ellipse",
     "FrameNotFoundError",
@@ -65,8 +71,10 @@ __all__ = [
     "IKResult",
     "Index",
     "JointDeviation",
+    "JointLimits",
     "JointVectorError",
     "KinredundError",
+    "OptionError",
     "Path",
     "PathError",
     "PathSample",
@@ -77,6 +85,8 @@ __all__ = [
     "Task",
     "TaskError",
     "TimeVaryingReference",
+    "Tracker",
+    "TrackingError",
     "Trajectory",
     "URDFError",
     "UnknownRobotError",
@@ -88,6 +98,7 @@ __all__ = [
     "mid_range",
     "minimum_norm",
     "paths",
+    "plan",
     "read_path_file",
     "robot_from_hd",
     "solve_ik",

@@ -32,7 +32,8 @@ from kinredund.tasks import get_task, task_names
 SCHEMA_VERSION = 1
 #: Optional arrays with one row per recorded point, and their shape after the first axis.
 _PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "position_error": (),
-              "trace_error": (), "vect_error": (), "axis_error": (), "normality_residual": ()}
+              "trace_error": (), "vect_error": (), "axis_error": (), "normality_residual": (),
+              "active_bounds": (None,), "bound_multipliers": (None,), "limit_margins": (None,)}
 #: The names of those optional per-point arrays (functions of the point on the path, not of its time).
 PER_POINT_FIELDS = tuple(_PER_POINT)
 
@@ -62,6 +63,14 @@ class Trajectory:
         normality_residual: the norm of the first-order normality residual per step (Eq. 4.5).
         loop_drift: joint drift at the end of each loop [rad], revolute joints compared modulo 2 pi.
         loop_period: the period of the closed path [s], or None for open paths.
+        active_bounds: per step and joint, -1 at its lower limit, +1 at its upper limit, 0 free, shape
+            (N, n), or None (a run without limits).
+        bound_multipliers: per step and joint, the multiplier mu >= 0 of its active bound (0 where free),
+            shape (N, n), or None.
+        limit_margins: per step and joint, the distance to the nearer limit [rad or m] (1e10 where a joint
+            has none), shape (N, n), or None.
+        switch_times: the times [s] where the active set changed (``meta["switches"]`` says which joint and
+            how), or None (times of the run as tracked: a retimed record keeps them as they were).
         qdot: joint velocities, shape (N, n) [rad/s or m/s], or None (a retimed record has them:
             :func:`kinredund.retime.retime`).
         qddot: joint accelerations, shape (N, n) [rad/s^2 or m/s^2], or None.
@@ -88,6 +97,10 @@ class Trajectory:
     loop_drift: np.ndarray | None = None
     loop_period: float | None = None
     meta: dict = field(default_factory=dict)
+    active_bounds: np.ndarray | None = None
+    bound_multipliers: np.ndarray | None = None
+    limit_margins: np.ndarray | None = None
+    switch_times: np.ndarray | None = None
     qdot: np.ndarray | None = None
     qddot: np.ndarray | None = None
 
@@ -187,6 +200,8 @@ class Trajectory:
                             f"{len(self.solver)} entries")
         if self.loop_drift is not None:
             out["loop_drift"] = check_array(self.loop_drift, (None,), "trajectory loop_drift [rad]", PathError)
+        if self.switch_times is not None:
+            out["switch_times"] = check_array(self.switch_times, (None,), "trajectory switch_times [s]", PathError)
         if self.loop_period is not None:
             out["loop_period"] = check_positive(self.loop_period, "trajectory loop_period [s]", PathError)
         return replace(self, solver=tuple(self.solver), **out)

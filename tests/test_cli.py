@@ -182,3 +182,243 @@ def test_failed_run_leaves_no_output_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "kinredund: error:" in err and "t = " in err
     assert not js.exists() and not list(tmp_path.iterdir())
+
+
+# -- help, version, messages ---------------------------------------------------------------------------
+def _subparsers(parser):
+    import argparse
+
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return action.choices
+
+
+def test_every_option_has_help_with_its_default():
+    """Walk every subcommand's options: each has a help text; one with a default says it (or %(default)s);
+    every subcommand has a description and an example in its epilog."""
+    import argparse
+
+    from kinredund.ui.cli import build_parser
+
+    parser = build_parser()
+    missing, no_default = [], []
+    for name, sub in _subparsers(parser).items():
+        assert sub.description and "`" not in sub.description.replace("`kinredund", ""), name
+        assert sub.epilog and f"kinredund {name}" in sub.epilog or name == "play" and "kinredund play" in sub.epilog
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            label = f"{name} {'/'.join(action.option_strings) or action.dest}"
+            if not action.help or not action.help.strip():
+                missing.append(label)
+            elif action.option_strings and not action.required and "default" not in action.help:
+                no_default.append(label)
+    assert not missing, f"options without help text: {missing}"
+    assert not no_default, f"options whose help does not give the default: {no_default}"
+    assert "``" not in parser.description and "`" not in parser.description  # plain words, no RST
+    assert "examples:" in parser.epilog
+
+
+def test_help_renders_units_and_defaults(capsys):
+    with pytest.raises(SystemExit) as err:
+        main(["track", "--help"])
+    assert err.value.code == 0
+    out = capsys.readouterr().out
+    assert "[m/s] (default: 0.1)" in out and "[m] (default: 0.1)" in out and "examples:" in out
+
+
+def test_version(capsys):
+    import kinredund
+
+    with pytest.raises(SystemExit) as err:
+        main(["--version"])
+    assert err.value.code == 0
+    assert capsys.readouterr().out.strip() == f"kinredund {kinredund.__version__}"
+
+
+def test_robots_lists_what_the_loader_knows(capsys):
+    from kinredund.model.robot import known_robots
+
+    assert main(["robots"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines[1:]] == known_robots()
+
+
+def test_ik_pose_without_rpy_hints_at_task_position(capsys):
+    assert main(["ik", "panda", "--target", "0.4,0.2,0.5"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "--rpy" in err and "--task position" in err
+    assert main(["ik", "panda", "--target", "0.4,0.2,0.5", "--task", "position"]) == 0
+
+
+def test_play_needs_an_action_and_says_so(tmp_path, capsys):
+    js = tmp_path / "t.json"
+    assert main(["track", "planar3r", "--radius", "0.5", "--speed", "0.5", "--json", str(js), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["play", str(js)]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "--html" in err and "--live" in err and str(js) in err
+    bad = tmp_path / "other.json"
+    bad.write_text('{"hello": 1}')
+    assert main(["play", str(bad), "--html", str(tmp_path / "x.html")]) == EXIT_USAGE
+    assert "not a kinredund record" in capsys.readouterr().err
+
+
+def test_play_replays_the_helix_of_3_2(tmp_path, capsys):
+    js, html = tmp_path / "h.json", tmp_path / "h.html"
+    assert main(["reproduce", "3.2", "--json", str(js), "--quiet"]) == 0
+    assert main(["play", str(js), "--html", str(html)]) == 0
+    assert f"wrote {html}" in capsys.readouterr().out
+    page = html.read_text()
+    assert "puma7: Section 3.2" in page
+    desired = next(c for c in scene_commands(page) if c.get("path") == "/meshcat/path/desired")
+    line = np.frombuffer(desired["object"]["geometries"][0]["data"]["attributes"]["position"]["array"].data,
+                         dtype=np.float32).reshape(-1, 3)
+    np.testing.assert_allclose(line, json.loads(js.read_text())["wrist_centre"], atol=1e-5)  # the helix itself
+
+
+def test_plan_6_2_failure_prints_no_empty_rows_and_play_explains(tmp_path, capsys):
+    js, png = tmp_path / "p.json", tmp_path / "p.png"
+    assert main(["reproduce", "6.2", "--json", str(js), "--plot", str(png), "--quiet"]) == EXIT_FAILED
+    out = capsys.readouterr().out
+    assert f"wrote {js}" in out and f"wrote {png}" in out
+    assert not (tmp_path / "p_snapshots.png").exists()  # no motion, no snapshots
+    rows = out.splitlines()[1:-2]
+    assert rows and not [r for r in rows if r.split()[-1] in ("None", "nan", "{}", "[]")], rows
+    assert main(["play", str(js), "--html", str(tmp_path / "p.html")]) == EXIT_USAGE
+    assert "no motion to replay" in capsys.readouterr().err
+
+
+def test_summary_numbers_have_one_format(capsys):
+    from kinredund.ui.cli import _print_summary
+
+    _print_summary({"loop_drift": [1.234567e-15, 2.5e-15], "x": None, "y": float("nan"), "z": {}, "w": [],
+                    "timings_s": {"roadmap_s": 12.345, "total_s": 20.0}, "position_error_max": 1.23456e-12})
+    _print_summary({"loop_drift": 0.0})
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines] == ["loop_drift", "timings_s", "position_error_max", "loop_drift"]
+    assert lines[0].split(None, 1)[1] == "2.5e-15 rad after loop 2 (largest 2.5e-15 rad)"
+    assert lines[3].split(None, 1)[1] == "0 rad after loop 1"
+    assert "roadmap 12.3 s, total 20 s" in lines[1] and lines[2].endswith("1.23e-12 m")
+
+
+def test_baseline_normality_residual_is_against_the_index(capsys):
+    """`track --scheme pseudoinverse` measures the normality residual (Eq. 4.5) against --index: the
+    pseudoinverse leaves the optimum of the home index, so its residual is far from round-off."""
+    assert main(["track", "planar3r", "--radius", "0.5", "--speed", "0.5", "--scheme", "pseudoinverse",
+                 "--quiet"]) == 0
+    out = capsys.readouterr().out
+    (row,) = [line for line in out.splitlines() if "normality_residual_max" in line]
+    assert float(row.split()[1]) > 1e-4, row
+
+
+def test_track_announces_every_file(tmp_path, capsys):
+    files = {flag: tmp_path / f"t.{ext}" for flag, ext in (("--json", "json"), ("--plot", "png"), ("--html", "html"))}
+    argv = ["track", "planar3r", "--radius", "0.5", "--speed", "0.5", "--quiet"]
+    assert main(argv + [x for flag, f in files.items() for x in (flag, str(f))]) == 0
+    out = capsys.readouterr().out
+    assert all(f"wrote {f}" in out for f in files.values())
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f.name for f in files.values())
+
+
+def _progress_lines(proc, until: str, timeout: float) -> list[str]:
+    """stderr lines of ``proc`` until one contains ``until`` (or the stream ends), each waited for with a
+    select timeout (a hang fails the test; no assertion on speed)."""
+    import select
+
+    lines = []
+    while True:
+        ready, _, _ = select.select([proc.stderr], [], [], timeout)
+        assert ready, f"no progress line within {timeout} s; so far: {lines}"
+        line = proc.stderr.readline()
+        if not line:
+            return lines
+        lines.append(line.rstrip("\n"))
+        if until in line:
+            return lines
+
+
+@pytest.mark.slow
+def test_plan_6_3_reports_progress_from_start_to_end(tmp_path):
+    """`kinredund plan 6.3` writes a progress line before any work (off a terminal: one line per stage and
+    every few seconds) and follows the roadmap, the tracking and the clearance check to the end."""
+    from pathlib import Path
+
+    exe = Path(sys.executable).with_name("kinredund")
+    proc = subprocess.Popen([str(exe), "plan", "6.3", "--json", str(tmp_path / "p.json")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        first = _progress_lines(proc, "starting", timeout=60)
+        assert first[-1].startswith("plan 6.3: starting 0/1")
+        rest = _progress_lines(proc, "plan 6.3: done", timeout=60)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0
+    stages = [line.split(": ", 1)[1].rsplit(" ", 3)[0] for line in rest if " 0/" in line or "/" in line]
+    for stage in ("roadmap", "tracking", "clearance"):
+        assert any(s.startswith(stage) for s in stages), rest
+    assert rest[-1].startswith("plan 6.3: done")
+    assert f"wrote {tmp_path / 'p.json'}" in out
+    # the plan replays: the scaled P-15 of Section 6.3 with its obstacle, the end point on the planned path
+    html = tmp_path / "p.html"
+    run = subprocess.run([str(exe), "play", str(tmp_path / "p.json"), "--html", str(html)], capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    page = html.read_text()
+    assert "cybotech_p15_x8: Section 6.3, collision-free plan" in page and "obstacle" in page
+    cmds = scene_commands(page)
+    assert any(c.get("path") == "/meshcat/obstacle" for c in cmds if c["type"] == "set_object")
+    (anim,) = [c for c in cmds if c["type"] == "set_animation"]
+    keys, tracer = animation_track(anim, "/meshcat/path/tracer", "position")
+    from kinredund.planning.spatial import section_path
+
+    path = section_path()
+    fps = anim["animations"][0]["clip"]["fps"]
+    t0 = json.loads((tmp_path / "p.json").read_text())["t"][0]
+    on_path = np.array([path(t0 + k / fps).p for k in keys])
+    # the replayed end point (FK of the plan's joints, interpolated linearly between its 720 steps) is on the
+    # Section 6.3 path at the same time: the chord of one step (~1 cm) leaves a sagitta well below 1e-4 m
+    assert np.abs(tracer - on_path).max() < 1e-4
+
+
+def test_quiet_prints_no_progress(tmp_path):
+    from pathlib import Path
+
+    exe = Path(sys.executable).with_name("kinredund")
+    run = subprocess.run([str(exe), "reproduce", "4.1", "--quiet"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and run.stderr == ""
+    run = subprocess.run([str(exe), "reproduce", "4.1"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and run.stderr.startswith("reproduce 4.1: starting")
+    assert "reproduce 4.1: tracking" in run.stderr and run.stderr.rstrip().splitlines()[-1].startswith(
+        "reproduce 4.1: done")
+
+
+def test_progress_lines_off_a_terminal_and_a_bar_on_one():
+    import io
+
+    from kinredund.ui.progress import Progress
+
+    log = io.StringIO()
+    bar = Progress("plan 6.3", stream=log, interval=1e9)  # no timed lines: one per stage
+    for stage, total in (("roadmap", 50), ("tracking", 720), ("clearance", 1)):
+        for k in range(total + 1):
+            bar(k, total, stage)
+    bar.close()
+    lines = log.getvalue().splitlines()
+    assert [line.split(": ")[1].split(" ")[0] for line in lines[:-1]] == ["roadmap", "tracking", "clearance"]
+    assert lines[0].startswith("plan 6.3: roadmap 0/50 (0%)") and lines[-1].startswith("plan 6.3: done")
+    quiet = io.StringIO()
+    bar = Progress("x", stream=quiet, quiet=True)
+    bar(1, 2, "a")
+    bar.close()
+    assert quiet.getvalue() == ""
+    term = io.StringIO()
+    bar = Progress("track panda", stream=term)
+    bar.terminal = True  # as on a terminal: tqdm draws on the stream
+    bar(0, 1, "the optimal start (IK)")
+    bar(100, 200, "tracking")
+    bar.close()
+    drawn = term.getvalue()
+    assert "track panda: the optimal start (IK)" in drawn and "track panda: tracking" in drawn and "100/200" in drawn

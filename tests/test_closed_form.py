@@ -374,7 +374,7 @@ def _brent_on_curve(geom, rho2, t3):
 
 # -- Section 3.2 -----------------------------------------------------------------------------------------
 def test_section_3_2_helix(tmp_path):
-    from kinredund.thesis.helix_3_2 import reproduce
+    from kinredund.ui.reproduce import helix as reproduce
 
     data = reproduce(samples=19, json_path=tmp_path / "h.json", plot_path=tmp_path / "h.png")
     saved = json.loads((tmp_path / "h.json").read_text())

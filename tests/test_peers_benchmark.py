@@ -24,7 +24,7 @@ def _has(module: str) -> bool:
 
 
 def test_one_loop_constant_orientation(tmp_path):
-    methods = ["augmented", "pseudoinverse"] + (["pink"] if _has("pink") else [])
+    methods = ["augmented", "augmented_limits", "pseudoinverse"] + (["pink", "pink_proxqp"] if _has("pink") else [])
     t0 = time.perf_counter()
     out = peers.run(loops=1, variants=("constant",), methods=tuple(methods))
     wall_us = (time.perf_counter() - t0) * 1e6
@@ -46,6 +46,8 @@ def test_one_loop_constant_orientation(tmp_path):
     for r in (ours, pinv):
         assert r["position_error_max"] < TRACK_HOLD and r["orientation_error_max"] < TRACK_HOLD
     assert ours["normality_residual_max"] < TRACK_HOLD < pinv["normality_residual_max"]
+    # no bound is met on this circle: the limited scheme follows the same joints
+    assert np.abs(np.array(res["augmented_limits"]["drift"]) - ours["drift"]).max() < 1e-12
     if "pink" in res:  # a dead-beat step on a moving target lags by O(dt^2) and drifts like Whitney
         assert res["pink"]["drift"][0] > ours["drift"][0]
         assert res["pink"]["position_error_max"] < 1e-3

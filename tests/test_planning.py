@@ -20,8 +20,9 @@ from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder
 from kinredund.planning.planner import default_policy
 from kinredund.planning.selfmotion import routes, trace
 from kinredund.thesis.chapter4 import load_example, run_example
-from kinredund.thesis.chapter6 import case_robot, planar_feasibility, planar_setup, reproduce
+from kinredund.thesis.chapter6 import case_robot, planar_feasibility, planar_setup
 from kinredund.ui.cli import EXIT_FAILED, main
+from kinredund.ui.reproduce import plan_case
 
 
 def _ellipse_points(ob, m=20000):
@@ -104,7 +105,7 @@ def test_a_closed_planar_loop_around_a_convex_obstacle_sweeps_over_it():
 
 def test_reproduce_6_2_reports_the_failure_with_its_reason(tmp_path):
     js, png = tmp_path / "p.json", tmp_path / "p.png"
-    result = reproduce("6.2", json_path=js, plot_path=png)
+    result = plan_case("6.2", json_path=js, plot_path=png)
     assert not result.ok and "beyond" in result.reason and "sweep" in result.reason
     data = json.loads(js.read_text())
     for key in ("t", "q", "q_spline", "samples", "clearance_min", "links", "obstacle", "ok", "reason"):

@@ -191,10 +191,10 @@ def test_screening_clearance_is_a_lower_bound_of_the_exact_one():
 
 @pytest.fixture(scope="module")
 def section_6_3(tmp_path_factory):
-    from kinredund.thesis.chapter6 import reproduce
+    from kinredund.ui.reproduce import plan_case
 
     out = tmp_path_factory.mktemp("ch6")
-    result = reproduce("6.3", json_path=out / "6.3.json", plot_path=out / "6.3.png")
+    result = plan_case("6.3", json_path=out / "6.3.json", plot_path=out / "6.3.png")
     return result, out
 
 

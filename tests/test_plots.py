@@ -241,3 +241,54 @@ def test_every_figure_checks_the_record():
             figure(dataclasses.replace(traj, q=q))
         with pytest.raises(KinredundError, match="solver must be empty or 101 labels"):
             figure(dataclasses.replace(traj, solver=traj.solver[:-1]))
+
+
+# -- Chapter 6 (kinredund.ui.plan_plots) ---------------------------------------------------------------
+def _plan(still_joint: bool = True):
+    """A made-up plan of the planar 3R: joint 3 held still (when asked), a spline 1e-3 rad off the
+    tracked joints, and two links' clearance."""
+    from types import SimpleNamespace
+
+    tr = synthetic(loops=1)
+    q = tr.q.copy()
+    if still_joint:
+        q[:, 2] = 0.25
+    tr = dataclasses.replace(tr, q=q)
+    clearance = SimpleNamespace(t=tr.t, clearance=np.column_stack([0.3 + 0.1 * np.sin(tr.t), 0.05 + 0 * tr.t]),
+                                names=("link 1", "link 2"))
+    return SimpleNamespace(trajectory=tr, q_spline=q + 1e-3, clearance=clearance, ok=True, reason="")
+
+
+def test_plan_figure_draws_moving_joints_with_dashed_splines_and_names_the_still_ones():
+    from kinredund.ui.plan_plots import plan_figure
+
+    result = _plan()
+    fig = plan_figure("6.2", result, {}, robot_name="planar3r")
+    joints, clear = fig.axes[:2]
+    solid = [ln for ln in joints.get_lines() if ln.get_linestyle() == "-" and len(ln.get_xdata())]
+    dashed = [ln for ln in joints.get_lines() if ln.get_linestyle() == "--" and len(ln.get_xdata())]
+    assert len(solid) == len(dashed) == 2  # theta1, theta2; theta3 is still and not drawn
+    np.testing.assert_allclose(dashed[0].get_ydata(), np.degrees(result.q_spline[:, 0]))
+    labels = [t.get_text() for t in joints.get_legend().get_texts()]
+    assert any("spline" in s for s in labels) and any("not drawn" in s and "theta_{3}" in s for s in labels)
+    assert joints.get_legend().get_bbox_to_anchor().x0 > joints.get_window_extent().x1 - 1  # off the data
+    assert joints.get_ylabel() == "joint angle [deg]" and clear.get_ylabel() == "clearance to the obstacle [m]"
+    assert clear.get_xlabel() == "time [s]"
+
+
+def test_snapshots_name_their_views_and_label_the_axes(tmp_path):
+    from kinredund.planning.obstacles import EllipseObstacle
+    from kinredund.ui.plan_plots import snapshot_figure
+
+    obstacle = EllipseObstacle(center=(3.0, 3.0), a=0.8, b=0.4, angle=0.3)
+    fig = snapshot_figure(_plan(still_joint=False), robot("planar3r"), obstacle, count=4)
+    (view,) = [ax for ax in fig.axes if ax.get_title()]
+    assert view.get_title() == "top view (x-y plane)"
+    assert (view.get_xlabel(), view.get_ylabel()) == ("x [m]", "y [m]")
+    arms = [ln for ln in view.get_lines() if ln.get_marker() == "o"]
+    assert len(arms) == 4  # the arm at four times
+    r = robot("planar3r")
+    tr = _plan(still_joint=False).trajectory
+    np.testing.assert_allclose(arms[0].get_xdata(), r.kinematics.joint_origins(tr.q[0])[:, 0])
+    out = snapshot_figure(_plan(still_joint=False), r, obstacle, tmp_path / "s.png")
+    assert_png(out)

@@ -10,13 +10,9 @@ from __future__ import annotations
 
 import base64
 import dataclasses
-import json
 import math
 import os
 import re
-import select
-import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -27,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _chromium import MESHCAT_READY, needs_chromium, open_page
 from conftest import robot
 
 from kinredund import ChoiceError, JointVectorError, PathError, TaskError
@@ -98,6 +95,14 @@ def payload(obj) -> int:
     if isinstance(obj, (list, tuple)):
         return sum(payload(v) for v in obj)
     return 0
+
+
+def floor_points(cmds: list[dict]) -> np.ndarray:
+    """End points of the floor grid's lines (the ``/meshcat/floor`` LineSegments), shape (2 L, 3) [m]."""
+    floor = next(c for c in cmds if c["type"] == "set_object" and c["path"] == "/meshcat/floor")
+    assert floor["object"]["object"]["type"] == "LineSegments"
+    array = floor["object"]["geometries"][0]["data"]["attributes"]["position"]["array"]
+    return np.frombuffer(array.data, dtype=np.float32).reshape(-1, 3)
 
 
 def track(animation: dict, path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -294,10 +299,22 @@ def test_replay_html_holds_robot_path_obstacle_and_animation(tmp_path):
         np.testing.assert_allclose(pos[k], r.kinematics.joint_origins(q)[2], atol=1e-9)
         np.testing.assert_allclose(tracer[k], [np.interp(clock[k], traj.t, traj.p[:, i]) for i in range(3)],
                                    atol=1e-9)
-    # the scene is shifted so that the camera's orbit centre is the centre of the scene
+    # the scene is shifted so that the camera's orbit centre is the centre of the scene; the floor is a
+    # child of /meshcat (so it shifts with the robot) and meshcat's own 20 m grid is hidden
     shift = next(c for c in cmds if c["type"] == "set_transform" and c["path"] == "/meshcat")
-    grid = next(c for c in cmds if c["type"] == "set_transform" and c["path"] == "/Grid")
-    assert shift["matrix"] == grid["matrix"]
+    axes = next(c for c in cmds if c["type"] == "set_transform" and c["path"] == "/Axes")
+    assert shift["matrix"] == axes["matrix"]
+    hidden = [c for c in cmds if c["type"] == "set_property" and c["path"] == "/Grid"]
+    assert [(c["property"], c["value"]) for c in hidden] == [("visible", False)]
+    floor = floor_points(cmds)
+    np.testing.assert_array_equal(floor[:, 2], 0.0)  # on z = 0 of the robot's frame
+    reach = np.vstack([traj.p, traj.p_desired])[:, :2]
+    assert np.all(floor[:, :2].min(axis=0) < reach.min(axis=0))  # under the whole motion
+    assert np.all(floor[:, :2].max(axis=0) > reach.max(axis=0))
+    # the page names the robot and the path, and has a time readout and a legend
+    assert 'id="kinredund-title"' in html and "planar3r: closed path, augmented scheme" not in html
+    assert "planar3r: open path, augmented scheme (default mode)" in html  # synthetic: no loop_period
+    assert 'id="kinredund-time"' in html and "desired path" in html and "obstacle" in html
 
 
 def test_replay_html_bad_input_leaves_nothing_behind(tmp_path):
@@ -319,6 +336,58 @@ def test_replay_html_panda_carries_its_meshes(tmp_path):
     meshes = [c for c in cmds if c["type"] == "set_object" and c["path"].startswith("/meshcat/robot/visuals/")]
     assert len(meshes) >= 8  # link0..link7 and the hand, fingers included
     assert sum(payload(c["object"]) for c in meshes) > 100_000  # real meshes, not boxes
+
+
+@pytest.mark.filterwarnings("ignore:the matrix subclass:PendingDeprecationWarning")  # inside pycollada
+def test_panda_meshes_are_compact_and_match_the_collada_files(tmp_path):
+    """The Panda's meshes go in as binary triangles: the corners span the same box as the Collada file
+    read independently (pycollada, no trimesh), and the page is far smaller than meshcat's base64 text."""
+    import collada
+
+    from kinredund.ui.viz.meshes import compact_mesh
+
+    r = robot("panda")
+    share = Path(r.package_dirs[0]) / "example-robot-data" / "robots" / "panda_description" / "meshes" / "visual"
+    dae = share / "link1.dae"
+    parts = compact_mesh(dae)
+    corners = np.vstack([p.vertices for p in parts])
+    doc = collada.Collada(str(dae))
+    raw = np.vstack([prim.vertex for geom in doc.scene.objects("geometry") for prim in geom.primitives()])
+    np.testing.assert_allclose(corners.min(axis=0), raw.min(axis=0), atol=1e-5)  # float32 of metres
+    np.testing.assert_allclose(corners.max(axis=0), raw.max(axis=0), atol=1e-5)
+    assert all(p.faces.dtype == np.uint16 and p.faces.max() < len(p.vertices) for p in parts)
+    assert compact_mesh(dae) is parts  # read once per process
+    assert compact_mesh(share / "no_such_file.dae") is None
+
+    traj = synthetic("panda", duration=2.0, steps=41)
+    page = replay_html(traj, tmp_path / "panda.html", robot=r).read_text()
+    meshes = [c for c in scene_commands(page) if c["type"] == "set_object" and "/visuals/" in c["path"]]
+    assert all(c["object"]["geometries"][0]["type"] == "BufferGeometry" for c in meshes)
+    # meshcat's Collada text of the ten visual files is 10.5 MB (14 MB in base64); the compact form is
+    # under a quarter of the text
+    text = sum(f.stat().st_size for f in share.glob("*.dae"))
+    assert len(page) < 0.45 * text, (len(page), text)
+
+
+def test_static_tracks_are_dropped_and_moving_ones_kept(tmp_path):
+    traj = synthetic("panda", duration=2.0, steps=41)
+    anim = next(c for c in scene_commands(replay_html(traj, tmp_path / "p.html", robot=robot("panda")).read_text())
+                if c["type"] == "set_animation")
+    paths = {a["path"] for a in anim["animations"]}
+    assert "/meshcat/robot/visuals/panda_link0_0" not in paths  # the base never moves
+    assert {"/meshcat/robot/visuals/panda_link7_0", "/meshcat/path/tracer"} <= paths
+
+
+def test_floor_grid_spacing_and_extent():
+    from kinredund.ui.viz.scene import floor_grid, nice_step
+
+    assert [nice_step(v) for v in (0.03, 0.1, 0.11, 0.3, 0.7, 4.0)] == pytest.approx([0.05, 0.1, 0.2, 0.5, 1, 5])
+    pts = np.array([[0.2, -0.3, 0.5], [0.7, 0.4, 0.0], [0.0, 0.0, 0.0]])
+    grid = floor_grid(pts)
+    lo, hi = grid.center - grid.half, grid.center + grid.half
+    assert np.all(lo <= pts[:, :2].min(axis=0)) and np.all(hi >= pts[:, :2].max(axis=0))
+    assert grid.half / grid.spacing == pytest.approx(round(grid.half / grid.spacing))  # whole cells
+    assert np.allclose(grid.center / grid.spacing, np.round(grid.center / grid.spacing))  # centre on a line
 
 
 # -- live server -----------------------------------------------------------------------------------
@@ -347,93 +416,11 @@ def test_play_live_serves_the_viewer_and_stops():
         stop_live(url)
 
 
-# -- a real browser --------------------------------------------------------------------------------
-_TRAMPOLINE = """
-import fcntl, os, sys
-r, w = (fcntl.fcntl(int(fd), fcntl.F_DUPFD, 10) for fd in sys.argv[1:3])
-for fd in sys.argv[1:3]:
-    os.close(int(fd))
-os.dup2(r, 3)
-os.dup2(w, 4)
-os.close(r)
-os.close(w)
-os.execv(sys.argv[3], sys.argv[3:])
-"""
-
-
-class Chromium:
-    """Headless Chromium driven through the DevTools protocol over a pipe (its fds 3 and 4).
-
-    The pipe needs no port and no websocket client. ``close`` asks the browser to quit (so that it
-    reaps its own helper processes), waits for it, and kills its process group by PID if it hangs.
-    """
-
-    FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-             "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-
-    def __init__(self, profile: Path):
-        to_child_r, self._to_child = os.pipe()
-        self._from_child, from_child_w = os.pipe()
-        # Chromium reads the DevTools pipe on fd 3 and writes on fd 4: a small trampoline moves our
-        # ends there and execs the browser (same PID; no preexec_fn in this threaded process)
-        args = [sys.executable, "-c", _TRAMPOLINE, str(to_child_r), str(from_child_w), shutil.which("chromium"),
-                *self.FLAGS, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"]
-        self.proc = subprocess.Popen(args, pass_fds=(to_child_r, from_child_w), start_new_session=True,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        os.close(to_child_r)
-        os.close(from_child_w)
-        self._buffer = b""
-        self._next_id = 0
-
-    def call(self, method: str, params: dict | None = None, session: str | None = None, timeout: float = 20.0):
-        self._next_id += 1
-        message = {"id": self._next_id, "method": method, "params": params or {}}
-        if session:
-            message["sessionId"] = session
-        os.write(self._to_child, json.dumps(message).encode() + b"\0")
-        deadline = time.monotonic() + timeout
-        while True:
-            while b"\0" not in self._buffer:
-                left = deadline - time.monotonic()
-                if left <= 0 or not select.select([self._from_child], [], [], left)[0]:
-                    raise TimeoutError(f"no answer to {method} in {timeout} s")
-                chunk = os.read(self._from_child, 1 << 20)
-                if not chunk:
-                    raise EOFError(f"chromium closed the DevTools pipe during {method}")
-                self._buffer += chunk
-            raw, self._buffer = self._buffer.split(b"\0", 1)
-            reply = json.loads(raw)
-            if reply.get("id") == self._next_id:
-                if "error" in reply:
-                    raise RuntimeError(f"{method}: {reply['error']}")
-                return reply["result"]
-
-    def close(self) -> None:
-        try:
-            if self.proc.poll() is None:
-                self.call("Browser.close", timeout=5)
-            self.proc.wait(timeout=10)
-        except (OSError, TimeoutError, EOFError, RuntimeError, subprocess.TimeoutExpired):
-            if self.proc.poll() is None:
-                os.killpg(self.proc.pid, signal.SIGKILL)  # the group of the browser we started
-            self.proc.wait()
-        finally:
-            for fd in (self._to_child, self._from_child):
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-
-
+# -- a real browser (tests/_chromium.py) ------------------------------------------------------------
 def orange_mask(img: np.ndarray) -> np.ndarray:
     """Pixels of the robot's orange (0.9, 0.55, 0.1) under any shading: hue about 28 deg, saturated."""
     r, g, b = (img[..., k].astype(float) for k in range(3))
     return (r > 90) & (r - b > 0.6 * r) & (g > 0.4 * r) & (g < 0.8 * r)
-
-
-needs_chromium = pytest.mark.skipif(
-    shutil.which("chromium") is None, reason="chromium is not installed (`make browser` installs it)"
-)
 
 
 CAMERA_PROBE = """({camera: viewer.camera.matrixWorld.elements,
@@ -447,38 +434,13 @@ def two_frames(url: str, profile: Path, gap: float = 1.0):
     clock). Returns (first, second, clock_first, clock_second, camera): RGB arrays, animation times
     [s], and the browser's camera in the robot's frame (see :func:`camera_in_robot_frame`).
     """
-    from io import BytesIO
-
-    from PIL import Image
-
-    browser = Chromium(profile)
-    try:
-        target = next(t for t in browser.call("Target.getTargets")["targetInfos"] if t["type"] == "page")
-        session = browser.call("Target.attachToTarget", {"targetId": target["targetId"], "flatten": True})[
-            "sessionId"]
-        browser.call("Emulation.setDeviceMetricsOverride",
-                     {"width": 800, "height": 600, "deviceScaleFactor": 1, "mobile": False}, session)
-        browser.call("Page.navigate", {"url": url}, session)
-
-        def evaluate(expression: str):
-            return browser.call("Runtime.evaluate", {"expression": expression, "returnByValue": True},
-                                session)["result"].get("value")
-
-        def screenshot() -> np.ndarray:
-            data = browser.call("Page.captureScreenshot", {"format": "png"}, session)["data"]
-            return np.asarray(Image.open(BytesIO(base64.b64decode(data))).convert("RGB"))
-
-        deadline = time.monotonic() + 30
-        while not evaluate("typeof viewer !== 'undefined' && viewer.animator.duration > 0"):
-            assert time.monotonic() < deadline, "the page never loaded its animation"
-            time.sleep(0.1)
+    with open_page(url, profile) as page:
+        page.wait_for(MESHCAT_READY, what="its animation")
         time.sleep(0.5)  # let the first frames render
-        first, clock_first = screenshot(), evaluate("viewer.animator.time")
+        first, clock_first = page.screenshot(), page.evaluate("viewer.animator.time")
         time.sleep(gap)
-        second, clock_second = screenshot(), evaluate("viewer.animator.time")
-        camera = camera_in_robot_frame(evaluate(CAMERA_PROBE))
-    finally:
-        browser.close()
+        second, clock_second = page.screenshot(), page.evaluate("viewer.animator.time")
+        camera = camera_in_robot_frame(page.evaluate(CAMERA_PROBE))
     return first, second, clock_first, clock_second, camera
 
 
@@ -542,3 +504,13 @@ def test_live_viewer_plays_in_headless_chromium(tmp_path):
         stop_live(url)
     assert children() == before  # browser and server are gone
     assert_robot_plays(*frames)
+
+
+def test_replay_titles_name_robot_path_and_method():
+    from kinredund.ui.viz.page import replay_title
+
+    traj = synthetic(steps=11)
+    assert replay_title(traj, "circle") == "planar3r: circle, augmented scheme (default mode)"
+    assert replay_title(dataclasses.replace(traj, meta={"example": "4.3"})).startswith("planar3r: Example 4.3,")
+    plan = dataclasses.replace(traj, scheme="planner", meta={"example": "6.3"})
+    assert replay_title(plan) == "planar3r: Section 6.3, planned motion around the obstacle"

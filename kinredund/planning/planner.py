@@ -235,7 +235,8 @@ def plan(
             (:func:`wrist_reach`): the policy's last link cannot lie along the normal there (Eq. 6.44),
             and the branches found with it tilted do not join into a loop (Section 6.3 at scale 8).
             A sample whose end point itself is out of reach fails whatever this flag.
-        progress: ``progress(done, total)`` during the tracking.
+        progress: ``progress(done, total, stage)`` through the run; ``stage`` is ``samples``,
+            ``transitions``, ``tracking`` or ``clearance``.
         meta: extra entries for ``Trajectory.meta``.
 
     Returns:
@@ -274,6 +275,8 @@ def plan(
             timings["samples_s"] = perf_counter() - t_start
             return failure(_reach_reason(wr, ts, ps, names), names, timings)
     for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
+        if progress is not None:
+            progress(k, len(ts), "samples")
         index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
         user = seeds.get(k)
         user = [] if user is None else ([user] if np.ndim(user) == 1 else list(user))
@@ -292,6 +295,8 @@ def plan(
     n = ts.size
     trans: list[list[list[Transition]]] = []
     for k in range(n):
+        if progress is not None:
+            progress(k, n, "transitions")
         tb = ts[k + 1] if k + 1 < n else period
         nxt = cands[k + 1] if k + 1 < n else cands[0]
         trans.append([[transition(robot, path, ts[k], a, tb, b, model=model, obstacle=obstacle,

@@ -152,12 +152,13 @@ class Roadmap:
 
 
 def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, grid: int = 360,
-                  max_jump: float = 0.25) -> Roadmap:
+                  max_jump: float = 0.25, progress=None) -> Roadmap:
     """The cyclic collision-free motion with the largest clearance margin on the roadmap (module docstring).
 
     The margin is bisected in :data:`MARGIN_RANGE` (:data:`MARGIN_BISECTIONS` steps); ``tool_tip`` [m] is
     the last link's tip left out of its clearance, as in
-    :func:`~kinredund.planning.clearance.link_clearance`.
+    :func:`~kinredund.planning.clearance.link_clearance`. ``progress(done, total, "roadmap")`` is called
+    after each time slice and each bisection.
 
     Raises:
         TaskError: the arm is not of Table 4.1's architecture.
@@ -171,7 +172,14 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
     ts = np.arange(slices) * period / slices
     Q = np.zeros((slices, 4, grid, 4))
     C = np.full((slices, 4, grid), -np.inf)
+    total = slices + MARGIN_BISECTIONS + 1
+
+    def report(done):
+        if progress is not None:
+            progress(done, total, "roadmap")
+
     for k, t in enumerate(ts):
+        report(k)
         q, ok = self_motion(arch, path(t).p, theta1)
         pts = origins(arch, q).reshape(4 * grid, 5, 3)
         seg = np.stack([pts[:, 1:4], pts[:, 2:5]], axis=2)  # links O2-O3, O3-O4, O4-P: (4 grid, 3, 2, 3)
@@ -225,6 +233,7 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
                 best_seq, best_cost = seq[::-1], float(dist[goal])
         return best_seq
 
+    report(slices)
     lo, hi = MARGIN_RANGE
     allow_same = False
     best = cycle(lo, allow_same)
@@ -235,7 +244,8 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
         raise KinredundError(f"no cyclic collision-free motion on the roadmap ({slices} times x {grid} azimuths x 4 "
                              "branches): the arm cannot go round this obstacle without touching it")
     best_margin = lo
-    for _ in range(MARGIN_BISECTIONS):
+    for j in range(MARGIN_BISECTIONS):
+        report(slices + 1 + j)
         mid = 0.5 * (lo + hi)
         seq = cycle(mid, allow_same)
         if seq is None:
@@ -284,7 +294,8 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
     tool_tip = tool_tip_length(model, tool_tip)
     timings: dict[str, float] = {}
     try:
-        rm = roadmap_cycle(robot, path, obstacle, slices=slices, grid=grid, tool_tip=tool_tip, max_jump=max_jump)
+        rm = roadmap_cycle(robot, path, obstacle, slices=slices, grid=grid, tool_tip=tool_tip, max_jump=max_jump,
+                           progress=progress)
     except KinredundError as err:
         if isinstance(err, TaskError):
             raise
@@ -293,7 +304,9 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
     timings["roadmap_s"] = perf_counter() - t_start
     n_wrist = robot.nq - 4
     qs = []
-    for t, q4 in zip(rm.t, rm.q, strict=True):  # put each configuration exactly on the path at its time
+    for k, (t, q4) in enumerate(zip(rm.t, rm.q, strict=True)):  # put each configuration exactly on the path
+        if progress is not None:
+            progress(k, len(rm.t), "placing the roadmap on the path")
         ref = np.concatenate([q4, np.zeros(n_wrist)])
         res = closest_on_path(robot, path(t).p, ref)
         qs.append(ref + wrap_joints(res.q - ref, robot.revolute) if res.converged else ref)

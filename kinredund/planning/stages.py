@@ -170,7 +170,8 @@ def track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model:
             "tool_tip": float(tool_tip), **meta}
     try:
         traj = track(robot, path, TimeVaryingReference(spl, spl.rate), smp.q[0], steps_per_loop=steps_per_loop,
-                     loops=1, progress=progress, meta=info)
+                     loops=1, progress=None if progress is None else lambda d, n: progress(d, n, "tracking"),
+                     meta=info, limits=False)
     except KinredundError as err:
         timings["tracking_s"] = perf_counter() - t1
         return failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)
@@ -180,9 +181,13 @@ def track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model:
 
     # -- step 4: verification, independent of the indices ----------------------------------------
     t2 = perf_counter()
+    if progress is not None:
+        progress(0, 1, "clearance")
     rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=substeps, radius=link_radius,
                         tool_tip=tool_tip, check_doubling=check_doubling, path=path)
     timings["clearance_s"] = perf_counter() - t2
+    if progress is not None:
+        progress(1, 1, "clearance")
     timings["total_s"] = perf_counter() - t_start
     reason = ""
     if not rep.collision_free:

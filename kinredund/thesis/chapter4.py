@@ -70,7 +70,7 @@ def run_example(ex: Example, *, loops: int = 1, steps_per_loop: int = 200, mode:
                 scheme: str = "augmented", diagnostics: bool = True, progress=None) -> Trajectory:
     """Track the example's path from its optimal start."""
     return track(ex.robot, ex.path, ex.index, ex.q0, scheme=scheme, mode=mode, steps_per_loop=steps_per_loop,
-                 loops=loops, diagnostics=diagnostics, progress=progress,
+                 loops=loops, diagnostics=diagnostics, progress=progress, limits=False,
                  meta={"example": ex.name, "start_normality": ex.start_normality})
 
 
@@ -86,8 +86,9 @@ def indefinite_interval(traj: Trajectory) -> tuple[float, float] | None:
 
 
 def reproduce(name: str, *, loops: int = 1, steps_per_loop: int = 200, mode: str = "default",
-              scheme: str = "augmented", json_path=None, plot_path=None, progress=None) -> Trajectory:
-    """Run Example 4.1, 4.2 or 4.3 and write its JSON record and joint-history plot.
+              scheme: str = "augmented", json_path=None, progress=None) -> Trajectory:
+    """Run Example 4.1, 4.2 or 4.3 and write its JSON record (:func:`kinredund.ui.reproduce.example` adds
+    the plot).
 
     The JSON holds the trajectory record (``t``, ``q``, ``q0``, ``solver``, ``m_min_eig``,
     ``position_error_max``, ``trace_error_max``, ``vect_error_max``, ``loop_drift``, ...; see
@@ -102,8 +103,4 @@ def reproduce(name: str, *, loops: int = 1, steps_per_loop: int = 200, mode: str
              "m_indefinite_interval": None if interval is None else list(interval)}
     if json_path is not None:
         traj.save_json(json_path, extra=extra)
-    if plot_path is not None:
-        from kinredund.ui.plots import plot_joint_histories
-
-        plot_joint_histories(traj, plot_path, title=f"Example {name}: joint histories ({mode}, {scheme})")
     return traj

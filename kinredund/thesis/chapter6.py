@@ -26,7 +26,6 @@ Both are reported as the failure's reason; the plan is never called done.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
@@ -36,7 +35,7 @@ from kinredund.model.robot import Robot, load_robot
 from kinredund.paths import Ellipse
 from kinredund.planning import spatial
 from kinredund.planning.clearance import link_model
-from kinredund.planning.obstacles import EllipseObstacle, Obstacle, obstacle_from_dict
+from kinredund.planning.obstacles import EllipseObstacle, Obstacle
 from kinredund.planning.planner import plan, wrist_reach
 from kinredund.planning.roadmap import plan_roadmap
 from kinredund.planning.stages import PlanResult, failure
@@ -142,61 +141,15 @@ def to_json_dict(case: str, result: PlanResult, extra: dict) -> dict:
     }
 
 
-def plot_case(case: str, result: PlanResult, extra: dict, path) -> None:
-    """Joint histories with the spline estimates and clearance per link (Figs. 6.6-6.8, 6.12-6.13), or,
-    when there is no tracked motion, the obstacle, the path and the reach that the policy needs."""
-    from matplotlib.figure import Figure
+def reproduce(case: str, json_path=None, progress=None, samples: int = 9) -> tuple[PlanResult, dict, Robot, Obstacle]:
+    """Run Section 6.2 or 6.3 and write its JSON (atomically, also for a failed plan); returns the result,
+    the extra figures, the robot and the obstacle (:func:`kinredund.ui.reproduce.plan_case` adds the plots).
 
-    from kinredund.ui.plots import save_figure
-
-    tr = result.trajectory
-    if tr is not None:
-        fig = Figure(figsize=(7.0, 6.0))
-        ax1, ax2 = fig.subplots(2, 1, sharex=True)
-        for j in range(tr.q.shape[1]):
-            line, = ax1.plot(tr.t, np.degrees(tr.q[:, j]), label=f"theta{j + 1}")
-            if result.q_spline is not None:
-                ax1.plot(tr.t, np.degrees(result.q_spline[:, j]), "--", color=line.get_color(), lw=0.8)
-        ax1.set_ylabel("joint [deg] (dashed: spline)")
-        ax1.legend(fontsize=7, ncol=4)
-        if result.clearance is not None:
-            for k, name in enumerate(result.clearance.names):
-                ax2.plot(result.clearance.t, result.clearance.clearance[:, k], label=name)
-        ax2.axhline(0.0, color="k", lw=0.6)
-        ax2.set_xlabel("t [s]")
-        ax2.set_ylabel("clearance [m]")
-        ax2.legend(fontsize=7)
-        fig.suptitle(f"Section {case}: ok={result.ok}")
-        save_figure(fig, path)
-        return
-    fig = Figure(figsize=(6.0, 5.0))
-    ax = fig.subplots()
-    s = np.linspace(0, 2 * np.pi, 200)
-    ring, _ = obstacle_from_dict(extra["obstacle"]).boundary(s)
-    ax.fill(ring[:, 0], ring[:, 1], color="tab:purple", alpha=0.3, label="obstacle (= end-point path)")
-    feas = extra.get("feasibility")
-    if feas is not None:
-        r = feas["wrist_reach_available"]
-        ax.plot(r * np.cos(s), r * np.sin(s), "k--", lw=0.8, label="reach of joint 3 (l1 + l2)")
-        ax.plot(feas["wrist_reach_needed"] * np.cos(s), feas["wrist_reach_needed"] * np.sin(s), "r:", lw=0.8,
-                label="needed on the far side")
-    ax.plot([0], [0], "ko")
-    ax.set_aspect("equal")
-    ax.legend(fontsize=7, loc="lower left")
-    ax.set_title(f"Section {case}: no plan - {result.reason[:60]}...", fontsize=8)
-    save_figure(fig, path)
-
-
-def reproduce(case: str, json_path=None, plot_path=None, progress=None, samples: int = 9) -> PlanResult:
-    """Run Section 6.2 or 6.3, write its JSON (atomically, also for a failed plan) and plot."""
+    ``progress(done, total, stage)`` follows the whole run (see :func:`kinredund.planning.planner.plan`).
+    """
     result, extra, robot, obstacle = _run(case, samples, progress)
     if json_path is not None:
+        if progress is not None:
+            progress(0, 1, "writing the JSON")
         write_json(json_path, to_json_dict(case, result, extra))
-    if plot_path is not None:
-        plot_case(case, result, extra, plot_path)
-        if result.trajectory is not None:  # configuration snapshots (Figs. 6.14-6.22) beside the main plot
-            from kinredund.planning.figures import snapshot_figure
-
-            p = Path(plot_path)
-            snapshot_figure(result, robot, obstacle, p.with_name(f"{p.stem}_snapshots{p.suffix}"))
-    return result
+    return result, extra, robot, obstacle

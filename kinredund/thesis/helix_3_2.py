@@ -16,7 +16,6 @@ speed, so ``t = 4 beta / pi`` [s] is our reading of that axis.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
@@ -25,7 +24,6 @@ from kinredund.closed_form.positioning import plane_radius2
 from kinredund.errors import PathError, check_count
 from kinredund.io import write_json
 from kinredund.paths import Helix
-from kinredund.ui.plots import save_figure
 
 #: the Section 3.2 helix x = 1.5 cos(beta), y = 1.5 sin(beta), z = (3/pi) beta + 2 (paths.Helix's defaults)
 HELIX = Helix(radius=1.5, pitch=3.0 / math.pi, z0=2.0, rate=1.0)
@@ -36,23 +34,6 @@ TIME_END = 2.0  # Fig. 3.6's time axis [s] (our reading)
 def helix(beta) -> np.ndarray:
     """Wrist-centre positions [m] on the Section 3.2 helix, shape (len(beta), 3)."""
     return np.array([HELIX.sample(b).p for b in np.asarray(beta, dtype=float)])  # rate 1: t = beta
-
-
-def _save_plot(data: dict, path: Path) -> None:
-    from matplotlib.figure import Figure  # Agg canvas, no pyplot state
-
-    fig = Figure(figsize=(7.0, 4.5))
-    ax = fig.add_subplot()
-    q = np.degrees(np.array(data["q"]))
-    for k in range(4):
-        ax.plot(data["t"], q[:, k], label=f"theta{k + 1}")
-    ax.set_xlabel("time [s] (t = 4 beta / pi)")
-    ax.set_ylabel("joint angle [deg]")
-    ax.set_title("Section 3.2: joint histories along the helix (Fig. 3.6)")
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    save_figure(fig, path)  # atomic, checks the format
 
 
 def _polynomial_route(ik: ClosedFormIK, solutions, points) -> dict:
@@ -78,14 +59,13 @@ def _polynomial_route(ik: ClosedFormIK, solutions, points) -> dict:
     return out
 
 
-def reproduce(samples: int = 91, json_path=None, plot_path=None) -> dict:
+def reproduce(samples: int = 91, json_path=None) -> dict:
     """Solve the positioning problem along the helix (front branch: theta1 = beta) and return the
     joint histories.
 
     Args:
         samples: number of equally spaced beta values in [0, pi/2] (an integer >= 2).
         json_path: where to write the result as JSON (atomically; non-finite numbers as null), or None.
-        plot_path: where to save the joint histories (PNG, PDF or SVG by suffix), or None.
 
     Returns:
         A dict with ``beta`` [rad], ``t`` [s], ``wrist_centre`` [m], ``q`` (theta1..theta4 [rad] per
@@ -129,6 +109,4 @@ def reproduce(samples: int = 91, json_path=None, plot_path=None) -> dict:
     data["max_joint_step_deg"] = float(np.degrees(np.abs(np.diff(q, axis=0))).max())
     if json_path is not None:
         write_json(json_path, data, indent=1)
-    if plot_path is not None:
-        _save_plot(data, Path(plot_path))
     return data

@@ -7,10 +7,13 @@
   and their evaluation at a point in :mod:`.point`;
 - :mod:`.linalg`: R of Eq. (4.24), its LU and QP solutions, multipliers, the predictor's weights;
 - :mod:`.recorder`: the per-step record and its diagnostics;
-- :mod:`.constraints`: constraints on the joints (joint limits first).
+- :mod:`.constraints`: constraints on the joints (joint limits first), held by :mod:`.limited` (the
+  default mode with hard joint limits: active sets, exact switching times).
 """
 
+from kinredund.tracking.constraints import Constraint, JointLimits
 from kinredund.tracking.run import MAX_STEPS, track
 from kinredund.tracking.tracker import LINEAR_SOLVERS, MODES, QP_BACKENDS, SCHEMES, Tracker
 
-__all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Tracker", "track"]
+__all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Constraint", "JointLimits", "Tracker",
+           "track"]

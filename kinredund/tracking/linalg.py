@@ -6,6 +6,8 @@
 - :func:`multipliers`: lambda by Householder least squares (Eqs. 4.11-4.12);
 - :func:`classify` labels a step by where the QP form of Theorem 2 (Eq. 4.28) holds (``qp``, ``qp_aug``,
   ``lu``); :class:`RateQP` solves that QP with proxsuite, :func:`solve_rates` either route;
+  :func:`bound_rate_qp` is the same QP with the sign condition of a weakly active joint bound (the
+  decider at a switch of :mod:`kinredund.tracking.limited`);
 - :func:`null_space_eigs`: the eigenvalues of M projected on the null space of J (Theorem 2);
 - :func:`hermite_weights`: the default mode's predictor (Hermite extrapolation along the optimal path).
 
@@ -103,6 +105,32 @@ class RateQP:
             return None
         # stationarity: (M + rho J^T J) v - top + J^T y = 0 and J^T J v = J^T xdot, so lambdadot = y + rho xdot
         return self.qp.results.x.copy(), self.qp.results.y.copy() + rho * xdot
+
+
+def bound_rate_qp(M: np.ndarray, top: np.ndarray, J: np.ndarray, xdot: np.ndarray, joint: int,
+                  side: float) -> tuple[float, float] | None:
+    """The rate QP at a weakly active joint bound: min 1/2 v^T M v - top^T v s.t. J v = xdot, side v_joint >= 0.
+
+    Eq. (4.24)'s rates as a QP (Theorem 2, Eq. 4.28) with the sign condition of the bound (``side`` +1 at
+    a lower bound, -1 at an upper one), over the joints not held on a bound. M is replaced by
+    sym(M) + rho J^T J where it is not positive definite (the same minimiser on J v = xdot). Solved with
+    proxsuite to 1e-12. Returns (side v_joint, the bound's multiplier >= 0), or None if unsolved.
+    """
+    import proxsuite
+
+    Ms = 0.5 * (M + M.T)
+    H, rho = Ms, 1.0
+    while not cholesky_ok(H) and rho < 1e12:
+        H, rho = Ms + rho * J.T @ J, rho * 4.0
+    C = np.zeros((1, M.shape[0]))
+    C[0, joint] = side
+    qp = proxsuite.proxqp.dense.QP(M.shape[0], J.shape[0], 1)
+    qp.settings.eps_abs, qp.settings.eps_rel, qp.settings.verbose = 1e-12, 0.0, False
+    qp.init(H, -top, J, xdot, C, np.zeros(1), np.full(1, 1e20))
+    qp.solve()
+    if qp.results.info.status != proxsuite.proxqp.PROXQP_SOLVED:
+        return None
+    return float(C[0] @ qp.results.x), float(-qp.results.z[0])  # proxsuite's z <= 0 on an active lower side
 
 
 def solve_rates(M, J, top, xdot, *, label: str, backend: str, prox: RateQP | None, lu=None) -> RateSolution:
@@ -213,7 +241,7 @@ def null_space_eigs_many(M: np.ndarray, J: np.ndarray, Z: np.ndarray | None = No
 
 def normality_many(Z: np.ndarray, grad: np.ndarray) -> np.ndarray:
     """||(1 - J^+ J) grad z|| for each step: the normality residual of Eq. (4.5), with Z a null basis of J."""
-    return np.linalg.norm(np.einsum("kij,ki->kj", Z, grad), axis=1)
+    return np.linalg.norm((grad[:, None, :] @ Z)[:, 0, :], axis=1)  # ||Z^T grad|| per step
 
 
 def hermite_weights(h: float, points: int) -> np.ndarray:

@@ -62,6 +62,14 @@ class PredictorCorrector(Stepper):
         self._solve_rates(pt, pt.xdot)
         self._y, self._yd = np.concatenate([self.q, self.lam]), np.concatenate([self.qdot, self.lamdot])
 
+    def _solve(self, lu, b: np.ndarray) -> np.ndarray:
+        """Solve R x = b with R's LU factors (:meth:`_factor`); b and x of size n + m."""
+        return lu_solve(lu, b)
+
+    def _residual(self, pt: Point, lam: np.ndarray) -> np.ndarray:
+        """The first-order residual F = [grad z + J^T lambda; r] the corrector drives to zero."""
+        return pt.residual(lam)
+
     def _tol(self, pt: Point) -> float:
         """The corrector's tolerance on ||F||_2, scaled by the gradient: tol max(1, ||grad z||)."""
         return self.tol * max(1.0, math.sqrt(float(pt.grad @ pt.grad)))
@@ -78,7 +86,7 @@ class PredictorCorrector(Stepper):
             if pt is None:
                 pt = self.evaluate(y[:n], self.t)
             lu = self._factor(pt, pt.system(y[n:])[0])
-            y, ok = self._chord(y, lu, self._tol(pt), F=pt.residual(y[n:]))
+            y, ok = self._chord(y, lu, self._tol(pt), F=self._residual(pt, y[n:]))
             if ok:
                 self.q, self.lam = y[:n], y[n:]
                 return
@@ -107,14 +115,14 @@ class PredictorCorrector(Stepper):
         lu, piv = self._factor(pt, M)
         # one right-hand side per solve: dgetrs with two goes through a level-3 triangular solve, slower
         # on these sizes and, with OpenBLAS threads, prone to millisecond waits on a busy machine
-        sol = lu_solve((lu, piv), np.concatenate((top, pt.xdot)))  # Eq. (4.24)
+        sol = self._solve((lu, piv), np.concatenate((top, pt.xdot)))  # Eq. (4.24)
         if not math.isfinite(float(sol @ sol)):  # the rates are finite iff the step's terms are
             self.ev.check_sample(self.t)
             raise PathError(f"non-finite joint rates at t = {self.t:.6g} s", t=self.t, q=y[:n])
-        F = pt.residual(lam)
+        F = self._residual(pt, lam)
         tol = self._tol(pt)
         if not float(F @ F) <= tol * tol:  # "not <=": a NaN residual is not converged
-            d = lu_solve((lu, piv), F)
+            d = self._solve((lu, piv), F)
             y_pred, y = y, y - d
             if not float(d @ d) <= tol:
                 y, ok = self._chord(y, (lu, piv), tol)
@@ -139,10 +147,10 @@ class PredictorCorrector(Stepper):
         n = self.n
         for _ in range(max_iter):
             if F is None:
-                F = self.ev.point(y[:n], self.t, need_dJ=False).residual(y[n:])
+                F = self._residual(self.ev.point(y[:n], self.t, need_dJ=False), y[n:])
             if float(F @ F) <= tol * tol:
                 return y, True
-            y = y - lu_solve(lu, F)
+            y = y - self._solve(lu, F)
             F = None
         self.ev.check_sample(self.t)  # a non-finite path sample says so itself
         return y, False

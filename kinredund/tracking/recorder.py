@@ -27,22 +27,56 @@ class Recorder:
     def __init__(self, stepper: Stepper, diagnostics: bool = True):
         self.stepper, self.diagnostics = stepper, diagnostics
         self.t, self.q, self.lam, self.solver, self.M, self.J_step, self.points = [], [], [], [], [], [], []
+        self.limited = getattr(stepper, "limits", None) is not None
+        self.active, self.mu, self.qdot = [], [], []
 
     def add(self) -> None:
-        """Record the stepper's current point (M and J may come from the step's predicted point)."""
+        """Record the stepper's current point (M and J may come from the step's predicted point).
+
+        The steppers assign new arrays at every step and never change q, lambda, M, the rates or the
+        bound multipliers in place, so the record keeps references (the active set, changed in place at
+        a switch, is copied only while a bound is active).
+        """
         s = self.stepper
-        self.t.append(s.t)
-        self.q.append(s.q.copy())
-        self.lam.append(np.array(s.lam_full(), dtype=float))
+        pt = s.pt
         pending = s.label_pending
+        self.t.append(s.t)
+        self.q.append(s.q)
+        self.lam.append(s.lam)  # in the closure 7-vector's coordinates at the end (lam_full, batched)
         self.solver.append(None if pending else s.solver)
         self.M.append(s.M)
-        pt = s.pt
         self.J_step.append(pt.J if pending else None)
         self.points.append(pt if pt.q is s.q and pt.t == s.t else pt.sample)
+        if self.limited:
+            self.active.append(s.active_bounds() if s.any_active else None)
+            self.mu.append(s.mu)
+            self.qdot.append(s.qdot)
+
+    def _lam_full(self) -> np.ndarray:
+        """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""
+        lam = np.array(self.lam)
+        basis = self.stepper.pt.basis
+        return lam if basis is None else lam @ basis.T
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def _limits_record(self, q: np.ndarray, meta: dict) -> dict:
+        """The limits' record: active sets, bound multipliers, margins, switches, speeds against the limits."""
+        s = self.stepper
+        lim = s.limits
+        speeds = np.abs(np.array(self.qdot))
+        vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float)
+        fastest = speeds.max(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(vmax > 0, fastest / vmax, np.inf)
+        meta.update(switches=list(s.switches), joint_speed_max=fastest.tolist(), velocity_limit=vmax.tolist(),
+                    speed_over_velocity_limit_max=float(np.max(ratio)) if np.all(np.isfinite(ratio)) else None,
+                    limit_margin=lim.margin)
+        free = np.zeros(len(q[0]), dtype=int)
+        return {"active_bounds": np.array([free if a is None else a for a in self.active]),
+                "bound_multipliers": np.array(self.mu), "limit_margins": np.minimum(lim.margins(q), 1e10),
+                "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
     def _evaluate(self):
         """Per point (Q, p, J or the rows of K with J's row space, grad z, sample): the step's own
@@ -96,9 +130,11 @@ class Recorder:
         if loops is not None:
             drift = np.array([joint_drift(q[0], q[(i + 1) * steps_per_loop], s.ev.robot.revolute)
                               for i in range(loops)])
+        extra = self._limits_record(q, meta) if self.limited else {}
         return Trajectory(
-            robot=robot_name, task=task.name, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme, mode=mode,
-            solver=tuple(solver), lam=np.array(self.lam), m_eigs=m_eigs, m_null_eigs=m_null,
+            **extra, robot=robot_name, task=task.name, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme,
+            mode=mode,
+            solver=tuple(solver), lam=self._lam_full(), m_eigs=m_eigs, m_null_eigs=m_null,
             position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
             vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
             normality_residual=normality_many(Z, grad), loop_drift=drift, loop_period=period, meta=meta)

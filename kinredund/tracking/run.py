@@ -8,7 +8,7 @@ endless.
 
 from __future__ import annotations
 
-from kinredund.errors import OptionError, PathError, check_count, check_positive
+from kinredund.errors import OptionError, PathError, TrackingError, check_count, check_positive
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
@@ -50,12 +50,15 @@ def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, in
 def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "augmented", mode: str = "default",
           steps_per_loop: int = 200, loops: int = 1, duration: float | None = None, steps: int | None = None,
           linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
-          diagnostics: bool = True, liegeois_gain: float = 1.0, progress=None, meta: dict | None = None) -> Trajectory:
+          diagnostics: bool = True, liegeois_gain: float = 1.0, limits=None, project_start: bool = False,
+          progress=None, meta: dict | None = None) -> Trajectory:
     """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
 
     Args:
-        robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain: as for
-            :class:`~kinredund.tracking.tracker.Tracker`.
+        robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, limits,
+            project_start: as for :class:`~kinredund.tracking.tracker.Tracker` (by default the default
+            mode's optimal schemes keep the joints within the robot's limits; ``limits=False`` is the
+            thesis's unconstrained scheme).
         steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most
             :data:`MAX_STEPS` steps in all).
         duration, steps: an open path's duration [s] and steps.
@@ -67,18 +70,26 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
         OptionError, ChoiceError: an argument out of its range (checked before any work).
         PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
         SingularityError: R or J becomes singular (time, configuration, smallest singular value).
+        TrackingError: with limits, the run cannot go on within them (``cause``, ``t``, the last good
+            ``q``, ``watched`` and ``partial``, the record up to there).
     """
     dt, total, loops_run = _span(path, steps_per_loop, loops, duration, steps)
     tracker = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
-                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain)
+                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain, limits=limits,
+                      project_start=project_start)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()
     step = tracker.step
-    for k in range(total):
-        step()
-        rec.add()
-        if progress is not None:
-            progress(k + 1, total)
-    return rec.trajectory(robot_name=_loadable_name(robot), scheme=scheme, mode=mode, loops=loops_run,
-                          steps_per_loop=None if loops_run is None else total // loops_run,
-                          period=path.period, meta=dict(meta or {}, dt=dt, steps=total))
+    info = {"robot_name": _loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
+            "meta": dict(meta or {}, dt=dt, steps=total)}
+    try:
+        for k in range(total):
+            step()
+            rec.add()
+            if progress is not None:
+                progress(k + 1, total)
+    except TrackingError as err:
+        if err.partial is None:
+            err.partial = rec.trajectory(loops=None, steps_per_loop=None, **info)
+        raise
+    return rec.trajectory(loops=loops_run, steps_per_loop=None if loops_run is None else total // loops_run, **info)

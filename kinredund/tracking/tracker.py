@@ -34,7 +34,9 @@ from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.tasks import get_task
 from kinredund.tracking.baselines import Liegeois, Pseudoinverse
+from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.tracking.explicit import ExplicitEuler
+from kinredund.tracking.limited import LimitedPredictorCorrector
 from kinredund.tracking.point import Evaluator
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.stepper import Stepper
@@ -86,20 +88,31 @@ class Tracker:
         tol: the corrector's tolerance on ||F||, in (0, 1) (default mode).
         liegeois_gain: the gradient-projection gain k >= 0 of the Liegeois baseline [1/s].
         t0: the starting time [s].
+        limits: hold the robot's joint position limits: ``True``, or a
+            :class:`~kinredund.tracking.constraints.JointLimits` (e.g. with a margin); ``False`` for the
+            unconstrained scheme of Chapter 4 (the thesis's). The default (``None``) holds them wherever
+            the scheme can: the default mode's augmented and velocity schemes
+            (:mod:`kinredund.tracking.limited`); thesis mode and the baselines run without them, and
+            refuse ``limits=True`` (explicit steps have no corrector to hold the bounds).
+        project_start: put a ``q0`` outside the limits on them instead of raising.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
     ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label) and
     ``stepper`` (the scheme's own object).
 
     Raises:
-        ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range.
+        ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range (also:
+            limits asked of thesis mode or a baseline).
+        TrackingError: with limits, ``q0`` is outside them (``cause="limits_infeasible"``, naming the joints
+            and by how much), or no constrained optimum is found at the start.
         PathError: the start is off the path, or the path is unsuitable (says why).
         SingularityError: the start is singular.
     """
 
     def __init__(self, robot: Robot, path: Path, index: Index | None, q0, dt: float, *, scheme: str = "augmented",
                  mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
-                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0):
+                 tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0,
+                 limits: bool | JointLimits | None = None, project_start: bool = False):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -119,13 +132,38 @@ class Tracker:
         self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
         ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
         q = robot.check_q(q0, "starting configuration").copy()
+        limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
+        self.limits = limits
+        if limits is not None:
+            if project_start:
+                q = limits.project(q)
+            self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, **kwargs)
+            self.step = self.stepper.step
+            return
         if scheme in ("pseudoinverse", "liegeois"):
             kwargs["project"] = mode == "default"
         if scheme == "liegeois":
             kwargs["gain"] = gain
         self.stepper: Stepper = STEPPERS[mode, scheme](ev, q, dt, **kwargs)
         self.step = self.stepper.step
+
+    @staticmethod
+    def _limits(robot: Robot, limits, mode: str, scheme: str) -> JointLimits | None:
+        holds = mode == "default" and scheme in ("augmented", "velocity")
+        if limits is None:  # the default: held wherever the scheme can hold them
+            return JointLimits(robot) if holds else None
+        if limits is False:
+            return None
+        if limits is True:
+            limits = JointLimits(robot)
+        if not isinstance(limits, JointLimits):
+            raise OptionError(f"limits must be None, True, False or a JointLimits, got {limits!r}")
+        if not holds:
+            raise OptionError(f"joint limits are held by the default mode's augmented and velocity schemes only, "
+                              f"not by mode={mode!r}, scheme={scheme!r}: pass limits=False (thesis mode's explicit "
+                              "steps have no corrector to hold them)")
+        return limits
 
     def step(self) -> None:  # replaced by the stepper's own bound method in __init__ (no extra call)
         """One time step: from (q, lambda) at t to t + dt."""

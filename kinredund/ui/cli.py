@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -19,68 +20,80 @@ import numpy as np
 
 from kinredund.errors import KinredundError
 from kinredund.io import json_ready, write_json
-from kinredund.tasks import get_task, task_names
+from kinredund.tasks import get_task
+from kinredund.ui import options
+from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
-REPRODUCIBLE = ("3.2", "4.1", "4.2", "4.3", "6.2", "6.3")
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with exit code 2 and our error prefix."""
-
-    def error(self, message):  # noqa: D401 - argparse API
-        self.print_usage(sys.stderr)
-        self.exit(EXIT_USAGE, f"kinredund: error: {message}\n")
+__all__ = ["EXIT_FAILED", "EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "REPRODUCIBLE", "build_parser", "main"]
 
 
-def _vector(text: str) -> np.ndarray:
-    try:
-        values = [float(v) for v in text.replace(" ", "").split(",") if v != ""]
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from err
-    if not values or not np.all(np.isfinite(values)):
-        raise argparse.ArgumentTypeError(f"expected finite comma-separated numbers, got {text!r}")
-    return np.array(values)
+def _progress(label: str, args):
+    """The progress display of a command (:class:`kinredund.ui.progress.Progress`), shown at once."""
+    from kinredund.ui.progress import Progress
+
+    bar = Progress(label, quiet=getattr(args, "quiet", False))
+    bar(0, 1, "starting")
+    return bar
 
 
-def _at_least(minimum: int):
-    """An argparse type: an integer >= ``minimum`` (the bound the library checks too, so both agree)."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError as err:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from err
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {value}")
-        return value
-
-    return parse
+# -- printing ----------------------------------------------------------------------------------------
+#: Units of the summary figures the commands print.
+_UNITS = {"position_error_max": "m", "max_position_residual": "m", "clearance_min": "m",
+          "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
+          "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
+          "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m"}
 
 
-_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.track and kinredund.ik.solve_ik
+def _number(v) -> str:
+    return str(v) if isinstance(v, (bool, int, np.integer)) else f"{float(v):.3g}"
 
 
-def _progress(label: str):
-    from kinredund.ui.progress import ProgressBar
+def _shown(value) -> bool:
+    """Whether a summary value says something (not None, NaN, or an empty list or dict)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return False
+    return not (isinstance(value, (list, tuple, dict, str)) and len(value) == 0)
 
-    return ProgressBar(label)
+
+def _format(key: str, value) -> str:
+    unit = _UNITS.get(key, "")
+    suffix = f" {unit}" if unit else ""
+    if key == "loop_drift":  # a list per loop from tracking, one float from a plan: one format
+        drift = [float(v) for v in (value if isinstance(value, (list, tuple, np.ndarray)) else [value])]
+        return f"{drift[-1]:.3g} rad after loop {len(drift)}" + (
+            f" (largest {max(drift):.3g} rad)" if len(drift) > 1 else "")
+    if isinstance(value, dict):
+        return ", ".join(f"{k.removesuffix('_s')} {_number(v)}{suffix}" for k, v in value.items() if _shown(v))
+    if isinstance(value, (list, tuple)):
+        if all(isinstance(v, str) for v in value):
+            return ", ".join(value)
+        items = [_number(v) for v in value]
+        text = f"[{', '.join(items)}]" if len(items) <= 7 else f"[{items[0]}, {items[1]}, ..., {items[-1]}] " \
+            f"({len(items)} values)"
+        return text + suffix
+    if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
+        return _number(value) + suffix
+    return str(value)
 
 
 def _print_summary(summary: dict) -> None:
+    """Print ``summary`` as aligned ``name value unit`` rows, leaving out empty values (None, NaN, {})."""
     for key, value in summary.items():
-        if isinstance(value, list) and len(value) > 6:
-            value = f"[{value[0]:.3g}, ..., {value[-1]:.3g}] ({len(value)} values)"
-        elif isinstance(value, float):
-            value = f"{value:.3g}"
-        print(f"  {key:24s} {value}")
+        if _shown(value):
+            print(f"  {key:26s} {_format(key, value)}")
+
+
+def _wrote(*paths) -> None:
+    for p in paths:
+        if p is not None:
+            print(f"wrote {p}")
 
 
 # -- commands --------------------------------------------------------------------------------------
 def _cmd_generate_robots(args) -> int:
     from kinredund.model.generate import generate_robots
 
-    for path in generate_robots(Path(args.out)):
-        print(f"wrote {path}")
+    _wrote(*generate_robots(Path(args.out)))
     return EXIT_OK
 
 
@@ -96,37 +109,49 @@ def _cmd_robots(args) -> int:
 
 def _cmd_reproduce(args) -> int:
     name = args.example
+    if name in ("6.2", "6.3"):
+        return _plan(name, args, label=f"reproduce {name}")
+    bar = _progress(f"reproduce {name}", args)
     if name in ("4.1", "4.2", "4.3"):
-        from kinredund.thesis.chapter4 import reproduce
+        from kinredund.ui.reproduce import example
 
-        traj = reproduce(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
-                         json_path=args.json, plot_path=args.plot, progress=_progress(f"Example {name}"))
-        print(f"Example {name} ({args.mode} mode, {args.scheme} scheme, {args.loops} loop(s), {args.steps} steps/loop)")
+        try:
+            traj = example(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
+                             json_path=args.json, plot_path=args.plot,
+                             progress=lambda d, n: bar(d, n, "tracking"))
+        finally:
+            bar.close()
+        print(f"Example {name}: {args.scheme} scheme, {args.mode} mode, {args.loops} loop(s) of {args.steps} steps")
         _print_summary(traj.summary())
-    elif name == "3.2":
-        from kinredund.thesis.helix_3_2 import reproduce
+    else:
+        from kinredund.ui.reproduce import helix
 
-        out = reproduce(json_path=args.json, plot_path=args.plot)
+        bar(0, 1, "closed-form solutions along the helix")
+        try:
+            out = helix(json_path=args.json, plot_path=args.plot)
+        finally:
+            bar.close()
         print("Section 3.2: helix tracked by the hybrid closed-form IK")
         _print_summary({k: v for k, v in out.items() if not isinstance(v, (list, dict))})
-    else:
-        code = _plan(name, args.json, args.plot, label=f"Example {name}")
-        if code != EXIT_OK:
-            return code
-    for p in (args.json, args.plot):
-        if p is not None:
-            print(f"wrote {p}")
+    _wrote(args.json, args.plot)
     return EXIT_OK
 
 
-def _plan(case: str, json_path, plot_path, samples=None, label: str = "planning") -> int:
+def _plan(case: str, args, label: str) -> int:
     """Run a Chapter 6 case (``reproduce 6.x`` and ``plan``); EXIT_FAILED when the plan fails its check."""
-    from kinredund.thesis.chapter6 import reproduce
+    bar = _progress(label, args)
+    from kinredund.ui.reproduce import plan_case, snapshot_path
 
-    more = {} if samples is None else {"samples": samples}
-    result = reproduce(case, json_path=json_path, plot_path=plot_path, progress=_progress(label), **more)
+    more = {} if getattr(args, "samples", None) is None else {"samples": args.samples}
+    try:
+        result = plan_case(case, json_path=args.json, plot_path=args.plot, progress=bar, **more)
+    finally:
+        bar.close()
     print(f"Section {case}: off-line plan with collision avoidance")
-    _print_summary(result.summary())
+    _print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
+    _wrote(args.json, args.plot)
+    if args.plot is not None and result.trajectory is not None:
+        _wrote(snapshot_path(args.plot))
     if not result.ok:
         print(f"kinredund: plan failed: {result.reason}", file=sys.stderr)
         return EXIT_FAILED
@@ -171,38 +196,45 @@ def _path_for(args, robot, q_start: np.ndarray):
 
 
 def _cmd_track(args) -> int:
+    bar = _progress(f"track {args.robot}", args)
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
     from kinredund.tracking import track
 
-    robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
-    seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
-    path, duration = _path_for(args, robot, seed_q)
-    index = None if args.scheme == "pseudoinverse" else _index_for(robot, args.index)
-    s0 = path(0.0)
-    target = get_task(robot.task).target_from_sample(s0)
-    res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts)
-    if not res.converged:
-        raise KinredundError(f"no starting configuration on the path: {res.reason}")
-    # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
-    span = {} if duration is None else {"duration": duration, "steps": args.steps}
-    traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
-                 loops=args.loops, progress=_progress("tracking"), **span)
-    print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode")
+    try:
+        bar(0, 1, "loading the robot")
+        robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
+        seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
+        path, duration = _path_for(args, robot, seed_q)
+        # the baselines ignore the index while they step; their normality residual is measured against it
+        index = _index_for(robot, args.index)
+        s0 = path(0.0)
+        target = get_task(robot.task).target_from_sample(s0)
+        bar(0, 1, "the optimal start (IK)")
+        res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts)
+        if not res.converged:
+            raise KinredundError(f"no starting configuration on the path: {res.reason}")
+        # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
+        span = {} if duration is None else {"duration": duration, "steps": args.steps}
+        traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
+                     loops=args.loops, progress=lambda d, n: bar(d, n, "tracking"), **span)
+        if args.html:
+            bar(0, 1, "the HTML replay")
+            from kinredund.ui.viz import replay_html
+            from kinredund.ui.viz.page import replay_title
+
+            replay_html(traj, args.html, robot=robot, title=replay_title(traj, args.path))
+    finally:
+        bar.close()
+    print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode, index {args.index}")
     _print_summary(traj.summary())
     if args.json:
         traj.save_json(args.json)
-        print(f"wrote {args.json}")
     if args.plot:
         from kinredund.ui.plots import plot_joint_histories
 
         plot_joint_histories(traj, args.plot)
-        print(f"wrote {args.plot}")
-    if args.html:
-        from kinredund.ui.viz import replay_html
-
-        replay_html(traj, args.html, robot=robot)
-        print(f"wrote {args.html}")
+    _wrote(args.json, args.plot, args.html)
     return EXIT_OK
 
 
@@ -213,7 +245,9 @@ def _cmd_ik(args) -> int:
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
     if get_task(robot.task).has_orientation:
         if args.target.shape != (3,) or args.rpy is None or args.rpy.shape != (3,):
-            raise KinredundError("a pose target needs --target x,y,z and --rpy roll,pitch,yaw [rad]")
+            raise KinredundError(
+                f"{robot.name} has a pose task: give --target x,y,z [m] and --rpy roll,pitch,yaw [rad], "
+                "or --task position to reach the point with any orientation")
         from kinredund.kinematics.closure import rotation_from_invariants
 
         r_, p_, y_ = args.rpy
@@ -229,6 +263,7 @@ def _cmd_ik(args) -> int:
     print(json.dumps(out, indent=2))
     if args.json:
         write_json(args.json, out)
+        _wrote(args.json)
     if not res.converged:
         print(f"kinredund: IK did not converge: {res.reason}", file=sys.stderr)
         return EXIT_FAILED
@@ -236,21 +271,22 @@ def _cmd_ik(args) -> int:
 
 
 def _cmd_play(args) -> int:
-    from kinredund.trajectory import Trajectory
-
-    traj = Trajectory.load_json(args.result)
     if args.html is None and not args.live:
-        raise KinredundError("say what to do: --html FILE (standalone replay) and/or --live (meshcat server)")
+        raise KinredundError(f"say what to do with {args.result}: --html FILE writes a standalone replay, "
+                             "--live serves it on a local meshcat server (both may be given)")
+    from kinredund.ui.records import replay_record
+
+    rec = replay_record(args.result)
     if args.html is not None:
         from kinredund.ui.viz import replay_html
 
-        print(f"wrote {replay_html(traj, args.html)}")
+        _wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title))
     if args.live:
         import time
 
         from kinredund.ui.viz import play_live, stop_live
 
-        url = play_live(traj, loop=True)
+        url = play_live(rec.trajectory, robot=rec.robot, loop=True)
         print(f"open {url} (Ctrl-C to stop)")
         try:
             while True:
@@ -261,100 +297,23 @@ def _cmd_play(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    return _plan(args.case, args.json, args.plot, samples=args.samples)
+    return _plan(args.case, args, label=f"plan {args.case}")
 
 
 def _cmd_demo(args) -> int:
     from kinredund.ui.demo import run_demo
 
-    return run_demo(Path(args.out), quick=args.quick)
+    return run_demo(Path(args.out), quick=args.quick, quiet=args.quiet)
+
+
+# -- the parser (kinredund.ui.options) --------------------------------------------------------------
+COMMANDS = {"demo": _cmd_demo, "reproduce": _cmd_reproduce, "track": _cmd_track, "ik": _cmd_ik, "plan": _cmd_plan,
+            "play": _cmd_play, "generate-robots": _cmd_generate_robots, "robots": _cmd_robots}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of every subcommand."""
-    parser = _Parser(prog="kinredund", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
-    p = sub.add_parser("demo", help="the main job: reproduce every thesis example into an output folder")
-    p.add_argument("--out", default="out", help="output folder (default: out)")
-    p.add_argument("--quick", action="store_true", help="fewer loops (for tests)")
-    p.set_defaults(func=_cmd_demo)
-
-    p = sub.add_parser("reproduce", help="reproduce a thesis example")
-    p.add_argument("example", choices=REPRODUCIBLE)
-    p.add_argument("--loops", type=_COUNT, default=1)
-    p.add_argument("--steps", type=_COUNT, default=200, help="steps per loop (default 200, as the thesis)")
-    p.add_argument("--mode", choices=("default", "thesis"), default="default")
-    p.add_argument("--scheme", choices=("augmented", "velocity", "pseudoinverse", "liegeois"), default="augmented")
-    p.add_argument("--json", type=Path)
-    p.add_argument("--plot", type=Path)
-    p.set_defaults(func=_cmd_reproduce)
-
-    p = sub.add_parser("track", help="track a path with a robot")
-    p.add_argument("robot", help="a robot name (see `kinredund robots`) or a URDF path")
-    p.add_argument("--ee-frame")
-    p.add_argument("--task", choices=task_names())
-    p.add_argument("--path", choices=("circle", "ellipse", "file"), default="circle")
-    p.add_argument("--path-file", type=Path,
-                   help="for --path file: JSON with 't' [s], 'p' [m] and optionally 'Q', 'closed' (default true); "
-                        "times count from the first sample")
-    p.add_argument("--center", type=_vector)
-    p.add_argument("--radius", type=float, default=0.1)
-    p.add_argument("--speed", type=float, default=0.1)
-    p.add_argument("--normal", type=_vector)
-    p.add_argument("--q0", type=_vector, help="a configuration near the start (default: the robot's home)")
-    p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home")
-    p.add_argument("--scheme", choices=("augmented", "velocity", "pseudoinverse", "liegeois"), default="augmented")
-    p.add_argument("--mode", choices=("default", "thesis"), default="default")
-    p.add_argument("--loops", type=_COUNT, default=1, help="loops of a closed path (default 1)")
-    p.add_argument("--steps", type=_COUNT, default=200,
-                   help="steps per loop of a closed path, steps in all of an open one (default 200)")
-    p.add_argument("--starts", type=_COUNT, default=8)
-    p.add_argument("--json", type=Path)
-    p.add_argument("--plot", type=Path)
-    p.add_argument("--html", type=Path)
-    p.set_defaults(func=_cmd_track)
-
-    p = sub.add_parser("ik", help="joint-level (constrained) inverse kinematics")
-    p.add_argument("robot")
-    p.add_argument("--target", type=_vector, required=True, help="x,y (planar) or x,y,z [m]")
-    p.add_argument("--rpy", type=_vector, help="roll,pitch,yaw [rad] for pose tasks")
-    p.add_argument("--ee-frame")
-    p.add_argument("--task", choices=task_names())
-    p.add_argument("--index", choices=("none", "home", "min-norm", "mid-range"), default="none")
-    p.add_argument("--q0", type=_vector)
-    p.add_argument("--bounds", action="store_true", help="respect the joint limits")
-    p.add_argument("--starts", type=_COUNT, default=1)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", type=Path)
-    p.set_defaults(func=_cmd_ik)
-
-    p = sub.add_parser("plan", help="off-line planning with collision avoidance (Chapter 6)")
-    p.add_argument("case", choices=("6.2", "6.3"))
-    p.add_argument("--samples", type=_at_least(4), default=9,
-                   help="sample points of the 6.2 planner (at least 4, as kinredund.planning.plan needs for its cubic "
-                        "spline; 6.3 plans on a roadmap)")
-    p.add_argument("--json", type=Path)
-    p.add_argument("--plot", type=Path)
-    p.set_defaults(func=_cmd_plan)
-
-    p = sub.add_parser("play", help="replay a trajectory JSON in the browser")
-    p.add_argument("result", type=Path)
-    p.add_argument("--html", type=Path, help="write a standalone HTML replay")
-    p.add_argument("--live", action="store_true", help="serve it live on a local meshcat server")
-    p.set_defaults(func=_cmd_play)
-
-    p = sub.add_parser("generate-robots", help="write robots/*.urdf from the thesis's HD tables")
-    p.add_argument("--out", default="robots")
-    p.set_defaults(func=_cmd_generate_robots)
-
-    p = sub.add_parser("robots", help="list the robots load_robot knows")
-    p.set_defaults(func=_cmd_robots)
-    from kinredund.ui.cli_retime import add_parsers as add_retime_parsers  # retime, export (issue 16)
-    add_retime_parsers(sub)
-    from kinredund.ui.cli_sweep import add_parser as add_sweep_parser  # the placement sweep (its own module)
-    add_sweep_parser(sub)
-    return parser
+    """The argument parser of every subcommand (:func:`kinredund.ui.options.build_parser`)."""
+    return options.build_parser(COMMANDS)
 
 
 #: the options that name an output file; every one is checked before any work (kinredund.io.check_output_path)

@@ -119,34 +119,47 @@ def add_parsers(sub) -> None:
     from kinredund.export import DEFAULT_TOPIC
 
     p = sub.add_parser("retime", help="retime a tracking record under joint speed/acceleration (and jerk) limits",
-                       description=RETIME_HELP)
+                       description=RETIME_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  kinredund track panda --json run.json\n"
+                              "  kinredund retime run.json --amax 5 --vmax 1.5 --json timed.json --plot timed.png\n"
+                              "  kinredund retime run.json --amax 5 --jmax 500 --bag timed_bag")
     p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track --json)")
     p.add_argument("--amax", type=_limit, required=True,
                    help="joint acceleration limits [rad/s^2 or m/s^2]: one number or one per joint (URDFs have none)")
     p.add_argument("--vmax", type=_limit,
                    help="joint velocity limits [rad/s or m/s]: one number or one per joint (default: the URDF's)")
     p.add_argument("--jmax", type=_limit,
-                   help="joint jerk limits [rad/s^3 or m/s^3]: a jerk-limited periodic law (closed paths only)")
-    p.add_argument("--tool-speed", type=float, help="speed limit of the tool along its path [m/s]")
+                   help="joint jerk limits [rad/s^3 or m/s^3]: a jerk-limited periodic law (closed paths only; "
+                        "default: no jerk limit)")
+    p.add_argument("--tool-speed", type=float, help="speed limit of the tool along its path [m/s] (default: none)")
     p.add_argument("--loops", type=_count, help="loops to chain (closed paths; default: as many as the record has)")
-    p.add_argument("--open", action="store_true", help="retime a closed record as an open path from rest to rest")
+    p.add_argument("--open", action="store_true",
+                   help="retime a closed record as an open path from rest to rest (default: a closed record stays "
+                        "periodic)")
     p.add_argument("--rest-to-rest", action="store_true",
                    help="closed paths: start the first loop from rest and stop at the end of the last (one "
                         "time-optimal law over all loops), for a controller that starts from standstill; default a "
                         "periodic loop law, which starts and ends at the loop's speed")
-    p.add_argument("--json", type=Path, help="write the retimed record (with qdot, qddot) as JSON")
-    p.add_argument("--csv", type=Path, help="write it as CSV: t, q_<joint>..., qdot_<joint>..., qddot_<joint>...")
+    p.add_argument("--json", type=Path,
+                   help="write the retimed record (with qdot, qddot) as JSON (default: not written)")
+    p.add_argument("--csv", type=Path, help="write it as CSV: t, q_<joint>..., qdot_<joint>..., qddot_<joint>... "
+                                            "(default: not written)")
     p.add_argument("--bag", type=Path, help="write it as a ROS 2 bag folder (must not exist): one "
-                                            "trajectory_msgs/msg/JointTrajectory")
+                                            "trajectory_msgs/msg/JointTrajectory (default: not written)")
     p.add_argument("--topic", default=DEFAULT_TOPIC, help=f"the bag's topic (default {DEFAULT_TOPIC})")
-    p.add_argument("--plot", type=Path, help="plot q, qdot, qddot with the limits (.png, .pdf, .svg)")
+    p.add_argument("--plot", type=Path,
+                   help="plot q, qdot, qddot with the limits (.png, .pdf, .svg) (default: not drawn)")
     p.set_defaults(func=_cmd_retime)
 
     p = sub.add_parser("export", help="write a trajectory record as CSV or a ROS 2 bag",
                        description="Write a trajectory JSON as CSV (one row per sample, a header naming the joints) "
-                                   "and/or a ROS 2 bag holding one trajectory_msgs/msg/JointTrajectory.")
+                                   "and/or a ROS 2 bag holding one trajectory_msgs/msg/JointTrajectory.",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  kinredund export run.json --csv run.csv\n"
+                              "  kinredund export timed.json --bag timed_bag")
     p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track or retime --json)")
-    p.add_argument("--csv", type=Path, help="the CSV file to write")
-    p.add_argument("--bag", type=Path, help="the ROS 2 bag folder to write (must not exist)")
+    p.add_argument("--csv", type=Path, help="the CSV file to write (default: not written)")
+    p.add_argument("--bag", type=Path,
+                   help="the ROS 2 bag folder to write, which must not exist (default: not written)")
     p.add_argument("--topic", default=DEFAULT_TOPIC, help=f"the bag's topic (default {DEFAULT_TOPIC})")
     p.set_defaults(func=_cmd_export)

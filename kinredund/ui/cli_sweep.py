@@ -72,13 +72,18 @@ def add_parser(sub) -> None:
 
     p = sub.add_parser("sweep", help="placement sweep: track a part's closed path at many part poses (Dask)",
                        description="Track a closed path given in a part frame with the part at every placement "
-                                   "of a grid; report which placements are feasible and the best ones.")
+                                   "of a grid; report which placements are feasible and the best ones.",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --plot map.png\n"
+                              "  kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --json sweep.jsonl --resume")
     p.add_argument("robot", help="a robot name (see `kinredund robots`) or a URDF path")
     p.add_argument("--ee-frame", help="the end-effector frame (default: the robot's)")
     p.add_argument("--task", choices=task_names(), help="task kind (default: the robot's)")
     p.add_argument("--path", choices=("circle", "file"), default="circle",
-                   help="circle: a circle about the part origin; file: a JSON path in part coordinates")
-    p.add_argument("--path-file", type=Path, help="for --path file: JSON with 't' [s], 'p' [m], optionally 'Q'")
+                   help="circle: a circle about the part origin; file: a JSON path in part coordinates "
+                        "(default: %(default)s)")
+    p.add_argument("--path-file", type=Path,
+                   help="for --path file: JSON with 't' [s], 'p' [m], optionally 'Q' (default: none)")
     p.add_argument("--radius", type=float, default=0.1, help="circle radius [m] (default 0.1)")
     p.add_argument("--speed", type=float, default=0.1, help="circle speed [m/s] (default 0.1)")
     p.add_argument("--normal", type=_numbers, help="circle normal in the part frame (default 0,0,1)")
@@ -91,17 +96,21 @@ def add_parser(sub) -> None:
     p.add_argument("--starts", type=_count(1), default=8, help="IK starts for each start configuration (default 8)")
     p.add_argument("--seed", type=_count(0), default=0, help="seed of the IK multi-start (default 0)")
     p.add_argument("--no-limits", action="store_true", help="do not ask the tracker to hold the joint limits "
-                   "(a run leaving them is still infeasible)")
-    p.add_argument("--speed-limit", action="store_true", help="a joint above its velocity limit is infeasible")
+                   "(a run leaving them is still infeasible; default: held)")
+    p.add_argument("--speed-limit", action="store_true", help="a joint above its velocity limit is infeasible "
+                   "(default: velocities not checked)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_count(0), help="worker processes of the local Dask cluster "
                        "(default: this machine's cores; 0: serially in this process)")
-    where.add_argument("--scheduler", help="run on an existing Dask cluster: its scheduler's address (tcp://host:port)")
+    where.add_argument("--scheduler", help="run on an existing Dask cluster: its scheduler's address "
+                       "(tcp://host:port; default: a local cluster)")
     p.add_argument("--batch-size", type=_count(1),
                    help="placements per Dask task (default: guided - large batches first, single placements last)")
-    p.add_argument("--json", type=Path, help="the sweep file, written as batches complete (.jsonl: JSON lines)")
-    p.add_argument("--resume", action="store_true", help="resume the sweep in --json, running only what it lacks")
-    p.add_argument("--plot", type=Path, help="the feasibility and quality map (.png, .pdf or .svg)")
+    p.add_argument("--json", type=Path, help="the sweep file, written as batches complete (.jsonl: JSON lines; "
+                   "default: not written)")
+    p.add_argument("--resume", action="store_true", help="resume the sweep in --json, running only what it lacks "
+                   "(default: start anew)")
+    p.add_argument("--plot", type=Path, help="the feasibility and quality map (.png, .pdf or .svg; default: not drawn)")
     p.add_argument("--criterion", choices=tuple(CRITERIA), default="margin",
                    help="what ranks the feasible placements (default margin: farthest from the joint limits)")
     p.add_argument("--top", type=_count(0), default=5, help="best placements to print (default 5)")

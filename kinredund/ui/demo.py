@@ -22,7 +22,7 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def _chapter4(out: Path, loops: int, rows: list, data: dict, log) -> None:
+def _chapter4(out: Path, loops: int, rows: list, data: dict, log, bar) -> None:
     from kinredund.thesis.chapter4 import THESIS_FIGURES, indefinite_interval, load_example, run_example
     from kinredund.ui.plots import plot_errors, plot_joint_histories, plot_loop_drift, plot_m_eigenvalues
     from kinredund.ui.viz import replay_html
@@ -30,15 +30,17 @@ def _chapter4(out: Path, loops: int, rows: list, data: dict, log) -> None:
     for name in ("4.1", "4.2", "4.3"):
         t0 = time.perf_counter()
         ex = load_example(name)
-        runs = {
-            "default": run_example(ex, loops=loops),
+        settings = {
+            "default": {"loops": loops},
             # one loop, as the thesis ran it: over many loops the explicit scheme leaves the optimum
             # (Example 4.3: the total drift from the start grows from 0.05 rad after the first loop to
             # 1.6 rad after the tenth)
-            "thesis": run_example(ex, loops=1, mode="thesis"),
-            "pseudoinverse": run_example(ex, loops=loops, scheme="pseudoinverse"),
-            "liegeois": run_example(ex, loops=loops, scheme="liegeois"),
+            "thesis": {"loops": 1, "mode": "thesis"},
+            "pseudoinverse": {"loops": loops, "scheme": "pseudoinverse"},
+            "liegeois": {"loops": loops, "scheme": "liegeois"},
         }
+        runs = {label: run_example(ex, progress=bar.prefixed(f"Example {name}, {label}"), **kw)
+                for label, kw in settings.items()}
         thesis = THESIS_FIGURES[name]
         for label, tr in runs.items():
             s = tr.summary()
@@ -58,18 +60,19 @@ def _chapter4(out: Path, loops: int, rows: list, data: dict, log) -> None:
                              title=f"Example {name}: joint histories (default mode)")
         plot_errors(list(runs.values()), out / f"example_{tag}_errors.png", title=f"Example {name}: tracking errors")
         plot_loop_drift(list(runs.values()), out / f"example_{tag}_drift.png",
-                        title=f"Example {name}: joint drift per loop")
+                        title=f"Example {name}: joint drift per loop (thesis mode: one loop, as the thesis ran it)")
         plot_m_eigenvalues(runs["default"], out / f"example_{tag}_eigenvalues.png",
-                           title=f"Example {name}: eigenvalues of M (QP / LU)")
+                           title=f"Example {name}: eigenvalues of M and the solver of each step")
         replay_html(runs["default"], out / f"example_{tag}.html", robot=ex.robot)
         log(f"Example {name}: done in {time.perf_counter() - t0:.1f} s")
 
 
-def _chapter3(out: Path, rows: list, data: dict, log) -> None:
-    from kinredund.thesis.helix_3_2 import reproduce
+def _chapter3(out: Path, rows: list, data: dict, log, bar) -> None:
+    from kinredund.ui.reproduce import helix
 
+    bar(0, 1, "Section 3.2")
     t0 = time.perf_counter()
-    res = reproduce(json_path=out / "section_3_2.json", plot_path=out / "section_3_2_joints.png")
+    res = helix(json_path=out / "section_3_2.json", plot_path=out / "section_3_2_joints.png")
     scalars = {k: v for k, v in res.items() if isinstance(v, (int, float, str, bool)) or v is None}
     data["3.2"] = scalars
     refs = scalars.get("theta3_ref_deg"), scalars.get("theta4_ref_deg")
@@ -79,14 +82,16 @@ def _chapter3(out: Path, rows: list, data: dict, log) -> None:
     log(f"Section 3.2: done in {time.perf_counter() - t0:.1f} s")
 
 
-def _chapter6(out: Path, rows: list, data: dict, log) -> None:
-    from kinredund.thesis.chapter6 import case_robot, reproduce
+def _chapter6(out: Path, rows: list, data: dict, log, bar) -> None:
+    from kinredund.thesis.chapter6 import case_robot
+    from kinredund.ui.reproduce import plan_case
     from kinredund.ui.viz import replay_html
 
     for case in ("6.2", "6.3"):
         t0 = time.perf_counter()
         tag = case.replace(".", "_")
-        res = reproduce(case, json_path=out / f"section_{tag}.json", plot_path=out / f"section_{tag}.png")
+        res = plan_case(case, json_path=out / f"section_{tag}.json", plot_path=out / f"section_{tag}.png",
+                        progress=bar.prefixed(f"Section {case}"))
         s = res.summary()
         data[case] = s
         clearance = s.get("clearance_min")
@@ -100,25 +105,33 @@ def _chapter6(out: Path, rows: list, data: dict, log) -> None:
         log(f"Section {case}: done in {time.perf_counter() - t0:.1f} s")
 
 
-def run_demo(out: Path, quick: bool = False, stream=None) -> int:
-    """Reproduce every example into ``out``; print the table; return the exit code (0 when all ran)."""
+def run_demo(out: Path, quick: bool = False, stream=None, quiet: bool = False) -> int:
+    """Reproduce every example into ``out``; print the table; return the exit code (0 when all ran).
+
+    Progress goes to standard error (:class:`kinredund.ui.progress.Progress`; nothing with ``quiet``).
+    """
+    from kinredund.ui.progress import Progress
+
     stream = stream or sys.stdout
     out.mkdir(parents=True, exist_ok=True)
+    bar = Progress("demo", quiet=quiet)
 
     def log(msg):
+        bar.clear()
         print(msg, file=stream, flush=True)
 
     rows: list = []
     data: dict = {}
     failures = []
-    for label, fn in (("Chapter 4", lambda: _chapter4(out, 2 if quick else 10, rows, data, log)),
-                      ("Chapter 3", lambda: _chapter3(out, rows, data, log)),
-                      ("Chapter 6", lambda: _chapter6(out, rows, data, log))):
+    for label, fn in (("Chapter 4", lambda: _chapter4(out, 2 if quick else 10, rows, data, log, bar)),
+                      ("Chapter 3", lambda: _chapter3(out, rows, data, log, bar)),
+                      ("Chapter 6", lambda: _chapter6(out, rows, data, log, bar))):
         try:
             fn()
         except Exception as err:  # noqa: BLE001 - report every failing chapter, then fail the run
             failures.append(f"{label}: {type(err).__name__}: {err}")
             log(f"{label} FAILED: {type(err).__name__}: {err}")
+    bar.close()
     header = ["example", "run", "position error [m]", "trace error", "vect error", "normality residual",
               "joint drift from the start after the last loop [rad]", "notes (LU steps / thesis)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]

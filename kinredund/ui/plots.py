@@ -7,8 +7,9 @@ format follows the suffix: ``.png``, ``.pdf`` or ``.svg``.
 
 - :func:`plot_joint_histories`: one curve per joint, time [s] on x, joint angle [deg] on y, in the
   style of the thesis's Figs. 4.3, 4.4, 4.7 and 4.8.
-- :func:`plot_errors`: position error [m] and orientation errors (Example 4.3's trace and vect
-  errors) against time, log scale.
+- :func:`plot_errors`: position error [m] and orientation errors (Example 4.3's trace error
+  |tr Q - tr Q_d| and vect error ||vect Q - vect Q_d||, dimensionless: Q is a rotation matrix) against
+  time, log scale.
 - :func:`plot_m_eigenvalues`: the eigenvalues of M (Eq. 4.24) and of its projection on the null
   space of J against time; steps solved by LU instead of the QP of Theorem 2 are shaded.
 - :func:`plot_loop_drift`: joint drift at the end of each loop, one curve per scheme, log scale.
@@ -183,15 +184,19 @@ def errors_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | None
         err = _required(tr, "position_error")
         axes[0].semilogy(tr.t, _log_positive(err), color=color, label=_label(tr))
         if has_orientation:
-            for name, style in (("trace_error", "-"), ("vect_error", "--")):
+            for name, style, what in (("trace_error", "-", "$|\\mathrm{tr}\\,Q - \\mathrm{tr}\\,Q_d|$"),
+                                      ("vect_error", "--", "$\\|\\mathrm{vect}\\,Q - \\mathrm{vect}\\,Q_d\\|$")):
                 val = getattr(tr, name)
                 if val is not None:
                     axes[1].semilogy(tr.t, _log_positive(val), color=color, linestyle=style,
-                                     label=f"{name.split('_')[0]}: {_label(tr)}")
+                                     label=f"{what}: {_label(tr)}")
     axes[0].set_ylabel("position error [m]")
     axes[0].set_title(title if title is not None else f"Pose errors: {items[0].robot}")
     if has_orientation:
-        axes[1].set_ylabel("orientation error [-]")
+        # the invariants of Example 4.3: tr Q = 1 + 2 cos(angle), vect Q = sin(angle) axis (dimensionless)
+        axes[1].set_ylabel("orientation error\n(trace and vect of Q) [-]")
+        axes[1].set_title("orientation: trace error (solid) and vect error (dashed), invariants of the "
+                          "rotation Q", fontsize="small")
     for ax in axes:
         ax.set_xlabel("time [s]")
         ax.grid(True, which="both", alpha=0.3)
@@ -217,6 +222,8 @@ def m_eigenvalues_figure(traj: Trajectory, *, title: str | None = None):
         KinredundError: ``traj`` is not one Trajectory, it has no ``m_eigs`` (only the augmented and
             velocity schemes record them), or :meth:`Trajectory.checked` rejects it.
     """
+    from matplotlib.patches import Patch
+
     if not isinstance(traj, Trajectory):
         raise KinredundError(f"plot_m_eigenvalues draws one kinredund Trajectory, got a {type(traj).__name__}")
     (tr,) = _as_list(traj)
@@ -234,7 +241,7 @@ def m_eigenvalues_figure(traj: Trajectory, *, title: str | None = None):
         for j in range(values.shape[1]):
             ax.plot(t, values[:, j], label=fmt.format(j + 1))
         ax.axhline(0.0, color="black", linewidth=0.8)
-        for mask, color, label in ((lu, "tab:red", "LU steps"), (aug, "gold", r"QP on $M + \rho J^T J$")):
+        for mask, color, label in ((lu, "tab:red", "solved by LU"), (aug, "gold", r"solved by QP on $M + \rho J^T J$")):
             for k, (start, stop) in enumerate(_runs(mask)):
                 right = t[min(stop, len(t) - 1)]
                 ax.axvspan(t[start], right, color=color, alpha=0.15, linewidth=0, label=label if k == 0 else None)
@@ -242,7 +249,10 @@ def m_eigenvalues_figure(traj: Trajectory, *, title: str | None = None):
         ax.set_ylabel(ylabel)
         ax.set_xlim(t[0], t[-1])
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize="small", ncols=2)
+        handles, names = ax.get_legend_handles_labels()
+        handles.append(Patch(facecolor="white", edgecolor="0.6", linewidth=0.5))
+        names.append("unshaded: solved by QP on M")
+        ax.legend(handles, names, loc="best", fontsize="small", ncols=2)
     lu_count = int(lu[1:].sum())  # labels of the steps: solver[0] is the start's (Trajectory.summary)
     axes[0].set_title(title if title is not None
                       else f"M along the path: {tr.robot}, {_label(tr)}, {lu_count} LU steps of {len(t) - 1}")
@@ -283,7 +293,8 @@ def loop_drift_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | 
     for k, tr in enumerate(items):
         drift = _required(tr, "loop_drift", _DRIFT_HINT)  # tr is checked: not loop_drifts(tr)
         loops = np.arange(1, len(drift) + 1)
-        ax.semilogy(loops, _log_positive(drift), marker="o", color=f"C{k % 10}", label=_label(tr))
+        label = _label(tr) + (" (a single loop: one point)" if len(drift) == 1 else "")
+        ax.semilogy(loops, _log_positive(drift), marker="o", color=f"C{k % 10}", label=label)
     ax.set_xlabel("loop")
     ax.set_ylabel("joint drift [rad]")
     ax.xaxis.get_major_locator().set_params(integer=True)

@@ -21,9 +21,12 @@ from kinredund.model.robot import Robot
 from kinredund.model.urdf import hd_to_urdf, load_urdf_model, load_urdf_text_model
 from kinredund.tasks import get_task
 from kinredund.trajectory import Trajectory
+from kinredund.ui.viz.meshes import MeshPart, compact_mesh
 from kinredund.ui.viz.scene import (
     MAX_FRAMES,
+    FloorGrid,
     camera_view,
+    floor_grid,
     obstacle_corner_points,
     obstacle_outline,
     read_obstacle,
@@ -33,8 +36,12 @@ from kinredund.ui.viz.scene import (
 )
 
 ROBOT_NODE = "robot"
+FLOOR_NODE = "floor"
 PATH_COLOR = 0x1F4FE0
 TRACER_COLOR = 0x18A040
+FLOOR_COLOR = 0x8C96A5
+#: Dots of the traced path drawn along one playback, at most.
+TRACE_DOTS = 60
 OBSTACLE_COLOR = 0x8A3FD0
 BACKGROUND_TOP = (0.97, 0.97, 0.98)
 BACKGROUND_BOTTOM = (0.78, 0.80, 0.84)
@@ -44,7 +51,7 @@ def import_meshcat() -> SimpleNamespace:
     """Import meshcat and Pinocchio's meshcat visualizer, hiding meshcat's zmq DeprecationWarning.
 
     Raises:
-        KinredundError: meshcat is not installed (``pip install kinredund[viz]``).
+        KinredundError: meshcat is not installed (a core dependency: reinstall kinredund).
     """
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*zmq.eventloop.*", category=DeprecationWarning)
@@ -56,7 +63,8 @@ def import_meshcat() -> SimpleNamespace:
             import meshcat.transformations
             from pinocchio.visualize import MeshcatVisualizer
         except ImportError as err:
-            raise KinredundError(f"playback needs meshcat: pip install 'kinredund[viz]' ({err})") from err
+            raise KinredundError(f"playback needs meshcat (a dependency of kinredund): pip install meshcat ({err})") \
+                from err
     return SimpleNamespace(
         meshcat=meshcat, geometry=meshcat.geometry, animation=meshcat.animation,
         tf=meshcat.transformations, MeshcatVisualizer=MeshcatVisualizer,
@@ -141,9 +149,18 @@ class RobotVisuals:
                 self.neutral[model.joints[model.getJointId(name)].idx_q] = value
         self.viz = mc.MeshcatVisualizer(model, None, visual)
         self.viz.initViewer(viewer=vis)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # unsupported shapes are skipped with a warning
-            self.viz.loadViewerModel(rootNodeName=ROBOT_NODE)
+        # what loadViewerModel sets, without its loading: meshes go in compact (mesh_object), the rest
+        # through Pinocchio's own loader
+        self.viz.viewerRootNodeName = ROBOT_NODE
+        self.viz.viewerVisualGroupName = f"{ROBOT_NODE}/visuals"
+        self.viz.viewerCollisionGroupName = f"{ROBOT_NODE}/collisions"
+        self.viz.display_collisions, self.viz.display_visuals, self.viz.display_frames = False, True, False
+        for geom in visual.geometryObjects:
+            node = vis[self.viz.getViewerNodeName(geom, pin.GeometryType.VISUAL)]
+            if not load_compact(node, geom, mc):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", UserWarning)  # unsupported shapes are skipped with a warning
+                    self.viz.loadViewerGeometryObject(geom, pin.GeometryType.VISUAL)
 
     def full_q(self, q: np.ndarray) -> np.ndarray:
         """The visual model's configuration for the robot's joint vector ``q``."""
@@ -158,6 +175,105 @@ class RobotVisuals:
             self.viz.display(self.full_q(q))
         finally:
             self.viz.viewer = self.vis
+
+
+def _packed(array: np.ndarray, item_size: int) -> dict:
+    """A typed array as meshcat's msgpack extension (the codes of its viewer: 20 Uint16, 22 Uint32, 23 Float32)."""
+    import umsgpack  # meshcat's own msgpack (u-msgpack-python)
+
+    code, name = {np.dtype(np.uint16): (20, "Uint16Array"), np.dtype(np.uint32): (22, "Uint32Array"),
+                  np.dtype(np.float32): (23, "Float32Array")}[array.dtype]
+    return {"itemSize": item_size, "type": name, "array": umsgpack.Ext(code, np.ascontiguousarray(array).tobytes()),
+            "normalized": False}
+
+
+def _binary_mesh_geometry(mc, part: MeshPart):
+    """A meshcat geometry of ``part``'s triangles: float32 corners, 16-bit indices when they fit.
+
+    meshcat's own ``TriangularMeshGeometry`` always sends 32-bit indices; the viewer computes the
+    normals of a geometry sent without them.
+    """
+
+    class BinaryMesh(mc.geometry.Geometry):
+        def lower(self, object_data):
+            return {"uuid": self.uuid, "type": "BufferGeometry",
+                    "data": {"attributes": {"position": _packed(part.vertices, 3)},
+                             "index": _packed(part.faces.reshape(-1), 1)}}
+
+    return BinaryMesh()
+
+
+def _hex_color(rgba) -> int:
+    r, g, b = (int(round(255 * float(np.clip(c, 0.0, 1.0)))) for c in rgba[:3])
+    return (r << 16) + (g << 8) + b
+
+
+def load_compact(node, geom, mc) -> bool:
+    """Put the mesh file of the Pinocchio geometry object ``geom`` on ``node`` in compact form.
+
+    One child per colour (:func:`kinredund.ui.viz.meshes.compact_mesh`); a Collada file keeps its own
+    colours unless the URDF overrides its material, other formats take the URDF's colour. Returns False
+    when the file cannot be read that way (the caller falls back to Pinocchio's loader).
+    """
+    path = getattr(geom, "meshPath", "")
+    parts = compact_mesh(path) if path else None
+    if not parts:
+        return False
+    own_colors = path.lower().endswith(".dae") and not geom.overrideMaterial
+    for k, part in enumerate(parts):
+        rgba = part.color if own_colors else np.asarray(geom.meshColor, dtype=float)
+        material = mc.geometry.MeshPhongMaterial(color=_hex_color(rgba))
+        if float(rgba[3]) < 1.0:
+            material.transparent, material.opacity = True, float(rgba[3])
+        target = node if k == 0 else node[f"part{k}"]
+        target.set_object(mc.geometry.Mesh(_binary_mesh_geometry(mc, part), material))
+    return True
+
+
+def _floor_segments(center_xy: np.ndarray, half: float, spacing: float) -> np.ndarray:
+    """End points of a square grid's lines on z = 0, as (2 * lines, 3) [m] pairs for ``LineSegments``."""
+    ticks = np.arange(-half, half + 0.5 * spacing, spacing)
+    segs = []
+    for v in ticks:
+        segs += [(center_xy[0] + v, center_xy[1] - half, 0.0), (center_xy[0] + v, center_xy[1] + half, 0.0),
+                 (center_xy[0] - half, center_xy[1] + v, 0.0), (center_xy[0] + half, center_xy[1] + v, 0.0)]
+    return np.array(segs, dtype=np.float32)
+
+
+def draw_floor(vis, mc, points: np.ndarray) -> FloorGrid:
+    """A grid on the plane z = 0 of the robot's base frame, under the scene, replacing meshcat's ``/Grid``.
+
+    meshcat's own grid is a 20 m square: from a camera a metre from the robot, most of its lines have an
+    end behind the camera, and such lines are not drawn at all (seen in headless Chromium: a 2 m grid
+    draws whole, a 5 m one loses its near lines, the 20 m one keeps only a thin strip near the horizon,
+    which the replays showed above the robot; the camera's near plane makes no difference). This grid
+    spans the scene's footprint instead (:func:`floor_grid`) and is drawn in the robot's frame, so it
+    stays on z = 0 whatever the camera shift.
+    """
+    grid = floor_grid(points)
+    segs = _floor_segments(grid.center, grid.half, grid.spacing)
+    g = mc.geometry
+    vis["/Grid"].set_property("visible", False)
+    vis[FLOOR_NODE].set_object(g.LineSegments(g.PointsGeometry(segs.T), g.LineBasicMaterial(color=FLOOR_COLOR)))
+    return grid
+
+
+def prune_static_tracks(anim) -> int:
+    """Drop the animation tracks whose value never changes (a base link, a still obstacle); return how many.
+
+    Such a node keeps the pose set before the animation, so the page loses nothing and gets smaller.
+    """
+    dropped = 0
+    for path in list(anim.clips):
+        clip = anim.clips[path]
+        for name in list(clip.tracks):
+            values = np.asarray(clip.tracks[name].values, dtype=float)
+            if len(values) and np.all(np.abs(values - values[0]) <= 1e-12):
+                del clip.tracks[name]
+                dropped += 1
+        if not clip.tracks:
+            del anim.clips[path]
+    return dropped
 
 
 def _line(mc, points: np.ndarray, color: int):
@@ -196,8 +312,15 @@ def build_scene(
 
     robot_visuals = RobotVisuals(robot, vis, mc)
     robot_visuals.display(frames.q[0])
+    draw_floor(vis, mc, np.vstack(scene_points))
     if show_path:
         vis["path/desired"].set_object(_line(mc, traj.p_desired, PATH_COLOR))
+        # the traced path as dots over the desired line, so both stay visible where they coincide
+        dots = np.asarray(frames.p[:: max(1, len(frames.p) // TRACE_DOTS)], np.float32)
+        rgb = np.array([(TRACER_COLOR >> s) & 0xFF for s in (16, 8, 0)], np.float32) / 255.0
+        g = mc.geometry  # meshcat's points take per-vertex colours (vertexColors)
+        vis["path/traced"].set_object(g.Points(g.PointsGeometry(dots.T, np.tile(rgb, (len(dots), 1)).T),
+                                               g.PointsMaterial(size=0.007 * size)))
     tracer = vis["path/tracer"]
     tracer.set_object(mc.geometry.Sphere(0.015 * size), mc.geometry.MeshLambertMaterial(color=TRACER_COLOR))
     tracer.set_transform(mc.tf.translation_matrix(frames.p[0]))
@@ -214,13 +337,15 @@ def build_scene(
     # meshcat 0.3.2's orbit controls always look at the world origin (whatever the transform of
     # /Cameras/default), so the scene is shifted instead: the centre of attention becomes the origin.
     shift = mc.tf.translation_matrix(-center)
-    for node in ("/meshcat", "/Grid", "/Axes"):
+    for node in ("/meshcat", "/Axes"):
         vis[node].set_transform(shift)
-    vis["/Cameras/default/rotated/<object>"].set_property("position", to_camera_axes(offset))
+    camera = vis["/Cameras/default/rotated/<object>"]
+    camera.set_property("position", to_camera_axes(offset))
     vis["/Background"].set_property("top_color", list(BACKGROUND_TOP))
     vis["/Background"].set_property("bottom_color", list(BACKGROUND_BOTTOM))
-    far = max(100.0, 4.0 * float(np.linalg.norm(offset)))
-    vis["/Cameras/default/rotated/<object>"].set_property("far", far)
+    distance = float(np.linalg.norm(offset))
+    camera.set_property("far", max(100.0, 4.0 * distance))
+    camera.set_property("near", min(0.01, 0.01 * distance))
 
     anim = mc.animation.Animation(default_framerate=fps)
     for k, (clock, q, p) in enumerate(zip(frames.times, frames.q, frames.p, strict=True)):
@@ -229,6 +354,7 @@ def build_scene(
         with anim.at_frame(vis, key) as frame:
             robot_visuals.display(q, viewer=frame)
             frame["path/tracer"].set_transform(mc.tf.translation_matrix(p))
+    prune_static_tracks(anim)
     return anim
 
 

@@ -156,3 +156,36 @@ def to_camera_axes(offset: np.ndarray) -> list[float]:
     """World z-up offset -> the y-up axes of meshcat's ``/Cameras/default/rotated`` frame."""
     dx, dy, dz = (float(v) for v in offset)
     return [dx, dz, -dy]
+
+
+@dataclass(frozen=True)
+class FloorGrid:
+    """A square grid on z = 0: centre (x, y) [m], half side [m] and line spacing [m]."""
+
+    center: np.ndarray
+    half: float
+    spacing: float
+
+
+def nice_step(value: float) -> float:
+    """The number of the form 1, 2 or 5 times a power of ten nearest above ``value`` (> 0)."""
+    exponent = math.floor(math.log10(value))
+    for m in (1.0, 2.0, 5.0, 10.0):
+        if m * 10.0**exponent >= value * (1 - 1e-12):
+            return m * 10.0**exponent
+    return 10.0 ** (exponent + 1)
+
+
+def floor_grid(points: np.ndarray, lines_per_half: int = 6) -> FloorGrid:
+    """A floor grid under ``points`` [m]: their footprint on z = 0 with a margin of 40 %, in round steps.
+
+    The spacing is a 1-2-5 step giving about ``lines_per_half`` lines on each side of the centre; the
+    centre sits on a grid line.
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    reach = max(0.5 * float((hi - lo).max()) * 1.4, 0.05)
+    spacing = nice_step(reach / lines_per_half)
+    center = np.round(0.5 * (lo + hi) / spacing) * spacing
+    half = math.ceil((reach + float(np.abs(0.5 * (lo + hi) - center).max())) / spacing) * spacing
+    return FloorGrid(center, half, spacing)

@@ -1,0 +1,396 @@
+"""A cyclic, within-limits joint path for any arm and any closed path (Chapter 6's procedure, generalised).
+
+:func:`plan` runs the thesis's off-line procedure of Section 6.2.2 with the user's own index z in place
+of the obstacle policy, and the joint limits as hard bounds:
+
+1. **Samples.** The path is sampled at N equally spaced times. At each sample the within-limits local
+   minima of z on g(theta) = x(t_k) (Eq. 4.3 with the bounds; Eq. D.33 with the active limits) are
+   found by the joint-level IK :func:`kinredund.ik.solve_ik` with ``bounds=True``: continued from the
+   previous sample's minima (a forward sweep, then a backward one) and from random starts inside the
+   limits. Every distinct minimum is a candidate: a *branch*.
+2. **Branch choice.** One candidate per sample, so that consecutive choices are continuous and the
+   sequence closes: the shortest closed walk through the layered candidate graph, with the joint
+   distance ||q_b - q_a|| as the edge cost and an edge only where no joint moves by more than
+   ``max_jump`` (dynamic programming over the start candidate,
+   :func:`kinredund.planning.branches.choose`). Where no such walk exists (a fold of z: the local
+   minimum followed ceases to exist and the remaining one is far away) the interval is *refined*: at
+   its middle time the within-limits configuration on the path closest to the mean of its ends
+   (the index of Eq. 6.25) is inserted, recursively, until every jump is below ``max_jump``.
+3. **Estimates.** A periodic cubic spline theta*(t) through the chosen samples (:mod:`.spline`, Section
+   6.2.2.2).
+4. **Tracking.** The resolved-rate scheme with the time-varying index h = 1/2 ||theta - theta*(t)||^2
+   and the spline's rate as feed-forward (Eqs. 6.23-6.28), ``loops`` loops, with the joint limits as
+   hard constraints when the installed tracker takes them (``track(..., limits=True)``).
+5. **Verification** (:mod:`.verify`): joint limits at every recorded point, the task error with the
+   robot's own FK, closure after each loop, no joint jump. A motion that leaves the limits (the spline
+   overshooting a sample held at a limit) gets a knot inserted at the worst point of each excursion and
+   is tracked again (at most ``rounds`` times).
+
+The samples are solved inside the limits shrunk by ``margin`` [rad or m]: between samples the tracked
+joints follow the spline, which may overshoot a value held at a limit by a little; the margin keeps
+that overshoot inside the real limits (the verification checks the real ones).
+
+Where the chosen walk changes branch (a refined interval, or a sample whose candidate is not the one
+the previous sample's candidate continued to) the result says, in ``off_optimum`` and ``notes``, that it
+follows its reference there rather than the index's optimum: between those times no local minimum of z
+is followed continuously, and the plan takes the continuous within-limits path it found instead.
+
+A pose path whose orientation turns once about an axis per loop (a circle's Frenet frame) admits no
+within-limits joint path that closes after one loop (:mod:`.topology`); :func:`plan` says so at once, and
+plans a joint motion that repeats every two loops when asked (``cycles=2``).
+
+Joint values are taken as they are (no wrapping by whole turns): a motion inside the limits cannot gain
+a turn on a joint whose range is under one turn, and on wider joints (the xArm7's +-2 pi) the two
+representations of an angle are different candidates.
+
+Units: times [s], joints [rad or m], positions [m].
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from time import perf_counter
+
+import numpy as np
+
+from kinredund.errors import KinredundError, PathError, TaskError, check_count, check_positive
+from kinredund.ik.solve import solve_ik
+from kinredund.indices import Index, TimeVaryingReference
+from kinredund.paths import Path
+from kinredund.planning.branches import choose
+from kinredund.planning.spline import JointSpline
+from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
+from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
+from kinredund.planning.walk import (
+    CandidatePool,
+    closest_within_limits,
+    continue_candidates,
+    inside_limits,
+    local_minimum,
+    off_optimum_intervals,
+    refine_walk,
+    restrict_start,
+    shrunk_limits,
+    target_at,
+    walk_costs,
+    walk_knots,
+)
+from kinredund.tracking import track
+from kinredund.trajectory import Trajectory
+
+#: a completed plan tracks the path to this [m] (and [rad] for orientation): the default-mode corrector
+#: holds the task residual to ~1e-12, so this leaves three orders of round-off headroom
+TASK_TOL = 1e-9
+#: a completed plan closes to this after every loop [rad or m]: the tracked joints are the optimum of h
+#: with a periodic reference, held by the corrector to ~1e-12, so the loop returns to them
+CLOSURE_TOL = 1e-10
+
+
+@dataclass(frozen=True)
+class CyclicSamples:
+    """The sample points, their candidates and the chosen walk.
+
+    Attributes:
+        t: the times of the spline's knots [s], shape (M,) (the N sample times and the refined ones).
+        q: the chosen configurations there, shape (M, n).
+        kind: per knot ``optimum`` (a within-limits local minimum of z), ``refined`` (inserted on a
+            fold: the configuration closest to its neighbours' mean, not an optimum of z) or ``limit``
+            (inserted where a tracked motion left the limits: the within-limits configuration closest to it).
+        branch: per knot the chosen candidate's number at its sample (-1 for refined knots).
+        sample_t: the N sample times [s].
+        candidates: per sample the candidates found, each an array (c_k, n), lowest z first.
+        objective: per sample the z of each candidate.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    kind: tuple[str, ...]
+    branch: tuple[int, ...]
+    sample_t: np.ndarray
+    candidates: tuple[np.ndarray, ...]
+    objective: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True)
+class CyclicPlan:
+    """The outcome of :func:`plan`.
+
+    Attributes:
+        ok: the motion is complete, inside the limits, on the path (``TASK_TOL``), closed after every
+            loop (``CLOSURE_TOL``) and without a joint jump, as checked by :mod:`.verify`.
+        reason: "" when ok, else why not.
+        trajectory: the tracked motion (None when planning stopped before tracking).
+        samples: the samples and chosen branches (None when a sample has no candidate).
+        check: the independent verification of ``trajectory`` (None without one).
+        off_optimum: the time intervals [s] where the motion follows its reference rather than a local
+            minimum of z (module docstring); empty when it follows z's optima throughout.
+        notes: remarks that are not failures.
+        timings: wall times of the stages [s].
+        partial: what the tracker returned before it failed, when it failed and gave one.
+        cycles: the joint motion repeats every ``cycles`` loops of the path.
+        cause: a short machine-readable tag of the failure ("" when ok): ``orientation_loop`` (no closed
+            joint path exists for this many cycles, :mod:`.topology`), ``no_minimum`` (a sample without a
+            within-limits minimum), ``no_closed_walk``, ``tracking_failed``, ``verification``.
+    """
+
+    ok: bool
+    reason: str
+    trajectory: Trajectory | None
+    samples: CyclicSamples | None
+    check: MotionCheck | None
+    off_optimum: tuple[tuple[float, float], ...] = ()
+    notes: tuple[str, ...] = ()
+    timings: dict = field(default_factory=dict)
+    partial: Trajectory | None = None
+    cycles: int = 1
+    cause: str = ""
+
+    def summary(self) -> dict:
+        """Scalars and short lists: the figures a report prints."""
+        s = self.samples
+        return {"ok": self.ok, "reason": self.reason, "cause": self.cause, "cycles": self.cycles,
+                "samples": None if s is None else int(s.sample_t.size),
+                "knots": None if s is None else int(s.t.size),
+                "refined": None if s is None else int(sum(k == "refined" for k in s.kind)),
+                "limit_knots": None if s is None else int(sum(k == "limit" for k in s.kind)),
+                "candidates": None if s is None else [int(len(c)) for c in s.candidates],
+                "off_optimum": [list(iv) for iv in self.off_optimum],
+                "check": None if self.check is None else self.check.to_dict(),
+                "notes": list(self.notes), "timings_s": {k: float(v) for k, v in self.timings.items()}}
+
+
+def _tracker_takes_limits() -> bool:
+    return "limits" in inspect.signature(track).parameters
+
+
+def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin):
+    if not isinstance(path, Path) or path.period is None:
+        raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
+    if not isinstance(index, Index):
+        raise TaskError(f"index must be a kinredund.indices.Index, got {type(index).__name__}")
+    if robot.nq <= robot.task_dim:
+        raise TaskError(f"{robot.name} has {robot.nq} joints for a {robot.task_dim}-D {robot.task!r} task: "
+                        "the cyclic planner needs a redundant arm (use robot.with_task('position'))")
+    check_count(samples, 4, "samples (at least 4 for a cubic spline)", TaskError)
+    check_count(starts, 1, "starts", TaskError)
+    check_count(loops, 1, "loops", TaskError)
+    check_count(steps_per_loop, 4, "steps_per_loop", TaskError)
+    check_positive(max_jump, "max_jump [rad]", TaskError)
+    if not (np.isfinite(margin) and margin >= 0):
+        raise TaskError(f"margin must be a number >= 0 [rad or m], got {margin!r}")
+
+
+def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8, seed: int = 0,
+         loops: int = 2, steps_per_loop: int = 200, max_jump: float = 0.25, margin: float = 1e-3,
+         max_candidates: int = 8, budget: int = 16, rounds: int = 4, max_iter: int = 200, q0=None,
+         cycles: int = 1, progress=None, meta: dict | None = None) -> CyclicPlan:
+    """Plan a cyclic within-limits joint motion along the closed ``path`` that follows z's optima.
+
+    Args:
+        robot: a redundant :class:`kinredund.Robot` (its task kind sets the target: pose, position, planar).
+        path: a closed path (with a period); pose tasks need its orientation.
+        index: the user's performance index z (:mod:`kinredund.indices`).
+        samples: N, the equally spaced sample times k T / N.
+        starts: random starts inside the limits per sample (four times as many at the first sample),
+            ``np.random.default_rng(seed)``.
+        seed: the random seed.
+        loops, steps_per_loop: the tracking (the verification checks closure after every loop).
+        max_jump: the largest joint change between consecutive knots [rad or m]; edges above it are
+            refined or dropped (module docstring).
+        margin: the limits are shrunk by this for the samples and refinements [rad or m].
+        max_candidates: the candidates kept per sample (lowest z first; the chosen walk's are always kept).
+        budget: the most points inserted into one refined interval.
+        rounds: re-plans with an inserted sample where the motion leaves the limits.
+        max_iter: iterations of each joint-level solve.
+        q0: a start inside the limits (n,): the walk then starts (and ends) at the within-limits minimum
+            of z reached from it at t = 0 (the branch the strict tracker would follow from q0); default
+            the shortest closed walk from any candidate.
+        cycles: the joint motion repeats every ``cycles`` loops of the path. A pose path whose
+            orientation loop is not contractible (:mod:`.topology`) admits no within-limits joint path
+            that closes after an odd number of loops: the plan then fails at once and says so (with 2 it
+            may exist, though it needs the arm to swing wide). The samples cover ``cycles`` loops (N per
+            loop) and the closure is checked after every ``cycles`` loops.
+        progress: ``progress(done, total)`` during the tracking.
+        meta: extra entries for ``Trajectory.meta``.
+
+    Returns:
+        A :class:`CyclicPlan`; ``ok=False`` with the reason when a sample has no within-limits minimum,
+        no continuous closed walk exists at this sampling resolution, the tracking fails, or the
+        verification does not pass.
+
+    Raises:
+        TaskError, PathError: bad arguments (an open path, a non-redundant arm, a bad count).
+    """
+    _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin)
+    t0 = perf_counter()
+    timings: dict[str, float] = {}
+    flips = orientation_loop_flips(path) if robot.task == "pose" else None
+    cycles = check_count(cycles, 1, "cycles", TaskError)
+    if flips and cycles % 2:
+        return CyclicPlan(False, "the path's orientation turns once about an axis per loop (a loop of SO(3) that is "
+                          "not contractible), and a joint path inside the limits maps to contractible loops "
+                          f"only: no within-limits joint path closes after {cycles} loop(s); plan with an even "
+                          "number of cycles (kinredund.planning.topology)", None, None, None,
+                          timings={"total_s": perf_counter() - t0}, cycles=cycles,
+                          cause="orientation_loop")
+    user_path, path = path, (path if cycles == 1 else RepeatedPath(path, cycles))
+    first_notes = [f"the joint motion repeats every {cycles} loops of the path"] if cycles > 1 else []
+    period = float(path.period)
+    n = int(samples) * cycles
+    ts = np.arange(n) * period / n
+    inner = shrunk_limits(robot, float(margin))
+    targets = [target_at(robot, path, float(t)) for t in ts]
+    rng = np.random.default_rng(seed)
+    lo, hi = inner.sample_box()
+
+    # -- step 1: within-limits minima of z at the samples (forward sweep with random starts, backward sweep)
+    pools = [CandidatePool() for _ in range(n)]
+    links: set = set()  # pairs of candidate labels one solve joined (the same branch at neighbouring samples)
+    counter = [0]
+    start = None
+    if q0 is not None:
+        q0 = robot.check_q(q0, "q0")
+        if not inside_limits(robot, q0):
+            raise TaskError(f"q0 must lie inside the joint limits of {robot.name}, got {np.round(q0, 6).tolist()}")
+        start = pools[0].add(local_minimum(inner, targets[0], index, q0, max_iter), counter)
+        if start < 0:
+            return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
+                              None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles,
+                              cause="no_minimum")
+    for k in range(n):
+        if k > 0:
+            continue_candidates(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
+        for _ in range(int(starts) * (4 if k == 0 else 1)):
+            pools[k].add(local_minimum(inner, targets[k], index, rng.uniform(lo, hi), max_iter), counter)
+        if not pools[k].q:  # seed from a within-limits point on the path (pose-only multi-start)
+            feasible = solve_ik(inner, targets[k], None, bounds=True, starts=4 * int(starts), seed=seed + k)
+            if feasible.converged:
+                pools[k].add(local_minimum(inner, targets[k], index, feasible.q, max_iter), counter)
+        if not pools[k].q:
+            timings["samples_s"] = perf_counter() - t0
+            return CyclicPlan(False, f"sample {k + 1} of {n} (t = {ts[k]:.4g} s) has no within-limits local "
+                              f"minimum of the index ({int(starts) * (4 if k == 0 else 1)} random starts and the "
+                              "previous sample's minima): the path may leave the reachable set there",
+                              None, None, None, timings=timings, cycles=cycles, cause="no_minimum")
+        pools[k].trim(max_candidates, keep=start if k == 0 else None)
+    continue_candidates(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
+    for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
+        continue_candidates(inner, targets, index, pools, k, k - 1, links, counter, max_iter)
+    continue_candidates(inner, targets, index, pools, 0, n - 1, links, counter, max_iter)
+    for k, pool in enumerate(pools):
+        pool.trim(2 * max_candidates, keep=start if k == 0 else None)
+    timings["samples_s"] = perf_counter() - t0
+
+    # -- step 2: the shortest closed walk through the candidates, refined where it must be
+    t1 = perf_counter()
+    costs = walk_costs(pools, max_jump)
+    i0 = None if start is None else pools[0].label.index(start)
+    restrict_start(costs, i0)
+    refined: dict = {}
+    choice, total = choose(costs)
+    if choice is None or not np.isfinite(total):
+        refine_walk(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter)
+        restrict_start(costs, i0)
+        choice, total = choose(costs)
+    timings["walk_s"] = perf_counter() - t1
+    candidates = tuple(np.array(p.q) for p in pools)
+    objective = tuple(np.array(p.z) for p in pools)
+    if choice is None or not np.isfinite(total):
+        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
+        where = f" (no continuous way from sample {bad[0] + 1} to {(bad[0] + 1) % n + 1})" if bad else ""
+        smp = CyclicSamples(np.zeros(0), np.zeros((0, robot.nq)), (), (), ts, candidates, objective)
+        return CyclicPlan(False, "no continuous closed walk through the within-limits minima at this sampling "
+                          f"resolution{where}: try more samples", None, smp, None, timings=timings, cycles=cycles,
+                          cause="no_closed_walk")
+    rows = walk_knots(ts, pools, choice, refined)
+    off = off_optimum_intervals(ts, period, pools, choice, links, refined)
+    notes = first_notes + [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous "
+                           "within-limits path), not a local minimum of the index: the minimum followed ceases to "
+                           "exist there (a fold)" for a, b in off]
+    return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes,
+                         loops, steps_per_loop, rounds, max_iter, progress, meta, timings, t0)
+
+
+def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, loops,
+                  steps_per_loop, rounds, max_iter, progress, meta, timings, t0) -> CyclicPlan:
+    """Steps 3-5 of :func:`plan`: spline, tracking, verification; re-planned with an inserted knot where
+    the motion leaves the limits. ``path`` is the user's path run ``cycles`` times (one period of the
+    joint motion), ``user_path`` the user's."""
+    period = float(path.period)
+    per_cycle = int(steps_per_loop) * cycles
+    limits = _tracker_takes_limits()
+    info = dict(meta or {}, planner="cyclic", index=type(index).__name__)
+    for attempt in range(int(rounds) + 1):
+        rows.sort(key=lambda r: r[0])
+        kt = np.array([r[0] for r in rows])
+        kq = np.array([r[1] for r in rows])
+        smp = CyclicSamples(kt, kq, tuple(r[2] for r in rows), tuple(int(r[3]) for r in rows), ts, candidates,
+                            objective)
+        spl = JointSpline(kt, kq, period, np.zeros(robot.nq), "periodic")  # Section 6.2.2.2
+        t1 = perf_counter()
+        ref = TimeVaryingReference(spl, spl.rate)  # Eqs. (6.23)-(6.25)
+        kw = {"limits": True} if limits else {}
+        try:
+            traj = track(robot, path, ref, kq[0], steps_per_loop=per_cycle, loops=-(-int(loops) // cycles),
+                         progress=progress, meta=dict(info, knots=len(kt), cycles=cycles), **kw)  # Eqs. (6.26)-(6.28)
+        except KinredundError as err:
+            timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
+            partial = getattr(err, "partial", None)
+            return CyclicPlan(False, f"the tracking of the planned reference failed: {err}", None, smp, None, off,
+                              tuple(notes), timings, partial, cycles, "tracking_failed")
+        timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
+        check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
+        if check.limit_violation > 0 and attempt < rounds:
+            added = 0
+            for k in _worst_per_excursion(robot, traj.q):
+                tk = float(traj.t[k]) % period
+                ref_k = np.clip(traj.q[k], inner.lower, inner.upper)
+                qk = closest_within_limits(inner, target_at(robot, path, tk), ref_k, seed=traj.q[k],
+                                           max_iter=max_iter, fallback=True)
+                if qk is not None and all(abs(tk - r[0]) > 1e-9 for r in rows):
+                    rows.append((tk, qk, "limit", -1))
+                    added += 1
+            if added:
+                notes.append(f"{added} knot(s) inserted where the motion left the limits by up to "
+                             f"{check.limit_violation:.3g}")
+                continue
+        break
+    timings["total_s"] = perf_counter() - t0
+    reason = _verdict(check)
+    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles,
+                      "verification" if reason else "")
+
+
+def _worst_per_excursion(robot, q) -> list[int]:
+    """The recorded point of the largest excursion beyond the limits in each run of consecutive points
+    outside them."""
+    over = limit_excursion(robot, q)
+    out, k = [], 0
+    while k < len(over):
+        if over[k] > 0:
+            j = k
+            while j < len(over) and over[j] > 0:
+                j += 1
+            out.append(k + int(np.argmax(over[k:j])))
+            k = j
+        else:
+            k += 1
+    return out
+
+
+def _verdict(check: MotionCheck) -> str:
+    """'' when the verification passes, else what failed."""
+    bad = []
+    if check.limit_violation > 0:
+        bad.append(f"leaves the joint limits by {check.limit_violation:.3g} (point {check.worst_limit_step})")
+    if check.position_error_max > TASK_TOL or check.orientation_error_max > TASK_TOL:
+        bad.append(f"misses the path by {check.position_error_max:.3g} m / {check.orientation_error_max:.3g} rad")
+    if not check.closure or check.closure_max > CLOSURE_TOL:
+        bad.append(f"does not close: {list(check.closure)}")
+    if check.jumps:
+        bad.append(f"jumps at steps {list(check.jumps)[:6]} (step ratio {check.jump_ratio_max:.3g})")
+    return "" if not bad else "the verified motion " + "; ".join(bad)
+
+
+__all__ = ["CLOSURE_TOL", "TASK_TOL", "CyclicPlan", "CyclicSamples", "plan"]

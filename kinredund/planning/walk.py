@@ -1,0 +1,217 @@
+"""The candidate graph of the cyclic planner (:mod:`kinredund.planning.cyclic`): within-limits minima of z
+at the sample points, their continuation from sample to sample, the layered graph and its refinement.
+
+- :class:`CandidatePool`: the distinct within-limits local minima of z at one sample (Eq. 4.3 with the
+  joint limits as bounds; Eq. D.33 on the null space of the active constraints), each labelled;
+  :func:`continue_candidates` solves from every candidate of one sample at the next and records which
+  labels one solve joined (the same branch).
+- :func:`walk_costs`: the edges of the layered graph, the joint distance ||q_b - q_a|| where no joint
+  moves by more than ``max_jump`` (else infinite); :func:`restrict_start` forces the walk's start.
+- :func:`refine_walk` / :func:`bisect_within_limits`: an infinite edge made finite by inserting, at the
+  middle time, the within-limits configuration on the path closest to the mean of its ends (the index
+  of Eq. 6.25, :func:`closest_within_limits`), recursively, as the thesis asks of the sample points
+  where the configuration changes fast (Section 6.2.2.1).
+- :func:`walk_knots`, :func:`off_optimum_intervals`: the spline's knots along a chosen walk, and where
+  the walk is not the continuation of one minimum.
+
+Units: times [s], joints [rad or m].
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from kinredund.errors import PathError
+from kinredund.ik.solve import solve_ik
+from kinredund.indices import Index, JointDeviation
+from kinredund.paths import Path
+from kinredund.tasks import make_target
+
+#: two candidates closer than this (max-abs) are the same local minimum [rad or m]
+SAME_CANDIDATE = 1e-6
+
+
+def shrunk_limits(robot, margin: float):
+    """A shallow copy of the robot whose limits are shrunk by ``margin`` (the model is shared, unchanged)."""
+    inner = copy.copy(robot)
+    span = robot.upper - robot.lower
+    m = np.minimum(margin, 0.25 * span)
+    inner.lower, inner.upper = robot.lower + m, robot.upper - m
+    return inner
+
+
+def target_at(robot, path: Path, t: float):
+    """The IK target of the path at t for the robot's task kind (pose, position or planar)."""
+    s = path(t)
+    if robot.task == "pose":
+        if s.Q is None:
+            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
+        return make_target("pose", (s.Q, s.p))
+    return make_target(robot.task, s.p[:2] if robot.task == "planar" else s.p)
+
+
+def inside_limits(robot, q) -> bool:
+    """Every joint of q within the robot's limits (inclusive)."""
+    return bool(np.all(q >= robot.lower) and np.all(q <= robot.upper))
+
+
+def local_minimum(inner, target, index: Index, seed, max_iter: int):
+    """A within-limits local minimum of z from ``seed`` (q, z), or None."""
+    res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
+    if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)):
+        return None
+    return res.q, float(res.objective)
+
+
+def closest_within_limits(inner, target, reference, seed=None, max_iter: int = 200, fallback: bool = False):
+    """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25),
+    from ``seed`` (default the reference), or None. With ``fallback``, where that solve does not converge,
+    the within-limits point on g = x the pose-only solve reached from the seed.
+
+    The seed is first put on g = x by a pose-only solve: from the reference itself the index's gradient
+    and the multipliers vanish and the constrained solve's line search cannot step back onto g = x.
+    """
+    seed = np.clip(np.asarray(reference if seed is None else seed, float), inner.lower, inner.upper)
+    first = solve_ik(inner, target, None, q0=seed, bounds=True, max_iter=max_iter)
+    start = first.q if first.converged else seed
+    res = solve_ik(inner, target, JointDeviation(np.asarray(reference, float)), q0=start, bounds=True,
+                   max_iter=max_iter)
+    if res.converged and inside_limits(inner, res.q):
+        return res.q
+    return first.q if fallback and first.converged and inside_limits(inner, first.q) else None
+
+
+class CandidatePool:
+    """The candidates of one sample: distinct minima (q, z), each with a label unique over the plan."""
+
+    def __init__(self):
+        self.q: list[np.ndarray] = []
+        self.z: list[float] = []
+        self.label: list[int] = []
+
+    def add(self, found, counter: list) -> int:
+        """Add (q, z) unless already there; its label (or -1 for None). ``counter``: [next label]."""
+        if found is None:
+            return -1
+        q, z = found
+        for i, c in enumerate(self.q):
+            if np.abs(c - q).max() < SAME_CANDIDATE:
+                return self.label[i]
+        self.q.append(q)
+        self.z.append(z)
+        self.label.append(counter[0])
+        counter[0] += 1
+        return self.label[-1]
+
+    def trim(self, limit: int, keep: int | None = None) -> None:
+        """Keep the ``limit`` candidates of lowest z (in their order), and the one labelled ``keep``."""
+        keep = sorted(set(np.argsort(self.z, kind="stable")[:limit].tolist())
+                      | ({self.label.index(keep)} if keep is not None else set()))
+        self.q, self.z, self.label = ([v[i] for i in keep] for v in (self.q, self.z, self.label))
+
+
+def continue_candidates(inner, targets, index, pools, a, b, links, counter, max_iter) -> None:
+    """Continue every candidate of sample a to sample b; the pairs of labels joined go into ``links``."""
+    for la, q in zip(list(pools[a].label), list(pools[a].q), strict=True):
+        lb = pools[b].add(local_minimum(inner, targets[b], index, q, max_iter), counter)
+        if lb >= 0:
+            links.add(frozenset((la, lb)))
+
+
+def bisect_within_limits(inner, path, ta, qa, tb, qb, max_jump, budget, max_iter):
+    """Points strictly inside (ta, tb) that bring every joint jump within ``max_jump``, or None
+    (Section 6.2.2.1: sample points close to one another where the configuration changes fast).
+
+    Recursive halving: the middle point is the within-limits configuration on the path closest to the
+    mean of the interval's ends; it fails where that does not shrink the jump by 5 % (the ends are not
+    joined by a short within-limits self-motion) or after ``budget`` inserted points.
+    """
+    left = [int(budget)]
+
+    def halve(t0, q0, t1, q1):
+        jump = float(np.abs(q1 - q0).max())
+        if jump <= max_jump:
+            return []
+        if left[0] <= 0:
+            return None
+        left[0] -= 1
+        tm = 0.5 * (t0 + t1)
+        qm = closest_within_limits(inner, target_at(inner, path, tm), 0.5 * (q0 + q1), max_iter=max_iter)
+        if qm is None or max(float(np.abs(qm - q0).max()), float(np.abs(q1 - qm).max())) >= 0.95 * jump:
+            return None
+        first = halve(t0, q0, tm, qm)
+        second = None if first is None else halve(tm, qm, t1, q1)
+        return None if second is None else [*first, (tm, qm), *second]
+
+    return halve(ta, np.asarray(qa, float), tb, np.asarray(qb, float))
+
+
+def walk_costs(pools, max_jump):
+    """Edge costs of the layered graph: the joint distance where no joint jumps by more than max_jump."""
+    n = len(pools)
+    out = []
+    for k in range(n):
+        A, B = np.array(pools[k].q), np.array(pools[(k + 1) % n].q)
+        d = A[:, None, :] - B[None, :, :]
+        c = np.linalg.norm(d, axis=2)
+        c[np.abs(d).max(axis=2) > max_jump] = np.inf
+        out.append(c)
+    return out
+
+
+def refine_walk(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter, tries=2):
+    """Refine the infinite edges of each candidate toward its ``tries`` nearest successors; fills
+    ``refined[(k, i, j)]`` with the inserted points and their cost into ``costs``."""
+    n = len(pools)
+    for k in range(n):
+        tb = ts[k + 1] if k + 1 < n else period
+        A, B = pools[k].q, pools[(k + 1) % n].q
+        for i, qa in enumerate(A):
+            dist = [float(np.linalg.norm(qb - qa)) for qb in B]
+            for j in np.argsort(dist)[:tries]:
+                if np.isfinite(costs[k][i, j]) or (k, i, int(j)) in refined:
+                    continue
+                pts = bisect_within_limits(inner, path, ts[k], qa, tb, B[j], max_jump, budget, max_iter)
+                refined[(k, i, int(j))] = pts
+                if pts is not None:
+                    chain = [qa] + [q for _, q in pts] + [B[j]]
+                    costs[k][i, j] = float(sum(np.linalg.norm(chain[m + 1] - chain[m]) for m in range(len(chain) - 1)))
+
+
+def restrict_start(costs, i0: int | None) -> None:
+    """With a start candidate i0 at sample 0: the walk leaves sample 0 from it and returns to it."""
+    if i0 is not None:
+        costs[0][np.arange(costs[0].shape[0]) != i0, :] = np.inf
+        costs[-1][:, np.arange(costs[-1].shape[1]) != i0] = np.inf
+
+
+def walk_knots(ts, pools, choice, refined):
+    """The spline's knots (t, q, kind, branch) along the chosen walk."""
+    n = len(ts)
+    rows = []
+    for k in range(n):
+        i, j = choice[k], choice[(k + 1) % n]
+        rows.append((ts[k], pools[k].q[i], "optimum", i))
+        for tm, qm in refined.get((k, i, j)) or ():
+            rows.append((tm, qm, "refined", -1))
+    return rows
+
+
+def off_optimum_intervals(ts, period, pools, choice, links, refined) -> tuple:
+    """The intervals where the chosen walk is not the continuation of one minimum (module docstring)."""
+    n = len(ts)
+    out = []
+    for k in range(n):
+        i, j = choice[k], choice[(k + 1) % n]
+        pair = frozenset((pools[k].label[i], pools[(k + 1) % n].label[j]))
+        if refined.get((k, i, j)) or pair not in links:
+            out.append((float(ts[k]), float(ts[k + 1] if k + 1 < n else period)))
+    merged: list[list[float]] = []
+    for a, b in out:
+        if merged and abs(merged[-1][1] - a) < 1e-12:
+            merged[-1][1] = b
+        else:
+            merged.append([a, b])
+    return tuple((a, b) for a, b in merged)

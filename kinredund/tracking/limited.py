@@ -1,0 +1,393 @@
+"""Hard joint limits in the default mode: the constrained optimum followed exactly, within the limits.
+
+Along the path the joints follow theta*(t) = argmin z(theta) s.t. g(theta) = x(t), lower <= theta <= upper.
+With the active set A (the joints on a bound, side s_i = +1 at a lower bound, -1 at an upper one) the
+first-order conditions are
+
+    grad z + J^T lambda - sum_{i in A} s_i mu_i e_i = 0,   g(theta) = x(t),   theta_A = bound_A,   mu_A >= 0,
+
+so between switching times the free joints F solve the thesis's equality system with the active joints'
+columns removed: R_F = [[M_FF, J_F^T], [J_F, 0]] (Eq. 4.24 reduced), the predictor and the Newton
+corrector of :mod:`kinredund.tracking.predictor_corrector` running on it, and the bound multipliers
+are mu_i = s_i (grad z + J^T lambda)_i. After each step the stepper looks for a switch within it: a free
+joint beyond its bound, or a multiplier below zero. It then solves for the switching time on the
+corrected path (Brent's method on the joint's margin or on the multiplier, each evaluation a corrector
+solve at that time), steps to it, changes the active set there and steps on to the end of the step, so
+no joint overshoots its bound and no multiplier of the wrong sign survives. At a switch the rate QP of
+the weakly active bound decides which set continues (min 1/2 v^T M v - top^T v s.t. J v = xdot and the
+sign condition of that bound's rate; proxsuite), where the LU route cannot tell.
+
+Thesis mode with limits is not offered (explicit steps have no corrector to hold the bounds): the
+:class:`~kinredund.tracking.tracker.Tracker` refuses it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import brentq
+
+from kinredund.errors import KinredundError, PathError, SingularityError, TrackingError
+from kinredund.tracking.constraints.joint_limits import JointLimits
+from kinredund.tracking.linalg import bound_rate_qp, classify, lu_solve
+from kinredund.tracking.point import Evaluator, Point
+from kinredund.tracking.predictor_corrector import PredictorCorrector
+
+#: a joint within this distance of its bound at the start counts as on it [rad or m]; a start outside
+#: the limits by at most this much is put on the bound
+ON_BOUND = 1e-10
+#: the switching time is solved to this accuracy [s] (Brent's method): far below the 1e-9 s asked for
+SWITCH_XTOL = 1e-14
+#: the most switches resolved within one step (more means chattering: the optimum is not strongly stable)
+MAX_SWITCHES_PER_STEP = 8
+
+
+class LimitedPredictorCorrector(PredictorCorrector):
+    """The default-mode stepper with hard joint limits (augmented or velocity form).
+
+    State besides :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector`'s: ``fixed`` (n,)
+    bool, ``side`` (n,) (+1 at a lower bound, -1 at an upper bound, 0 free), ``switches`` (a list of
+    dicts: time [s], joint, ``reach`` or ``release``, side) and ``mu`` (n,), the bound multipliers at t.
+    With no joint on a bound every operation is the unlimited stepper's own.
+    """
+
+    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, limits: JointLimits, **kwargs):
+        self.limits = limits
+        n = evaluator.n
+        self._m = evaluator.robot.task_dim
+        self.lo, self.hi = limits.lower, limits.upper
+        # a free joint beyond its bound by more than 1e-13 rad is a switch (rounding below that is not)
+        self._lo_tol, self._hi_tol = self.lo - 1e-13, self.hi + 1e-13
+        self.fixed, self.side = np.zeros(n, bool), np.zeros(n)
+        self.mu = self._no_mu = np.zeros(n)
+        self._no_mu.flags.writeable = False
+        self.switches: list[dict] = []
+        self._sel = None  # the free rows of R (None: all joints free)
+        q0 = self._start_inside(q0, evaluator)
+        for i in np.flatnonzero(q0 <= self.lo + ON_BOUND):
+            self._fix(i, +1.0)
+        for i in np.flatnonzero(q0 >= self.hi - ON_BOUND):
+            self._fix(i, -1.0)
+        q0 = np.where(self.fixed, np.where(self.side > 0, self.lo, self.hi), q0)
+        super().__init__(evaluator, q0, dt, **kwargs)
+        self._settle_start()
+
+    def _settle_start(self) -> None:
+        """Put the corrected start on the constrained optimum: fix a free joint beyond its bound, free a
+        bound joint whose multiplier has the wrong sign (the most violated first), correct, repeat."""
+        for _ in range(2 * self.n + 2):
+            events = self._events()
+            if not events:
+                return
+            joint, kind = min(events, key=lambda e: self._watch(*e))
+            if kind == "release":
+                self._free(joint)
+            else:
+                self.q = self.q.copy()
+                self.q[joint] = self.lo[joint] if kind == "lower" else self.hi[joint]
+                self._fix(joint, 1.0 if kind == "lower" else -1.0)
+            self.prev.clear()
+            self._newton()
+            self._rates()
+        raise TrackingError("no constrained optimum within the joint limits was found at the start",
+                            cause="limits_infeasible", t=self.t, q=None, watched=self._watched())
+
+    # -- the active set ----------------------------------------------------------------------------
+    def _start_inside(self, q0: np.ndarray, ev: Evaluator) -> np.ndarray:
+        out = self.limits.violations(q0, ON_BOUND)
+        if out:
+            what = "; ".join(f"{name} by {amount:.3g}" for name, amount in out)
+            raise TrackingError(f"the starting configuration is outside the joint limits: {what} [rad or m] "
+                                "(pass project_start=True to put it on the limits, or start inside them)",
+                                cause="limits_infeasible", t=0.0, q=None, watched={"violations": dict(out)})
+        return np.clip(q0, self.lo, self.hi)
+
+    def _fix(self, i: int, side: float) -> None:
+        self.fixed[i], self.side[i] = True, side
+        self._update_sel()
+
+    def _free(self, i: int) -> None:
+        self.fixed[i], self.side[i] = False, 0.0
+        self.mu = self.mu.copy()
+        self.mu[i] = 0.0
+        self._update_sel()
+
+    def _update_sel(self) -> None:
+        """The free joints' rows of R and of [q; lambda] (None: every joint free, the unlimited route)."""
+        n = len(self.fixed)
+        free = np.flatnonzero(~self.fixed)
+        if len(free) == n:
+            self._sel = None
+            return
+        if len(free) < self._m:
+            raise self._failure("limits_infeasible", f"{n - len(free)} joints on their limits leave {len(free)} "
+                                f"free joints for a task of dimension {self._m}")
+        self._free_idx = free
+        self._sel = np.concatenate([free, n + np.arange(self._m)])
+
+    def _names_fixed(self) -> str:
+        names = self.limits.joint_names
+        return ", ".join(f"{names[i]} ({'lower' if self.side[i] > 0 else 'upper'})" for i in np.flatnonzero(self.fixed))
+
+    def _bound_values(self) -> np.ndarray:
+        return np.where(self.side > 0, self.lo, self.hi)
+
+    @property
+    def any_active(self) -> bool:
+        """Is any joint on a bound now?"""
+        return self._sel is not None
+
+    def active_bounds(self) -> np.ndarray:
+        """(n,) ints: -1 at the lower limit, +1 at the upper limit, 0 free."""
+        return (-self.side).astype(int)
+
+    # -- the reduced system (hooks of PredictorCorrector) ------------------------------------------
+    def _factor(self, pt: Point, M: np.ndarray):
+        if self._sel is None:
+            return super()._factor(pt, M)
+        F = self._free_idx
+        JF = pt.J[:, F]
+        R = np.zeros((len(F) + JF.shape[0],) * 2)
+        nf = len(F)
+        R[:nf, :nf] = M[np.ix_(F, F)]  # Eq. (4.24) with the active joints' columns removed
+        R[:nf, nf:] = JF.T
+        R[nf:, :nf] = JF
+        try:
+            return self._factor_matrix(pt, R, JF)
+        except SingularityError as err:
+            raise self._failure("not_strongly_stable", f"the constrained optimum is not strongly stable at t = "
+                                f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: {err}") from err
+
+    def _solve(self, lu, b: np.ndarray) -> np.ndarray:
+        if self._sel is None:
+            return lu_solve(lu, b)
+        x = np.zeros_like(b)
+        x[self._sel] = lu_solve(lu, b[self._sel])
+        return x
+
+    def _residual(self, pt: Point, lam: np.ndarray) -> np.ndarray:
+        F = pt.residual(lam)
+        if self._sel is not None:
+            F[: self.n][self.fixed] = 0.0  # the bound multipliers take these rows up
+        return F
+
+    def _correct(self, y: np.ndarray) -> None:
+        if self._sel is not None:
+            y = y.copy()
+            y[: self.n][self.fixed] = self._bound_values()[self.fixed]
+        super()._correct(y)
+        if self._sel is not None and self._solver is None:  # the label of the reduced system, now
+            F = self._free_idx
+            self._solver = classify(self.M[np.ix_(F, F)], self.pt.J[:, F], self.linear_solver,
+                                    symmetric=self.symmetric)
+        self._update_mu()
+
+    def _rates(self) -> None:
+        if self._sel is None:
+            super()._rates()
+        else:
+            pt = self.evaluate(self.q, self.t)
+            self.pt = pt
+            M, top = pt.system(self.lam)  # Eqs. (4.23), (4.37)
+            lu = self._factor(pt, M)
+            sol = self._solve(lu, np.concatenate([top, pt.xdot]))
+            self.qdot, self.lamdot, self.M = sol[: self.n], sol[self.n:], M
+            F = self._free_idx
+            self._solver = classify(M[np.ix_(F, F)], pt.J[:, F], self.linear_solver, symmetric=self.symmetric)
+            self._y, self._yd = np.concatenate([self.q, self.lam]), sol
+        self._update_mu()
+
+    def _update_mu(self) -> None:
+        """mu_i = s_i (grad z + J^T lambda)_i on the active joints (the multipliers of the bounds), at q."""
+        if self._sel is None:
+            self.mu = self._no_mu
+            return
+        pt = self.pt
+        if pt.q is not self.q:
+            pt = self.ev.point(self.q, self.t, need_dJ=False)
+        g = pt.grad + pt.J.T @ self.lam
+        self.mu = np.where(self.fixed, self.side * g, 0.0)
+
+    def _mu_rates(self) -> np.ndarray:
+        """d mu / dt on the active joints from the current rates: s_i (M qdot + J^T lamdot - top)_i."""
+        pt = self.evaluate(self.q, self.t)
+        M, top = pt.system(self.lam)
+        return np.where(self.fixed, self.side * (M @ self.qdot + pt.J.T @ self.lamdot - top), 0.0)
+
+    # -- the step and its switches -----------------------------------------------------------------
+    _STATE = ("t", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "mu")
+
+    def _snapshot(self) -> dict:
+        """The state to come back to (the step's start, a switching time); arrays are never changed in place."""
+        return {"t": self.t, "q": self.q, "lam": self.lam, "qdot": self.qdot, "lamdot": self.lamdot, "_y": self._y,
+                "_yd": self._yd, "pt": self.pt, "M": self.M, "_solver": self._solver, "mu": self.mu,
+                "prev": list(self.prev), "fixed": self.fixed.copy() if self._sel is not None else None,
+                "side": self.side.copy() if self._sel is not None else None}
+
+    def _restore(self, snap: dict) -> None:
+        for name in self._STATE:
+            setattr(self, name, snap[name])
+        self.prev[:] = snap["prev"]
+        if snap["fixed"] is None:
+            self.fixed[:], self.side[:] = False, 0.0
+        else:
+            self.fixed[:], self.side[:] = snap["fixed"], snap["side"]
+        self._update_sel()
+
+    def step(self) -> None:
+        """One step to t + dt; a switch of the active set within it is located and stepped to exactly."""
+        snap = self._snapshot()
+        bounded = self._sel is not None or bool(self.switches)  # a failure then is the limits' to name
+        try:
+            super().step()
+            self._resolve_switches(snap)
+        except TrackingError as err:
+            if err.q is None:  # the last good state: the step's start
+                err.t, err.q = snap["t"], [float(v) for v in snap["q"]]
+                err.watched = self._watched(snap)
+            self._restore(snap)
+            raise
+        except (PathError, SingularityError) as err:
+            if not bounded:  # as the unlimited scheme reports it: no bound has been met
+                raise
+            self._restore(snap)
+            cause = "kinematic_singularity" if "kinematic" in str(err) else \
+                "not_strongly_stable" if isinstance(err, SingularityError) else "limits_infeasible"
+            raise TrackingError(f"tracking within the joint limits stopped after t = {snap['t']:.6g} s: {err}",
+                                cause=cause, t=snap["t"], q=snap["q"], watched=self._watched(snap)) from err
+
+    def _events(self) -> list[tuple[int, str]]:
+        """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``)."""
+        q = self.q
+        if self._sel is None:  # no joint on a bound: one comparison per side (the common case)
+            if not ((q < self._lo_tol).any() or (q > self._hi_tol).any()):
+                return []
+        free = ~self.fixed
+        scale = max(1.0, float(np.abs(self.pt.grad).max()))
+        out = [(int(i), "lower") for i in np.flatnonzero(free & (q < self._lo_tol))]
+        out += [(int(i), "upper") for i in np.flatnonzero(free & (q > self._hi_tol))]
+        out += [(int(i), "release") for i in np.flatnonzero(self.fixed & (self.mu < -1e-12 * scale))]
+        return out
+
+    def _watch(self, joint: int, kind: str) -> float:
+        """The quantity whose zero is the switch: the margin to the bound, or the multiplier (>= 0 before)."""
+        if kind == "lower":
+            return float(self.q[joint] - self.lo[joint])
+        if kind == "upper":
+            return float(self.hi[joint] - self.q[joint])
+        return float(self.mu[joint])
+
+    def _advance_to(self, tau: float) -> None:
+        """From the current state to time tau with the current active set: Euler prediction, corrector."""
+        y, yd = self._y, self._yd
+        h = tau - self.t
+        self.t = tau
+        self._correct(y + h * yd)
+
+    def _crossing(self, snap: dict, t_end: float, joint: int, kind: str) -> float:
+        """The time in (snap t, t_end] where the watched quantity of (joint, kind) reaches zero (Brent)."""
+        def phi(tau):
+            self._restore(snap)
+            if tau > snap["t"]:
+                self._advance_to(tau)
+            return self._watch(joint, kind)
+
+        t_start = snap["t"]
+        if phi(t_start) <= 0.0:
+            return t_start
+        try:
+            return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
+        except (ValueError, RuntimeError, KinredundError) as err:
+            self._restore(snap)
+            raise self._failure("switch_not_resolved", f"the switch of joint {self.limits.joint_names[joint]} "
+                                f"({kind}) within ({t_start:.6g}, {t_end:.6g}] s could not be located: {err}") from err
+
+    def _resolve_switches(self, snap: dict) -> None:
+        t_end = self.t
+        for _ in range(MAX_SWITCHES_PER_STEP):
+            events = self._events()
+            if not events:
+                return
+            state_end = self._snapshot()
+            times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
+            self._restore(state_end)
+            tau, joint, kind = min(times)
+            self._restore(snap)
+            if tau > snap["t"]:
+                self._advance_to(tau)
+            self._switch(joint, kind)
+            snap = self._snapshot()
+            if t_end > tau:
+                self._advance_to(t_end)
+            self.t = t_end
+        raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
+                            f"within one step before t = {t_end:.6g} s (chattering)")
+
+    def _switch(self, joint: int, kind: str) -> None:
+        """Change the active set at the current time (a switching time) and correct onto it."""
+        if kind == "release":
+            side = self.side[joint]
+            self._free(joint)
+        else:
+            side = 1.0 if kind == "lower" else -1.0
+            self.q = self.q.copy()
+            self.q[joint] = self.lo[joint] if side > 0 else self.hi[joint]
+            self._fix(joint, side)
+        self.switches.append({"t": float(self.t), "joint": joint, "name": self.limits.joint_names[joint],
+                              "kind": "release" if kind == "release" else "reach",
+                              "bound": "lower" if side > 0 else "upper", "q": self.q.tolist()})
+        self.prev.clear()  # the optimal path has a kink here: the predictor starts afresh
+        self._newton()
+        self._rates()
+        self._check_direction(joint, kind, side)
+
+    def _check_direction(self, joint: int, kind: str, side: float) -> None:
+        """Strict complementarity after the switch: a reached bound's multiplier grows, a released joint
+        moves inward. Where the LU route cannot tell (a rate ~0), the rate QP decides."""
+        if kind == "release":
+            rate = side * float(self.qdot[joint])  # inward: > 0
+        else:
+            rate = float(self._mu_rates()[joint])  # the multiplier grows: > 0
+        if rate > 0.0:
+            return
+        stay = self._qp_keeps_bound(joint, side)
+        if stay == bool(self.fixed[joint]):
+            return
+        if stay:
+            self.q = self.q.copy()
+            self.q[joint] = self.lo[joint] if side > 0 else self.hi[joint]
+            self._fix(joint, side)
+        else:
+            self._free(joint)
+        self._newton()
+        self._rates()
+
+    def _qp_keeps_bound(self, joint: int, side: float) -> bool:
+        """The rate QP at a weakly active bound (:func:`~kinredund.tracking.linalg.bound_rate_qp`) over the
+        free joints and ``joint``: True where the bound stays active (its rate 0, its multiplier > 0)."""
+        pt = self.evaluate(self.q, self.t)
+        M, top = pt.system(self.lam)
+        keep = np.flatnonzero(~self.fixed | (np.arange(self.n) == joint))
+        out = bound_rate_qp(M[np.ix_(keep, keep)], top[keep], pt.J[:, keep], pt.xdot,
+                            int(np.flatnonzero(keep == joint)[0]), side)
+        name = self.limits.joint_names[joint]
+        if out is None:
+            raise self._failure("not_strongly_stable", f"the rate QP at the switch of joint {name} "
+                                f"(t = {self.t:.6g} s) has no solution")
+        rate, mult = out
+        if abs(rate) <= 1e-12 and abs(mult) <= 1e-12:
+            raise self._failure("not_strongly_stable", f"joint {name} is weakly active at t = {self.t:.6g} s "
+                                "(rate and multiplier both zero): the active set is not determined")
+        return rate <= 1e-12
+
+    # -- failures ------------------------------------------------------------------------------------
+    def _watched(self, snap: dict | None = None) -> dict:
+        state = snap or {"q": self.q, "mu": self.mu, "side": self.side}
+        q = state["q"]
+        return {"active": (-np.asarray(state["side"])).astype(int).tolist(),
+                "bound_multipliers": np.asarray(state["mu"]).tolist(),
+                "limit_margins": np.minimum(self.limits.margins(q), 1e10).tolist()}
+
+    def _failure(self, cause: str, message: str) -> TrackingError:
+        """A TrackingError; its last good state is filled in by :meth:`step` (the step's start)."""
+        return TrackingError(message, cause=cause)
+

@@ -1,0 +1,235 @@
+"""The cyclic planner for any arm (issue 15): samples of z's within-limits minima, a closed walk, a spline,
+time-varying reference tracking, and its independent verification."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+import pytest
+from conftest import load_benchmark, robot
+
+from kinredund.errors import KinredundError, PathError, TaskError
+from kinredund.indices import JointDeviation
+from kinredund.paths import Circle, Helix
+from kinredund.planning.circles import (
+    NAMED_CASES,
+    RADIUS_RANGE,
+    SPEED_RANGE,
+    random_circle,
+    start_of,
+)
+from kinredund.planning.cyclic import CLOSURE_TOL, TASK_TOL, plan
+from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
+from kinredund.planning.verify import (
+    JUMP_FACTOR,
+    JUMP_FLOOR,
+    joint_jumps,
+    limit_excursion,
+    task_errors,
+    verify_motion_on_path,
+)
+from kinredund.tracking import track
+
+STEPS = 200  # per loop, the benchmark's
+#: the strict tracker without joint limits (the thesis's scheme), whichever default the tracker has
+UNBOUNDED = {"limits": False} if "limits" in inspect.signature(track).parameters else {}
+
+
+def _case(name):
+    task, seed = NAMED_CASES[name]
+    r = robot(task.robot)
+    return r, task.path(), task.performance_index(r), start_of(r, task, seed)
+
+
+def _assert_completed(r, path, result, loops=2):
+    """The plan's own verdict, and the figures recomputed here from its joints with the robot's FK."""
+    assert result.ok and result.cause == "", result.reason
+    tr = result.trajectory
+    assert len(tr.t) == loops * STEPS + 1
+    assert limit_excursion(r, tr.q).max() == 0.0  # every recorded point inside the limits, exactly
+    pos, ang = task_errors(r, path, tr.t, tr.q)
+    assert pos.max() <= TASK_TOL and ang.max() <= TASK_TOL  # the corrector holds ~1e-12: 1e-9 leaves headroom
+    for k in range(1, loops + 1):  # the same joints after every loop
+        assert np.abs(tr.q[k * STEPS] - tr.q[0]).max() <= CLOSURE_TOL
+    assert joint_jumps(tr.q)[2] == ()
+
+
+# -- the independent checks -------------------------------------------------------------------------
+def test_joint_jumps_finds_one_step_that_moves_much_more_than_its_neighbours():
+    t = np.linspace(0.0, 2 * np.pi, 201)
+    q = np.column_stack([np.sin(t), np.cos(2 * t), 0.3 * t])
+    step, ratio, jumps = joint_jumps(q)
+    assert jumps == () and ratio < 1.1  # smooth: consecutive steps differ by O(dt)
+    bad = q.copy()
+    bad[120:] += np.array([0.0, 0.5, 0.0])  # a branch switch inside step 119
+    step, ratio, jumps = joint_jumps(bad)
+    assert jumps == (119,) and step > 0.4 and ratio > JUMP_FACTOR
+    still = np.zeros((50, 3))
+    still[25:] += 0.5 * JUMP_FLOOR  # below the floor: round-off of a still arm, never a jump
+    assert joint_jumps(still)[2] == ()
+
+
+def test_limit_excursion_is_the_distance_beyond_the_nearest_limit():
+    r = robot("panda")
+    q = np.array([r.home, r.home, r.home])
+    q[1, 3] = r.upper[3] + 0.25
+    q[2, 0] = r.lower[0] - 0.125
+    assert np.allclose(limit_excursion(r, q), [0.0, 0.25, 0.125], rtol=0, atol=1e-15)
+
+
+def test_verification_uses_the_robots_fk_and_the_loops():
+    r = robot("panda")
+    path = Circle(r.fk(r.home)[:3, 3], 0.05, 0.1, orientation=r.fk(r.home)[:3, :3])
+    t = np.arange(2 * STEPS + 1) * path.period / STEPS
+    q = np.tile(r.home, (len(t), 1))  # the arm held still at the circle's centre: one radius off the path
+    c = verify_motion_on_path(r, path, t, q, STEPS)
+    assert c.closure == (0.0, 0.0) and c.limit_violation == 0.0 and c.orientation_error_max < 1e-12
+    assert c.position_error_max == pytest.approx(0.05, rel=1e-9)
+
+
+# -- the generator -------------------------------------------------------------------------------------
+def test_generator_is_reproducible_and_draws_what_it_documents():
+    r = robot("xarm7")
+    a = [random_circle(r, np.random.default_rng(3)) for _ in range(2)]
+    assert a[0] == a[1]
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        task = random_circle(r, rng)
+        assert RADIUS_RANGE[0] <= task.radius <= RADIUS_RANGE[1] and SPEED_RANGE[0] <= task.speed <= SPEED_RANGE[1]
+        n, e1 = np.array(task.normal), np.array(task.axis_x)
+        assert abs(np.linalg.norm(n) - 1) < 1e-12 and abs(n @ e1) < 1e-12
+        s = task.path()(0.0)
+        assert np.linalg.norm(s.p - np.array(task.center)) == pytest.approx(task.radius, rel=1e-12)
+        if task.index == "posture":
+            ref = np.array(task.reference)
+            assert np.all((ref >= r.lower) & (ref <= r.upper))
+
+
+# -- the planner on circles where the strict tracker fails ------------------------------------------------
+@pytest.mark.parametrize("name", ["panda_fold", "xarm7_fold"])
+def test_strict_tracker_fails_and_planner_completes(name):
+    r, path, index, start = _case(name)
+    assert start.converged
+    with pytest.raises(KinredundError):  # today's tracker without limits, from the within-limits optimum
+        track(r, path, index, start.q, steps_per_loop=STEPS, loops=2, diagnostics=False, **UNBOUNDED)
+    result = plan(r, path, index, seed=1)
+    _assert_completed(r, path, result)
+    s = result.samples
+    assert s.sample_t.size == 24 and all(len(c) >= 1 for c in s.candidates)
+    optima = [q for q, kind in zip(s.q, s.kind, strict=True) if kind == "optimum"]
+    assert len(optima) == 24
+    for q, t in zip(optima, s.sample_t, strict=True):  # the knots are on the path, inside the limits
+        assert task_errors(r, path, [t], [q])[0][0] <= 1e-9 and limit_excursion(r, q)[0] == 0.0
+
+
+def test_planner_from_the_strict_trackers_start_rides_the_limit():
+    """panda_fold from the start the strict tracker used: the plan keeps its branch (the walk starts
+    there), completes within the limits and reaches the limit the unconstrained optimum crosses."""
+    r, path, index, start = _case("panda_fold")
+    result = plan(r, path, index, q0=start.q, seed=1)
+    _assert_completed(r, path, result)
+    assert np.abs(result.trajectory.q[0] - start.q).max() < 1e-6  # the start's branch (z's minimum from q0)
+    gap = np.minimum(result.trajectory.q - r.lower, r.upper - result.trajectory.q).min()
+    assert gap < 2e-3  # on the margin of a limit (1e-3 rad) for part of the loop
+
+
+def test_planner_through_a_fold_says_it_follows_its_reference_there():
+    """panda_fold_followed from the strict tracker's start: the minimum of z followed ceases to exist;
+    the plan still closes inside the limits, through refined knots that are not optima of z, and says
+    where."""
+    r, path, index, start = _case("panda_fold_followed")
+    with pytest.raises(KinredundError):
+        track(r, path, index, start.q, steps_per_loop=STEPS, loops=2, diagnostics=False, **UNBOUNDED)
+    result = plan(r, path, index, q0=start.q, seed=1)
+    _assert_completed(r, path, result)
+    assert result.off_optimum and "refined" in result.samples.kind
+    for a, b in result.off_optimum:
+        assert 0 <= a < b <= path.period
+        assert any(f"{a:.4g} s" in note and "follows its reference" in note for note in result.notes)
+    refined = [t for t, kind in zip(result.samples.t, result.samples.kind, strict=True) if kind == "refined"]
+    assert all(any(a < t < b for a, b in result.off_optimum) for t in refined)  # only inside the flagged intervals
+
+
+def test_planner_where_the_unconstrained_optimum_meets_a_limit():
+    r, path, index, start = _case("panda_limit")
+    tr = track(r, path, index, start.q, steps_per_loop=STEPS, loops=2, diagnostics=False, **UNBOUNDED)
+    assert limit_excursion(r, tr.q).max() > 1e-3  # the strict tracker without limits leaves them
+    _assert_completed(r, path, plan(r, path, index, seed=1))  # the shortest closed walk: another branch
+    result = plan(r, path, index, q0=start.q, seed=1)  # the strict tracker's branch
+    _assert_completed(r, path, result)
+    q = result.trajectory.q
+    assert np.minimum(q - r.lower, r.upper - q).min() < 2e-3  # it stays on (the margin of) the limit instead
+
+
+def test_planner_on_a_planar_arm():
+    """Any arm: the thesis's planar 3R (task ``planar``, m = 2) on a circle through its home point."""
+    r = robot("planar3r")
+    path = Circle(r.fk(r.home)[:3, 3] - np.array([0.1, 0.0, 0.0]), 0.1, 0.2)
+    result = plan(r, path, JointDeviation(r.home), loops=1)
+    _assert_completed(r, path, result, loops=1)
+
+
+# -- which closed paths admit a closed joint path --------------------------------------------------------
+def test_orientation_loop_class():
+    Q0 = robot("panda").fk(robot("panda").home)[:3, :3]
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1, frenet=True)) is True  # one turn about n
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1, orientation=Q0)) is False
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1, orientation=Q0, roll_amplitude=2.0)) is False
+    assert orientation_loop_flips(Circle((0.4, 0.0, 0.5), 0.05, 0.1)) is None  # no orientation
+    twice = RepeatedPath(Circle((0.4, 0.0, 0.5), 0.05, 0.1, frenet=True), 2)
+    assert orientation_loop_flips(twice) is False  # traversed twice the loop is contractible (Z_2)
+    assert twice.period == pytest.approx(2 * twice.base.period, rel=1e-15)
+    assert np.array_equal(twice(0.3).Q, twice.base(0.3).Q)
+
+
+def test_plan_refuses_a_frenet_circle_with_one_cycle_and_says_why():
+    r = robot("panda")
+    T = r.fk(r.home)
+    path = Circle(T[:3, 3], 0.05, 0.1, normal=T[:3, 2], axis_x=T[:3, 0], frenet=True)
+    result = plan(r, path, JointDeviation(r.home))
+    assert not result.ok and result.cause == "orientation_loop" and "not contractible" in result.reason
+    assert result.samples is None
+    with pytest.raises(TaskError, match="cycles"):
+        plan(r, path, JointDeviation(r.home), cycles=0)
+
+
+# -- bad input -------------------------------------------------------------------------------------------
+def test_plan_rejects_bad_input():
+    r = robot("panda")
+    index = JointDeviation(r.home)
+    with pytest.raises(PathError, match="closed path"):
+        plan(r, Helix(), index)
+    path = Circle(r.fk(r.home)[:3, 3], 0.05, 0.1, orientation=r.fk(r.home)[:3, :3])
+    with pytest.raises(TaskError, match="Index"):
+        plan(r, path, "z")
+    with pytest.raises(TaskError, match="samples"):
+        plan(r, path, index, samples=3)
+    with pytest.raises(TaskError, match="redundant"):
+        plan(robot("planar3r", "position"), Circle((1.0, 1.0, 0.0), 0.1), JointDeviation(np.zeros(3)))
+    with pytest.raises(TaskError, match="inside the joint limits"):
+        plan(r, path, index, q0=r.upper + 0.1)
+
+
+def test_plan_says_why_when_the_path_leaves_the_reachable_set():
+    r = robot("panda")
+    far = Circle((3.0, 0.0, 0.5), 0.05, 0.1, orientation=np.eye(3))
+    result = plan(r, far, JointDeviation(r.home), samples=6, starts=2)
+    assert not result.ok and result.cause == "no_minimum" and "no within-limits local minimum" in result.reason
+    assert result.trajectory is None
+
+
+# -- the benchmark runs ------------------------------------------------------------------------------------
+def test_random_tasks_benchmark_runs_one_task():
+    pytest.importorskip("pink")
+    pytest.importorskip("daqp")
+    bench = load_benchmark("random_tasks")
+    res = bench.run_robot("panda", 1, seed=5, progress=False)
+    summary = bench.summarise(res)
+    row = res["tasks"][0]
+    for m in bench.METHODS:
+        assert summary[m]["tasks"] == 1 and "completed" in row[m] and row[m]["time_s"] > 0
+        if not row[m]["completed"]:
+            assert row[m]["cause"]
+    if row["planner"]["completed"]:
+        assert row["planner"]["inside"] and row["planner"]["closed"] and row["planner"]["jumps"] == 0
