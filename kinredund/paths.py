@@ -70,10 +70,15 @@ def _center3(center, what: str) -> np.ndarray:
 
 
 def _positive(path, what: str, *names: str) -> None:
-    """Check the path's fields ``names`` are finite numbers > 0 and store them as floats (a frozen
-    dataclass keeps what it was given: an object array would reach every sample)."""
+    """Check that each named field of a (frozen) path is a finite number > 0 and store it as a float."""
     for name in names:
         object.__setattr__(path, name, check_positive(getattr(path, name), f"{what} {name}", PathError))
+
+
+def _real(path, what: str, *names: str) -> None:
+    """Check that each named field is a finite real number and store it as a float."""
+    for name in names:
+        object.__setattr__(path, name, float(check_array(getattr(path, name), (), f"{what} {name}", PathError)))
 
 
 def _unit(v, what: str) -> np.ndarray:
@@ -135,10 +140,9 @@ class Circle(Path):
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
-        object.__setattr__(self, "start_angle", float(check_array(self.start_angle, (), "circle start_angle [rad]",
-                                                                  PathError)))
-        object.__setattr__(self, "roll_amplitude", float(check_array(self.roll_amplitude, (),
-                                                                     "circle roll_amplitude [rad]", PathError)))
+        _real(self, "circle", "start_angle", "roll_amplitude")  # [rad]
+        if not isinstance(self.frenet, (bool, np.bool_)):
+            raise PathError(f"circle frenet must be True or False, got {self.frenet!r}")
         if self.orientation is not None:
             Q0 = check_array(self.orientation, (3, 3), "circle orientation", PathError)
             if self.frenet or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9 or np.linalg.det(Q0) <= 0:
@@ -197,9 +201,7 @@ class Ellipse(Path):
 
     def __post_init__(self) -> None:
         _positive(self, "ellipse", "a", "b", "rate")
-        for name in ("angle", "start"):
-            value = check_array(getattr(self, name), (), f"ellipse {name} [rad]", PathError)
-            object.__setattr__(self, name, float(value))
+        _real(self, "ellipse", "angle", "start")  # [rad]
         object.__setattr__(self, "center", _center3(self.center, "ellipse"))
         object.__setattr__(self, "period", 2 * np.pi / self.rate)
 
@@ -224,8 +226,7 @@ class Helix(Path):
 
     def __post_init__(self) -> None:
         _positive(self, "helix", "radius", "rate")
-        object.__setattr__(self, "pitch", float(check_array(self.pitch, (), "helix pitch [m/rad]", PathError)))
-        object.__setattr__(self, "z0", float(check_array(self.z0, (), "helix z0 [m]", PathError)))
+        _real(self, "helix", "pitch", "z0")
 
     def sample(self, t: float) -> PathSample:
         beta = self.rate * t
