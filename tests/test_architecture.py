@@ -102,3 +102,9 @@ def test_the_layer_check_sees_a_back_edge(tmp_path):
     (target, _, _), = _imports(f, "kinredund.kinematics.bad")
     assert _layer(target) > _layer("kinredund.kinematics.bad")
 
+
+
+@pytest.mark.parametrize("module", list(MODULES))
+def test_modules_stay_small(module):
+    lines = MODULES[module].read_text().count("\n")
+    assert lines <= MAX_LINES, f"{module} has {lines} lines (at most about 400: split it by concept)"

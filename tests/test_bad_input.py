@@ -129,13 +129,13 @@ def test_track_index_with_junk(arm, junk):
 
 
 @SETTINGS
-@given(kind=st.sampled_from(("circle", "ellipse", "helix")), which=st.integers(0, 3), junk=JUNK)
+@given(kind=st.sampled_from(("circle", "ellipse", "helix")), which=st.integers(0, 8), junk=JUNK)
 def test_paths_with_junk(kind, which, junk):
-    make, valid = {"circle": (Circle, [[0.0, 0.0, 0.0], 1.0, 1.0, 0.0]),
-                   "ellipse": (Ellipse, [[0.0, 0.0], 1.0, 0.5, 0.0]),
+    make, valid = {"circle": (Circle, [[0.0, 0.0, 0.0], 1.0, 1.0, 0.0, (0.0, 0.0, 1.0), None, False, None, 0.0]),
+                   "ellipse": (Ellipse, [[0.0, 0.0], 1.0, 0.5, 0.0, 1.0, 0.0]),
                    "helix": (Helix, [1.5, 1.0, 2.0, 1.0])}[kind]
     args = list(valid)
-    args[which] = junk
+    args[which % len(args)] = junk  # every field in turn, in the order of the dataclass
 
     def build_and_sample():
         make(*args)(0.25)

@@ -446,7 +446,8 @@ def test_freeze_and_clip_holds_joints_pushed_out_of_their_limits():
     joints take the damped least-squares step of theirs, argmin ||G_f d + e||^2 + mu ||d||^2 (lstsq of
     [G_f; sqrt(mu) 1] d = [-e; 0]), which leaves a far smaller linearised error than the clipped
     unheld step; a joint pushed past a limit it was not at is clipped, not held."""
-    from kinredund.ik.newton import Setup, _freeze_and_clip
+    from kinredund.ik.common import Setup
+    from kinredund.ik.pose_only import freeze_and_clip as _freeze_and_clip
 
     r = robot("panda")
     rng = np.random.default_rng(5)
@@ -482,7 +483,8 @@ def test_turn_past_limits_continues_a_joint_the_other_way_round():
     """Panda joint 7 (range 2 pi - 0.49 rad) held at its upper limit goes to its lower limit, the angle
     0.49 rad further on; an xArm7 joint (range 4 pi) turns by exactly 2 pi: the same pose; a joint
     whose range misses a turn by more than TURN_GAP (Panda joint 2) is not turned."""
-    from kinredund.ik.newton import Setup, _turn_past_limits
+    from kinredund.ik.common import Setup
+    from kinredund.ik.pose_only import turn_past_limits as _turn_past_limits
 
     def setup(r):
         return Setup(kin=r.kinematics, res=task_residual(make_target("pose", np.eye(4))), index=None,

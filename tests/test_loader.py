@@ -420,24 +420,27 @@ def test_malformed_options_raise_only_the_project_errors(option, value):
         pass
 
 
-def test_playback_draws_locked_joints_where_the_loader_locked_them():
+def test_playback_draws_locked_joints_where_the_loader_locked_them(monkeypatch):
     """The visual model keeps every joint of the file: the locked ones must sit at robot.locked."""
+    from collections import defaultdict
     from types import SimpleNamespace
 
+    from kinredund.ui.viz import _meshcat
     from kinredund.ui.viz._meshcat import RobotVisuals
 
-    class _Stub:
+    class _Stub:  # Pinocchio's MeshcatVisualizer without a viewer: nothing is drawn
         def __init__(self, *args):
             pass
 
         def initViewer(self, **kwargs):  # noqa: N802 - Pinocchio's visualizer API
             pass
 
-        def loadViewerModel(self, **kwargs):  # noqa: N802
-            pass
+        def getViewerNodeName(self, geom, kind):  # noqa: N802
+            return geom.name
 
+    monkeypatch.setattr(_meshcat, "load_compact", lambda node, geom, mc: True)  # no mesh is loaded
     r = load_robot("tiago", locked={"torso_lift_joint": 0.3})
-    visuals = RobotVisuals(r, None, SimpleNamespace(MeshcatVisualizer=_Stub))
+    visuals = RobotVisuals(r, defaultdict(object), SimpleNamespace(MeshcatVisualizer=_Stub))
     full = visuals.full_q(r.home)
     model = load_urdf(r.urdf_path).model  # the visual model's joints (continuous wheels as angles)
     assert full[model.idx_qs[model.getJointId("torso_lift_joint")]] == 0.3  # copied, not computed

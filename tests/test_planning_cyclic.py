@@ -3,8 +3,6 @@ time-varying reference tracking, and its independent verification."""
 
 from __future__ import annotations
 
-import inspect
-
 import numpy as np
 import pytest
 from conftest import load_benchmark, robot
@@ -32,8 +30,8 @@ from kinredund.planning.verify import (
 from kinredund.tracking import track
 
 STEPS = 200  # per loop, the benchmark's
-#: the strict tracker without joint limits (the thesis's scheme), whichever default the tracker has
-UNBOUNDED = {"limits": False} if "limits" in inspect.signature(track).parameters else {}
+#: the strict tracker without joint limits (the thesis's scheme)
+UNBOUNDED = {"limits": False}
 
 
 def _case(name):

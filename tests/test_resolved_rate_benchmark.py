@@ -15,13 +15,13 @@ def test_panda_figures_and_plot(tmp_path):
     assert keys <= set(res) and all(res[k] > 0 for k in keys)
     if importlib.util.find_spec("pink") is not None:
         assert res["pink_step_us"] > 0 and res["pink_limits_step_us"] > 0
-        # a sanity band, not a speed target (both take ~100 us); the units are _bench's, tested below
-        assert 0.1 < res["default_over_pink"] < 10 and 0.1 < res["default_velocity_over_pink"] < 10
+        # ratios of wall times: reported, never asserted beyond being positive (no timing in tests)
+        assert res["default_over_pink"] > 0 and res["default_velocity_over_pink"] > 0
     assert res["step_limits_us"] > 0 and res["track_step_us"] > 0 and res["tracker_step_us"] > 0
-    assert 0.5 < res["track_over_step"] < 10  # a sanity band; the target (<= 1.3) is the benchmark's to state
+    assert res["track_over_step"] > 0  # a wall-time ratio: the target (<= 1.3) is the benchmark's to state
     assert res["switching_steps_with_switch"] >= 2 and 0.0 <= res["switching_qp_share"] < 1.0
     if importlib.util.find_spec("pink") is not None:
-        assert 0.1 < res["limits_over_pink"] < 10
+        assert res["limits_over_pink"] > 0
     # on this smooth path the predictor lands within 1e-8 rad, so one Newton update ends most steps
     assert res["predictor_miss_median"] < 1e-8 and 1.0 <= res["evals_per_step"] < 1.1
     out = tmp_path / "times.png"

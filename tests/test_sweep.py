@@ -270,11 +270,7 @@ def test_adapter_passes_limits_and_keeps_the_tracker_failure(monkeypatch):
                                 watched=[3], partial=partial)
 
     monkeypatch.setattr(evaluate_mod, "track", limited)
-    evaluate_mod.tracker_takes_limits.cache_clear()
-    try:
-        rec = evaluate_placement(robot, path, index, pose, 7, SweepOptions(limits=True))
-    finally:
-        evaluate_mod.tracker_takes_limits.cache_clear()
+    rec = evaluate_placement(robot, path, index, pose, 7, SweepOptions(limits=True))
     assert seen["limits"] is True
     assert not rec.feasible and rec.cause == "limits" and rec.message == "joint 3 at its limit"
     assert rec.steps == 50 and rec.t_fail == pytest.approx(50 * path.period / 200, rel=1e-12)

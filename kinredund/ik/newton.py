@@ -25,7 +25,7 @@ optimality then includes the multipliers of the active bounds. A converged start
 its last iteration to the optimality report (:class:`OptimalityTerms`): no second kinematics pass.
 
 A pose-only solve (no index) is the x0 part alone in its damped form, kept lean because multi-start
-IK runs it many times (:func:`_pose_only`): Levenberg-Marquardt steps d = -G^T (G G^T + mu 1)^-1 e
+IK runs it many times (:func:`kinredund.ik.pose_only.pose_only`): Levenberg-Marquardt steps d = -G^T (G G^T + mu 1)^-1 e
 with the damping adapted by the gain ratio (Nielsen 1999), accepted when they decrease ||e||; joint
 limits by holding the joints that a step pushes out of their limits and clipping the rest into them
 (as KDL's joint-limited Newton-Raphson solver in TRAC-IK, Beeson and Ames 2015). While other starts
@@ -36,220 +36,34 @@ after one try at turning a joint stuck at a limit through a full turn to the far
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from time import perf_counter
 
 import numpy as np
-from scipy.linalg import lapack
 
-from kinredund.ik.qp import BoxStep
-from kinredund.indices import Index
-from kinredund.tasks import TaskResidual
-
-#: Armijo sufficient-decrease constant
-ARMIJO = 1e-4
-#: cap on the joint change (infinity norm) of each part of a step with an index: the minimum-norm
-#: part x0 (larger: a restoration step instead), the null-space part L u, and the restoration and
-#: bounded steps as a whole (see the module docstring: x0 + L u may reach 2 MAX_STEP) [rad or m]
-MAX_STEP = 1.0
-#: smallest step fraction tried by the backtracking line search
-MIN_ALPHA = 2.0**-20
-#: |R_ii| below this times max |R_ii| counts as rank deficiency of G
-RANK_TOL = 1e-9
-#: floor of the damping of least-squares steps, relative to max |G_ij|^2
-DAMPING = 1e-6
-#: a start with an index stops when its residual has not halved in 2 STALL_ITERS iterations; a
-#: pose-only start that is the last one stops when ||e||^2 has not decreased by the fraction
-#: PATIENT_DECREASE in STALL_ITERS iterations (the closest point to an unreachable target is approached
-#: slowly)
-STALL_ITERS = 10
-PATIENT_DECREASE = 1e-9
-#: weight of ||e||^2 in the damping of least-squares steps
-LM_WEIGHT = 0.05
-#: pose-only starts while other starts remain (or with a timeout): abandoned when ||e||^2 has not
-#: halved in QUICK_STALL_ITERS iterations or after QUICK_MAX_ITER iterations (converging starts take
-#: 5-15; a fresh start does better than a stuck one: a local minimum of the residual at the joint
-#: limits, or a near-singular configuration) ...
-QUICK_STALL_ITERS = 3
-QUICK_MAX_ITER = 20
-#: ... unless the start is already close (||e||^2 < SLOW_PHI) and still gaining (||e||^2 below
-#: SLOW_RATIO times its value QUICK_STALL_ITERS iterations before): then it runs up to SLOW_MAX_ITER
-#: iterations (targets whose every solution is near a singular configuration are approached slowly)
-SLOW_PHI = 1e-3
-SLOW_RATIO = 0.9
-SLOW_MAX_ITER = 60
-#: the Levenberg-Marquardt damping scale at which a pose-only start gives up: no step decreases ||e||
-MAX_SCALE = 1e10
-#: before abandoning a stuck pose-only start, turn once (TURNS times) the revolute joints held at a
-#: limit whose range misses a full turn by less than TURN_GAP [rad] through 2 pi towards the other
-#: limit (see :func:`_turn_past_limits`)
-TURNS = 1
-TURN_GAP = 1.0
-#: joints within this distance of a limit count as at the limit [rad or m]
-ACTIVE_TOL = 1e-9
+from kinredund.ik.common import (
+    ARMIJO,
+    MAX_STEP,
+    MIN_ALPHA,
+    STALL_ITERS,
+    OptimalityTerms,
+    Setup,
+    StartOutcome,
+    bound_kkt,
+    cap_step,
+    damped_step,
+    lm_damping,
+    qr_split,
+    solve_r,
+    solve_rt,
+    stall,
+)
+from kinredund.ik.pose_only import pose_only
 
 
-@dataclass
-class Setup:
-    """Everything one start needs (built once per solve)."""
-
-    kin: object
-    res: TaskResidual
-    index: Index | None
-    lower: np.ndarray
-    upper: np.ndarray
-    bounds: bool
-    rtol: float
-    tol: float
-    max_iter: int
-    deadline: float | None
-    #: the bounded-QP steps of solves with an index (None without bounds, and for pose-only solves)
-    box: BoxStep | None
-    #: abandon a pose-only start as soon as it looks stuck (set while other starts remain)
-    quick_exit: bool = False
-    #: revolute joints (n,) bool; None: no joint is turned past its limits
-    revolute: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.eye = np.eye(self.res.m)
-        self.lower_list, self.upper_list = self.lower.tolist(), self.upper.tolist()
-        spans = (self.upper - self.lower).tolist()
-        revolute = [False] * len(spans) if self.revolute is None else np.asarray(self.revolute).tolist()
-        self.turnable = [bool(r) and 2.0 * math.pi - w < TURN_GAP for r, w in zip(revolute, spans, strict=True)]
-
-
-@dataclass(frozen=True)
-class OptimalityTerms:
-    """The first-order terms at one q with an index, from which the report of Eq. (D.33) follows.
-
-    Attributes:
-        normality: the normality (KKT) residual, Eqs. (D.9)/(D.30).
-        objective: z(q).
-        hessian: Hess z (n x n).
-        dk: dK at q as a :class:`kinredund.kinematics.state.HessianContraction`.
-        multipliers: lambda* on the task rows of K (K[rows]^T lambda* = -grad z, least squares).
-        null_space: L (n x k), orthonormal basis of the null space of the constraint Jacobian and the
-            held limits.
-        active: mask (n,) of the joint limits that hold.
-        extra: the part of d(G^T lambda)/dtheta that d(K^T lambda*)/dtheta at fixed lambda* leaves out
-            (:meth:`kinredund.tasks.TaskResidual.extra_hessian`), or None.
-    """
-
-    normality: float
-    objective: float
-    hessian: np.ndarray
-    dk: object
-    multipliers: np.ndarray
-    null_space: np.ndarray
-    active: np.ndarray
-    extra: np.ndarray | None = None
-
-
-@dataclass
-class StartOutcome:
-    """The end of one start: where it stopped and why; ``terms``: those of a converged start with an
-    index at its q (None otherwise)."""
-
-    q: np.ndarray
-    converged: bool
-    iterations: int
-    reason: str
-    residual: float
-    terms: OptimalityTerms | None = None
-
-
-# -- linear algebra ------------------------------------------------------------------------------
-def qr_split(G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """Householder QR of G^T (n x m): (R, Y, L, well_conditioned) with G^T = Y R and G L = 0 (Eq. D.25).
-
-    R is returned as the m x m block whose upper triangle is R (the strict lower triangle holds
-    Householder vectors; the triangular solves below read the upper triangle only).
-    """
-    m, n = G.shape
-    a, tau, _, _ = lapack.dgeqrf(G.T)
-    full = np.zeros((n, n))
-    full[:, :m] = a
-    U, _, _ = lapack.dorgqr(full, tau)
-    return a[:m, :m], U[:, :m], U[:, m:], _well_conditioned(a, m)
-
-
-def _well_conditioned(a: np.ndarray, m: int) -> bool:
-    diag = [abs(v) for v in a.diagonal()[:m].tolist()]
-    return min(diag) > RANK_TOL * max(max(diag), 1e-300)
-
-
-def solve_rt(R: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """w with R^T w = b (R upper triangular)."""
-    return lapack.dtrtrs(R, b, trans=1)[0]
-
-
-def solve_r(R: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """w with R w = b (R upper triangular)."""
-    return lapack.dtrtrs(R, b)[0]
-
-
-def damped_step(G: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """argmin ||G d + e||^2 + mu ||d||^2 (mu of :func:`_mu`): Householder least squares (LAPACK
-    ``dgels``) on the stacked system [G; sqrt(mu) 1] d = [-e; 0] (no G G^T formed)."""
-    m, n = G.shape
-    A = np.zeros((m + n, n))
-    A[:m] = G
-    A[m:] = math.sqrt(_mu(G, e)) * np.eye(n)
-    rhs = np.zeros(m + n)
-    rhs[:m] = -e
-    return lapack.dgels(A, rhs)[1][:n]
-
-
-def _mu(G: np.ndarray, e: np.ndarray) -> float:
-    """Levenberg-Marquardt damping of the least-squares steps: mu = LM_WEIGHT ||e||^2 + DAMPING max|G|^2
-    (after Sugihara 2011: large far from the target, vanishing at it, so convergence stays quadratic)."""
-    return LM_WEIGHT * float(e @ e) + DAMPING * float(np.abs(G).max()) ** 2
-
-
-def cap_step(d: np.ndarray) -> np.ndarray:
-    """Scale d so that no joint moves more than :data:`MAX_STEP` along it."""
-    big = max(map(abs, d.tolist()))
-    return d * (MAX_STEP / big) if big > MAX_STEP else d
-
-
-def bound_kkt(A: np.ndarray, grad: np.ndarray, q: np.ndarray, lower, upper, bounds: bool):
-    """First-order conditions with the joint limits that hold (grad z + A^T y + E^T nu = 0).
-
-    Args:
-        A: constraint Jacobian (m x n), rank m.
-        grad: grad z (n,).
-        q, lower, upper: joint values and limits; ``bounds`` False ignores the limits.
-
-    Returns:
-        (normality residual, y (m,), null-space basis (n x k) of A and the held limits, active mask).
-        A limit whose multiplier pulls the wrong way is released (it would not hold).
-    """
-    m, n = A.shape
-    act = np.zeros(n, dtype=bool)
-    side = np.zeros(n)
-    if bounds:
-        lo, hi = q <= lower + ACTIVE_TOL, q >= upper - ACTIVE_TOL
-        act, side = lo | hi, np.where(hi, 1.0, -1.0)
-    while True:
-        idx = np.flatnonzero(act)
-        C = np.vstack([A, np.eye(n)[idx]]) if idx.size else A
-        U, s, Vt = np.linalg.svd(C)
-        rank = int(np.sum(s > RANK_TOL * max(s[0], 1e-300)))
-        y = -(U[:, :rank] / s[:rank]) @ (Vt[:rank] @ grad)  # least squares of C^T y = -grad, Eq. (4.12)
-        nu = y[m:]
-        wrong = side[idx] * nu < -1e-12 * max(1.0, float(np.abs(grad).max()))
-        if not wrong.any():
-            break
-        act[idx[np.argmin(side[idx] * nu)]] = False
-    L = Vt[rank:].T
-    return float(np.linalg.norm(L.T @ grad)), y[:m], L, act  # Eq. (D.30)
-
-
-# -- the iterations ------------------------------------------------------------------------------
 def run_start(s: Setup, q: np.ndarray) -> StartOutcome:
     """Iterate from q until converged, stalled, out of iterations or out of time."""
     if s.index is None:
-        return _pose_only(s, q.copy())
+        return pose_only(s, q.copy())
     return _constrained_minimum(s, q.copy())
 
 
@@ -261,139 +75,6 @@ def _in_box(s: Setup, q: np.ndarray) -> bool:
     return not ((q < s.lower).any() or (q > s.upper).any())
 
 
-def _stall(q, it, r, what: str, rtol: float = 0.0) -> StartOutcome:
-    """A start that stopped short; the reason says whether q is on the target (residual < ``rtol``)."""
-    where = ("on the target, so not for want of reach" if r < rtol else "target out of reach from here?")
-    return StartOutcome(q, False, it, f"{what}; residual stalled at {r:.3g} ({where})", r)
-
-
-def _pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
-    """Levenberg-Marquardt steps on the task error alone (index=None): the damped form of the Newton
-    step x0 = -G^+ e of Eqs. (D.23)-(D.24), d = -G^T (G G^T + mu 1)^-1 e.
-
-    Lean by design (an iteration is one Jacobian, one 6x6 Cholesky solve and a handful of small numpy
-    calls): for pose tasks G is K itself, the Jacobian of e up to Jl^-1 = 1 + O(||e||), which keeps the
-    convergence quadratic; mu = scale (LM_WEIGHT ||e||^2 + DAMPING max|G|^2) after Sugihara (2011), with
-    the scale adapted by the gain ratio of Nielsen (1999). With bounds, a joint at a limit that the step
-    pushes out is frozen there (its column of G dropped, the step recomputed) and the rest is clipped
-    into the limits (the joint-limit handling of KDL's Newton-Raphson solver, as in TRAC-IK).
-    """
-    res, jac, terms, rows = s.res, s.kin.jacobian, s.res.error_terms, s.res.row_selection
-    eye, bounds, lower_list, upper_list = s.eye, s.bounds, s.lower_list, s.upper_list
-    rtol2 = s.rtol * s.rtol
-    quick = s.quick_exit
-    stall_iters = QUICK_STALL_ITERS if quick else STALL_ITERS
-    max_iter = min(s.max_iter, QUICK_MAX_ITER) if quick else s.max_iter
-    slow_max = max(max_iter, min(s.max_iter, SLOW_MAX_ITER)) if quick else max_iter
-    Q, p, K = jac(q)
-    ev, phi = terms(Q, p)
-    history = [phi]  # ||e||^2 at each iterate
-    phi_ref, since = phi, 0
-    scale, nu, floor = 1.0, 2.0, -1.0
-    held, turns = [], 0  # joints held at a limit by the last step; turns made
-    it = 0
-    while True:
-        if phi < rtol2:
-            r = res.residual(Q, p)
-            if r < s.rtol:  # closure residual and SE(3) error
-                return StartOutcome(q, True, it, "", r)
-        if phi < (0.5 if quick else 1.0 - PATIENT_DECREASE) * phi_ref:
-            phi_ref, since = phi, 0
-        slow = quick and phi < SLOW_PHI and it < slow_max and phi < SLOW_RATIO * history[max(0, it - stall_iters)]
-        if (since >= stall_iters or it >= max_iter) and not slow:
-            turned = _turn_past_limits(s, q, held) if quick and turns < TURNS and since >= stall_iters else None
-            if turned is None:
-                r = res.residual(Q, p)
-                if since >= stall_iters:
-                    return _stall(q, it, r, f"no progress in {since} iterations", s.rtol)
-                return StartOutcome(q, False, it, f"max_iter={it} reached at residual {r:.3g}", r)
-            q, held, turns = turned, [], turns + 1
-            Q, p, K = jac(q)
-            ev, phi = terms(Q, p)
-            phi_ref, since, scale, nu = phi, 0, 1.0, 2.0
-            history[-1] = phi
-        since += 1
-        if s.deadline is not None and perf_counter() > s.deadline:
-            return StartOutcome(q, False, it, "timeout", res.residual(Q, p))
-        G = K if rows is None else K[rows]
-        if floor < 0.0:
-            floor = DAMPING * float(np.abs(G).max()) ** 2
-        e = np.array(ev)
-        GGt = G @ G.T
-        while True:
-            mu = scale * (LM_WEIGHT * phi + floor)
-            x, info = lapack.dposv(GGt + mu * eye, e)[1:]  # (G G^T + mu 1) x = e
-            if info == 0:
-                qn = q - x @ G
-                lin2 = mu * mu * float(x @ x)  # ||e + G d||^2 = ||mu x||^2 for d = -G^T x
-                new_held = []
-                if bounds and _outside(qn.tolist(), lower_list, upper_list):
-                    qn, new_held = _freeze_and_clip(s, q, qn, G, e, mu)
-                    lin = e + G @ (qn - q)
-                    lin2 = float(lin @ lin)
-                Qn, pn, Kn = jac(qn)
-                evn, phin = terms(Qn, pn)
-                if phin < phi:
-                    pred = phi - lin2
-                    rho = (phi - phin) / pred if pred > 0.0 else 0.0  # gain ratio
-                    scale = max(1.0, scale * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
-                    nu = 2.0
-                    break
-            scale *= nu
-            nu *= 2.0
-            if scale > MAX_SCALE:
-                return _stall(q, it, res.residual(Q, p), "no step decreases the residual", s.rtol)
-        q, Q, p, K, ev, phi, held = qn, Qn, pn, Kn, evn, phin, new_held
-        history.append(phi)
-        it += 1
-
-
-def _outside(values: list, lower: list, upper: list) -> bool:
-    """Whether any of the joint values lies outside its limits (a plain loop: faster than numpy on 7)."""
-    for v, a, b in zip(values, lower, upper, strict=True):
-        if v < a or v > b:
-            return True
-    return False
-
-
-def _freeze_and_clip(
-    s: Setup, q: np.ndarray, qn: np.ndarray, G: np.ndarray, e: np.ndarray, mu: float
-) -> tuple[np.ndarray, list[int]]:
-    """The damped step recomputed with the joints that sit at a limit and would leave it held there
-    (their columns of G dropped), then clipped into the limits. Returns (q + d, the held joints)."""
-    lo, hi = s.lower_list, s.upper_list
-    new, old = qn.tolist(), q.tolist()
-    held = [j for j in range(len(new)) if (new[j] < lo[j] and old[j] <= lo[j]) or (new[j] > hi[j] and old[j] >= hi[j])]
-    if held:
-        Gf = G.copy()
-        for j in held:
-            Gf[:, j] = 0.0
-        x, info = lapack.dposv(Gf @ Gf.T + mu * s.eye, e)[1:]
-        if info == 0:
-            qn = q - x @ Gf
-    return np.minimum(np.maximum(qn, s.lower), s.upper), held
-
-
-def _turn_past_limits(s: Setup, q: np.ndarray, held: list[int]) -> np.ndarray | None:
-    """q with the held revolute joints turned by 2 pi away from their limit and clipped into the
-    limits, or None when no held joint can turn.
-
-    A joint held at its upper limit u by steps that push it further wants an angle u + delta, which is
-    the angle u + delta - 2 pi: inside the limits beyond the gap 2 pi - (u - l) that the range misses
-    of a full turn. Turning it to the far limit (or, for a range over a full turn, to the same angle
-    there) continues its motion past the stop; worth a try before a fresh start when the gap is small
-    (the Panda's joints 1, 3, 5, 7 miss a turn by 0.49 rad).
-    """
-    turn = [j for j in held if s.turnable[j]]
-    if not turn:
-        return None
-    out = q.copy()
-    for j in turn:
-        v = out[j] - 2.0 * math.pi if out[j] >= s.upper_list[j] else out[j] + 2.0 * math.pi
-        out[j] = min(max(v, s.lower_list[j]), s.upper_list[j])
-    return out
-
-
 def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it: int):
     """A damped least-squares step on the constraints alone, backtracking on 1/2 ||e||^2.
 
@@ -401,11 +82,11 @@ def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it
     """
     d = damped_step(G, e)
     if s.bounds and not _in_box(s, q + d):
-        d = s.box.least_squares(G, e, _mu(G, e), s.lower - q, s.upper - q)
+        d = s.box.least_squares(G, e, lm_damping(G, e), s.lower - q, s.upper - q)
     d = cap_step(d)
     slope = float(e @ (G @ d))
     if not slope < 0.0:
-        return _stall(q, it, r, "no descent direction for the residual", s.rtol)
+        return stall(q, it, r, "no descent direction for the residual", s.rtol)
     phi = 0.5 * float(e @ e)
     alpha = 1.0
     while alpha >= MIN_ALPHA:
@@ -413,7 +94,7 @@ def _restore(s: Setup, q: np.ndarray, G: np.ndarray, e: np.ndarray, r: float, it
         if 0.5 * s.res.error_terms(*s.kin.pose(qt))[1] <= phi + ARMIJO * alpha * slope:  # e only, no Jl^-1
             return qt
         alpha *= 0.5
-    return _stall(q, it, r, "line search failed", s.rtol)
+    return stall(q, it, r, "line search failed", s.rtol)
 
 
 def _merit(s: Setup, q: np.ndarray, rho: float) -> tuple[float, tuple[float, ...]]:
@@ -490,7 +171,7 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
         if r < 0.5 * r_ref or r < 1e3 * s.rtol:
             r_ref, since = r, 0
         elif since >= 2 * STALL_ITERS:  # far from g = x and not getting closer
-            return _stall(q, it, r, f"the residual did not halve in {2 * STALL_ITERS} iterations", s.rtol)
+            return stall(q, it, r, f"the residual did not halve in {2 * STALL_ITERS} iterations", s.rtol)
         since += 1
         if not ok and r < s.rtol:
             return StartOutcome(q, False, it, "on the target at a singular configuration (rank-deficient constraint "
@@ -523,14 +204,14 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
             lb, ub = s.lower - q, s.upper - q
             B = L @ (V * wmod) @ V.T @ L.T + Y @ Y.T  # the reduced model of Eq. (D.26), PD
             dq = s.box.equality(B, grad + L @ (L.T @ (M @ x0)), G, e, lb, ub)
-            d = cap_step(dq if dq is not None else s.box.least_squares(G, e, _mu(G, e), lb, ub))
+            d = cap_step(dq if dq is not None else s.box.least_squares(G, e, lm_damping(G, e), lb, ub))
         Gd = G @ d
         slope = float(grad @ d) + rho * (float(e @ Gd) / enorm if enorm > 0.0 else math.sqrt(float(Gd @ Gd)))
         phi = z + rho * enorm
         qn = _merit_search(s, q, d, rho, phi, slope, R, Y)
         if qn is None:
             why = "no descent direction for the merit function" if slope >= 0.0 else "line search failed"
-            return _stall(q, it, r, f"{why} (normality residual {normality:.3g})", s.rtol)
+            return stall(q, it, r, f"{why} (normality residual {normality:.3g})", s.rtol)
         q = qn
     raise AssertionError("unreachable")  # pragma: no cover
 

@@ -2,7 +2,7 @@
 
 Used only by solves with an index (Eq. 4.3), and only when their unconstrained step of Eqs.
 (D.24)-(D.26) would leave the joint limits (the fast path needs no QP); pose-only solves hold and clip
-joints instead (:func:`kinredund.ik.newton._pose_only`). Two problems, both over the step d (n,)
+joints instead (:func:`kinredund.ik.pose_only.pose_only`). Two problems, both over the step d (n,)
 within lb <= d <= ub:
 
 - equality form: min 1/2 d^T B d + c^T d  s.t.  G d = -e   (the linearised constraints, Eq. D.23);

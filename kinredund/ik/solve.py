@@ -34,7 +34,8 @@ from time import perf_counter
 import numpy as np
 
 from kinredund.errors import TaskError, check_count, check_positive
-from kinredund.ik.newton import RANK_TOL, OptimalityTerms, Setup, StartOutcome, bound_kkt, run_start
+from kinredund.ik.common import RANK_TOL, OptimalityTerms, Setup, StartOutcome, bound_kkt
+from kinredund.ik.newton import run_start
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
 from kinredund.kinematics.angles import turn_into_limits

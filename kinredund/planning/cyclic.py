@@ -20,7 +20,7 @@ of the obstacle policy, and the joint limits as hard bounds:
    6.2.2.2).
 4. **Tracking.** The resolved-rate scheme with the time-varying index h = 1/2 ||theta - theta*(t)||^2
    and the spline's rate as feed-forward (Eqs. 6.23-6.28), ``loops`` loops, with the joint limits as
-   hard constraints when the installed tracker takes them (``track(..., limits=True)``).
+   hard constraints (``track(..., limits=True)``).
 5. **Verification** (:mod:`.verify`): joint limits at every recorded point, the task error with the
    robot's own FK, closure after each loop, no joint jump. A motion that leaves the limits (the spline
    overshooting a sample held at a limit) gets a knot inserted at the worst point of each excursion and
@@ -48,7 +48,6 @@ Units: times [s], joints [rad or m], positions [m].
 
 from __future__ import annotations
 
-import inspect
 from dataclasses import dataclass, field
 from time import perf_counter
 
@@ -158,10 +157,6 @@ class CyclicPlan:
                 "off_optimum": [list(iv) for iv in self.off_optimum],
                 "check": None if self.check is None else self.check.to_dict(),
                 "notes": list(self.notes), "timings_s": {k: float(v) for k, v in self.timings.items()}}
-
-
-def _tracker_takes_limits() -> bool:
-    return "limits" in inspect.signature(track).parameters
 
 
 def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin):
@@ -319,7 +314,6 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
     joint motion), ``user_path`` the user's."""
     period = float(path.period)
     per_cycle = int(steps_per_loop) * cycles
-    limits = _tracker_takes_limits()
     info = dict(meta or {}, planner="cyclic", index=type(index).__name__)
     for attempt in range(int(rounds) + 1):
         rows.sort(key=lambda r: r[0])
@@ -330,7 +324,7 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
         spl = JointSpline(kt, kq, period, np.zeros(robot.nq), "periodic")  # Section 6.2.2.2
         t1 = perf_counter()
         ref = TimeVaryingReference(spl, spl.rate)  # Eqs. (6.23)-(6.25)
-        kw = {"limits": True} if limits else {}
+        kw = {"limits": True}
         try:
             traj = track(robot, path, ref, kq[0], steps_per_loop=per_cycle, loops=-(-int(loops) // cycles),
                          progress=progress, meta=dict(info, knots=len(kt), cycles=cycles), **kw)  # Eqs. (6.26)-(6.28)

@@ -7,7 +7,7 @@
 - :func:`read_sweep_file` reads a sweep file back (header and records).
 """
 
-from kinredund.sweep.evaluate import SweepOptions, evaluate_placement, run_tracker, tracker_takes_limits
+from kinredund.sweep.evaluate import SweepOptions, evaluate_placement, run_tracker
 from kinredund.sweep.placement import PartPath, PlacementError, check_placements, grid, placement_pose
 from kinredund.sweep.record import CAUSES, CRITERIA, PlacementRecord, best
 from kinredund.sweep.run import SweepJob, run_batch, sweep
@@ -16,5 +16,5 @@ from kinredund.sweep.store import read_sweep_file, write_sweep_file
 __all__ = [
     "CAUSES", "CRITERIA", "PartPath", "PlacementError", "PlacementRecord", "SweepJob", "SweepOptions", "best",
     "check_placements", "evaluate_placement", "grid", "placement_pose", "read_sweep_file", "run_batch",
-    "run_tracker", "sweep", "tracker_takes_limits", "write_sweep_file",
+    "run_tracker", "sweep", "write_sweep_file",
 ]

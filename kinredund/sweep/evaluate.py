@@ -6,9 +6,8 @@ limits, seeded multi-start so the records repeat, to round-off: see :mod:`kinred
 the tracker's ``track`` for the run (Chapter 4; :mod:`kinredund.tracking`, imported in one place
 below). Whatever the tracker returns or raises becomes a :class:`~kinredund.sweep.record.PlacementRecord`:
 
-- a tracker with hard joint limits (one that takes ``limits=``, checked with ``inspect.signature``) is
-  given ``limits=options.limits``; its ``TrackingError`` carries ``cause``, ``t``, ``q`` and the
-  ``partial`` run, which the record keeps (the figures are those of the partial run);
+- the tracker holds the joint limits (``limits=options.limits``); its ``TrackingError`` carries
+  ``cause``, ``t``, ``q`` and the ``partial`` run, which the record keeps (the figures are those of the partial run);
 - the figures (margins, singular values, speeds) are computed here from the recorded joints, so they
   are right whichever tracker ran: a run that leaves the limits is infeasible with cause ``limits``,
   never feasible, even if the tracker did not hold them.
@@ -16,8 +15,6 @@ below). Whatever the tracker returns or raises becomes a :class:`~kinredund.swee
 
 from __future__ import annotations
 
-import functools
-import inspect
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,7 +45,8 @@ class SweepOptions:
         steps_per_loop, loops: the run of a closed path (see :func:`kinredund.tracking.track`).
         duration, steps: the run of an open path [s], [-] (None for closed paths).
         scheme, mode: the tracker's scheme and mode.
-        limits: ask the tracker to hold the joint limits (passed on when the tracker takes ``limits=``).
+        limits: the tracker's ``limits`` (None: held by the default mode's optimal schemes, the tracker's
+            default; False: the thesis's unconstrained scheme).
         speed_limit: a joint faster than its velocity limit makes the placement infeasible (cause
             ``speed``); by default the speed ratio is only reported (a slower path execution fixes it).
         starts, seed: multi-start of the start configuration's IK (:func:`kinredund.ik.solve_ik`).
@@ -60,7 +58,7 @@ class SweepOptions:
     steps: int | None = None
     scheme: str = "augmented"
     mode: str = "default"
-    limits: bool = True
+    limits: bool | None = None
     speed_limit: bool = False
     starts: int = 8
     seed: int = 0
@@ -77,12 +75,6 @@ class SweepOptions:
             check_count(self.steps, 1, "steps", KinredundError)
 
 
-@functools.cache
-def tracker_takes_limits() -> bool:
-    """Does :func:`~kinredund.tracking.track` take ``limits=`` (hard joint limits)?"""
-    return "limits" in inspect.signature(track).parameters
-
-
 def run_tracker(robot: Robot, path: Path, index: Index | None, q0: np.ndarray, options: SweepOptions) -> Trajectory:
     """The tracking run of one placement: the one call of the tracker (switching trackers happens here)."""
     kw = {"scheme": options.scheme, "mode": options.mode, "diagnostics": False}
@@ -90,8 +82,7 @@ def run_tracker(robot: Robot, path: Path, index: Index | None, q0: np.ndarray, o
         kw.update(steps_per_loop=options.steps_per_loop, loops=options.loops)
     else:
         kw.update(duration=options.duration, steps=options.steps)
-    if tracker_takes_limits():
-        kw["limits"] = options.limits
+    kw["limits"] = options.limits
     return track(robot, path, index, q0, **kw)
 
 

@@ -55,7 +55,7 @@ from kinredund.errors import KinredundError, check_count
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
-from kinredund.sweep.evaluate import SweepOptions, evaluate_placement, tracker_takes_limits
+from kinredund.sweep.evaluate import SweepOptions, evaluate_placement
 from kinredund.sweep.placement import check_placements, pose_coordinates
 from kinredund.sweep.record import PlacementRecord
 from kinredund.sweep.store import resumable_records, write_sweep_file
@@ -139,7 +139,7 @@ def header(job: SweepJob, count: int) -> dict:
     robot = job.robot
     return {"robot": robot.name, "task": robot.task, "nq": robot.nq, "path": type(job.path).__name__,
             "index": None if job.index is None else type(job.index).__name__, "options": asdict(job.options),
-            "tracker_limits": tracker_takes_limits(), "placements": count, "token": job.token}
+            "placements": count, "token": job.token}
 
 
 def default_workers() -> int:

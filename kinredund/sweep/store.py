@@ -72,7 +72,7 @@ def resumable_records(path: str | Path, header: dict, placements: np.ndarray) ->
             placements, or a tracker with(out) hard joint limits): resuming from it would mix two sweeps.
     """
     head, records = read_sweep_file(path)
-    for key in ("token", "placements", "tracker_limits"):  # same job, same placements, same kind of tracker
+    for key in ("token", "placements"):  # same job (its options included), same placements
         if head.get(key) != header[key]:
             raise KinredundError(
                 f"{path} was written by another sweep ({key}: {head.get(key)!r} here, {header[key]!r} now): "

@@ -218,7 +218,7 @@ def _cmd_track(args) -> int:
         s0 = path(0.0)
         target = get_task(robot.task).target_from_sample(s0)
         bar(0, 1, "the optimal start (IK)")
-        res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts)
+        res = solve_ik(robot, target, index, q0=seed_q, starts=args.starts, bounds=True)  # within the limits
         if not res.converged:
             raise KinredundError(f"no starting configuration on the path: {res.reason}")
         # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration

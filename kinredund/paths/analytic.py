@@ -1,0 +1,187 @@
+"""Paths in closed form: the circle (Examples 4.1-4.3), the ellipse (Chapter 6) and the helix (Section 3.2)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from kinredund.errors import PathError, check_array, check_positive
+from kinredund.paths.base import Path, PathSample
+
+
+def _center3(center, what: str) -> np.ndarray:
+    """A centre as 3 finite numbers [m]; a 2-vector is taken in the plane z = 0."""
+    c = check_array(center, (None,), f"{what} centre", PathError)
+    if c.shape == (2,):
+        c = np.append(c, 0.0)
+    if c.shape != (3,):
+        raise PathError(f"{what} centre must be 2 or 3 finite numbers, got {center!r}")
+    return c
+
+
+def _positive(path, what: str, *names: str) -> None:
+    """Check that each named field of a (frozen) path is a finite number > 0 and store it as a float."""
+    for name in names:
+        object.__setattr__(path, name, check_positive(getattr(path, name), f"{what} {name}", PathError))
+
+
+def _real(path, what: str, *names: str) -> None:
+    """Check that each named field is a finite real number and store it as a float."""
+    for name in names:
+        object.__setattr__(path, name, float(check_array(getattr(path, name), (), f"{what} {name}", PathError)))
+
+
+def _unit(v, what: str) -> np.ndarray:
+    u = check_array(v, (3,), what, PathError)
+    norm = float(np.linalg.norm(u))
+    if norm < 1e-12:
+        raise PathError(f"{what} must be a non-zero 3-vector, got {v!r}")
+    return u / norm
+
+
+def _frame(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = _unit(normal, "circle normal")
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = helper - (helper @ n) * n
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1), n
+
+
+@dataclass(frozen=True)
+class Circle(Path):
+    """A circle of ``radius`` about ``center``, traced counter-clockwise about ``normal`` at ``speed``.
+
+    Args:
+        center: (3,) [m] (a 2-vector is taken in the plane z = 0).
+        radius: [m] > 0.
+        speed: [m/s] > 0.
+        start_angle: the angle beta of the start point from ``axis_x`` [rad].
+        normal: unit normal of the circle's plane (default +z).
+        axis_x: the in-plane direction of beta = 0 (default: a vector normal to ``normal``, +x for +z).
+        frenet: if True the path has orientation Q_d = [e_n, e_t, e_n x e_t] (Eqs. 4.47-4.48): e_n the
+            outward radial unit vector, e_t the tangent.
+        orientation: a constant orientation Q_0 (3x3) instead, making it a pose path.
+        roll_amplitude: with ``orientation``, Q_d = Q_0 Rz(roll_amplitude sin(2 pi t / T)): the tool
+            turns back and forth about its own z axis once per loop [rad].
+    """
+
+    center: np.ndarray
+    radius: float
+    speed: float = 1.0
+    start_angle: float = 0.0
+    normal: tuple = (0.0, 0.0, 1.0)
+    axis_x: tuple | None = None
+    frenet: bool = False
+    orientation: np.ndarray | None = None
+    roll_amplitude: float = 0.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "circle", "radius", "speed")  # first: a NaN radius is not the centre's fault
+        c = _center3(self.center, "circle")
+        e1, e2, n = _frame(self.normal)
+        if self.axis_x is not None:
+            e1 = _unit(self.axis_x, "circle axis_x")
+            e1 = e1 - (e1 @ n) * n
+            if np.linalg.norm(e1) < 1e-9:
+                raise PathError(f"circle axis_x must not be parallel to the normal, got {self.axis_x!r}")
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(n, e1)
+        object.__setattr__(self, "center", c)
+        object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
+        object.__setattr__(self, "_center_floats", tuple(c.tolist()))
+        object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
+        _real(self, "circle", "start_angle", "roll_amplitude")  # [rad]
+        if not isinstance(self.frenet, (bool, np.bool_)):
+            raise PathError(f"circle frenet must be True or False, got {self.frenet!r}")
+        if self.orientation is not None:
+            Q0 = check_array(self.orientation, (3, 3), "circle orientation", PathError)
+            if self.frenet or np.abs(Q0 @ Q0.T - np.eye(3)).max() > 1e-9 or np.linalg.det(Q0) <= 0:
+                raise PathError("orientation must be a rotation matrix (3x3, orthonormal, det +1), and excludes "
+                                f"frenet=True; got {Q0.tolist()}")
+            object.__setattr__(self, "orientation", Q0)
+            object.__setattr__(self, "_orientation_floats", tuple(tuple(row) for row in Q0.tolist()))
+        object.__setattr__(self, "has_orientation", bool(self.frenet) or self.orientation is not None)
+
+    def sample(self, t: float) -> PathSample:
+        w = self.speed / self.radius
+        beta = self.start_angle + w * t
+        c, s = math.cos(beta), math.sin(beta)
+        # e_n = c e1 + s e2 (outward radial unit vector), e_t = c e2 - s e1 (tangent); Python floats
+        # for these 3-vectors cost less than numpy calls
+        (e1x, e1y, e1z), (e2x, e2y, e2z), _ = self._plane_floats
+        en = (c * e1x + s * e2x, c * e1y + s * e2y, c * e1z + s * e2z)
+        et = (c * e2x - s * e1x, c * e2y - s * e1y, c * e2z - s * e1z)
+        cx, cy, cz = self._center_floats
+        rad, sp = self.radius, self.speed
+        p = np.array([cx + rad * en[0], cy + rad * en[1], cz + rad * en[2]])
+        v = np.array([sp * et[0], sp * et[1], sp * et[2]])
+        if self.orientation is not None:
+            if self.roll_amplitude == 0.0:
+                return PathSample(p, v, self.orientation, np.zeros(3))
+            wl = w  # one roll cycle per loop: 2 pi / period = speed / radius
+            ang = self.roll_amplitude * math.sin(wl * t)
+            ca, sa = math.cos(ang), math.sin(ang)
+            # Q = Q_0 Rz(ang): the first two columns turn by ang, the third (the roll axis) stays
+            (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = self._orientation_floats
+            Q = np.array([[ca * x0 + sa * y0, ca * y0 - sa * x0, z0], [ca * x1 + sa * y1, ca * y1 - sa * x1, z1],
+                          [ca * x2 + sa * y2, ca * y2 - sa * x2, z2]])
+            rate = self.roll_amplitude * wl * math.cos(wl * t)
+            return PathSample(p, v, Q, np.array([rate * z0, rate * z1, rate * z2]))  # about Q_0's z axis
+        if not self.frenet:
+            return PathSample(p, v)
+        n0, n1, n2 = self._plane_floats[2]
+        # Eq. (4.47): [e_n, e_t, e_n x e_t], and e_n x e_t = e1 x e2 = n
+        Q = np.array([[en[0], et[0], n0], [en[1], et[1], n1], [en[2], et[2], n2]])
+        return PathSample(p, v, Q, np.array([w * n0, w * n1, w * n2]))  # Eq. (4.48): turns about n at beta-dot
+
+
+@dataclass(frozen=True)
+class Ellipse(Path):
+    """An ellipse in the xy-plane: semi-axes a, b, major axis at ``angle`` to X, parameter rate ``rate``.
+
+    p(t) = c + R(angle) (a cos s, b sin s, 0), s = start + rate t; counter-clockwise.
+    """
+
+    center: np.ndarray
+    a: float
+    b: float
+    angle: float = 0.0
+    rate: float = 1.0
+    start: float = 0.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "ellipse", "a", "b", "rate")
+        _real(self, "ellipse", "angle", "start")  # [rad]
+        object.__setattr__(self, "center", _center3(self.center, "ellipse"))
+        object.__setattr__(self, "period", 2 * np.pi / self.rate)
+
+    def sample(self, t: float) -> PathSample:
+        s = self.start + self.rate * t
+        ca, sa = np.cos(self.angle), np.sin(self.angle)
+        local = np.array([self.a * np.cos(s), self.b * np.sin(s)])
+        dlocal = self.rate * np.array([-self.a * np.sin(s), self.b * np.cos(s)])
+        R = np.array([[ca, -sa], [sa, ca]])
+        p = self.center + np.append(R @ local, 0.0)
+        return PathSample(p, np.append(R @ dlocal, 0.0))
+
+
+@dataclass(frozen=True)
+class Helix(Path):
+    """The helix of Section 3.2: x = r cos(beta), y = r sin(beta), z = pitch beta + z0, beta = rate t."""
+
+    radius: float = 1.5
+    pitch: float = 3.0 / np.pi
+    z0: float = 2.0
+    rate: float = 1.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "helix", "radius", "rate")
+        _real(self, "helix", "pitch", "z0")
+
+    def sample(self, t: float) -> PathSample:
+        beta = self.rate * t
+        p = np.array([self.radius * np.cos(beta), self.radius * np.sin(beta), self.pitch * beta + self.z0])
+        v = self.rate * np.array([-self.radius * np.sin(beta), self.radius * np.cos(beta), self.pitch])
+        return PathSample(p, v)

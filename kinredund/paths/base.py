@@ -1,0 +1,43 @@
+"""The path interface: a :class:`PathSample` (pose and twist) at each time t [s]."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from kinredund.errors import PathError
+
+
+@dataclass(frozen=True)
+class PathSample:
+    """The desired pose and twist at one time: p [m], v [m/s], Q (3x3) or None, omega [rad/s] or None."""
+
+    p: np.ndarray
+    v: np.ndarray
+    Q: np.ndarray | None = None
+    omega: np.ndarray | None = None
+
+
+class Path:
+    """Base class of paths: :meth:`sample` gives the pose and twist at time t."""
+
+    period: float | None = None
+    has_orientation: bool = False
+
+    def sample(self, t: float) -> PathSample:
+        """Desired pose and twist at time t [s]."""
+        raise NotImplementedError
+
+    def __call__(self, t: float) -> PathSample:
+        s = self.sample(t)
+        # one dot product per array: finite iff every entry is (BLAS raises no floating-point warnings)
+        total = float(s.p @ s.p) + float(s.v @ s.v)
+        if s.Q is not None:
+            total += float(s.Q.ravel() @ s.Q.ravel()) + float(s.omega @ s.omega)
+        if not math.isfinite(total):
+            bad = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None
+                   and not np.all(np.isfinite(getattr(s, name)))]
+            raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
+        return s
