@@ -383,7 +383,8 @@ class LimitedPredictorCorrector(PredictorCorrector):
     def _watched(self, snap: dict | None = None) -> dict:
         state = snap or {"q": self.q, "mu": self.mu, "side": self.side}
         q = state["q"]
-        return {"active": (-np.asarray(state["side"])).astype(int).tolist(),
+        side = np.zeros(len(q)) if state["side"] is None else state["side"]  # a snapshot with no joint on a bound
+        return {"active": (-np.asarray(side)).astype(int).tolist(),
                 "bound_multipliers": np.asarray(state["mu"]).tolist(),
                 "limit_margins": np.minimum(self.limits.margins(q), 1e10).tolist()}
 

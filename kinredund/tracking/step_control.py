@@ -213,12 +213,11 @@ class StepControl:
         cause = {"fold": "fold", "jump": "fold"}.get(kind)
         if kind == "jump" and path_jumps(s.ev, t_near, t_fail):
             cause = "path_discontinuity"
-        if kind == "corrector" and "algorithmic" in why:  # R singular, J of full rank: Z^T M Z singular (a fold)
-            cause = "fold"
         extra = {}
         if cause is None:
             ahead = self._refreshed_ahead(t_near + s.dt)  # a crossing predicted within a whole step names it
-            if kind == "corrector" and ahead == "fold":
+            # R singular with J of full rank (Z^T M Z singular), unless sigma_min(J) is the one heading to zero
+            if kind == "corrector" and (ahead == "fold" or (ahead is None and "algorithmic" in why)):
                 cause = "fold"
             else:
                 # an open path is not sampled beyond the requested step
