@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import kinredund
@@ -25,8 +25,6 @@ from kinredund.paths import Circle, Ellipse, Helix, SampledPath, read_path_file
 
 SETTINGS = settings(max_examples=150, deadline=None, derandomize=True, database=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-#: for the tests marked xfail until another part of issue 18 lands: no shrinking (it only costs time there)
-KNOWN_FAILING = settings(SETTINGS, max_examples=15, phases=(Phase.generate,))
 
 _scalars = st.one_of(
     st.none(), st.booleans(), st.text(alphabet="ab1./ ", max_size=4),
@@ -120,9 +118,7 @@ def test_track_options_with_junk(arm, which, junk, count):
     _track_with(arm, which, count if which in ("steps_per_loop", "loops") else junk)
 
 
-@pytest.mark.xfail(reason="kinredund/tracking checks its index (the tracker's part of issue 18): today index=True "
-                          "raises AttributeError in kinredund/tracking/point.py", strict=False)
-@KNOWN_FAILING
+@SETTINGS
 @given(junk=JUNK)
 def test_track_index_with_junk(arm, junk):
     _track_with(arm, "index", junk)

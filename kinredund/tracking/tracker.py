@@ -133,6 +133,11 @@ class Tracker:
             raise PathError(f"a {robot.task} task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
             raise PathError(f"the {scheme} scheme needs a performance index")
+        if index is not None and not isinstance(index, Index):
+            raise OptionError(f"index must be a kinredund.indices.Index (or None for the pseudoinverse scheme), "
+                              f"got {type(index).__name__}")
+        if not isinstance(path, Path):
+            raise OptionError(f"path must be a kinredund.paths.Path, got {type(path).__name__}")
         dt = check_positive(dt, "the time step [s]", PathError)
         if not math.isfinite(float(t0)):
             raise OptionError(f"t0 (the starting time [s]) must be finite, got {t0!r}")
