@@ -2,7 +2,7 @@
 
 A task says what the end effector must do: the task map g(theta) = x(t) of Eq. (4.1) with its
 dimension m. Each kind (one file per kind: :mod:`~kinredund.tasks.planar`, :mod:`~kinredund.tasks.position`,
-:mod:`~kinredund.tasks.pose`) owns
+:mod:`~kinredund.tasks.pose`, :mod:`~kinredund.tasks.axis`) owns
 
 - its dimension m and how a target is given and validated (:meth:`Task.make_target`);
 - its errors for the record (:meth:`Task.errors`);

@@ -114,7 +114,8 @@ def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> 
     """The watched quantities at (q, t) (default: the stepper's current point), computed exactly.
 
     ``sigma_min_J``, ``reduced_hessian_min`` (on the null space of J and of the fixed joints, when the
-    stepper has a ``fixed`` mask), ``task_residual`` [m] and ``normality_residual`` (|(1 - J^+ J) grad z|).
+    stepper has a ``fixed`` mask), ``task_residual`` [m] and ``normality_residual`` (|(1 - J^+ J) grad z|
+    over the free joints: a joint held on a bound takes its multiplier's share of grad z).
     """
     q = stepper.q if q is None else q
     t = stepper.t if t is None else t
@@ -123,9 +124,13 @@ def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> 
     if stepper.ev.index is None:
         return out
     M = pt.system(stepper.lam)[0]
-    sigma, eig, _ = exact(*reduce(pt.J, M, getattr(stepper, "fixed", None)))
-    Z = np.linalg.qr(pt.J.T, mode="complete")[0][:, pt.J.shape[0]:]
-    out.update(sigma_min_J=sigma, reduced_hessian_min=eig, normality_residual=float(np.linalg.norm(Z.T @ pt.grad)))
+    fixed = getattr(stepper, "fixed", None)
+    sigma, eig, _ = exact(*reduce(pt.J, M, fixed))
+    # the normality residual on the free joints: a joint held on a bound carries its multiplier in grad z
+    free = slice(None) if fixed is None else ~np.asarray(fixed, bool)
+    J, grad = pt.J[:, free], pt.grad[free]
+    Z = np.linalg.qr(J.T, mode="complete")[0][:, J.shape[0]:]
+    out.update(sigma_min_J=sigma, reduced_hessian_min=eig, normality_residual=float(np.linalg.norm(Z.T @ grad)))
     return out
 
 

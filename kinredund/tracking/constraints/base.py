@@ -9,6 +9,11 @@ without active inequalities) are
 and between switching times the active inequalities are equalities: the thesis's system (4.24) with
 their rows added (or, for simple bounds, the bound joints' columns removed). A constraint says how many
 inequalities it has, their values and gradients at a configuration, and names them for messages.
+
+Today the limited stepper (:mod:`kinredund.tracking.limited`) holds simple bounds only, through
+:class:`~kinredund.tracking.constraints.joint_limits.JointLimits`'s ``lower`` and ``upper``: a general
+inequality (an obstacle's clearance) needs its rows added to the reduced system, which this interface
+describes but no stepper implements yet.
 """
 
 from __future__ import annotations
