@@ -108,8 +108,8 @@ def add_parser(sub) -> None:
                    help="placements per Dask task (default: guided - large batches first, single placements last)")
     p.add_argument("--json", type=Path, help="the sweep file, written as batches complete (.jsonl: JSON lines; "
                    "default: not written)")
-    p.add_argument("--resume", action="store_true", help="resume the sweep in --json, running only what it lacks "
-                   "(default: start anew)")
+    p.add_argument("--resume", action="store_true", help="resume the sweep in --json, running only what it lacks; "
+                   "a --json file that does not exist yet starts the sweep (default: start anew)")
     p.add_argument("--plot", type=Path, help="the feasibility and quality map (.png, .pdf or .svg; default: not drawn)")
     p.add_argument("--criterion", choices=tuple(CRITERIA), default="margin",
                    help="what ranks the feasible placements (default margin: farthest from the joint limits)")
