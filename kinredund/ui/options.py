@@ -105,7 +105,8 @@ def _add_robot(p) -> None:
 
 def _add_quiet(p) -> None:
     p.add_argument("--quiet", action="store_true",
-                   help="no progress on standard error (default: a bar on a terminal, else a line per stage and every 5 s)")
+                   help="no progress on standard error (default: a bar on a terminal, else a line per stage "
+                        "and every 5 s)")
 
 
 def _add_tracking(p) -> None:
