@@ -455,3 +455,16 @@ def test_a_relative_urdf_path_is_stored_absolute_and_a_file_named_like_an_arm_ke
     assert r.urdf_path.is_absolute() and r.urdf_path == tmp_path / "arms" / "panda.urdf"
     assert r.name == str(r.urdf_path)  # "panda" would reload the catalogue's Panda from a record
     assert load_robot("arms/panda.urdf", "l2").nq == 2
+
+
+def test_section_6_3_arm_loads_by_name_and_equals_the_planner_s():
+    """`cybotech_p15_x8` (the 6.3 records' robot) reloads by name: the same table as the planner's arm."""
+    from kinredund.planning.spatial import scaled_p15
+
+    r, ref = load_robot("cybotech_p15_x8"), scaled_p15()
+    assert r.name == ref.name and r.task == "position" and "cybotech_p15_x8" in kinredund.known_robots()
+    rng = np.random.default_rng(3)
+    for q in (r.random_configuration(rng) for _ in range(3)):
+        assert np.abs(r.fk(q) - ref.fk(q)).max() < 1e-14  # the same HD table, the same model
+    with pytest.raises(kinredund.ChoiceError):
+        load_robot("cybotech_p15_x8", joints=["j1"])

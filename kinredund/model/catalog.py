@@ -100,3 +100,25 @@ SHIPPED_TABLES = {
     "puma7": puma7,
     "cybotech_p15": cybotech_p15,
 }
+
+
+def cybotech_p15_scaled(scale: float, *, last_link: float | None = None, lower=None, upper=None) -> HDTable:
+    """Table 4.1 (the CYBOTECH P-15 architecture) with every length times ``scale``: Section 6.3's arm
+    (:func:`kinredund.planning.spatial.scaled_p15` says why scale 8), with axes 1-4 given [-pi, pi] and
+    the wrist +-2 pi unless ``lower``/``upper`` are given; ``last_link`` replaces b5 [m]."""
+    t = cybotech_p15()
+    b = scale * np.asarray(t.b, float)
+    if last_link is not None:
+        b[4] = float(last_link)
+    lo = [-PI] * 4 + [-2 * PI] * 3 if lower is None else lower
+    hi = [PI] * 4 + [2 * PI] * 3 if upper is None else upper
+    tag = "" if last_link is None else f"_b5_{last_link:g}"
+    return HDTable(alpha=t.alpha, a=scale * t.a, b=b, lower=lo, upper=hi, name=f"cybotech_p15_x{scale:g}{tag}",
+                   notes=f"Table 4.1 (CYBOTECH P-15) with every length times {scale:g} (Section 6.3)")
+
+
+#: robots built from an HD table alone (no URDF file), by name: (table, default task, note)
+TABLE_ROBOTS = {
+    "cybotech_p15_x8": (lambda: cybotech_p15_scaled(8.0), "position",
+                        "thesis robot: Section 6.3's P-15, every length x8 (HD table)"),
+}

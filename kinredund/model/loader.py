@@ -30,10 +30,10 @@ from kinredund.errors import (
     check_choice,
 )
 from kinredund.kinematics.state import Kinematics
-from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
+from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS, TABLE_ROBOTS
 from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.frames import resolve_frame
-from kinredund.model.robot import Robot, robot_revolute
+from kinredund.model.robot import Robot, robot_from_hd, robot_revolute
 from kinredund.model.urdf import EE_FRAME, load_urdf
 from kinredund.tasks import get_task
 from kinredund.tasks.axis import frame_with_axis
@@ -49,7 +49,7 @@ _UNBOUNDED = 1e10
 
 def known_robots() -> list[str]:
     """Every name :func:`load_robot` accepts: the thesis's robots, then the example-robot-data arms."""
-    return sorted(SHIPPED_TABLES) + sorted(ERD_ARMS)
+    return sorted(SHIPPED_TABLES) + sorted(TABLE_ROBOTS) + sorted(ERD_ARMS)
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,8 @@ def robot_table() -> list[RobotRow]:
     rows = []
     for name in known_robots():
         r = load_robot(name)
-        note = ERD_ARMS[name].note if name in ERD_ARMS else "thesis robot (shipped)"
+        note = ERD_ARMS[name].note if name in ERD_ARMS else TABLE_ROBOTS[name][2] if name in TABLE_ROBOTS \
+            else "thesis robot (shipped)"
         rows.append(RobotRow(name, r.nq, r.task, r.task_dim, r.ee_frame, note))
     return rows
 
@@ -306,6 +307,11 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
         model, frame = _with_tool_axis(load_urdf(path).model, EE_FRAME if ee_frame is None else ee_frame, axis, task)
         return Robot(key, model, frame, task, hd=SHIPPED_TABLES[key](), urdf_path=path,
                      home=np.array(SHIPPED_HOMES[key]), tool_axis=axis)
+    if key in TABLE_ROBOTS:
+        if joints is not None or locked is not None or ee_frame is not None or axis is not None:
+            raise ChoiceError("option for a robot built from its HD table (it takes task= only)", key, ["task"])
+        make, default_task, _ = TABLE_ROBOTS[key]
+        return robot_from_hd(make(), task=task or default_task)
     if key in ERD_ARMS:
         spec = ERD_ARMS[key]
         share = erd_share_dir()

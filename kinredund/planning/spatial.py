@@ -42,8 +42,7 @@ import math
 import numpy as np
 
 from kinredund.errors import TaskError, check_positive
-from kinredund.kinematics.hd import HDTable
-from kinredund.model.catalog import cybotech_p15
+from kinredund.model.catalog import cybotech_p15_scaled
 from kinredund.model.robot import Robot, robot_from_hd
 from kinredund.paths import FunctionPath
 from kinredund.planning.clearance import link_model
@@ -93,17 +92,7 @@ def scaled_p15(scale: float = P15_SCALE, *, last_link: float | None = None, lowe
     if last_link is not None and not (isinstance(last_link, (int, float)) and math.isfinite(last_link)
                                       and last_link > 0):
         raise TaskError(f"last_link must be a finite length > 0 [m], got {last_link!r}")
-    t = cybotech_p15()
-    b = scale * np.asarray(t.b, float)
-    if last_link is not None:
-        b[4] = float(last_link)
-    pi = math.pi
-    lo = [-pi] * 4 + [-2 * pi] * 3 if lower is None else lower
-    hi = [pi] * 4 + [2 * pi] * 3 if upper is None else upper
-    tag = "" if last_link is None else f"_b5_{last_link:g}"
-    table = HDTable(alpha=t.alpha, a=scale * t.a, b=b, lower=lo, upper=hi,
-                    name=f"cybotech_p15_x{scale:g}{tag}",
-                    notes=f"Table 4.1 (CYBOTECH P-15) with every length times {scale:g} (Section 6.3)")
+    table = cybotech_p15_scaled(scale, last_link=last_link, lower=lower, upper=upper)
     return robot_from_hd(table, task=task)
 
 
