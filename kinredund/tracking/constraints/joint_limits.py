@@ -72,7 +72,3 @@ class JointLimits(Constraint):
     def project(self, q: np.ndarray) -> np.ndarray:
         """q clipped into the limits."""
         return np.clip(np.asarray(q, float), self.lower, self.upper)
-
-    def describe_violations(self, q: np.ndarray, tol: float = 0.0) -> str:
-        """A message naming each joint outside its limits and by how much, or '' if none is."""
-        return "; ".join(f"{name} is violated by {amount:.3g}" for name, amount in self.violations(q, tol))
