@@ -32,5 +32,6 @@ for ex in ["3.2", "4.1", "4.2", "4.3", "6.2", "6.3"]:
             same = a.get(k) == b.get(k)
             if not same and k == "clearance_min":
                 same = np.allclose(a.get(k), b.get(k), atol=1e-9)
-            out.append(f"{k} {'same' if same else 'DIFF: %r vs %r' % (str(a.get(k))[:80], str(b.get(k))[:80])}")
+            diff = f"DIFF: {str(a.get(k))[:80]!r} vs {str(b.get(k))[:80]!r}"
+            out.append(f"{k} {'same' if same else diff}")
     print(" | ".join(out))
