@@ -180,23 +180,25 @@ def _real_array(value, what: str, error: type[KinredundError]):
 
     import numpy as np
 
-    shown = reprlib.repr(value)
+    def shown() -> str:  # only for a message: repr costs ~100 us on an array, far more than the check
+        return reprlib.repr(value)
+
     try:
         raw = np.asarray(value)
         kind = raw.dtype.kind
         if not isinstance(value, np.ndarray) and kind in "iufO":  # [True, 0, 1] is an int array to numpy
             kind = next((_kind_of(v) for v in _leaves(value) if _kind_of(v) != "f"), kind)
         if kind == "b":
-            raise error(f"{what} must be numbers, not booleans; got {shown}")
+            raise error(f"{what} must be numbers, not booleans; got {shown()}")
         if kind == "c":
-            raise error(f"{what} must be real numbers, got complex values {shown} (pass the real part)")
+            raise error(f"{what} must be real numbers, got complex values {shown()} (pass the real part)")
         if kind not in "iufO":
-            raise error(f"{what} must be numeric, got {shown}")
+            raise error(f"{what} must be numeric, got {shown()}")
         return raw.astype(float) if kind == "O" else np.asarray(raw, dtype=float)
     except (TypeError, ValueError, OverflowError) as err:
         if isinstance(err, KinredundError):
             raise
-        raise error(f"{what} must be numeric, got {shown}") from err
+        raise error(f"{what} must be numeric, got {shown()}") from err
 
 
 def _leaves(value):

@@ -3,7 +3,10 @@
 A :class:`Trajectory` is a frozen record of arrays. Plots, playback, the CLI's ``--json`` output and
 the benchmarks read it; nothing downstream recomputes the kinematics it holds. :meth:`Trajectory.checked`
 is the one validation of a record (shapes, finite values, increasing times): reading a JSON file, the
-plots and the playback all go through it. :func:`write_json` (used by ``save_json``) writes strict JSON
+plots and the playback all go through it. The diagnostics of a tracking run (``solver``, ``m_eigs``,
+``m_null_eigs``, ``normality_residual``) may be handed over as :class:`Deferred` values: they are computed
+on first read (together, by whoever made the record) and are then plain values; pickling, copying,
+comparing and writing a record read them first. :func:`write_json` (used by ``save_json``) writes strict JSON
 through a temporary file and a rename, so a failed run never leaves a half-written file.
 
 JSON schema (``docs/schema.md`` has the full list): top-level keys are the field names below; arrays
@@ -36,6 +39,42 @@ _PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "positi
               "active_bounds": (None,), "bound_multipliers": (None,), "limit_margins": (None,)}
 #: The names of those optional per-point arrays (functions of the point on the path, not of its time).
 PER_POINT_FIELDS = tuple(_PER_POINT)
+
+
+class Deferred:
+    """A field value computed on first read: ``compute()`` returns it (called at most once per record).
+
+    The tracker's recorder hands its diagnostics over this way, so that ``track()`` costs little more
+    than its steps and a caller who never reads them never pays for them.
+    """
+
+    __slots__ = ("compute",)
+
+    def __init__(self, compute):
+        self.compute = compute
+
+
+class _DeferrableField:
+    """A dataclass field (a data descriptor) whose stored value may be a :class:`Deferred`, resolved and
+    kept on first read. The value lives in the instance's ``__dict__`` under the field's own name."""
+
+    def __init__(self, default):
+        self.default = default
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self.default  # the dataclass's default for the field
+        value = obj.__dict__[self.name]
+        if isinstance(value, Deferred):
+            value = value.compute()
+            obj.__dict__[self.name] = value
+        return value
+
+    def __set__(self, obj, value):
+        obj.__dict__[self.name] = value
 
 
 @dataclass(frozen=True)
@@ -85,15 +124,15 @@ class Trajectory:
     p_desired: np.ndarray
     scheme: str = "augmented"
     mode: str = "default"
-    solver: tuple[str, ...] = ()
+    solver: tuple[str, ...] = _DeferrableField(())
     lam: np.ndarray | None = None
-    m_eigs: np.ndarray | None = None
-    m_null_eigs: np.ndarray | None = None
+    m_eigs: np.ndarray | None = _DeferrableField(None)
+    m_null_eigs: np.ndarray | None = _DeferrableField(None)
     position_error: np.ndarray | None = None
     trace_error: np.ndarray | None = None
     vect_error: np.ndarray | None = None
     axis_error: np.ndarray | None = None
-    normality_residual: np.ndarray | None = None
+    normality_residual: np.ndarray | None = _DeferrableField(None)
     loop_drift: np.ndarray | None = None
     loop_period: float | None = None
     meta: dict = field(default_factory=dict)
@@ -103,6 +142,10 @@ class Trajectory:
     switch_times: np.ndarray | None = None
     qdot: np.ndarray | None = None
     qddot: np.ndarray | None = None
+
+    def __getstate__(self) -> dict:
+        """Every field's value, :class:`Deferred` ones computed (a pickled record holds no callables)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @property
     def q0(self) -> np.ndarray:
@@ -232,7 +275,7 @@ class Trajectory:
         return cls.from_json_dict(read_json_object(path))
 
 
-__all__ = ["PER_POINT_FIELDS", "Trajectory"]
+__all__ = ["PER_POINT_FIELDS", "Deferred", "Trajectory"]
 
 
 def _absolute_urdf(robot: str) -> str:

@@ -174,3 +174,67 @@ def test_tracker_checks_its_options():
     with pytest.raises(kinredund.PathError, match="needs a performance index"):
         Tracker(r, Circle((3.0, 3.0), 0.8, 1.0), None, q0, 0.01)
     assert minimum_norm(3) is not None
+
+
+def test_deferred_diagnostics_against_a_fresh_evaluation():
+    """track()'s diagnostics are computed on first read (kinredund.trajectory.Deferred): read, they equal
+    an independent evaluation at the recorded joints - ||(1 - K^+ K) grad z|| by SVD (Eq. 4.5; J = H K
+    spans K's rows on the pose path), the eigenvalues of M, the labels classify() gives at the step's
+    (M, J) - and they are kept once read and survive pickling, copying, replace() and JSON as values."""
+    import copy
+    import dataclasses
+    import pickle
+
+    from kinredund.trajectory import Deferred, Trajectory
+
+    r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    tr = track(r, path, index, q0, steps_per_loop=50)
+    names = ("solver", "m_eigs", "m_null_eigs", "normality_residual")
+    assert all(isinstance(tr.__dict__[n], Deferred) for n in names)  # not computed by track()
+    res = tr.normality_residual
+    assert isinstance(tr.__dict__["normality_residual"], np.ndarray)  # kept once read
+    for k in range(0, 51, 5):
+        _, grad, _ = index.evaluate(tr.q[k], tr.t[k])
+        K = r.kinematics.jacobian(tr.q[k])[2]
+        Z = np.linalg.svd(K)[2][6:].T  # an independent null basis
+        assert abs(res[k] - np.linalg.norm(Z.T @ grad)) < 1e-12 * max(1.0, np.linalg.norm(grad))
+    assert res.max() < 1e-9  # the optimum is held (Eq. 4.5), not only recorded
+    assert tr.m_eigs.shape == (51, 7) and tr.m_null_eigs.shape == (51, 1)
+    tracker = Tracker(r, path, index, q0, path.period / 50)
+    for k in range(1, 51):
+        tracker.step()
+        s = tracker.stepper
+        assert np.abs(tr.m_eigs[k] - np.linalg.eigvalsh(s.M)).max() < 1e-12 * max(1.0, np.abs(s.M).max())
+        assert tr.solver[k] == classify(s.M, s.pt.J, "auto")
+    # a record read nowhere yet pickles, copies and converts with its values, not with callables
+    fresh = track(r, path, index, q0, steps_per_loop=50)
+    state = fresh.__getstate__()
+    assert not any(isinstance(v, Deferred) for v in state.values())
+    for other in (pickle.loads(pickle.dumps(track(r, path, index, q0, steps_per_loop=50))),
+                  copy.deepcopy(track(r, path, index, q0, steps_per_loop=50)),
+                  dataclasses.replace(track(r, path, index, q0, steps_per_loop=50), meta={}),
+                  Trajectory.from_json_dict(track(r, path, index, q0, steps_per_loop=50).to_json_dict())):
+        assert other.solver == tr.solver
+        assert np.abs(other.normality_residual - res).max() < 1e-15
+        assert np.abs(other.m_eigs - tr.m_eigs).max() < 1e-12
+
+
+def test_a_record_does_not_change_when_the_recorder_goes_on():
+    """The record made mid-run (the partial record of a failure) keeps its length when the recorder
+    records more points before its diagnostics are first read."""
+    from kinredund.tracking.recorder import Recorder
+
+    r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    tracker = Tracker(r, path, index, q0, path.period / 40)
+    rec = Recorder(tracker.stepper)
+    rec.add()
+    for _ in range(10):
+        tracker.step()
+        rec.add()
+    part = rec.trajectory(robot_name="panda", scheme="augmented", mode="default", loops=None, steps_per_loop=None,
+                          period=None, meta={})
+    for _ in range(10):
+        tracker.step()
+        rec.add()
+    assert len(part.solver) == len(part.normality_residual) == len(part.m_eigs) == len(part.t) == 11
+    assert part.normality_residual.max() < 1e-9

@@ -58,8 +58,8 @@ class Kinematics:
     def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """End-effector rotation Q (3x3) and position p (3,) [m]."""
         pin.forwardKinematics(self.model, self.data, q)
-        M = pin.updateFramePlacement(self.model, self.data, self.frame_id)
-        return M.rotation.copy(), M.translation.copy()
+        T = pin.updateFramePlacement(self.model, self.data, self.frame_id).homogeneous  # a fresh 4x4 array
+        return T[:3, :3], T[:3, 3]
 
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(Q, p, K): the pose and the velocity Jacobian K of Eq. (2.16), rows [omega; pdot]."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import lapack
@@ -251,11 +252,19 @@ def hermite_weights(h: float, points: int) -> np.ndarray:
     of degree 2k - 1: k = 2 gives the cubic (5, 2h, -4, 4h), k = 3 the quintic
     (10, 3h, 9, 18h, -18, 9h).
     """
+    w = _unit_hermite_weights(points).copy()
+    w[1::2] *= h
+    return w
+
+
+@lru_cache(maxsize=8)
+def _unit_hermite_weights(points: int) -> np.ndarray:
+    """:func:`hermite_weights` for h = 1 (the slopes' weights scale with h), solved once per ``points``."""
     nodes = np.arange(1 - points, 1, dtype=float)
     powers = np.arange(2 * points)
     value = nodes[:, None] ** powers  # rows: y at each node, in the monomial basis of s = time / h
     slope = powers * nodes[:, None] ** np.maximum(powers - 1, 0)  # rows: h y' at each node
     V = np.stack([value, slope], axis=1).reshape(2 * points, 2 * points)
     w = np.linalg.solve(V.T, np.ones(2 * points))  # the monomials at s = 1
-    w[1::2] *= h
+    w.flags.writeable = False
     return w

@@ -1,13 +1,15 @@
-"""The record of a tracking run: per step what the stepper reached, diagnostics computed once per run.
+"""The record of a tracking run: per step what the stepper reached, diagnostics computed when read.
 
 :class:`Recorder` keeps, per recorded point, only what the stepper already has (t, q, lambda, M, the
 step's J and path sample, its evaluation where it was made at the recorded point). At the end,
-:meth:`Recorder.trajectory` evaluates afresh where needed (the default mode's evaluation is at the
-predicted point: there the pose and K, and grad z, at the corrected joints) and computes the
-diagnostics in a few batched numpy calls per run: the task's errors (:meth:`kinredund.tasks.Task.errors_many`), the
-normality residual ||(1 - J^+ J) grad z|| (Eq. 4.5), the solver labels of Theorem 2 and, with
-``diagnostics``, the eigenvalues of M and of its projection on the null space of J. Recording then costs
-little next to the step itself (``benchmarks/resolved_rate.py``: ``track_over_step``).
+:meth:`Recorder.trajectory` evaluates the kinematics afresh where needed (the default mode's evaluation
+is at the predicted point: there the pose and K at the corrected joints) and computes the task's errors
+(:meth:`kinredund.tasks.Task.errors_many`). The diagnostics - the normality residual
+||(1 - J^+ J) grad z|| (Eq. 4.5, with grad z afresh at the corrected joints), the solver labels of
+Theorem 2 and, with ``diagnostics``, the eigenvalues of M and of its projection on the null space of J -
+are handed to the record as :class:`~kinredund.trajectory.Deferred` values: :class:`Diagnostics`
+computes them all in a few batched numpy calls on the first read of any of them. ``track()`` then costs
+little more than its steps (``benchmarks/resolved_rate.py``: ``track_over_step``).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from kinredund.kinematics.angles import joint_drift
 from kinredund.tasks import get_task
 from kinredund.tracking.linalg import eigs_many, labels_many, normality_many, null_space_bases, null_space_eigs_many
 from kinredund.tracking.stepper import Stepper
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import Deferred, Trajectory
 
 
 class Recorder:
@@ -79,52 +81,36 @@ class Recorder:
                 "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
     def _evaluate(self):
-        """Per point (Q, p, J or the rows of K with J's row space, grad z, sample): the step's own
-        evaluation where it was made at the recorded point, else afresh at the recorded joints."""
-        ev = self.stepper.ev
-        kin, task = ev.robot.kinematics, get_task(ev.task)
+        """Per point (Q, p, J or None, grad z or None, sample): the step's own evaluation where it was made
+        at the recorded point, else the pose afresh at the recorded joints (J's rows and grad z there are
+        left to :class:`Diagnostics`: None)."""
+        kin = self.stepper.ev.robot.kinematics
         Qs, ps, Js, grads, samples = [], [], [], [], []
-        for t, q, item in zip(self.t, self.q, self.points, strict=True):
+        for q, item in zip(self.q, self.points, strict=True):
             if hasattr(item, "terms"):
                 Q, p, J, grad, sample = item.Q, item.p, item.J, item.grad, item.sample
             else:
-                Q, p, K = kin.jacobian(q)
-                # rows with J's row space on the path: the null space of J, and with it the normality
-                # residual of Eq. (4.5), follows from K alone (Task.span_rows)
-                J, grad, sample = task.span_rows(Q, K, item), ev.gradient(q, t), item
+                (Q, p), J, grad, sample = kin.pose(q), None, None, item
             Qs.append(Q)
             ps.append(p)
             Js.append(J)
             grads.append(grad)
             samples.append(sample)
-        return np.array(Qs), np.array(ps), np.array(Js), np.array(grads), samples
+        return np.array(Qs), np.array(ps), Js, grads, samples
 
     def trajectory(self, *, robot_name: str, scheme: str, mode: str, loops: int | None, steps_per_loop: int | None,
                    period: float | None, meta: dict) -> Trajectory:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
         task = get_task(s.ev.task)
-        Q, p, J, grad, samples = self._evaluate()
-        Z = null_space_bases(J)
+        Q, p, Js, grads, samples = self._evaluate()
         p_d = np.array([x.p for x in samples])
         Q_d = np.array([x.Q for x in samples]) if task.has_orientation else None
         errors = task.errors_many(Q, p, Q_d, p_d)
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
-        m_eigs = m_null = None
-        if self.diagnostics and all(M is not None for M in self.M):
-            M = np.array(self.M)
-            m_eigs, m_null = eigs_many(M), null_space_eigs_many(M, J, Z)
-        solver = list(self.solver)
-        pending = [k for k, v in enumerate(solver) if v is None]
-        if pending:
-            # the labels' (M, J) are the step's (at its predicted point, within the corrector's step of
-            # the recorded one): the eigenvalues decide where they are clearly signed, classify elsewhere
-            eig = None if m_eigs is None else m_eigs[pending]
-            eig_null = None if m_null is None else m_null[pending]
-            labels = labels_many([self.M[k] for k in pending], [self.J_step[k] for k in pending],
-                                 s.linear_solver, s.symmetric, eig, eig_null)
-            for k, label in zip(pending, labels, strict=True):
-                solver[k] = label
+        diag = Diagnostics(self, Js, grads, samples)
+        eigs = diag.eigenvalues
+        solver = Deferred(diag.solver) if diag.pending else tuple(self.solver)
         q = np.array(self.q)
         drift = None
         if loops is not None:
@@ -134,7 +120,71 @@ class Recorder:
         return Trajectory(
             **extra, robot=robot_name, task=task.name, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme,
             mode=mode,
-            solver=tuple(solver), lam=self._lam_full(), m_eigs=m_eigs, m_null_eigs=m_null,
+            solver=solver, lam=self._lam_full(), m_eigs=Deferred(diag.m_eigs) if eigs else None,
+            m_null_eigs=Deferred(diag.m_null_eigs) if eigs else None,
             position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
             vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
-            normality_residual=normality_many(Z, grad), loop_drift=drift, loop_period=period, meta=meta)
+            normality_residual=Deferred(diag.normality_residual), loop_drift=drift, loop_period=period, meta=meta)
+
+
+class Diagnostics:
+    """A run's diagnostics, computed together on the first call of any of them, then kept.
+
+    The normality residual ||Z^T grad z|| (Eq. 4.5, Z a null-space basis of J; J's rows and grad z afresh
+    at each corrected point the step did not evaluate), with ``diagnostics`` the eigenvalues of M and of
+    Z^T M Z (Theorem 2), and the solver labels the steps left pending (:func:`labels_many`, which the
+    eigenvalues make cheap). The inputs are references the recorder already holds (the steppers never
+    change their arrays in place) and are dropped once computed.
+    """
+
+    def __init__(self, rec: Recorder, Js: list, grads: list, samples: list):
+        s = rec.stepper
+        self.pending = [k for k, v in enumerate(rec.solver) if v is None]
+        self.eigenvalues = rec.diagnostics and all(M is not None for M in rec.M)
+        # copies of the lists (not of their arrays): the record stays as it was if the recorder goes on
+        self._inputs = (list(rec.t), list(rec.q), Js, grads, samples, s.ev, list(rec.M), list(rec.J_step),
+                        list(rec.solver), s.linear_solver, s.symmetric)
+        self._out = None
+
+    def _compute(self) -> dict:
+        if self._out is not None:
+            return self._out
+        t, q, Js, grads, samples, ev, Ms, J_step, solver, rule, symmetric = self._inputs
+        kin, task = ev.robot.kinematics, get_task(ev.task)
+        for k, J in enumerate(Js):
+            if J is None:
+                Q, _, K = kin.jacobian(q[k])
+                # rows with J's row space on the path: the null space of J, and with it the normality
+                # residual of Eq. (4.5), follows from K alone (Task.span_rows)
+                Js[k], grads[k] = task.span_rows(Q, K, samples[k]), ev.gradient(q[k], t[k])
+        J = np.array(Js)
+        Z = null_space_bases(J)
+        out = {"normality_residual": normality_many(Z, np.array(grads)), "m_eigs": None, "m_null_eigs": None}
+        if self.eigenvalues:
+            M = np.array(Ms)
+            out["m_eigs"], out["m_null_eigs"] = eigs_many(M), null_space_eigs_many(M, J, Z)
+        labels = list(solver)
+        if self.pending:
+            # the labels' (M, J) are the step's (at its predicted point, within the corrector's step of
+            # the recorded one): the eigenvalues decide where they are clearly signed, classify elsewhere
+            k = self.pending
+            eig = None if out["m_eigs"] is None else out["m_eigs"][k]
+            eig_null = None if out["m_null_eigs"] is None else out["m_null_eigs"][k]
+            for i, label in zip(k, labels_many([Ms[i] for i in k], [J_step[i] for i in k], rule, symmetric, eig,
+                                               eig_null), strict=True):
+                labels[i] = label
+        out["solver"] = tuple(labels)
+        self._out, self._inputs = out, None
+        return out
+
+    def normality_residual(self) -> np.ndarray:
+        return self._compute()["normality_residual"]
+
+    def m_eigs(self) -> np.ndarray | None:
+        return self._compute()["m_eigs"]
+
+    def m_null_eigs(self) -> np.ndarray | None:
+        return self._compute()["m_null_eigs"]
+
+    def solver(self) -> tuple[str, ...]:
+        return self._compute()["solver"]
