@@ -121,3 +121,17 @@ def test_user_path_of_the_wrong_shape_says_when():
     path = FunctionPath(lambda t: (np.zeros(4), np.zeros(4)))
     with pytest.raises(kinredund.PathError, match=r"at t = 0\.25 s"):
         path(0.25)
+
+
+def test_huge_but_finite_path_values_are_named_not_called_non_finite():
+    """A path whose values are finite but so large that their squares overflow is refused by name (the
+    finiteness check squares them), with the sizes, and without a floating-point warning."""
+    import warnings
+
+    path = Circle((0.0, 0.0, 0.0), 1e200, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(kinredund.PathError, match=r"too large for any robot at t = 0.25 s \(\|p\| = 1e\+200"):
+            path(0.25)
+    with pytest.raises(kinredund.PathError, match="non-finite p at t = 0.25 s"):
+        FunctionPath(lambda t: (np.array([np.inf, 0.0, 0.0]), np.zeros(3)))(0.25)

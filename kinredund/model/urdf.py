@@ -15,6 +15,7 @@ import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -172,9 +173,8 @@ UNBOUNDED_LIMIT = 1e12
 _MOVING = ("revolute", "continuous", "prismatic")
 
 
-@dataclass(frozen=True)
-class Mimic:
-    """A URDF ``<mimic>`` element: joint = multiplier * master + offset."""
+class Mimic(NamedTuple):
+    """A URDF ``<mimic>`` element: joint = multiplier * master + offset (an immutable value)."""
 
     master: str
     multiplier: float

@@ -32,12 +32,17 @@ class Path:
 
     def __call__(self, t: float) -> PathSample:
         s = self.sample(t)
-        # one dot product per array: finite iff every entry is (BLAS raises no floating-point warnings)
-        total = float(s.p @ s.p) + float(s.v @ s.v)
-        if s.Q is not None:
-            total += float(s.Q.ravel() @ s.Q.ravel()) + float(s.omega @ s.omega)
+        # one dot product per array: finite iff every entry is finite and below ~1e154 (its square overflows)
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = float(s.p @ s.p) + float(s.v @ s.v)
+            if s.Q is not None:
+                total += float(s.Q.ravel() @ s.Q.ravel()) + float(s.omega @ s.omega)
         if not math.isfinite(total):
-            bad = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None
-                   and not np.all(np.isfinite(getattr(s, name)))]
-            raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
+            names = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None]
+            bad = [name for name in names if not np.all(np.isfinite(getattr(s, name)))]
+            if bad:
+                raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
+            big = ", ".join(f"|{name}| = {float(np.abs(getattr(s, name)).max()):.3g}" for name in names)
+            raise PathError(f"the path gives values too large for any robot at t = {t:.6g} s ({big}; their squares "
+                            "overflow)", t=t)
         return s

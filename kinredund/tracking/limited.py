@@ -276,19 +276,12 @@ class LimitedPredictorCorrector(PredictorCorrector):
             return float(self.hi[joint] - self.q[joint])
         return float(self.mu[joint])
 
-    def _advance_to(self, tau: float) -> None:
-        """From the current state to time tau with the current active set: Euler prediction, corrector."""
-        y, yd = self._y, self._yd
-        h = tau - self.t
-        self.t = tau
-        self._correct(y + h * yd)
-
     def _crossing(self, snap: dict, t_end: float, joint: int, kind: str) -> float:
         """The time in (snap t, t_end] where the watched quantity of (joint, kind) reaches zero (Brent)."""
         def phi(tau):
             self._restore(snap)
             if tau > snap["t"]:
-                self._advance_to(tau)
+                self.euler_to(tau)
             return self._watch(joint, kind)
 
         t_start = snap["t"]
@@ -313,11 +306,11 @@ class LimitedPredictorCorrector(PredictorCorrector):
             tau, joint, kind = min(times)
             self._restore(snap)
             if tau > snap["t"]:
-                self._advance_to(tau)
+                self.euler_to(tau)
             self._switch(joint, kind)
             snap = self._snapshot()
             if t_end > tau:
-                self._advance_to(t_end)
+                self.euler_to(t_end)
             self.t = t_end
         raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
                             f"within one step before t = {t_end:.6g} s (chattering)")

@@ -81,6 +81,13 @@ class PredictorCorrector(Stepper):
         self._q_pred = y_p[: self.n]  # the step control compares the corrected joints with it
         self._correct(y_p)  # checks its results for non-finite values
 
+    def euler_to(self, t_next: float) -> None:
+        """From the current point to t_next: Euler prediction y + (t_next - t) ydot, then the corrector (a
+        sub-step of the step control, a step to a switching time of the limits)."""
+        h = t_next - self.t
+        self.t = t_next
+        self._correct(self._y + h * self._yd)
+
     def _rates(self) -> None:
         """Evaluate the full system at the current point and solve Eq. (4.24) for the rates."""
         pt = self.evaluate(self.q, self.t)

@@ -168,13 +168,6 @@ class StepControl:
         self.watch.refresh(s.t, pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         return self.watch.ahead(t_next)
 
-    def _euler_to(self, t_next: float) -> None:
-        """One sub-step: Euler prediction from the current point to t_next, then the corrector."""
-        s = self.s
-        h = t_next - s.t
-        s.t = t_next
-        s._correct(s._y + h * s._yd)
-
     def _substeps(self, snap_step: dict, t_to: float, reason) -> None:
         s = self.s
         self.substepped.append(t_to)
@@ -189,7 +182,7 @@ class StepControl:
                 reason, h = (kind, f"predicted before t = {t_next:.6g} s"), 0.5 * h
                 continue
             snap = self._snapshot()
-            why = self._attempt(lambda tn=t_next: self._euler_to(tn), snap, t_next - t)
+            why = self._attempt(lambda tn=t_next: s.euler_to(tn), snap, t_next - t)
             if why is not None:
                 self._restore(snap)
                 reason, h = why, 0.5 * h

@@ -70,6 +70,11 @@ def check_gain(gain) -> float:
     return float(gain)
 
 
+def _from_stepper(name: str, doc: str) -> property:
+    """A read-only property of :class:`Tracker` that reads ``name`` of its stepper (the state lives there)."""
+    return property(lambda self: getattr(self.stepper, name), doc=doc)
+
+
 class Tracker:
     """Tracks ``path`` from ``q0`` step by step: :meth:`step` advances by ``dt``.
 
@@ -183,32 +188,11 @@ class Tracker:
         """One time step: from (q, lambda) at t to t + dt."""
         self.stepper.step()
 
-    @property
-    def q(self) -> np.ndarray:
-        """The joint values at :attr:`t` [rad or m]."""
-        return self.stepper.q
-
-    @property
-    def t(self) -> float:
-        """The current time [s]."""
-        return self.stepper.t
-
-    @property
-    def lam(self) -> np.ndarray:
-        """The multipliers lambda at :attr:`t` (Eq. 4.5; lambda* in the velocity form)."""
-        return self.stepper.lam
-
-    @property
-    def qdot(self) -> np.ndarray:
-        """The joint rates [rad/s] at :attr:`t` (the default mode's: at the step's predicted point)."""
-        return self.stepper.qdot
-
-    @property
-    def lamdot(self) -> np.ndarray:
-        """The multipliers' rates at :attr:`t`."""
-        return self.stepper.lamdot
-
-    @property
-    def solver(self) -> str:
-        """The step's linear-solver label (``qp``, ``qp_aug``, ``lu``; ``lstsq`` for the baselines)."""
-        return self.stepper.solver
+    q = _from_stepper("q", "The joint values at :attr:`t` [rad or m].")
+    t = _from_stepper("t", "The current time [s].")
+    lam = _from_stepper("lam", "The multipliers lambda at :attr:`t` (Eq. 4.5; lambda* in the velocity form).")
+    qdot = _from_stepper("qdot", "The joint rates [rad/s] at :attr:`t` (the default mode's: at the step's predicted "
+                                 "point).")
+    lamdot = _from_stepper("lamdot", "The multipliers' rates at :attr:`t`.")
+    solver = _from_stepper("solver", "The step's linear-solver label (``qp``, ``qp_aug``, ``lu``; ``lstsq`` for the "
+                                     "baselines).")

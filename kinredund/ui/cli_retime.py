@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import KinredundError
+from kinredund.ui.options import at_least, subcommand
 
 RETIME_HELP = """Retime a tracking record (kinredund track --json) under joint speed and acceleration limits:
 a new time law along the same optimal joint path (TOPP-RA, time-optimal; periodic for a closed path, so
@@ -31,16 +32,6 @@ def _limit(text: str) -> float | np.ndarray:
     if not values:
         raise argparse.ArgumentTypeError(f"expected a number or comma-separated numbers, got {text!r}")
     return values[0] if len(values) == 1 else np.array(values)
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from err
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {value}")
-    return value
 
 
 def _refuse_existing_bag(bag: Path | None) -> None:
@@ -118,11 +109,10 @@ def add_parsers(sub) -> None:
     """Register ``retime`` and ``export`` on the subcommand parsers of :func:`kinredund.ui.cli.build_parser`."""
     from kinredund.export import DEFAULT_TOPIC
 
-    p = sub.add_parser("retime", help="retime a tracking record under joint speed/acceleration (and jerk) limits",
-                       description=RETIME_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="examples:\n  kinredund track panda --json run.json\n"
-                              "  kinredund retime run.json --amax 5 --vmax 1.5 --json timed.json --plot timed.png\n"
-                              "  kinredund retime run.json --amax 5 --jmax 500 --bag timed_bag")
+    p = subcommand(sub, "retime", "retime a tracking record under joint speed/acceleration (and jerk) limits",
+                   RETIME_HELP, ["kinredund track panda --json run.json",
+                                 "kinredund retime run.json --amax 5 --vmax 1.5 --json timed.json --plot timed.png",
+                                 "kinredund retime run.json --amax 5 --jmax 500 --bag timed_bag"], _cmd_retime)
     p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track --json)")
     p.add_argument("--amax", type=_limit, required=True,
                    help="joint acceleration limits [rad/s^2 or m/s^2]: one number or one per joint (URDFs have none)")
@@ -132,7 +122,8 @@ def add_parsers(sub) -> None:
                    help="joint jerk limits [rad/s^3 or m/s^3]: a jerk-limited periodic law (closed paths only; "
                         "default: no jerk limit)")
     p.add_argument("--tool-speed", type=float, help="speed limit of the tool along its path [m/s] (default: none)")
-    p.add_argument("--loops", type=_count, help="loops to chain (closed paths; default: as many as the record has)")
+    p.add_argument("--loops", type=at_least(1),
+                   help="loops to chain (closed paths; default: as many as the record has)")
     p.add_argument("--open", action="store_true",
                    help="retime a closed record as an open path from rest to rest (default: a closed record stays "
                         "periodic)")
@@ -151,15 +142,13 @@ def add_parsers(sub) -> None:
                    help="plot q, qdot, qddot with the limits (.png, .pdf, .svg) (default: not drawn)")
     p.set_defaults(func=_cmd_retime)
 
-    p = sub.add_parser("export", help="write a trajectory record as CSV or a ROS 2 bag",
-                       description="Write a trajectory JSON as CSV (one row per sample, a header naming the joints) "
-                                   "and/or a ROS 2 bag holding one trajectory_msgs/msg/JointTrajectory.",
-                       formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="examples:\n  kinredund export run.json --csv run.csv\n"
-                              "  kinredund export timed.json --bag timed_bag")
+    p = subcommand(sub, "export", "write a trajectory record as CSV or a ROS 2 bag",
+                   "Write a trajectory JSON as CSV (one row per sample, a header naming the joints) and/or a ROS 2 "
+                   "bag holding one trajectory_msgs/msg/JointTrajectory.",
+                   ["kinredund export run.json --csv run.csv", "kinredund export timed.json --bag timed_bag"],
+                   _cmd_export)
     p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track or retime --json)")
     p.add_argument("--csv", type=Path, help="the CSV file to write (default: not written)")
     p.add_argument("--bag", type=Path,
                    help="the ROS 2 bag folder to write, which must not exist (default: not written)")
     p.add_argument("--topic", default=DEFAULT_TOPIC, help=f"the bag's topic (default {DEFAULT_TOPIC})")
-    p.set_defaults(func=_cmd_export)

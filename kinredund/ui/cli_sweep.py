@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError, check_count
+from kinredund.errors import KinredundError
+from kinredund.ui.options import at_least, subcommand
 
 GRID_HELP = ("the placements: x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw] - nx values from x0 to x1 [m] (both included), "
              "ny from y0 to y1 [m], nyaw yaws from yaw0 to yaw1 [deg] about the base z axis (default yaw 0); "
@@ -54,28 +55,16 @@ def _numbers(text: str) -> np.ndarray:
     return values
 
 
-def _count(minimum: int):
-    """An argparse type: an integer >= ``minimum``, checked as the library checks it (``check_count``)."""
-    def parse(text: str) -> int:
-        try:
-            return check_count(int(text), minimum, "the value", KinredundError)
-        except (ValueError, KinredundError) as err:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}") from err
-
-    return parse
-
-
 def add_parser(sub) -> None:
     """Register the ``sweep`` subcommand on the subparsers ``sub`` of :func:`kinredund.ui.cli.build_parser`."""
     from kinredund.sweep.record import CRITERIA
     from kinredund.tasks import task_names
 
-    p = sub.add_parser("sweep", help="placement sweep: track a part's closed path at many part poses (Dask)",
-                       description="Track a closed path given in a part frame with the part at every placement "
-                                   "of a grid; report which placements are feasible and the best ones.",
-                       formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="examples:\n  kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --plot map.png\n"
-                              "  kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --json sweep.jsonl --resume")
+    p = subcommand(sub, "sweep", "placement sweep: track a part's closed path at many part poses (Dask)",
+                   "Track a closed path given in a part frame with the part at every placement of a grid; report "
+                   "which placements are feasible and the best ones.",
+                   ["kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --plot map.png",
+                    "kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --json sweep.jsonl --resume"], run)
     p.add_argument("robot", help="a robot name (see `kinredund robots`) or a URDF path")
     p.add_argument("--ee-frame", help="the end-effector frame (default: the robot's)")
     p.add_argument("--task", choices=task_names(), help="task kind (default: the robot's)")
@@ -91,20 +80,20 @@ def add_parser(sub) -> None:
     p.add_argument("--z", type=float, help="the part origin's height [m] (default: the end effector's at home)")
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
                    help="the performance index z (default home: 1/2 ||q - q_home||^2)")
-    p.add_argument("--steps", type=_count(1), default=200, help="steps per loop (default 200)")
-    p.add_argument("--loops", type=_count(1), default=1, help="loops per placement (default 1)")
-    p.add_argument("--starts", type=_count(1), default=8, help="IK starts for each start configuration (default 8)")
-    p.add_argument("--seed", type=_count(0), default=0, help="seed of the IK multi-start (default 0)")
+    p.add_argument("--steps", type=at_least(1), default=200, help="steps per loop (default 200)")
+    p.add_argument("--loops", type=at_least(1), default=1, help="loops per placement (default 1)")
+    p.add_argument("--starts", type=at_least(1), default=8, help="IK starts for each start configuration (default 8)")
+    p.add_argument("--seed", type=at_least(0), default=0, help="seed of the IK multi-start (default 0)")
     p.add_argument("--no-limits", action="store_true", help="do not ask the tracker to hold the joint limits "
                    "(a run leaving them is still infeasible; default: held)")
     p.add_argument("--speed-limit", action="store_true", help="a joint above its velocity limit is infeasible "
                    "(default: velocities not checked)")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_count(0), help="worker processes of the local Dask cluster "
+    where.add_argument("--workers", type=at_least(0), help="worker processes of the local Dask cluster "
                        "(default: this machine's cores; 0: serially in this process)")
     where.add_argument("--scheduler", help="run on an existing Dask cluster: its scheduler's address "
                        "(tcp://host:port; default: a local cluster)")
-    p.add_argument("--batch-size", type=_count(1),
+    p.add_argument("--batch-size", type=at_least(1),
                    help="placements per Dask task (default: guided - large batches first, single placements last)")
     p.add_argument("--json", type=Path, help="the sweep file, written as batches complete (.jsonl: JSON lines; "
                    "default: not written)")
@@ -113,8 +102,7 @@ def add_parser(sub) -> None:
     p.add_argument("--plot", type=Path, help="the feasibility and quality map (.png, .pdf or .svg; default: not drawn)")
     p.add_argument("--criterion", choices=tuple(CRITERIA), default="margin",
                    help="what ranks the feasible placements (default margin: farthest from the joint limits)")
-    p.add_argument("--top", type=_count(0), default=5, help="best placements to print (default 5)")
-    p.set_defaults(func=run)
+    p.add_argument("--top", type=at_least(0), default=5, help="best placements to print (default 5)")
 
 
 def _index(robot, name: str):

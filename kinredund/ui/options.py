@@ -57,7 +57,7 @@ def _vector(text: str) -> np.ndarray:
     return np.array(values)
 
 
-def _at_least(minimum: int):
+def at_least(minimum: int):
     """An argparse type: an integer >= ``minimum`` (the bound the library checks too, so both agree)."""
     def parse(text: str) -> int:
         try:
@@ -71,16 +71,22 @@ def _at_least(minimum: int):
     return parse
 
 
-_COUNT = _at_least(1)  # loops, steps and starts: kinredund.tracking.resolved_rate.track and kinredund.ik.solve_ik
+_COUNT = at_least(1)  # loops, steps and starts: kinredund.tracking.resolved_rate.track and kinredund.ik.solve_ik
 
 
 # -- the parser ------------------------------------------------------------------------------------
-def _sub(sub, commands: dict, name: str, help_: str, description: str, examples: list[str]):
-    """A subcommand running ``commands[name]``, with its description and examples (the epilog)."""
+def subcommand(sub, name: str, help_: str, description: str, examples: list[str], func):
+    """The subcommand ``name`` on the subparsers ``sub``, running ``func(args)``, with its description and
+    examples (the epilog) printed as written."""
     epilog = "examples:\n" + "\n".join(f"  {e}" for e in examples)
     p = sub.add_parser(name, help=help_, description=description, epilog=epilog, formatter_class=_Formatter)
-    p.set_defaults(func=commands[name])
+    p.set_defaults(func=func)
     return p
+
+
+def _sub(sub, commands: dict, name: str, help_: str, description: str, examples: list[str]):
+    """:func:`subcommand` running ``commands[name]``."""
+    return subcommand(sub, name, help_, description, examples, commands[name])
 
 
 def _add_outputs(p, *, html: bool = False, quiet: bool = False) -> None:
@@ -221,7 +227,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
              ["kinredund plan 6.3 --json plan.json --plot plan.png",
               "kinredund play plan.json --html plan.html"])
     p.add_argument("case", choices=("6.2", "6.3"), help="the thesis section")
-    p.add_argument("--samples", type=_at_least(4), default=9, metavar="N",
+    p.add_argument("--samples", type=at_least(4), default=9, metavar="N",
                    help="sample points of the 6.2 planner, at least 4 for its cubic spline; 6.3 plans on a roadmap "
                         "instead (default: %(default)s)")
     _add_outputs(p, quiet=True)
