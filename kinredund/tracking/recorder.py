@@ -2,10 +2,10 @@
 
 :class:`Recorder` keeps, per recorded point, only what the stepper already has (t, q, lambda, M, the
 step's J and path sample, its evaluation where it was made at the recorded point). At the end,
-:meth:`Recorder.trajectory` evaluates the kinematics afresh where needed (the default mode's evaluation
-is at the predicted point: there the pose and K at the corrected joints) and computes the task's errors
+:meth:`Recorder.trajectory` evaluates the pose afresh where needed (the default mode's evaluation is at
+the predicted point: there the pose at the corrected joints) and computes the task's errors
 (:meth:`kinredund.tasks.Task.errors_many`). The diagnostics - the normality residual
-||(1 - J^+ J) grad z|| (Eq. 4.5, with grad z afresh at the corrected joints), the solver labels of
+||(1 - J^+ J) grad z|| (Eq. 4.5, with K and grad z afresh at the corrected joints), the solver labels of
 Theorem 2 and, with ``diagnostics``, the eigenvalues of M and of its projection on the null space of J -
 are handed to the record as :class:`~kinredund.trajectory.Deferred` values: :class:`Diagnostics`
 computes them all in a few batched numpy calls on the first read of any of them. ``track()`` then costs
