@@ -249,3 +249,22 @@ def test_tracking_error_pickles():
     assert back.cause == "fold" and back.t == 1.0 and np.allclose(back.q, [0.1, 0.2]) and back.sigma_min == 0.5
     with pytest.raises(kinredund.ChoiceError):
         TrackingError("x", cause="unknown")
+
+
+@pytest.mark.parametrize("mode", ["default", "thesis"])
+def test_singular_start_is_a_tracking_error(arm, mode):
+    """A start at a kinematic singularity (the arm stretched on the 6 m reach, where the path begins) is a
+    TrackingError like every other stop: its cause, the start as the last point, sigma_min(J) against the
+    watch's floor (watch.SIGMA_FLOOR of sigma_max(J)) and a one-point record that plays; still a
+    SingularityError for callers that catch that."""
+    from kinredund.tracking.watch import SIGMA_FLOOR
+
+    path = Circle(np.array([5.0, 0.0, 0.0]), 1.0, 1.0)  # p(0) = (6, 0): only q = 0 reaches it
+    with pytest.raises(SingularityError) as info:
+        track(arm, path, minimum_norm(3), np.zeros(3), mode=mode)
+    err = info.value
+    assert isinstance(err, TrackingError) and err.cause == "kinematic_singularity" and err.t == 0.0
+    w = err.watched
+    assert w["sigma_min_J"] <= SIGMA_FLOOR * w["sigma_max_J"] and w["sigma_max_J"] > 1.0
+    assert w["task_residual"] < 1e-12 and np.abs(np.asarray(err.q)).max() == 0.0
+    assert err.partial.checked(nq=3).position_error.max() < 1e-12

@@ -19,7 +19,7 @@ from kinredund.errors import TrackingError
 from kinredund.model.robot import Robot
 from kinredund.tasks import get_task
 from kinredund.tracking.point import Evaluator
-from kinredund.tracking.watch import exact, reduce
+from kinredund.tracking.watch import SIGMA_FLOOR, exact, reduce
 from kinredund.trajectory import Trajectory
 
 #: a path point whose smallest reachable task residual exceeds this (times max(1, |p_d|) [m]) is out of
@@ -113,9 +113,10 @@ def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: 
 def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> dict:
     """The watched quantities at (q, t) (default: the stepper's current point), computed exactly.
 
-    ``sigma_min_J``, ``reduced_hessian_min`` (on the null space of J and of the fixed joints, when the
-    stepper has a ``fixed`` mask), ``task_residual`` [m] and ``normality_residual`` (|(1 - J^+ J) grad z|
-    over the free joints: a joint held on a bound takes its multiplier's share of grad z).
+    ``sigma_min_J`` and ``sigma_max_J`` (the scale of the watch's kinematic floor), ``reduced_hessian_min``
+    (on the null space of J and of the fixed joints, when the stepper has a ``fixed`` mask),
+    ``task_residual`` [m] and ``normality_residual`` (|(1 - J^+ J) grad z| over the free joints: a joint
+    held on a bound takes its multiplier's share of grad z).
     """
     q = stepper.q if q is None else q
     t = stepper.t if t is None else t
@@ -125,12 +126,14 @@ def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> 
         return out
     M = pt.system(stepper.lam)[0]
     fixed = getattr(stepper, "fixed", None)
-    sigma, eig, _ = exact(*reduce(pt.J, M, fixed))
+    J_free, M_free = reduce(pt.J, M, fixed)
+    sigma, eig, _ = exact(J_free, M_free)
     # the normality residual on the free joints: a joint held on a bound carries its multiplier in grad z
     free = slice(None) if fixed is None else ~np.asarray(fixed, bool)
-    J, grad = pt.J[:, free], pt.grad[free]
-    Z = np.linalg.qr(J.T, mode="complete")[0][:, J.shape[0]:]
-    out.update(sigma_min_J=sigma, reduced_hessian_min=eig, normality_residual=float(np.linalg.norm(Z.T @ grad)))
+    grad = pt.grad[free]
+    Z = np.linalg.qr(J_free.T, mode="complete")[0][:, J_free.shape[0]:]
+    out.update(sigma_min_J=sigma, sigma_max_J=float(np.linalg.norm(J_free, 2)), reduced_hessian_min=eig,
+               normality_residual=float(np.linalg.norm(Z.T @ grad)))
     return out
 
 
@@ -139,7 +142,8 @@ def start_failure(stepper, q0: np.ndarray, err: Exception) -> TrackingError:
 
     ``non_optimal_start`` where q0 is on the path (the stepper checked it) but not at the constrained
     optimum (its normality residual above 1e-8 of max(1, |grad z|)); at an optimal start whose R is
-    singular, ``kinematic_singularity`` or ``fold`` by which watched quantity vanishes.
+    singular, ``kinematic_singularity`` where sigma_min(J) is at the watch's kinematic floor
+    (:data:`~kinredund.tracking.watch.SIGMA_FLOOR` of max(1, sigma_max(J))), else ``fold``.
     """
     ev = stepper.ev
     stepper.q, stepper.t = q0, stepper.t0
@@ -150,7 +154,8 @@ def start_failure(stepper, q0: np.ndarray, err: Exception) -> TrackingError:
     optimal = watched.get("normality_residual", 0.0) <= 1e-8 * max(1.0, float(np.linalg.norm(grad)))
     cause = "non_optimal_start"
     if optimal:
-        cause = "kinematic_singularity" if watched.get("sigma_min_J", 1.0) <= 1e-8 else "fold"
+        floor = SIGMA_FLOOR * max(1.0, watched.get("sigma_max_J", 1.0))  # the watch's own (Watch.floors)
+        cause = "kinematic_singularity" if watched.get("sigma_min_J", math.inf) <= floor else "fold"
     partial = point_record(ev, q0, stepper.t0, scheme=ev.formulation, mode="default")
     return TrackingError(f"the start at t = {stepper.t0:.6g} s cannot be corrected onto a constrained minimum of z "
                          f"({cause}; normality residual {watched.get('normality_residual', float('nan')):.3g}): {err}",
@@ -166,6 +171,17 @@ def _watched_start(ev: Evaluator, q: np.ndarray, t: float) -> dict:
     lam = multipliers(pt.J, pt.grad)[0]
     sigma, eig, _ = exact(pt.J, pt.system(lam)[0])
     return out | {"sigma_min_J": sigma, "reduced_hessian_min": eig}
+
+
+def singular_start(ev: Evaluator, q0: np.ndarray, t0: float, why: str, *, mode: str) -> TrackingError:
+    """The error of a start where J has lost rank (``kinematic_singularity``: the arm stretched or folded)."""
+    pt = ev.point(q0, t0, need_dJ=False)
+    sJ = np.linalg.svd(pt.J, compute_uv=False)
+    watched = {"task_residual": float(np.abs(pt.r).max()), "sigma_min_J": float(sJ[-1]), "sigma_max_J": float(sJ[0])}
+    return TrackingError(f"the start is a kinematic singularity, where no optimal rates exist ({why}): start away "
+                         "from it, or move the path off the workspace boundary",
+                         cause="kinematic_singularity", t=t0, q=q0, watched=watched,
+                         partial=point_record(ev, q0, t0, scheme=ev.formulation, mode=mode))
 
 
 def step_too_long(ev: Evaluator, q0: np.ndarray, t0: float, dt: float, *, mode: str) -> TrackingError:

@@ -16,9 +16,10 @@ import numpy as np
 from scipy.linalg import lapack
 
 from kinredund.errors import PathError, SingularityError
-from kinredund.tracking.failure import step_too_long
+from kinredund.tracking.failure import singular_start, step_too_long
 from kinredund.tracking.linalg import RateQP, classify, multipliers, solve_rates
 from kinredund.tracking.point import Evaluator, Point
+from kinredund.tracking.watch import SIGMA_FLOOR
 
 
 class Stepper:
@@ -50,9 +51,12 @@ class Stepper:
         evaluator.check_sample(self.t)
         self.pt = self.evaluate(self.q, self.t)
         self._check_on_path(self.pt, "the starting configuration")
-        self._check_rank(self.pt)
+        mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
+        try:
+            self._check_rank(self.pt)
+        except SingularityError as err:  # a TrackingError with its cause and a one-point record
+            raise singular_start(evaluator, self.q, self.t, str(err), mode=mode) from err
         if evaluator.path.period is not None and dt > evaluator.path.period:
-            mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
             raise step_too_long(evaluator, self.q, self.t, dt, mode=mode)
         self.lam = multipliers(self.pt.J, self.pt.grad)[0] if evaluator.index is not None else np.zeros(len(self.pt.r))
         m = len(self.pt.r)
@@ -122,9 +126,9 @@ class Stepper:
                 "the path may leave the workspace, or the steps are too coarse", t=pt.t, q=pt.q)
 
     def _check_rank(self, pt: Point) -> None:
-        """Raise SingularityError where J loses rank (a kinematic singularity)."""
+        """Raise SingularityError where J loses rank (a kinematic singularity: the watch's floor)."""
         sJ = np.linalg.svd(pt.J, compute_uv=False)
-        if sJ[-1] < 1e-8 * max(1.0, sJ[0]):
+        if not sJ[-1] > SIGMA_FLOOR * max(1.0, sJ[0]):  # "not >": NaN is singular too
             raise SingularityError(
                 f"kinematic singularity at t = {pt.t:.6g} s: smallest singular value of J {sJ[-1]:.3g}; "
                 f"q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sJ[-1]))

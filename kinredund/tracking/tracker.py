@@ -115,7 +115,7 @@ class Tracker:
         TrackingError: with limits, ``q0`` is outside them (``cause="limits_infeasible"``, naming the joints
             and by how much), or no constrained optimum is found at the start.
         PathError: the start is off the path, or the path is unsuitable (says why).
-        SingularityError: the start is singular.
+        TrackingError: the start is a kinematic singularity (``kinematic_singularity``, a SingularityError too).
         TrackingError: the start cannot be corrected onto a constrained minimum (``non_optimal_start``), or
             dt is longer than the path's period (``step_too_long``); from :meth:`step`, the run cannot go on
             (the cause, the last good point; the stepper stays at the last requested time).
