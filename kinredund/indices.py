@@ -49,6 +49,11 @@ class Index:
         """Hess z alone."""
         return self.evaluate(theta, t)[2]
 
+    def gradients_many(self, thetas: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """grad z at each row of ``thetas`` (N, n) and time of ``times`` (N,): (N, n), :meth:`evaluate`'s
+        gradient row by row (subclasses vectorise it where they can)."""
+        return np.array([self.evaluate(q, float(t))[1] for q, t in zip(thetas, times, strict=True)])
+
     def time_derivative_of_gradient(self, theta: np.ndarray, t: float = 0.0) -> np.ndarray:
         """d(grad z)/dt at fixed theta (zero for time-invariant indices); Eq. (6.27)."""
         return np.zeros_like(theta)
@@ -67,10 +72,14 @@ class JointDeviation(Index):
     weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        ref = check_array(self.reference, (None,), "index reference")
-        w = np.ones_like(ref) if self.weights is None else check_array(self.weights, ref.shape, "index weights")
+        # copies, read-only: the index (and every record made with it) must not change when the caller
+        # reuses its array (e.g. q0 as the reference, then warm-starting from it in place)
+        ref = np.array(check_array(self.reference, (None,), "index reference"))
+        w = np.ones_like(ref) if self.weights is None else np.array(check_array(self.weights, ref.shape,
+                                                                                "index weights"))
         if np.any(w < 0):
             raise TaskError(f"index weights must be {ref.shape[0]} finite values >= 0, got {self.weights!r}")
+        ref.flags.writeable = w.flags.writeable = False
         object.__setattr__(self, "reference", ref)
         object.__setattr__(self, "weights", w)
         object.__setattr__(self, "_hess", np.diag(w))
@@ -79,6 +88,9 @@ class JointDeviation(Index):
         f = theta - self.reference
         wf = self.weights * f
         return 0.5 * float(f @ wf), wf, self._hess  # Eq. (4.45)
+
+    def gradients_many(self, thetas, times):
+        return self.weights * (thetas - self.reference)  # Eq. (4.45)'s gradient, row by row
 
 
 def minimum_norm(n: int) -> JointDeviation:

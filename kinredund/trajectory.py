@@ -42,7 +42,7 @@ PER_POINT_FIELDS = tuple(_PER_POINT)
 
 
 class Deferred:
-    """A field value computed on first read: ``compute()`` returns it (called at most once per record).
+    """A field value computed on first read: ``compute()`` returns it, and the record keeps the result.
 
     The tracker's recorder hands its diagnostics over this way, so that ``track()`` costs little more
     than its steps and a caller who never reads them never pays for them.
@@ -67,7 +67,10 @@ class _DeferrableField:
     def __get__(self, obj, owner=None):
         if obj is None:
             return self.default  # the dataclass's default for the field
-        value = obj.__dict__[self.name]
+        try:
+            value = obj.__dict__[self.name]
+        except KeyError:  # not set yet (a bare object.__new__): what getattr and hasattr expect
+            raise AttributeError(f"{type(obj).__name__!r} object has no attribute {self.name!r}") from None
         if isinstance(value, Deferred):
             value = value.compute()
             obj.__dict__[self.name] = value

@@ -238,3 +238,48 @@ def test_a_record_does_not_change_when_the_recorder_goes_on():
         rec.add()
     assert len(part.solver) == len(part.normality_residual) == len(part.m_eigs) == len(part.t) == 11
     assert part.normality_residual.max() < 1e-9
+
+
+def test_a_record_does_not_follow_its_inputs_after_the_run():
+    """The deferred diagnostics depend on the run alone: changing the caller's q0 (the index's reference
+    array here), or the record's own q, before they are read changes nothing; and JointDeviation keeps
+    its own read-only copy of the reference."""
+    r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    want = track(r, path, index, q0, steps_per_loop=40).normality_residual
+    tr = track(r, path, index, q0, steps_per_loop=40)
+    q0 += 0.2  # the caller reuses its array (e.g. to warm-start the next run)
+    tr.q[:] += 0.1
+    assert np.abs(tr.normality_residual - want).max() < 1e-15 and want.max() < 1e-9
+    assert not index.reference.flags.writeable and np.abs(index.reference - (q0 - 0.2)).max() < 1e-15
+
+
+def test_deferred_diagnostics_read_from_several_threads():
+    """Threads reading one record's diagnostics at once all get the same values, computed once."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from kinredund.tracking import recorder
+
+    r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    calls, run = [], recorder.Diagnostics._run
+
+    def counted(self, *args):
+        calls.append(1)
+        return run(self, *args)
+
+    recorder.Diagnostics._run = counted
+    try:
+        records = [track(r, path, index, q0, steps_per_loop=20) for _ in range(4)]
+        names = ("solver", "m_eigs", "m_null_eigs", "normality_residual") * 4
+        with ThreadPoolExecutor(8) as pool:
+            got = list(pool.map(lambda a: getattr(records[a[0]], a[1]), [(k, n) for k in range(4) for n in names]))
+    finally:
+        recorder.Diagnostics._run = run
+    assert len(calls) == 4  # once per record
+    assert all(got[16 * k + 3] is records[k].normality_residual for k in range(4))
+
+
+def test_a_bare_record_object_has_no_diagnostics_attribute():
+    from kinredund.trajectory import Trajectory
+
+    bare = object.__new__(Trajectory)
+    assert not hasattr(bare, "solver") and getattr(bare, "m_eigs", "absent") == "absent"

@@ -139,7 +139,7 @@ def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> 
     J = []
     for qk, tk in zip(q, t, strict=True):
         Q, _, K = kin.jacobian(qk)
-        J.append(task.span_rows(Q, K, path.sample(tk)))  # rows with J's row space (the task's rows of K)
+        J.append(task.span_rows(Q, K, path.sample(tk).Q))  # rows with J's row space (the task's rows of K)
     out["sigma_min"] = clean_float(np.linalg.svd(np.array(J), compute_uv=False)[:, -1].min())
     if index is not None:
         z = np.array([index.value(qk, tk) for qk, tk in zip(q, t, strict=True)])

@@ -196,9 +196,9 @@ class AxisTask(Task):
         out["axis_error"] = axis_angle_error(Q, Q_d)
         return out
 
-    def span_rows(self, Q, K, sample):
+    def span_rows(self, Q, K, Q_d):
         """The velocity form's rows [S (-[e_z]x) Q_d^T K_omega; K_pdot]: J's row space on the path."""
-        return np.concatenate((_PERP @ (sample.Q.T @ K[:3]), K[3:]))
+        return np.concatenate((_PERP @ (Q_d.T @ K[:3]), K[3:]))
 
     def ik_residual(self, target: Target) -> AxisResidual:
         return AxisResidual(target)

@@ -187,9 +187,10 @@ class Task(ABC):
         Q_d = None if target.Q is None else target.Q[None]
         return {k: float(v[0]) for k, v in self.errors_many(Q[None], np.asarray(p)[None], Q_d, target.p[None]).items()}
 
-    def span_rows(self, Q: np.ndarray, K: np.ndarray, sample: PathSample) -> np.ndarray:
+    def span_rows(self, Q: np.ndarray, K: np.ndarray, Q_d: np.ndarray | None) -> np.ndarray:
         """Rows with the row space of the tracking Jacobian J on the path, from K alone (the normality
-        residual of Eq. (4.5) needs only that space): the point rows of K by default."""
+        residual of Eq. (4.5) needs only that space): the point rows of K by default. ``Q_d``: the path's
+        rotation at that time (None for a task without orientation)."""
         return K[self.point_rows]
 
     def errors(self, Q: np.ndarray, p: np.ndarray, target: Target) -> tuple[float, float, float]:

@@ -246,7 +246,7 @@ class PoseTask(Task):
         out["vect_error"] = np.linalg.norm(v, axis=1)
         return out
 
-    def span_rows(self, Q, K, sample):
+    def span_rows(self, Q, K, Q_d):
         """K itself: J = K (velocity form) or H K with H invertible near the path (Eq. 2.14)."""
         return K
 

@@ -178,8 +178,9 @@ def singular_start(ev: Evaluator, q0: np.ndarray, t0: float, why: str, *, mode: 
     pt = ev.point(q0, t0, need_dJ=False)
     sJ = np.linalg.svd(pt.J, compute_uv=False)
     watched = {"task_residual": float(np.abs(pt.r).max()), "sigma_min_J": float(sJ[-1]), "sigma_max_J": float(sJ[0])}
-    return TrackingError(f"the start is a kinematic singularity, where no optimal rates exist ({why}): start away "
-                         "from it, or move the path off the workspace boundary",
+    return TrackingError(f"the start is a kinematic singularity: J has lost rank there ({why}): start "
+                         "from another configuration on the path, or move the path away from where the arm is "
+                         "stretched or folded",
                          cause="kinematic_singularity", t=t0, q=q0, watched=watched,
                          partial=point_record(ev, q0, t0, scheme=ev.formulation, mode=mode))
 

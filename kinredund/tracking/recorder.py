@@ -14,6 +14,8 @@ little more than its steps (``benchmarks/resolved_rate.py``: ``track_over_step``
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from kinredund.kinematics.angles import joint_drift
@@ -81,44 +83,43 @@ class Recorder:
                 "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
     def _evaluate(self):
-        """Per point (Q, p, J or None, grad z or None, sample): the step's own evaluation where it was made
-        at the recorded point, else the pose afresh at the recorded joints (J's rows and grad z there are
-        left to :class:`Diagnostics`: None)."""
+        """(Q, p, {k: J} where the step's own evaluation was made at recorded point k, path samples): the
+        pose afresh at the other recorded joints (K there is left to :class:`Diagnostics`)."""
         kin = self.stepper.ev.robot.kinematics
-        Qs, ps, Js, grads, samples = [], [], [], [], []
-        for q, item in zip(self.q, self.points, strict=True):
+        Qs, ps, own, samples = [], [], {}, []
+        for k, (q, item) in enumerate(zip(self.q, self.points, strict=True)):
             if hasattr(item, "terms"):
-                Q, p, J, grad, sample = item.Q, item.p, item.J, item.grad, item.sample
+                (Q, p), own[k], sample = (item.Q, item.p), item.J, item.sample
             else:
-                (Q, p), J, grad, sample = kin.pose(q), None, None, item
+                (Q, p), sample = kin.pose(q), item
             Qs.append(Q)
             ps.append(p)
-            Js.append(J)
-            grads.append(grad)
             samples.append(sample)
-        return np.array(Qs), np.array(ps), Js, grads, samples
+        return np.array(Qs), np.array(ps), own, samples
 
     def trajectory(self, *, robot_name: str, scheme: str, mode: str, loops: int | None, steps_per_loop: int | None,
                    period: float | None, meta: dict) -> Trajectory:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
         task = get_task(s.ev.task)
-        Q, p, Js, grads, samples = self._evaluate()
+        Q, p, own, samples = self._evaluate()
         p_d = np.array([x.p for x in samples])
         Q_d = np.array([x.Q for x in samples]) if task.has_orientation else None
         errors = task.errors_many(Q, p, Q_d, p_d)
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
-        diag = Diagnostics(self, Js, grads, samples)
+        t, q = np.array(self.t), np.array(self.q)
+        index = s.ev.index  # grad z now: the index is the caller's object, the record must not follow it
+        grad = np.zeros_like(q) if index is None else index.gradients_many(q, t)
+        diag = Diagnostics(self, t, q, grad, own, Q_d)
         eigs = diag.eigenvalues
         solver = Deferred(diag.solver) if diag.pending else tuple(self.solver)
-        q = np.array(self.q)
         drift = None
         if loops is not None:
             drift = np.array([joint_drift(q[0], q[(i + 1) * steps_per_loop], s.ev.robot.revolute)
                               for i in range(loops)])
         extra = self._limits_record(q, meta) if self.limited else {}
         return Trajectory(
-            **extra, robot=robot_name, task=task.name, t=np.array(self.t), q=q, p=p, p_desired=p_d, scheme=scheme,
+            **extra, robot=robot_name, task=task.name, t=t, q=q, p=p, p_desired=p_d, scheme=scheme,
             mode=mode,
             solver=solver, lam=self._lam_full(), m_eigs=Deferred(diag.m_eigs) if eigs else None,
             m_null_eigs=Deferred(diag.m_null_eigs) if eigs else None,
@@ -130,38 +131,50 @@ class Recorder:
 class Diagnostics:
     """A run's diagnostics, computed together on the first call of any of them, then kept.
 
-    The normality residual ||Z^T grad z|| (Eq. 4.5, Z a null-space basis of J; J's rows and grad z afresh
-    at each corrected point the step did not evaluate), with ``diagnostics`` the eigenvalues of M and of
-    Z^T M Z (Theorem 2), and the solver labels the steps left pending (:func:`labels_many`, which the
-    eigenvalues make cheap). The inputs are references the recorder already holds (the steppers never
-    change their arrays in place) and are dropped once computed.
+    The normality residual ||Z^T grad z|| (Eq. 4.5, Z a null-space basis of J; J's rows afresh at each
+    corrected point the step did not evaluate, grad z as the recorder computed it), with ``diagnostics``
+    the eigenvalues of M and of Z^T M Z (Theorem 2), and the solver labels the steps left pending
+    (:func:`labels_many`, which the eigenvalues make cheap). Until then it holds the run's arrays
+    stacked (about 1 KiB per point on a 7-axis arm) and the robot for its kinematics; it drops them once
+    computed. Safe to read from several threads (one computes, the others wait).
     """
 
-    def __init__(self, rec: Recorder, Js: list, grads: list, samples: list):
+    def __init__(self, rec: Recorder, t: np.ndarray, q: np.ndarray, grad: np.ndarray, own: dict,
+                 Q_d: np.ndarray | None):
         s = rec.stepper
         self.pending = [k for k, v in enumerate(rec.solver) if v is None]
         self.eigenvalues = rec.diagnostics and all(M is not None for M in rec.M)
-        # copies of the lists (not of their arrays): the record stays as it was if the recorder goes on
-        self._inputs = (list(rec.t), list(rec.q), Js, grads, samples, s.ev, list(rec.M), list(rec.J_step),
+        M = np.array(rec.M) if self.eigenvalues else None
+        M_pending = None if M is not None or not self.pending else np.array([rec.M[k] for k in self.pending])
+        J_pending = np.array([rec.J_step[k] for k in self.pending]) if self.pending else None
+        # copies (the record's t and q are the caller's to change) and stacked arrays, not per-point objects
+        self._inputs = (t.copy(), q.copy(), grad, own, Q_d, s.ev.robot, s.ev.task, M, M_pending, J_pending,
                         list(rec.solver), s.linear_solver, s.symmetric)
         self._out = None
+        self._lock = threading.Lock()
 
     def _compute(self) -> dict:
-        if self._out is not None:
+        with self._lock:
+            if self._out is None:
+                self._out = self._run(*self._inputs)
+                self._inputs = None
             return self._out
-        t, q, Js, grads, samples, ev, Ms, J_step, solver, rule, symmetric = self._inputs
-        kin, task = ev.robot.kinematics, get_task(ev.task)
-        for k, J in enumerate(Js):
-            if J is None:
-                Q, _, K = kin.jacobian(q[k])
-                # rows with J's row space on the path: the null space of J, and with it the normality
-                # residual of Eq. (4.5), follows from K alone (Task.span_rows)
-                Js[k], grads[k] = task.span_rows(Q, K, samples[k]), ev.gradient(q[k], t[k])
+
+    def _run(self, t, q, grad, own, Q_d, robot, task_name, M, M_pending, J_pending, solver, rule, symmetric) -> dict:
+        kin, task = robot.kinematics, get_task(task_name)
+        Js = []
+        for k in range(len(t)):
+            if k in own:
+                Js.append(own[k])
+                continue
+            Q, _, K = kin.jacobian(q[k])
+            # rows with J's row space on the path: the null space of J, and with it the normality residual
+            # of Eq. (4.5), follows from K alone (Task.span_rows)
+            Js.append(task.span_rows(Q, K, None if Q_d is None else Q_d[k]))
         J = np.array(Js)
         Z = null_space_bases(J)
-        out = {"normality_residual": normality_many(Z, np.array(grads)), "m_eigs": None, "m_null_eigs": None}
-        if self.eigenvalues:
-            M = np.array(Ms)
+        out = {"normality_residual": normality_many(Z, grad), "m_eigs": None, "m_null_eigs": None}
+        if M is not None:
             out["m_eigs"], out["m_null_eigs"] = eigs_many(M), null_space_eigs_many(M, J, Z)
         labels = list(solver)
         if self.pending:
@@ -170,11 +183,11 @@ class Diagnostics:
             k = self.pending
             eig = None if out["m_eigs"] is None else out["m_eigs"][k]
             eig_null = None if out["m_null_eigs"] is None else out["m_null_eigs"][k]
-            for i, label in zip(k, labels_many([Ms[i] for i in k], [J_step[i] for i in k], rule, symmetric, eig,
-                                               eig_null), strict=True):
+            Ms = M[k] if M is not None else M_pending
+            for i, label in zip(k, labels_many(list(Ms), list(J_pending), rule, symmetric, eig, eig_null),
+                                strict=True):
                 labels[i] = label
         out["solver"] = tuple(labels)
-        self._out, self._inputs = out, None
         return out
 
     def normality_residual(self) -> np.ndarray:

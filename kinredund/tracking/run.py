@@ -17,7 +17,8 @@ from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.tracker import Tracker
 from kinredund.trajectory import Trajectory
 
-#: the most steps one run records (the record holds every step: about 1.5 KiB each on a 7-axis arm)
+#: the most steps one run records (the record holds every step: about 0.5 KiB each on a 7-axis arm, and
+#: about 1 KiB more until its diagnostics are first read)
 MAX_STEPS = 1_000_000
 
 

@@ -149,7 +149,7 @@ class Stepper:
         if not force and sR[-1] > 1e-11 * sR[0]:
             return  # the estimate was pessimistic: R is regular enough
         sJ = np.linalg.svd(J, compute_uv=False)
-        kind = "kinematic (J rank-deficient)" if sJ[-1] < 1e-8 * max(1.0, sJ[0]) else \
+        kind = "kinematic (J rank-deficient)" if not sJ[-1] > SIGMA_FLOOR * max(1.0, sJ[0]) else \
             "algorithmic (R singular while J has full rank)"
         raise SingularityError(
             f"{kind} singularity at t = {pt.t:.6g} s: smallest singular value of R {sR[-1]:.3g}, "

@@ -140,7 +140,6 @@ def add_parsers(sub) -> None:
     p.add_argument("--topic", default=DEFAULT_TOPIC, help=f"the bag's topic (default {DEFAULT_TOPIC})")
     p.add_argument("--plot", type=Path,
                    help="plot q, qdot, qddot with the limits (.png, .pdf, .svg) (default: not drawn)")
-    p.set_defaults(func=_cmd_retime)
 
     p = subcommand(sub, "export", "write a trajectory record as CSV or a ROS 2 bag",
                    "Write a trajectory JSON as CSV (one row per sample, a header naming the joints) and/or a ROS 2 "
