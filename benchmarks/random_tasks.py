@@ -140,7 +140,7 @@ class _Pink:
         self.conf = pink.Configuration(model, model.createData(), np.asarray(q0, float))
         self.frame = FrameTask(robot.ee_frame, position_cost=1.0, orientation_cost=1.0)
         post = PostureTask(cost=POSTURE_COST)
-        post.set_target(np.asarray(index.reference, float))
+        post.set_target(np.array(index.reference, float))
         self.tasks = [self.frame, post]
         self.path, self.dt, self.t = path, dt, 0.0
         self._se3, self._solve_ik = pin.SE3, pink.solve_ik
