@@ -3,9 +3,11 @@
 :class:`Recorder` keeps, per recorded point, only what the stepper already has (t, q, lambda, M, the
 step's J and path sample, its evaluation where it was made at the recorded point). At the end,
 :meth:`Recorder.trajectory` evaluates the pose afresh where needed (the default mode's evaluation is at
-the predicted point: there the pose at the corrected joints) and computes the task's errors
-(:meth:`kinredund.tasks.Task.errors_many`). The diagnostics - the normality residual
-||(1 - J^+ J) grad z|| (Eq. 4.5, with K and grad z afresh at the corrected joints), the solver labels of
+the predicted point: there the pose at the corrected joints), computes the task's errors
+(:meth:`kinredund.tasks.Task.errors_many`) and grad z at every recorded point
+(:meth:`kinredund.indices.Index.gradients_many`: the index is the caller's object, the record must not
+follow later changes to it). The diagnostics - the normality residual ||(1 - J^+ J) grad z|| (Eq. 4.5,
+with K afresh at the corrected joints), the solver labels of
 Theorem 2 and, with ``diagnostics``, the eigenvalues of M and of its projection on the null space of J -
 are handed to the record as :class:`~kinredund.trajectory.Deferred` values: :class:`Diagnostics`
 computes them all in a few batched numpy calls on the first read of any of them. ``track()`` then costs
