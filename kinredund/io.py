@@ -13,7 +13,10 @@ What an output path may be (:func:`check_output_path`, docs/schema.md):
 
 The temporary file lives next to the (resolved) target, named ``.NAME.XXXX.tmp``, and is removed on
 any failure. Inside :func:`output_batch` the renames wait until the batch ends, so the outputs of one
-command land together or none does.
+command land together or none does; a checkpoint (``atomic_write(..., immediate=True)``: the sweep file,
+written as a sweep goes so that an interrupted one can be resumed) is renamed at once, and the batch
+lists it in ``kept``. A folder output (a ROS 2 bag) goes the same way through :func:`atomic_write_dir`:
+built in a temporary folder, renamed into place with the batch; it never replaces anything.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import contextvars
 import json
 import math
 import os
+import shutil
 import stat
 import tempfile
 from pathlib import Path
@@ -32,7 +36,7 @@ import numpy as np
 from kinredund.errors import KinredundError, OutputPathError
 
 #: the renames waiting for the end of the innermost :func:`output_batch` (None outside one)
-_BATCH: contextvars.ContextVar[list | None] = contextvars.ContextVar("kinredund_output_batch", default=None)
+_BATCH: contextvars.ContextVar[Batch | None] = contextvars.ContextVar("kinredund_output_batch", default=None)
 
 
 def _kind(mode: int) -> str:
@@ -82,37 +86,109 @@ def check_output_path(path) -> Path:
     return target
 
 
+class Batch:
+    """The outputs of one :func:`output_batch`: ``staged`` (temporary, target) renames waiting for its end,
+    ``kept`` the checkpoints already renamed into place (they stay whatever happens)."""
+
+    def __init__(self):
+        self.staged: list[tuple[str, Path]] = []
+        self.kept: list[Path] = []
+
+
 @contextlib.contextmanager
 def output_batch():
     """Within it, :func:`atomic_write` writes each file's temporary and renames them all when the block
     ends without an exception; on an exception (KeyboardInterrupt included) every temporary is removed
-    and no output appears. Files already written before the batch are untouched either way.
+    and no output appears but the checkpoints (``immediate=True``), which the yielded :class:`Batch`
+    lists in ``kept``. Files already written before the batch are untouched either way.
     """
-    staged: list[tuple[str, Path]] = []
-    token = _BATCH.set(staged)
+    batch = Batch()
+    token = _BATCH.set(batch)
     try:
-        yield
+        yield batch
     except BaseException:
-        for tmp, _ in staged:
+        for tmp, _ in batch.staged:
             _remove(tmp)
         raise
     finally:
         _BATCH.reset(token)
-    for k, (tmp, target) in enumerate(staged):
+    for k, (tmp, target) in enumerate(batch.staged):
         try:
-            os.replace(tmp, target)
+            _rename(tmp, target)
         except OSError as err:
-            for later, _ in staged[k:]:
+            for later, _ in batch.staged[k:]:
                 _remove(later)
             raise OutputPathError(target, err.strerror or str(err)) from err
 
 
+def _rename(tmp: str, target: Path) -> None:
+    """A file replaces its target; a folder (a temporary folder holding it) takes a path that is free."""
+    if not os.path.isdir(tmp):
+        os.replace(tmp, target)
+        return
+    if os.path.lexists(target):
+        raise FileExistsError(17, "it appeared while the output was written: not replacing it")
+    os.rename(os.path.join(tmp, target.name), target)
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
 def _remove(tmp: str) -> None:
+    if os.path.isdir(tmp):
+        shutil.rmtree(tmp, ignore_errors=True)
+        return
     with contextlib.suppress(FileNotFoundError):
         os.unlink(tmp)
 
 
-def atomic_write(path: Path, write, mode: str = "w") -> Path:
+def _stage(tmp: str, target: Path, immediate: bool = False) -> None:
+    """Rename now (outside a batch, or a checkpoint) or when the batch ends (the last write of a path wins)."""
+    batch = _BATCH.get()
+    if batch is None or immediate:
+        _rename(tmp, target)
+        if batch is not None and target not in batch.kept:
+            batch.kept.append(target)
+        return
+    for earlier in [entry for entry in batch.staged if entry[1] == target]:
+        _remove(earlier[0])
+        batch.staged.remove(earlier)
+    batch.staged.append((tmp, target))
+
+
+def check_new_folder(path) -> Path:
+    """``path`` as a Path if nothing exists there (a folder output never replaces anything), else
+    OutputPathError."""
+    path = Path(path)
+    if not str(path).strip():
+        raise OutputPathError(path, "the path is empty")
+    if path.exists() or path.is_symlink():
+        raise OutputPathError(path, "it exists already: give a new folder (a folder output is never overwritten)")
+    check_output_path(path)  # a path under a file is refused here
+    return path
+
+
+def atomic_write_dir(path, build) -> Path:
+    """Write a folder output: ``build(folder)`` fills a fresh ``folder`` (a path inside a temporary folder
+    next to ``path``, not created yet), which is then renamed to ``path`` (inside :func:`output_batch`, when
+    the batch ends). ``path`` must not exist (:func:`check_new_folder`); on any failure nothing is left."""
+    path = check_new_folder(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as err:
+        raise OutputPathError(path, err.strerror or str(err)) from err
+    try:
+        build(Path(tmp) / path.name)
+        _stage(tmp, path)
+    except OSError as err:
+        _remove(tmp)
+        raise OutputPathError(path, err.strerror or str(err)) from err
+    except BaseException:
+        _remove(tmp)
+        raise
+    return path
+
+
+def atomic_write(path: Path, write, mode: str = "w", *, immediate: bool = False) -> Path:
     """Write a file through a temporary file and a rename, so no reader sees it half-written.
 
     Args:
@@ -120,6 +196,7 @@ def atomic_write(path: Path, write, mode: str = "w") -> Path:
             may be (:func:`check_output_path`).
         write: called with the open temporary file object.
         mode: ``"w"`` (text, UTF-8) or ``"wb"`` (binary).
+        immediate: a checkpoint: renamed at once even inside :func:`output_batch` (listed in its ``kept``).
 
     Returns:
         ``path`` (as given: a symlink stays the path returned, its target is what is written).
@@ -145,14 +222,7 @@ def atomic_write(path: Path, write, mode: str = "w") -> Path:
             os.umask(umask)
             perms = 0o666 & ~umask  # mkstemp creates 0600; give a new file the usual permissions
         os.chmod(tmp, perms)
-        staged = _BATCH.get()
-        if staged is None:
-            os.replace(tmp, target)
-        else:
-            for earlier in [entry for entry in staged if entry[1] == target]:  # the last write of a path wins
-                _remove(earlier[0])
-                staged.remove(earlier)
-            staged.append((tmp, target))
+        _stage(tmp, target, immediate)
     except OSError as err:
         _remove(tmp)
         raise OutputPathError(path, err.strerror or str(err)) from err
@@ -197,14 +267,21 @@ def write_json(path: str | Path, obj, indent: int | None = None) -> Path:
     return path
 
 
-def read_json_object(path: str | Path) -> dict:
-    """The JSON object in ``path``; KinredundError (naming the file) if unreadable, not JSON or not an object."""
+def read_text(path: str | Path) -> str:
+    """The UTF-8 text of ``path``; KinredundError (naming the file) if it cannot be read or is not UTF-8."""
     try:
-        data = json.loads(Path(path).read_bytes().decode("utf-8"))
+        return Path(path).read_bytes().decode("utf-8")
     except OSError as err:
         raise KinredundError(f"cannot read {path}: {err.strerror}") from err
     except UnicodeDecodeError as err:
         raise KinredundError(f"{path} is not UTF-8 text (byte {err.start}): a JSON file must be UTF-8") from err
+
+
+def read_json_object(path: str | Path) -> dict:
+    """The JSON object in ``path``; KinredundError (naming the file) if unreadable, not JSON or not an object."""
+    text = read_text(path)
+    try:
+        data = json.loads(text)
     except json.JSONDecodeError as err:
         raise KinredundError(f"{path} is not valid JSON: {err}") from err
     except RecursionError as err:

@@ -108,6 +108,25 @@ def test_a_failed_bag_write_leaves_nothing(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_bag_lands_with_the_other_outputs_of_its_batch(tmp_path):
+    """A bag written inside an output batch (as every CLI command runs) appears when the batch ends, with the
+    batch's files, and not at all when it is interrupted (kinredund.io.atomic_write_dir)."""
+    from kinredund.io import output_batch, write_json
+
+    bag, other = tmp_path / "bag", tmp_path / "run.json"
+    with pytest.raises(KeyboardInterrupt), output_batch():
+        write_bag(samples(), bag)
+        write_json(other, {"a": 1})
+        assert not bag.exists() and not other.exists()  # staged
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []  # nothing, no temporary left
+    with output_batch():
+        write_bag(samples(), bag)
+        assert not bag.exists()
+    assert read_bag(bag).equal_to(samples()) <= 1e-12  # times are whole nanoseconds
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
+
+
 def test_files_that_are_not_exports_are_refused(tmp_path):
     (tmp_path / "a.csv").write_text("time,x\n0,1\n")
     with pytest.raises(ExportError, match="not a kinredund CSV export"):

@@ -301,3 +301,12 @@ def test_a_record_of_a_relative_urdf_replays_from_another_folder(tmp_path, monke
     from kinredund.model.robot import load_robot
 
     assert load_robot(Trajectory.load_json(work / "rec.json").robot).nq == 3
+
+
+def test_a_sweep_file_that_is_not_utf8_is_a_named_error(tmp_path):
+    from kinredund.sweep import read_sweep_file
+
+    bad = tmp_path / "s.jsonl"
+    bad.write_bytes(b'{"kind": "\xff"}\n')
+    with pytest.raises(KinredundError, match="not UTF-8 text"):
+        read_sweep_file(bad)

@@ -205,8 +205,11 @@ def test_resuming_an_interrupted_sweep_gives_the_same_final_file(tmp_path):
         if done >= 6:
             raise KeyboardInterrupt
 
-    with pytest.raises(KeyboardInterrupt):
+    from kinredund.io import output_batch
+
+    with pytest.raises(KeyboardInterrupt), output_batch() as batch:  # as the CLI runs it: outputs batched
         run_panda(placements, workers=0, batch_size=2, out=part, progress=interrupt)
+    assert batch.kept == [part]  # the sweep file is a checkpoint: it lands as the sweep goes, not with the batch
     head, kept = read_sweep_file(part)
     assert [r.placement for r in kept] == list(range(6))  # the partial file: what was done, in order
     partial_lines = part.read_text().splitlines()

@@ -14,14 +14,12 @@ leaves nothing, and a destination that exists is refused before anything is writ
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from kinredund.export.samples import ExportError, JointSamples
+from kinredund.io import atomic_write_dir
 from kinredund.trajectory import Trajectory
 
 MSGTYPE = "trajectory_msgs/msg/JointTrajectory"
@@ -54,6 +52,14 @@ def _message(samples: JointSamples, store):
     return types[MSGTYPE](header=header, joint_names=list(samples.joint_names), points=points)
 
 
+def check_new_bag(folder: str | Path) -> Path:
+    """``folder`` as a Path if nothing is there yet, else ExportError (a bag is never overwritten)."""
+    folder = Path(folder)
+    if folder.exists() or folder.is_symlink():
+        raise ExportError(f"the bag folder {folder} exists already: give a new folder (a bag is never overwritten)")
+    return folder
+
+
 def write_bag(data: JointSamples | Trajectory, folder: str | Path, joint_names=None,
               topic: str = DEFAULT_TOPIC) -> Path:
     """Write the samples (or a record's) as a ROS 2 bag folder; return the folder.
@@ -63,23 +69,17 @@ def write_bag(data: JointSamples | Trajectory, folder: str | Path, joint_names=N
     """
     from rosbags.rosbag2 import Writer
 
-    folder = Path(folder)
-    if folder.exists() or folder.is_symlink():
-        raise ExportError(f"the bag folder {folder} exists already: give a new folder (a bag is never overwritten)")
+    folder = check_new_bag(folder)
     samples = data.checked() if isinstance(data, JointSamples) else JointSamples.from_trajectory(data, joint_names)
     store = _typestore()
     raw = store.serialize_cdr(_message(samples, store), MSGTYPE)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}.", suffix=".tmp"))
-    try:
-        with Writer(tmp / folder.name, version=BAG_VERSION) as writer:
+
+    def build(path: Path) -> None:
+        with Writer(path, version=BAG_VERSION) as writer:
             conn = writer.add_connection(topic, MSGTYPE, typestore=store)
             writer.write(conn, 0, raw)
-        if folder.exists():
-            raise ExportError(f"the bag folder {folder} appeared while writing: not overwriting it")
-        os.rename(tmp / folder.name, folder)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+
+    atomic_write_dir(folder, build)  # with the command's other outputs (kinredund.io.output_batch)
     return folder
 
 

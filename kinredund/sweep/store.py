@@ -2,7 +2,7 @@
 
 A file whose name ends in ``.jsonl`` holds the header object on its first line and one record per
 line after it; any other name holds ``{"sweep": header, "records": [...]}``. Records are in placement
-order. The file is rewritten whole through :func:`kinredund.io.atomic_write_text` each time (no reader
+order. The file is rewritten whole through :func:`kinredund.io.atomic_write` each time (no reader
 ever sees half a file), so a partial file is a valid file with fewer records, and resuming from it and
 finishing gives the same bytes as an uninterrupted sweep.
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import KinredundError
-from kinredund.io import atomic_write_text
+from kinredund.io import atomic_write, read_text
 from kinredund.sweep.record import PlacementRecord
 
 KIND = "kinredund-sweep"
@@ -27,7 +27,10 @@ def _dumps(obj) -> str:
 
 
 def write_sweep_file(path: str | Path, header: dict, records) -> Path:
-    """Write ``header`` and ``records`` (in the order given) to ``path`` atomically; return the path."""
+    """Write ``header`` and ``records`` (in the order given) to ``path`` atomically; return the path.
+
+    A checkpoint: renamed into place at once even inside a command's output batch
+    (:func:`kinredund.io.atomic_write` with ``immediate``), so an interrupted sweep can be resumed."""
     path = Path(path)
     rows = [r.to_json_dict() for r in records]
     head = {"kind": KIND, "schema_version": SCHEMA_VERSION, **header}
@@ -35,17 +38,14 @@ def write_sweep_file(path: str | Path, header: dict, records) -> Path:
         text = "".join(_dumps(x) + "\n" for x in [head, *rows])
     else:
         text = _dumps({"sweep": head, "records": rows}) + "\n"
-    atomic_write_text(path, text)
+    atomic_write(path, lambda fh: fh.write(text), immediate=True)
     return path
 
 
 def read_sweep_file(path: str | Path) -> tuple[dict, list[PlacementRecord]]:
     """(header, records) of a sweep file; KinredundError (naming the file) if it is not one."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise KinredundError(f"cannot read {path}: {err.strerror}") from err
+    text = read_text(path)
     try:
         if path.suffix == ".jsonl":
             lines = [json.loads(line) for line in text.splitlines() if line.strip()]

@@ -332,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: the options that name an output file; every one is checked before any work (kinredund.io.check_output_path)
-OUTPUT_OPTIONS = ("json", "plot", "html", "csv", "partial")  # --bag is a folder: kinredund.ui.cli_retime checks it
+OUTPUT_OPTIONS = ("json", "plot", "html", "csv", "partial")  # --bag is a new folder: cli_retime checks it
 #: 128 + the signal number, as a shell reports a process ended by SIGINT or SIGPIPE
 EXIT_SIGINT, EXIT_SIGPIPE = 130, 141
 
@@ -382,13 +382,14 @@ def main(argv: list[str] | None = None) -> int:
     """
     from kinredund.io import output_batch
 
+    batch = None
     try:
         args = build_parser().parse_args(argv)
         _check_outputs(args)
         if args.command == "demo":
             code = args.func(args)
         else:
-            with output_batch():
+            with output_batch() as batch:
                 code = args.func(args)
         sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
         return code
@@ -396,7 +397,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"kinredund: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("kinredund: interrupted; no output file was written", file=sys.stderr)
+        kept = [] if batch is None else batch.kept  # checkpoints (a sweep file) stay, to be resumed
+        print("kinredund: interrupted; " + (f"kept {', '.join(map(str, kept))} (written as the run went: resume "
+              "from it)" if kept else "no output file was written"), file=sys.stderr)
         return EXIT_SIGINT
     except BrokenPipeError:
         _quiet_stdout()

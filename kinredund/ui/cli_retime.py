@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import KinredundError
+from kinredund.export.rosbag import check_new_bag
 from kinredund.ui.options import at_least, subcommand
 
 RETIME_HELP = """Retime a tracking record (kinredund track --json) under joint speed and acceleration limits:
@@ -32,13 +33,6 @@ def _limit(text: str) -> float | np.ndarray:
     if not values:
         raise argparse.ArgumentTypeError(f"expected a number or comma-separated numbers, got {text!r}")
     return values[0] if len(values) == 1 else np.array(values)
-
-
-def _refuse_existing_bag(bag: Path | None) -> None:
-    if bag is not None and (bag.exists() or bag.is_symlink()):
-        from kinredund.export import ExportError
-
-        raise ExportError(f"the bag folder {bag} exists already: give a new folder (a bag is never overwritten)")
 
 
 def _write_outputs(traj, names, args) -> None:
@@ -59,7 +53,8 @@ def _cmd_retime(args) -> int:
     from kinredund.retime.time_law import sample_ratios
     from kinredund.trajectory import Trajectory
 
-    _refuse_existing_bag(args.bag)
+    if args.bag is not None:
+        check_new_bag(args.bag)  # before any work
     traj = Trajectory.load_json(args.result)
     robot = load_robot(traj.robot, task=traj.task)
     limits = limits_for(robot, args.amax, velocity=args.vmax, jerk=args.jmax, tool_speed=args.tool_speed)
@@ -99,7 +94,8 @@ def _cmd_export(args) -> int:
 
     if args.csv is None and args.bag is None:
         raise KinredundError("say what to write: --csv FILE and/or --bag FOLDER")
-    _refuse_existing_bag(args.bag)
+    if args.bag is not None:
+        check_new_bag(args.bag)  # before any work
     traj = Trajectory.load_json(args.result)
     _write_outputs(traj, load_robot(traj.robot, task=traj.task).joint_names, args)
     return 0
