@@ -176,16 +176,23 @@ def atomic_write_dir(path, build) -> Path:
         tmp = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as err:
         raise OutputPathError(path, err.strerror or str(err)) from err
-    try:
+    with _removed_on_failure(tmp, path):
         build(Path(tmp) / path.name)
         _stage(tmp, path)
+    return path
+
+
+@contextlib.contextmanager
+def _removed_on_failure(tmp: str, path: Path):
+    """Remove the temporary ``tmp`` if the block fails; a file-system error becomes OutputPathError(path)."""
+    try:
+        yield
     except OSError as err:
         _remove(tmp)
         raise OutputPathError(path, err.strerror or str(err)) from err
     except BaseException:
         _remove(tmp)
         raise
-    return path
 
 
 def atomic_write(path: Path, write, mode: str = "w", *, immediate: bool = False) -> Path:
@@ -212,7 +219,7 @@ def atomic_write(path: Path, write, mode: str = "w", *, immediate: bool = False)
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
     except OSError as err:
         raise OutputPathError(path, err.strerror or str(err)) from err
-    try:
+    with _removed_on_failure(tmp, path):
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if "b" not in mode else {})) as fh:
             write(fh)
         try:
@@ -223,12 +230,6 @@ def atomic_write(path: Path, write, mode: str = "w", *, immediate: bool = False)
             perms = 0o666 & ~umask  # mkstemp creates 0600; give a new file the usual permissions
         os.chmod(tmp, perms)
         _stage(tmp, target, immediate)
-    except OSError as err:
-        _remove(tmp)
-        raise OutputPathError(path, err.strerror or str(err)) from err
-    except BaseException:
-        _remove(tmp)
-        raise
     return path
 
 
