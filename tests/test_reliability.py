@@ -267,8 +267,7 @@ def test_an_index_unbounded_below_does_not_return_a_point_worse_than_its_seed():
         res = solve_ik(r, r.fk(q0)[:3, 3], neg, q0=q0)
         # on the target (the seed is, exactly) and no higher z than the seed; not converged: there is no minimum
         assert res.residual < IK_TOL and res.objective <= neg.value(q0)
-        if not res.converged:
-            assert "bounded below" in res.reason and "out of reach" not in res.reason
+        assert not res.converged and "bounded below" in res.reason and "out of reach" not in res.reason
 
 
 def test_an_index_that_turns_nan_is_reported_not_silent():

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from kinredund.errors import PathError, SingularityError
+from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.tracking.failure import start_failure
 from kinredund.tracking.linalg import hermite_weights, lu_solve
 from kinredund.tracking.point import Evaluator, Point
@@ -55,6 +55,8 @@ class PredictorCorrector(Stepper):
                 if self.control.start_verdict() is not None:  # a saddle or maximum of z, or a singular start
                     raise SingularityError(f"the corrected start is not a regular constrained minimum "
                                            f"({self.control.start_verdict()})")
+        except TrackingError:  # already named (a subclass of both below: not to be renamed as a start failure)
+            raise
         except (PathError, SingularityError) as err:
             if not strict:
                 raise

@@ -64,7 +64,6 @@ class StepControl:
 
     Attributes:
         watch: the :class:`~kinredund.tracking.watch.Watch`.
-        substepped: the requested times whose step needed sub-steps [s].
         floor: the smallest sub-step [s].
     """
 
@@ -72,7 +71,6 @@ class StepControl:
         self.s = stepper
         self.watch = Watch()
         self.floor = stepper.dt / 2**MAX_HALVINGS
-        self.substepped: list[float] = []
         s = stepper
         self._sub = getattr(s, "_snapshot", None)
         sigma, eig = self.watch.measure(s.pt.J, s.M, getattr(s, "_lu", None), getattr(s, "fixed", None))
@@ -170,7 +168,6 @@ class StepControl:
 
     def _substeps(self, snap_step: dict, t_to: float, reason) -> None:
         s = self.s
-        self.substepped.append(t_to)
         s.prev.clear()  # the Hermite history does not fit sub-steps: Euler, as after a jump
         t, h, t_tried = snap_step["t"], 0.5 * s.dt, t_to
         while t_to - t > 1e-12 * s.dt:

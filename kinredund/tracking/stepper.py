@@ -97,10 +97,6 @@ class Stepper:
             return self.pt
         return self.ev.point(self.q, self.t, need_dJ=False)
 
-    def lam_full(self) -> np.ndarray:
-        """lambda in the closure 7-vector's coordinates (augmented pose task), else lambda itself."""
-        return self.pt.basis @ self.lam if self.pt.basis is not None else self.lam
-
     # -- the optimal schemes' rates (Eq. 4.24) ----------------------------------------------------
     def _solve_rates(self, pt: Point, xdot: np.ndarray) -> None:
         """Solve Eq. (4.24) at pt for the rates with the current lambda (LU of R, or the QP of Eq. 4.28)."""

@@ -205,12 +205,6 @@ class Watch:
                 return kind
         return None
 
-    def values(self) -> dict:
-        """The newest measurement as the error's ``watched`` entries."""
-        if not self.times:
-            return {}
-        return {"sigma_min_J": self.sigma[-1], "reduced_hessian_min": self.eig[-1], "watched_at": self.times[-1]}
-
 
 def _keep(times: list[float], t: float, values: list[float], v: float) -> None:
     if times and times[-1] == t:  # a second measurement at the same time (exact after estimated) replaces it
