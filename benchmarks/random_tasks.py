@@ -18,8 +18,7 @@ Methods, all from the same start q0 = ``circles.start_of(robot, task, S + i)``, 
 ``solve_ik(robot, pose(0), z, bounds=True, starts=16, seed=S + i)`` for task i (the within-limits
 optimum at t = 0):
 
-- ``strict``: ``kinredund.track(robot, path, z, q0, steps_per_loop=200, loops=2)``, with ``limits=True``
-  when the installed tracker takes it (reported in the settings);
+- ``strict``: ``kinredund.track(robot, path, z, q0, steps_per_loop=200, loops=2, limits=True)``;
 - ``planner``: ``kinredund.planning.cyclic.plan(robot, path, z)`` (24 samples, its defaults). On a
   Frenet circle the orientation turns once per loop, a loop of SO(3) no within-limits joint path can
   follow and close (``kinredund.planning.topology``): the planner says so at once (cause
@@ -47,7 +46,6 @@ loaded machine are noisy.
 
 from __future__ import annotations
 
-import inspect
 import time
 from collections import Counter
 
@@ -73,10 +71,6 @@ ON_PATH_TOL = 1e-6  # [m]
 POSTURE_COST = 1e-3
 PINK_CLOSURE_TOL = 1e-2  # [rad]: pink tracks to ~1e-5 m without feed-forward; its joints drift by more
 MAX_DRAWS = 50  # draws per task before giving up on finding a reachable one
-
-
-def _tracker_limits() -> dict:
-    return {"limits": True} if "limits" in inspect.signature(track).parameters else {}
 
 
 def _figures(method, robot, path, t, q, completed: bool, cause: str = "", t_fail=None, q_fail=None) -> dict:
@@ -107,7 +101,7 @@ def _figures(method, robot, path, t, q, completed: bool, cause: str = "", t_fail
 def run_strict(robot, path, index, q0) -> dict:
     try:
         tr = track(robot, path, index, q0, steps_per_loop=STEPS_PER_LOOP, loops=LOOPS, diagnostics=False,
-                   **_tracker_limits())
+                   limits=True)
     except KinredundError as err:
         cause = getattr(err, "cause", None) or type(err).__name__
         q = getattr(err, "q", None)
@@ -280,7 +274,7 @@ def main() -> None:
     print(f"whole run: {wall:.1f} s")
     write_json(args.json, {"results": results, "wall_s": wall,
                            "settings": {"n": args.n, "seed": args.seed, "steps_per_loop": STEPS_PER_LOOP,
-                                        "loops": LOOPS, "strict_limits": bool(_tracker_limits()),
+                                        "loops": LOOPS, "strict_limits": True,
                                         "posture_cost": POSTURE_COST, "pink_solver": "daqp"}})
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from kinredund.errors import PathError, check_array
 from kinredund.paths import Path
-from kinredund.tasks import orientation_error
+from kinredund.tasks import get_task, orientation_error
 
 #: a step is a jump when its joint change exceeds this multiple of its neighbours' largest change
 JUMP_FACTOR = 4.0
@@ -40,7 +40,8 @@ class MotionCheck:
         limit_violation: the largest excursion beyond a joint limit over all recorded points [rad or m]
             (0.0 when every point is inside).
         position_error_max: max |p(q) - p_d(t)| with the robot's FK [m].
-        orientation_error_max: max angle of Q_d^T Q(q) [rad] (0.0 for position tasks).
+        orientation_error_max: max angle of Q_d^T Q(q) (pose tasks), of the tool axis (axis tasks) [rad];
+            0.0 for tasks without orientation.
         closure: max |q(kT) - q(0)| after each complete loop k = 1, 2, ... [rad or m], raw joint values
             (no wrapping: a motion inside limits narrower than a turn cannot gain one).
         step_max: the largest joint change of one step, max_k ||q_{k+1} - q_k|| [rad].
@@ -80,18 +81,24 @@ def limit_excursion(robot, q) -> np.ndarray:
 def task_errors(robot, path: Path, t, q) -> tuple[np.ndarray, np.ndarray]:
     """(position error [m], orientation error [rad]) of each (t_k, q_k) with the robot's own FK.
 
-    The orientation error is the angle of Q_d^T Q; zeros for a path without orientation.
+    The errors are the robot's task's own (:meth:`kinredund.tasks.Task.errors_many`: a planar task
+    compares x and y only); the orientation error is the angle of Q_d^T Q for a pose task, the tool
+    axis's angle for an axis task, zeros for a task without orientation.
     """
     t = np.asarray(t, float)
     q = np.atleast_2d(np.asarray(q, float))
-    pos, ang = np.zeros(len(t)), np.zeros(len(t))
-    for k, (tk, qk) in enumerate(zip(t, q, strict=True)):
-        T = robot.fk(qk)
-        s = path(float(tk))
-        pos[k] = float(np.linalg.norm(T[:3, 3] - s.p))
-        if robot.task == "pose" and s.Q is not None:
-            ang[k] = orientation_error(T[:3, :3], s.Q)
-    return pos, ang
+    task = get_task(robot.task)
+    T = np.array([robot.fk(qk) for qk in q])
+    samples = [path(float(tk)) for tk in t]
+    Q, Q_d = T[:, :3, :3], np.array([s.Q for s in samples]) if task.has_orientation else None
+    errors = task.errors_many(Q, T[:, :3, 3], Q_d, np.array([s.p for s in samples]))
+    if "axis_error" in errors:
+        ang = errors["axis_error"]
+    elif Q_d is not None:
+        ang = np.array([orientation_error(a, b) for a, b in zip(Q, Q_d, strict=True)])
+    else:
+        ang = np.zeros(len(t))
+    return errors["position_error"], ang
 
 
 def joint_jumps(q) -> tuple[float, float, tuple[int, ...]]:
