@@ -158,17 +158,6 @@ def _plan(case: str, args, label: str) -> int:
     return EXIT_OK
 
 
-def _index_for(robot, name: str):
-    """The index named by --index (argparse restricts ``name`` to home, min-norm and mid-range)."""
-    from kinredund import indices
-
-    if name == "min-norm":
-        return indices.minimum_norm(robot.nq)
-    if name == "mid-range":
-        return indices.mid_range(robot.lower, robot.upper)
-    return indices.JointDeviation(robot.home)
-
-
 def _path_for(args, robot, q_start: np.ndarray):
     """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
 
@@ -214,7 +203,7 @@ def _cmd_track(args) -> int:
         seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
         path, duration = _path_for(args, robot, seed_q)
         # the baselines ignore the index while they step; their normality residual is measured against it
-        index = _index_for(robot, args.index)
+        index = options.index_for(robot, args.index)
         s0 = path(0.0)
         target = get_task(robot.task).target_from_sample(s0)
         bar(0, 1, "the optimal start (IK)")
@@ -271,7 +260,7 @@ def _cmd_ik(args) -> int:
         target = (Q, args.target)  # what kinredund.tasks.make_target takes
     else:
         target = args.target
-    index = None if args.index == "none" else _index_for(robot, args.index)
+    index = None if args.index == "none" else options.index_for(robot, args.index)
     q0 = None if args.q0 is None else robot.check_q(args.q0, "--q0")
     res = solve_ik(robot, target, index, q0=q0, bounds=args.bounds, starts=args.starts, seed=args.seed)
     out = json_ready({"robot": robot.name, **dataclasses.asdict(res)})  # the IKResult's fields (docs/schema.md)

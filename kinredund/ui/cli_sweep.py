@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import KinredundError
-from kinredund.ui.options import at_least, subcommand
+from kinredund.ui.options import add_quiet, add_robot, at_least, index_for, subcommand, vector
+from kinredund.ui.progress import Progress
 
 GRID_HELP = ("the placements: x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw] - nx values from x0 to x1 [m] (both included), "
              "ny from y0 to y1 [m], nyaw yaws from yaw0 to yaw1 [deg] about the base z axis (default yaw 0); "
@@ -45,29 +46,16 @@ def parse_grid(text: str) -> dict:
     return axes
 
 
-def _numbers(text: str) -> np.ndarray:
-    try:
-        values = np.array([float(v) for v in text.replace(" ", "").split(",") if v])
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from err
-    if values.size == 0 or not np.all(np.isfinite(values)):
-        raise argparse.ArgumentTypeError(f"expected finite comma-separated numbers, got {text!r}")
-    return values
-
-
 def add_parser(sub) -> None:
     """Register the ``sweep`` subcommand on the subparsers ``sub`` of :func:`kinredund.ui.cli.build_parser`."""
     from kinredund.sweep.record import CRITERIA
-    from kinredund.tasks import task_names
 
     p = subcommand(sub, "sweep", "placement sweep: track a part's closed path at many part poses (Dask)",
                    "Track a closed path given in a part frame with the part at every placement of a grid; report "
                    "which placements are feasible and the best ones.",
                    ["kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --plot map.png",
                     "kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --json sweep.jsonl --resume"], run)
-    p.add_argument("robot", help="a robot name (see `kinredund robots`) or a URDF path")
-    p.add_argument("--ee-frame", help="the end-effector frame (default: the robot's)")
-    p.add_argument("--task", choices=task_names(), help="task kind (default: the robot's)")
+    add_robot(p)
     p.add_argument("--path", choices=("circle", "file"), default="circle",
                    help="circle: a circle about the part origin; file: a JSON path in part coordinates "
                         "(default: %(default)s)")
@@ -75,7 +63,7 @@ def add_parser(sub) -> None:
                    help="for --path file: JSON with 't' [s], 'p' [m], optionally 'Q' (default: none)")
     p.add_argument("--radius", type=float, default=0.1, help="circle radius [m] (default 0.1)")
     p.add_argument("--speed", type=float, default=0.1, help="circle speed [m/s] (default 0.1)")
-    p.add_argument("--normal", type=_numbers, help="circle normal in the part frame (default 0,0,1)")
+    p.add_argument("--normal", type=vector, help="circle normal in the part frame (default 0,0,1)")
     p.add_argument("--grid", type=parse_grid, required=True, help=GRID_HELP)
     p.add_argument("--z", type=float, help="the part origin's height [m] (default: the end effector's at home)")
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
@@ -103,14 +91,7 @@ def add_parser(sub) -> None:
     p.add_argument("--criterion", choices=tuple(CRITERIA), default="margin",
                    help="what ranks the feasible placements (default margin: farthest from the joint limits)")
     p.add_argument("--top", type=at_least(0), default=5, help="best placements to print (default 5)")
-
-
-def _index(robot, name: str):
-    from kinredund import indices
-
-    if name == "min-norm":
-        return indices.minimum_norm(robot.nq)
-    return indices.mid_range(robot.lower, robot.upper) if name == "mid-range" else indices.JointDeviation(robot.home)
+    add_quiet(p)
 
 
 def _part_path(args, robot):
@@ -128,24 +109,6 @@ def _part_path(args, robot):
     return part_circle(robot, args.radius, args.speed, normal=normal)
 
 
-class _Bar:
-    """tqdm as a ``progress(done, total)`` callback (quiet when standard error is not a terminal)."""
-
-    def __init__(self):
-        self.bar = None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.bar is None:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, desc="sweep", unit="placement", disable=None)
-        self.bar.update(done - self.bar.n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
 def run(args) -> int:
     """The ``sweep`` command; exit code 0 if some placement is feasible, else 1."""
     from kinredund.model.robot import load_robot
@@ -158,14 +121,11 @@ def run(args) -> int:
     placements = grid(x=args.grid["x"], y=args.grid["y"], z=z, yaw=args.grid["yaw"])
     if args.resume and args.json is None:
         raise KinredundError("--resume needs --json FILE (the sweep file to resume)")
-    bar = _Bar()
-    try:
-        records = sweep(robot, path, _index(robot, args.index), placements, steps_per_loop=args.steps,
+    with Progress("sweep", quiet=args.quiet) as bar:  # a bar on a terminal, a line every few seconds elsewhere
+        records = sweep(robot, path, index_for(robot, args.index), placements, steps_per_loop=args.steps,
                         loops=args.loops, limits=not args.no_limits, speed_limit=args.speed_limit,
                         starts=args.starts, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
                         batch_size=args.batch_size, out=args.json, resume=args.resume, progress=bar)
-    finally:
-        bar.close()
     causes = Counter(r.cause for r in records if not r.feasible)
     feasible = sum(r.feasible for r in records)
     print(f"{robot.name}: {len(records)} placements at z = {z:.3f} m, {feasible} feasible"

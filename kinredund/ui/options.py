@@ -47,7 +47,8 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
     """Descriptions and examples printed as written (their line breaks kept)."""
 
 
-def _vector(text: str) -> np.ndarray:
+def vector(text: str) -> np.ndarray:
+    """An argparse type: finite comma-separated numbers, as an array."""
     try:
         values = [float(v) for v in text.replace(" ", "").split(",") if v != ""]
     except ValueError as err:
@@ -97,10 +98,21 @@ def _add_outputs(p, *, html: bool = False, quiet: bool = False) -> None:
         p.add_argument("--html", type=Path, metavar="FILE",
                        help="write a standalone HTML replay that plays offline in a browser (default: not written)")
     if quiet:
-        _add_quiet(p)
+        add_quiet(p)
 
 
-def _add_robot(p) -> None:
+def index_for(robot, name: str):
+    """The index named by --index (argparse restricts ``name`` to home, min-norm and mid-range)."""
+    from kinredund import indices
+
+    if name == "min-norm":
+        return indices.minimum_norm(robot.nq)
+    if name == "mid-range":
+        return indices.mid_range(robot.lower, robot.upper)
+    return indices.JointDeviation(robot.home)
+
+
+def add_robot(p) -> None:
     p.add_argument("robot", help="a robot name (see `kinredund robots`) or the path of a URDF file")
     p.add_argument("--ee-frame", metavar="FRAME", help="the end-effector frame of a URDF (default: the robot's own)")
     p.add_argument("--task", choices=task_names(),
@@ -109,7 +121,7 @@ def _add_robot(p) -> None:
                         "robot's own task)")
 
 
-def _add_quiet(p) -> None:
+def add_quiet(p) -> None:
     p.add_argument("--quiet", action="store_true",
                    help="no progress on standard error (default: a bar on a terminal, else a line per stage "
                         "and every 5 s)")
@@ -145,7 +157,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                    help="output folder, created if needed (default: %(default)s)")
     p.add_argument("--quick", action="store_true", help="2 loops instead of 10 per example, for a quick check "
                    "(default: 10 loops)")
-    _add_quiet(p)
+    add_quiet(p)
 
     p = _sub(sub, commands, "reproduce", "reproduce a thesis example",
              "Reproduce one thesis example: 3.2 (closed-form IK along a helix), 4.1-4.3 (cyclic resolved-rate "
@@ -166,22 +178,22 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
              ["kinredund track panda --html panda.html",
               "kinredund track planar3r --path ellipse --radius 0.5 --loops 3 --plot joints.png",
               "kinredund track xarm7 --task position --scheme pseudoinverse --json run.json"])
-    _add_robot(p)
+    add_robot(p)
     p.add_argument("--path", choices=("circle", "ellipse", "file"), default="circle",
                    help="circle and ellipse start at the end effector's start pose; file reads --path-file "
                         "(default: %(default)s)")
     p.add_argument("--path-file", type=Path, metavar="FILE",
                    help="for --path file: JSON with 't' [s], 'p' [m] and optionally 'Q', 'closed' (true when "
                         "absent); times count from the first sample (default: none)")
-    p.add_argument("--center", type=_vector, metavar="X,Y[,Z]",
+    p.add_argument("--center", type=vector, metavar="X,Y[,Z]",
                    help="centre of the circle or ellipse [m] (default: --radius along -x from the start point)")
     p.add_argument("--radius", type=float, default=0.1, metavar="R",
                    help="radius of the circle, semi-major axis of the ellipse [m] (default: %(default)s)")
     p.add_argument("--speed", type=float, default=0.1, metavar="V",
                    help="speed along the path [m/s] (default: %(default)s)")
-    p.add_argument("--normal", type=_vector, metavar="X,Y,Z",
+    p.add_argument("--normal", type=vector, metavar="X,Y,Z",
                    help="normal of the circle's plane (default: 0,0,1, a horizontal circle)")
-    p.add_argument("--q0", type=_vector, metavar="Q1,Q2,...",
+    p.add_argument("--q0", type=vector, metavar="Q1,Q2,...",
                    help="a configuration near the start [rad, m for prismatic joints] (default: the robot's home)")
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
                    help="the performance index kept at its optimum: distance from home, joint norm, or distance "
@@ -204,15 +216,15 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
              ["kinredund ik planar3r --target 1.2,0.5 --index home",
               "kinredund ik panda --target 0.4,0.2,0.5 --rpy 3.1416,0,0 --bounds",
               "kinredund ik panda --target 0.4,0.2,0.5 --task position --index mid-range"])
-    _add_robot(p)
-    p.add_argument("--target", type=_vector, required=True, metavar="X,Y[,Z]",
+    add_robot(p)
+    p.add_argument("--target", type=vector, required=True, metavar="X,Y[,Z]",
                    help="the end-effector point: x,y for planar tasks, x,y,z otherwise [m] (required)")
-    p.add_argument("--rpy", type=_vector, metavar="R,P,Y",
+    p.add_argument("--rpy", type=vector, metavar="R,P,Y",
                    help="roll, pitch, yaw of the target orientation [rad], for pose tasks (default: none; "
                         "without it use --task position)")
     p.add_argument("--index", choices=("none", "home", "min-norm", "mid-range"), default="none",
                    help="the performance index to minimise; none: any solution (default: %(default)s)")
-    p.add_argument("--q0", type=_vector, metavar="Q1,Q2,...",
+    p.add_argument("--q0", type=vector, metavar="Q1,Q2,...",
                    help="the first start [rad, m for prismatic joints] (default: the robot's home)")
     p.add_argument("--bounds", action="store_true", help="respect the joint limits (default: unbounded)")
     p.add_argument("--starts", type=_COUNT, default=1, metavar="N",
