@@ -255,8 +255,11 @@ def verdict(results: dict) -> dict:
             for p in ("pink", "pink_proxqp", "pink_nolimits"):
                 if p in ok:
                     v[f"step_vs_{p}"] = a["step_us_median"] / ok[p]["step_us_median"]
-        if "augmented_limits" in ok and "pink" in ok:
-            v["limits_step_vs_pink"] = ok["augmented_limits"]["step_us_median"] / ok["pink"]["step_us_median"]
+        for ours in ("augmented_limits", "velocity_limits"):  # the limits held, against pink with and without its
+            for p, key in (("pink", "vs_pink"), ("pink_nolimits", "vs_pink_nolimits")):
+                if ours in ok and p in ok:
+                    name = "limits_step" if ours == "augmented_limits" else "velocity_limits_step"
+                    v[f"{name}_{key}"] = ok[ours]["step_us_median"] / ok[p]["step_us_median"]
         out[variant] = v
     return out
 

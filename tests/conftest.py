@@ -56,17 +56,24 @@ def assert_ik_converged(r: kinredund.Robot, target, res, tol: float = IK_TOL) ->
 
     ``converged`` means the solver's residual and normality residual passed its test at ``tol``. Checked
     independently: a fresh forward kinematics pass puts the end point within ``tol`` of the target (the
-    position error is a part of the residual) plus the rounding of that pass.
+    position error is a part of the residual) plus the rounding of that pass; for a pose target the whole
+    closure 7-vector (Eq. 2.13, the residual the solver reports) recomputed from that pass is within ``tol``.
     """
+    from kinredund.kinematics import closure
+
     assert res.converged, res.reason
     T = r.fk(res.q)
+    Q_d = None
     if isinstance(target, tuple):
-        p_d = np.asarray(target[1], dtype=float)
+        Q_d, p_d = np.asarray(target[0], dtype=float), np.asarray(target[1], dtype=float)
     else:
         target = np.asarray(getattr(target, "vector", target), dtype=float)
-        p_d = target[:3, 3] if target.shape == (4, 4) else target
+        Q_d, p_d = (target[:3, :3], target[:3, 3]) if target.shape == (4, 4) else (None, target)
     err = float(np.linalg.norm(T[: p_d.size, 3] - p_d))
     assert err <= tol + rounding(float(np.abs(p_d).max())), f"position error {err:.3g} m"
+    if Q_d is not None and Q_d.shape == (3, 3):
+        c = float(np.linalg.norm(closure.closure_vector(T[:3, :3], T[:3, 3], Q_d, p_d)))
+        assert c <= tol + rounding(float(np.abs(p_d).max())), f"closure residual {c:.3g}"
 
 
 #: what the tracker's default mode holds the task and the normality condition to [m, task units]: its

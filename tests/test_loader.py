@@ -458,13 +458,18 @@ def test_a_relative_urdf_path_is_stored_absolute_and_a_file_named_like_an_arm_ke
 
 
 def test_section_6_3_arm_loads_by_name_and_equals_the_planner_s():
-    """`cybotech_p15_x8` (the 6.3 records' robot) reloads by name: the same table as the planner's arm."""
+    """`cybotech_p15_x8` (the 6.3 records' robot) reloads by name: the planner's arm, and Table 4.1 with
+    every length times 8 (checked against the table itself, not against the function that scales it)."""
+    from kinredund.model.catalog import cybotech_p15
     from kinredund.planning.spatial import scaled_p15
 
-    r, ref = load_robot("cybotech_p15_x8"), scaled_p15()
+    r, ref, table = load_robot("cybotech_p15_x8"), scaled_p15(), cybotech_p15()
     assert r.name == ref.name and r.task == "position" and "cybotech_p15_x8" in kinredund.known_robots()
+    assert np.array_equal(r.hd.alpha, table.alpha)  # copied, not computed
+    assert np.abs(r.hd.a - 8.0 * np.asarray(table.a)).max() <= 1e-15 * max(1.0, np.abs(r.hd.a).max())
+    assert np.abs(r.hd.b - 8.0 * np.asarray(table.b)).max() <= 1e-15 * max(1.0, np.abs(r.hd.b).max())
     rng = np.random.default_rng(3)
     for q in (r.random_configuration(rng) for _ in range(3)):
-        assert np.abs(r.fk(q) - ref.fk(q)).max() < 1e-14  # the same HD table, the same model
+        assert np.abs(r.fk(q) - ref.fk(q)).max() < 1e-14  # the planner's arm is this model
     with pytest.raises(kinredund.ChoiceError):
         load_robot("cybotech_p15_x8", joints=["j1"])

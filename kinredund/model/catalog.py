@@ -117,8 +117,11 @@ def cybotech_p15_scaled(scale: float, *, last_link: float | None = None, lower=N
                    notes=f"Table 4.1 (CYBOTECH P-15) with every length times {scale:g} (Section 6.3)")
 
 
+#: the scale of Table 4.1's lengths adopted for Section 6.3 (:func:`kinredund.planning.spatial.scaled_p15`)
+P15_SCALE = 8.0
+
 #: robots built from an HD table alone (no URDF file), by name: (table, default task, note)
 TABLE_ROBOTS = {
-    "cybotech_p15_x8": (lambda: cybotech_p15_scaled(8.0), "position",
+    "cybotech_p15_x8": (lambda: cybotech_p15_scaled(P15_SCALE), "position",
                         "thesis robot: Section 6.3's P-15, every length x8 (HD table)"),
 }

@@ -48,7 +48,8 @@ _UNBOUNDED = 1e10
 
 
 def known_robots() -> list[str]:
-    """Every name :func:`load_robot` accepts: the thesis's robots, then the example-robot-data arms."""
+    """Every name :func:`load_robot` accepts: the thesis's robots (shipped URDFs, then HD-table robots such
+    as ``cybotech_p15_x8``), then the example-robot-data arms."""
     return sorted(SHIPPED_TABLES) + sorted(TABLE_ROBOTS) + sorted(ERD_ARMS)
 
 

@@ -42,7 +42,7 @@ import math
 import numpy as np
 
 from kinredund.errors import TaskError, check_positive
-from kinredund.model.catalog import cybotech_p15_scaled
+from kinredund.model.catalog import P15_SCALE, cybotech_p15_scaled
 from kinredund.model.robot import Robot, robot_from_hd
 from kinredund.paths import FunctionPath
 from kinredund.planning.clearance import link_model
@@ -56,8 +56,6 @@ H = 1.278
 A = 0.508
 B = 0.25
 CENTER_XY = (1.9, 0.0)
-#: the scale of Table 4.1's lengths adopted for Section 6.3 (see :func:`scaled_p15`)
-P15_SCALE = 8.0
 
 
 def scaled_p15(scale: float = P15_SCALE, *, last_link: float | None = None, lower=None, upper=None,

@@ -56,7 +56,8 @@ def planar_setup(a: float = PLANAR_A, b: float = PLANAR_B):
 
 def case_setup(case: str) -> tuple[Robot, object, Obstacle]:
     """(robot, path, obstacle) of Section 6.2 or 6.3 (6.3: the scaled P-15 of
-    :func:`kinredund.planning.spatial.scaled_p15`, which :func:`kinredund.load_robot` cannot load by name).
+    :func:`kinredund.planning.spatial.scaled_p15`, which :func:`kinredund.load_robot` loads by name as
+    ``cybotech_p15_x8``).
 
     Raises:
         ChoiceError: an unknown case.
