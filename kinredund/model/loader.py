@@ -33,7 +33,7 @@ from kinredund.kinematics.state import Kinematics
 from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS, TABLE_ROBOTS
 from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.frames import resolve_frame
-from kinredund.model.robot import Robot, robot_from_hd, robot_revolute
+from kinredund.model.robot import NO_LIMIT, Robot, robot_from_hd, robot_revolute
 from kinredund.model.urdf import EE_FRAME, load_urdf
 from kinredund.tasks import get_task
 from kinredund.tasks.axis import frame_with_axis
@@ -44,7 +44,6 @@ HOME_CONDITION = 0.05
 #: the number of seeded candidates :func:`choose_home` tries near the middle of the ranges
 HOME_CANDIDATES = 64
 #: limits beyond this are absent (continuous joints, +-1.8e308 defaults): a box of +-pi or +-1 m is used
-_UNBOUNDED = 1e10
 
 
 def known_robots() -> list[str]:
@@ -93,7 +92,7 @@ def shipped_robot_dir() -> Path:
 
 # -- joints: keep a chain, lock the rest --------------------------------------------------------------
 def _finite_mid(lo: float, hi: float) -> float:
-    if abs(lo) < _UNBOUNDED and abs(hi) < _UNBOUNDED:
+    if abs(lo) < NO_LIMIT and abs(hi) < NO_LIMIT:
         return 0.5 * (lo + hi)
     return float(np.clip(0.0, lo, hi))
 
@@ -245,8 +244,8 @@ def choose_home(model: pin.Model, frame_id: int, task: str, revolute: np.ndarray
     """
     lo, hi = np.array(model.lowerPositionLimit, float), np.array(model.upperPositionLimit, float)
     wide = np.where(revolute, np.pi, 1.0)
-    lo_box = np.where(np.abs(lo) < _UNBOUNDED, lo, np.maximum(lo, -wide))
-    hi_box = np.where(np.abs(hi) < _UNBOUNDED, hi, np.minimum(hi, wide))
+    lo_box = np.where(np.abs(lo) < NO_LIMIT, lo, np.maximum(lo, -wide))
+    hi_box = np.where(np.abs(hi) < NO_LIMIT, hi, np.minimum(hi, wide))
     mid = np.array([_finite_mid(a, b) for a, b in zip(lo, hi, strict=True)])
     kin = Kinematics(model, frame_id)
     if conditioning(kin, mid, task) >= HOME_CONDITION:

@@ -27,6 +27,10 @@ from kinredund.model.frames import resolve_frame
 from kinredund.model.urdf import EE_FRAME
 from kinredund.tasks import get_task
 
+#: a joint limit (or velocity limit) at or beyond this magnitude is no limit at all: Pinocchio's default is
+#: +-1.8e308, a continuous joint gets +-1e12 (``urdf.UNBOUNDED_LIMIT``)
+NO_LIMIT = 1e10
+
 _PRISMATIC_SHORTNAMES = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}
 
 
@@ -180,11 +184,11 @@ class Robot:
 
     def sample_box(self, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi): the box random configurations are drawn from. The joint limits, with unbounded
-        ones (beyond 1e10) cut to [-pi, pi] (revolute) or [-1, 1] m (prismatic), shrunk by ``margin``
+        ones (beyond :data:`NO_LIMIT`) cut to [-pi, pi] (revolute) or [-1, 1] m (prismatic), shrunk by ``margin``
         (a fraction of each range) at either end."""
         wide = np.where(self.revolute, np.pi, 1.0)
-        lo = np.where(self.lower > -1e10, self.lower, -wide)
-        hi = np.where(self.upper < 1e10, self.upper, wide)
+        lo = np.where(self.lower > -NO_LIMIT, self.lower, -wide)
+        hi = np.where(self.upper < NO_LIMIT, self.upper, wide)
         span = hi - lo
         return lo + margin * span, hi - margin * span
 

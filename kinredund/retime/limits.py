@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinredund.errors import KinredundError, check_positive
+from kinredund.model.robot import NO_LIMIT
 
 
 class RetimeError(KinredundError, ValueError):
@@ -86,10 +87,10 @@ def urdf_velocity_limits(robot) -> np.ndarray | None:
     """The robot's URDF velocity limits [rad/s or m/s], shape (n,), or None where the URDF has none.
 
     Pinocchio reads ``<limit velocity=...>`` into ``model.velocityLimit``; a joint without it gets 0 or
-    an effectively infinite value (>= 1e10), which is no limit at all.
+    an effectively infinite value (>= :data:`~kinredund.model.robot.NO_LIMIT`), which is no limit at all.
     """
     v = np.array(robot.model.velocityLimit, dtype=float)
-    if v.shape != (robot.nq,) or not np.all(np.isfinite(v)) or np.any(v <= 0) or np.any(v >= 1e10):
+    if v.shape != (robot.nq,) or not np.all(np.isfinite(v)) or np.any(v <= 0) or np.any(v >= NO_LIMIT):
         return None
     return v
 

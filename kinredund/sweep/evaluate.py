@@ -22,19 +22,18 @@ import numpy as np
 from kinredund.errors import KinredundError, PathError, SingularityError, check_choice, check_count, check_positive
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index
-from kinredund.model.robot import Robot
+from kinredund.model.robot import NO_LIMIT, Robot
 from kinredund.paths import Path
 from kinredund.sweep.placement import PartPath, pose_coordinates
 from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks import get_task
 from kinredund.tracking import MODES, SCHEMES, track
+from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.trajectory import Trajectory
 
 #: a joint counts as outside its limits beyond this [rad or m]: round-off of a tracker that holds them
 #: (its steps land on a bound to ~1e-12), far below any physical margin
 LIMIT_TOL = 1e-9
-#: joint limits beyond this are "unbounded" (Pinocchio's default +-1.8e308) and give no margin
-UNBOUNDED = 1e10
 
 
 @dataclass(frozen=True)
@@ -119,11 +118,11 @@ def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> 
     first recorded point outside the limits by more than :data:`LIMIT_TOL`.
     """
     q, t = np.asarray(traj.q, float), np.asarray(traj.t, float)
-    lo, hi = robot.lower, robot.upper
-    bounded = (lo > -UNBOUNDED) & (hi < UNBOUNDED)
+    lim = JointLimits(robot)  # unbounded sides are infinitely far
+    bounded = np.isfinite(lim.lower) | np.isfinite(lim.upper)
     out = {"steps": int(len(t) - 1), "violation": None}
     if np.any(bounded):
-        gap = np.minimum(q[:, bounded] - lo[bounded], hi[bounded] - q[:, bounded])  # (points, joints)
+        gap = lim.margins(q)[:, bounded]  # (points, joints): the distance to the nearer limit, < 0 outside
         out["limit_margin"] = clean_float(gap.min())
         bad = np.argwhere(gap < -LIMIT_TOL)
         if bad.size:
@@ -131,7 +130,7 @@ def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> 
             out["violation"] = (int(k), int(np.flatnonzero(bounded)[j]))
     if len(t) > 1:
         vmax = np.asarray(robot.model.velocityLimit, float)
-        ok = np.isfinite(vmax) & (vmax > 0)
+        ok = np.isfinite(vmax) & (vmax > 0) & (vmax < NO_LIMIT)
         if np.any(ok):
             speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]  # mean speed over each step [rad/s]
             out["speed_ratio"] = clean_float((speed[:, ok] / vmax[ok]).max())

@@ -10,11 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from kinredund.errors import OptionError
-from kinredund.model.robot import Robot
+from kinredund.model.robot import NO_LIMIT, Robot
 from kinredund.tracking.constraints.base import Constraint
 
 #: limits at or beyond this magnitude count as none (Pinocchio's default for unbounded joints is 1.8e308)
-UNBOUNDED = 1e10
 
 
 class JointLimits(Constraint):
@@ -35,7 +34,7 @@ class JointLimits(Constraint):
         if not (np.isfinite(margin) and margin >= 0.0):
             raise OptionError(f"the joint-limit margin must be a finite number >= 0 [rad or m], got {margin!r}")
         lo, hi = np.asarray(robot.lower, float), np.asarray(robot.upper, float)
-        has_lo, has_hi = lo > -UNBOUNDED, hi < UNBOUNDED
+        has_lo, has_hi = lo > -NO_LIMIT, hi < NO_LIMIT
         self.lower = np.where(has_lo, lo + margin, -np.inf)
         self.upper = np.where(has_hi, hi - margin, np.inf)
         narrow = np.flatnonzero(self.lower >= self.upper)
