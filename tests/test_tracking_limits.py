@@ -273,6 +273,13 @@ def test_a_path_that_cannot_be_followed_inside_stops_with_the_last_good_state(na
     part = err.partial.checked(r.nq)  # a valid record: plots and playback accept it
     assert part.t[-1] == pytest.approx(err.t) and np.array_equal(part.q[-1], q)
     assert excess(r, part.q) <= 1e-10
+    # a Tracker that stops stays at the last requested time: its clock and step count agree (t = t0 + k dt)
+    tracker = Tracker(r, path, index, q0, path.period / 200)
+    with pytest.raises(TrackingError):
+        for _ in range(400):
+            tracker.step()
+    s = tracker.stepper
+    assert s.t == s.t0 + s.k * s.dt and abs(s.t - err.t) <= 1e-12 and np.array_equal(tracker.q, q)
 
 
 def test_the_limits_record_survives_json(tmp_path):

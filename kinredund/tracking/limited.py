@@ -235,7 +235,7 @@ class LimitedPredictorCorrector(PredictorCorrector):
 
     def step(self) -> None:
         """One step to t + dt; a switch of the active set within it is located and stepped to exactly."""
-        snap = self._snapshot()
+        snap, k = self._snapshot(), self.k  # k: the step count (a switching time's snapshot keeps the step's)
         bounded = self._sel is not None or bool(self.switches)  # a failure then is the limits' to name
         try:
             super().step()
@@ -245,11 +245,13 @@ class LimitedPredictorCorrector(PredictorCorrector):
                 err.t, err.q = snap["t"], [float(v) for v in snap["q"]]
                 err.watched = self._watched(snap)
             self._restore(snap)
+            self.k = k  # back at the last requested time: t = t0 + k dt
             raise
         except (PathError, SingularityError) as err:
             if not bounded:  # as the unlimited scheme reports it: no bound has been met
                 raise
             self._restore(snap)
+            self.k = k
             cause = "kinematic_singularity" if "kinematic" in str(err) else \
                 "not_strongly_stable" if isinstance(err, SingularityError) else "limits_infeasible"
             raise TrackingError(f"tracking within the joint limits stopped after t = {snap['t']:.6g} s: {err}",
