@@ -42,10 +42,9 @@ class JointPath:
     """A record's joint path over one loop (closed) or its whole length (open).
 
     Attributes:
-        s: path parameters of the samples, from 0 [s], shape (N + 1,).
+        s: path parameters of the samples, from 0 [s], shape (N + 1,): sample k is the record's row k.
         q: the samples, shape (N + 1, n); for a closed path q[N] = q[0] + 2 pi turns.
         p: the tool's path points at the samples (the record's ``p_desired``), shape (N + 1, 3) [m].
-        rows: the record's row of each sample, shape (N + 1,).
         closed: True for one loop of a closed path.
         turns: whole turns of each joint over a loop (0 for prismatic joints and open paths), shape (n,).
         drift: the record's joint drift over that loop [rad] (0.0 for open paths).
@@ -54,7 +53,6 @@ class JointPath:
     s: np.ndarray
     q: np.ndarray
     p: np.ndarray
-    rows: np.ndarray
     closed: bool
     turns: np.ndarray
     drift: float
@@ -135,8 +133,7 @@ def joint_path(traj: Trajectory, revolute, closed: bool | None = None) -> JointP
     s = t - t[0]
     p = np.asarray(traj.p_desired, float)
     if traj.loop_period is None or closed is False:
-        rows = np.arange(len(t))
-        return JointPath(s, q, p, rows, False, np.zeros(q.shape[1]), 0.0)
+        return JointPath(s, q, p, False, np.zeros(q.shape[1]), 0.0)
     period = float(traj.loop_period)
     hits = np.flatnonzero(np.abs(s - period) <= 1e-9 * max(1.0, period))
     if hits.size == 0:
@@ -152,5 +149,4 @@ def joint_path(traj: Trajectory, revolute, closed: bool | None = None) -> JointP
                           f"{CLOSURE_TOL:g} for a periodic time law); retime it as an open path (closed=False, "
                           "kinredund retime --open)")
     turns = np.where(rev, np.round((q[N] - q[0]) / (2.0 * np.pi)), 0.0)
-    rows = np.arange(N + 1)
-    return JointPath(s[: N + 1], q[: N + 1], p[: N + 1], rows, True, turns, drift)
+    return JointPath(s[: N + 1], q[: N + 1], p[: N + 1], True, turns, drift)

@@ -63,8 +63,7 @@ def resample(result: RetimeResult, dt: float, robot, path, index, *, tol: float 
     ticks = np.arange(0, end_ns, dt_ns, dtype=np.int64)
     ticks = np.append(ticks, end_ns) if ticks[-1] != end_ns else ticks
     t = ticks / 1e9
-    q_spline, qdot, qddot = result.interpolate(t + tr.t[0])
-    s = result.law_at(t + tr.t[0])[0]
+    q_spline, qdot, qddot, s = result.interpolate_with_s(t + tr.t[0])  # one evaluation of the time law
     q = np.empty_like(q_spline)
     p, p_desired = np.empty((len(t), 3)), np.empty((len(t), 3))
     moved = residual = normality = 0.0

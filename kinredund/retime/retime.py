@@ -112,10 +112,14 @@ class RetimeResult:
         spline theta*(s) of the samples and its derivatives. Times are those of the retimed record
         (0 to its end; chained loops repeat the loop's law).
         """
+        return self.interpolate_with_s(t)[:3]
+
+    def interpolate_with_s(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`interpolate` and the path parameter s(t) it evaluated the spline at (one law evaluation)."""
         s, sd, sdd = self.law_at(t)
         p = self.path
         q1 = p(s, 1)
-        return p(s), q1 * sd[:, None], q1 * sdd[:, None] + p(s, 2) * (sd * sd)[:, None]
+        return p(s), q1 * sd[:, None], q1 * sdd[:, None] + p(s, 2) * (sd * sd)[:, None], s
 
 
 def _nanoseconds(t: np.ndarray) -> np.ndarray:
@@ -205,7 +209,7 @@ def _chained_record(traj: Trajectory, jp: JointPath, law: TimeLaw, limits: Limit
     rows, s, t = _samples(jp, law, loops, rest)
     k = np.arange(len(s))
     lap = k // N if jp.closed else np.zeros(len(s), dtype=int)
-    src = jp.rows[k % N] if jp.closed else jp.rows  # the record's rows
+    src = k % N if jp.closed else k  # the record's rows (sample k of the joint path is row k)
     q = traj.q[src] + np.outer(lap, 2.0 * np.pi * jp.turns)
     q1, q2 = jp(s, 1), jp(s, 2)
     sd, sdd = law.sd[rows], law.sdd[rows]

@@ -25,8 +25,6 @@ from kinredund.io import read_json_object
 from kinredund.model.robot import Robot, load_robot
 from kinredund.trajectory import Trajectory
 
-RECORD_KINDS = ("trajectory", "plan", "helix")
-
 
 @dataclass(frozen=True)
 class Replayable:
