@@ -155,15 +155,16 @@ class StepControl:
         kind = self.watch.crossed(sigma, eig)
         if kind is not None:
             return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"
-        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
+        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None), exact=h < s.dt)
         self._speed2 = speed2
         return None
 
     def _refreshed_ahead(self, t_next: float) -> str | None:
         """The prediction again after an exact measurement at the current point (the gated history may be old)."""
         s = self.s
-        pt = s.ev.point(s.q, s.t)
-        self.watch.refresh(s.t, pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
+        if not self.watch.exact_at(s.t):  # a sub-step's point is measured exactly already: not again
+            pt = s.ev.point(s.q, s.t)
+            self.watch.refresh(s.t, pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         return self.watch.ahead(t_next)
 
     def _substeps(self, snap_step: dict, t_to: float, reason) -> None:

@@ -20,7 +20,7 @@ to zero, where it matters; refreshed exactly every :data:`EXACT_EVERY` steps). `
 SVD of J (LAPACK dgesvd, no vectors) only when J has moved, in the Frobenius norm, by more than
 :data:`J_GATE` of the last exact value since it was taken: by Weyl's inequality sigma_min(J) changes by
 at most ||J - J_ref||_2 <= ||J - J_ref||_F, so between exact values it stays above 3/4 of the last one.
-Together about 6-8 us per step where J moves slowly (``benchmarks/resolved_rate.py``).
+Where J moves slowly that is one triangular solve and a few vector operations per measured step.
 
 The prediction extrapolates each quantity v from its last two values linearly, and v^2 linearly (a
 fold's eigenvalue and sigma_min at a workspace boundary behave like sqrt(t* - t), whose square is
@@ -135,8 +135,11 @@ class Watch:
         """Measure exactly at t and push it (before a prediction is acted on: the history may be stale)."""
         if self._exact_at == t:
             return
-        self.push(t, *self.measure_exact(J, M, fixed), fixed=fixed)
-        self._exact_at = t
+        self.push(t, *self.measure_exact(J, M, fixed), fixed=fixed, exact=True)
+
+    def exact_at(self, t: float) -> bool:
+        """Is the newest measurement an exact one taken at t (so that :meth:`refresh` there has nothing to do)?"""
+        return self._exact_at == t
 
     def measure_exact(self, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> tuple[float, float]:
         """(sigma_min_J, reduced_hessian_min) exactly (QR null basis and eigh, SVD), at the caller's point."""
@@ -163,10 +166,11 @@ class Watch:
         self._J_ref, self._sigma_ref, self.sigma_max = J.copy(), float(s[-1]), float(s[0])
         return self._sigma_ref
 
-    def push(self, t: float, sigma: float, eig: float, fixed: np.ndarray | None = None) -> None:
+    def push(self, t: float, sigma: float, eig: float, fixed: np.ndarray | None = None, exact: bool = False) -> None:
         """Keep (t, sigma, eig) as the newest measurement (two of each are kept; sigma_min(J) only where
         it was computed afresh, so that its secant spans the steps since the previous exact value).
 
+        ``exact``: the values came from :meth:`measure_exact` at t (a :meth:`refresh` there is then skipped).
         ``fixed``: the joints on a bound there. Where the active set differs from the last measurement's,
         the null space changed at a switching time and the history starts afresh (the quantities jump
         there: a secant across the switch would predict a crossing that is not there).
@@ -180,6 +184,7 @@ class Watch:
         _keep(self.times, t, self.eig, eig)
         fs, fe = self.floors()
         self._safe = min(_crossing_time(self.sigma_times, self.sigma, fs), _crossing_time(self.times, self.eig, fe))
+        self._exact_at = t if exact else None
 
     def floors(self) -> tuple[float, float]:
         """(kinematic floor, fold floor): values at or below them count as crossed."""
