@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.export.samples import ExportError, JointSamples
+from kinredund.export.samples import ExportError, JointSamples, from_nanoseconds, to_nanoseconds
 from kinredund.io import atomic_write_dir
 from kinredund.trajectory import Trajectory
 
@@ -38,7 +38,7 @@ def _message(samples: JointSamples, store):
     Duration, Time = types["builtin_interfaces/msg/Duration"], types["builtin_interfaces/msg/Time"]
     Point = types["trajectory_msgs/msg/JointTrajectoryPoint"]
     empty = np.zeros(0)
-    ns = np.round(samples.t * 1e9).astype(np.int64)
+    ns = to_nanoseconds(samples.t)
     if ns[0] < 0:
         raise ExportError(f"a JointTrajectory's times start at 0 or later, got t[0] = {samples.t[0]} s")
     points = []
@@ -111,4 +111,4 @@ def read_bag(folder: str | Path, topic: str | None = None) -> JointSamples:
         rows = [np.asarray(getattr(p, attr), float) for p in pts]
         more[key] = np.array(rows) if rows and all(len(r) == len(msg.joint_names) for r in rows) else None
     q = np.array([np.asarray(p.positions, float) for p in pts])
-    return JointSamples(tuple(msg.joint_names), ns / 1e9, q, **more).checked()
+    return JointSamples(tuple(msg.joint_names), from_nanoseconds(ns), q, **more).checked()

@@ -14,6 +14,18 @@ class ExportError(KinredundError, ValueError):
     """A record that cannot be exported, an output that exists already, or a file that is not an export."""
 
 
+
+def to_nanoseconds(t) -> np.ndarray:
+    """Times [s] as whole nanoseconds (int64): what a ROS 2 Duration holds (sec, nanosec)."""
+    return np.round(np.asarray(t, float) * 1e9).astype(np.int64)
+
+
+def from_nanoseconds(ns) -> np.ndarray:
+    """Whole nanoseconds back to seconds, as the readers compute them (ns / 1e9): with
+    :func:`to_nanoseconds`, the times a bag or a retimed record hold, read back exactly."""
+    return np.asarray(ns, np.int64) / 1e9
+
+
 @dataclass(frozen=True)
 class JointSamples:
     """Joint samples of a trajectory, as the exported files hold them.

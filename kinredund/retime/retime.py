@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from kinredund.export.samples import from_nanoseconds, to_nanoseconds
 from kinredund.kinematics.angles import joint_drift
 from kinredund.retime.joint_path import JointPath, joint_path
 from kinredund.retime.limits import Limits, RetimeError
@@ -122,11 +123,6 @@ class RetimeResult:
         return p(s), q1 * sd[:, None], q1 * sdd[:, None] + p(s, 2) * (sd * sd)[:, None], s
 
 
-def _nanoseconds(t: np.ndarray) -> np.ndarray:
-    """Times rounded to whole nanoseconds (what a ROS Duration holds), computed as the readers compute them."""
-    return np.round(t * 1e9).astype(np.int64) / 1e9
-
-
 def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = None, closed: bool | None = None,
            rest_to_rest: bool = False, index=None) -> RetimeResult:
     """Retime a tracked record under ``limits``: time-optimal (TOPP-RA), or jerk-limited if ``limits.jerk``.
@@ -215,7 +211,7 @@ def _chained_record(traj: Trajectory, jp: JointPath, law: TimeLaw, limits: Limit
     sd, sdd = law.sd[rows], law.sdd[rows]
     qdot = q1 * sd[:, None]
     qddot = q1 * sdd[:, None] + q2 * (sd * sd)[:, None]
-    t = _nanoseconds(t)
+    t = from_nanoseconds(to_nanoseconds(t))  # whole nanoseconds, as a bag holds them: exports read back exactly
     if np.any(np.diff(t) <= 0.0):
         raise RetimeError("two retimed samples fall within the same nanosecond: the record is sampled too finely "
                           "for these limits")
