@@ -149,6 +149,15 @@ def test_times_past_a_ros_duration_or_int64_nanoseconds_are_named(tmp_path):
     assert _names(tmp_path) == []
 
 
+def test_retimed_times_past_int64_nanoseconds_are_named_not_called_too_finely_sampled(tmp_path, capsys):
+    """Before: retime under tiny limits wrapped int64 nanoseconds and said 'sampled too finely'."""
+    _planar_record().save_json(tmp_path / "run.json")
+    assert main(["retime", str(tmp_path / "run.json"), "--amax", "1e-18", "--vmax", "1e-12",
+                 "--json", str(tmp_path / "r.json")]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "int64" in err and "too finely" not in err and not (tmp_path / "r.json").exists()
+
+
 def test_joint_names_with_commas_quotes_and_newlines_read_back_from_csv(tmp_path):
     """Before: a name with ',' or a newline broke the header; read_csv refused the file written."""
     s = _samples(np.linspace(0.0, 1.0, 5), names=("a,b", 'say "hi"', "two\nlines", " spaced "))

@@ -214,7 +214,7 @@ def _chained_record(traj: Trajectory, jp: JointPath, law: TimeLaw, limits: Limit
     try:  # whole nanoseconds, as a bag holds them: exports read back exactly
         t = from_nanoseconds(distinct_nanoseconds(t))
     except ExportError as err:  # times beyond int64 nanoseconds, or two samples in one nanosecond
-        raise RetimeError(f"the retimed times cannot be held in whole nanoseconds: {err}") from err
+        raise RetimeError(f"the retimed record cannot be stored: {err}") from err
     kw = {name: getattr(traj, name)[src] for name in PER_POINT_FIELDS if getattr(traj, name) is not None}
     drift = None
     if jp.closed:
