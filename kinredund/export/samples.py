@@ -29,9 +29,9 @@ def to_nanoseconds(t) -> np.ndarray:
     t = np.asarray(t, float)
     bad = ~np.isfinite(t) | (np.abs(t) > MAX_NANOSECOND_TIME)
     if np.any(bad):
-        k = int(np.flatnonzero(bad)[0])
+        k, count = int(np.flatnonzero(bad)[0]), np.count_nonzero(bad)
         raise ExportError(f"time t[{k}] = {float(t.flat[k])!r} s cannot be held in whole nanoseconds (int64): "
-                          f"times must be finite and within +-{MAX_NANOSECOND_TIME:.4g} s ({np.count_nonzero(bad)} are not)")
+                          f"times must be finite and within +-{MAX_NANOSECOND_TIME:.4g} s ({count} are not)")
     return np.round(t * 1e9).astype(np.int64)
 
 
