@@ -11,6 +11,10 @@ What an output path may be (:func:`check_output_path`, docs/schema.md):
 - anything else (a directory, a device such as ``/dev/null`` or ``/dev/full``, a FIFO, a socket) is
   refused with an :class:`~kinredund.errors.OutputPathError`: it is never replaced by a file.
 
+The outputs of one command are checked together before any work (:func:`check_outputs`): paths resolved
+(``sub/../a.json`` is ``a.json``, a link is its target), two outputs at one path or one inside a folder
+output are refused; :func:`output_batch` refuses the same overlaps for library callers.
+
 The temporary file lives next to the (resolved) target, named ``.NAME.XXXX.tmp``, and is removed on
 any failure. Inside :func:`output_batch` the renames wait until the batch ends, so the outputs of one
 command land together or none does; a checkpoint (``atomic_write(..., immediate=True)``: the sweep file,
@@ -89,16 +93,23 @@ def check_outputs(outputs) -> dict[str, Path]:
             continue
         real = real_path(check_new_folder(path) if kind == "folder" else check_output_path(path))
         for other, where in seen.items():
-            if real == where:
+            overlap = _overlap(real, where)
+            if overlap == "same":
                 raise OutputPathError(path, f"{other} and {label} name the same path {str(real)!r}: one "
                                             "would overwrite the other")
-            inner = (label, real, other, where) if where in real.parents else \
-                (other, where, label, real) if real in where.parents else None
-            if inner is not None:
-                raise OutputPathError(path, f"{inner[0]} ({str(inner[1])!r}) lies inside {inner[2]} "
-                                            f"({str(inner[3])!r}): give separate paths")
+            if overlap is not None:
+                inner, outer = ((label, real), (other, where)) if overlap == "inside" else ((other, where), (label, real))
+                raise OutputPathError(path, f"{inner[0]} ({str(inner[1])!r}) lies inside {outer[0]} "
+                                            f"({str(outer[1])!r}): give separate paths")
         seen[label] = real
     return seen
+
+
+def _overlap(real: Path, other: Path) -> str | None:
+    """How two real paths overlap: ``same``, ``inside`` (real lies inside other), ``contains``, or None."""
+    if real == other:
+        return "same"
+    return "inside" if other in real.parents else "contains" if real in other.parents else None
 
 
 def check_output_path(path) -> Path:
@@ -212,10 +223,10 @@ def _check_batch(target: Path, folder: bool) -> None:
         return
     real = real_path(target)
     for tmp, other in batch.staged:
-        where = real_path(other)
-        if where == real and not folder and not os.path.isdir(tmp):
+        overlap = _overlap(real, real_path(other))
+        if overlap == "same" and not folder and not os.path.isdir(tmp):
             continue
-        if where == real or where in real.parents or real in where.parents:
+        if overlap is not None:
             raise OutputPathError(target, f"it overlaps {str(other)!r}, another output of this command")
 
 
