@@ -98,7 +98,8 @@ def check_outputs(outputs) -> dict[str, Path]:
                 raise OutputPathError(path, f"{other} and {label} name the same path {str(real)!r}: one "
                                             "would overwrite the other")
             if overlap is not None:
-                inner, outer = ((label, real), (other, where)) if overlap == "inside" else ((other, where), (label, real))
+                mine, theirs = (label, real), (other, where)
+                inner, outer = (mine, theirs) if overlap == "inside" else (theirs, mine)
                 raise OutputPathError(path, f"{inner[0]} ({str(inner[1])!r}) lies inside {outer[0]} "
                                             f"({str(outer[1])!r}): give separate paths")
         seen[label] = real
