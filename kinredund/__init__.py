@@ -22,6 +22,7 @@ from kinredund import indices, paths, tasks
 from kinredund.errors import (
     ChoiceError,
     FrameNotFoundError,
+    GeometryError,
     HDTableError,
     JointVectorError,
     KinredundError,
@@ -34,6 +35,7 @@ from kinredund.errors import (
     UnknownRobotError,
     URDFError,
 )
+from kinredund.geometry import DistanceRows, Distances, PairMatrix, Scene, load_scene, save_scene
 from kinredund.ik import IKResult, check_optimality, solve_ik
 from kinredund.indices import CustomIndex, Index, JointDeviation, TimeVaryingReference, mid_range, minimum_norm
 from kinredund.kinematics.hd import HDTable
@@ -62,9 +64,12 @@ __all__ = [
     "Circle",
     "CyclicPlan",
     "CustomIndex",
+    "DistanceRows",
+    "Distances",
     "Ellipse",
     "FrameNotFoundError",
     "FunctionPath",
+    "GeometryError",
     "HDTable",
     "HDTableError",
     "Helix",
@@ -75,11 +80,13 @@ __all__ = [
     "JointVectorError",
     "KinredundError",
     "OptionError",
+    "PairMatrix",
     "Path",
     "PathError",
     "PathSample",
     "Robot",
     "SampledPath",
+    "Scene",
     "SingularityError",
     "SolverError",
     "Task",
@@ -96,12 +103,14 @@ __all__ = [
     "indices",
     "known_robots",
     "load_robot",
+    "load_scene",
     "mid_range",
     "minimum_norm",
     "paths",
     "plan",
     "read_path_file",
     "robot_from_hd",
+    "save_scene",
     "solve_ik",
     "task_names",
     "tasks",
