@@ -27,7 +27,7 @@ import pinocchio as pin
 from kinredund.errors import GeometryError, check_count
 from kinredund.geometry.collision_model import RobotGeometry
 from kinredund.geometry.engine import Workspace
-from kinredund.geometry.shapes import bounding_sphere, positive
+from kinredund.geometry.shapes import as_kind, bounding_sphere, positive
 from kinredund.io import read_json_object, write_json
 from kinredund.model.robot import Robot
 
@@ -159,10 +159,7 @@ def self_pairs(robot: Robot, geom: RobotGeometry, *, samples: int = SAMPLES, see
     todo, disabled = _structural(geom)
     gm = pin.GeometryModel()
     for g in geom.model.geometryObjects:  # hulls for the sampling (the names and order are the same)
-        shape = g.geometry
-        if hasattr(shape, "buildConvexRepresentation"):
-            shape.buildConvexRepresentation(False)
-            shape = shape.convex
+        shape = as_kind(g.geometry, "convex")
         gm.addGeometryObject(pin.GeometryObject(g.name, g.parentJoint, g.parentFrame, g.placement, shape))
     for i, j in todo:
         gm.addCollisionPair(pin.CollisionPair(i, j))

@@ -241,7 +241,8 @@ class Scene:
         for k, p in enumerate(self._pair_names):
             if p == (a, b) or p == (b, a):
                 return k
-        raise ChoiceError("pair (the scene does not check it)", (a, b), [f"({x}, {y})" for x, y in self._pair_names])
+        near = [p for p in self._pair_names if a in p or b in p] or list(self._pair_names)
+        raise ChoiceError("pair (the scene does not check it)", (a, b), [f"({x}, {y})" for x, y in near])
 
     # -- queries --------------------------------------------------------------------------------
     def _candidates(self, ws: Workspace, influence) -> np.ndarray:

@@ -67,6 +67,7 @@ def to_pose(value, what: str = "pose") -> pin.SE3:
             x = vector(value["quat"], 4, f"{what} quat [x, y, z, w]")
             if abs(np.linalg.norm(x) - 1.0) > RIGID_TOL:
                 raise GeometryError(f"{what} quat must be a unit quaternion [x, y, z, w], norm {np.linalg.norm(x):.9g}")
+            x = x / np.linalg.norm(x)  # within RIGID_TOL of unit: made exactly unit
             R = pin.Quaternion(x[3], x[0], x[1], x[2]).toRotationMatrix()
         else:
             R = rpy_matrix(vector(value.get("rpy", (0.0, 0.0, 0.0)), 3, f"{what} rpy [rad]"))
@@ -89,7 +90,8 @@ def _checked(T: np.ndarray, what: str) -> pin.SE3:
             or np.max(np.abs(T[3] - (0.0, 0.0, 0.0, 1.0))) > 0):
         raise GeometryError(f"{what} is not a rigid transform: its rotation must be orthonormal with determinant +1 "
                             f"(to {RIGID_TOL:g}) and its last row 0 0 0 1")
-    return pin.SE3(R.copy(), T[:3, 3].copy())
+    U, _, Vt = np.linalg.svd(R)  # within RIGID_TOL of a rotation: the nearest one (polar factor)
+    return pin.SE3(U @ Vt, T[:3, 3].copy())
 
 
 def pose_dict(T: np.ndarray) -> dict:
@@ -164,9 +166,24 @@ def load_mesh(file, scale=1.0, *, convex: bool = True):
 def as_kind(geom, kind: str):
     """``geom`` as asked: a BVH mesh becomes its convex hull for ``"convex"``; anything else is kept."""
     if kind == "convex" and isinstance(geom, coal.BVHModelBase):
-        geom.buildConvexRepresentation(False)
-        return geom.convex
+        return convex_hull(geom)
     return geom
+
+
+def convex_hull(bvh):
+    """The convex hull of a BVH mesh's vertices, through qhull (``BVHModelBase.buildConvexHull``).
+
+    Not ``buildConvexRepresentation``: that wraps the mesh's own triangles as a "convex" shape without taking
+    the hull, and coal's support function then climbs the mesh's (non-convex) vertex graph and can stop at a
+    local maximum: a torus came out 0.26 m farther than its mesh (tests/test_geometry.py).
+    """
+    try:
+        bvh.buildConvexHull(True, "Qt")  # returns whether every vertex is on the hull, not success
+    except Exception as err:  # noqa: BLE001 - qhull's errors arrive as RuntimeError or ValueError
+        raise GeometryError(f"qhull could not build the convex hull of a mesh (flat or degenerate?): {err}") from err
+    if bvh.convex is None or bvh.convex.num_points < 4:
+        raise GeometryError("qhull could not build the convex hull of a mesh (flat or degenerate?)")
+    return bvh.convex
 
 
 def bounding_sphere(geom, placement: pin.SE3) -> tuple[np.ndarray, float]:
