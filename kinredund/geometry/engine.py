@@ -56,6 +56,14 @@ def unit_normals(d: np.ndarray, n: np.ndarray, pa: np.ndarray, pb: np.ndarray) -
     return out
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a x b of (k, 3) arrays (``np.cross`` costs ~20 us of argument handling at this size)."""
+    return a[:, _YZX] * b[:, _ZXY] - a[:, _ZXY] * b[:, _YZX]
+
+
+_YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])
+
+
 class Workspace:
     """Pinocchio and coal data for one geometry model (not shared between threads).
 
@@ -63,11 +71,13 @@ class Workspace:
         model: the robot's ``pin.Model``.
         geometry: the ``pin.GeometryModel`` with its collision pairs.
         joints: each object's parent joint, shape (n_objects,).
-        centres, radii: each object's bounding sphere in its joint's frame [m], shapes (n_objects, 3), (n_objects,).
+        centres, radii: each object's bounding spheres in its joint's frame [m], shapes (n_objects, slabs, 3) and
+            (n_objects, slabs) (``shapes.bounding_spheres``).
+        first, second: the objects of each collision pair, in the order of ``geometry.collisionPairs``.
     """
 
     def __init__(self, model: pin.Model, geometry: pin.GeometryModel, joints: np.ndarray, centres: np.ndarray,
-                 radii: np.ndarray):
+                 radii: np.ndarray, first: np.ndarray, second: np.ndarray):
         self.model, self.geometry = model, geometry
         self.data = model.createData()
         self.gdata = pin.GeometryData(geometry)
@@ -75,43 +85,59 @@ class Workspace:
             req.enable_signed_distance = True
             req.gjk_tolerance = GJK_TOLERANCE
             no_warm_start(req)
-        self.joints, self.centres, self.radii = joints, centres, radii
-        self._used = np.unique(joints)
+        self.joints, self.first, self.second = joints, first, second
+        n, m = centres.shape[:2]
+        # the broadphase's sphere pairs, flattened: pair p's m*m sphere pairs are rows p*m*m ... (p+1)*m*m - 1
+        self._centres = centres.reshape(n * m, 3)
+        self._sphere_joint = np.repeat(joints, m)
+        i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+        self._sa = (first[:, None] * m + i.ravel()[None, :]).ravel()
+        self._sb = (second[:, None] * m + j.ravel()[None, :]).ravel()
+        self._radii = radii.reshape(-1)[self._sa] + radii.reshape(-1)[self._sb]
+        self._mm = m * m
+        self._poses = None
 
     def place(self, q: np.ndarray) -> None:
         """Forward kinematics and every object's world pose at q."""
         pin.updateGeometryPlacements(self.model, self.data, self.geometry, self.gdata, q)
+        self._poses = None
 
-    def sphere_centres(self) -> np.ndarray:
-        """World centres of the objects' bounding spheres [m], shape (n_objects, 3), after :meth:`place`."""
-        R = np.empty((self.model.njoints, 3, 3))
-        p = np.zeros((self.model.njoints, 3))
-        R[0] = np.eye(3)
-        for j in self._used:
-            if j:
-                M = self.data.oMi[int(j)]
-                R[j], p[j] = M.rotation, M.translation
-        return np.einsum("kab,kb->ka", R[self.joints], self.centres) + p[self.joints]
+    def joint_poses(self) -> np.ndarray:
+        """Every joint's world pose, shape (njoints, 4, 4), after :meth:`place` (read once per placement)."""
+        if self._poses is None:
+            oMi = self.data.oMi
+            self._poses = np.array([oMi[j].homogeneous for j in range(self.model.njoints)])
+        return self._poses
 
-    def sphere_gaps(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
-        """Lower bounds of the pairs' distances [m]: centre distance minus both radii, after :meth:`place`."""
-        c = self.sphere_centres()
-        return np.linalg.norm(c[first] - c[second], axis=1) - self.radii[first] - self.radii[second]
+    def sphere_gaps(self) -> np.ndarray:
+        """Lower bounds of every pair's distance [m], after :meth:`place`: over the two objects' bounding spheres,
+        the least centre distance minus both radii (``shapes.bounding_spheres``)."""
+        M = self.joint_poses().take(self._sphere_joint, axis=0)  # take: 3x faster than fancy indexing here
+        c = np.einsum("kab,kb->ka", M[:, :3, :3], self._centres) + M[:, :3, 3]
+        diff = c.take(self._sa, axis=0) - c.take(self._sb, axis=0)
+        gaps = np.sqrt(np.einsum("ka,ka->k", diff, diff)) - self._radii
+        return gaps.reshape(-1, self._mm).min(axis=1)
 
     def distances(self, ks) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(signed distances [m], unit normals from first to second object, p_first, p_second) of pairs ``ks``,
-        shapes (k,), (k, 3), (k, 3), (k, 3), after :meth:`place`."""
-        d, n, pa, pb = [], [], [], []
+        shapes (k,), (k, 3), (k, 3), (k, 3), after :meth:`place`.
+
+        Three reads per pair (Python's access to coal's results costs about a microsecond each): the normal
+        of a separated pair is (p_b - p_a) / d; coal's own is read only for pairs in contact.
+        """
+        d, pa, pb = [], [], []
         gm, gd, one = self.geometry, self.gdata, pin.computeDistance
         for k in ks:
             res = one(gm, gd, int(k))
             d.append(res.min_distance)
-            n.append(res.normal)
             pa.append(res.getNearestPoint1())
             pb.append(res.getNearestPoint2())
         if not d:
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
-        d, n, pa, pb = np.array(d), np.array(n), np.array(pa), np.array(pb)
+        d, pa, pb = np.array(d), np.array(pa), np.array(pb)
+        n = np.zeros_like(pa)
+        for r in np.flatnonzero(d <= 0):
+            n[r] = gd.distanceResults[int(ks[r])].normal
         return d, unit_normals(d, n, pa, pb), pa, pb
 
     def closest(self, q: np.ndarray) -> tuple[int, float]:
@@ -119,22 +145,24 @@ class Workspace:
         k = pin.computeDistances(self.model, self.data, self.geometry, self.gdata, q)
         return k, self.gdata.distanceResults[k].min_distance
 
-    def rows(self, q: np.ndarray, normal: np.ndarray, joints_a: np.ndarray, point_a: np.ndarray,
-             joints_b: np.ndarray, point_b: np.ndarray) -> np.ndarray:
-        """Rows n^T (J_b(p_b) - J_a(p_a)) [m/rad], shape (k, nv) (module docstring), after :meth:`place`.
+    def rows(self, q: np.ndarray, ks: np.ndarray, normal: np.ndarray, point_a: np.ndarray,
+             point_b: np.ndarray) -> np.ndarray:
+        """Rows n^T (J_b(p_b) - J_a(p_a)) [m/rad] of pairs ``ks``, shape (k, nv) (module docstring), after
+        :meth:`place`.
 
         With J(p) = J_v(o_j) - [p - o_j]_x J_omega: n^T J(p) = n^T J_v + ((p - o_j) x n)^T J_omega.
         """
-        nj, nv = self.model.njoints, self.model.nv
-        Jv, Jw, o = np.zeros((nj, 3, nv)), np.zeros((nj, 3, nv)), np.zeros((nj, 3))
+        nv = self.model.nv
+        joints = np.concatenate([self.joints[self.first[ks]], self.joints[self.second[ks]]])
+        J = np.zeros((self.model.njoints, 6, nv))
         pin.computeJointJacobians(self.model, self.data, q)
-        for j in np.unique(np.concatenate([joints_a, joints_b])):
+        for j in np.unique(joints):
             if j:
-                J = pin.getJointJacobian(self.model, self.data, int(j), _LWA).reshape(6, nv)
-                Jv[j], Jw[j], o[j] = J[:3], J[3:], self.data.oMi[int(j)].translation
-
-        def side(joints, points):
-            c = np.cross(points - o[joints], normal)
-            return np.einsum("ka,kan->kn", normal, Jv[joints]) + np.einsum("ka,kan->kn", c, Jw[joints])
-
-        return side(joints_b, point_b) - side(joints_a, point_a)
+                J[j] = pin.getJointJacobian(self.model, self.data, int(j), _LWA).reshape(6, nv)
+        k = len(ks)
+        sign = np.concatenate([-np.ones(k), np.ones(k)])[:, None]
+        n = np.concatenate([normal, normal]) * sign
+        arm = np.concatenate([point_a, point_b]) - self.joint_poses()[:, :3, 3].take(joints, axis=0)
+        coef = np.concatenate([n, _cross(arm, n)], axis=1)  # (2k, 6): [n; (p - o_j) x n] against [J_v; J_omega]
+        both = np.einsum("ka,kan->kn", coef, J.take(joints, axis=0))
+        return both[:k] + both[k:]

@@ -27,7 +27,7 @@ import pinocchio as pin
 from kinredund.errors import GeometryError, check_count
 from kinredund.geometry.collision_model import RobotGeometry
 from kinredund.geometry.engine import Workspace
-from kinredund.geometry.shapes import as_kind, bounding_sphere, positive
+from kinredund.geometry.shapes import as_kind, bounding_spheres, positive
 from kinredund.io import read_json_object, write_json
 from kinredund.model.robot import Robot
 
@@ -163,11 +163,11 @@ def self_pairs(robot: Robot, geom: RobotGeometry, *, samples: int = SAMPLES, see
         gm.addGeometryObject(pin.GeometryObject(g.name, g.parentJoint, g.parentFrame, g.placement, shape))
     for i, j in todo:
         gm.addCollisionPair(pin.CollisionPair(i, j))
-    spheres = [bounding_sphere(g.geometry, g.placement) for g in gm.geometryObjects]
-    ws = Workspace(robot.model, gm, np.array([g.parentJoint for g in gm.geometryObjects]),
-                   np.array([c for c, _ in spheres]).reshape(-1, 3), np.array([r for _, r in spheres]))
+    spheres = [bounding_spheres(g.geometry, g.placement) for g in gm.geometryObjects]
     first = np.array([i for i, _ in todo], dtype=int)
     second = np.array([j for _, j in todo], dtype=int)
+    ws = Workspace(robot.model, gm, np.array([g.parentJoint for g in gm.geometryObjects]),
+                   np.array([c for c, _ in spheres]), np.array([r for _, r in spheres]), first, second)
     rng = np.random.default_rng(seed)
     qs = [robot.home] + [robot.random_configuration(rng) for _ in range(samples)]
     closest = np.full(len(todo), np.inf)
@@ -175,7 +175,7 @@ def self_pairs(robot: Robot, geom: RobotGeometry, *, samples: int = SAMPLES, see
     at_home = np.zeros(len(todo), dtype=bool)
     for s, q in enumerate(qs):
         ws.place(q)
-        near = np.flatnonzero(ws.sphere_gaps(first, second) <= never_closer) if len(todo) else []
+        near = np.flatnonzero(ws.sphere_gaps() <= never_closer) if len(todo) else []
         for k, d in zip(near, ws.distances(near)[0], strict=True):
             closest[k] = min(closest[k], d)
             if d <= 0.0:

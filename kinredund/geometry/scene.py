@@ -217,19 +217,20 @@ class Scene:
         pairs = [(i, j) for i, j in pairs if frozenset((names[i], names[j])) not in self._ignored]
         for i, j in pairs:
             gm.addCollisionPair(pin.CollisionPair(i, j))
-        spheres = [shapes.bounding_sphere(g.geometry, g.placement) for g in gm.geometryObjects]
+        spheres = [shapes.bounding_spheres(g.geometry, g.placement) for g in gm.geometryObjects]
         self._gm, self._names = gm, names
         self._first = np.array([i for i, _ in pairs], dtype=int)
         self._second = np.array([j for _, j in pairs], dtype=int)
         self._pair_names = tuple((names[i], names[j]) for i, j in pairs)
-        self._spheres = (joints, np.array([c for c, _ in spheres]).reshape(-1, 3), np.array([r for _, r in spheres]))
+        self._spheres = (joints, np.array([c for c, _ in spheres]), np.array([r for _, r in spheres]))
         self._local = threading.local()
 
     def _workspace(self) -> Workspace:
         try:
             return self._local.workspace
         except AttributeError:
-            ws = self._local.workspace = Workspace(self.robot.model, self._gm, *self._spheres)
+            ws = self._local.workspace = Workspace(self.robot.model, self._gm, *self._spheres, self._first,
+                                                   self._second)
             return ws
 
     @property
@@ -251,7 +252,7 @@ class Scene:
         influence = float(influence)
         if not np.isfinite(influence) or influence < 0:
             raise GeometryError(f"influence must be a finite distance >= 0 [m] or None, got {influence!r}")
-        return np.flatnonzero(ws.sphere_gaps(self._first, self._second) <= influence)
+        return np.flatnonzero(ws.sphere_gaps() <= influence)
 
     def _exact(self, q, influence):
         q = self.robot.check_q(q)
@@ -293,7 +294,6 @@ class Scene:
         q, ws, ks, d, n, pa, pb = self._exact(q, influence)
         if not len(ks):
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), None if influence is None else float(influence))
-        joints = ws.joints
-        G = ws.rows(q, n, joints[self._first[ks]], pa, joints[self._second[ks]], pb)
+        G = ws.rows(q, ks, n, pa, pb)
         return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G,
                             None if influence is None else float(influence))

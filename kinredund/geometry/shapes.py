@@ -186,12 +186,26 @@ def convex_hull(bvh):
     return bvh.convex
 
 
-def bounding_sphere(geom, placement: pin.SE3) -> tuple[np.ndarray, float]:
-    """(centre in the parent frame [m], radius [m]) of a sphere holding ``geom`` placed at ``placement``."""
+#: spheres per object in the broadphase: the object's box cut into this many slabs along its longest side
+SLABS = 3
+
+
+def bounding_spheres(geom, placement: pin.SE3, slabs: int = SLABS) -> tuple[np.ndarray, np.ndarray]:
+    """(centres in the parent frame [m], shape (slabs, 3); radii [m], shape (slabs,)): spheres whose union
+    holds ``geom`` placed at ``placement``.
+
+    The shape's local box is cut into ``slabs`` equal slabs along its longest side and each slab gets the
+    sphere through its corners: every point of the shape lies in its box, hence in one slab and its sphere.
+    An elongated link gets spheres about a third of one sphere's radius across. A sphere is its own cover.
+    """
     if isinstance(geom, coal.Sphere):
-        return placement.translation.copy(), float(geom.radius)
-    if isinstance(geom, coal.Capsule):
-        return placement.translation.copy(), float(geom.halfLength + geom.radius)
+        return np.tile(placement.translation, (slabs, 1)), np.full(slabs, float(geom.radius))
     geom.computeLocalAABB()
     lo, hi = np.asarray(geom.aabb_local.min_, dtype=float), np.asarray(geom.aabb_local.max_, dtype=float)
-    return placement.act(0.5 * (lo + hi)), 0.5 * float(np.linalg.norm(hi - lo))
+    axis = int(np.argmax(hi - lo))
+    cuts = np.linspace(lo[axis], hi[axis], slabs + 1)
+    centres = np.tile(0.5 * (lo + hi), (slabs, 1))
+    centres[:, axis] = 0.5 * (cuts[:-1] + cuts[1:])
+    half = np.tile(0.5 * (hi - lo), (slabs, 1))
+    half[:, axis] = 0.5 * np.diff(cuts)
+    return (placement.rotation @ centres.T).T + placement.translation, np.linalg.norm(half, axis=1)
