@@ -86,6 +86,7 @@ class Workspace:
             req.gjk_tolerance = GJK_TOLERANCE
             no_warm_start(req)
         self.joints, self.first, self.second = joints, first, second
+        self.centres, self.radii = centres, radii
         n, m = centres.shape[:2]
         # the broadphase's sphere pairs, flattened: pair p's m*m sphere pairs are rows p*m*m ... (p+1)*m*m - 1
         self._centres = centres.reshape(n * m, 3)

@@ -225,7 +225,8 @@ class Scene:
         self._spheres = (joints, np.array([c for c, _ in spheres]), np.array([r for _, r in spheres]))
         self._local = threading.local()
 
-    def _workspace(self) -> Workspace:
+    def workspace(self) -> Workspace:
+        """This thread's workspace (:class:`~kinredund.geometry.engine.Workspace`), made on first use."""
         try:
             return self._local.workspace
         except AttributeError:
@@ -256,7 +257,7 @@ class Scene:
 
     def _exact(self, q, influence):
         q = self.robot.check_q(q)
-        ws = self._workspace()
+        ws = self.workspace()
         ws.place(q)
         ks = self._candidates(ws, influence)
         return (q, ws, ks, *ws.distances(ks))
@@ -277,13 +278,13 @@ class Scene:
         """The smallest signed distance [m] over every checked pair at q (inf when the scene checks none)."""
         if not self._pair_names:
             return float("inf")
-        return float(self._workspace().closest(self.robot.check_q(q))[1])
+        return float(self.workspace().closest(self.robot.check_q(q))[1])
 
     def closest(self, q) -> tuple[tuple[str, str] | None, float]:
         """(the closest pair, its signed distance [m]) at q ((None, inf) when the scene checks no pair)."""
         if not self._pair_names:
             return None, float("inf")
-        k, d = self._workspace().closest(self.robot.check_q(q))
+        k, d = self.workspace().closest(self.robot.check_q(q))
         return self._pair_names[k], float(d)
 
     def distance_rows(self, q, influence: float | None = None) -> DistanceRows:

@@ -268,4 +268,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     from kinredund.ui.cli_sweep import add_parser as add_sweep_parser  # the placement sweep (its own module)
 
     add_sweep_parser(sub)
+    from kinredund.ui.cli_check import add_parser as add_check_parser  # check a motion in a scene (issue 24)
+
+    add_check_parser(sub)
     return parser
