@@ -11,9 +11,10 @@ The rate of a distance: for a pair (a, b) with witness points p_a, p_b and unit 
     d_dot = n^T (J_b(p_b) - J_a(p_a)) q_dot,
 
 with J_x(p) the Jacobian of the velocity of the material point of body x at p (world axes):
-J(p) = J_v(o_j) - [p - o_j]_x J_omega for the body's joint j at o_j (Pinocchio LOCAL_WORLD_ALIGNED). A world
-object has J = 0. This holds where the witness points are unique (smooth shapes, or polytopes away from
-parallel faces); rates are checked against central differences in the tests.
+J(p) = J_v - [p]_x J_omega over the joints that move the body, from Pinocchio's world-frame joint Jacobians
+(J_v the velocity of the body point passing through the world origin). A world object has J = 0. This holds
+where the witness points are unique (smooth shapes, or polytopes away from parallel faces); the rates are
+checked against central differences in the tests.
 """
 
 from __future__ import annotations
@@ -22,7 +23,6 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 #: GJK's stopping tolerance (coal's default is 1e-6): separated distances to ~1e-9 m, at no measurable cost on
 #: the Panda's hulls, so that the rates can be checked by central differences
 GJK_TOLERANCE = 1e-9
@@ -46,13 +46,15 @@ def no_warm_start(request) -> None:
 
 
 def unit_normals(d: np.ndarray, n: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-    """coal's normals, made sure: (p_b - p_a) / d for separated pairs (coal leaves the normal unset between two
-    exact meshes), coal's own for touching or penetrating pairs where it is a unit vector, else zeros."""
-    gap = pb - pa
-    norm = np.linalg.norm(gap, axis=1)
-    apart = (d > 0) & (norm > 1e-12)
-    out = np.where(np.abs(np.linalg.norm(n, axis=1) - 1.0)[:, None] < 1e-6, n, 0.0)
-    out[apart] = gap[apart] / norm[apart, None]
+    """coal's normals, made sure: (p_b - p_a) / d for separated pairs (|p_b - p_a| = d; coal leaves the normal
+    unset between two exact meshes), coal's own for touching or penetrating pairs where it is a unit vector,
+    else zeros."""
+    out = (pb - pa) / np.where(d > 1e-12, d, 1.0)[:, None]
+    inside = np.flatnonzero(d <= 1e-12)
+    if len(inside):
+        m = n[inside]
+        unit = np.abs(np.einsum("ka,ka->k", m, m) - 1.0) < 1e-6
+        out[inside] = np.where(unit[:, None], m, 0.0)
     return out
 
 
@@ -97,6 +99,11 @@ class Workspace:
         self._radii = radii.reshape(-1)[self._sa] + radii.reshape(-1)[self._sb]
         self._mm = m * m
         self._poses = None
+        # which columns of q move each joint's body (the world's row is all zeros)
+        self._supports = np.zeros((model.njoints, model.nv))
+        for j in range(1, model.njoints):
+            for s in model.supports[j].tolist()[1:]:
+                self._supports[j, model.idx_vs[s]:model.idx_vs[s] + model.nvs[s]] = 1.0
 
     def place(self, q: np.ndarray) -> None:
         """Forward kinematics and every object's world pose at q."""
@@ -151,19 +158,15 @@ class Workspace:
         """Rows n^T (J_b(p_b) - J_a(p_a)) [m/rad] of pairs ``ks``, shape (k, nv) (module docstring), after
         :meth:`place`.
 
-        With J(p) = J_v(o_j) - [p - o_j]_x J_omega: n^T J(p) = n^T J_v + ((p - o_j) x n)^T J_omega.
+        From Pinocchio's world-frame joint Jacobians ``data.J`` ([v; omega], v the velocity of the body point at
+        the world origin, every joint's column), kept to the joints that move each body:
+        n^T J(p) = (n^T J_v + (p x n)^T J_omega) restricted to the supports of the body's joint.
         """
-        nv = self.model.nv
-        joints = np.concatenate([self.joints[self.first[ks]], self.joints[self.second[ks]]])
-        J = np.zeros((self.model.njoints, 6, nv))
         pin.computeJointJacobians(self.model, self.data, q)
-        for j in np.unique(joints):
-            if j:
-                J[j] = pin.getJointJacobian(self.model, self.data, int(j), _LWA).reshape(6, nv)
         k = len(ks)
-        sign = np.concatenate([-np.ones(k), np.ones(k)])[:, None]
-        n = np.concatenate([normal, normal]) * sign
-        arm = np.concatenate([point_a, point_b]) - self.joint_poses()[:, :3, 3].take(joints, axis=0)
-        coef = np.concatenate([n, _cross(arm, n)], axis=1)  # (2k, 6): [n; (p - o_j) x n] against [J_v; J_omega]
-        both = np.einsum("ka,kan->kn", coef, J.take(joints, axis=0))
+        joints = np.concatenate([self.joints.take(self.first.take(ks)), self.joints.take(self.second.take(ks))])
+        n = np.concatenate([-normal, normal])  # the first object's rows count negatively
+        p = np.concatenate([point_a, point_b])
+        coef = np.concatenate([n, _cross(p, n)], axis=1)  # (2k, 6) against the rows [v; omega]
+        both = (coef @ self.data.J) * self._supports.take(joints, axis=0)
         return both[:k] + both[k:]
