@@ -262,3 +262,64 @@ def test_a_hull_is_never_farther_than_its_mesh(tmp_path):
     mesh = scenes["mesh"].distances(r.home)["ball", "ring"]
     # the torus's facets (32 segments each way) bring its inner surface in by < 1 mm
     assert hull < 0 < mesh and abs(mesh - (0.1 - 0.03 - 0.02)) <= 1e-3
+
+
+# -- the thesis's Chapter 6 obstacles against coal ------------------------------------------------------
+@pytest.mark.parametrize("case", ["6.2", "6.3"])
+def test_chapter6_obstacles_agree_with_coal(case):
+    """The hand-written exact distances of planning/obstacles.py against coal's, on the obstacle's prism
+    (its circumscribed 64-gon, bottom to top): a point's coal distance is at most the exact one (the prism
+    holds the obstacle) and at least the exact one minus the prism's excess."""
+    import coal
+
+    from kinredund.geometry.shapes import convex
+    from kinredund.thesis.chapter6 import case_setup
+
+    _, _, obstacle = case_setup(case)
+    segments = 64
+    excess = max(obstacle.a, obstacle.b) * (1.0 / np.cos(np.pi / segments) - 1.0)
+    prism = convex(obstacle.prism_points(segments))
+    rng = np.random.default_rng(11)
+    lo, hi = obstacle.heights(obstacle.center[:2])
+    span = max(obstacle.a, obstacle.b)
+    checked = 0
+    for _ in range(200):
+        p = obstacle.center + rng.uniform(-2.0, 2.0, 3) * [span, span, 0.0]
+        p[2] = rng.uniform(lo, hi) if case == "6.2" else rng.uniform(lo - 0.5 * span, hi + 0.5 * span)
+        exact = float(obstacle.signed_distance(p))
+        if exact <= 1e-3:
+            continue  # inside: EPA's depths are not what this checks
+        req, res = coal.DistanceRequest(), coal.DistanceResult()
+        d = coal.distance(prism, coal.Transform3s(), coal.Sphere(1e-6), coal.Transform3s(np.eye(3), p), req, res)
+        d += 1e-6
+        assert exact - excess - DIST_TOL <= d <= exact + DIST_TOL, (p, exact, d)
+        checked += 1
+    assert checked > 50
+
+
+def test_chapter6_link_distances_agree_with_a_scene():
+    """Section 6.2's planar arm as capsules of radius r against the ellipse in a Scene: each link's distance is
+    planning/obstacles.py's segment distance minus r, to within the prism's excess."""
+    from kinredund.thesis.chapter6 import case_setup
+
+    robot_, _, obstacle = case_setup("6.2")
+    radius = 0.02
+    s = kr.Scene(robot_, capsule_radius=radius)
+    s.add_convex("obstacle", obstacle.prism_points(64))
+    excess = max(obstacle.a, obstacle.b) * (1.0 / np.cos(np.pi / 64) - 1.0)
+    model = robot_.model
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        q = robot_.random_configuration(rng)
+        rec = s.distances(q)
+        data = model.createData()
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        joints = [data.oMi[j].translation for j in range(1, model.njoints)]
+        points = [*joints, data.oMf[robot_.ee_frame_id].translation]
+        for j in range(1, model.njoints):
+            exact = float(obstacle.segment_distance(points[j - 1], points[j], radius))
+            if exact <= 1e-3:
+                continue
+            d = rec[(f"{model.names[j]}_capsule", "obstacle")]
+            assert exact - excess - DIST_TOL <= d <= exact + 1e-9, (q, j, exact, d)  # golden section: 1e-10 m

@@ -30,7 +30,7 @@ from kinredund.geometry.pairs import PairMatrix, self_pairs
 from kinredund.geometry.records import DistanceRows, Distances
 from kinredund.model.robot import Robot
 
-SHAPES = ("box", "sphere", "cylinder", "capsule", "mesh")
+SHAPES = ("box", "sphere", "cylinder", "capsule", "convex", "mesh")
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class SceneObject:
         name: unique in the scene (and not a robot object's name).
         shape: one of :data:`SHAPES`.
         params: the shape's numbers: ``size`` (box, full sides [m]), ``radius`` [m], ``length`` [m] (cylinder,
-            capsule: along the object's z axis), ``file``, ``scale`` and ``convex`` (mesh).
+            capsule: along the object's z axis), ``points`` (convex, [m]), ``file``, ``scale`` and ``convex`` (mesh).
         pose: 4x4 pose [m] in the world, or in ``attach_to``'s frame.
         attach_to: a robot frame's name, or None for a world obstacle.
     """
@@ -63,6 +63,8 @@ def _make_shape(shape: str, params: dict):
         return shapes.cylinder(params["radius"], params["length"])
     if shape == "capsule":
         return shapes.capsule(params["radius"], params["length"])
+    if shape == "convex":
+        return shapes.convex(params["points"])
     return shapes.load_mesh(params["file"], params.get("scale", 1.0), convex=params.get("convex", True))
 
 
@@ -136,6 +138,11 @@ class Scene:
                     attach_to: str | None = None) -> SceneObject:
         """A capsule: a segment of ``length`` [m] along the z axis of ``pose``, centred on it, swept by ``radius``."""
         return self._add(name, "capsule", {"radius": radius, "length": length}, pose, attach_to)
+
+    def add_convex(self, name: str, points, pose=None, *, attach_to: str | None = None) -> SceneObject:
+        """The convex hull of ``points`` [m] (N, 3) in the frame of ``pose`` (e.g. a thesis obstacle's prism)."""
+        pts = np.asarray(points, dtype=float).tolist() if np.ndim(points) == 2 else points
+        return self._add(name, "convex", {"points": pts}, pose, attach_to)
 
     def add_mesh(self, name: str, file, pose=None, *, scale=1.0, convex: bool | None = None,
                  attach_to: str | None = None) -> SceneObject:

@@ -19,7 +19,7 @@ FORMAT = "kinredund-scene"
 UNITS = {"length": "m", "angle": "rad"}
 #: the keys each shape takes besides name, shape, pose and attach_to
 SHAPE_KEYS = {"box": ("size",), "sphere": ("radius",), "cylinder": ("radius", "length"),
-              "capsule": ("radius", "length"), "mesh": ("file", "scale", "convex")}
+              "capsule": ("radius", "length"), "convex": ("points",), "mesh": ("file", "scale", "convex")}
 _OPTIONAL = {"scale", "convex"}
 
 
@@ -102,6 +102,8 @@ def _add(scene: Scene, entry, folder: Path, where: str) -> None:
         scene.add_cylinder(name, entry["radius"], entry["length"], pose, attach_to=attach)
     elif shape == "capsule":
         scene.add_capsule(name, entry["radius"], entry["length"], pose, attach_to=attach)
+    elif shape == "convex":
+        scene.add_convex(name, entry["points"], pose, attach_to=attach)
     else:
         scene.add_mesh(name, folder / str(entry["file"]), pose, scale=entry.get("scale", 1.0),
                        convex=entry.get("convex"), attach_to=attach)

@@ -21,7 +21,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from kinredund.errors import GeometryError, check_positive
+from kinredund.errors import GeometryError, check_array, check_positive
 
 #: the largest departure from orthonormality accepted in a rotation matrix, and from 1 in a quaternion's norm
 RIGID_TOL = 1e-6
@@ -122,6 +122,19 @@ def cylinder(radius, length) -> coal.Cylinder:
 def capsule(radius, length) -> coal.Capsule:
     """A capsule about its frame's z axis: a segment of ``length`` [m] centred on the frame, swept by ``radius``."""
     return coal.Capsule(positive(radius, "capsule radius [m]"), positive(length, "capsule length [m]"))
+
+
+def convex(points) -> coal.ConvexBase:
+    """The convex hull of ``points`` [m], shape (N, 3), N >= 4 not all in one plane (through qhull)."""
+    P = check_array(points, (None, 3), "convex points [m]", GeometryError)
+    if len(P) < 4:
+        raise GeometryError(f"convex points [m] must number at least 4, got {len(P)}")
+    if np.linalg.matrix_rank(P[1:] - P[0], tol=1e-9) < 3:
+        raise GeometryError("convex points [m] all lie in one plane (or line): they bound no volume")
+    vs = coal.StdVec_Vec3s()
+    for p in P:
+        vs.append(p)
+    return coal.Convex.convexHull(vs, True, "Qt")
 
 
 def load_mesh(file, scale=1.0, *, convex: bool = True):
