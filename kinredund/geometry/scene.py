@@ -253,6 +253,14 @@ class Scene:
         near = [p for p in self._pair_names if a in p or b in p] or list(self._pair_names)
         raise ChoiceError("pair (the scene does not check it)", (a, b), [f"({x}, {y})" for x, y in near])
 
+    def object_pose(self, name: str, q) -> np.ndarray:
+        """The world pose (4x4, [m]) of object ``name`` (a scene object or a robot object) at q."""
+        if name not in self._names:
+            raise ChoiceError("object", name, self._names)
+        ws = self.workspace()
+        ws.place(self.robot.check_q(q))
+        return ws.gdata.oMg[self._names.index(name)].homogeneous
+
     # -- queries --------------------------------------------------------------------------------
     def _candidates(self, ws: Workspace, influence) -> np.ndarray:
         if influence is None:

@@ -253,6 +253,9 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                    help="write a standalone HTML replay that plays offline (default: not written)")
     p.add_argument("--live", action="store_true",
                    help="serve the replay on a local meshcat server until Ctrl-C (default: off)")
+    p.add_argument("--scene", type=Path, metavar="FILE",
+                   help="with --html: a scene file (docs/schema.md) whose objects are drawn, the closest pair marked "
+                        "(default: none)")
 
     p = _sub(sub, commands, "generate-robots", "write robots/*.urdf from the thesis's HD tables",
              "Write the URDF files of the thesis's robots from their Hartenberg-Denavit tables.",
