@@ -323,3 +323,30 @@ def test_chapter6_link_distances_agree_with_a_scene():
                 continue
             d = rec[(f"{model.names[j]}_capsule", "obstacle")]
             assert exact - excess - DIST_TOL <= d <= exact + 1e-9, (q, j, exact, d)  # golden section: 1e-10 m
+
+
+@pytest.mark.parametrize("name", ["panda", "baxter", "ur5"])
+def test_collision_objects_sit_where_pinocchio_puts_them(name):
+    """The robot's objects moved onto its reduced model by link name against Pinocchio's own route
+    (``pin.buildReducedModel`` with the geometry model, the locked joints at the robot's values): every object's
+    world pose agrees at seeded configurations (to rounding)."""
+    from kinredund.model.urdf import load_urdf
+
+    r = robot(name)
+    parsed = load_urdf(r.urdf_path)
+    full = parsed.model
+    gm0 = pin.buildGeomFromUrdfString(full, parsed.text, pin.GeometryType.COLLISION,
+                                      package_dirs=list(r.package_dirs))
+    q_full = pin.neutral(full)
+    for joint, value in r.locked.items():
+        q_full[full.idx_qs[full.getJointId(joint)]] = value
+    locked = [full.getJointId(j) for j in r.locked]
+    reduced, geom = pin.buildReducedModel(full, gm0, locked, q_full) if locked else (full, gm0)
+    data, gdata = reduced.createData(), pin.GeometryData(geom)
+    s = scene(name)
+    rng = np.random.default_rng(9)
+    for _ in range(3):
+        q = r.random_configuration(rng, 0.1)
+        pin.updateGeometryPlacements(reduced, data, geom, gdata, q)
+        for k, g in enumerate(geom.geometryObjects):
+            assert np.abs(s.object_pose(g.name, q) - gdata.oMg[k].homogeneous).max() <= 1e-12

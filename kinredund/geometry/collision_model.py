@@ -17,6 +17,7 @@ This module and :mod:`kinredund.geometry.scene` are the geometry layer's Pinocch
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -98,34 +99,45 @@ def default_srdf(urdf: Path) -> Path | None:
 
 def _from_urdf(robot: Robot, path: Path, geometry: str):
     """(model, names, links, parent_link) from the URDF's collision elements, or None if it has none."""
+    dirs = tuple(str(d) for d in robot.package_dirs) or (str(path.parent),)
+    objects, parents = _urdf_objects(str(path), path.stat().st_mtime_ns, geometry, dirs)
+    if not objects:
+        return None
+    model = robot.model
+    gm, names, links = pin.GeometryModel(), [], []
+    for name, link, on_link, shape in objects:
+        if not model.existFrame(link, pin.FrameType.BODY):
+            raise GeometryError(f"{str(path)!r}: link {link!r} of collision object {name!r} is not a link "
+                                f"of robot {robot.name!r}")
+        fid = model.getFrameId(link, pin.FrameType.BODY)
+        frame = model.frames[fid]
+        gm.addGeometryObject(pin.GeometryObject(name, frame.parentJoint, fid, frame.placement * on_link, shape))
+        names.append(name)
+        links.append(link)
+    return gm, tuple(names), tuple(links), dict(parents)
+
+
+@functools.lru_cache(maxsize=32)
+def _urdf_objects(path: str, mtime_ns: int, geometry: str, package_dirs: tuple) -> tuple[tuple, tuple]:
+    """((name, link, pose on the link, coal shape) per collision element, (link, parent link) pairs) of a URDF
+    file, read once per file version and kind (meshes and hulls take seconds on some arms; shapes are shared
+    between scenes and never modified)."""
     parsed = load_urdf(path)
     full = parsed.model
     try:
         gm0 = pin.buildGeomFromUrdfString(full, parsed.text, pin.GeometryType.COLLISION,
-                                          package_dirs=[str(d) for d in robot.package_dirs] or [str(path.parent)])
+                                          package_dirs=list(package_dirs))
     except (ValueError, RuntimeError) as err:
-        raise GeometryError(f"cannot read the collision geometry of {str(path)!r}: {err}") from err
-    if gm0.ngeoms == 0:
-        return None
-    model = robot.model
-    gm, names, links = pin.GeometryModel(), [], []
-    has_geometry = {full.frames[g.parentFrame].name for g in gm0.geometryObjects}
+        raise GeometryError(f"cannot read the collision geometry of {path!r}: {err}") from err
+    objects = []
     for g in gm0.geometryObjects:
-        link = full.frames[g.parentFrame]
-        if not model.existFrame(link.name, pin.FrameType.BODY):
-            raise GeometryError(f"{str(path)!r}: link {link.name!r} of collision object {g.name!r} is not a link "
-                                f"of robot {robot.name!r}")
-        fid = model.getFrameId(link.name, pin.FrameType.BODY)
-        frame = model.frames[fid]
-        on_link = link.placement.inverse() * g.placement  # constant: object and link share a joint
         if g.geometry is None:
-            raise GeometryError(f"{str(path)!r}: collision object {g.name!r} has no shape (missing mesh?)")
-        obj = pin.GeometryObject(g.name, frame.parentJoint, fid, frame.placement * on_link,
-                                 as_kind(g.geometry, geometry))
-        gm.addGeometryObject(obj)
-        names.append(g.name)
-        links.append(link.name)
-    return gm, tuple(names), tuple(links), _link_parents(full, has_geometry)
+            raise GeometryError(f"{path!r}: collision object {g.name!r} has no shape (missing mesh?)")
+        link = full.frames[g.parentFrame]
+        on_link = link.placement.inverse() * g.placement  # constant: the object and its link share a joint
+        objects.append((g.name, link.name, on_link, as_kind(g.geometry, geometry)))
+    has_geometry = {link for _, link, _, _ in objects}
+    return tuple(objects), tuple(_link_parents(full, has_geometry).items())
 
 
 def _link_parents(full: pin.Model, has_geometry: set) -> dict:
