@@ -258,7 +258,7 @@ class Scene:
         if name not in self._names:
             raise ChoiceError("object", name, self._names)
         ws = self.workspace()
-        ws.place(self.robot.check_q(q))
+        ws.place(self._q(q))
         return ws.gdata.oMg[self._names.index(name)].homogeneous
 
     # -- queries --------------------------------------------------------------------------------
@@ -268,10 +268,16 @@ class Scene:
         influence = float(influence)
         if not np.isfinite(influence) or influence < 0:
             raise GeometryError(f"influence must be a finite distance >= 0 [m] or None, got {influence!r}")
-        return np.flatnonzero(ws.sphere_gaps() <= influence)
+        return ws.near_pairs(influence)
+
+    def _q(self, q) -> np.ndarray:
+        """q validated: a finite float array of the robot's length as is (the hot path), else ``robot.check_q``."""
+        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.robot.nq,) and np.isfinite(q).all():
+            return q
+        return self.robot.check_q(q)
 
     def _exact(self, q, influence):
-        q = self.robot.check_q(q)
+        q = self._q(q)
         ws = self.workspace()
         ws.place(q)
         ks = self._candidates(ws, influence)
@@ -293,13 +299,13 @@ class Scene:
         """The smallest signed distance [m] over every checked pair at q (inf when the scene checks none)."""
         if not self._pair_names:
             return float("inf")
-        return float(self.workspace().closest(self.robot.check_q(q))[1])
+        return float(self.workspace().closest(self._q(q))[1])
 
     def closest(self, q) -> tuple[tuple[str, str] | None, float]:
         """(the closest pair, its signed distance [m]) at q ((None, inf) when the scene checks no pair)."""
         if not self._pair_names:
             return None, float("inf")
-        k, d = self.workspace().closest(self.robot.check_q(q))
+        k, d = self.workspace().closest(self._q(q))
         return self._pair_names[k], float(d)
 
     def distance_rows(self, q, influence: float | None = None) -> DistanceRows:
