@@ -35,7 +35,16 @@ from kinredund.errors import (
     UnknownRobotError,
     URDFError,
 )
-from kinredund.geometry import DistanceRows, Distances, PairMatrix, Scene, load_scene, save_scene
+from kinredund.geometry import (
+    Clearance,
+    DistanceRows,
+    Distances,
+    PairMatrix,
+    Scene,
+    check_motion,
+    load_scene,
+    save_scene,
+)
 from kinredund.ik import IKResult, check_optimality, solve_ik
 from kinredund.indices import CustomIndex, Index, JointDeviation, TimeVaryingReference, mid_range, minimum_norm
 from kinredund.kinematics.hd import HDTable
@@ -61,6 +70,7 @@ __version__ = _version("kinredund")
 __all__ = [
     "AxisPath",
     "ChoiceError",
+    "Clearance",
     "Circle",
     "CyclicPlan",
     "CustomIndex",
@@ -98,6 +108,7 @@ __all__ = [
     "Trajectory",
     "URDFError",
     "UnknownRobotError",
+    "check_motion",
     "check_optimality",
     "get_task",
     "indices",

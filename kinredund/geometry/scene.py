@@ -292,7 +292,7 @@ class Scene:
                 others are surely farther); None computes every checked pair.
         """
         q, _, ks, d, n, pa, pb = self._exact(q, influence)
-        return Distances(q, tuple(self._pair_names[k] for k in ks), d, pa, pb, n,
+        return Distances(q.copy(), tuple(self._pair_names[k] for k in ks), d, pa, pb, n,
                          None if influence is None else float(influence), len(self._pair_names))
 
     def min_distance(self, q) -> float:
