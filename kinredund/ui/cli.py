@@ -282,9 +282,11 @@ def _cmd_play(args) -> int:
 
     rec = replay_record(args.result)
     if args.html is not None:
+        from kinredund.geometry import load_scene
         from kinredund.ui.viz import replay_html
 
-        _wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title))
+        scene = None if args.scene is None else load_scene(args.scene, rec.robot)
+        _wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title, scene=scene))
     if args.live:
         import time
 

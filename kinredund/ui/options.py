@@ -266,6 +266,9 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                    help="write a standalone HTML replay that plays offline (default: not written)")
     p.add_argument("--live", action="store_true",
                    help="serve the replay on a local meshcat server until Ctrl-C (default: off)")
+    p.add_argument("--scene", type=Path, metavar="FILE",
+                   help="with --html: a scene file (docs/schema.md) whose objects are drawn, the closest pair marked "
+                        "(default: none)")
 
     p = _sub(sub, commands, "generate-robots", "write robots/*.urdf from the thesis's HD tables",
              "Write the URDF files of the thesis's robots from their Hartenberg-Denavit tables.",
@@ -281,4 +284,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     from kinredund.ui.cli_sweep import add_parser as add_sweep_parser  # the placement sweep (its own module)
 
     add_sweep_parser(sub)
+    from kinredund.ui.cli_check import add_parser as add_check_parser  # check a motion in a scene (issue 24)
+
+    add_check_parser(sub)
     return parser
