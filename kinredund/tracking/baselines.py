@@ -46,7 +46,7 @@ class Pseudoinverse(ExplicitStepper):
             if self.ev.index is not None:
                 self.lam = multipliers(pt.J, pt.grad)[0]  # Eqs. (4.11)-(4.12)
         self.qdot = self.direction(pt, np.linalg.pinv(pt.J), xdot)
-        self.lamdot, self._solver, self.M = np.zeros_like(self.lam), "lstsq", None
+        self.lamdot, self.label, self.M = np.zeros_like(self.lam), "lstsq", None
 
     def advance(self) -> None:
         q = self.q

@@ -31,6 +31,7 @@ from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.tracking.linalg import bound_rate_qp, classify, lu_solve
 from kinredund.tracking.point import Evaluator, Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
+from kinredund.tracking.state import ConstrainedState
 
 #: a joint within this distance of its bound at the start counts as on it [rad or m]; a start outside
 #: the limits by at most this much is put on the bound
@@ -44,11 +45,14 @@ MAX_SWITCHES_PER_STEP = 8
 class LimitedPredictorCorrector(PredictorCorrector):
     """The default-mode stepper with hard joint limits (augmented or velocity form).
 
-    State besides :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector`'s: ``fixed`` (n,)
-    bool, ``side`` (n,) (+1 at a lower bound, -1 at an upper bound, 0 free), ``switches`` (a list of
-    dicts: time [s], joint, ``reach`` or ``release``, side) and ``mu`` (n,), the bound multipliers at t.
-    With no joint on a bound every operation is the unlimited stepper's own.
+    State besides :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector`'s (one value,
+    :class:`~kinredund.tracking.state.ConstrainedState`): ``fixed`` (n,) bool, ``side`` (n,) (+1 at a lower
+    bound, -1 at an upper bound, 0 free), ``switches`` (a tuple of dicts: time [s], joint, ``reach`` or
+    ``release``, side) and ``mu`` (n,), the bound multipliers at t. The arrays are replaced, never changed
+    in place. With no joint on a bound every operation is the unlimited stepper's own.
     """
+
+    state_class = ConstrainedState
 
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, limits: JointLimits, **kwargs):
         self.limits = limits
@@ -60,7 +64,8 @@ class LimitedPredictorCorrector(PredictorCorrector):
         self.fixed, self.side = np.zeros(n, bool), np.zeros(n)
         self.mu = self._no_mu = np.zeros(n)
         self._no_mu.flags.writeable = False
-        self.switches: list[dict] = []
+        self.switches: tuple[dict, ...] = ()
+        self.rows, self.nu = (), np.zeros(0)
         self._sel = None  # the free rows of R (None: all joints free)
         q0 = self._start_inside(q0, evaluator)
         for i in np.flatnonzero(q0 <= self.lo + ON_BOUND):
@@ -102,10 +107,12 @@ class LimitedPredictorCorrector(PredictorCorrector):
         return np.clip(q0, self.lo, self.hi)
 
     def _fix(self, i: int, side: float) -> None:
+        self.fixed, self.side = self.fixed.copy(), self.side.copy()  # a saved state keeps its own
         self.fixed[i], self.side[i] = True, side
         self._update_sel()
 
     def _free(self, i: int) -> None:
+        self.fixed, self.side = self.fixed.copy(), self.side.copy()
         self.fixed[i], self.side[i] = False, 0.0
         self.mu = self.mu.copy()
         self.mu[i] = 0.0
@@ -175,9 +182,9 @@ class LimitedPredictorCorrector(PredictorCorrector):
             y = y.copy()
             y[: self.n][self.fixed] = self._bound_values()[self.fixed]
         super()._correct(y)
-        if self._sel is not None and self._solver is None:  # the label of the reduced system, now
+        if self._sel is not None and self.label is None:  # the label of the reduced system, now
             F = self._free_idx
-            self._solver = classify(self.M[np.ix_(F, F)], self.pt.J[:, F], self.linear_solver,
+            self.label = classify(self.M[np.ix_(F, F)], self.pt.J[:, F], self.linear_solver,
                                     symmetric=self.symmetric)
         self._update_mu()
 
@@ -192,8 +199,8 @@ class LimitedPredictorCorrector(PredictorCorrector):
             sol = self._solve(lu, np.concatenate([top, pt.xdot]))
             self.qdot, self.lamdot, self.M = sol[: self.n], sol[self.n:], M
             F = self._free_idx
-            self._solver = classify(M[np.ix_(F, F)], pt.J[:, F], self.linear_solver, symmetric=self.symmetric)
-            self._y, self._yd = np.concatenate([self.q, self.lam]), sol
+            self.label = classify(M[np.ix_(F, F)], pt.J[:, F], self.linear_solver, symmetric=self.symmetric)
+            self.y, self.yd = np.concatenate([self.q, self.lam]), sol
         self._update_mu()
 
     def _update_mu(self) -> None:
@@ -214,48 +221,30 @@ class LimitedPredictorCorrector(PredictorCorrector):
         return np.where(self.fixed, self.side * (M @ self.qdot + pt.J.T @ self.lamdot - top), 0.0)
 
     # -- the step and its switches -----------------------------------------------------------------
-    _STATE = ("t", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "mu")
-
-    def _snapshot(self) -> dict:
-        """The state to come back to (the step's start, a switching time); arrays are never changed in place."""
-        return {"t": self.t, "q": self.q, "lam": self.lam, "qdot": self.qdot, "lamdot": self.lamdot, "_y": self._y,
-                "_yd": self._yd, "pt": self.pt, "M": self.M, "_solver": self._solver, "mu": self.mu,
-                "prev": list(self.prev), "fixed": self.fixed.copy() if self._sel is not None else None,
-                "side": self.side.copy() if self._sel is not None else None}
-
-    def _restore(self, snap: dict) -> None:
-        for name in self._STATE:
-            setattr(self, name, snap[name])
-        self.prev[:] = snap["prev"]
-        if snap["fixed"] is None:
-            self.fixed[:], self.side[:] = False, 0.0
-        else:
-            self.fixed[:], self.side[:] = snap["fixed"], snap["side"]
+    def _state_applied(self) -> None:
         self._update_sel()
 
     def step(self) -> None:
         """One step to t + dt; a switch of the active set within it is located and stepped to exactly."""
-        snap, k = self._snapshot(), self.k  # k: the step count (a switching time's snapshot keeps the step's)
+        snap = self.state
         bounded = self._sel is not None or bool(self.switches)  # a failure then is the limits' to name
         try:
             super().step()
             self._resolve_switches(snap)
         except TrackingError as err:
             if err.q is None:  # the last good state: the step's start
-                err.t, err.q = snap["t"], [float(v) for v in snap["q"]]
+                err.t, err.q = snap.t, [float(v) for v in snap.q]
                 err.watched = self._watched(snap)
-            self._restore(snap)
-            self.k = k  # back at the last requested time: t = t0 + k dt
+            self.state = snap  # back at the last requested time: t = t0 + k dt
             raise
         except (PathError, SingularityError) as err:
             if not bounded:  # as the unlimited scheme reports it: no bound has been met
                 raise
-            self._restore(snap)
-            self.k = k
+            self.state = snap
             cause = "kinematic_singularity" if "kinematic" in str(err) else \
                 "not_strongly_stable" if isinstance(err, SingularityError) else "limits_infeasible"
-            raise TrackingError(f"tracking within the joint limits stopped after t = {snap['t']:.6g} s: {err}",
-                                cause=cause, t=snap["t"], q=snap["q"], watched=self._watched(snap)) from err
+            raise TrackingError(f"tracking within the joint limits stopped after t = {snap.t:.6g} s: {err}",
+                                cause=cause, t=snap.t, q=snap.q, watched=self._watched(snap)) from err
 
     def _events(self) -> list[tuple[int, str]]:
         """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``)."""
@@ -278,42 +267,42 @@ class LimitedPredictorCorrector(PredictorCorrector):
             return float(self.hi[joint] - self.q[joint])
         return float(self.mu[joint])
 
-    def _crossing(self, snap: dict, t_end: float, joint: int, kind: str) -> float:
+    def _crossing(self, snap: ConstrainedState, t_end: float, joint: int, kind: str) -> float:
         """The time in (snap t, t_end] where the watched quantity of (joint, kind) reaches zero (Brent)."""
         def phi(tau):
-            self._restore(snap)
-            if tau > snap["t"]:
+            self.state = snap
+            if tau > snap.t:
                 self.euler_to(tau)
             return self._watch(joint, kind)
 
-        t_start = snap["t"]
+        t_start = snap.t
         if phi(t_start) <= 0.0:
             return t_start
         try:
             return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
         except (ValueError, RuntimeError, KinredundError) as err:
-            self._restore(snap)
+            self.state = snap
             raise self._failure("switch_not_resolved", f"the switch of joint {self.limits.joint_names[joint]} "
                                 f"({kind}) within ({t_start:.6g}, {t_end:.6g}] s could not be located: {err}") from err
 
-    def _resolve_switches(self, snap: dict) -> None:
-        t_end = self.t
+    def _resolve_switches(self, snap: ConstrainedState) -> None:
+        t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
         for _ in range(MAX_SWITCHES_PER_STEP):
             events = self._events()
             if not events:
                 return
-            state_end = self._snapshot()
+            state_end = self.state
             times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
-            self._restore(state_end)
+            self.state = state_end
             tau, joint, kind = min(times)
-            self._restore(snap)
-            if tau > snap["t"]:
+            self.state = snap
+            if tau > snap.t:
                 self.euler_to(tau)
             self._switch(joint, kind)
-            snap = self._snapshot()
+            snap = self.state
             if t_end > tau:
                 self.euler_to(t_end)
-            self.t = t_end
+            self.t, self.k = t_end, k_end
         raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
                             f"within one step before t = {t_end:.6g} s (chattering)")
 
@@ -327,9 +316,9 @@ class LimitedPredictorCorrector(PredictorCorrector):
             self.q = self.q.copy()
             self.q[joint] = self.lo[joint] if side > 0 else self.hi[joint]
             self._fix(joint, side)
-        self.switches.append({"t": float(self.t), "joint": joint, "name": self.limits.joint_names[joint],
-                              "kind": "release" if kind == "release" else "reach",
-                              "bound": "lower" if side > 0 else "upper", "q": self.q.tolist()})
+        self.switches += ({"t": float(self.t), "joint": joint, "name": self.limits.joint_names[joint],
+                           "kind": "release" if kind == "release" else "reach",
+                           "bound": "lower" if side > 0 else "upper", "q": self.q.tolist()},)
         self.prev.clear()  # the optimal path has a kink here: the predictor starts afresh
         self._newton()
         self._rates()
@@ -375,12 +364,11 @@ class LimitedPredictorCorrector(PredictorCorrector):
         return rate <= 1e-12
 
     # -- failures ------------------------------------------------------------------------------------
-    def _watched(self, snap: dict | None = None) -> dict:
-        state = snap or {"q": self.q, "mu": self.mu, "side": self.side}
-        q = state["q"]
-        side = np.zeros(len(q)) if state["side"] is None else state["side"]  # a snapshot with no joint on a bound
-        return {"active": (-np.asarray(side)).astype(int).tolist(),
-                "bound_multipliers": np.asarray(state["mu"]).tolist(),
+    def _watched(self, snap: ConstrainedState | None = None) -> dict:
+        state = snap if snap is not None else self.state
+        q = state.q
+        return {"active": (-np.asarray(state.side)).astype(int).tolist(),
+                "bound_multipliers": np.asarray(state.mu).tolist(),
                 "limit_margins": np.minimum(self.limits.margins(q), 1e10).tolist()}
 
     def _failure(self, cause: str, message: str) -> TrackingError:
