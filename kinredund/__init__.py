@@ -51,7 +51,7 @@ from kinredund.paths import (
 )
 from kinredund.planning.cyclic import CyclicPlan, plan
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking import JointLimits, Tracker, track
+from kinredund.tracking import JointLimits, PlaneClearance, SphereClearance, Tracker, track
 from kinredund.trajectory import Trajectory
 
 __version__ = _version("kinredund")
@@ -78,10 +78,12 @@ __all__ = [
     "Path",
     "PathError",
     "PathSample",
+    "PlaneClearance",
     "Robot",
     "SampledPath",
     "SingularityError",
     "SolverError",
+    "SphereClearance",
     "Task",
     "TaskError",
     "TrackingError",

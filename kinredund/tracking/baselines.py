@@ -28,7 +28,7 @@ class Pseudoinverse(ExplicitStepper):
         super().__init__(evaluator, q0, dt, **kwargs)
         self._rates(None)
 
-    def evaluate(self, q: np.ndarray, t: float) -> Point:
+    def evaluate(self, q: np.ndarray, t: float, need_dJ: bool = False) -> Point:
         return self.ev.point(q, t, need_dJ=False)  # no Lambda: dK is not needed
 
     def direction(self, pt: Point, Jp: np.ndarray, xdot: np.ndarray) -> np.ndarray:

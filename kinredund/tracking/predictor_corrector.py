@@ -180,7 +180,7 @@ class PredictorCorrector(Stepper):
         n = self.n
         for _ in range(max_iter):
             if F is None:
-                F = self._residual(self.ev.point(y[:n], self.t, need_dJ=False), y[n:])
+                F = self._residual(self.evaluate(y[:n], self.t, need_dJ=False), y[n:])
             if float(F @ F) <= tol * tol:
                 return y, True
             y = y - self._solve(lu, F)

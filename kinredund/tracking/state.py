@@ -59,8 +59,9 @@ class ConstrainedState(StepState):
 
     Attributes:
         fixed: (n,) bool, the joints on a bound; ``side``: (n,) +1 at a lower bound, -1 at an upper one, 0 free.
-        rows: the active general inequalities, a tuple of (constraint number, row number) pairs.
-        mu: the multipliers of the active bounds (n,) and ``nu``, of the active general rows (len(rows),).
+        rows: the active general inequality rows (their numbers among the stepper's rows), in the order
+            their multipliers w = -nu follow lambda in ``lam``.
+        mu: the multipliers of the active bounds (n,).
         switches: the switches of the active set so far (dicts: time, what, ``reach``/``release``).
     """
 
@@ -68,7 +69,6 @@ class ConstrainedState(StepState):
     side: np.ndarray | None = None
     rows: tuple = ()
     mu: np.ndarray | None = None
-    nu: np.ndarray | None = None
     switches: tuple = ()
 
 

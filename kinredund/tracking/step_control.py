@@ -134,7 +134,7 @@ class StepControl:
             self._speed2 = speed2
             return None
         if h < s.dt:  # sub-steps (near trouble): exactly, at the corrected point (not the Euler prediction's)
-            pt = s.ev.point(s.q, s.t)
+            pt = s.evaluate(s.q, s.t)
             sigma, eig = self.watch.measure_exact(pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         else:
             sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
@@ -149,7 +149,7 @@ class StepControl:
         """The prediction again after an exact measurement at the current point (the gated history may be old)."""
         s = self.s
         if not self.watch.exact_at(s.t):  # a sub-step's point is measured exactly already: not again
-            pt = s.ev.point(s.q, s.t)
+            pt = s.evaluate(s.q, s.t)
             self.watch.refresh(s.t, pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         return self.watch.ahead(t_next)
 

@@ -80,9 +80,15 @@ class Stepper:
     def _state_applied(self) -> None:
         """After :attr:`state` is assigned: derived quantities (a subclass's, e.g. the free rows of R)."""
 
-    def evaluate(self, q: np.ndarray, t: float) -> Point:
-        """The scheme's evaluation at (q, t) (with dK: the optimal schemes need Lambda)."""
-        return self.ev.point(q, t)
+    @property
+    def task_lam(self) -> np.ndarray:
+        """The task's multipliers lambda (a stepper with constraint rows holds their multipliers after them)."""
+        return self.lam
+
+    def evaluate(self, q: np.ndarray, t: float, need_dJ: bool = True) -> Point:
+        """The scheme's evaluation at (q, t) (with dK: the optimal schemes need Lambda; ``need_dJ=False``
+        for the residual only). A stepper with constraint rows extends it (:mod:`kinredund.tracking.rows`)."""
+        return self.ev.point(q, t, need_dJ=need_dJ)
 
     def step(self) -> None:
         """One time step: from (q, lambda) at t to t + dt."""
