@@ -252,7 +252,7 @@ class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
             self.state = snap  # back at the last requested time: t = t0 + k dt
             raise
         except (PathError, SingularityError) as err:
-            if not bounded:  # as the unlimited scheme reports it: no bound has been met
+            if not (bounded or self._rows_involved(snap)):  # as the unlimited scheme reports it: none met
                 raise
             self.state = snap
             cause = "kinematic_singularity" if "kinematic" in str(err) else \

@@ -227,10 +227,7 @@ class GeneralRows:
     def _name_row_failure(self, err, snap) -> None:
         """A stop with a general row active (or switched in the step) is the constraint's: ``err.cause``
         becomes its cause (``collision``), the former one ``watched["underlying_cause"]``."""
-        if not self.row_pairs:
-            return
-        involved = set(snap.rows) | set(self.rows) | {w["row"] for w in self.switches[len(snap.switches):]
-                                                         if "row" in w}
+        involved = self._rows_involved(snap)
         if not involved:
             return
         cause = self.general[self.row_pairs[min(involved)][0]].cause
@@ -238,6 +235,12 @@ class GeneralRows:
             err.watched["underlying_cause"] = err.cause
             err.cause = cause
         err.watched["constraints"] = self.row_names(sorted(involved))
+
+    def _rows_involved(self, snap) -> set:
+        """The rows active at the step's start (``snap``) or now, or switched within the step."""
+        if not self.row_pairs:
+            return set()
+        return set(snap.rows) | set(self.rows) | {w["row"] for w in self.switches[len(snap.switches):] if "row" in w}
 
     def _rows_watched(self, state) -> dict:
         if not self.row_pairs:
