@@ -22,6 +22,7 @@ import kinredund
 from kinredund.errors import ChoiceError, OptionError, TrackingError
 from kinredund.kinematics.finite_diff import central_difference
 from kinredund.tracking import PlaneClearance, SphereClearance, Tracker, track
+from kinredund.tracking.rows import row_rate_qp
 
 #: (circle case of test_tracking_limits, frame, sphere center [m], radius [m]): the within-limits optimum's
 #: frame origin passes 1-2 cm inside the sphere
@@ -184,6 +185,11 @@ def test_bad_constraint_input_is_named():
         Tracker(r, path, index, q0, 0.01, constraints=[kinredund.JointLimits(r)])
     with pytest.raises(ChoiceError):
         Tracker(r, path, index, q0, 0.01, constraints=[sphere("panda_elbow_sphere")], qp_solver="nope")
+    import qpsolvers
+
+    if "daqp" not in qpsolvers.available_solvers:  # selectable, but named where it is not installed
+        with pytest.raises(OptionError, match="not installed"):
+            Tracker(r, path, index, q0, 0.01, constraints=[sphere("panda_elbow_sphere")], qp_solver="daqp")
     with pytest.raises(OptionError, match="default mode"):
         Tracker(r, path, index, q0, 0.01, mode="thesis", constraints=[sphere("panda_elbow_sphere")])
 
@@ -231,3 +237,32 @@ def test_random_spheres_are_held_and_closed_or_stop_named_clear_and_on_the_path(
         return
     assert clearances(c, tr.q).min() >= -1e-9
     assert tr.loop_drift.max() <= 1e-10 and tr.position_error.max() <= 1e-10
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_row_rate_qp_agrees_with_the_kkt_system_of_its_active_set(seed):
+    """The rate QP at a weakly active row (qpsolvers, proxqp) against the equality-constrained KKT solve of the
+    active set it reports: with the row (rate 0, multiplier >= 0 from the KKT system) or without it (rate > 0)."""
+    rng = np.random.default_rng(seed)
+    n = 6
+    B = rng.normal(size=(n, n))
+    A, g, top = rng.normal(size=(2, n)), rng.normal(size=n), rng.normal(size=n)
+    b = rng.normal(size=2)
+    # odd seeds: M indefinite, positive definite on the null space of A (the QP's sym(M) + rho A^T A route)
+    M = B @ B.T + 0.1 * np.eye(n) - (5.0 if seed % 2 else 0.0) * A.T @ A
+    assert (np.linalg.eigvalsh(M).min() < 0) == bool(seed % 2)
+
+    def kkt(rows):
+        K = np.block([[M, rows.T], [rows, np.zeros((len(rows), len(rows)))]])
+        sol = np.linalg.solve(K, np.concatenate([top, b, np.zeros(len(rows) - len(b))]))
+        return sol[:n], sol[n:]
+
+    free_v, _ = kkt(A)
+    g *= np.sign(g @ free_v) * (1.0 if seed < 4 else -1.0)  # seeds 0-3: slack at the free optimum; 4-7: not
+    rate, mult = row_rate_qp(M, top, A, b, g)
+    if seed < 4:
+        assert rate == pytest.approx(g @ free_v, abs=1e-8) and abs(mult) <= 1e-8
+    else:
+        v, y = kkt(np.vstack([A, g]))
+        assert abs(rate) <= 1e-8 and mult == pytest.approx(-y[-1], abs=1e-8) and mult >= -1e-8
+        assert np.abs(v - free_v).max() > 1e-6  # the row changed the answer

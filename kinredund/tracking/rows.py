@@ -115,6 +115,12 @@ class GeneralRows:
         check_choice("QP solver of the rate QP", qp_solver, QP_SOLVERS)
         self.qp_solver = qp_solver
         self.general = list(constraints)
+        if self.general:
+            import qpsolvers
+
+            if qp_solver not in qpsolvers.available_solvers:
+                raise OptionError(f"the QP solver {qp_solver!r} is not installed (qpsolvers has "
+                                  f"{', '.join(qpsolvers.available_solvers)}; e.g. pip install daqp)")
         for c in self.general:
             if not isinstance(c, Constraint) or c.bounds() is not None:
                 raise OptionError(f"constraints must be general-row Constraints (e.g. kr.SphereClearance); joint "
