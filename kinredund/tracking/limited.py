@@ -195,6 +195,8 @@ class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
             y = y.copy()
             y[: self.n][self.fixed] = self._bound_values()[self.fixed]
         super()._correct(y)
+        if self.rows and self.q is not y[: self.n] and self._rates_stale(y):
+            self._rates()  # the rates afresh at the corrected point (see GeneralRows._rates_stale)
         if self._sel is not None and self.label is None:  # the label of the reduced system, now
             F = self._free_idx
             self.label = classify(self.M[np.ix_(F, F)], self.pt.J[:, F], self.linear_solver,

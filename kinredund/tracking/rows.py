@@ -62,7 +62,7 @@ def row_point(pt: Point, constraints: list[Constraint], rows: tuple) -> RowPoint
     cache: dict[int, tuple] = {}
     for i, (ci, ri) in enumerate(rows):
         if ci not in cache:
-            cache[ci] = (constraints[ci].values(q), constraints[ci].gradients(q))
+            cache[ci] = constraints[ci].rows_at(q)
         c[i], G[i] = cache[ci][0][ri], cache[ci][1][ri]
 
     def curvature(w: np.ndarray) -> np.ndarray:
@@ -241,6 +241,14 @@ class GeneralRows:
             err.watched["underlying_cause"] = err.cause
             err.cause = cause
         err.watched["constraints"] = self.row_names(sorted(involved))
+
+    def _rates_stale(self, y: np.ndarray) -> bool:
+        """Did the corrector end far from the prediction ``y`` (farther than 1e-8 [rad or m])? Its rates,
+        solved at the predicted point, then carry that miss into the next prediction: on an active row's
+        curved manifold the Hermite predictor then misses by ~1e-5 for tens of steps after a switch (and
+        each step needs chord iterations), where rates afresh at the corrected point restore its O(h^6)."""
+        d = self.q - y[: self.n]
+        return float(d @ d) > 1e-16
 
     def _rows_involved(self, snap) -> set:
         """The rows active at the step's start (``snap``) or now, or switched within the step."""

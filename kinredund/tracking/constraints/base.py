@@ -59,6 +59,10 @@ class Constraint(abc.ABC):
         c = self.values(q)
         return [(name, float(-v)) for name, v in zip(self.names(), c, strict=True) if v < -tol]
 
+    def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(values, gradients) at q together (a subclass computes both from one kinematics pass)."""
+        return self.values(q), self.gradients(q)
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(joint, side, bound) per inequality where every one is a simple bound ``side (theta_joint - bound)
         >= 0`` (side +1 lower, -1 upper), held by fixing the joint; None for general rows (the default)."""

@@ -65,8 +65,18 @@ class _FrameClearance(Constraint):
         raise NotImplementedError
 
     def gradients(self, q: np.ndarray) -> np.ndarray:
+        return self.rows_at(q)[1]
+
+    def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, p, K = self._kin.jacobian(np.asarray(q, float))
-        return (self._normal(p)[0] @ K[3:])[None, :]  # n^T J_p (K's rows: [omega; pdot])
+        return self._value(p), (self._normal(p)[0] @ K[3:])[None, :]  # n^T J_p (K's rows: [omega; pdot])
+
+    def values(self, q: np.ndarray) -> np.ndarray:
+        return self._value(self.point(q))
+
+    def _value(self, p: np.ndarray) -> np.ndarray:
+        """c at the frame origin p [m], shape (1,)."""
+        raise NotImplementedError
 
     def curvature(self, q: np.ndarray, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
         _, p, K, dk = self._kin.jacobian_hessian(np.asarray(q, float))
@@ -99,8 +109,8 @@ class SphereClearance(_FrameClearance):
             raise OptionError(f"frame {self.frame} is at the sphere's center: its clearance has no gradient")
         return d / dist, 1.0 / dist
 
-    def values(self, q: np.ndarray) -> np.ndarray:
-        d = self.point(q) - self.center
+    def _value(self, p: np.ndarray) -> np.ndarray:
+        d = p - self.center
         return np.array([np.sqrt(d @ d) - self.radius - self.clearance])
 
     def names(self) -> list[str]:
@@ -125,8 +135,8 @@ class PlaneClearance(_FrameClearance):
     def _normal(self, p: np.ndarray) -> tuple[np.ndarray, float]:
         return self.normal, 0.0
 
-    def values(self, q: np.ndarray) -> np.ndarray:
-        return np.array([self.normal @ (self.point(q) - self.origin) - self.clearance])
+    def _value(self, p: np.ndarray) -> np.ndarray:
+        return np.array([self.normal @ (p - self.origin) - self.clearance])
 
     def names(self) -> list[str]:
         return [f"{self.frame} above plane ({', '.join(f'{v:.4g}' for v in self.normal)}) by {self.clearance:.4g}"]
