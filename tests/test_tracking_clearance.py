@@ -136,6 +136,16 @@ def test_switching_times_agree_with_bisection(name):
 
 
 @pytest.mark.parametrize("name", CASES)
+def test_the_velocity_form_holds_the_same_constrained_optimum(name):
+    r, path, index, q0 = case(CASES[name][0])
+    c = sphere(name)
+    tr = track(r, path, index, q0, loops=2, scheme="velocity", constraints=[c])
+    held = run(name, loops=2)
+    assert clearances(c, tr.q).min() >= -1e-9 and tr.loop_drift.max() <= 1e-10
+    assert np.abs(tr.q - held.q).max() <= 1e-9  # theta*(t) is the scheme's, not the form's
+
+
+@pytest.mark.parametrize("name", CASES)
 def test_where_no_row_is_active_the_run_is_the_run_without_it(name):
     r, path, index, q0 = case(CASES[name][0])
     circle, frame, center, radius = CASES[name]

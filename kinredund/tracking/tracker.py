@@ -116,6 +116,7 @@ class Tracker:
     Raises:
         ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range (also:
             limits asked of thesis mode or a baseline).
+        TrackingError: with constraints, ``q0`` violates one (``cause="collision"``, naming it and by how much).
         TrackingError: with limits, ``q0`` is outside them (``cause="limits_infeasible"``, naming the joints
             and by how much), or no constrained optimum is found at the start.
         PathError: the start is off the path, or the path is unsuitable (says why).
