@@ -204,6 +204,18 @@ def test_bad_constraint_input_is_named():
         Tracker(r, path, index, q0, 0.01, mode="thesis", constraints=[sphere("panda_elbow_sphere")])
 
 
+def test_a_clearance_pickles_and_gives_the_same_values_in_another_thread():
+    import pickle
+    from concurrent.futures import ThreadPoolExecutor
+
+    c = sphere("panda_elbow_sphere", clearance=0.02)
+    q = case("panda_elbow_circle")[3]
+    copy = pickle.loads(pickle.dumps(c))
+    with ThreadPoolExecutor(1) as pool:
+        other = pool.submit(lambda: copy.rows_at(q)).result()
+    assert np.array_equal(other[0], c.values(q)) and np.array_equal(other[1], c.gradients(q))
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_clearance_derivatives_match_central_differences(seed):
     r = case("panda_elbow_circle")[0]

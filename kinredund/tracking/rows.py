@@ -18,6 +18,9 @@ nu_i reaches zero, each located as the bounds' are (:mod:`kinredund.tracking.lim
 
 Where a switch leaves the direction undetermined (a rate and a multiplier both near zero after it), the
 rate QP with the weakly active row as an inequality decides (:func:`row_rate_qp`, through qpsolvers).
+Between switching times the rates need no QP (the active set is known: one LU of the extended R), so the
+QP is off the hot path: it is solved afresh through ``qpsolvers.solve_problem`` at such a switch only,
+without a solver object kept across steps.
 """
 
 from __future__ import annotations

@@ -13,6 +13,8 @@ system) are analytic: sum_a n_a Hess p_a (Pinocchio's kinematic Hessian), plus J
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from kinredund.errors import OptionError
@@ -40,7 +42,8 @@ def _length(value, what: str, positive: bool = False) -> float:
 
 
 class _FrameClearance(Constraint):
-    """One inequality on the origin of a frame of ``robot`` (its own Pinocchio workspace: one thread)."""
+    """One inequality on the origin of a frame of ``robot`` (a Pinocchio workspace per thread, as
+    ``Robot.kinematics``: a constraint may be shared between threads and pickled)."""
 
     cause = "collision"
 
@@ -49,8 +52,23 @@ class _FrameClearance(Constraint):
             raise OptionError(f"robot must be a kinredund Robot, got {type(robot).__name__}")
         self.frame_id, _ = resolve_frame(robot.model, frame)
         self.frame, self.clearance = frame, _length(clearance, "the clearance")
-        self._kin = Kinematics(robot.model, self.frame_id)
-        self._n = robot.nq
+        self._model, self._local = robot.model, threading.local()
+
+    @property
+    def _kin(self) -> Kinematics:
+        try:
+            return self._local.kinematics
+        except AttributeError:
+            kin = self._local.kinematics = Kinematics(self._model, self.frame_id)
+            return kin
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        del state["_local"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _local=threading.local())
 
     @property
     def size(self) -> int:
