@@ -13,12 +13,10 @@ system) are analytic: sum_a n_a Hess p_a (Pinocchio's kinematic Hessian), plus J
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 
 from kinredund.errors import OptionError
-from kinredund.kinematics.state import Kinematics
+from kinredund.kinematics.state import Kinematics, PerThread
 from kinredund.model.frames import resolve_frame
 from kinredund.model.robot import Robot
 from kinredund.tracking.constraints.base import Constraint
@@ -52,23 +50,11 @@ class _FrameClearance(Constraint):
             raise OptionError(f"robot must be a kinredund Robot, got {type(robot).__name__}")
         self.frame_id, _ = resolve_frame(robot.model, frame)
         self.frame, self.clearance = frame, _length(clearance, "the clearance")
-        self._model, self._local = robot.model, threading.local()
+        self._kinematics = PerThread(robot.model, self.frame_id)
 
     @property
     def _kin(self) -> Kinematics:
-        try:
-            return self._local.kinematics
-        except AttributeError:
-            kin = self._local.kinematics = Kinematics(self._model, self.frame_id)
-            return kin
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        del state["_local"]
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state, _local=threading.local())
+        return self._kinematics.get()
 
     @property
     def size(self) -> int:
