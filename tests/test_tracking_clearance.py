@@ -78,31 +78,52 @@ def test_clearance_held_closed_inside_and_on_the_path(name):
     assert nu.min() >= -1e-9 and nu[active].max() > 1e-3  # the right sign; a real push where active
 
 
-@pytest.mark.parametrize("name", CASES)
-def test_first_order_conditions_with_the_active_rows_hold_independently(name):
-    """At every point: grad z on the null space of [J; G_active; e_fixed] (an SVD basis) vanishes, and the
-    least-squares multipliers of the active row and bounds have the right sign."""
-    circle = CASES[name][0]
-    r, path, index, _ = case(circle)
-    c = sphere(name)
-    tr = run(name, loops=1)
+def kkt_check(r, index, tr, constraints) -> tuple[float, int]:
+    """(the largest ||Z^T grad z|| over the points, the points with a row active), Z an SVD null basis of
+    [J; G_active; e_fixed]; asserts the least-squares multipliers of the active rows and bounds have the
+    right sign (>= -1e-9). Every constraint has one row, numbered in the order given."""
     active = tr.meta["constraints"]["active"]
-    worst, rows_seen = 0.0, 0
+    worst, seen = 0.0, 0
     for k, (t, q) in enumerate(zip(tr.t, tr.q, strict=True)):
         grad = index.evaluate(q, t)[1]
         J = r.kinematics.jacobian(q)[2][3:]  # the position task's rows of K (Eq. 2.16)
         fixed = np.flatnonzero(tr.active_bounds[k])
-        A = np.vstack([J, c.gradients(q)[: len(active[k])], np.eye(len(q))[fixed]])
+        G = np.array([constraints[i].gradients(q)[0] for i in active[k]]).reshape(-1, len(q))
+        A = np.vstack([J, G, np.eye(len(q))[fixed]])
         _, sv, Vt = np.linalg.svd(A)
         Z = Vt[int(np.sum(sv > 1e-10 * sv[0])):].T
         worst = max(worst, float(np.linalg.norm(Z.T @ grad)))
         x = np.linalg.lstsq(A.T, -grad, rcond=None)[0]  # [lambda; -nu; -s mu]
-        if active[k]:
-            rows_seen += 1
-            assert -x[3] >= -1e-9  # nu >= 0: the sphere pushes the elbow out
+        nu = -x[3: 3 + len(G)]
+        assert np.all(nu >= -1e-9)  # the obstacles push the arm out, never pull it in
         side = -tr.active_bounds[k][fixed]  # +1 at a lower bound
-        assert np.all(-side * x[3 + len(active[k]):] >= -1e-9)
-    assert rows_seen > 10 and worst <= 1e-9
+        assert np.all(-side * x[3 + len(G):] >= -1e-9)
+        seen += bool(active[k])
+    return worst, seen
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_first_order_conditions_with_the_active_rows_hold_independently(name):
+    """At every point: grad z on the null space of [J; G_active; e_fixed] (an SVD basis) vanishes, and the
+    least-squares multipliers of the active row and bounds have the right sign."""
+    r, path, index, _ = case(CASES[name][0])
+    worst, seen = kkt_check(r, index, run(name, loops=1), [sphere(name)])
+    assert seen > 10 and worst <= 1e-9
+
+
+def test_a_sphere_and_a_plane_active_together_are_held():
+    """The elbow's sphere and a plane under the hand (1 cm above its lowest point on the sphere-held run):
+    both rows active at once over part of the loop, both held, closed, first-order conditions independent."""
+    r, path, index, q0 = case("panda_elbow_circle")
+    cs = [sphere("panda_elbow_sphere"), PlaneClearance(r, "panda_link7", [0.0, 0.0, 0.5848851031858745], [0, 0, 1])]
+    tr = track(r, path, index, q0, loops=3, constraints=cs)
+    for c in cs:
+        assert clearances(c, tr.q).min() >= -1e-9
+        assert clearances(c, np.array([w["q"] for w in tr.meta["switches"]])).min() >= -1e-9
+    assert tr.loop_drift.max() <= 1e-10 and tr.position_error.max() <= 1e-10
+    assert any(len(a) == 2 for a in tr.meta["constraints"]["active"])
+    worst, seen = kkt_check(r, index, tr, cs)
+    assert seen > 10 and worst <= 1e-9
 
 
 def _bounded_optimum_clearance(r, index, path, c, t, seed) -> float:
