@@ -204,6 +204,24 @@ def test_a_start_inside_the_clearance_is_named():
     assert info.value.cause == "collision"
 
 
+def test_a_start_on_the_sphere_holds_the_row_from_the_start():
+    """The elbow starts touching a sphere it moves into: the row is active at the start (and the first steps),
+    held, released and met again each loop, and the run closes."""
+    r, path, index, q0 = case("panda_elbow_circle")
+    probe = SphereClearance(r, "panda_link4", [0.0, 0.0, 0.0], 1.0)
+    free = track(r, path, index, q0, loops=1, steps_per_loop=100)
+    p0, ahead = probe.point(q0), probe.point(free.q[1]) - probe.point(q0)
+    c = SphereClearance(r, "panda_link4", p0 + 0.05 * ahead / np.linalg.norm(ahead), 0.05)
+    assert abs(c.values(q0)[0]) <= 1e-15
+    tr = track(r, path, index, q0, loops=2, steps_per_loop=100, constraints=[c])
+    rec = tr.meta["constraints"]
+    # active from the start, its multiplier 0 there (the free optimum touches) and growing: weakly active
+    assert rec["active"][0] == [0] == rec["active"][5] and abs(rec["multipliers"][0][0]) <= 1e-9
+    assert rec["multipliers"][5][0] > 1e-3
+    assert clearances(c, tr.q).min() >= -1e-9 and tr.loop_drift.max() <= 1e-10
+    assert [w["kind"] for w in tr.meta["switches"]][:2] == ["release", "reach"]
+
+
 def test_bad_constraint_input_is_named():
     r, path, index, q0 = case("panda_elbow_circle")
     with pytest.raises(OptionError, match="radius"):

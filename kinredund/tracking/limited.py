@@ -84,6 +84,7 @@ class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
             self._fix(i, +1.0)
         for i in np.flatnonzero(q0 >= self.hi - ON_BOUND):
             self._fix(i, -1.0)
+        self._update_sel()  # rows on their constraint at the start are active too
         q0 = np.where(self.fixed, np.where(self.side > 0, self.lo, self.hi), q0)
         super().__init__(evaluator, q0, dt, **kwargs)
         self._settle_start()

@@ -64,7 +64,7 @@ class Stepper:
         if evaluator.path.period is not None and dt > evaluator.path.period:
             raise step_too_long(evaluator, self.q, self.t, dt, mode=mode)
         self.lam = multipliers(self.pt.J, self.pt.grad)[0] if evaluator.index is not None else np.zeros(len(self.pt.r))
-        m = len(self.pt.r)
+        m = len(self.pt.base.r)  # the task's rows (an active constraint row is not in R's workspace)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
 
     @property
