@@ -255,14 +255,15 @@ class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
             self.state = snap  # back at the last requested time: t = t0 + k dt
             raise
         except (PathError, SingularityError) as err:
-            if not (bounded or self._rows_involved(snap)):  # as the unlimited scheme reports it: none met
+            rows = self._rows_involved(snap)  # before the state goes back (the step's switches with it)
+            if not (bounded or rows):  # as the unlimited scheme reports it: none met
                 raise
             self.state = snap
             cause = "kinematic_singularity" if "kinematic" in str(err) else \
                 "not_strongly_stable" if isinstance(err, SingularityError) else "limits_infeasible"
             stop = TrackingError(f"tracking within the joint limits and constraints stopped after t = {snap.t:.6g} s: "
                                  f"{err}", cause=cause, t=snap.t, q=snap.q, watched=self._watched(snap))
-            self._name_row_failure(stop, snap)
+            self._name_row_failure(stop, snap, rows)
             raise stop from err
 
     def _events(self) -> list[tuple[int, str]]:

@@ -233,10 +233,11 @@ class GeneralRows:
                                 "multiplier both zero): the active set is not determined")
         return rate <= 1e-12
 
-    def _name_row_failure(self, err, snap) -> None:
+    def _name_row_failure(self, err, snap, involved: set | None = None) -> None:
         """A stop with a general row active (or switched in the step) is the constraint's: ``err.cause``
-        becomes its cause (``collision``), the former one ``watched["underlying_cause"]``."""
-        involved = self._rows_involved(snap)
+        becomes its cause (``collision``), the former one ``watched["underlying_cause"]``. ``involved``: the
+        rows of :meth:`_rows_involved`, where the caller has already put the state back."""
+        involved = self._rows_involved(snap) if involved is None else involved
         if not involved:
             return
         cause = self.general[self.row_pairs[min(involved)][0]].cause
