@@ -305,7 +305,7 @@ class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
             return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
         except (ValueError, RuntimeError, KinredundError) as err:
             self.state = snap
-            raise self._failure("switch_not_resolved", f"the switch of {self._event_name(joint)} "
+            raise self._failure("switch_not_resolved", f"the switch of {self._event_name(joint, kind)} "
                                 f"({kind}) within ({t_start:.6g}, {t_end:.6g}] s could not be located: {err}") from err
 
     def _resolve_switches(self, snap: ConstrainedState) -> None:

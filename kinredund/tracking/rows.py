@@ -164,8 +164,9 @@ class GeneralRows:
         names = [c.names() for c in self.general]
         return [names[ci][ri] for ci, ri in (self.row_pairs[f] for f in rows)]
 
-    def _event_name(self, key: int) -> str:
-        return self.joint_names[key] if key < len(self.joint_names) else f"row {key}"
+    def _event_name(self, key: int, kind: str) -> str:
+        """The name of an event's joint (a bound's) or row (``row_reach``/``row_release``)."""
+        return self.row_names((key,))[0] if kind.startswith("row") else f"joint {self.joint_names[key]}"
 
     def _cause(self) -> str:
         return self.general[self.row_pairs[self.rows[0]][0]].cause if self.rows else "limits_infeasible"
