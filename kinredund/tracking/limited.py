@@ -1,4 +1,4 @@
-"""Hard joint limits in the default mode: the constrained optimum followed exactly, within the limits.
+"""Hard joint limits (and general inequality rows) in the default mode: the constrained optimum followed exactly.
 
 Along the path the joints follow theta*(t) = argmin z(theta) s.t. g(theta) = x(t), lower <= theta <= upper.
 With the active set A (the joints on a bound, side s_i = +1 at a lower bound, -1 at an upper one) the
@@ -17,8 +17,9 @@ no joint overshoots its bound and no multiplier of the wrong sign survives. At a
 the weakly active bound decides which set continues (min 1/2 v^T M v - top^T v s.t. J v = xdot and the
 sign condition of that bound's rate; proxsuite), where the LU route cannot tell.
 
-Thesis mode with limits is not offered (explicit steps have no corrector to hold the bounds): the
-:class:`~kinredund.tracking.tracker.Tracker` refuses it.
+General rows c_i(theta) >= 0 (an obstacle's clearance) are held the same way, their equations added to
+the system instead of columns removed (:mod:`kinredund.tracking.rows`). Thesis mode with limits is not
+offered (explicit steps have no corrector to hold the bounds): the Tracker refuses it.
 """
 
 from __future__ import annotations
