@@ -62,7 +62,7 @@ from kinredund.paths import (
 )
 from kinredund.planning.cyclic import CyclicPlan, plan
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking import JointLimits, Tracker, track
+from kinredund.tracking import JointLimits, PlaneClearance, SphereClearance, Tracker, track
 from kinredund.trajectory import Trajectory
 
 __version__ = _version("kinredund")
@@ -94,11 +94,13 @@ __all__ = [
     "Path",
     "PathError",
     "PathSample",
+    "PlaneClearance",
     "Robot",
     "SampledPath",
     "Scene",
     "SingularityError",
     "SolverError",
+    "SphereClearance",
     "Task",
     "TaskError",
     "TrackingError",

@@ -15,6 +15,8 @@ No other module calls ``pinocchio`` compute functions; solvers receive arrays.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pinocchio as pin
 
@@ -152,3 +154,29 @@ class HessianContraction:
     def tensor(self) -> np.ndarray:
         """The whole tensor dK[a, i, k] (thesis row order), as :meth:`Kinematics.jacobian_derivative` gives it."""
         return fix_hessian_layout(self._H)[THESIS_ROWS]
+
+
+class PerThread:
+    """:class:`Kinematics` of one model and frame, one per thread, made on first use in each thread.
+
+    A workspace shared between threads would mix their forward-kinematics passes (wrong poses with right
+    joint values). It pickles as its model and frame: a thread's workspace is not part of it.
+    """
+
+    def __init__(self, model: pin.Model, frame_id: int):
+        self.model, self.frame_id = model, frame_id
+        self._local = threading.local()
+
+    def get(self) -> Kinematics:
+        """This thread's workspace."""
+        try:
+            return self._local.kinematics
+        except AttributeError:
+            kin = self._local.kinematics = Kinematics(self.model, self.frame_id)
+            return kin
+
+    def __getstate__(self) -> dict:
+        return {"model": self.model, "frame_id": self.frame_id}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["model"], state["frame_id"])

@@ -15,14 +15,12 @@ Threads: a :class:`Robot` may be shared between threads. Its model is never modi
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pinocchio as pin
 
 from kinredund.errors import JointVectorError, check_joint_vector
 from kinredund.kinematics.hd import REVOLUTE, HDTable
-from kinredund.kinematics.state import Kinematics
+from kinredund.kinematics.state import Kinematics, PerThread
 from kinredund.model.frames import resolve_frame
 from kinredund.model.urdf import EE_FRAME
 from kinredund.tasks import get_task
@@ -103,7 +101,7 @@ class Robot:
         self.upper = np.array(model.upperPositionLimit, dtype=float)
         for a in (self.lower, self.upper, self.tool_axis):
             a.flags.writeable = False
-        self._local = threading.local()
+        self._kinematics = PerThread(model, self.ee_frame_id)
         mid = 0.5 * (self.lower + self.upper)
         self.home = np.array(home, dtype=float) if home is not None else np.where(np.isfinite(mid), mid, 0.0)
         if hd is not None:
@@ -116,22 +114,9 @@ class Robot:
         """This thread's kinematics workspace (a Pinocchio ``Data``), made on first use in the thread.
 
         Solvers compute in it; a workspace shared between threads would mix their forward-kinematics
-        passes (wrong poses with right joint values), so every thread gets its own.
+        passes (wrong poses with right joint values), so every thread gets its own (:class:`PerThread`).
         """
-        try:
-            return self._local.kinematics
-        except AttributeError:
-            kin = self._local.kinematics = Kinematics(self.model, self.ee_frame_id)
-            return kin
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        del state["_local"]  # a thread's workspace is not part of the robot
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._local = threading.local()
+        return self._kinematics.get()
 
     # -- basic facts ------------------------------------------------------------------------------
     @property

@@ -9,13 +9,14 @@
 - :mod:`.recorder`: the per-step record and its diagnostics;
 - the strict tracker of the default mode: :mod:`.step_control` (sub-steps, the jump check), :mod:`.watch`
   (the fold and singularity watch), :mod:`.failure` (the cause of a stop and its partial record);
-- :mod:`.constraints`: constraints on the joints (joint limits first), held by :mod:`.limited` (the
-  default mode with hard joint limits: active sets, exact switching times).
+- :mod:`.constraints`: constraints on the joints (joint limits, clearances), held by :mod:`.limited` (the
+  default mode with hard joint limits: active sets, exact switching times) and :mod:`.rows` (general
+  inequality rows); the stepper's state as one value in :mod:`.state`.
 """
 
-from kinredund.tracking.constraints import Constraint, JointLimits
+from kinredund.tracking.constraints import Constraint, JointLimits, PlaneClearance, SphereClearance
 from kinredund.tracking.run import MAX_STEPS, track
 from kinredund.tracking.tracker import LINEAR_SOLVERS, MODES, QP_BACKENDS, SCHEMES, Tracker
 
-__all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Constraint", "JointLimits", "Tracker",
-           "track"]
+__all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Constraint", "JointLimits",
+           "PlaneClearance", "SphereClearance", "Tracker", "track"]

@@ -28,7 +28,7 @@ class Pseudoinverse(ExplicitStepper):
         super().__init__(evaluator, q0, dt, **kwargs)
         self._rates(None)
 
-    def evaluate(self, q: np.ndarray, t: float) -> Point:
+    def evaluate(self, q: np.ndarray, t: float, need_dJ: bool = False) -> Point:
         return self.ev.point(q, t, need_dJ=False)  # no Lambda: dK is not needed
 
     def direction(self, pt: Point, Jp: np.ndarray, xdot: np.ndarray) -> np.ndarray:
@@ -46,7 +46,7 @@ class Pseudoinverse(ExplicitStepper):
             if self.ev.index is not None:
                 self.lam = multipliers(pt.J, pt.grad)[0]  # Eqs. (4.11)-(4.12)
         self.qdot = self.direction(pt, np.linalg.pinv(pt.J), xdot)
-        self.lamdot, self._solver, self.M = np.zeros_like(self.lam), "lstsq", None
+        self.lamdot, self.label, self.M = np.zeros_like(self.lam), "lstsq", None
 
     def advance(self) -> None:
         q = self.q

@@ -123,7 +123,7 @@ def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> 
     """
     q = stepper.q if q is None else q
     t = stepper.t if t is None else t
-    pt = stepper.ev.point(q, t)
+    pt = stepper.evaluate(q, t)
     out = {"task_residual": float(np.abs(pt.r).max())}
     if stepper.ev.index is None:
         return out

@@ -1,4 +1,4 @@
-"""Hard joint limits in the default mode: the constrained optimum followed exactly, within the limits.
+"""Hard joint limits (and general inequality rows) in the default mode: the constrained optimum followed exactly.
 
 Along the path the joints follow theta*(t) = argmin z(theta) s.t. g(theta) = x(t), lower <= theta <= upper.
 With the active set A (the joints on a bound, side s_i = +1 at a lower bound, -1 at an upper one) the
@@ -17,8 +17,9 @@ no joint overshoots its bound and no multiplier of the wrong sign survives. At a
 the weakly active bound decides which set continues (min 1/2 v^T M v - top^T v s.t. J v = xdot and the
 sign condition of that bound's rate; proxsuite), where the LU route cannot tell.
 
-Thesis mode with limits is not offered (explicit steps have no corrector to hold the bounds): the
-:class:`~kinredund.tracking.tracker.Tracker` refuses it.
+General rows c_i(theta) >= 0 (an obstacle's clearance) are held the same way, their equations added to
+the system instead of columns removed (:mod:`kinredund.tracking.rows`). Thesis mode with limits is not
+offered (explicit steps have no corrector to hold the bounds): the Tracker refuses it.
 """
 
 from __future__ import annotations
@@ -27,10 +28,12 @@ import numpy as np
 from scipy.optimize import brentq
 
 from kinredund.errors import KinredundError, PathError, SingularityError, TrackingError
-from kinredund.tracking.constraints.joint_limits import JointLimits
+from kinredund.tracking.constraints.base import Constraint
 from kinredund.tracking.linalg import bound_rate_qp, classify, lu_solve
 from kinredund.tracking.point import Evaluator, Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
+from kinredund.tracking.rows import GeneralRows
+from kinredund.tracking.state import ConstrainedState
 
 #: a joint within this distance of its bound at the start counts as on it [rad or m]; a start outside
 #: the limits by at most this much is put on the bound
@@ -41,32 +44,48 @@ SWITCH_XTOL = 1e-14
 MAX_SWITCHES_PER_STEP = 8
 
 
-class LimitedPredictorCorrector(PredictorCorrector):
-    """The default-mode stepper with hard joint limits (augmented or velocity form).
+class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
+    """The default-mode stepper with hard joint limits and general inequality rows (augmented or velocity form).
 
-    State besides :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector`'s: ``fixed`` (n,)
-    bool, ``side`` (n,) (+1 at a lower bound, -1 at an upper bound, 0 free), ``switches`` (a list of
-    dicts: time [s], joint, ``reach`` or ``release``, side) and ``mu`` (n,), the bound multipliers at t.
-    With no joint on a bound every operation is the unlimited stepper's own.
+    Args (besides :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector`'s):
+        limits: a :class:`~kinredund.tracking.constraints.base.Constraint` of simple bounds (its ``bounds()``;
+            the robot's :class:`~kinredund.tracking.constraints.JointLimits`), or None.
+        constraints: constraints of general rows (``bounds()`` None; :mod:`kinredund.tracking.rows`).
+        qp_solver: the QP solver of the rate QP at a weakly active row (qpsolvers: ``proxqp`` or ``daqp``).
+
+    State besides :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector`'s (one value,
+    :class:`~kinredund.tracking.state.ConstrainedState`): ``fixed`` (n,) bool, ``side`` (n,) (+1 at a lower
+    bound, -1 at an upper bound, 0 free), ``switches`` (a tuple of dicts: time [s], joint, ``reach`` or
+    ``release``, side) and ``mu`` (n,), the bound multipliers at t. The arrays are replaced, never changed
+    in place. With no joint on a bound every operation is the unlimited stepper's own.
     """
 
-    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, limits: JointLimits, **kwargs):
+    state_class = ConstrainedState
+
+    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, limits: Constraint | None = None,
+                 constraints=(), qp_solver: str = "proxqp", **kwargs):
         self.limits = limits
         n = evaluator.n
         self._m = evaluator.robot.task_dim
-        self.lo, self.hi = limits.lower, limits.upper
+        self.joint_names = list(evaluator.robot.joint_names)
+        self.lo, self.hi = np.full(n, -np.inf), np.full(n, np.inf)
+        if limits is not None:  # the bounds through the base class: side (theta_joint - bound) >= 0
+            joint, side, bound = limits.bounds()
+            self.lo[joint[side > 0]], self.hi[joint[side < 0]] = bound[side > 0], bound[side < 0]
         # a free joint beyond its bound by more than 1e-13 rad is a switch (rounding below that is not)
         self._lo_tol, self._hi_tol = self.lo - 1e-13, self.hi + 1e-13
         self.fixed, self.side = np.zeros(n, bool), np.zeros(n)
         self.mu = self._no_mu = np.zeros(n)
         self._no_mu.flags.writeable = False
-        self.switches: list[dict] = []
+        self.switches: tuple[dict, ...] = ()
         self._sel = None  # the free rows of R (None: all joints free)
         q0 = self._start_inside(q0, evaluator)
+        self._init_rows(constraints, q0, qp_solver)
         for i in np.flatnonzero(q0 <= self.lo + ON_BOUND):
             self._fix(i, +1.0)
         for i in np.flatnonzero(q0 >= self.hi - ON_BOUND):
             self._fix(i, -1.0)
+        self._update_sel()  # rows on their constraint at the start are active too
         q0 = np.where(self.fixed, np.where(self.side > 0, self.lo, self.hi), q0)
         super().__init__(evaluator, q0, dt, **kwargs)
         self._settle_start()
@@ -79,21 +98,16 @@ class LimitedPredictorCorrector(PredictorCorrector):
             if not events:
                 return
             joint, kind = min(events, key=lambda e: self._watch(*e))
-            if kind == "release":
-                self._free(joint)
-            else:
-                self.q = self.q.copy()
-                self.q[joint] = self.lo[joint] if kind == "lower" else self.hi[joint]
-                self._fix(joint, 1.0 if kind == "lower" else -1.0)
+            self._apply_switch(joint, kind)
             self.prev.clear()
             self._newton()
             self._rates()
-        raise TrackingError("no constrained optimum within the joint limits was found at the start",
-                            cause="limits_infeasible", t=self.t, q=None, watched=self._watched())
+        raise TrackingError("no constrained optimum within the joint limits and constraints was found at the start",
+                            cause=self._cause(), t=self.t, q=None, watched=self._watched())
 
     # -- the active set ----------------------------------------------------------------------------
     def _start_inside(self, q0: np.ndarray, ev: Evaluator) -> np.ndarray:
-        out = self.limits.violations(q0, ON_BOUND)
+        out = [] if self.limits is None else self.limits.violations(q0, ON_BOUND)
         if out:
             what = "; ".join(f"{name} by {amount:.3g}" for name, amount in out)
             raise TrackingError(f"the starting configuration is outside the joint limits: {what} [rad or m] "
@@ -102,31 +116,37 @@ class LimitedPredictorCorrector(PredictorCorrector):
         return np.clip(q0, self.lo, self.hi)
 
     def _fix(self, i: int, side: float) -> None:
+        self.fixed, self.side = self.fixed.copy(), self.side.copy()  # a saved state keeps its own
         self.fixed[i], self.side[i] = True, side
         self._update_sel()
 
     def _free(self, i: int) -> None:
+        self.fixed, self.side = self.fixed.copy(), self.side.copy()
         self.fixed[i], self.side[i] = False, 0.0
         self.mu = self.mu.copy()
         self.mu[i] = 0.0
         self._update_sel()
 
     def _update_sel(self) -> None:
-        """The free joints' rows of R and of [q; lambda] (None: every joint free, the unlimited route)."""
+        """The free joints' rows of R and of [q; lambda; w] (None: every joint free and no row active, the
+        unlimited route)."""
         n = len(self.fixed)
         free = np.flatnonzero(~self.fixed)
-        if len(free) == n:
+        if len(free) == n and not self.rows:
             self._sel = None
             return
-        if len(free) < self._m:
-            raise self._failure("limits_infeasible", f"{n - len(free)} joints on their limits leave {len(free)} "
-                                f"free joints for a task of dimension {self._m}")
+        m = self._m + len(self.rows)
+        if len(free) < m:
+            raise self._failure(self._cause(), f"{n - len(free)} joints on their limits leave {len(free)} free "
+                                f"joints for a task of dimension {self._m} and {len(self.rows)} active rows "
+                                f"({self._names_fixed()})")
         self._free_idx = free
-        self._sel = np.concatenate([free, n + np.arange(self._m)])
+        self._sel = np.concatenate([free, n + np.arange(m)])
 
     def _names_fixed(self) -> str:
-        names = self.limits.joint_names
-        return ", ".join(f"{names[i]} ({'lower' if self.side[i] > 0 else 'upper'})" for i in np.flatnonzero(self.fixed))
+        names = self.joint_names
+        bounds = [f"{names[i]} ({'lower' if self.side[i] > 0 else 'upper'})" for i in np.flatnonzero(self.fixed)]
+        return ", ".join(bounds + self.row_names(self.rows))
 
     def _bound_values(self) -> np.ndarray:
         return np.where(self.side > 0, self.lo, self.hi)
@@ -154,6 +174,8 @@ class LimitedPredictorCorrector(PredictorCorrector):
         try:
             return self._factor_matrix(pt, R, JF)
         except SingularityError as err:
+            if self.rows:  # a corrector iterate's: the step control retries in sub-steps, then names the stop
+                raise
             raise self._failure("not_strongly_stable", f"the constrained optimum is not strongly stable at t = "
                                 f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: {err}") from err
 
@@ -175,9 +197,11 @@ class LimitedPredictorCorrector(PredictorCorrector):
             y = y.copy()
             y[: self.n][self.fixed] = self._bound_values()[self.fixed]
         super()._correct(y)
-        if self._sel is not None and self._solver is None:  # the label of the reduced system, now
+        if self.rows and self.q is not y[: self.n] and self._rates_stale(y):
+            self._rates()  # the rates afresh at the corrected point (see GeneralRows._rates_stale)
+        if self._sel is not None and self.label is None:  # the label of the reduced system, now
             F = self._free_idx
-            self._solver = classify(self.M[np.ix_(F, F)], self.pt.J[:, F], self.linear_solver,
+            self.label = classify(self.M[np.ix_(F, F)], self.pt.J[:, F], self.linear_solver,
                                     symmetric=self.symmetric)
         self._update_mu()
 
@@ -192,8 +216,8 @@ class LimitedPredictorCorrector(PredictorCorrector):
             sol = self._solve(lu, np.concatenate([top, pt.xdot]))
             self.qdot, self.lamdot, self.M = sol[: self.n], sol[self.n:], M
             F = self._free_idx
-            self._solver = classify(M[np.ix_(F, F)], pt.J[:, F], self.linear_solver, symmetric=self.symmetric)
-            self._y, self._yd = np.concatenate([self.q, self.lam]), sol
+            self.label = classify(M[np.ix_(F, F)], pt.J[:, F], self.linear_solver, symmetric=self.symmetric)
+            self.y, self.yd = np.concatenate([self.q, self.lam]), sol
         self._update_mu()
 
     def _update_mu(self) -> None:
@@ -203,7 +227,7 @@ class LimitedPredictorCorrector(PredictorCorrector):
             return
         pt = self.pt
         if pt.q is not self.q:
-            pt = self.ev.point(self.q, self.t, need_dJ=False)
+            pt = self.evaluate(self.q, self.t, need_dJ=False)
         g = pt.grad + pt.J.T @ self.lam
         self.mu = np.where(self.fixed, self.side * g, 0.0)
 
@@ -214,61 +238,48 @@ class LimitedPredictorCorrector(PredictorCorrector):
         return np.where(self.fixed, self.side * (M @ self.qdot + pt.J.T @ self.lamdot - top), 0.0)
 
     # -- the step and its switches -----------------------------------------------------------------
-    _STATE = ("t", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "mu")
-
-    def _snapshot(self) -> dict:
-        """The state to come back to (the step's start, a switching time); arrays are never changed in place."""
-        return {"t": self.t, "q": self.q, "lam": self.lam, "qdot": self.qdot, "lamdot": self.lamdot, "_y": self._y,
-                "_yd": self._yd, "pt": self.pt, "M": self.M, "_solver": self._solver, "mu": self.mu,
-                "prev": list(self.prev), "fixed": self.fixed.copy() if self._sel is not None else None,
-                "side": self.side.copy() if self._sel is not None else None}
-
-    def _restore(self, snap: dict) -> None:
-        for name in self._STATE:
-            setattr(self, name, snap[name])
-        self.prev[:] = snap["prev"]
-        if snap["fixed"] is None:
-            self.fixed[:], self.side[:] = False, 0.0
-        else:
-            self.fixed[:], self.side[:] = snap["fixed"], snap["side"]
+    def _state_applied(self) -> None:
         self._update_sel()
 
     def step(self) -> None:
         """One step to t + dt; a switch of the active set within it is located and stepped to exactly."""
-        snap, k = self._snapshot(), self.k  # k: the step count (a switching time's snapshot keeps the step's)
+        snap = self.state
         bounded = self._sel is not None or bool(self.switches)  # a failure then is the limits' to name
         try:
             super().step()
             self._resolve_switches(snap)
         except TrackingError as err:
             if err.q is None:  # the last good state: the step's start
-                err.t, err.q = snap["t"], [float(v) for v in snap["q"]]
+                err.t, err.q = snap.t, [float(v) for v in snap.q]
                 err.watched = self._watched(snap)
-            self._restore(snap)
-            self.k = k  # back at the last requested time: t = t0 + k dt
+            self._name_row_failure(err, snap)
+            self.state = snap  # back at the last requested time: t = t0 + k dt
             raise
         except (PathError, SingularityError) as err:
-            if not bounded:  # as the unlimited scheme reports it: no bound has been met
+            rows = self._rows_involved(snap)  # before the state goes back (the step's switches with it)
+            if not (bounded or rows):  # as the unlimited scheme reports it: none met
                 raise
-            self._restore(snap)
-            self.k = k
+            self.state = snap
             cause = "kinematic_singularity" if "kinematic" in str(err) else \
                 "not_strongly_stable" if isinstance(err, SingularityError) else "limits_infeasible"
-            raise TrackingError(f"tracking within the joint limits stopped after t = {snap['t']:.6g} s: {err}",
-                                cause=cause, t=snap["t"], q=snap["q"], watched=self._watched(snap)) from err
+            stop = TrackingError(f"tracking within the joint limits and constraints stopped after t = {snap.t:.6g} s: "
+                                 f"{err}", cause=cause, t=snap.t, q=snap.q, watched=self._watched(snap))
+            self._name_row_failure(stop, snap, rows)
+            raise stop from err
 
     def _events(self) -> list[tuple[int, str]]:
-        """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``)."""
+        """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``);
+        (row, ``row_reach``/``row_release``) of the general rows."""
         q = self.q
         if self._sel is None:  # no joint on a bound: one comparison per side (the common case)
             if not ((q < self._lo_tol).any() or (q > self._hi_tol).any()):
-                return []
+                return self._row_events()
         free = ~self.fixed
         scale = max(1.0, float(np.abs(self.pt.grad).max()))
         out = [(int(i), "lower") for i in np.flatnonzero(free & (q < self._lo_tol))]
         out += [(int(i), "upper") for i in np.flatnonzero(free & (q > self._hi_tol))]
         out += [(int(i), "release") for i in np.flatnonzero(self.fixed & (self.mu < -1e-12 * scale))]
-        return out
+        return out + self._row_events()
 
     def _watch(self, joint: int, kind: str) -> float:
         """The quantity whose zero is the switch: the margin to the bound, or the multiplier (>= 0 before)."""
@@ -276,49 +287,53 @@ class LimitedPredictorCorrector(PredictorCorrector):
             return float(self.q[joint] - self.lo[joint])
         if kind == "upper":
             return float(self.hi[joint] - self.q[joint])
-        return float(self.mu[joint])
+        if kind == "release":
+            return float(self.mu[joint])
+        return self._row_watch(joint, kind)
 
-    def _crossing(self, snap: dict, t_end: float, joint: int, kind: str) -> float:
+    def _crossing(self, snap: ConstrainedState, t_end: float, joint: int, kind: str) -> float:
         """The time in (snap t, t_end] where the watched quantity of (joint, kind) reaches zero (Brent)."""
         def phi(tau):
-            self._restore(snap)
-            if tau > snap["t"]:
+            self.state = snap
+            if tau > snap.t:
                 self.euler_to(tau)
             return self._watch(joint, kind)
 
-        t_start = snap["t"]
+        t_start = snap.t
         if phi(t_start) <= 0.0:
             return t_start
         try:
             return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
         except (ValueError, RuntimeError, KinredundError) as err:
-            self._restore(snap)
-            raise self._failure("switch_not_resolved", f"the switch of joint {self.limits.joint_names[joint]} "
+            self.state = snap
+            raise self._failure("switch_not_resolved", f"the switch of {self._event_name(joint, kind)} "
                                 f"({kind}) within ({t_start:.6g}, {t_end:.6g}] s could not be located: {err}") from err
 
-    def _resolve_switches(self, snap: dict) -> None:
-        t_end = self.t
+    def _resolve_switches(self, snap: ConstrainedState) -> None:
+        t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
         for _ in range(MAX_SWITCHES_PER_STEP):
             events = self._events()
             if not events:
                 return
-            state_end = self._snapshot()
+            state_end = self.state
             times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
-            self._restore(state_end)
+            self.state = state_end
             tau, joint, kind = min(times)
-            self._restore(snap)
-            if tau > snap["t"]:
+            self.state = snap
+            if tau > snap.t:
                 self.euler_to(tau)
             self._switch(joint, kind)
-            snap = self._snapshot()
+            snap = self.state
             if t_end > tau:
                 self.euler_to(t_end)
-            self.t = t_end
+            self.t, self.k = t_end, k_end
         raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
                             f"within one step before t = {t_end:.6g} s (chattering)")
 
-    def _switch(self, joint: int, kind: str) -> None:
-        """Change the active set at the current time (a switching time) and correct onto it."""
+    def _apply_switch(self, joint: int, kind: str) -> float:
+        """Change the active set: fix a joint on its bound, free it, or a row (:meth:`_apply_row_switch`)."""
+        if kind in ("row_reach", "row_release"):
+            return self._apply_row_switch(joint, kind)
         if kind == "release":
             side = self.side[joint]
             self._free(joint)
@@ -327,9 +342,17 @@ class LimitedPredictorCorrector(PredictorCorrector):
             self.q = self.q.copy()
             self.q[joint] = self.lo[joint] if side > 0 else self.hi[joint]
             self._fix(joint, side)
-        self.switches.append({"t": float(self.t), "joint": joint, "name": self.limits.joint_names[joint],
-                              "kind": "release" if kind == "release" else "reach",
-                              "bound": "lower" if side > 0 else "upper", "q": self.q.tolist()})
+        return side
+
+    def _switch(self, joint: int, kind: str) -> None:
+        """Change the active set at the current time (a switching time) and correct onto it."""
+        side = self._apply_switch(joint, kind)
+        what = "release" if kind in ("release", "row_release") else "reach"
+        if kind.startswith("row"):
+            entry = {"row": joint, "name": self.row_names((joint,))[0], "constraint": True}
+        else:
+            entry = {"joint": joint, "name": self.joint_names[joint], "bound": "lower" if side > 0 else "upper"}
+        self.switches += ({"t": float(self.t), **entry, "kind": what, "q": self.q.tolist()},)
         self.prev.clear()  # the optimal path has a kink here: the predictor starts afresh
         self._newton()
         self._rates()
@@ -338,6 +361,9 @@ class LimitedPredictorCorrector(PredictorCorrector):
     def _check_direction(self, joint: int, kind: str, side: float) -> None:
         """Strict complementarity after the switch: a reached bound's multiplier grows, a released joint
         moves inward. Where the LU route cannot tell (a rate ~0), the rate QP decides."""
+        if kind.startswith("row"):
+            self._check_row_direction(joint, kind)
+            return
         if kind == "release":
             rate = side * float(self.qdot[joint])  # inward: > 0
         else:
@@ -364,7 +390,7 @@ class LimitedPredictorCorrector(PredictorCorrector):
         keep = np.flatnonzero(~self.fixed | (np.arange(self.n) == joint))
         out = bound_rate_qp(M[np.ix_(keep, keep)], top[keep], pt.J[:, keep], pt.xdot,
                             int(np.flatnonzero(keep == joint)[0]), side)
-        name = self.limits.joint_names[joint]
+        name = self.joint_names[joint]
         if out is None:
             raise self._failure("not_strongly_stable", f"the rate QP at the switch of joint {name} "
                                 f"(t = {self.t:.6g} s) has no solution")
@@ -375,13 +401,13 @@ class LimitedPredictorCorrector(PredictorCorrector):
         return rate <= 1e-12
 
     # -- failures ------------------------------------------------------------------------------------
-    def _watched(self, snap: dict | None = None) -> dict:
-        state = snap or {"q": self.q, "mu": self.mu, "side": self.side}
-        q = state["q"]
-        side = np.zeros(len(q)) if state["side"] is None else state["side"]  # a snapshot with no joint on a bound
-        return {"active": (-np.asarray(side)).astype(int).tolist(),
-                "bound_multipliers": np.asarray(state["mu"]).tolist(),
-                "limit_margins": np.minimum(self.limits.margins(q), 1e10).tolist()}
+    def _watched(self, snap: ConstrainedState | None = None) -> dict:
+        state = snap if snap is not None else self.state
+        q = state.q
+        out = {"active": (-np.asarray(state.side)).astype(int).tolist(),
+               "bound_multipliers": np.asarray(state.mu).tolist(),
+               "limit_margins": np.minimum(np.minimum(q - self.lo, self.hi - q), 1e10).tolist()}
+        return out | self._rows_watched(state)
 
     def _failure(self, cause: str, message: str) -> TrackingError:
         """A TrackingError; its last good state is filled in by :meth:`step` (the step's start)."""

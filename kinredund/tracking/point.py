@@ -32,6 +32,11 @@ class Point:
         self.r, self.J, self.xdot, self.basis = terms.r, terms.J, terms.xdot, terms.basis
         self.grad, self.hess, self.dgrad_dt = grad, hess, dgrad_dt
 
+    @property
+    def base(self) -> Point:
+        """The task's own evaluation (this point; an extended point's is the one it extends)."""
+        return self
+
     def system(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(M, top) of Eq. (4.24) at this point for the multipliers lam.
 

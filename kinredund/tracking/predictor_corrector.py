@@ -44,7 +44,6 @@ class PredictorCorrector(Stepper):
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, **kwargs):
         super().__init__(evaluator, q0, dt, **kwargs)
         self.symmetric = evaluator.formulation == "augmented"
-        self.prev: list[np.ndarray] = []
         self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
         self.control = None
         try:
@@ -73,7 +72,7 @@ class PredictorCorrector(Stepper):
     def plain_step(self) -> None:
         """Predict y at t + dt (Euler at the first step, then Hermite: cubic, then quintic) and correct."""
         h = self.dt
-        y, yd = self._y, self._yd
+        y, yd = self.y, self.yd
         prev = self.prev  # [y, ydot, y, ydot, ...], oldest first
         y_p = self._hermite[len(prev) // 2] @ np.array(prev + [y, yd]) if prev else y + h * yd
         prev += (y, yd)
@@ -88,13 +87,13 @@ class PredictorCorrector(Stepper):
         sub-step of the step control, a step to a switching time of the limits)."""
         h = t_next - self.t
         self.t = t_next
-        self._correct(self._y + h * self._yd)
+        self._correct(self.y + h * self.yd)
 
     def _rates(self) -> None:
         """Evaluate the full system at the current point and solve Eq. (4.24) for the rates."""
         pt = self.evaluate(self.q, self.t)
         self._solve_rates(pt, pt.xdot)
-        self._y, self._yd = np.concatenate([self.q, self.lam]), np.concatenate([self.qdot, self.lamdot])
+        self.y, self.yd = np.concatenate([self.q, self.lam]), np.concatenate([self.qdot, self.lamdot])
 
     def _solve(self, lu, b: np.ndarray) -> np.ndarray:
         """Solve R x = b with R's LU factors (:meth:`_factor`); b and x of size n + m."""
@@ -167,8 +166,8 @@ class PredictorCorrector(Stepper):
                     self._rates()
                     return
         self.q, self.lam = y[:n], y[n:]
-        self._y, self._yd = y, sol
-        self.qdot, self.lamdot, self._solver, self.M, self.pt = sol[:n], sol[n:], None, M, pt
+        self.y, self.yd = y, sol
+        self.qdot, self.lamdot, self.label, self.M, self.pt = sol[:n], sol[n:], None, M, pt
 
     def _chord(self, y: np.ndarray, lu, tol: float, F: np.ndarray | None = None,
                max_iter: int = 8) -> tuple[np.ndarray, bool]:
@@ -181,7 +180,7 @@ class PredictorCorrector(Stepper):
         n = self.n
         for _ in range(max_iter):
             if F is None:
-                F = self._residual(self.ev.point(y[:n], self.t, need_dJ=False), y[n:])
+                F = self._residual(self.evaluate(y[:n], self.t, need_dJ=False), y[n:])
             if float(F @ F) <= tol * tol:
                 return y, True
             y = y - self._solve(lu, F)

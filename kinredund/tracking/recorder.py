@@ -35,6 +35,7 @@ class Recorder:
         self.t, self.q, self.lam, self.solver, self.M, self.J_step, self.points = [], [], [], [], [], [], []
         self.limited = getattr(stepper, "limits", None) is not None
         self.active, self.mu, self.qdot = [], [], []
+        self.rows = [] if getattr(stepper, "general", None) else None  # general rows: (min c, active, nu)
 
     def add(self) -> None:
         """Record the stepper's current point (M and J may come from the step's predicted point).
@@ -44,11 +45,11 @@ class Recorder:
         a switch, is copied only while a bound is active).
         """
         s = self.stepper
-        pt = s.pt
+        pt = s.pt.base  # the task's evaluation (without the active constraint rows)
         pending = s.label_pending
         self.t.append(s.t)
         self.q.append(s.q)
-        self.lam.append(s.lam)  # in the closure 7-vector's coordinates at the end (lam_full, batched)
+        self.lam.append(s.task_lam)  # in the closure 7-vector's coordinates at the end (lam_full, batched)
         self.solver.append(None if pending else s.solver)
         self.M.append(s.M)
         self.J_step.append(pt.J if pending else None)
@@ -57,6 +58,8 @@ class Recorder:
             self.active.append(s.active_bounds() if s.any_active else None)
             self.mu.append(s.mu)
             self.qdot.append(s.qdot)
+        if self.rows is not None:
+            self.rows.append(s.row_record())
 
     def _lam_full(self) -> np.ndarray:
         """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""
@@ -120,6 +123,10 @@ class Recorder:
             drift = np.array([joint_drift(q[0], q[(i + 1) * steps_per_loop], s.ev.robot.revolute)
                               for i in range(loops)])
         extra = self._limits_record(q, meta) if self.limited else {}
+        if self.rows is not None:  # the general constraints' record (issue 27): per point, and the switches
+            meta.update(switches=list(s.switches), constraints={
+                "names": s.row_names(range(len(s.row_pairs))), "min_value": [r[0] for r in self.rows],
+                "active": [list(r[1]) for r in self.rows], "multipliers": [r[2].tolist() for r in self.rows]})
         return Trajectory(
             **extra, robot=robot_name, task=task.name, t=t, q=q, p=p, p_desired=p_d, scheme=scheme,
             mode=mode,

@@ -32,13 +32,13 @@ with neither quantity near zero) ``out_of_reach`` if the path cannot be reached 
 ``step_control_exhausted``; a jump where the path's own position jumps is ``path_discontinuity``.
 
 On a step with no trouble the control costs the watch (see :mod:`kinredund.tracking.watch`), the jump
-check (three vector norms) and a snapshot of the state (references and a copy of the predictor's list).
+check (three vector norms) and the stepper's state as one value (:mod:`kinredund.tracking.state`: references
+and a tuple of the predictor's list), which a rejected (sub-)step is put back to as a whole.
 """
 
 from __future__ import annotations
 
 import math
-from operator import attrgetter
 
 import numpy as np
 
@@ -54,9 +54,6 @@ TRAPEZOID_TOL = 0.25
 #: a whole step whose corrected joints lie within this fraction of h |qdot| of the predictor's point
 #: (extrapolated from the smooth past) is no jump, and the trapezoidal check is skipped
 PREDICTED_TOL = 0.01
-#: the stepper's state a rejected (sub-)step is undone to
-STATE = ("t", "k", "q", "lam", "qdot", "lamdot", "_y", "_yd", "pt", "M", "_solver", "_lu", "_rcond")
-_get_state = attrgetter(*STATE)
 
 
 class StepControl:
@@ -72,8 +69,7 @@ class StepControl:
         self.watch = Watch()
         self.floor = stepper.dt / 2**MAX_HALVINGS
         s = stepper
-        self._sub = getattr(s, "_snapshot", None)
-        sigma, eig = self.watch.measure(s.pt.J, s.M, getattr(s, "_lu", None), getattr(s, "fixed", None))
+        sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
         self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
         self._speed2 = float(s.qdot @ s.qdot)
 
@@ -82,22 +78,12 @@ class StepControl:
         return self.watch.crossed(self.watch.sigma[-1], self.watch.eig[-1])
 
     # -- the state ------------------------------------------------------------------------------------
-    def _snapshot(self) -> dict:
-        s = self.s
-        snap = dict(zip(STATE, _get_state(s), strict=True))
-        snap["prev"], snap["speed2"] = list(s.prev), self._speed2
-        if self._sub is not None:  # a subclass's own state (e.g. the active set of the limits)
-            snap["sub"] = self._sub()
-        return snap
+    def _snapshot(self) -> tuple:
+        """The stepper's whole state (:mod:`kinredund.tracking.state`) and the control's last speed."""
+        return self.s.state, self._speed2
 
-    def _restore(self, snap: dict) -> None:
-        s = self.s
-        if "sub" in snap:
-            s._restore(snap["sub"])
-        for name in STATE:
-            setattr(s, name, snap[name])
-        s.prev[:] = snap["prev"]
-        self._speed2 = snap["speed2"]
+    def _restore(self, snap: tuple) -> None:
+        self.s.state, self._speed2 = snap
 
     # -- one step --------------------------------------------------------------------------------------
     def step(self) -> None:
@@ -115,7 +101,7 @@ class StepControl:
             self._restore(snap)
         self._substeps(snap, t_to, reason)
 
-    def _attempt(self, advance, snap: dict, h: float):
+    def _attempt(self, advance, snap: tuple, h: float):
         """Run ``advance`` and check its point: None if accepted (and pushed to the watch), else (kind, why)."""
         s = self.s
         try:
@@ -126,13 +112,13 @@ class StepControl:
             s.ev.check_sample(s.t)  # a non-finite path sample is the caller's input: its PathError propagates
             # the message without the diverged iterate: the error reports the last good point instead
             return "corrector", str(err).split("; q = ")[0]
-        qd0, qd1 = snap["qdot"], s.qdot
+        qd0, qd1 = snap[0].qdot, s.qdot
         speed2 = float(qd1 @ qd1)
         if h == s.dt:  # a whole step: where the corrector ended next to the predictor's point, no jump
             m = s.q - s._q_pred
             if float(m @ m) <= (PREDICTED_TOL * h) ** 2 * max(self._speed2, speed2):
                 return self._watch_point(h, speed2)
-        dq = s.q - snap["q"]
+        dq = s.q - snap[0].q
         e = dq - (0.5 * h) * (qd0 + qd1)  # the trapezoidal rule's miss: h^3 |q'''| / 12 on a smooth step
         move2, miss2 = float(dq @ dq), float(e @ e)
         scale2 = max(move2, h * h * max(self._speed2, speed2))
@@ -144,14 +130,14 @@ class StepControl:
     def _watch_point(self, h: float, speed2: float):
         """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why)."""
         s = self.s
-        if not (self.watch.due(s._rcond) or h < s.dt):
+        if not (self.watch.due(s.rcond) or h < s.dt):
             self._speed2 = speed2
             return None
         if h < s.dt:  # sub-steps (near trouble): exactly, at the corrected point (not the Euler prediction's)
-            pt = s.ev.point(s.q, s.t)
+            pt = s.evaluate(s.q, s.t)
             sigma, eig = self.watch.measure_exact(pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         else:
-            sigma, eig = self.watch.measure(s.pt.J, s.M, s._lu, getattr(s, "fixed", None))
+            sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
         kind = self.watch.crossed(sigma, eig)
         if kind is not None:
             return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"
@@ -163,14 +149,14 @@ class StepControl:
         """The prediction again after an exact measurement at the current point (the gated history may be old)."""
         s = self.s
         if not self.watch.exact_at(s.t):  # a sub-step's point is measured exactly already: not again
-            pt = s.ev.point(s.q, s.t)
+            pt = s.evaluate(s.q, s.t)
             self.watch.refresh(s.t, pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         return self.watch.ahead(t_next)
 
-    def _substeps(self, snap_step: dict, t_to: float, reason) -> None:
+    def _substeps(self, snap_step: tuple, t_to: float, reason) -> None:
         s = self.s
         s.prev.clear()  # the Hermite history does not fit sub-steps: Euler, as after a jump
-        t, h, t_tried = snap_step["t"], 0.5 * s.dt, t_to
+        t, h, t_tried = snap_step[0].t, 0.5 * s.dt, t_to
         while t_to - t > 1e-12 * s.dt:
             if h < self.floor * (1.0 - 1e-9):
                 raise self._exhausted(snap_step, t_to, reason, t_tried)
@@ -186,11 +172,11 @@ class StepControl:
                 reason, h = why, 0.5 * h
                 continue
             t, h = t_next, min(2.0 * h, s.dt)
-        s.t, s.k = t_to, snap_step["k"] + 1
+        s.t, s.k = t_to, snap_step[0].k + 1
         s.prev.clear()  # the next step restarts the predictor from this point
 
     # -- the stop ---------------------------------------------------------------------------------------
-    def _exhausted(self, snap_step: dict, t_to: float, reason, t_fail: float) -> TrackingError:
+    def _exhausted(self, snap_step: tuple, t_to: float, reason, t_fail: float) -> TrackingError:
         """The error, the stepper put back at the last requested time (the last recorded, good point).
 
         ``t`` and ``q`` are that point's (the partial record ends there); ``watched`` holds its quantities

@@ -19,6 +19,7 @@ from kinredund.errors import PathError, SingularityError
 from kinredund.tracking.failure import singular_start, step_too_long
 from kinredund.tracking.linalg import RateQP, classify, multipliers, solve_rates
 from kinredund.tracking.point import Evaluator, Point
+from kinredund.tracking.state import StepState, apply, capture
 from kinredund.tracking.watch import SIGMA_FLOOR
 
 
@@ -37,6 +38,8 @@ class Stepper:
 
     #: is M symmetric (the augmented form) or not (the velocity form's M*)
     symmetric = True
+    #: the record of :attr:`state` (a subclass with more state extends it)
+    state_class: type[StepState] = StepState
 
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, t0: float = 0.0, tol: float = 1e-12,
                  linear_solver: str = "auto", qp_backend: str = "kkt"):
@@ -47,7 +50,9 @@ class Stepper:
         self.t = self.t0
         self.q = q0
         self.qdot = self.lamdot = self.M = None
-        self._solver: str | None = None
+        self.y = self.yd = self.lu = self.rcond = None
+        self.prev: list[np.ndarray] = []
+        self.label: str | None = None
         evaluator.check_sample(self.t)
         self.pt = self.evaluate(self.q, self.t)
         self._check_on_path(self.pt, "the starting configuration")
@@ -59,12 +64,31 @@ class Stepper:
         if evaluator.path.period is not None and dt > evaluator.path.period:
             raise step_too_long(evaluator, self.q, self.t, dt, mode=mode)
         self.lam = multipliers(self.pt.J, self.pt.grad)[0] if evaluator.index is not None else np.zeros(len(self.pt.r))
-        m = len(self.pt.r)
+        m = len(self.pt.base.r)  # the task's rows (an active constraint row is not in R's workspace)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
 
-    def evaluate(self, q: np.ndarray, t: float) -> Point:
-        """The scheme's evaluation at (q, t) (with dK: the optimal schemes need Lambda)."""
-        return self.ev.point(q, t)
+    @property
+    def state(self) -> StepState:
+        """The state as one frozen value (:mod:`kinredund.tracking.state`); assign one to go back to it."""
+        return capture(self, self.state_class)
+
+    @state.setter
+    def state(self, value: StepState) -> None:
+        apply(self, value)
+        self._state_applied()
+
+    def _state_applied(self) -> None:
+        """After :attr:`state` is assigned: derived quantities (a subclass's, e.g. the free rows of R)."""
+
+    @property
+    def task_lam(self) -> np.ndarray:
+        """The task's multipliers lambda (a stepper with constraint rows holds their multipliers after them)."""
+        return self.lam
+
+    def evaluate(self, q: np.ndarray, t: float, need_dJ: bool = True) -> Point:
+        """The scheme's evaluation at (q, t) (with dK: the optimal schemes need Lambda; ``need_dJ=False``
+        for the residual only). A stepper with constraint rows extends it (:mod:`kinredund.tracking.rows`)."""
+        return self.ev.point(q, t, need_dJ=need_dJ)
 
     def step(self) -> None:
         """One time step: from (q, lambda) at t to t + dt."""
@@ -81,14 +105,14 @@ class Stepper:
         The default mode's corrector solves with R's LU factors and labels the step by the rule of
         :func:`~kinredund.tracking.linalg.classify` only when asked (:attr:`label_pending`).
         """
-        if self._solver is None:
-            self._solver = classify(self.M, self.pt.J, self.linear_solver, symmetric=self.symmetric)
-        return self._solver
+        if self.label is None:
+            self.label = classify(self.M, self.pt.J, self.linear_solver, symmetric=self.symmetric)
+        return self.label
 
     @property
     def label_pending(self) -> bool:
         """True where :attr:`solver` would classify (the recorder then classifies all steps at the end)."""
-        return self._solver is None
+        return self.label is None
 
     def record_point(self) -> Point:
         """The terms at the current (q, t), for the record: the step's own evaluation where it was made
@@ -107,7 +131,7 @@ class Stepper:
         if self.qp_backend == "proxsuite" and label != "lu" and self.prox is None:
             self.prox = RateQP(self.n, len(pt.r))
         rs = solve_rates(M, pt.J, top, xdot, label=label, backend=self.qp_backend, prox=self.prox, lu=lu)
-        self.qdot, self.lamdot, self._solver, self.M = rs.thetadot, rs.lamdot, rs.solver, M
+        self.qdot, self.lamdot, self.label, self.M = rs.thetadot, rs.lamdot, rs.solver, M
 
     # -- checks -------------------------------------------------------------------------------------
     def _check_on_path(self, pt: Point, what: str, limit: float | None = None) -> None:
@@ -172,5 +196,5 @@ class Stepper:
         rcond = lapack.dgecon(lu, lapack.dlange("1", R))[0]
         if not rcond > 1e-12:  # also catches NaN
             self._singularity(pt, R, J)
-        self._lu, self._rcond = (lu, piv), rcond  # the last factors and estimate (the watch reuses them)
-        return self._lu
+        self.lu, self.rcond = (lu, piv), rcond  # the last factors and estimate (the watch reuses them)
+        return self.lu

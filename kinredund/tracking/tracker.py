@@ -100,6 +100,10 @@ class Tracker:
             (:mod:`kinredund.tracking.limited`); thesis mode and the baselines run without them, and
             refuse ``limits=True`` (explicit steps have no corrector to hold the bounds).
         project_start: put a ``q0`` outside the limits on them instead of raising.
+        constraints: general inequality constraints held like the limits (e.g.
+            :class:`~kinredund.tracking.constraints.SphereClearance`; :mod:`kinredund.tracking.rows`): the run
+            stops with ``cause="collision"`` where one cannot be held. ``qp_solver``: the rate QP's solver at a
+            weakly active row (``proxqp``, or ``daqp`` where installed).
         strict: the default mode's step control, jump check and fold and singularity watch
             (:mod:`kinredund.tracking.step_control`; on by default): a step the corrector fails is retried in
             sub-steps, and the run stops before a fold or a singularity with a
@@ -112,6 +116,7 @@ class Tracker:
     Raises:
         ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range (also:
             limits asked of thesis mode or a baseline).
+        TrackingError: with constraints, ``q0`` violates one (``cause="collision"``, naming it and by how much).
         TrackingError: with limits, ``q0`` is outside them (``cause="limits_infeasible"``, naming the joints
             and by how much), or no constrained optimum is found at the start.
         PathError: the start is off the path, or the path is unsuitable (says why).
@@ -124,7 +129,8 @@ class Tracker:
     def __init__(self, robot: Robot, path: Path, index: Index | None, q0, dt: float, *, scheme: str = "augmented",
                  mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
                  tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0,
-                 limits: bool | JointLimits | None = None, project_start: bool = False, strict: bool = True):
+                 limits: bool | JointLimits | None = None, project_start: bool = False, strict: bool = True,
+                 constraints=None, qp_solver: str = "proxqp"):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -151,11 +157,15 @@ class Tracker:
         q = robot.check_q(q0, "starting configuration").copy()
         limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
-        self.limits = limits
-        if limits is not None:
-            if project_start:
+        self.limits, constraints = limits, list(constraints or ())
+        if constraints and not (mode == "default" and scheme in ("augmented", "velocity")):
+            raise OptionError(f"constraints are held by the default mode's augmented and velocity schemes only, "
+                              f"not by mode={mode!r}, scheme={scheme!r}")
+        if limits is not None or constraints:
+            if project_start and limits is not None:
                 q = limits.project(q)
-            self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, strict=strict, **kwargs)
+            self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, constraints=constraints,
+                                                              qp_solver=qp_solver, strict=strict, **kwargs)
             self.step = self.stepper.step
             return
         if scheme in ("pseudoinverse", "liegeois"):
@@ -190,7 +200,7 @@ class Tracker:
 
     q = _from_stepper("q", "The joint values at :attr:`t` [rad or m].")
     t = _from_stepper("t", "The current time [s].")
-    lam = _from_stepper("lam", "The multipliers lambda at :attr:`t` (Eq. 4.5; lambda* in the velocity form).")
+    lam = _from_stepper("task_lam", "The multipliers lambda at :attr:`t` (Eq. 4.5; lambda* in the velocity form).")
     qdot = _from_stepper("qdot", "The joint rates [rad/s] at :attr:`t` (the default mode's: at the step's predicted "
                                  "point).")
     lamdot = _from_stepper("lamdot", "The multipliers' rates at :attr:`t`.")

@@ -2,11 +2,15 @@
 
 - :class:`~kinredund.tracking.constraints.base.Constraint`: inequalities c(theta) >= 0 with their
   gradients, names and margins;
-- :class:`~kinredund.tracking.constraints.joint_limits.JointLimits`: the robot's position limits (the
-  first kind; obstacle constraints come later as further files).
+- :class:`~kinredund.tracking.constraints.joint_limits.JointLimits`: the robot's position limits (simple
+  bounds);
+- :class:`~kinredund.tracking.constraints.clearance.SphereClearance`,
+  :class:`~kinredund.tracking.constraints.clearance.PlaneClearance`: a frame's origin kept clear of a sphere
+  or a plane (general rows).
 """
 
 from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.constraints.clearance import PlaneClearance, SphereClearance
 from kinredund.tracking.constraints.joint_limits import JointLimits
 
-__all__ = ["Constraint", "JointLimits"]
+__all__ = ["Constraint", "JointLimits", "PlaneClearance", "SphereClearance"]

@@ -10,10 +10,18 @@ and between switching times the active inequalities are equalities: the thesis's
 their rows added (or, for simple bounds, the bound joints' columns removed). A constraint says how many
 inequalities it has, their values and gradients at a configuration, and names them for messages.
 
-Today the limited stepper (:mod:`kinredund.tracking.limited`) holds simple bounds only, through
-:class:`~kinredund.tracking.constraints.joint_limits.JointLimits`'s ``lower`` and ``upper``: a general
-inequality (an obstacle's clearance) needs its rows added to the reduced system, which this interface
-describes but no stepper implements yet.
+The constrained stepper (:mod:`kinredund.tracking.limited`) sees a constraint only through this class.
+Two kinds are held, told apart by :meth:`Constraint.bounds`:
+
+- simple bounds on single joints (:class:`~kinredund.tracking.constraints.joint_limits.JointLimits`): an
+  active one fixes its joint, whose column leaves the system;
+- general rows (:mod:`kinredund.tracking.constraints.clearance`): an active row i adds the equation
+  c_i(theta) = 0 to the system, its gradient G_i as a row under J and w_i = -mu_i as a multiplier after
+  lambda, and w_i Hess c_i to M (:meth:`Constraint.curvature`).
+
+A new constraint is one subclass: ``size``, ``values``, ``gradients``, ``names`` and, for general rows,
+``curvature`` (analytic; the default takes central differences of the gradients) and ``cause`` (the
+TrackingError cause a run that cannot hold it stops with).
 """
 
 from __future__ import annotations
@@ -25,6 +33,9 @@ import numpy as np
 
 class Constraint(abc.ABC):
     """Inequalities c(theta) >= 0 on the joints [rad or m]; ``size`` of them."""
+
+    #: the :class:`~kinredund.errors.TrackingError` cause of a run that cannot hold the constraint
+    cause = "limits_infeasible"
 
     @property
     @abc.abstractmethod
@@ -47,3 +58,28 @@ class Constraint(abc.ABC):
         """(name, amount) of each inequality violated by more than ``tol`` at q [rad or m]."""
         c = self.values(q)
         return [(name, float(-v)) for name, v in zip(self.names(), c, strict=True) if v < -tol]
+
+    def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(values, gradients) at q together (a subclass computes both from one kinematics pass)."""
+        return self.values(q), self.gradients(q)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(joint, side, bound) per inequality where every one is a simple bound ``side (theta_joint - bound)
+        >= 0`` (side +1 lower, -1 upper), held by fixing the joint; None for general rows (the default)."""
+        return None
+
+    def curvature(self, q: np.ndarray, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """sum_i w_i Hess c_i(q) over the inequalities ``rows`` (n, n): their share of M in the system.
+
+        The default takes central differences of :meth:`gradients` (step 1e-6; O(1e-10) relative error);
+        a subclass with analytic second derivatives overrides it (the corrector's rate of convergence
+        depends on it, its result does not).
+        """
+        q = np.asarray(q, float)
+        n, eps = len(q), 1e-6
+        H = np.empty((n, n))
+        for k in range(n):
+            e = np.zeros(n)
+            e[k] = eps
+            H[:, k] = w @ (self.gradients(q + e)[rows] - self.gradients(q - e)[rows]) / (2 * eps)
+        return 0.5 * (H + H.T)

@@ -59,6 +59,9 @@ class JointLimits(Constraint):
         G[np.arange(self.size), self.joint] = self.side
         return G
 
+    def bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.joint, self.side, self.bound
+
     def names(self) -> list[str]:
         return [f"{self.joint_names[j]} {'>=' if s > 0 else '<='} {b:.6g}"
                 for j, s, b in zip(self.joint, self.side, self.bound, strict=True)]
