@@ -355,6 +355,10 @@ def solve_ik(
         best = min(outcomes, key=lambda oz: oz[0].residual)[0]
         if outcomes[-1][0].reason == "timeout":
             best = StartOutcome(best.q, False, best.iterations, "timeout", best.residual)
+    if not best.converged:  # a start stuck near a spurious zero of e (the tool axis reversed) says so
+        why = res.spurious(*robot.kinematics.pose(best.q))
+        if why and why not in best.reason:
+            best = StartOutcome(best.q, False, best.iterations, f"{best.reason}; {why}", best.residual)
     q, wrapped = _wrap_into_limits(robot, best.q, index)
     if wrapped:
         notes = "; ".join(filter(None, [notes, f"joints {wrapped} turned by multiples of 2 pi into their limits"]))
