@@ -39,6 +39,15 @@ _PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "positi
               "active_bounds": (None,), "bound_multipliers": (None,), "limit_margins": (None,)}
 #: The names of those optional per-point arrays (functions of the point on the path, not of its time).
 PER_POINT_FIELDS = tuple(_PER_POINT)
+#: largest joint drift over one loop [rad or m] for which a closed path's record counts as a closed joint
+#: path: the default mode holds each point to ~1e-12 (its drift is round-off), and a periodic time law
+#: (:mod:`kinredund.retime`) needs the loop closed to this
+LOOP_CLOSURE_TOL = 1e-6
+
+
+class RecordWarning(UserWarning):
+    """A record that ran to its end but is not what was asked: a closed path whose joints do not close,
+    joints faster than their velocity limits. The record says so too (:meth:`Trajectory.summary`)."""
 
 
 class Deferred:
@@ -155,9 +164,18 @@ class Trajectory:
         """The starting configuration."""
         return self.q[0]
 
+    @property
+    def loop_closed(self) -> bool | None:
+        """Whether the joints return within :data:`LOOP_CLOSURE_TOL` at the end of every loop (None: no
+        loops, an open path). A closed path whose record is not closed has ``meta["loop_not_closed"]``,
+        the cause, from the tracker (:func:`kinredund.tracking.track`)."""
+        if self.loop_drift is None or len(self.loop_drift) == 0:
+            return None
+        return bool(np.max(self.loop_drift) <= LOOP_CLOSURE_TOL)  # "<=": a NaN drift is not closed
+
     def summary(self) -> dict:
         """Scalar figures: maxima of the errors (None for an error the task does not hold), the drift per
-        loop, the number of LU steps.
+        loop and whether it closes (:attr:`loop_closed`), the number of LU steps.
 
         ``lu_steps`` counts the steps (``solver[1:]``, one label per step; ``solver[0]`` is the start's)
         labelled ``lu``, so a run of 200 steps has at most 200.
@@ -178,6 +196,7 @@ class Trajectory:
             "axis_error_max": err("axis_error"),
             "normality_residual_max": mx(self.normality_residual),
             "loop_drift": None if self.loop_drift is None else [float(v) for v in self.loop_drift],
+            "loop_closed": self.loop_closed,
             "lu_steps": int(sum(1 for s in self.solver[1:] if s == "lu")),
         }
 
@@ -278,7 +297,7 @@ class Trajectory:
         return cls.from_json_dict(read_json_object(path))
 
 
-__all__ = ["PER_POINT_FIELDS", "Deferred", "Trajectory"]
+__all__ = ["LOOP_CLOSURE_TOL", "PER_POINT_FIELDS", "Deferred", "RecordWarning", "Trajectory"]
 
 
 def _absolute_urdf(robot: str) -> str:

@@ -27,10 +27,10 @@ from scipy.interpolate import make_interp_spline
 
 from kinredund.kinematics.angles import joint_drift
 from kinredund.retime.limits import RetimeError
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import LOOP_CLOSURE_TOL, Trajectory
 
 #: largest joint drift over one loop [rad] for which a closed record counts as a closed joint path
-CLOSURE_TOL = 1e-6
+CLOSURE_TOL = LOOP_CLOSURE_TOL
 #: largest joint step between consecutive samples [rad or m]: more is a jump, not a sampled curve
 MAX_STEP = 0.5
 #: fewest samples a quintic interpolating spline needs (and TOPP-RA a few segments)

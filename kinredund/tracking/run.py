@@ -8,6 +8,8 @@ endless.
 
 from __future__ import annotations
 
+import warnings
+
 from kinredund.errors import OptionError, PathError, TrackingError, check_count, check_positive
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
@@ -15,7 +17,7 @@ from kinredund.paths import Path
 from kinredund.tracking.failure import loadable_name
 from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.tracker import Tracker
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import LOOP_CLOSURE_TOL, RecordWarning, Trajectory
 
 #: the most steps one run records (the record holds every step: about 0.5 KiB each on a 7-axis arm, and
 #: about 1 KiB more until its diagnostics are first read)
@@ -60,6 +62,11 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
         progress: ``progress(done, total)`` after each step.
         meta: free-form entries for the record's ``meta``.
 
+    Warns:
+        RecordWarning: a closed path whose joints do not return within
+            :data:`~kinredund.trajectory.LOOP_CLOSURE_TOL` at the end of a loop (the record's ``loop_closed``
+            is False and ``meta["loop_not_closed"]`` names the cause).
+
     Raises:
         OptionError, ChoiceError: an argument out of its range (checked before any work).
         PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
@@ -88,4 +95,30 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
             info["meta"].update(steps=len(rec) - 1, partial=True)
             err.partial = rec.trajectory(loops=None, steps_per_loop=None, **info)
         raise
-    return rec.trajectory(loops=loops_run, steps_per_loop=None if loops_run is None else total // loops_run, **info)
+    traj = rec.trajectory(loops=loops_run, steps_per_loop=None if loops_run is None else total // loops_run, **info)
+    _say_open_loop(traj, scheme, mode)
+    return traj
+
+
+def open_loop_cause(scheme: str, mode: str) -> str:
+    """Why a closed path's joints did not close, by the scheme that ran (the default mode's optimal schemes
+    hold every point on a branch of constrained minima of z to ~1e-12, so there the branch is at fault)."""
+    if scheme in ("pseudoinverse", "liegeois"):
+        return (f"the {scheme} baseline is not cyclic (it does not follow a constrained minimum of z): use "
+                "scheme='augmented', which is")
+    if mode == "thesis":
+        return ("the explicit steps of thesis mode (Eq. 4.29) drift off the optimum: use mode='default', which "
+                "corrects every step onto it")
+    return ("the branch of minima followed is not periodic: its continuation around the loop ends at another "
+            "local minimum of z; use kinredund.plan(robot, path, index), which chooses a closed walk")
+
+
+def _say_open_loop(traj: Trajectory, scheme: str, mode: str) -> None:
+    """A closed path whose joints do not return: the cause in ``meta["loop_not_closed"]`` and a
+    :class:`~kinredund.trajectory.RecordWarning` (never a plain success)."""
+    if traj.loop_closed is not False:
+        return
+    why = (f"the joints do not return at the end of a loop of the closed path: drift {max(traj.loop_drift):.3g} rad "
+           f"(at most {LOOP_CLOSURE_TOL:g} for a closed joint path): {open_loop_cause(scheme, mode)}")
+    traj.meta["loop_not_closed"] = why
+    warnings.warn(why, RecordWarning, stacklevel=3)

@@ -14,6 +14,7 @@ import dataclasses
 import json
 import math
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ import numpy as np
 from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
+from kinredund.trajectory import RecordWarning
 from kinredund.ui import options
 from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
 
@@ -213,15 +215,17 @@ def _cmd_track(args) -> int:
         # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
         span = {} if duration is None else {"duration": duration, "steps": args.steps}
         try:
-            traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
-                         loops=args.loops, progress=lambda d, n: bar(d, n, "tracking"), **span)
-        except TrackingError as err:
-            if args.partial is None or err.partial is None:
-                raise
-            # the partial record is this command's output: returning (not raising) lets its batch land
-            _write_partial(args.partial, err)
-            print(f"kinredund: error: {err}", file=sys.stderr)
-            return EXIT_USAGE
+            with warnings.catch_warnings():  # said below, once, with the exit code
+                warnings.simplefilter("ignore", RecordWarning)
+                traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode,
+                             steps_per_loop=args.steps, loops=args.loops,
+                             progress=lambda d, n: bar(d, n, "tracking"), **span)
+        except TrackingError as err:  # a run that stopped: a result that failed (exit 1), not bad input
+            if args.partial is not None and err.partial is not None:
+                # the partial record is this command's output: returning (not raising) lets its batch land
+                _write_partial(args.partial, err)
+            print(f"kinredund: tracking stopped: {err}", file=sys.stderr)
+            return EXIT_FAILED
         if args.html:
             bar(0, 1, "the HTML replay")
             from kinredund.ui.viz import replay_html
@@ -239,6 +243,9 @@ def _cmd_track(args) -> int:
 
         plot_joint_histories(traj, args.plot)
     _wrote(args.json, args.plot, args.html)
+    if traj.loop_closed is False:  # a closed path whose joints do not close is no success
+        print(f"kinredund: {traj.meta['loop_not_closed']}", file=sys.stderr)
+        return EXIT_FAILED
     return EXIT_OK
 
 

@@ -1,0 +1,79 @@
+"""What a tracking record says about itself (issue 26): a closed path whose joints do not close is flagged
+(record, warning, exit code, cause named), never a plain success."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from conftest import robot
+
+import kinredund
+from kinredund.indices import JointDeviation
+from kinredund.paths import Circle
+from kinredund.trajectory import LOOP_CLOSURE_TOL, RecordWarning
+from kinredund.ui.cli import EXIT_FAILED, main
+
+#: a Panda start found by a seeded search (numpy default_rng(1), trial 11): a circle of radius 0.108 m from
+#: its pose, orientation held, z = 1/2 ||q - q_home||^2. Its branch of constrained minima is not periodic:
+#: one loop ends ~1.9 rad from its start with no bound active (the same at 200 and 400 steps per loop),
+#: the case of the issue (there: 1.42 rad)
+OPEN_BRANCH_Q = np.array([-1.7312349645663159, -0.5977225265655738, 1.0673072162758395, -1.1549464505665732,
+                          -1.5061831427348509, 1.5408934052687406, -0.32076022072475463])
+RADIUS = 0.108
+
+
+def _open_branch_case():
+    r = robot("panda")
+    T = r.fk(OPEN_BRANCH_Q)
+    index = JointDeviation(r.home)
+    start = kinredund.solve_ik(r, T, index, q0=OPEN_BRANCH_Q, bounds=True)
+    assert start.converged
+    path = Circle(T[:3, 3] - RADIUS * np.array([1.0, 0.0, 0.0]), RADIUS, 0.1, orientation=T[:3, :3])
+    return r, path, index, start.q
+
+
+def test_a_branch_that_does_not_close_is_flagged_with_its_cause():
+    r, path, index, q0 = _open_branch_case()
+    with pytest.warns(RecordWarning, match="branch of minima followed is not periodic") as caught:
+        traj = kinredund.track(r, path, index, q0, steps_per_loop=200, loops=1)
+    assert "kinredund.plan" in str(caught[0].message)
+    # the drift itself, from the joints (revolute joints modulo 2 pi), not the record's own figure
+    d = np.angle(np.exp(1j * (traj.q[-1] - traj.q[0])))
+    assert np.abs(d).max() > 1.0  # far beyond LOOP_CLOSURE_TOL: another local minimum
+    assert traj.loop_closed is False and traj.summary()["loop_closed"] is False
+    assert "not periodic" in traj.meta["loop_not_closed"]
+    # every point is on the path and no bound holds: nothing else is wrong with the run
+    assert traj.position_error.max() < 1e-9
+    assert not np.abs(traj.active_bounds).any()
+    # the cause is the branch, not the step: the same drift with twice the steps
+    with pytest.warns(RecordWarning):
+        finer = kinredund.track(r, path, index, q0, steps_per_loop=400, loops=1)
+    assert abs(finer.loop_drift[0] - traj.loop_drift[0]) < 1e-6
+
+
+def test_a_closed_run_is_closed_and_quiet():
+    r = robot("panda")
+    T = r.fk(r.home)
+    path = Circle(T[:3, 3] - np.array([0.05, 0.0, 0.0]), 0.05, 0.1, orientation=T[:3, :3])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecordWarning)
+        traj = kinredund.track(r, path, JointDeviation(r.home), r.home, steps_per_loop=100, loops=2)
+    assert traj.loop_closed is True and max(traj.loop_drift) <= LOOP_CLOSURE_TOL
+    assert "loop_not_closed" not in traj.meta
+    open_path = kinredund.Trajectory(robot="panda", task="pose", t=traj.t, q=traj.q, p=traj.p,
+                                     p_desired=traj.p_desired)
+    assert open_path.loop_closed is None  # no loops: nothing to say
+
+
+def test_cli_track_exits_1_on_a_branch_that_does_not_close(capsys, tmp_path):
+    js = tmp_path / "run.json"
+    code = main(["track", "panda", "--q0=" + ",".join(map(repr, OPEN_BRANCH_Q.tolist())), "--radius", str(RADIUS),
+                 "--quiet", "--json", str(js)])
+    assert code == EXIT_FAILED
+    out, err = capsys.readouterr()
+    assert "loop_closed                False" in out
+    assert "not periodic" in err and "kinredund.plan" in err
+    assert js.exists()  # the record is written: it is the evidence
+    assert kinredund.Trajectory.load_json(js).loop_closed is False
