@@ -77,3 +77,40 @@ def test_cli_track_exits_1_on_a_branch_that_does_not_close(capsys, tmp_path):
     assert "not periodic" in err and "kinredund.plan" in err
     assert js.exists()  # the record is written: it is the evidence
     assert kinredund.Trajectory.load_json(js).loop_closed is False
+
+
+def _ur10_circle(speed: float):
+    r = robot("ur10", "axis")
+    T = r.fk(r.home)
+    index = JointDeviation(r.home)
+    path = Circle(T[:3, 3] - np.array([0.1, 0.0, 0.0]), 0.1, speed, orientation=T[:3, :3])
+    start = kinredund.solve_ik(r, path(0.0), index, q0=r.home, bounds=True, starts=4)
+    return r, kinredund.track(r, path, index, start.q, steps_per_loop=100, loops=1)
+
+
+def test_a_record_over_the_velocity_limits_names_joint_ratio_and_time():
+    """A UR10 circle at 2 m/s: a joint over its URDF velocity limit, flagged with the joint, the ratio and
+    the time, recomputed here from the joints and the model's limits; the retimed record is within them."""
+    from kinredund.retime import limits_for, retime
+
+    r, traj = _ur10_circle(2.0)
+    vmax = np.asarray(r.model.velocityLimit, float)
+    speeds = np.abs(np.diff(traj.q, axis=0)) / np.diff(traj.t)[:, None] / vmax
+    k, j = np.unravel_index(np.argmax(speeds), speeds.shape)
+    ratio, joint, t = traj.speed_over_limits
+    assert ratio > 1.0 and joint == j and abs(ratio - speeds[k, j]) <= 1e-12 * ratio and t == traj.t[k + 1]
+    s = traj.summary()
+    assert (s["speed_ratio_max"], s["speed_ratio_joint"], s["speed_ratio_t"]) == (ratio, joint, t)
+    assert kinredund.Trajectory.from_json_dict(traj.to_json_dict()).speed_over_limits == (ratio, joint, t)
+    timed = retime(traj, limits_for(r, 10.0), robot=r).trajectory
+    assert timed.speed_over_limits[0] <= 1.0 + 1e-6  # TOPP-RA's law within the limits (its own tolerance)
+    slow = _ur10_circle(0.5)[1].speed_over_limits
+    assert slow[0] < 1.0 and slow[0] == pytest.approx(ratio / 4.0, rel=0.1)  # same joint path, a quarter the speed
+
+
+def test_cli_track_names_the_joint_over_its_limit_and_the_next_step(capsys, tmp_path):
+    js = tmp_path / "fast.json"
+    assert main(["track", "ur10", "--speed", "2", "--steps", "100", "--quiet", "--json", str(js)]) == 0
+    out, err = capsys.readouterr()
+    assert "speed_ratio_max" in out
+    assert "joint shoulder_lift_joint runs at" in err and f"kinredund retime {js} --amax" in err

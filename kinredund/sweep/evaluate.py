@@ -22,14 +22,14 @@ import numpy as np
 from kinredund.errors import KinredundError, PathError, SingularityError, check_choice, check_count, check_positive
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index
-from kinredund.model.robot import NO_LIMIT, Robot
+from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.sweep.placement import PartPath, pose_coordinates
 from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks import get_task
 from kinredund.tracking import MODES, SCHEMES, track
 from kinredund.tracking.constraints.joint_limits import JointLimits
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import Trajectory, fastest_joint
 
 #: a joint counts as outside its limits beyond this [rad or m]: round-off of a tracker that holds them
 #: (its steps land on a bound to ~1e-12), far below any physical margin
@@ -128,12 +128,9 @@ def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> 
         if bad.size:
             k, j = bad[0]
             out["violation"] = (int(k), int(np.flatnonzero(bounded)[j]))
-    if len(t) > 1:
-        vmax = np.asarray(robot.model.velocityLimit, float)
-        ok = np.isfinite(vmax) & (vmax > 0) & (vmax < NO_LIMIT)
-        if np.any(ok):
-            speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]  # mean speed over each step [rad/s]
-            out["speed_ratio"] = clean_float((speed[:, ok] / vmax[ok]).max())
+    fastest = fastest_joint(t, q, robot.model.velocityLimit)  # mean speed over each step against the limit
+    if fastest is not None:
+        out["speed_ratio"] = clean_float(fastest[0])
     kin, task = robot.kinematics, get_task(robot.task)
     J = []
     for qk, tk in zip(q, t, strict=True):

@@ -83,7 +83,8 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
     rec.add()
     step = tracker.step
     info = {"robot_name": loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
-            "meta": dict(meta or {}, dt=dt, steps=total)}
+            "meta": dict(meta or {}, dt=dt, steps=total,
+                         velocity_limit=[float(v) for v in robot.model.velocityLimit])}  # Trajectory.speed_over_limits
     try:
         for k in range(total):
             step()

@@ -43,7 +43,8 @@ def _progress(label: str, args):
 _UNITS = {"position_error_max": "m", "max_position_residual": "m", "clearance_min": "m",
           "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
           "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
-          "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m"}
+          "max_joint_step_deg": "deg", "timings_s": "s", "speed_ratio_t": "s", "wrist_reach_needed": "m",
+          "wrist_reach_available": "m"}
 
 
 def _number(v) -> str:
@@ -243,10 +244,25 @@ def _cmd_track(args) -> int:
 
         plot_joint_histories(traj, args.plot)
     _wrote(args.json, args.plot, args.html)
+    _say_speed(traj, robot, args)
     if traj.loop_closed is False:  # a closed path whose joints do not close is no success
         print(f"kinredund: {traj.meta['loop_not_closed']}", file=sys.stderr)
         return EXIT_FAILED
     return EXIT_OK
+
+
+def _say_speed(traj, robot, args) -> None:
+    """A joint faster than its URDF velocity limit: which, how much, when, and the next step."""
+    fastest = traj.speed_over_limits
+    if fastest is None or not fastest[0] > 1.0:
+        return
+    ratio, j, t = fastest
+    retime = f"`kinredund retime {args.json} --amax A`" if args.json else \
+        "track again with --json RUN.json, then `kinredund retime RUN.json --amax A`"
+    print(f"kinredund: note: joint {robot.joint_names[j]} runs at {ratio:.3g} times its URDF velocity limit "
+          f"(at t = {t:.4g} s): the arm cannot run this motion at these times. Next step: {retime} (a time law "
+          f"within the limits along the same joint path), or --speed {args.speed / ratio:.3g} or less",
+          file=sys.stderr)
 
 
 def _cmd_ik(args) -> int:
