@@ -114,3 +114,17 @@ def test_cli_track_names_the_joint_over_its_limit_and_the_next_step(capsys, tmp_
     out, err = capsys.readouterr()
     assert "speed_ratio_max" in out
     assert "joint shoulder_lift_joint runs at" in err and f"kinredund retime {js} --amax" in err
+
+
+def test_a_fast_closed_record_is_a_closed_joint_path():
+    """The loop's last sample was looked for within an absolute 1e-9 s: a loop shorter than that (a Panda
+    circle at 1e9 m/s, period 6.3e-10 s) was refused as '1 samples per loop'."""
+    from kinredund.retime.joint_path import joint_path
+
+    r = robot("panda")
+    T = r.fk(r.home)
+    path = Circle(T[:3, 3] - np.array([0.1, 0.0, 0.0]), 0.1, 1e9, orientation=T[:3, :3])
+    traj = kinredund.track(r, path, JointDeviation(r.home), r.home, steps_per_loop=100, loops=2)
+    jp = joint_path(traj.checked(r.nq), r.revolute)
+    assert jp.closed and len(jp.s) == 101
+    assert abs(jp.period - path.period) <= 1e-12 * path.period
