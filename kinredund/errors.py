@@ -252,6 +252,16 @@ def check_count(value, minimum: int, what: str, error: type[KinredundError] = Ta
     return int(value)
 
 
+def check_flag(value, what: str, error: type[KinredundError] = OptionError) -> bool:
+    """Return ``value`` as a bool if it is one (Python's or numpy's), else raise: ``"yes"``, ``0`` or ``None``
+    are not flags (a string is always true to ``bool``)."""
+    import numpy as np
+
+    if not isinstance(value, (bool, np.bool_)):
+        raise error(f"{what} must be True or False, got {value!r}")
+    return bool(value)
+
+
 def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
     """Return q as a float array of shape (n,), or raise :class:`JointVectorError` saying what is wrong."""
     return check_array(q, (n,), what, JointVectorError, owner)

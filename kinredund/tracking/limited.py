@@ -154,8 +154,11 @@ class LimitedPredictorCorrector(PredictorCorrector):
         try:
             return self._factor_matrix(pt, R, JF)
         except SingularityError as err:
+            # the singular R is at a corrector iterate, which may have diverged far out of the limits: the
+            # message names the last good point instead (filled in by step), not that iterate's q
+            what = str(err).rsplit("; q = ", 1)[0]
             raise self._failure("not_strongly_stable", f"the constrained optimum is not strongly stable at t = "
-                                f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: {err}") from err
+                                f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: {what}") from err
 
     def _solve(self, lu, b: np.ndarray) -> np.ndarray:
         if self._sel is None:
@@ -242,8 +245,10 @@ class LimitedPredictorCorrector(PredictorCorrector):
             self._resolve_switches(snap)
         except TrackingError as err:
             if err.q is None:  # the last good state: the step's start
-                err.t, err.q = snap["t"], [float(v) for v in snap["q"]]
+                err.t, err.q = snap["t"], np.array(snap["q"], dtype=float)
                 err.watched = self._watched(snap)
+                err.args = (f"{err.args[0]}; last good point t = {err.t:.6g} s, q = "
+                            f"{np.round(err.q, 6).tolist()}",)
             self._restore(snap)
             self.k = k  # back at the last requested time: t = t0 + k dt
             raise

@@ -24,8 +24,23 @@ from kinredund.trajectory import LOOP_CLOSURE_TOL, RecordWarning, Trajectory
 MAX_STEPS = 1_000_000
 
 
+#: the range of time steps [s] the tracker computes in: its step control squares dt and the rates times dt,
+#: which overflow or vanish beyond these (a path at 1e-300 m/s has a period of ~1e300 s)
+DT_RANGE = (1e-100, 1e100)
+
+
 def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:
     """(dt [s], total steps, loops or None for an open run), the arguments checked."""
+    dt, total, loops = _steps(path, steps_per_loop, loops, duration, steps)
+    if not DT_RANGE[0] <= dt <= DT_RANGE[1]:
+        what = f"the path's period {path.period:.3g} s" if loops is not None else f"the duration {duration:.3g} s"
+        raise OptionError(f"the time step {dt:.3g} s ({what} over {total} steps) is outside the range the tracker "
+                          f"computes in, {DT_RANGE[0]:g} to {DT_RANGE[1]:g} s: is the path's speed or duration a "
+                          "typo?")
+    return dt, total, loops
+
+
+def _steps(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:
     if path.period is not None and duration is None:
         spl = check_count(steps_per_loop, 1, "steps_per_loop", OptionError)
         loops = check_count(loops, 1, "loops", OptionError)

@@ -161,32 +161,6 @@ def _plan(case: str, args, label: str) -> int:
     return EXIT_OK
 
 
-def _path_for(args, robot, q_start: np.ndarray):
-    """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
-
-    Circles and ellipses start at the pose of ``q_start``.
-    """
-    from kinredund import paths
-
-    if args.path == "file":
-        if args.path_file is None:
-            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
-        path, duration = paths.read_path_file(args.path_file)
-        return path, (duration if path.period is None else None)
-    T0 = robot.fk(q_start)
-    p0 = T0[:3, 3]
-    if args.path == "ellipse":
-        center = args.center if args.center is not None else p0[:2] - np.array([args.radius, 0.0])
-        return paths.Ellipse(center[:2], args.radius, args.radius / 2, rate=args.speed / args.radius), None
-    normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
-    center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
-    if center.shape == (2,):
-        center = np.append(center, p0[2] if not get_task(robot.task).planar else 0.0)
-    # pose tasks hold the start orientation along the circle
-    return paths.Circle(center, args.radius, args.speed, normal=tuple(normal),
-                        orientation=T0[:3, :3] if get_task(robot.task).has_orientation else None), None
-
-
 def _write_partial(out, err: TrackingError) -> None:
     """``--partial FILE``: the record up to a tracking stop with the failure (cause, time, state) as JSON."""
     failure = {"cause": err.cause, "t": err.t, "q": err.q, "watched": err.watched, "message": str(err)}
@@ -199,12 +173,13 @@ def _cmd_track(args) -> int:
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
     from kinredund.tracking import track
+    from kinredund.ui.cli_track import path_for, say_speed, stop_hint
 
     try:
         bar(0, 1, "loading the robot")
         robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
         seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
-        path, duration = _path_for(args, robot, seed_q)
+        path, duration = path_for(args, robot, seed_q)
         # the baselines ignore the index while they step; their normality residual is measured against it
         index = options.index_for(robot, args.index)
         s0 = path(0.0)
@@ -225,7 +200,7 @@ def _cmd_track(args) -> int:
             if args.partial is not None and err.partial is not None:
                 # the partial record is this command's output: returning (not raising) lets its batch land
                 _write_partial(args.partial, err)
-            print(f"kinredund: tracking stopped: {err}", file=sys.stderr)
+            print(f"kinredund: tracking stopped: {err}{stop_hint(err, args)}", file=sys.stderr)
             return EXIT_FAILED
         if args.html:
             bar(0, 1, "the HTML replay")
@@ -244,25 +219,11 @@ def _cmd_track(args) -> int:
 
         plot_joint_histories(traj, args.plot)
     _wrote(args.json, args.plot, args.html)
-    _say_speed(traj, robot, args)
+    say_speed(traj, robot, args)
     if traj.loop_closed is False:  # a closed path whose joints do not close is no success
         print(f"kinredund: {traj.meta['loop_not_closed']}", file=sys.stderr)
         return EXIT_FAILED
     return EXIT_OK
-
-
-def _say_speed(traj, robot, args) -> None:
-    """A joint faster than its URDF velocity limit: which, how much, when, and the next step."""
-    fastest = traj.speed_over_limits
-    if fastest is None or not fastest[0] > 1.0:
-        return
-    ratio, j, t = fastest
-    retime = f"`kinredund retime {args.json} --amax A`" if args.json else \
-        "track again with --json RUN.json, then `kinredund retime RUN.json --amax A`"
-    print(f"kinredund: note: joint {robot.joint_names[j]} runs at {ratio:.3g} times its URDF velocity limit "
-          f"(at t = {t:.4g} s): the arm cannot run this motion at these times. Next step: {retime} (a time law "
-          f"within the limits along the same joint path), or --speed {args.speed / ratio:.3g} or less",
-          file=sys.stderr)
 
 
 def _cmd_ik(args) -> int:
