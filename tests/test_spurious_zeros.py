@@ -164,3 +164,18 @@ def test_point_tasks_have_no_spurious_zero(task):
     Q, p = r.kinematics.pose(r.home)
     assert res.residual(Q, p) == pytest.approx(0.1 * np.sqrt(kind.dim), rel=1e-12)
     assert res.spurious(Q, p) == "" and kind.branch_error(Q, None) == ""
+
+
+def test_the_sweep_feasible_placements_are_on_the_branch(tmp_path):
+    """`kinredund sweep kinova`: the placement at (0.5, 0.3) was listed feasible with its tool axis reversed
+    (orientation error pi, its start from a reversed IK answer); now it is on the branch."""
+    import json
+
+    from kinredund.ui.cli import main
+
+    js = tmp_path / "s.jsonl"
+    assert main(["sweep", "kinova", "--grid", "0.5:0.5:1,0.3:0.3:1", "--steps", "60", "--workers", "0", "--quiet", "--json",
+                 str(js)]) == 0
+    (rec,) = [json.loads(line) for line in js.read_text().splitlines()[1:]]
+    assert rec["feasible"]
+    assert rec["orientation_error"] < AXIS_BAR  # the largest angle between the tool axis and the path's
