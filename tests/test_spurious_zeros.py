@@ -174,8 +174,8 @@ def test_the_sweep_feasible_placements_are_on_the_branch(tmp_path):
     from kinredund.ui.cli import main
 
     js = tmp_path / "s.jsonl"
-    assert main(["sweep", "kinova", "--grid", "0.5:0.5:1,0.3:0.3:1", "--steps", "60", "--workers", "0", "--quiet", "--json",
-                 str(js)]) == 0
+    assert main(["sweep", "kinova", "--grid", "0.5:0.5:1,0.3:0.3:1", "--steps", "60", "--workers", "0", "--quiet",
+                 "--json", str(js)]) == 0
     (rec,) = [json.loads(line) for line in js.read_text().splitlines()[1:]]
     assert rec["feasible"]
     assert rec["orientation_error"] < AXIS_BAR  # the largest angle between the tool axis and the path's
