@@ -128,3 +128,49 @@ def test_a_fast_closed_record_is_a_closed_joint_path():
     jp = joint_path(traj.checked(r.nq), r.revolute)
     assert jp.closed and len(jp.s) == 101
     assert abs(jp.period - path.period) <= 1e-12 * path.period
+
+
+def _sampled(fn, steps: int, t_end: float = 1.0) -> kinredund.Trajectory:
+    """A 2-joint record of q(t) = fn(t) at ``steps`` steps over [0, t_end]."""
+    t = np.linspace(0.0, t_end, steps + 1)
+    q = np.array([fn(tk) for tk in t])
+    return kinredund.Trajectory(robot="planar3r", task="planar", t=t, q=q, p=np.zeros((len(t), 3)),
+                                p_desired=np.zeros((len(t), 3)))
+
+
+def test_a_square_root_point_is_named_a_rate_burst_and_a_smooth_burst_is_not():
+    """q_1 = sqrt(t - t*) past t* (a bound releasing where the optimum is not strongly stable): its largest
+    step shrinks sqrt(2)x when the step halves, and is named; a fast smooth bump (rates bounded) shrinks 2x
+    and passes; a record without a candidate is never re-run."""
+    from kinredund.tracking.record_checks import REFINED_SHRINK, say_rate_burst
+
+    t_star = 0.5 + 1e-3  # just past a sample: the step across it carries sqrt(dt)
+
+    def root(t):
+        return np.array([0.1 * t, 0.1 * t + 0.5 * np.sqrt(max(t - t_star, 0.0))])
+
+    def bump(t):
+        return np.array([0.1 * t, 0.1 * t + 0.3 * np.exp(-((t - 0.5) / 0.01) ** 2)])
+
+    rough = _sampled(root, 200)
+    with pytest.warns(RecordWarning, match="rate burst") as caught:
+        say_rate_burst(rough, lambda: _sampled(root, 400))
+    assert "joint 1" in rough.meta["rate_burst"] and "square-root point" in str(caught[0].message)
+    shrink = float(np.abs(np.diff(rough.q, axis=0)).max() / np.abs(np.diff(_sampled(root, 400).q, axis=0)).max())
+    assert shrink < REFINED_SHRINK  # the fixture is what it claims: ~sqrt(2)
+
+    smooth = _sampled(bump, 400)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecordWarning)
+        say_rate_burst(smooth, lambda: _sampled(bump, 800))  # a candidate (fast), resolved by refinement
+        say_rate_burst(_sampled(lambda t: np.array([t, -t]), 200), lambda: pytest.fail("re-run without a candidate"))
+    assert "rate_burst" not in smooth.meta
+
+
+def test_retime_refuses_a_record_with_a_rate_burst():
+    from kinredund.retime import RetimeError, limits_for, retime
+
+    r, traj = _ur10_circle(0.5)
+    traj.meta["rate_burst"] = "joint 3 moves 0.3 in one step"
+    with pytest.raises(RetimeError, match="rate burst"):
+        retime(traj, limits_for(r, 10.0), robot=r)

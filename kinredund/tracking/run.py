@@ -8,16 +8,15 @@ endless.
 
 from __future__ import annotations
 
-import warnings
-
 from kinredund.errors import OptionError, PathError, TrackingError, check_count, check_positive
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.tracking.failure import loadable_name
+from kinredund.tracking.record_checks import say_open_loop, say_rate_burst
 from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.tracker import Tracker
-from kinredund.trajectory import LOOP_CLOSURE_TOL, RecordWarning, Trajectory
+from kinredund.trajectory import Trajectory
 
 #: the most steps one run records (the record holds every step: about 0.5 KiB each on a 7-axis arm, and
 #: about 1 KiB more until its diagnostics are first read)
@@ -90,10 +89,26 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
             last good point (on the path, inside the limits), ``watched``, and ``partial``, the record up to
             the last requested time before it.
     """
-    dt, total, loops_run = _span(path, steps_per_loop, loops, duration, steps)
-    tracker = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
-                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain, limits=limits,
-                      project_start=project_start, strict=strict)
+    options = {"scheme": scheme, "mode": mode, "linear_solver": linear_solver, "qp_backend": qp_backend, "tol": tol,
+               "liegeois_gain": liegeois_gain, "limits": limits, "project_start": project_start, "strict": strict}
+    span = {"steps_per_loop": steps_per_loop, "loops": loops, "duration": duration, "steps": steps}
+    traj = _run(robot, path, index, q0, span, options, diagnostics, progress, meta)
+    say_open_loop(traj, scheme, mode)
+
+    def refined() -> Trajectory:  # the same run with half the time step, for the rate-burst check
+        finer = dict(span, steps_per_loop=2 * steps_per_loop, steps=None if steps is None else 2 * steps)
+        return _run(robot, path, index, q0, finer, options, False, None, None)
+
+    say_rate_burst(traj, refined)
+    return traj
+
+
+def _run(robot: Robot, path: Path, index: Index | None, q0, span: dict, options: dict, diagnostics: bool, progress,
+         meta: dict | None) -> Trajectory:
+    """The run of :func:`track` (its arguments grouped) and its record, without the record's checks."""
+    scheme, mode = options["scheme"], options["mode"]
+    dt, total, loops_run = _span(path, **span)
+    tracker = Tracker(robot, path, index, q0, dt, **options)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()
     step = tracker.step
@@ -111,30 +126,4 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
             info["meta"].update(steps=len(rec) - 1, partial=True)
             err.partial = rec.trajectory(loops=None, steps_per_loop=None, **info)
         raise
-    traj = rec.trajectory(loops=loops_run, steps_per_loop=None if loops_run is None else total // loops_run, **info)
-    _say_open_loop(traj, scheme, mode)
-    return traj
-
-
-def open_loop_cause(scheme: str, mode: str) -> str:
-    """Why a closed path's joints did not close, by the scheme that ran (the default mode's optimal schemes
-    hold every point on a branch of constrained minima of z to ~1e-12, so there the branch is at fault)."""
-    if scheme in ("pseudoinverse", "liegeois"):
-        return (f"the {scheme} baseline is not cyclic (it does not follow a constrained minimum of z): use "
-                "scheme='augmented', which is")
-    if mode == "thesis":
-        return ("the explicit steps of thesis mode (Eq. 4.29) drift off the optimum: use mode='default', which "
-                "corrects every step onto it")
-    return ("the branch of minima followed is not periodic: its continuation around the loop ends at another "
-            "local minimum of z; use kinredund.plan(robot, path, index), which chooses a closed walk")
-
-
-def _say_open_loop(traj: Trajectory, scheme: str, mode: str) -> None:
-    """A closed path whose joints do not return: the cause in ``meta["loop_not_closed"]`` and a
-    :class:`~kinredund.trajectory.RecordWarning` (never a plain success)."""
-    if traj.loop_closed is not False:
-        return
-    why = (f"the joints do not return at the end of a loop of the closed path: drift {max(traj.loop_drift):.3g} rad "
-           f"(at most {LOOP_CLOSURE_TOL:g} for a closed joint path): {open_loop_cause(scheme, mode)}")
-    traj.meta["loop_not_closed"] = why
-    warnings.warn(why, RecordWarning, stacklevel=3)
+    return rec.trajectory(loops=loops_run, steps_per_loop=None if loops_run is None else total // loops_run, **info)

@@ -220,10 +220,10 @@ def _cmd_track(args) -> int:
         plot_joint_histories(traj, args.plot)
     _wrote(args.json, args.plot, args.html)
     say_speed(traj, robot, args)
-    if traj.loop_closed is False:  # a closed path whose joints do not close is no success
-        print(f"kinredund: {traj.meta['loop_not_closed']}", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
+    failed = [traj.meta[k] for k in ("loop_not_closed", "rate_burst") if k in traj.meta]  # no success (track())
+    for why in failed:
+        print(f"kinredund: {why}", file=sys.stderr)
+    return EXIT_FAILED if failed else EXIT_OK
 
 
 def _cmd_ik(args) -> int:
