@@ -174,3 +174,22 @@ def test_retime_refuses_a_record_with_a_rate_burst():
     traj.meta["rate_burst"] = "joint 3 moves 0.3 in one step"
     with pytest.raises(RetimeError, match="rate burst"):
         retime(traj, limits_for(r, 10.0), robot=r)
+
+
+def test_a_jump_followed_with_strict_off_is_named_a_jump():
+    """strict=False follows a path that jumps by 0.3 m at t = 0.5 s (test_resolved_rate's case): the record is
+    on the path at every point, but its joints jump; the record names it instead of passing it as a step."""
+    from kinredund.indices import minimum_norm
+    from kinredund.paths import FunctionPath
+
+    r = robot("planar3r")
+    q0 = np.array([0.2, 0.6, 0.6])
+    p0 = r.fk(q0)[:2, 3]
+
+    def fn(t):
+        return p0 + np.array([0.1 * t, 0.0]) + (np.array([0.0, 0.3]) if t >= 0.5 else 0.0), np.array([0.1, 0.0])
+
+    with pytest.warns(RecordWarning, match="a jump"):
+        traj = kinredund.track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40, strict=False)
+    assert "t = 0.475 s to 0.5 s" in traj.meta["rate_burst"]
+    assert traj.position_error.max() < 1e-11  # nothing else says anything is wrong

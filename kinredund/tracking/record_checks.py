@@ -28,6 +28,8 @@ BURST_RATIO = 10.0
 #: halving the time step shrinks a smooth motion's largest step 2x, a square-root point's (q ~ sqrt(t - t*))
 #: sqrt(2) = 1.41x; a candidate whose largest step shrinks by less than this is a rate burst
 REFINED_SHRINK = 1.7
+#: ... and one whose largest step shrinks by less than this is a jump (a step independent of the time step)
+JUMP_SHRINK = 1.2
 #: fewest steps for a median to mean something
 MIN_STEPS = 8
 
@@ -86,15 +88,18 @@ def say_rate_burst(traj: Trajectory, refined: Callable[[], Trajectory]) -> None:
         fine = refined()
     except OptionError as err:  # twice the steps is more than a run may have: said, not checked
         why = f"{where}; not checked with half the time step ({err}): possibly a rate burst"
-    except KinredundError as err:
-        why = f"{where}; the run with half the time step stopped ({err}): the motion is not resolved there"
+    except KinredundError as err:  # its message without a diverged iterate's q
+        stop = str(err).rsplit("; q = ", 1)[0]
+        why = f"{where}; the run with half the time step stopped ({stop}): the motion is not resolved there"
     else:
         shrink = d[k] / float(largest_steps(fine.q).max())
         if shrink >= REFINED_SHRINK:
             return  # resolved: a fast but ordinary stretch (the speeds against the limits say the rest)
-        why = (f"{where}, and only {shrink:.3g} times less with half the time step (2 for a smooth motion, "
-               "1.41 at a square-root point): a rate burst, joint rates that grow without bound under "
-               "refinement (a square-root point where a joint bound releases and the bounded optimum is not "
-               "strongly stable, or a near-singularity); no time law keeps this motion within speed limits")
+        kind = ("a jump: the joints move as far however short the step (the path jumps, or the joints jump "
+                "to another branch)") if shrink < JUMP_SHRINK else (
+            "a rate burst, joint rates that grow without bound under refinement (a square-root point where a "
+            "joint bound releases and the bounded optimum is not strongly stable, or a near-singularity)")
+        why = (f"{where}, and only {shrink:.3g} times less with half the time step (2 for a smooth motion, 1.41 at "
+               f"a square-root point, 1 at a jump): {kind}; no time law keeps this motion within speed limits")
     traj.meta["rate_burst"] = why
     warnings.warn(why, RecordWarning, stacklevel=3)
