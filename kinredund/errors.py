@@ -117,7 +117,9 @@ class TrackingError(SingularityError, PathError, RuntimeError):
             ``step_too_long`` (a time step longer than the path's period), ``not_strongly_stable`` (the
             constrained optimum loses linear independence of the active constraints or second-order
             sufficiency), ``switch_not_resolved`` (a switching time of the active set could not be located),
-            ``path_discontinuity`` (the path itself jumps: the joints cannot follow it continuously).
+            ``path_discontinuity`` (the path itself jumps: the joints cannot follow it continuously),
+            ``path_inconsistent`` (the path's velocity or angular velocity is not the derivative of its
+            position or rotation: a self-contradictory path, e.g. a FunctionPath returning a wrong v).
         t: the time [s] of the last good state.
         q: the last good configuration (on the path, inside the limits) as a float array, or None.
         watched: the watched quantities there (``sigma_min_J``, ``reduced_hessian_min``, ...: floats and lists).
@@ -128,7 +130,7 @@ class TrackingError(SingularityError, PathError, RuntimeError):
 
     CAUSES = ("kinematic_singularity", "fold", "out_of_reach", "limits_infeasible", "step_control_exhausted",
               "non_optimal_start", "step_too_long", "not_strongly_stable", "switch_not_resolved",
-              "path_discontinuity")
+              "path_discontinuity", "path_inconsistent")
 
     def __init__(self, message: str, *, cause: str, t: float | None = None, q=None, watched: dict | None = None,
                  partial=None):

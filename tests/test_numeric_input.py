@@ -98,3 +98,20 @@ def test_a_default_run_out_of_reach_says_what_to_change(capsys):
     err = capsys.readouterr().err
     assert "out_of_reach" in err and "Hint:" in err and "smaller --radius" in err
     assert main(["track", "kinova", "--radius", "0.05", "--steps", "100", "--quiet"]) == 0  # the hint works
+
+
+def test_a_self_contradictory_path_is_named_so_not_a_fold():
+    """A FunctionPath whose v is not the derivative of its p stopped with cause ``fold``."""
+    from kinredund.indices import minimum_norm
+    from kinredund.paths import FunctionPath
+
+    r = robot("planar3r")
+    q0 = np.array([0.2, 0.6, 0.6])
+    p0 = r.fk(q0)[:2, 3]
+
+    def fn(t):
+        return p0 + np.array([0.3 * t, 0.0]), np.array([-3.0, 0.0])  # p moves at +0.3 m/s, v says -3
+
+    with pytest.raises(kinredund.TrackingError, match="self-contradictory path") as err:
+        kinredund.track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40)
+    assert err.value.cause == "path_inconsistent"
