@@ -193,3 +193,25 @@ def test_a_jump_followed_with_strict_off_is_named_a_jump():
         traj = kinredund.track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40, strict=False)
     assert "t = 0.475 s to 0.5 s" in traj.meta["rate_burst"]
     assert traj.position_error.max() < 1e-11  # nothing else says anything is wrong
+
+
+@pytest.mark.parametrize("check", ["loop_not_closed", "rate_burst"])
+def test_a_sweep_placement_whose_record_fails_its_checks_is_infeasible(check, monkeypatch):
+    """The sweep listed such placements as feasible (the issue: a reversed or open run ranked among the best)."""
+    import kinredund.sweep.evaluate as evaluate_mod
+    from kinredund.sweep.evaluate import SweepOptions
+    from kinredund.sweep.placement import panda_part_circle
+
+    real = evaluate_mod.run_tracker
+
+    def tracked(*args, **kwargs):  # the real run, with what track() puts in the record when the check fails
+        traj = real(*args, **kwargs)
+        traj.meta[check] = f"the {check} message"
+        return traj
+
+    monkeypatch.setattr(evaluate_mod, "run_tracker", tracked)
+    r, path, index, pose = panda_part_circle()
+    rec = evaluate_mod.evaluate_placement(r, path, index, pose, 0, SweepOptions(steps_per_loop=50))
+    assert not rec.feasible and rec.cause == check and rec.message == f"the {check} message"
+    monkeypatch.setattr(evaluate_mod, "run_tracker", real)
+    assert evaluate_mod.evaluate_placement(r, path, index, pose, 0, SweepOptions(steps_per_loop=50)).feasible

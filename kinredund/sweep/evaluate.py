@@ -165,8 +165,9 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
                        options: SweepOptions) -> PlacementRecord:
     """Track the part path ``path`` with the part at ``pose`` and return its record.
 
-    A failure (no start, the tracker's exception, a joint outside its limits, a joint too fast with
-    ``speed_limit``) is a record with ``feasible=False`` and its cause, never an exception.
+    A failure (no start, the tracker's exception, a joint outside its limits, a closed path whose joints
+    do not close or a rate burst (the record's own checks), a joint too fast with ``speed_limit``) is a
+    record with ``feasible=False`` and its cause, never an exception.
     """
     T = np.asarray(pose, float)
     x, y, z, yaw = pose_coordinates(T)
@@ -199,6 +200,9 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
             **where, feasible=False, cause="limits", t_fail=float(traj.t[k]), q_last=_last(traj.q[max(k - 1, 0)]),
             message=f"joint {j} ({robot.joint_names[j]}) left its limits [{robot.lower[j]:.6g}, "
                     f"{robot.upper[j]:.6g}] at t = {traj.t[k]:.6g} s (q = {q:.6g})", **figs)
+    for check in ("loop_not_closed", "rate_burst"):  # a run that ended but is not what was asked
+        if check in traj.meta:
+            return PlacementRecord(**where, feasible=False, cause=check, message=traj.meta[check], **figs)
     if options.speed_limit and figs.get("speed_ratio") is not None and figs["speed_ratio"] > 1.0:
         return PlacementRecord(**where, feasible=False, cause="speed",
                                message=f"a joint runs at {figs['speed_ratio']:.3g} times its velocity limit", **figs)
