@@ -119,13 +119,18 @@ def _cmd_reproduce(args) -> int:
         from kinredund.ui.reproduce import example
 
         try:
-            traj = example(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
-                             json_path=args.json, plot_path=args.plot,
-                             progress=lambda d, n: bar(d, n, "tracking"))
+            with warnings.catch_warnings():  # said below, as a note: the thesis's schemes are compared as they are
+                warnings.simplefilter("ignore", RecordWarning)
+                traj = example(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
+                               json_path=args.json, plot_path=args.plot,
+                               progress=lambda d, n: bar(d, n, "tracking"))
         finally:
             bar.close()
         print(f"Example {name}: {args.scheme} scheme, {args.mode} mode, {args.loops} loop(s) of {args.steps} steps")
         _print_summary(traj.summary())
+        for key in ("loop_not_closed", "rate_burst"):
+            if key in traj.meta:
+                print(f"kinredund: note: {traj.meta[key]}", file=sys.stderr)
     else:
         from kinredund.ui.reproduce import helix
 
