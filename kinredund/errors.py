@@ -125,6 +125,8 @@ class TrackingError(SingularityError, PathError, RuntimeError):
             ``path_discontinuity`` (the path itself jumps: the joints cannot follow it continuously),
             ``collision`` (a clearance constraint cannot be held: the start violates it, or the run stops
             with it active; ``watched["constraints"]`` names it, ``watched["underlying_cause"]`` says how).
+            ``path_inconsistent`` (the path's velocity or angular velocity is not the derivative of its
+            position or rotation: a self-contradictory path, e.g. a FunctionPath returning a wrong v).
         t: the time [s] of the last good state.
         q: the last good configuration (on the path, inside the limits) as a float array, or None.
         watched: the watched quantities there (``sigma_min_J``, ``reduced_hessian_min``, ...: floats and lists).
@@ -135,7 +137,7 @@ class TrackingError(SingularityError, PathError, RuntimeError):
 
     CAUSES = ("kinematic_singularity", "fold", "out_of_reach", "limits_infeasible", "step_control_exhausted",
               "non_optimal_start", "step_too_long", "not_strongly_stable", "switch_not_resolved",
-              "path_discontinuity", "collision")
+              "path_discontinuity", "collision", "path_inconsistent")
 
     def __init__(self, message: str, *, cause: str, t: float | None = None, q=None, watched: dict | None = None,
                  partial=None):
@@ -257,6 +259,16 @@ def check_count(value, minimum: int, what: str, error: type[KinredundError] = Ta
     if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
         raise error(f"{what} must be an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def check_flag(value, what: str, error: type[KinredundError] = OptionError) -> bool:
+    """Return ``value`` as a bool if it is one (Python's or numpy's), else raise: ``"yes"``, ``0`` or ``None``
+    are not flags (a string is always true to ``bool``)."""
+    import numpy as np
+
+    if not isinstance(value, (bool, np.bool_)):
+        raise error(f"{what} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):

@@ -30,6 +30,7 @@ from kinredund.errors import (
     check_positive,
 )
 from kinredund.io import json_ready, read_json_object, write_json
+from kinredund.model.robot import NO_LIMIT
 from kinredund.tasks import get_task, task_names
 
 SCHEMA_VERSION = 1
@@ -39,6 +40,37 @@ _PER_POINT = {"lam": (None,), "m_eigs": (None,), "m_null_eigs": (None,), "positi
               "active_bounds": (None,), "bound_multipliers": (None,), "limit_margins": (None,)}
 #: The names of those optional per-point arrays (functions of the point on the path, not of its time).
 PER_POINT_FIELDS = tuple(_PER_POINT)
+#: largest joint drift over one loop [rad or m] for which a closed path's record counts as a closed joint
+#: path: the default mode holds each point to ~1e-12 (its drift is round-off), and a periodic time law
+#: (:mod:`kinredund.retime`) needs the loop closed to this
+LOOP_CLOSURE_TOL = 1e-6
+
+
+def fastest_joint(t: np.ndarray, q: np.ndarray, velocity_limit, qdot: np.ndarray | None = None):
+    """The joint that runs fastest against its velocity limit: (ratio, joint, time [s]), or None where no
+    joint has a limit (0, non-finite or >= NO_LIMIT in the URDF: none) or the record has one point.
+
+    Speeds are the record's rates ``qdot`` where it has them (a retimed record), else the mean speed
+    |q[k+1] - q[k]| / (t[k+1] - t[k]) over each step, what a controller that plays the record at its
+    times commands (the time is then the end of that step).
+    """
+    vmax = np.asarray(velocity_limit, float)
+    if vmax.shape != (q.shape[1],) or len(t) < 2:
+        return None
+    ok = np.isfinite(vmax) & (vmax > 0) & (vmax < NO_LIMIT)
+    if not np.any(ok):
+        return None
+    if qdot is not None:
+        ratio, times = np.abs(qdot[:, ok]) / vmax[ok], t
+    else:
+        ratio, times = (np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None])[:, ok] / vmax[ok], t[1:]
+    k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    return float(ratio[k, j]), int(np.flatnonzero(ok)[j]), float(times[k])
+
+
+class RecordWarning(UserWarning):
+    """A record that ran to its end but is not what was asked: a closed path whose joints do not close,
+    joints faster than their velocity limits. The record says so too (:meth:`Trajectory.summary`)."""
 
 
 class Deferred:
@@ -155,9 +187,32 @@ class Trajectory:
         """The starting configuration."""
         return self.q[0]
 
+    @property
+    def loop_closed(self) -> bool | None:
+        """Whether the joints return within :data:`LOOP_CLOSURE_TOL` at the end of every loop (None: no
+        loops, an open path). A closed path whose record is not closed has ``meta["loop_not_closed"]``,
+        the cause, from the tracker (:func:`kinredund.tracking.track`)."""
+        if self.loop_drift is None or len(self.loop_drift) == 0:
+            return None
+        return bool(np.max(self.loop_drift) <= LOOP_CLOSURE_TOL)  # "<=": a NaN drift is not closed
+
+    @property
+    def speed_over_limits(self) -> tuple[float, int, float] | None:
+        """(ratio, joint, time [s]) of the joint that runs fastest against its URDF velocity limit
+        (:func:`fastest_joint`; the tracker records the limits in ``meta["velocity_limit"]``), or None
+        where the record has no limits. A ratio above 1 is a motion the arm cannot run at these times:
+        retime it (:func:`kinredund.retime.retime`, ``kinredund retime``)."""
+        vmax = self.meta.get("velocity_limit") if isinstance(self.meta, dict) else None
+        if vmax is None:
+            return None
+        return fastest_joint(np.asarray(self.t, float), np.asarray(self.q, float), vmax,
+                             None if self.qdot is None else np.asarray(self.qdot, float))
+
     def summary(self) -> dict:
         """Scalar figures: maxima of the errors (None for an error the task does not hold), the drift per
-        loop, the number of LU steps.
+        loop and whether it closes (:attr:`loop_closed`), the fastest joint against its velocity limit
+        (``speed_ratio_max``, ``speed_ratio_joint``, ``speed_ratio_t``: :attr:`speed_over_limits`), the
+        number of LU steps.
 
         ``lu_steps`` counts the steps (``solver[1:]``, one label per step; ``solver[0]`` is the start's)
         labelled ``lu``, so a run of 200 steps has at most 200.
@@ -178,6 +233,8 @@ class Trajectory:
             "axis_error_max": err("axis_error"),
             "normality_residual_max": mx(self.normality_residual),
             "loop_drift": None if self.loop_drift is None else [float(v) for v in self.loop_drift],
+            "loop_closed": self.loop_closed,
+            **_speed_figures(self.speed_over_limits),
             "lu_steps": int(sum(1 for s in self.solver[1:] if s == "lu")),
         }
 
@@ -283,7 +340,13 @@ class Trajectory:
         return cls.from_json_dict(read_json_object(path))
 
 
-__all__ = ["PER_POINT_FIELDS", "Deferred", "Trajectory"]
+def _speed_figures(fastest) -> dict:
+    if fastest is None:
+        return {"speed_ratio_max": None, "speed_ratio_joint": None, "speed_ratio_t": None}
+    return {"speed_ratio_max": fastest[0], "speed_ratio_joint": fastest[1], "speed_ratio_t": fastest[2]}
+
+
+__all__ = ["LOOP_CLOSURE_TOL", "PER_POINT_FIELDS", "Deferred", "RecordWarning", "Trajectory", "fastest_joint"]
 
 
 def _absolute_urdf(robot: str) -> str:

@@ -177,10 +177,11 @@ def test_console_script_is_installed():
 def test_failed_run_leaves_no_output_file(tmp_path, capsys):
     js = tmp_path / "t.json"
     # a 3 m circle around the home point: the path leaves the 6 m workspace
+    # a tracking stop is a result that failed (exit 1), not bad input (exit 2)
     assert main(["track", "planar3r", "--radius", "3", "--speed", "1", "--index", "min-norm", "--json", str(js)]) \
-        == EXIT_USAGE
+        == EXIT_FAILED
     err = capsys.readouterr().err
-    assert "kinredund: error:" in err and "t = " in err
+    assert "kinredund: tracking stopped:" in err and "t = " in err
     assert not js.exists() and not list(tmp_path.iterdir())
 
 
@@ -303,10 +304,12 @@ def test_summary_numbers_have_one_format(capsys):
 
 def test_baseline_normality_residual_is_against_the_index(capsys):
     """`track --scheme pseudoinverse` measures the normality residual (Eq. 4.5) against --index: the
-    pseudoinverse leaves the optimum of the home index, so its residual is far from round-off."""
+    pseudoinverse leaves the optimum of the home index, so its residual is far from round-off. Its joints do
+    not close over the loop either: exit 1, the cause named."""
     assert main(["track", "planar3r", "--radius", "0.5", "--speed", "0.5", "--scheme", "pseudoinverse",
-                 "--quiet"]) == 0
-    out = capsys.readouterr().out
+                 "--quiet"]) == EXIT_FAILED
+    out, err = capsys.readouterr()
+    assert "the pseudoinverse baseline is not cyclic" in err
     (row,) = [line for line in out.splitlines() if "normality_residual_max" in line]
     assert float(row.split()[1]) > 1e-4, row
 

@@ -229,11 +229,11 @@ def test_cli_track_writes_the_partial_record(arm, tmp_path):
     """``kinredund track`` on a circle leaving the reach: exit code of an error, the partial record written."""
     import json
 
-    from kinredund.ui.cli import main
+    from kinredund.ui.cli import EXIT_FAILED, main
 
     out = tmp_path / "partial.json"
     code = main(["track", "planar3r", "--radius", "2.5", "--index", "min-norm", "--partial", str(out)])
-    assert code != 0
+    assert code == EXIT_FAILED  # a run that stopped is a result that failed, not bad input (2)
     data = json.loads(out.read_text())
     assert data["failure"]["cause"] == "out_of_reach"  # a 2.5 m circle from the home pose leaves the 6 m reach
     assert kinredund.Trajectory.load_json(out).checked(nq=3).t[-1] <= data["failure"]["t"]

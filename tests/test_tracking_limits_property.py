@@ -45,8 +45,10 @@ def test_random_circles_stay_inside_and_close_or_stop_with_a_named_cause(seed, r
     try:
         tr = track(r, path, index, start.q, loops=2, diagnostics=False)
     except TrackingError as err:
+        # a fold too: the branch of minima followed may end (seed 42, radius 0.140625, position: at t = 5.65 s,
+        # the reduced Hessian's eigenvalue predicted to reach zero): an honest stop, named
         assert err.cause in ("limits_infeasible", "not_strongly_stable", "switch_not_resolved",
-                             "kinematic_singularity")
+                             "kinematic_singularity", "fold")
         q = np.array(err.q)
         assert np.max(np.maximum(q - r.upper, r.lower - q)) <= 1e-10  # inside the limits
         T = r.fk(q)

@@ -143,6 +143,10 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
             return StartOutcome(q_prev, False, max(it - 1, 0), f"the index turned non-finite at q = {q.tolist()} "
                                 f"(iteration {it}): {where}", r_prev)
         q_prev, r_prev = q, r
+        if float(e @ e) < s.rtol * s.rtol and not r < s.rtol:
+            why = res.spurious(Q, p)
+            if why:  # e vanishes and the task is not done (the tool axis reversed): the next start
+                return StartOutcome(q, False, it, why, r)
         if r < s.rtol and float(e @ e) < s.rtol * s.rtol and (not on_target or z < on_target[1]):
             on_target[:] = [q.copy(), float(z), r]
         G = res.jacobian(K, jl)

@@ -39,7 +39,7 @@ def pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
     pushes out is frozen there (its column of G dropped, the step recomputed) and the rest is clipped
     into the limits (the joint-limit handling of KDL's Newton-Raphson solver, as in TRAC-IK).
     """
-    res, jac, terms, rows = s.res, s.kin.jacobian, s.res.error_terms, s.res.row_selection
+    res, jac, terms, newton_jacobian = s.res, s.kin.jacobian, s.res.error_terms, s.res.newton_jacobian
     eye, bounds, lower_list, upper_list = s.eye, s.bounds, s.lower_list, s.upper_list
     rtol2 = s.rtol * s.rtol
     quick = s.quick_exit
@@ -58,6 +58,9 @@ def pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
             r = res.residual(Q, p)
             if r < s.rtol:  # closure residual and SE(3) error
                 return StartOutcome(q, True, it, "", r)
+            why = res.spurious(Q, p)
+            if why:  # e vanishes and the task is not done (the tool axis reversed): a fresh start
+                return StartOutcome(q, False, it, why, r)
         if phi < (0.5 if quick else 1.0 - PATIENT_DECREASE) * phi_ref:
             phi_ref, since = phi, 0
         slow = quick and phi < SLOW_PHI and it < slow_max and phi < SLOW_RATIO * history[max(0, it - stall_iters)]
@@ -76,7 +79,7 @@ def pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
         since += 1
         if s.deadline is not None and perf_counter() > s.deadline:
             return StartOutcome(q, False, it, "timeout", res.residual(Q, p))
-        G = K if rows is None else K[rows]
+        G = newton_jacobian(K, Q)  # K[rows] or K; the axis task's own G (TaskResidual.newton_jacobian)
         if floor < 0.0:
             floor = DAMPING * float(np.abs(G).max()) ** 2
         e = np.array(ev)

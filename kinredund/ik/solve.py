@@ -33,7 +33,7 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import TaskError, check_count, check_positive
+from kinredund.errors import TaskError, check_count, check_flag, check_positive
 from kinredund.ik.common import RANK_TOL, OptimalityTerms, Setup, StartOutcome, bound_kkt
 from kinredund.ik.newton import run_start
 from kinredund.ik.qp import BoxStep
@@ -124,8 +124,14 @@ def _target(robot, target) -> Target:
     return make_target(robot.task, target)
 
 
-def _check_index(robot, index, q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
-    """Validate the index on q; returns its (z, grad z, Hess z) at q (None without an index)."""
+def check_index_at(robot, index, q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """Validate the index on q (the IK's seed, the tracker's start): its type, the shapes (n,) and (n, n) of
+    its gradient and Hessian, finite values. Returns its (z, grad z, Hess z) at q (None without an index).
+
+    Raises:
+        TaskError: what is wrong (a JointDeviation of another length, a CustomIndex whose callables fail
+            or return the wrong shapes or non-numbers) and what is needed.
+    """
     if index is None:
         return None
     if not isinstance(index, Index):
@@ -133,7 +139,7 @@ def _check_index(robot, index, q: np.ndarray) -> tuple[float, np.ndarray, np.nda
     n = robot.nq
     try:
         z, grad, H = index.evaluate(q)
-        grad, H = np.asarray(grad, dtype=float), np.asarray(H, dtype=float)
+        z, grad, H = float(z), np.asarray(grad, dtype=float), np.asarray(H, dtype=float)
     except (ValueError, TypeError, IndexError) as err:
         raise TaskError(
             f"the index cannot be evaluated on a joint vector of {robot.name} ({n} joints; gradient/Hessian "
@@ -163,8 +169,9 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
         TaskError: bad target; JointVectorError: bad q.
     """
     q = robot.check_q(q, "q")
+    bounds = check_flag(bounds, "bounds", TaskError)
     res = task_residual(_target(robot, target))
-    return _optimality(robot, res, q, index, bounds, _check_index(robot, index, q))
+    return _optimality(robot, res, q, index, bounds, check_index_at(robot, index, q))
 
 
 def _optimality(robot, res: TaskResidual, q: np.ndarray, index: Index | None, bounds: bool,
@@ -209,7 +216,8 @@ def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Opti
 MAX_STARTS = 10_000
 
 
-def _check_options(robot, starts, tol, max_iter, timeout, seed) -> None:
+def _check_options(robot, starts, tol, max_iter, timeout, seed, bounds) -> None:
+    check_flag(bounds, "bounds", TaskError)
     if check_count(starts, 1, "starts", TaskError) > MAX_STARTS:
         raise TaskError(f"starts must be at most {MAX_STARTS} (each start is a whole local solve), got {starts}; "
                         "bound a long search with timeout= instead")
@@ -305,14 +313,14 @@ def solve_ik(
 
     Raises:
         TaskError: wrong-size or non-finite target, a target for another task kind, bad options (``starts``
-            outside 1..:data:`MAX_STARTS`, a negative ``seed``), an index of the wrong size.
+            outside 1..:data:`MAX_STARTS`, a negative ``seed``, ``bounds`` not a bool), an index of the wrong size.
         JointVectorError: q0 of the wrong size or non-finite.
     """
     t0 = perf_counter()
-    _check_options(robot, starts, tol, max_iter, timeout, seed)
+    _check_options(robot, starts, tol, max_iter, timeout, seed, bounds)
     tgt = _target(robot, target)
     q0 = robot.home.copy() if q0 is None else robot.check_q(q0, "q0").copy()
-    _check_index(robot, index, q0)
+    check_index_at(robot, index, q0)
     notes = ""
     if bounds and not np.all((q0 >= robot.lower) & (q0 <= robot.upper)):
         bad = np.flatnonzero((q0 < robot.lower) | (q0 > robot.upper)).tolist()
@@ -355,6 +363,10 @@ def solve_ik(
         best = min(outcomes, key=lambda oz: oz[0].residual)[0]
         if outcomes[-1][0].reason == "timeout":
             best = StartOutcome(best.q, False, best.iterations, "timeout", best.residual)
+    if not best.converged:  # a start stuck near a spurious zero of e (the tool axis reversed) says so
+        why = res.spurious(*robot.kinematics.pose(best.q))
+        if why and why not in best.reason:
+            best = StartOutcome(best.q, False, best.iterations, f"{best.reason}; {why}", best.residual)
     q, wrapped = _wrap_into_limits(robot, best.q, index)
     if wrapped:
         notes = "; ".join(filter(None, [notes, f"joints {wrapped} turned by multiples of 2 pi into their limits"]))

@@ -27,6 +27,7 @@ from kinredund.errors import (
     TaskError,
     UnknownRobotError,
     URDFError,
+    check_array,
     check_choice,
 )
 from kinredund.kinematics.state import Kinematics
@@ -209,11 +210,8 @@ def check_tool_axis(tool_axis) -> np.ndarray:
         if key not in _AXES:
             raise ChoiceError("tool axis", tool_axis, ["x", "y", "z", "-x", "-y", "-z", "a 3-vector"])
         return sign * np.array(_AXES[key])
-    try:
-        v = np.asarray(tool_axis, dtype=float)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"tool axis must be 'x', 'y', 'z' or a 3-vector, got {tool_axis!r}") from err
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+    v = check_array(tool_axis, (3,), "tool axis ('x', 'y', 'z' or a 3-vector)", TaskError)  # no booleans
+    if np.linalg.norm(v) < 1e-9:
         raise TaskError(f"tool axis must be a finite non-zero 3-vector, got {tool_axis!r}")
     return v / np.linalg.norm(v)
 

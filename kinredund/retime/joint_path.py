@@ -27,10 +27,10 @@ from scipy.interpolate import make_interp_spline
 
 from kinredund.kinematics.angles import joint_drift
 from kinredund.retime.limits import RetimeError
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import LOOP_CLOSURE_TOL, Trajectory
 
 #: largest joint drift over one loop [rad] for which a closed record counts as a closed joint path
-CLOSURE_TOL = 1e-6
+CLOSURE_TOL = LOOP_CLOSURE_TOL
 #: largest joint step between consecutive samples [rad or m]: more is a jump, not a sampled curve
 MAX_STEP = 0.5
 #: fewest samples a quintic interpolating spline needs (and TOPP-RA a few segments)
@@ -135,7 +135,10 @@ def joint_path(traj: Trajectory, revolute, closed: bool | None = None) -> JointP
     if traj.loop_period is None or closed is False:
         return JointPath(s, q, p, False, np.zeros(q.shape[1]), 0.0)
     period = float(traj.loop_period)
-    hits = np.flatnonzero(np.abs(s - period) <= 1e-9 * max(1.0, period))
+    # the sample at the loop period, t0 + N dt: within 1e-9 of the period relative to it, plus the rounding of
+    # the record's times (never an absolute tolerance: a fast record's whole loop may last less than 1e-9 s)
+    at_period = 1e-9 * period + 64.0 * float(np.finfo(float).eps) * float(np.abs(t).max())
+    hits = np.flatnonzero(np.abs(s - period) <= at_period)
     if hits.size == 0:
         raise RetimeError(f"not a closed joint path: the record has no sample at its loop period {period:.6g} s "
                           f"(its times run to {s[-1]:.6g} s)")

@@ -142,7 +142,8 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
         The :class:`RetimeResult`.
 
     Raises:
-        RetimeError: bad limits, a record that is not a joint path, or no time law under the limits.
+        RetimeError: bad limits, a record that is not a joint path, a record with a rate burst
+            (``meta["rate_burst"]``: :mod:`kinredund.tracking.record_checks`), or no time law under the limits.
         KinredundError: a record that :meth:`Trajectory.checked` rejects, or an unknown robot.
     """
     if not isinstance(traj, Trajectory):
@@ -152,6 +153,10 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
 
         robot = load_robot(traj.robot, task=traj.task)
     traj = traj.checked(robot.nq)
+    if traj.meta.get("rate_burst"):  # rates unbounded under refinement: no time law bounds them (issue 26)
+        raise RetimeError(f"the record has a rate burst, which no time law keeps within speed limits: "
+                          f"{traj.meta['rate_burst']}. Track a path that avoids it (another start, index or "
+                          "path), or retime the stretches before and after it")
     if not isinstance(limits, Limits) or limits.velocity.shape != (robot.nq,):
         raise RetimeError(f"limits must be a kinredund.retime.Limits for {robot.nq} joints (limits_for builds them)")
     jp = joint_path(traj, robot.revolute, closed)

@@ -22,14 +22,14 @@ import numpy as np
 from kinredund.errors import KinredundError, PathError, SingularityError, check_choice, check_count, check_positive
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index
-from kinredund.model.robot import NO_LIMIT, Robot
+from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.sweep.placement import PartPath, pose_coordinates
 from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks import get_task
 from kinredund.tracking import MODES, SCHEMES, track
 from kinredund.tracking.constraints.joint_limits import JointLimits
-from kinredund.trajectory import Trajectory
+from kinredund.trajectory import Trajectory, fastest_joint
 
 #: a joint counts as outside its limits beyond this [rad or m]: round-off of a tracker that holds them
 #: (its steps land on a bound to ~1e-12), far below any physical margin
@@ -128,12 +128,9 @@ def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> 
         if bad.size:
             k, j = bad[0]
             out["violation"] = (int(k), int(np.flatnonzero(bounded)[j]))
-    if len(t) > 1:
-        vmax = np.asarray(robot.model.velocityLimit, float)
-        ok = np.isfinite(vmax) & (vmax > 0) & (vmax < NO_LIMIT)
-        if np.any(ok):
-            speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]  # mean speed over each step [rad/s]
-            out["speed_ratio"] = clean_float((speed[:, ok] / vmax[ok]).max())
+    fastest = fastest_joint(t, q, robot.model.velocityLimit)  # mean speed over each step against the limit
+    if fastest is not None:
+        out["speed_ratio"] = clean_float(fastest[0])
     kin, task = robot.kinematics, get_task(robot.task)
     J = []
     for qk, tk in zip(q, t, strict=True):
@@ -168,8 +165,9 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
                        options: SweepOptions) -> PlacementRecord:
     """Track the part path ``path`` with the part at ``pose`` and return its record.
 
-    A failure (no start, the tracker's exception, a joint outside its limits, a joint too fast with
-    ``speed_limit``) is a record with ``feasible=False`` and its cause, never an exception.
+    A failure (no start, the tracker's exception, a joint outside its limits, a closed path whose joints
+    do not close or a rate burst (the record's own checks), a joint too fast with ``speed_limit``) is a
+    record with ``feasible=False`` and its cause, never an exception.
     """
     T = np.asarray(pose, float)
     x, y, z, yaw = pose_coordinates(T)
@@ -202,6 +200,9 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
             **where, feasible=False, cause="limits", t_fail=float(traj.t[k]), q_last=_last(traj.q[max(k - 1, 0)]),
             message=f"joint {j} ({robot.joint_names[j]}) left its limits [{robot.lower[j]:.6g}, "
                     f"{robot.upper[j]:.6g}] at t = {traj.t[k]:.6g} s (q = {q:.6g})", **figs)
+    for check in ("loop_not_closed", "rate_burst"):  # a run that ended but is not what was asked
+        if check in traj.meta:
+            return PlacementRecord(**where, feasible=False, cause=check, message=traj.meta[check], **figs)
     if options.speed_limit and figs.get("speed_ratio") is not None and figs["speed_ratio"] > 1.0:
         return PlacementRecord(**where, feasible=False, cause="speed",
                                message=f"a joint runs at {figs['speed_ratio']:.3g} times its velocity limit", **figs)

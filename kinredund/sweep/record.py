@@ -19,8 +19,11 @@ from kinredund.errors import KinredundError, check_choice
 #: ``path`` the tracker lost the path (it leaves the workspace), ``singularity`` R or J singular,
 #: ``limits`` a joint left its limits, ``speed`` a joint exceeded its velocity limit (only with
 #: ``speed_limit=True``), ``error`` another kinredund error, ``internal`` an unexpected exception,
-#: ``worker`` the Dask worker running the placement was lost.
-CAUSES = ("start", "path", "singularity", "limits", "speed", "error", "internal", "worker")
+#: ``worker`` the Dask worker running the placement was lost, ``loop_not_closed`` the joints do not return at
+#: the end of a loop, ``rate_burst`` a step that does not shrink with the time step (the record's own checks,
+#: :mod:`kinredund.tracking.record_checks`).
+CAUSES = ("start", "path", "singularity", "limits", "speed", "error", "internal", "worker", "loop_not_closed",
+          "rate_burst")
 
 #: criterion -> (record field, True when larger is better)
 CRITERIA = {

@@ -14,8 +14,19 @@ the target frame a^ = Q_d^T a and S the selection of its x and y components,
 
     r = [S a^; p - p_d]                                                        (5,)
 
-which vanishes exactly where a = a_d and p = p_d (on the branch a . a_d > 0, which the tracker
-follows continuously). With W = Q_d^T K_omega the angular columns in the target frame:
+Spurious zeros: S a^ = 0 holds at a^ = e_z (a = a_d) and at a^ = -e_z (a = -a_d, the tool pointing
+backwards: for a torch or a spindle, at the robot). Both the IK's Newton error and the tracking
+residual r vanish there, and Newton's method converges to either. What rejects the reversed zero:
+
+- the joint-level IK reports the residual sqrt(||a - a_d||^2 + ||p - p_d||^2), which vanishes only at
+  a = a_d (||a - a_d||^2 = ||S a^||^2 + (1 - a^_z)^2: equal to ||S a^||^2 to fourth order on the
+  branch, 4 on the reversed one), so convergence (residual < tol) needs a . a_d > 0; a start that
+  lands on a = -a_d stops at once with that reason (:meth:`AxisResidual.spurious`) and the next start
+  is run (``starts > 1``);
+- the tracker refuses a start with a . a_d <= 0 (:meth:`AxisTask.branch_error`); from a start on the
+  branch the run keeps it (r is held at ~1e-12 at every step, and reaching a = -a_d turns the axis
+  by pi through points where ||S a^|| = 1).
+ With W = Q_d^T K_omega the angular columns in the target frame:
 
 - augmented (displacement) form: J = [S (-[a^]x) W; K_pdot], the exact Jacobian dr/dtheta, and
   Lambda = d(J^T lambda)/dtheta = sum_c (a x m)_c dK_omega[c] + K_omega^T [m]x [a]x K_omega
@@ -70,6 +81,13 @@ def axis_angle_error(Q: np.ndarray, Q_d: np.ndarray) -> np.ndarray:
     """The angle [rad] between the tool axes Q e_z and Q_d e_z, for rotations (3, 3) or stacks (N, 3, 3)."""
     a, b = Q[..., :, 2], Q_d[..., :, 2]
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+
+
+def reversed_axis(cos_angle: float) -> str:
+    """The message of a tool axis on the reversed branch (a . a_d = ``cos_angle`` <= 0)."""
+    return (f"the tool axis points away from the target's (a . a_d = {cos_angle:.6g}, angle "
+            f"{math.degrees(math.acos(max(-1.0, min(1.0, cos_angle)))):.4g} deg): the axis residual "
+            "[S Q_d^T a; p - p_d] vanishes at a = -a_d too, a spurious zero that is not the task")
 
 
 class AxisTerms(TaskTerms):
@@ -163,7 +181,20 @@ class AxisResidual(TaskResidual):
         return Ko.T @ (np.outer(a, m) - float(a @ m) * np.eye(3)) @ Ko
 
     def residual(self, Q, p):
-        return math.sqrt(self.error_terms(Q, p)[1])
+        """sqrt(||a - a_d||^2 + ||p - p_d||^2): zero only at a = a_d (module docstring), never at a = -a_d
+        where the Newton error e vanishes too."""
+        a_z = float(self.QdT[2] @ Q[:, 2])  # a^_z = a . a_d
+        return math.sqrt(self.error_terms(Q, p)[1] + (1.0 - a_z) ** 2)
+
+    def spurious(self, Q, p):
+        """The tool axis reversed (a . a_d <= 0): where e = [S a^; p - p_d] vanishes without the task done."""
+        a_z = float(self.QdT[2] @ Q[:, 2])
+        return "" if a_z > 0.0 else (reversed_axis(a_z) + "; another start (starts > 1, or another q0) "
+                                      "finds the tool axis along the target's")
+
+    def newton_jacobian(self, K, Q):
+        """G itself: e's 5 rows are not a selection of K's 6."""
+        return self.jacobian(K, (None, self.QdT @ Q[:, 2]))
 
 
 class AxisTask(Task):
@@ -195,6 +226,11 @@ class AxisTask(Task):
         out = super().errors_many(Q, p, Q_d, p_d)
         out["axis_error"] = axis_angle_error(Q, Q_d)
         return out
+
+    def branch_error(self, Q, Q_d):
+        """The tool axis reversed (a . a_d <= 0), where r vanishes too (module docstring)."""
+        a_z = float(Q[:, 2] @ Q_d[:, 2])
+        return "" if a_z > 0.0 else reversed_axis(a_z)
 
     def span_rows(self, Q, K, Q_d):
         """The velocity form's rows [S (-[e_z]x) Q_d^T K_omega; K_pdot]: J's row space on the path."""

@@ -124,7 +124,18 @@ class TaskResidual(ABC):
 
     @abstractmethod
     def residual(self, Q: np.ndarray, p: np.ndarray) -> float:
-        """||g(theta) - x||: the residual reported to the user."""
+        """||g(theta) - x||: the residual reported to the user. It vanishes only where the task is done
+        (never at a spurious zero of :meth:`error`), so that ``residual < tol`` is convergence."""
+
+    def spurious(self, Q: np.ndarray, p: np.ndarray) -> str:
+        """Why (Q, p) does not do the task although :meth:`error` vanishes there (a spurious zero of the
+        Newton error, e.g. the tool axis reversed), or "" where it does or where e has none."""
+        return ""
+
+    def newton_jacobian(self, K: np.ndarray, Q: np.ndarray) -> np.ndarray:
+        """The Jacobian of the pose-only Levenberg-Marquardt steps (m x n): K[rows] (or K) where the error's
+        rows are K's up to an invertible factor 1 + O(||e||) (point and pose tasks), else G itself."""
+        return K if self.row_selection is None else K[self.row_selection]
 
     def scale(self) -> float:
         """A length scale of the target [m] for rounding-aware tolerances."""
@@ -186,6 +197,18 @@ class Task(ABC):
         """:meth:`errors_many` at one point against a target."""
         Q_d = None if target.Q is None else target.Q[None]
         return {k: float(v[0]) for k, v in self.errors_many(Q[None], np.asarray(p)[None], Q_d, target.p[None]).items()}
+
+    def branch_error(self, Q: np.ndarray, Q_d: np.ndarray | None) -> str:
+        """Why a configuration with end rotation Q on which the tracking residual r vanishes is not on the
+        path's branch (rotation Q_d; None for a task without orientation), or "" where it is.
+
+        The tracking residuals of the tasks with orientation vanish at spurious points too (each kind's
+        module docstring lists them): the tool axis reversed, a half turn about an axis. Those are
+        rejected here, at the start of a run (:class:`~kinredund.tracking.stepper.Stepper`); a run that
+        starts on the branch stays on it (r is held at ~1e-12 at every step and the spurious set lies at a
+        finite distance from the path's: crossing it moves the end frame by pi/2 at least).
+        """
+        return ""
 
     def span_rows(self, Q: np.ndarray, K: np.ndarray, Q_d: np.ndarray | None) -> np.ndarray:
         """Rows with the row space of the tracking Jacobian J on the path, from K alone (the normality

@@ -2,6 +2,10 @@
 
 The position task restricted to the rows pdot_x, pdot_y of K; a target (x, y) is placed at the plane
 height z.
+
+Spurious zeros: none. The residual (x - x_d, y - y_d) vanishes exactly where the point's x and y are on
+the target: z is no part of the task (a planar arm keeps it constant; on a spatial arm it is free, as
+the task says).
 """
 
 from __future__ import annotations

@@ -25,6 +25,18 @@ where log is the rotation vector (axis times angle, world axes) and Jl^-1 the in
 of SO(3), so that de/dt = G thetadot exactly. Both vanish together with the closure 7-vector, and at
 e = 0 the null space of G is that of K and of J = H K. The residual *reported* for pose tasks is the
 norm of the closure 7-vector.
+
+Spurious zeros (points where a residual vanishes and the task is not done):
+
+- IK error e: none. log(Q Q_d^T) is the rotation vector, of norm the angle in [0, pi]: zero only at
+  Q = Q_d. The reported closure 7-vector has none either: vect(Q) = sin(phi) n and tr Q = 1 + 2 cos(phi)
+  fix the rotation (Eq. 2.13), so it vanishes only at Q = Q_d.
+- augmented tracking residual r = [2 vect(Q_d^T Q); p - p_d] (six rows of Eq. 2.13, the trace row left
+  out): zero at Q_d^T Q = 1 and also at every half turn Q_d^T Q (vect = sin(pi) n = 0, tr = -1). Rejected
+  by :meth:`PoseTask.branch_error` at the start of a run (tr(Q_d^T Q) <= 1, a turn of pi/2 or more);
+  from there the run keeps the branch (r ~ 1e-12 at every step; reaching a half turn passes through
+  turns where ||vect|| = 1).
+- velocity tracking residual r = [log(Q Q_d^T); p - p_d]: none (as e).
 """
 
 from __future__ import annotations
@@ -245,6 +257,17 @@ class PoseTask(Task):
         v = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], axis=1)
         out["vect_error"] = np.linalg.norm(v, axis=1)
         return out
+
+    def branch_error(self, Q, Q_d):
+        """The end frame turned by pi/2 or more from Q_d (tr(Q_d^T Q) <= 1), where the augmented residual's
+        half-turn zeros lie (module docstring)."""
+        tr = float(np.sum(Q * Q_d))  # tr(Q_d^T Q)
+        if tr > 1.0:
+            return ""
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, 0.5 * (tr - 1.0)))))
+        return (f"the end frame is turned by {angle:.4g} deg from the path's orientation: the residual "
+                "[2 vect(Q_d^T Q); p - p_d] vanishes at half turns too (spurious zeros), so a start must be "
+                "within pi/2 of it")
 
     def span_rows(self, Q, K, Q_d):
         """K itself: J = K (velocity form) or H K with H invertible near the path (Eq. 2.14)."""

@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from kinredund.errors import TrackingError
+from kinredund.kinematics import closure
 from kinredund.model.robot import Robot
 from kinredund.tasks import get_task
 from kinredund.tracking.point import Evaluator
@@ -201,6 +202,31 @@ def path_jumps(ev: Evaluator, t_a: float, t_b: float, factor: float = 4.0) -> bo
     a, b = ev.path(t_a), ev.path(t_b)
     speed = max(float(np.linalg.norm(a.v)), float(np.linalg.norm(b.v)))
     return float(np.linalg.norm(b.p - a.p)) > factor * (t_b - t_a) * speed + 1e-12 * max(1.0, float(np.abs(a.p).max()))
+
+
+#: a path whose velocity differs from the central difference of its position (step 1e-3 of the failed
+#: step, truncation ~1e-7 relative) by more than this fraction of its speed contradicts itself
+CONTRADICTION = 1e-3
+
+
+def path_contradiction(ev: Evaluator, t_a: float, t_b: float) -> str:
+    """Why the path's velocity contradicts its motion in the middle of (t_a, t_b) ("" where it does not):
+    v against the central difference of p, and where the path has a rotation, omega against
+    log(Q(t + h) Q(t - h)^T) / 2h (h = 1e-3 (t_b - t_a): both agree to ~1e-7 on a smooth path)."""
+    if not t_b > t_a:
+        return ""
+    t, h = 0.5 * (t_a + t_b), 5e-4 * (t_b - t_a)
+    a, b, c = ev.path(t - h), ev.path(t + h), ev.path(t)
+    parts = [("velocity v", (b.p - a.p) / (2.0 * h), c.v)]
+    if c.Q is not None:
+        parts.append(("angular velocity omega", np.asarray(closure.rotation_log(b.Q @ a.Q.T)[0]) / (2.0 * h), c.omega))
+    for name, rate, given in parts:
+        gap = float(np.linalg.norm(rate - given))
+        if gap > CONTRADICTION * max(float(np.linalg.norm(rate)), float(np.linalg.norm(given))) and gap > 1e-9:
+            return (f"the path's {name} at t = {t:.6g} s, {np.round(given, 6).tolist()}, is not the rate of its "
+                    f"motion there, {np.round(rate, 6).tolist()}: a self-contradictory path (its function must "
+                    "return the derivative of what it returns as the pose)")
+    return ""
 
 
 def explicit_failure(stepper, err: Exception) -> TrackingError:

@@ -176,8 +176,11 @@ class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
         except SingularityError as err:
             if self.rows:  # a corrector iterate's: the step control retries in sub-steps, then names the stop
                 raise
+            # the singular R is at a corrector iterate, which may have diverged far out of the limits: the
+            # message names the last good point instead (filled in by step), not that iterate's q
+            what = str(err).rsplit("; q = ", 1)[0]
             raise self._failure("not_strongly_stable", f"the constrained optimum is not strongly stable at t = "
-                                f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: {err}") from err
+                                f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: {what}") from err
 
     def _solve(self, lu, b: np.ndarray) -> np.ndarray:
         if self._sel is None:
@@ -252,6 +255,8 @@ class LimitedPredictorCorrector(GeneralRows, PredictorCorrector):
             if err.q is None:  # the last good state: the step's start
                 err.t, err.q = snap.t, [float(v) for v in snap.q]
                 err.watched = self._watched(snap)
+                err.args = (f"{err.args[0]}; last good point t = {err.t:.6g} s, q = "
+                            f"{np.round(np.asarray(err.q), 6).tolist()}",)
             self._name_row_failure(err, snap)
             self.state = snap  # back at the last requested time: t = t0 + k dt
             raise

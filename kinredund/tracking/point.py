@@ -13,7 +13,7 @@ import numpy as np
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
-from kinredund.tasks import task_terms
+from kinredund.tasks import get_task, task_terms
 
 
 class Point:
@@ -65,6 +65,7 @@ class Evaluator:
     def __init__(self, robot: Robot, path: Path, index: Index | None, formulation: str):
         self.robot, self.path, self.index = robot, path, index
         self.task = robot.task
+        self._task = get_task(robot.task)
         self.formulation = formulation
         self.n = robot.nq
         self._cache_t, self._cache = None, None
@@ -84,6 +85,11 @@ class Evaluator:
     def check_sample(self, t: float) -> None:
         """Raise PathError if the path's sample at t is not finite (says when)."""
         self.path(t)
+
+    def branch_error(self, pt: Point) -> str:
+        """Why pt, where the task residual vanishes, is not on the path's branch ("" where it is):
+        :meth:`kinredund.tasks.Task.branch_error`."""
+        return self._task.branch_error(pt.Q, pt.sample.Q)
 
     def gradient(self, q: np.ndarray, t: float) -> np.ndarray:
         """grad z at (q, t) (zero without an index)."""

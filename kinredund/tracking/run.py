@@ -13,6 +13,7 @@ from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.tracking.failure import loadable_name
+from kinredund.tracking.record_checks import say_open_loop, say_rate_burst
 from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.tracker import Tracker
 from kinredund.trajectory import Trajectory
@@ -22,8 +23,23 @@ from kinredund.trajectory import Trajectory
 MAX_STEPS = 1_000_000
 
 
+#: the range of time steps [s] the tracker computes in: its step control squares dt and the rates times dt,
+#: which overflow or vanish beyond these (a path at 1e-300 m/s has a period of ~1e300 s)
+DT_RANGE = (1e-100, 1e100)
+
+
 def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:
     """(dt [s], total steps, loops or None for an open run), the arguments checked."""
+    dt, total, loops = _steps(path, steps_per_loop, loops, duration, steps)
+    if not DT_RANGE[0] <= dt <= DT_RANGE[1]:
+        what = f"the path's period {path.period:.3g} s" if loops is not None else f"the duration {duration:.3g} s"
+        raise OptionError(f"the time step {dt:.3g} s ({what} over {total} steps) is outside the range the tracker "
+                          f"computes in, {DT_RANGE[0]:g} to {DT_RANGE[1]:g} s: is the path's speed or duration a "
+                          "typo?")
+    return dt, total, loops
+
+
+def _steps(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:
     if path.period is not None and duration is None:
         spl = check_count(steps_per_loop, 1, "steps_per_loop", OptionError)
         loops = check_count(loops, 1, "loops", OptionError)
@@ -62,6 +78,11 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
         progress: ``progress(done, total)`` after each step.
         meta: free-form entries for the record's ``meta``.
 
+    Warns:
+        RecordWarning: a closed path whose joints do not return within
+            :data:`~kinredund.trajectory.LOOP_CLOSURE_TOL` at the end of a loop (the record's ``loop_closed``
+            is False and ``meta["loop_not_closed"]`` names the cause).
+
     Raises:
         OptionError, ChoiceError: an argument out of its range (checked before any work).
         PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
@@ -70,15 +91,33 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
             last good point (on the path, inside the limits), ``watched``, and ``partial``, the record up to
             the last requested time before it.
     """
-    dt, total, loops_run = _span(path, steps_per_loop, loops, duration, steps)
-    tracker = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, linear_solver=linear_solver,
-                      qp_backend=qp_backend, tol=tol, liegeois_gain=liegeois_gain, limits=limits,
-                      project_start=project_start, strict=strict, constraints=constraints, qp_solver=qp_solver)
+    options = {"scheme": scheme, "mode": mode, "linear_solver": linear_solver, "qp_backend": qp_backend, "tol": tol,
+               "liegeois_gain": liegeois_gain, "limits": limits, "project_start": project_start, "strict": strict,
+               "constraints": constraints, "qp_solver": qp_solver}
+    span = {"steps_per_loop": steps_per_loop, "loops": loops, "duration": duration, "steps": steps}
+    traj = _run(robot, path, index, q0, span, options, diagnostics, progress, meta)
+    say_open_loop(traj, scheme, mode)
+
+    def refined() -> Trajectory:  # the same run with half the time step, for the rate-burst check
+        finer = dict(span, steps_per_loop=2 * steps_per_loop, steps=None if steps is None else 2 * steps)
+        return _run(robot, path, index, q0, finer, options, False, None, None)
+
+    say_rate_burst(traj, refined)
+    return traj
+
+
+def _run(robot: Robot, path: Path, index: Index | None, q0, span: dict, options: dict, diagnostics: bool, progress,
+         meta: dict | None) -> Trajectory:
+    """The run of :func:`track` (its arguments grouped) and its record, without the record's checks."""
+    scheme, mode = options["scheme"], options["mode"]
+    dt, total, loops_run = _span(path, **span)
+    tracker = Tracker(robot, path, index, q0, dt, **options)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()
     step = tracker.step
     info = {"robot_name": loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
-            "meta": dict(meta or {}, dt=dt, steps=total)}
+            "meta": dict(meta or {}, dt=dt, steps=total,
+                         velocity_limit=[float(v) for v in robot.model.velocityLimit])}  # Trajectory.speed_over_limits
     try:
         for k in range(total):
             step()

@@ -43,7 +43,7 @@ import math
 import numpy as np
 
 from kinredund.errors import PathError, SingularityError, TrackingError
-from kinredund.tracking.failure import out_of_reach, path_jumps, watched_at
+from kinredund.tracking.failure import out_of_reach, path_contradiction, path_jumps, watched_at
 from kinredund.tracking.watch import Watch
 
 #: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
@@ -190,6 +190,9 @@ class StepControl:
         cause = {"fold": "fold", "jump": "fold"}.get(kind)
         if kind == "jump" and path_jumps(s.ev, t_near, t_fail):
             cause = "path_discontinuity"
+        contradiction = "" if cause == "path_discontinuity" else path_contradiction(s.ev, t_near, t_fail)
+        if contradiction:  # the path's own fault, before the arm's
+            cause, why = "path_inconsistent", f"{contradiction} ({why})"
         extra = {}
         if cause is None:
             ahead = self._refreshed_ahead(t_near + s.dt)  # a crossing predicted within a whole step names it

@@ -135,7 +135,8 @@ class Stepper:
 
     # -- checks -------------------------------------------------------------------------------------
     def _check_on_path(self, pt: Point, what: str, limit: float | None = None) -> None:
-        """Raise PathError if pt is farther than ``limit`` (default 1e-6 of the path's scale) from the path."""
+        """Raise PathError if pt is farther than ``limit`` (default 1e-6 of the path's scale) from the path, or
+        on a spurious zero of the task residual (:meth:`~kinredund.tasks.Task.branch_error`)."""
         err = float(np.abs(pt.r).max())
         scale = max(1.0, float(np.abs(pt.sample.p).max()))
         if limit is None:
@@ -144,6 +145,10 @@ class Stepper:
             raise PathError(
                 f"{what} is {err:.3g} away from the path at t = {pt.t:.6g} s (allowed {limit:.3g}); "
                 "the path may leave the workspace, or the steps are too coarse", t=pt.t, q=pt.q)
+        why = self.ev.branch_error(pt)
+        if why:  # r vanishes there, but the task is not done (a spurious zero: the tool axis reversed)
+            raise PathError(f"{what} is not on the path at t = {pt.t:.6g} s: {why}; start from a solution of "
+                            "solve_ik (which rejects these) or another seed", t=pt.t, q=pt.q)
 
     def _check_rank(self, pt: Point) -> None:
         """Raise SingularityError where J loses rank (a kinematic singularity: the watch's floor)."""

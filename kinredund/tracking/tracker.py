@@ -28,7 +28,8 @@ import math
 
 import numpy as np
 
-from kinredund.errors import OptionError, PathError, check_choice, check_positive
+from kinredund.errors import OptionError, PathError, check_choice, check_flag, check_positive
+from kinredund.ik.solve import check_index_at
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
@@ -117,6 +118,8 @@ class Tracker:
         ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range (also:
             limits asked of thesis mode or a baseline).
         TrackingError: with constraints, ``q0`` violates one (``cause="collision"``, naming it and by how much).
+        TaskError: an index that cannot be evaluated on the robot's joints (the wrong length, a custom
+            index whose callables fail or return the wrong shapes: :func:`kinredund.ik.solve.check_index_at`).
         TrackingError: with limits, ``q0`` is outside them (``cause="limits_infeasible"``, naming the joints
             and by how much), or no constrained optimum is found at the start.
         PathError: the start is off the path, or the path is unsuitable (says why).
@@ -140,6 +143,7 @@ class Tracker:
         if mode == "default":  # it solves with R's LU factors, which its corrector needs
             check_choice("QP backend of mode='default' (proxsuite is for mode='thesis')", qp_backend, ("kkt",))
         tol, gain = check_tolerance(tol), check_gain(liegeois_gain)
+        project_start, strict = check_flag(project_start, "project_start"), check_flag(strict, "strict")
         if get_task(robot.task).has_orientation and not path.has_orientation:
             raise PathError(f"a {robot.task} task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
@@ -155,6 +159,7 @@ class Tracker:
         self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
         ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
         q = robot.check_q(q0, "starting configuration").copy()
+        check_index_at(robot, index, q)  # a wrong length or a malformed custom index: said here, in its words
         limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
         self.limits, constraints = limits, list(constraints or ())

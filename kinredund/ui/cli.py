@@ -14,6 +14,7 @@ import dataclasses
 import json
 import math
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ import numpy as np
 from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
+from kinredund.trajectory import RecordWarning
 from kinredund.ui import options
 from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
 
@@ -41,7 +43,8 @@ def _progress(label: str, args):
 _UNITS = {"position_error_max": "m", "max_position_residual": "m", "clearance_min": "m",
           "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
           "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
-          "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m"}
+          "max_joint_step_deg": "deg", "timings_s": "s", "speed_ratio_t": "s", "wrist_reach_needed": "m",
+          "wrist_reach_available": "m"}
 
 
 def _number(v) -> str:
@@ -116,13 +119,18 @@ def _cmd_reproduce(args) -> int:
         from kinredund.ui.reproduce import example
 
         try:
-            traj = example(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
-                             json_path=args.json, plot_path=args.plot,
-                             progress=lambda d, n: bar(d, n, "tracking"))
+            with warnings.catch_warnings():  # said below, as a note: the thesis's schemes are compared as they are
+                warnings.simplefilter("ignore", RecordWarning)
+                traj = example(name, loops=args.loops, steps_per_loop=args.steps, mode=args.mode, scheme=args.scheme,
+                               json_path=args.json, plot_path=args.plot,
+                               progress=lambda d, n: bar(d, n, "tracking"))
         finally:
             bar.close()
         print(f"Example {name}: {args.scheme} scheme, {args.mode} mode, {args.loops} loop(s) of {args.steps} steps")
         _print_summary(traj.summary())
+        for key in ("loop_not_closed", "rate_burst"):
+            if key in traj.meta:
+                print(f"kinredund: note: {traj.meta[key]}", file=sys.stderr)
     else:
         from kinredund.ui.reproduce import helix
 
@@ -158,32 +166,6 @@ def _plan(case: str, args, label: str) -> int:
     return EXIT_OK
 
 
-def _path_for(args, robot, q_start: np.ndarray):
-    """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
-
-    Circles and ellipses start at the pose of ``q_start``.
-    """
-    from kinredund import paths
-
-    if args.path == "file":
-        if args.path_file is None:
-            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
-        path, duration = paths.read_path_file(args.path_file)
-        return path, (duration if path.period is None else None)
-    T0 = robot.fk(q_start)
-    p0 = T0[:3, 3]
-    if args.path == "ellipse":
-        center = args.center if args.center is not None else p0[:2] - np.array([args.radius, 0.0])
-        return paths.Ellipse(center[:2], args.radius, args.radius / 2, rate=args.speed / args.radius), None
-    normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
-    center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
-    if center.shape == (2,):
-        center = np.append(center, p0[2] if not get_task(robot.task).planar else 0.0)
-    # pose tasks hold the start orientation along the circle
-    return paths.Circle(center, args.radius, args.speed, normal=tuple(normal),
-                        orientation=T0[:3, :3] if get_task(robot.task).has_orientation else None), None
-
-
 def _write_partial(out, err: TrackingError) -> None:
     """``--partial FILE``: the record up to a tracking stop with the failure (cause, time, state) as JSON."""
     failure = {"cause": err.cause, "t": err.t, "q": err.q, "watched": err.watched, "message": str(err)}
@@ -196,12 +178,13 @@ def _cmd_track(args) -> int:
     from kinredund.ik.solve import solve_ik
     from kinredund.model.robot import load_robot
     from kinredund.tracking import track
+    from kinredund.ui.cli_track import path_for, say_speed, stop_hint
 
     try:
         bar(0, 1, "loading the robot")
         robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
         seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
-        path, duration = _path_for(args, robot, seed_q)
+        path, duration = path_for(args, robot, seed_q)
         # the baselines ignore the index while they step; their normality residual is measured against it
         index = options.index_for(robot, args.index)
         s0 = path(0.0)
@@ -213,15 +196,17 @@ def _cmd_track(args) -> int:
         # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
         span = {} if duration is None else {"duration": duration, "steps": args.steps}
         try:
-            traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode, steps_per_loop=args.steps,
-                         loops=args.loops, progress=lambda d, n: bar(d, n, "tracking"), **span)
-        except TrackingError as err:
-            if args.partial is None or err.partial is None:
-                raise
-            # the partial record is this command's output: returning (not raising) lets its batch land
-            _write_partial(args.partial, err)
-            print(f"kinredund: error: {err}", file=sys.stderr)
-            return EXIT_USAGE
+            with warnings.catch_warnings():  # said below, once, with the exit code
+                warnings.simplefilter("ignore", RecordWarning)
+                traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode,
+                             steps_per_loop=args.steps, loops=args.loops,
+                             progress=lambda d, n: bar(d, n, "tracking"), **span)
+        except TrackingError as err:  # a run that stopped: a result that failed (exit 1), not bad input
+            if args.partial is not None and err.partial is not None:
+                # the partial record is this command's output: returning (not raising) lets its batch land
+                _write_partial(args.partial, err)
+            print(f"kinredund: tracking stopped: {err}{stop_hint(err, args)}", file=sys.stderr)
+            return EXIT_FAILED
         if args.html:
             bar(0, 1, "the HTML replay")
             from kinredund.ui.viz import replay_html
@@ -239,7 +224,11 @@ def _cmd_track(args) -> int:
 
         plot_joint_histories(traj, args.plot)
     _wrote(args.json, args.plot, args.html)
-    return EXIT_OK
+    say_speed(traj, robot, args)
+    failed = [traj.meta[k] for k in ("loop_not_closed", "rate_burst") if k in traj.meta]  # no success (track())
+    for why in failed:
+        print(f"kinredund: {why}", file=sys.stderr)
+    return EXIT_FAILED if failed else EXIT_OK
 
 
 def _cmd_ik(args) -> int:
