@@ -13,8 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from kinredund.errors import KinredundError
 from kinredund.export.samples import ExportError, JointSamples
-from kinredund.io import atomic_write_text
+from kinredund.io import atomic_write_text, read_text
 from kinredund.trajectory import Trajectory
 
 _GROUPS = ("q", "qdot", "qddot")
@@ -43,9 +44,9 @@ def read_csv(path: str | Path) -> JointSamples:
         ExportError: the file cannot be read, or its header or rows are not those of a kinredund export.
     """
     try:
-        lines = [line for line in Path(path).read_text().splitlines() if line.strip()]
-    except (OSError, UnicodeDecodeError) as err:
-        raise ExportError(f"cannot read {path}: {err}") from err
+        lines = [line for line in read_text(path).splitlines() if line.strip()]
+    except KinredundError as err:  # not a regular file (a FIFO would hang), unreadable, not UTF-8
+        raise ExportError(str(err)) from err
     if len(lines) < 2:
         raise ExportError(f"{path} holds no samples (a header and one row per sample are expected)")
     header = [c.strip() for c in lines[0].split(",")]
