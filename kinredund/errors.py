@@ -306,29 +306,32 @@ def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:
     return value
 
 
-class OutputPathError(KinredundError, OSError):
+class _FileError(KinredundError, OSError):
+    """A file kinredund will not ``VERB``: ``path`` is the path given, ``reason`` why (the file system's words
+    where it refused)."""
+
+    VERB = "use"
+
+    def __init__(self, path, reason: str):
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"cannot {self.VERB} {self.path!r}: {reason}")
+
+    def __str__(self) -> str:  # OSError would format its args as (errno, strerror)
+        return self.args[0]
+
+
+class OutputPathError(_FileError):
     """An output path kinredund will not write: not a regular file or a new path, or the write failed.
 
     ``path`` is the path given, ``reason`` why (the file system's words where it refused).
     """
 
-    def __init__(self, path, reason: str):
-        self.path = str(path)
-        self.reason = reason
-        super().__init__(f"cannot write {self.path!r}: {reason}")
-
-    def __str__(self) -> str:  # OSError would format its args as (errno, strerror)
-        return self.args[0]
+    VERB = "write"
 
 
-class InputFileError(KinredundError, OSError):
+class InputFileError(_FileError):
     """An input file kinredund will not read: missing, unreadable, not a regular file (a FIFO, a device, a
     folder) or too large. ``path`` is the path given, ``reason`` why."""
 
-    def __init__(self, path, reason: str):
-        self.path = str(path)
-        self.reason = reason
-        super().__init__(f"cannot read {self.path!r}: {reason}")
-
-    def __str__(self) -> str:  # OSError would format its args as (errno, strerror)
-        return self.args[0]
+    VERB = "read"
