@@ -188,6 +188,17 @@ def test_grids_and_placements_are_bounded_before_they_are_built():
         check_placements(np.broadcast_to(np.eye(4), (MAX_PLACEMENTS + 1, 4, 4)))
 
 
+def test_a_sweeps_run_sizes_are_refused_before_any_placement_runs():
+    """Each placement failed on its own (an error record each, exit 0) when loops x steps was too large."""
+    from kinredund.sweep.evaluate import SweepOptions
+
+    with pytest.raises(KinredundError, match=rf"\(2 x {MAX_SAMPLES}\) must be at most {MAX_SAMPLES}"):
+        SweepOptions(steps_per_loop=MAX_SAMPLES, loops=2)
+    with pytest.raises(KinredundError, match="starts must be at most 10000"):
+        SweepOptions(starts=10**5)
+    assert SweepOptions(steps_per_loop=MAX_SAMPLES).steps_per_loop == MAX_SAMPLES
+
+
 def _chain_urdf(path: Path, n: int) -> Path:
     links = ['<robot name="chain">', '<link name="l0"/>']
     for i in range(n):
