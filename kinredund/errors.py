@@ -14,6 +14,16 @@ class KinredundError(Exception):
     """Base class of every error kinredund raises on purpose."""
 
 
+def shown(value) -> str:
+    """``repr(value)`` shortened for a message (long strings, lists and arrays cut with ``...``): a value read
+    from a file can be of any size, and a message must stay readable."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxstring, r.maxother, r.maxlist, r.maxtuple, r.maxdict = 200, 200, 12, 12, 12
+    return r.repr(value)
+
+
 class UnknownRobotError(KinredundError, KeyError):
     """A robot name that is neither shipped, nor in example-robot-data, nor an existing file."""
 
@@ -69,7 +79,7 @@ class ChoiceError(KinredundError, ValueError):
         self.what = what
         self.value = value
         self.allowed = list(allowed)
-        super().__init__(f"unknown {what} {value!r}; allowed: {', '.join(self.allowed)}")
+        super().__init__(f"unknown {what} {shown(value)}; allowed: {', '.join(self.allowed)}")
 
 
 class SingularityError(KinredundError, ArithmeticError):
@@ -181,19 +191,14 @@ def describe_non_finite(arr) -> str:
     bad = ~np.isfinite(arr)
     first = tuple(int(i) for i in np.argwhere(bad)[0])
     where = first[0] if len(first) == 1 else first
-    shown = f"; all: {arr.tolist()}" if arr.size <= 12 else ""
-    return f"{int(bad.sum())} of {arr.size}, the first at index {where} ({arr[first]}){shown}"
+    listed = f"; all: {arr.tolist()}" if arr.size <= 12 else ""
+    return f"{int(bad.sum())} of {arr.size}, the first at index {where} ({arr[first]}){listed}"
 
 
 def _real_array(value, what: str, error: type[KinredundError]):
     """``value`` as a float array, refusing what numpy would quietly turn into numbers: booleans, strings
     (``"1"``), complex values (numpy drops the imaginary part with a warning) and non-numeric objects."""
-    import reprlib
-
     import numpy as np
-
-    def shown() -> str:  # only for a message: repr costs ~100 us on an array, far more than the check
-        return reprlib.repr(value)
 
     try:
         raw = np.asarray(value)
@@ -201,16 +206,16 @@ def _real_array(value, what: str, error: type[KinredundError]):
         if not isinstance(value, np.ndarray) and kind in "iufO":  # [True, 0, 1] is an int array to numpy
             kind = next((_kind_of(v) for v in _leaves(value) if _kind_of(v) != "f"), kind)
         if kind == "b":
-            raise error(f"{what} must be numbers, not booleans; got {shown()}")
+            raise error(f"{what} must be numbers, not booleans; got {shown(value)}")
         if kind == "c":
-            raise error(f"{what} must be real numbers, got complex values {shown()} (pass the real part)")
+            raise error(f"{what} must be real numbers, got complex values {shown(value)} (pass the real part)")
         if kind not in "iufO":
-            raise error(f"{what} must be numeric, got {shown()}")
+            raise error(f"{what} must be numeric, got {shown(value)}")
         return raw.astype(float) if kind == "O" else np.asarray(raw, dtype=float)
     except (TypeError, ValueError, OverflowError) as err:
         if isinstance(err, KinredundError):
             raise
-        raise error(f"{what} must be numeric, got {shown()}") from err
+        raise error(f"{what} must be numeric, got {shown(value)}") from err
 
 
 def _leaves(value):

@@ -289,3 +289,17 @@ def test_cli_sweep_on_a_silent_server_stops_with_a_clear_error(silent_server, tm
     out = _run("sweep", "panda", "--grid", "0.4:0.4:1,0:0:1", "--starts", "1", "--scheduler", silent_server,
                "--quiet", cwd=tmp_path)
     assert out.returncode == 2 and "does not speak Dask's protocol" in out.stderr, out.stderr[-500:]
+
+
+def test_values_read_from_a_file_are_shortened_in_messages():
+    """A record's robot, task or solver of any size named in full (as the NaN case, a message of megabytes)."""
+    from kinredund.errors import ChoiceError
+    from kinredund.trajectory import Trajectory
+
+    ok = {"robot": "planar3r", "task": "planar", "t": [0.0, 1.0], "q": [[0.0] * 3] * 2, "p": [[0.0] * 3] * 2,
+          "p_desired": [[0.0] * 3] * 2}
+    for key, bad, error in (("robot", [0.5] * 10**6, TaskError), ("task", "x" * 10**6, ChoiceError),
+                            ("solver", {"lu": 1} | {str(k): k for k in range(10**5)}, TaskError)):
+        with pytest.raises(error) as err:
+            Trajectory.from_json_dict({**ok, key: bad})
+        assert len(str(err.value)) < 400 and "..." in str(err.value), key
