@@ -8,12 +8,18 @@ Three ways to time, for three kinds of call:
   ~1-3 us, where timing each call on its own adds the timer's overhead);
 - :func:`best_of_us`: per argument, the best of a few calls [us], with the call's result (a time per
   input, e.g. per pose).
+
+Every script takes ``--smoke``: its smallest setting (every stage once, on the least data), which the test
+suite runs (tests/test_benchmarks_smoke.py) so that no script rots; its figures mean nothing. A peer
+package that is not installed (pink, daqp, roboticstoolbox-python: ``pip install .[bench]``) is skipped
+with a printed line (:func:`optional`), never a crash.
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import importlib.util
 import platform
 import sys
 import time
@@ -99,10 +105,20 @@ def print_table(rows: list[list], header: list[str]) -> None:
 
 
 def parser(description: str) -> argparse.ArgumentParser:
-    """The common command line: ``--json FILE``."""
+    """The common command line: ``--json FILE`` and ``--smoke``."""
     p = argparse.ArgumentParser(description=description)
     p.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
+    p.add_argument("--smoke", action="store_true",
+                   help="the smallest setting: check that the script runs (its figures mean nothing)")
     return p
+
+
+def optional(*modules: str, what: str) -> bool:
+    """Whether every one of ``modules`` can be imported; if not, print that ``what`` is skipped and why."""
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        print(f"skipped {what}: {', '.join(missing)} not installed (pip install .[bench])")
+    return not missing
 
 
 def write_json(path: Path | None, data: dict) -> None:

@@ -80,6 +80,8 @@ def main() -> None:
     p.add_argument("--poses", type=int, default=300, help="random reachable poses (default 300)")
     p.add_argument("--ik-poses", type=int, default=30, help="poses for the solve_ik comparison (default 30)")
     args = p.parse_args()
+    if args.smoke:
+        args.poses, args.ik_poses = 2, 1
     if args.poses < 1 or not 0 <= args.ik_poses <= args.poses:
         p.error(f"need --poses >= 1 and 0 <= --ik-poses <= --poses, got {args.poses} and {args.ik_poses}")
     ik = ClosedFormIK()

@@ -113,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     cli.add_argument("--number", type=int, default=2000, help="calls per timing run (default 2000)")
     cli.add_argument("--repeat", type=int, default=15, help="timing runs; the median is reported (default 15)")
     args = cli.parse_args(argv)
+    if args.smoke:
+        args.number, args.repeat = 2, 1
     if args.number < 1 or args.repeat < 1:
         cli.error("--number and --repeat must be positive")
     robots = {name: bench_robot(name, args.number, args.repeat) for name in ROBOTS}

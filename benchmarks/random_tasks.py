@@ -50,7 +50,7 @@ import time
 from collections import Counter
 
 import numpy as np
-from _bench import parser, print_table, write_json
+from _bench import optional, parser, print_table, write_json
 
 from kinredund.errors import KinredundError
 from kinredund.kinematics.angles import joint_drift
@@ -172,7 +172,7 @@ def draw(robot, rng) -> tuple[CircleTask, int]:
     raise RuntimeError(f"no reachable circle in {MAX_DRAWS} draws on {robot.name}")
 
 
-def run_robot(name: str, n: int, seed: int, progress=True) -> dict:
+def run_robot(name: str, n: int, seed: int, progress=True, methods=METHODS) -> dict:
     robot = load_robot(name)
     rng = np.random.default_rng(seed)
     tasks, rejected = [], 0
@@ -182,7 +182,7 @@ def run_robot(name: str, n: int, seed: int, progress=True) -> dict:
         path, index = task.path(), task.performance_index(robot)
         start = start_of(robot, task, seed + i)
         row = {"task": task.to_dict(), "start_converged": bool(start.converged)}
-        for m in METHODS:
+        for m in methods:
             t0 = time.perf_counter()
             if m == "strict":
                 row[m] = run_strict(robot, path, index, start.q)
@@ -194,15 +194,15 @@ def run_robot(name: str, n: int, seed: int, progress=True) -> dict:
         tasks.append(row)
         if progress:
             print(f"{name} {i + 1}/{n}: " + ", ".join(f"{m} {'ok' if row[m]['completed'] else 'fail'}"
-                                                     for m in METHODS), flush=True)
-    return {"robot": name, "n": n, "seed": seed, "rejected_draws": rejected, "tasks": tasks}
+                                                     for m in methods), flush=True)
+    return {"robot": name, "n": n, "seed": seed, "rejected_draws": rejected, "tasks": tasks, "methods": list(methods)}
 
 
 def summarise(result: dict) -> dict:
     """Per method: counts and figures of the completions and failures (module docstring)."""
     rows = result["tasks"]
     out = {}
-    for m in METHODS:
+    for m in result["methods"]:
         done = [r[m] for r in rows if r[m]["completed"]]
         good = [d for d in done if d["inside"] and d["closed"]]
         fails = [r[m] for r in rows if not r[m]["completed"]]
@@ -218,6 +218,8 @@ def summarise(result: dict) -> dict:
                   "failures_on_path_and_inside": sum(bool(f.get("failure_on_path")) and bool(f.get("failure_inside"))
                                                      for f in fails),
                   "causes": dict(Counter(f["cause"].split(":")[0] for f in fails))}
+    if "pink" not in result["methods"]:
+        return out
     pink_ok = [i for i, r in enumerate(rows) if r["pink"]["completed"] and r["pink"]["inside"]]
     plan_on = [i for i in pink_ok if rows[i]["planner"]["completed"]]
     pink_cyclic = [i for i in pink_ok if rows[i]["pink"]["closure_modulo_turns"] <= PINK_CLOSURE_TOL]
@@ -239,17 +241,20 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the task generator (default 0)")
     p.add_argument("--quiet", action="store_true", help="no line per task")
     args = p.parse_args()
+    if args.smoke:
+        args.robot, args.n, args.quiet = "panda", 1, True
     if args.n < 1:
         p.error(f"--n must be >= 1, got {args.n}")
     t0 = time.perf_counter()
+    methods = METHODS if optional("pink", "daqp", what="the pink column") else tuple(m for m in METHODS if m != "pink")
     results = {}
     for name in ([args.robot] if args.robot else ROBOTS):
-        res = run_robot(name, args.n, args.seed, progress=not args.quiet)
+        res = run_robot(name, args.n, args.seed, progress=not args.quiet, methods=methods)
         res["summary"] = summarise(res)
         results[name] = res
     table = []
     for name, res in results.items():
-        for m in METHODS:
+        for m in methods:
             s = res["summary"][m]
             table.append([name, m, s["tasks"], s["completed"], s["inside_and_closed"], s["with_jump"],
                           s["position_error_median"] if s["position_error_median"] is not None else "-",
@@ -259,15 +264,17 @@ def main() -> None:
                         "err max m", "time med s", "fail on path+inside"])
     for name, res in results.items():
         s = res["summary"]
-        pk = s["planner_on_pink_completions"]
-        print(f"{name}: {res['rejected_draws']} draws rejected (not reachable); planner completes "
-              f"{pk['planner_completed']} of the {pk['pink_completed_inside']} tasks pink completes inside its limits, "
-              f"{pk['planner_completed_of_those']} of the {pk['pink_completed_inside_and_closed_modulo_turns']} "
-              f"where pink's joints also come back (modulo turns, to {PINK_CLOSURE_TOL:g} rad) after {LOOPS} loops")
+        print(f"{name}: {res['rejected_draws']} draws rejected (not reachable)")
+        pk = s.get("planner_on_pink_completions", {"pink_not_closed": []})
+        if "pink" in methods:
+            print(f"{name}: planner completes {pk['planner_completed']} of the {pk['pink_completed_inside']} tasks "
+                  f"pink completes inside its limits, {pk['planner_completed_of_those']} of the "
+                  f"{pk['pink_completed_inside_and_closed_modulo_turns']} where pink's joints also come back (modulo "
+                  f"turns, to {PINK_CLOSURE_TOL:g} rad) after {LOOPS} loops")
         for miss in pk["pink_not_closed"]:
             print(f"  task {miss['task']}: pink completes without coming back (drift "
                   f"{miss['closure_modulo_turns']:.3g} rad modulo turns); planner: {miss['planner_cause']}")
-        for m in METHODS:
+        for m in methods:
             if s[m]["causes"]:
                 print(f"  {m} failures: " + ", ".join(f"{k} x{v}" for k, v in s[m]["causes"].items()))
     wall = time.perf_counter() - t0

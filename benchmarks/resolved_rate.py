@@ -43,11 +43,10 @@ figures per robot) and ``keys`` (what each figure times).
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
-from _bench import parser, print_table, time_calls, time_in_turn, write_json
+from _bench import optional, parser, print_table, time_calls, time_in_turn, write_json
 from scipy.linalg import lapack
 
 from kinredund.problems import panda_circle
@@ -129,9 +128,7 @@ def _evaluator(robot, path, index, q0, dt) -> ExplicitEuler:
 
 
 def _pink_steps(robot, path, q0, dt, limits: bool):
-    """pink's step on the same path, as benchmarks/peers.py runs it; None where pink is not installed."""
-    if importlib.util.find_spec("pink") is None:
-        return None
+    """pink's step on the same path, as benchmarks/peers.py runs it (pink and daqp installed)."""
     from peers import _Pink
 
     return _Pink(robot, path, q0, dt, posture=False, limits=limits).step
@@ -177,11 +174,9 @@ def bench(name: str, steps: int) -> dict:
                                           ("step_default_velocity_us", "default", "velocity"),
                                           ("step_thesis_us", "thesis", "augmented"),
                                           ("pinv_us", "default", "pseudoinverse")]}
-    if name == "panda":
+    if name == "panda" and optional("pink", "daqp", what="the pink columns"):
         for key, limits in (("pink_step_us", False), ("pink_limits_step_us", True)):
-            step = _pink_steps(robot, path, q0, dt, limits)
-            if step is not None:
-                steppers[key] = step
+            steppers[key] = _pink_steps(robot, path, q0, dt, limits)
     # each stepper alone, as a control loop runs it (its data stays in the caches)
     for key, step in steppers.items():
         out[key] = time_calls(step, repeat=steps, warmup=5)["median_us"]
@@ -328,7 +323,7 @@ def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--plot", type=Path, default=None, help="write a bar chart of the times (png, svg, pdf)")
     args = p.parse_args()
-    results = {name: bench(name, 1000) for name in ("panda", "cybotech_p15")}
+    results = {name: bench(name, 10 if args.smoke else 1000) for name in ("panda", "cybotech_p15")}
     cols = ["eval_us", "eval_stepper_us", "step_default_us", "step_default_velocity_us", "step_thesis_us", "pinv_us",
             "pink_step_us", "pink_limits_step_us"]
     rows = [[n] + [r.get(c, "-") for c in cols] for n, r in results.items()]

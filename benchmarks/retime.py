@@ -33,8 +33,8 @@ SAMPLES = (200, 2000)
 REPEAT = 5
 
 
-def bench(steps: int) -> dict:
-    """The figures for one loop of ``steps`` samples."""
+def bench(steps: int, repeat: int = REPEAT) -> dict:
+    """The figures for one loop of ``steps`` samples (medians of ``repeat`` runs)."""
     robot, path, index, q0 = panda_circle(load_robot("panda"), speed=1.0)
     tr = track(robot, path, index, q0, steps_per_loop=steps)
     limits = limits_for(robot, AMAX)
@@ -43,11 +43,11 @@ def bench(steps: int) -> dict:
     res = retime(tr, limits, robot=robot)
     figures = {
         "samples": steps,
-        "toppra_ms": time_calls(lambda: toppra_law(jp, limits), repeat=REPEAT, warmup=1)["median_us"] / 1e3,
-        "retime_ms": time_calls(lambda: retime(tr, limits, robot=robot), repeat=REPEAT, warmup=1)["median_us"] / 1e3,
-        "retime_10_loops_ms": time_calls(lambda: retime(tr, limits, robot=robot, loops=10), repeat=REPEAT,
+        "toppra_ms": time_calls(lambda: toppra_law(jp, limits), repeat=repeat, warmup=1)["median_us"] / 1e3,
+        "retime_ms": time_calls(lambda: retime(tr, limits, robot=robot), repeat=repeat, warmup=1)["median_us"] / 1e3,
+        "retime_10_loops_ms": time_calls(lambda: retime(tr, limits, robot=robot, loops=10), repeat=repeat,
                                          warmup=1)["median_us"] / 1e3,
-        "jerk_ms": time_calls(lambda: retime(tr, jerk_limits, robot=robot), repeat=REPEAT, warmup=1)["median_us"] / 1e3,
+        "jerk_ms": time_calls(lambda: retime(tr, jerk_limits, robot=robot), repeat=repeat, warmup=1)["median_us"] / 1e3,
         "tracked_loop_s": float(path.period),
         "retimed_loop_s": res.loop_duration,
         "active_fraction": res.active_fraction,
@@ -57,10 +57,10 @@ def bench(steps: int) -> dict:
 
 def main() -> None:
     args = parser(__doc__.splitlines()[0]).parse_args()
-    rows = [bench(n) for n in SAMPLES]
+    rows = [bench(n, 1 if args.smoke else REPEAT) for n in (SAMPLES[:1] if args.smoke else SAMPLES)]
     keys = list(rows[0])
     print_table([[r[k] for k in keys] for r in rows], keys)
-    write_json(args.json, {"rows": rows, "amax": AMAX, "jmax": JMAX, "repeat": REPEAT})
+    write_json(args.json, {"rows": rows, "amax": AMAX, "jmax": JMAX, "repeat": 1 if args.smoke else REPEAT})
 
 
 if __name__ == "__main__":

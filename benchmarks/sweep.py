@@ -143,6 +143,8 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
     p.add_argument("--batch-size", type=int, default=None, help="placements per task (default: the sweep's)")
     args = p.parse_args()
+    if args.smoke:
+        args.sides, args.workers = "1", 1
     sides = [int(s) for s in args.sides.split(",") if s]
     res = bench(sides, args.workers, args.batch_size)
     print(f"parallel capacity now: {res['parallel_capacity']:.2f} cores for {res['workers']} busy processes "

@@ -54,17 +54,20 @@ def main() -> None:
     ap = parser(__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
+    if args.smoke:
+        args.repeat = 1
     rows, figures = [], {}
+    steps = 101 if args.smoke else 1001
     with tempfile.TemporaryDirectory() as tmp:
         for name in ("planar3r", "panda"):
-            r, traj = synthetic(name)
+            r, traj = synthetic(name, steps=steps)
             out = Path(tmp) / f"{name}.html"
             wall = seconds(lambda r=r, traj=traj, out=out: replay_html(traj, out, r), args.repeat)
             size = out.stat().st_size / 1e6
             frames = len(resample(traj).times)
             rows.append([f"replay_html {name}", wall, f"{size:.2f} MB", frames])
             figures[f"replay_html_{name}"] = {"seconds": wall, "megabytes": size, "keyframes": frames}
-        _, traj = synthetic("planar3r")
+        _, traj = synthetic("planar3r", steps=steps)
         jobs = {
             "joint_histories": lambda out: plots.plot_joint_histories(traj, out),
             "errors": lambda out: plots.plot_errors(traj, out),

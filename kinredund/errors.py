@@ -14,6 +14,16 @@ class KinredundError(Exception):
     """Base class of every error kinredund raises on purpose."""
 
 
+def shown(value) -> str:
+    """``repr(value)`` shortened for a message (long strings, lists and arrays cut with ``...``): a value read
+    from a file can be of any size, and a message must stay readable."""
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxstring, r.maxother, r.maxlist, r.maxtuple, r.maxdict = 200, 200, 12, 12, 12
+    return r.repr(value)
+
+
 class UnknownRobotError(KinredundError, KeyError):
     """A robot name that is neither shipped, nor in example-robot-data, nor an existing file."""
 
@@ -69,7 +79,7 @@ class ChoiceError(KinredundError, ValueError):
         self.what = what
         self.value = value
         self.allowed = list(allowed)
-        super().__init__(f"unknown {what} {value!r}; allowed: {', '.join(self.allowed)}")
+        super().__init__(f"unknown {what} {shown(value)}; allowed: {', '.join(self.allowed)}")
 
 
 class GeometryError(KinredundError, ValueError):
@@ -178,19 +188,26 @@ def check_array(value, shape: tuple, what: str, error: type[KinredundError] = Ta
         want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + ("," if len(shape) == 1 else "") + ")"
         raise error(f"{what} must have shape {want}{f' for {owner}' if owner else ''}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise error(f"{what} has non-finite entries: {arr.tolist()}")
+        raise error(f"{what} has non-finite entries: {describe_non_finite(arr)}")
     return arr
+
+
+def describe_non_finite(arr) -> str:
+    """Where ``arr``'s non-finite entries are, in a message of bounded length: how many, the first's index and
+    value (a record of a million points with one NaN gave a 77 MB message that did not say where)."""
+    import numpy as np
+
+    bad = ~np.isfinite(arr)
+    first = tuple(int(i) for i in np.argwhere(bad)[0])
+    where = first[0] if len(first) == 1 else first
+    listed = f"; all: {arr.tolist()}" if arr.size <= 12 else ""
+    return f"{int(bad.sum())} of {arr.size}, the first at index {where} ({arr[first]}){listed}"
 
 
 def _real_array(value, what: str, error: type[KinredundError]):
     """``value`` as a float array, refusing what numpy would quietly turn into numbers: booleans, strings
     (``"1"``), complex values (numpy drops the imaginary part with a warning) and non-numeric objects."""
-    import reprlib
-
     import numpy as np
-
-    def shown() -> str:  # only for a message: repr costs ~100 us on an array, far more than the check
-        return reprlib.repr(value)
 
     try:
         raw = np.asarray(value)
@@ -198,16 +215,16 @@ def _real_array(value, what: str, error: type[KinredundError]):
         if not isinstance(value, np.ndarray) and kind in "iufO":  # [True, 0, 1] is an int array to numpy
             kind = next((_kind_of(v) for v in _leaves(value) if _kind_of(v) != "f"), kind)
         if kind == "b":
-            raise error(f"{what} must be numbers, not booleans; got {shown()}")
+            raise error(f"{what} must be numbers, not booleans; got {shown(value)}")
         if kind == "c":
-            raise error(f"{what} must be real numbers, got complex values {shown()} (pass the real part)")
+            raise error(f"{what} must be real numbers, got complex values {shown(value)} (pass the real part)")
         if kind not in "iufO":
-            raise error(f"{what} must be numeric, got {shown()}")
+            raise error(f"{what} must be numeric, got {shown(value)}")
         return raw.astype(float) if kind == "O" else np.asarray(raw, dtype=float)
     except (TypeError, ValueError, OverflowError) as err:
         if isinstance(err, KinredundError):
             raise
-        raise error(f"{what} must be numeric, got {shown()}") from err
+        raise error(f"{what} must be numeric, got {shown(value)}") from err
 
 
 def _leaves(value):
@@ -271,6 +288,36 @@ def check_flag(value, what: str, error: type[KinredundError] = OptionError) -> b
     return bool(value)
 
 
+# -- the sizes a user can ask for -------------------------------------------------------------------------
+#: The largest value of every size a user can ask for, and why; the library checks them (:func:`check_size`)
+#: and the command line's options use the same numbers, so that a size too large is refused before any work.
+SIZES = {
+    # measured: a retimed 7-axis record of 50,000 samples peaks at 0.6 GB (writing its JSON), 1.2 KB per sample
+    # on disk; 2 million samples needed ~17 GB
+    "samples": (200_000, "a record holds every sample: about 8 KiB each at its peak on a 7-axis arm"),
+    "starts": (10_000, "each start is a whole local solve"),
+    "placements": (100_000, "each placement is an IK solve and a tracking run, about 0.1-1 s"),
+    "workers": (64, "each worker is a Python process of about 150 MB"),
+    "joints": (100, "each step forms n x n matrices and the 6 x n x n Hessian; redundant arms have a few dozen"),
+}
+MAX_SAMPLES, MAX_STARTS, MAX_PLACEMENTS, MAX_WORKERS, MAX_JOINTS = (SIZES[k][0] for k in SIZES)
+
+
+def check_size(value, what: str, size: str, error: type[KinredundError] = OptionError, minimum: int = 1) -> int:
+    """``value`` as an int in ``minimum`` .. ``SIZES[size]``, else ``error`` naming ``what``, the limit and why.
+
+    Args:
+        value: the size asked for (an integer, not a bool).
+        what: its name in the message (e.g. ``"loops x samples per loop"``).
+        size: a key of :data:`SIZES` (``samples``, ``starts``, ``placements``, ``workers``, ``joints``).
+    """
+    n = check_count(value, minimum, what, error)
+    limit, why = SIZES[size]
+    if n > limit:
+        raise error(f"{what} must be at most {limit} ({why}), got {n}")
+    return n
+
+
 def check_joint_vector(q, n: int, owner: str, what: str = "joint vector"):
     """Return q as a float array of shape (n,), or raise :class:`JointVectorError` saying what is wrong."""
     return check_array(q, (n,), what, JointVectorError, owner)
@@ -283,16 +330,32 @@ def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:
     return value
 
 
-class OutputPathError(KinredundError, OSError):
+class _FileError(KinredundError, OSError):
+    """A file kinredund will not ``VERB``: ``path`` is the path given, ``reason`` why (the file system's words
+    where it refused)."""
+
+    VERB = "use"
+
+    def __init__(self, path, reason: str):
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"cannot {self.VERB} {self.path!r}: {reason}")
+
+    def __str__(self) -> str:  # OSError would format its args as (errno, strerror)
+        return self.args[0]
+
+
+class OutputPathError(_FileError):
     """An output path kinredund will not write: not a regular file or a new path, or the write failed.
 
     ``path`` is the path given, ``reason`` why (the file system's words where it refused).
     """
 
-    def __init__(self, path, reason: str):
-        self.path = str(path)
-        self.reason = reason
-        super().__init__(f"cannot write {self.path!r}: {reason}")
+    VERB = "write"
 
-    def __str__(self) -> str:  # OSError would format its args as (errno, strerror)
-        return self.args[0]
+
+class InputFileError(_FileError):
+    """An input file kinredund will not read: missing, unreadable, not a regular file (a FIFO, a device, a
+    folder) or too large. ``path`` is the path given, ``reason`` why."""
+
+    VERB = "read"

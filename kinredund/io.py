@@ -21,6 +21,12 @@ command land together or none does; a checkpoint (``atomic_write(..., immediate=
 written as a sweep goes so that an interrupted one can be resumed) is renamed at once, and the batch
 lists it in ``kept``. A folder output (a ROS 2 bag) goes the same way through :func:`atomic_write_dir`:
 built in a temporary folder, renamed into place with the batch; it never replaces anything.
+
+Every file kinredund reads that a user names (a URDF, a record, a path file, a sweep file, a CSV export)
+goes through :func:`kinredund.inputs.read_input` (re-exported here): a regular file of at most :data:`MAX_INPUT_BYTES`, else an
+:class:`~kinredund.errors.InputFileError` naming what it is. A FIFO would block the reader until something
+writes to it (a hang), a device such as ``/dev/zero`` never ends (memory runs out): both are refused
+before any byte is read.
 """
 
 from __future__ import annotations
@@ -37,18 +43,18 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError, OutputPathError
+from kinredund.errors import OutputPathError
+from kinredund.inputs import (  # noqa: F401  (the readers, here too for their callers)
+    MAX_INPUT_BYTES,
+    check_regular_file,
+    file_kind,
+    read_input,
+    read_json_object,
+    read_text,
+)
 
 #: the renames waiting for the end of the innermost :func:`output_batch` (None outside one)
 _BATCH: contextvars.ContextVar[Batch | None] = contextvars.ContextVar("kinredund_output_batch", default=None)
-
-
-def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return name
-    return "not a regular file"
 
 
 def file_path(path) -> Path:
@@ -138,7 +144,7 @@ def check_output_path(path) -> Path:
         raise OutputPathError(path, getattr(err, "strerror", None) or str(err)) from err
     if st is not None and not stat.S_ISREG(st.st_mode):
         via = f" (through the symbolic link to {str(target)!r})" if target != path else ""
-        raise OutputPathError(path, f"{_kind(st.st_mode)}{via}: kinredund writes only a regular file or a new path")
+        raise OutputPathError(path, f"{file_kind(st.st_mode)}{via}: kinredund writes only a regular file or a new path")
     folder = target.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
@@ -367,27 +373,3 @@ def write_json(path: str | Path, obj, indent: int | None = None) -> Path:
     path = Path(path)
     atomic_write_text(path, json.dumps(json_ready(obj), allow_nan=False, indent=indent))
     return path
-
-
-def read_text(path: str | Path) -> str:
-    """The UTF-8 text of ``path``; KinredundError (naming the file) if it cannot be read or is not UTF-8."""
-    try:
-        return Path(path).read_bytes().decode("utf-8")
-    except OSError as err:
-        raise KinredundError(f"cannot read {path}: {err.strerror}") from err
-    except UnicodeDecodeError as err:
-        raise KinredundError(f"{path} is not UTF-8 text (byte {err.start}): a JSON file must be UTF-8") from err
-
-
-def read_json_object(path: str | Path) -> dict:
-    """The JSON object in ``path``; KinredundError (naming the file) if unreadable, not JSON or not an object."""
-    text = read_text(path)
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise KinredundError(f"{path} is not valid JSON: {err}") from err
-    except RecursionError as err:
-        raise KinredundError(f"{path} nests JSON arrays or objects too deeply to read") from err
-    if not isinstance(data, dict):
-        raise KinredundError(f"{path} does not hold a JSON object")
-    return data

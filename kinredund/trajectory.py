@@ -28,6 +28,7 @@ from kinredund.errors import (
     check_array,
     check_choice,
     check_positive,
+    shown,
 )
 from kinredund.io import json_ready, read_json_object, write_json
 from kinredund.model.robot import NO_LIMIT
@@ -274,7 +275,7 @@ class Trajectory:
             TaskError, ChoiceError: a bad per-point array, solver list, robot name, task kind or meta.
         """
         if not isinstance(self.robot, str):
-            raise TaskError(f"a trajectory's robot must be a name or URDF path (a string), got {self.robot!r}")
+            raise TaskError(f"a trajectory's robot must be a name or URDF path (a string), got {shown(self.robot)}")
         check_choice("trajectory task", self.task, task_names())
         if not isinstance(self.meta, dict):
             raise TaskError(f"a trajectory's meta must be a dict, got {type(self.meta).__name__}")
@@ -330,7 +331,7 @@ class Trajectory:
             kw.pop("meta", None)
         if "solver" in kw:
             if not isinstance(kw["solver"], list):
-                raise TaskError(f"a trajectory's solver must be a list of labels, got {kw['solver']!r}")
+                raise TaskError(f"a trajectory's solver must be a list of labels, got {shown(kw['solver'])}")
             kw["solver"] = tuple(kw["solver"])
         return cls(**kw).checked()
 

@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from kinredund.errors import KinredundError
 from kinredund.export.samples import ExportError, JointSamples
-from kinredund.io import atomic_write_text
+from kinredund.io import atomic_write_text, read_text
 from kinredund.trajectory import Trajectory
 
 _GROUPS = ("q", "qdot", "qddot")
@@ -48,10 +49,12 @@ def read_csv(path: str | Path) -> JointSamples:
         ExportError: the file cannot be read, or its header or rows are not those of a kinredund export.
     """
     try:
-        with open(path, encoding="utf-8", newline="") as fh:
+        with io.StringIO(read_text(path), newline="") as fh:
             lines = [row for row in csv.reader(fh) if row]
-    except (OSError, UnicodeDecodeError, csv.Error) as err:
+    except csv.Error as err:
         raise ExportError(f"cannot read {path}: {err}") from err
+    except KinredundError as err:  # not a regular file (a FIFO would hang), unreadable, not UTF-8
+        raise ExportError(str(err)) from err
     if len(lines) < 2:
         raise ExportError(f"{path} holds no samples (a header and one row per sample are expected)")
     header = lines[0]

@@ -33,7 +33,7 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import TaskError, check_count, check_flag, check_positive
+from kinredund.errors import SIZES, TaskError, check_count, check_flag, check_positive
 from kinredund.ik.common import RANK_TOL, OptimalityTerms, Setup, StartOutcome, bound_kkt
 from kinredund.ik.newton import run_start
 from kinredund.ik.qp import BoxStep
@@ -212,8 +212,8 @@ def _second_order(residual: float, t: OptimalityTerms, rows: np.ndarray) -> Opti
 
 
 #: the most starts one call runs (each is a whole local solve: a typo such as 1e8 would run for days);
-#: use ``timeout`` to bound a search by time instead
-MAX_STARTS = 10_000
+#: use ``timeout`` to bound a search by time instead (kinredund.errors.SIZES holds every such limit)
+MAX_STARTS = SIZES["starts"][0]
 
 
 def _check_options(robot, starts, tol, max_iter, timeout, seed, bounds) -> None:

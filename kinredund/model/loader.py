@@ -22,6 +22,7 @@ import numpy as np
 import pinocchio as pin
 
 from kinredund.errors import (
+    SIZES,
     ChoiceError,
     JointVectorError,
     TaskError,
@@ -381,6 +382,10 @@ def _from_urdf(name, path, ee_frame, task, axis, joints, locked, package_dirs, h
     frame = _default_ee_frame(parsed.model) if ee_frame is None else ee_frame
     fid, _ = resolve_frame(parsed.model, frame)
     model, values = reduce_model(parsed.model, joints, locked, parsed.mimic, fid, str(path))
+    limit, why = SIZES["joints"]
+    if model.nv > limit:
+        raise URDFError(str(path), f"{model.nv} moving joints, more than the {limit} kinredund takes ({why}): keep "
+                                   "the arm's with joints=[...] (the others are locked)")
     model, frame = _with_tool_axis(model, frame, axis, task)
     if home is None and model.nq == model.nv:
         fid, _ = resolve_frame(model, frame)

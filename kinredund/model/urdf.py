@@ -21,7 +21,8 @@ from typing import NamedTuple
 import numpy as np
 import pinocchio as pin
 
-from kinredund.errors import URDFError
+from kinredund.errors import InputFileError, URDFError
+from kinredund.io import read_input
 from kinredund.kinematics.hd import PRISMATIC, HDTable
 
 EE_FRAME = "ee"
@@ -212,9 +213,9 @@ class URDFModel:
 
 def _read_text(path: Path) -> str:
     try:
-        data = path.read_bytes()
-    except OSError as err:
-        raise URDFError(str(path), f"cannot read the file ({err.strerror})") from err
+        data = read_input(path)  # a regular file only: a FIFO would hang, /dev/zero never end
+    except InputFileError as err:
+        raise URDFError(str(path), f"cannot read the file ({err.reason})") from err
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as err:

@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from kinredund.errors import check_size
 from kinredund.export.samples import ExportError, distinct_nanoseconds, from_nanoseconds
 from kinredund.kinematics.angles import joint_drift
 from kinredund.retime.joint_path import JointPath, joint_path
@@ -166,6 +167,9 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
         if isinstance(n_loops, bool) or int(n_loops) != n_loops or n_loops < 1:
             raise RetimeError(f"loops must be an integer >= 1, got {loops!r}")
         n_loops = int(n_loops)
+        N = len(jp.s) - 1  # the record's samples per loop: the output holds loops x N + 1 of them
+        check_size(n_loops * N + 1, f"the retimed record's samples ({n_loops} loops x {N} + 1)", "samples",
+                   RetimeError)
     rest = bool(rest_to_rest) and jp.closed
     if rest and limits.jerk is not None:
         raise RetimeError("the jerk-limited law is periodic: it does not start or stop at rest (drop rest_to_rest or "

@@ -19,7 +19,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinredund.errors import KinredundError, PathError, SingularityError, check_choice, check_count, check_positive
+from kinredund.errors import (
+    KinredundError,
+    PathError,
+    SingularityError,
+    check_choice,
+    check_count,
+    check_positive,
+    check_size,
+)
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
@@ -62,16 +70,17 @@ class SweepOptions:
     starts: int = 8
     seed: int = 0
 
-    def __post_init__(self) -> None:
-        check_count(self.steps_per_loop, 1, "steps_per_loop", KinredundError)
-        check_count(self.loops, 1, "loops", KinredundError)
-        check_count(self.starts, 1, "starts", KinredundError)
+    def __post_init__(self) -> None:  # sizes bounded here, before any placement runs (errors.SIZES)
+        spl = check_count(self.steps_per_loop, 1, "steps_per_loop", KinredundError)
+        loops = check_count(self.loops, 1, "loops", KinredundError)
+        check_size(spl * loops, f"loops x steps_per_loop ({loops} x {spl})", "samples", KinredundError)
+        check_size(self.starts, "starts", "starts", KinredundError)
         check_count(self.seed, 0, "seed", KinredundError)
         check_choice("scheme", self.scheme, SCHEMES)
         check_choice("mode", self.mode, MODES)
         if self.duration is not None:
             check_positive(self.duration, "duration [s]", KinredundError)
-            check_count(self.steps, 1, "steps", KinredundError)
+            check_size(self.steps, "steps", "samples", KinredundError)
 
 
 def run_tracker(robot: Robot, path: Path, index: Index | None, q0: np.ndarray, options: SweepOptions) -> Trajectory:

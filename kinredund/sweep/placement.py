@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from kinredund.errors import KinredundError, PathError, check_array
+from kinredund.errors import KinredundError, PathError, check_array, check_size
 from kinredund.paths import Path, PathSample
 
 
@@ -53,9 +53,13 @@ def grid(x=0.0, y=0.0, z=0.0, yaw=0.0) -> np.ndarray:
         sizes (nx, ny, nz, nyaw) is at ``np.unravel_index(k, (nx, ny, nz, nyaw))``).
 
     Raises:
-        PlacementError: an axis that is not finite numbers.
+        PlacementError: an axis that is not finite numbers, or more placements than
+            :data:`~kinredund.errors.MAX_PLACEMENTS` (refused before any is built).
     """
     axes = [_axis(v, n) for v, n in ((x, "x"), (y, "y"), (z, "z"), (yaw, "yaw"))]
+    sizes = [len(a) for a in axes]
+    check_size(math.prod(sizes), f"the grid's placements ({' x '.join(map(str, sizes))})", "placements",
+               PlacementError)
     return np.array([placement_pose(*map(float, v)) for v in itertools.product(*axes)])
 
 
@@ -72,6 +76,7 @@ def check_placements(placements) -> np.ndarray:
         T = T[None]
     if T.ndim != 3 or T.shape[1:] != (4, 4) or T.shape[0] == 0:
         raise PlacementError(f"placements must be a non-empty list of 4x4 poses, got an array of shape {T.shape}")
+    check_size(T.shape[0], "placements", "placements", PlacementError)
     bad = ~np.all(np.isfinite(T), axis=(1, 2))
     R = T[:, :3, :3]
     err = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2), initial=0.0)

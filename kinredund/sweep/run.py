@@ -46,6 +46,7 @@ import math
 import os
 import pickle
 import signal
+import socket
 import threading
 import time
 from dataclasses import asdict, dataclass
@@ -53,7 +54,7 @@ from pathlib import Path as FilePath
 
 import numpy as np
 
-from kinredund.errors import KinredundError, check_count
+from kinredund.errors import KinredundError, check_count, check_size
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
@@ -73,6 +74,9 @@ MAX_BATCH = 32
 WORKER_WAIT = 60.0
 #: the partial output file is rewritten at most this often [s]
 WRITE_INTERVAL = 1.0
+#: how long connecting to a Dask scheduler may take [s]: connection and Dask's handshake (a server that
+#: accepts the connection but does not speak Dask's protocol, such as an HTTP server, never answers it)
+CONNECT_TIMEOUT = 10.0
 
 
 @dataclass(frozen=True)
@@ -207,10 +211,7 @@ def _dask_client(client, scheduler: str | None, workers: int | None):
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        try:
-            c = Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError) as err:
-            raise KinredundError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from err
+        c = _connect(scheduler)
         try:
             yield c
         finally:
@@ -239,6 +240,41 @@ def _dask_client(client, scheduler: str | None, workers: int | None):
             c.close()
     finally:
         cluster.close()
+
+
+def _connect(scheduler: str):
+    """A client of the Dask scheduler at ``scheduler``, or KinredundError within about CONNECT_TIMEOUT s.
+
+    distributed's own ``timeout`` bounds the connection, not Dask's handshake after it, so a server that
+    accepts and stays silent (an HTTP server) held ``Client()`` for ever. A Dask scheduler sends its half
+    of the handshake as soon as it accepts a connection: for a ``tcp://`` address that is checked first,
+    on a plain socket with a deadline.
+    """
+    from distributed import Client
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler)
+        host, port = parse_host_port(location, 8786) if scheme == "tcp" else (None, None)
+    except (ValueError, TypeError) as err:
+        raise KinredundError(f"{scheduler!r} is not a Dask scheduler address (tcp://HOST:PORT): {err}") from err
+    if scheme == "tcp":
+        try:
+            with socket.create_connection((host, port), timeout=CONNECT_TIMEOUT) as sock:
+                sock.settimeout(CONNECT_TIMEOUT)
+                answered = bool(sock.recv(1))
+        except TimeoutError:
+            answered = False
+        except OSError as err:
+            raise KinredundError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from err
+        if not answered:
+            raise KinredundError(f"no Dask scheduler answered at {scheduler!r} within {CONNECT_TIMEOUT:.0f} s: "
+                                 "something accepts connections there but does not speak Dask's protocol (a "
+                                 "scheduler's address is tcp://HOST:PORT, port 8786 by default)")
+    try:
+        return Client(scheduler, timeout=f"{CONNECT_TIMEOUT}s")
+    except (OSError, TimeoutError, ValueError, TypeError) as err:
+        raise KinredundError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from err
 
 
 def batches(todo: list[int], size: int | None, threads: int) -> list[list[int]]:
@@ -296,7 +332,7 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
     if sum(x is not None for x in (client, scheduler, workers)) > 1:
         raise KinredundError("give at most one of client=, scheduler= and workers= (workers sizes a local cluster)")
     if workers is not None:
-        check_count(workers, 0, "workers", KinredundError)
+        check_size(workers, "workers", "workers", KinredundError, minimum=0)
     if batch_size is not None:
         check_count(batch_size, 1, "batch_size", KinredundError)
     if scheduler is not None:

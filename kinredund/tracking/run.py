@@ -8,7 +8,7 @@ endless.
 
 from __future__ import annotations
 
-from kinredund.errors import OptionError, PathError, TrackingError, check_count, check_positive
+from kinredund.errors import MAX_SAMPLES, OptionError, PathError, TrackingError, check_count, check_positive
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
@@ -18,9 +18,8 @@ from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.tracker import Tracker
 from kinredund.trajectory import Trajectory
 
-#: the most steps one run records (the record holds every step: about 0.5 KiB each on a 7-axis arm, and
-#: about 1 KiB more until its diagnostics are first read)
-MAX_STEPS = 1_000_000
+#: the most steps one run records (the record holds every step; kinredund.errors.SIZES holds every such limit)
+MAX_STEPS = MAX_SAMPLES
 
 
 #: the range of time steps [s] the tracker computes in: its step control squares dt and the rates times dt,

@@ -124,7 +124,7 @@ def add_parsers(sub) -> None:
                    help="joint jerk limits [rad/s^3 or m/s^3]: a jerk-limited periodic law (closed paths only; "
                         "default: no jerk limit)")
     p.add_argument("--tool-speed", type=float, help="speed limit of the tool along its path [m/s] (default: none)")
-    p.add_argument("--loops", type=at_least(1),
+    p.add_argument("--loops", type=at_least(1, "samples"),
                    help="loops to chain (closed paths; default: as many as the record has)")
     p.add_argument("--open", action="store_true",
                    help="retime a closed record as an open path from rest to rest (default: a closed record stays "

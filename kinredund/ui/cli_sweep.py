@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError
+from kinredund.errors import MAX_PLACEMENTS, KinredundError, OptionError, check_size
 from kinredund.ui.options import add_quiet, add_robot, at_least, index_for, output_file, subcommand, vector
 from kinredund.ui.progress import Progress
 
@@ -40,9 +40,16 @@ def parse_grid(text: str) -> dict:
             raise argparse.ArgumentTypeError(f"the {name} range must be start:stop:count, got {part!r}") from err
         if not (math.isfinite(lo) and math.isfinite(hi)) or count < 1:
             raise argparse.ArgumentTypeError(f"the {name} range needs finite ends and a count >= 1, got {part!r}")
+        if count > MAX_PLACEMENTS:  # before linspace allocates it
+            raise argparse.ArgumentTypeError(f"the {name} range's count must be at most {MAX_PLACEMENTS}, got {count}")
         values = np.linspace(lo, hi, count)
         axes[name] = np.radians(values) if name == "yaw" else values
     axes.setdefault("yaw", np.zeros(1))
+    sizes = [len(v) for v in axes.values()]
+    try:
+        check_size(math.prod(sizes), f"the grid's placements ({' x '.join(map(str, sizes))})", "placements")
+    except OptionError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
     return axes
 
 
@@ -68,20 +75,21 @@ def add_parser(sub) -> None:
     p.add_argument("--z", type=float, help="the part origin's height [m] (default: the end effector's at home)")
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
                    help="the performance index z (default home: 1/2 ||q - q_home||^2)")
-    p.add_argument("--steps", type=at_least(1), default=200, help="steps per loop (default 200)")
-    p.add_argument("--loops", type=at_least(1), default=1, help="loops per placement (default 1)")
-    p.add_argument("--starts", type=at_least(1), default=8, help="IK starts for each start configuration (default 8)")
+    p.add_argument("--steps", type=at_least(1, "samples"), default=200, help="steps per loop (default 200)")
+    p.add_argument("--loops", type=at_least(1, "samples"), default=1, help="loops per placement (default 1)")
+    p.add_argument("--starts", type=at_least(1, "starts"), default=8,
+                   help="IK starts for each start configuration (default 8)")
     p.add_argument("--seed", type=at_least(0), default=0, help="seed of the IK multi-start (default 0)")
     p.add_argument("--no-limits", action="store_true", help="do not ask the tracker to hold the joint limits "
                    "(a run leaving them is still infeasible; default: held)")
     p.add_argument("--speed-limit", action="store_true", help="a joint above its velocity limit is infeasible "
                    "(default: velocities not checked)")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=at_least(0), help="worker processes of the local Dask cluster "
+    where.add_argument("--workers", type=at_least(0, "workers"), help="worker processes of the local Dask cluster "
                        "(default: this machine's cores; 0: serially in this process)")
     where.add_argument("--scheduler", help="run on an existing Dask cluster: its scheduler's address "
                        "(tcp://host:port; default: a local cluster)")
-    p.add_argument("--batch-size", type=at_least(1),
+    p.add_argument("--batch-size", type=at_least(1, "placements"),
                    help="placements per Dask task (default: guided - large batches first, single placements last)")
     p.add_argument("--json", type=output_file, help="the sweep file, written as batches complete (.jsonl: JSON lines; "
                    "default: not written)")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kinredund.errors import OptionError, check_size
 from kinredund.tasks import task_names
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
@@ -70,21 +71,29 @@ def output_file(text: str) -> Path:
         raise argparse.ArgumentTypeError(f"{text!r}: {err.reason}") from err
 
 
-def at_least(minimum: int):
-    """An argparse type: an integer >= ``minimum`` (the bound the library checks too, so both agree)."""
+def at_least(minimum: int, size: str | None = None):
+    """An argparse type: an integer >= ``minimum`` and, for a ``size`` of :data:`kinredund.errors.SIZES`
+    (``samples``, ``starts``, ``placements``, ``workers``), at most its limit: the bounds the library checks
+    too, so both agree and a size too large is refused before any work starts."""
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError as err:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from err
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {value}")
-        return value
+        if size is None:
+            if value < minimum:
+                raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {value}")
+            return value
+        try:
+            return check_size(value, "the value", size, minimum=minimum)
+        except OptionError as err:
+            raise argparse.ArgumentTypeError(str(err).removeprefix("the value ")) from err
 
     return parse
 
 
-_COUNT = at_least(1)  # loops, steps and starts: kinredund.tracking.resolved_rate.track and kinredund.ik.solve_ik
+_SAMPLES = at_least(1, "samples")  # loops and steps: the record holds loops x steps (kinredund.tracking.track)
+_STARTS = at_least(1, "starts")  # kinredund.ik.solve_ik
 
 
 # -- the parser ------------------------------------------------------------------------------------
@@ -140,7 +149,7 @@ def add_quiet(p) -> None:
 
 
 def _add_tracking(p) -> None:
-    p.add_argument("--loops", type=_COUNT, default=1, metavar="N",
+    p.add_argument("--loops", type=_SAMPLES, default=1, metavar="N",
                    help="loops of the closed path to track (default: %(default)s)")
     p.add_argument("--mode", choices=("default", "thesis"), default="default",
                    help="default: implicit steps that stay on the optimum (cyclic); thesis: the thesis's explicit "
@@ -180,7 +189,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
               "kinredund reproduce 6.3 --json plan.json --plot plan.png"])
     p.add_argument("example", choices=REPRODUCIBLE, help="the thesis section or example")
     _add_tracking(p)
-    p.add_argument("--steps", type=_COUNT, default=200, metavar="N",
+    p.add_argument("--steps", type=_SAMPLES, default=200, metavar="N",
                    help="steps per loop, as in the thesis (default: %(default)s)")
     _add_outputs(p, quiet=True)
 
@@ -212,9 +221,9 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                         "from mid-range (Chapter 2); the baselines' normality residual is measured against it "
                         "(default: %(default)s)")
     _add_tracking(p)
-    p.add_argument("--steps", type=_COUNT, default=200, metavar="N",
+    p.add_argument("--steps", type=_SAMPLES, default=200, metavar="N",
                    help="steps per loop of a closed path, steps in all of an open one (default: %(default)s)")
-    p.add_argument("--starts", type=_COUNT, default=8, metavar="N",
+    p.add_argument("--starts", type=_STARTS, default=8, metavar="N",
                    help="IK starts tried for the optimal start configuration (default: %(default)s)")
     _add_outputs(p, html=True, quiet=True)
     p.add_argument("--partial", type=output_file, metavar="FILE",
@@ -239,7 +248,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p.add_argument("--q0", type=vector, metavar="Q1,Q2,...",
                    help="the first start [rad, m for prismatic joints] (default: the robot's home)")
     p.add_argument("--bounds", action="store_true", help="respect the joint limits (default: unbounded)")
-    p.add_argument("--starts", type=_COUNT, default=1, metavar="N",
+    p.add_argument("--starts", type=_STARTS, default=1, metavar="N",
                    help="starts tried, the others random within the limits (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default: %(default)s)")
     p.add_argument("--json", type=output_file, metavar="FILE",
@@ -252,7 +261,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
              ["kinredund plan 6.3 --json plan.json --plot plan.png",
               "kinredund play plan.json --html plan.html"])
     p.add_argument("case", choices=("6.2", "6.3"), help="the thesis section")
-    p.add_argument("--samples", type=at_least(4), default=9, metavar="N",
+    p.add_argument("--samples", type=at_least(4, "samples"), default=9, metavar="N",
                    help="sample points of the 6.2 planner, at least 4 for its cubic spline; 6.3 plans on a roadmap "
                         "instead (default: %(default)s)")
     _add_outputs(p, quiet=True)
