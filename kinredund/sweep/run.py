@@ -269,8 +269,8 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
           loops: int = 1, duration: float | None = None, steps: int | None = None, scheme: str = "augmented",
           mode: str = "default", limits: bool = True, speed_limit: bool = False, starts: int = 8, seed: int = 0,
           scene=None, clearance: float = 0.0, clearance_resolution: float = 1e-3, client=None,
-          workers: int | None = None, scheduler: str | None = None, batch_size: int | None = None, out: str | FilePath | None = None, resume: bool = False,
-          progress=None) -> list[PlacementRecord]:
+          workers: int | None = None, scheduler: str | None = None, batch_size: int | None = None,
+          out: str | FilePath | None = None, resume: bool = False, progress=None) -> list[PlacementRecord]:
     """Track ``path`` (in the part frame) with the part at each of ``placements``; one record each.
 
     Args:
