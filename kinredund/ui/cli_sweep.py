@@ -85,6 +85,8 @@ def add_parser(sub) -> None:
     p.add_argument("--clearance", type=float, default=0.0, metavar="C",
                    help="with --scene: a placement whose motion comes closer than C [m] to an object or to itself is "
                         "infeasible (cause collision; default 0: only contact)")
+    p.add_argument("--resolution", type=float, default=1e-3, metavar="M",
+                   help="with --scene: how closely each motion's least clearance is found [m] (default 1e-3)")
     p.add_argument("--pairs", type=Path, metavar="FILE",
                    help="with --scene: a saved self-pair matrix (PairMatrix.save) (default: computed, seeded)")
     where = p.add_mutually_exclusive_group()
@@ -153,6 +155,7 @@ def run(args) -> int:
         records = sweep(robot, path, index_for(robot, args.index), placements, steps_per_loop=args.steps,
                         loops=args.loops, limits=not args.no_limits, speed_limit=args.speed_limit,
                         starts=args.starts, seed=args.seed, scene=scene, clearance=args.clearance,
+                        clearance_resolution=args.resolution,
                         workers=args.workers, scheduler=args.scheduler,
                         batch_size=args.batch_size, out=args.json, resume=args.resume, progress=bar)
     causes = Counter(r.cause for r in records if not r.feasible)
