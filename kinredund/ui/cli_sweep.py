@@ -170,8 +170,9 @@ def run(args) -> int:
     if top:
         print(f"best by {args.criterion}:")
         for r in top:
-            near = "" if r.clearance is None else f"  clearance {r.clearance:.4g} m ({r.clearance_pair[0]}, " \
-                                                   f"{r.clearance_pair[1]})"
+            near = ""
+            if r.clearance is not None and args.criterion != "clearance":
+                near = f"  clearance {r.clearance:.4g} m ({r.clearance_pair[0]}, {r.clearance_pair[1]})"
             print(f"  #{r.placement:<5d} x {r.x:+.3f} m  y {r.y:+.3f} m  yaw {math.degrees(r.yaw):+7.1f} deg  "
                   f"{args.criterion} {r.value(args.criterion):.4g} {UNITS[args.criterion]}{near}")
     if args.json:
