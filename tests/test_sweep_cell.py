@@ -225,3 +225,16 @@ def test_one_local_dask_worker_gives_the_serial_records():
     for a, b in zip(records(), on_dask, strict=True):
         assert a.clearance_pair == b.clearance_pair
         assert b.clearance == pytest.approx(a.clearance, abs=1e-9)
+
+
+def test_a_scene_that_does_not_rebuild_the_same_is_refused():
+    """A scene of an HD-table arm made with thicker capsules than the default would be checked on the workers
+    with the default ones: refused once, before any placement."""
+    planar = kr.load_robot("planar3r")
+    scene = kr.Scene(planar, capsule_radius=0.2)
+    scene.add_sphere("ball", 0.05, [0.0, 0.0, 1.0])
+    with pytest.raises(KinredundError, match="does not rebuild"):
+        sweep_scene(scene, planar)
+    default = kr.Scene(planar)
+    default.add_sphere("ball", 0.05, [0.0, 0.0, 1.0])
+    assert sweep_scene(default, planar).objects[0][0] == "ball"
