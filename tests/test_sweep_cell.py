@@ -197,12 +197,12 @@ def test_bad_options_are_refused_before_any_work(monkeypatch):
 
 def test_cli_sweep_with_a_scene(tmp_path, capsys):
     robot, _, _, c, scene = cell()
-    file = save_scene(scene, tmp_path / "cell.json")
+    file, pairs = save_scene(scene, tmp_path / "cell.json"), scene.pair_matrix.save(tmp_path / "pairs.json")
     out = tmp_path / "s.jsonl"
     grid_arg = f"{c[0]}:{c[0]}:1,-0.2:0.2:2"
     code = main(["sweep", "panda", "--grid", grid_arg, "--z", str(c[2]), "--steps", "100", "--starts", "2",
                  "--workers", "0", "--scene", str(file), "--clearance", str(CLEARANCE), "--criterion", "clearance",
-                 "--resolution", str(RESOLUTION),
+                 "--resolution", str(RESOLUTION), "--pairs", str(pairs),
                  "--json", str(out), "--quiet"])
     text = capsys.readouterr().out
     assert code == 0 and "1 feasible, 1 collision" in text and "clearance" in text and " m (" in text
@@ -213,6 +213,9 @@ def test_cli_sweep_with_a_scene(tmp_path, capsys):
     assert "--clearance C" in capsys.readouterr().out
     assert main(["sweep", "panda", "--grid", grid_arg, "--clearance", "0.01", "--workers", "0"]) == 2
     assert "need --scene" in capsys.readouterr().err
+    assert main(["sweep", "panda", "--grid", grid_arg, "--scene", str(file), "--clearance", "-0.01", "--workers", "0",
+                 "--quiet"]) == 2
+    assert "clearance must be a finite distance >= 0 [m]" in capsys.readouterr().err
 
 
 @pytest.mark.slow

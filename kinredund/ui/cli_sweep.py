@@ -85,7 +85,7 @@ def add_parser(sub) -> None:
     p.add_argument("--clearance", type=float, default=0.0, metavar="C",
                    help="with --scene: a placement whose motion comes closer than C [m] to an object or to itself is "
                         "infeasible (cause collision; default 0: only contact)")
-    p.add_argument("--resolution", type=float, default=1e-3, metavar="M",
+    p.add_argument("--resolution", type=float, metavar="M",
                    help="with --scene: how closely each motion's least clearance is found [m] (default 1e-3)")
     p.add_argument("--pairs", type=Path, metavar="FILE",
                    help="with --scene: a saved self-pair matrix (PairMatrix.save) (default: computed, seeded)")
@@ -130,8 +130,9 @@ UNITS = {"margin": "rad", "sigma_min": "", "speed": "", "mean_z": "rad^2", "drif
 def _scene(args, robot):
     """The scene of ``--scene`` around ``robot`` (None without it); --clearance and --pairs need it."""
     if args.scene is None:
-        if args.clearance or args.pairs is not None:
-            raise KinredundError("--clearance and --pairs need --scene FILE (the cell whose distances they are)")
+        if args.clearance or args.pairs is not None or args.resolution is not None:
+            raise KinredundError("--clearance, --resolution and --pairs need --scene FILE (the cell whose distances "
+                                 "they are)")
         return None
     from kinredund.geometry import load_scene
 
@@ -155,7 +156,7 @@ def run(args) -> int:
         records = sweep(robot, path, index_for(robot, args.index), placements, steps_per_loop=args.steps,
                         loops=args.loops, limits=not args.no_limits, speed_limit=args.speed_limit,
                         starts=args.starts, seed=args.seed, scene=scene, clearance=args.clearance,
-                        clearance_resolution=args.resolution,
+                        clearance_resolution=1e-3 if args.resolution is None else args.resolution,
                         workers=args.workers, scheduler=args.scheduler,
                         batch_size=args.batch_size, out=args.json, resume=args.resume, progress=bar)
     causes = Counter(r.cause for r in records if not r.feasible)
