@@ -192,16 +192,20 @@ def clearance(robot: Robot, pose: np.ndarray, traj: Trajectory, options: SweepOp
 
     Returns:
         (figures, collision): the record's ``clearance`` [m], ``clearance_pair``, ``clearance_time`` [s] and
-        ``clearance_q`` (empty without a scene; None values when the scene checks no pair), and None, or the
-        record fields ``message``, ``t_fail`` (the time of the least clearance) and ``q_last`` (the last recorded
-        configuration before the first one under the clearance) when the motion comes within
-        ``options.clearance`` or touches (:func:`kinredund.geometry.check_motion`: its least clearance is within
-        its resolution of the true one, and ``contact`` when it is below that resolution).
+        ``clearance_q`` (empty without a scene; None values when the scene checks no pair); and None, or the
+        record fields ``cause`` (``collision``; ``error`` when the motion could not be checked), ``message``,
+        ``t_fail`` (the time of the least clearance) and ``q_last`` (the last recorded configuration before the
+        first one under the clearance) when the motion comes within ``options.clearance`` or touches
+        (:func:`kinredund.geometry.check_motion`: its least clearance is within its resolution of the true one,
+        and ``contact`` when it is below that resolution).
     """
     if options.scene is None:
         return {}, None
     t, q = np.asarray(traj.t, float), np.asarray(traj.q, float)
-    c = check_motion(options.scene.placed(robot, pose), t, q, resolution=options.clearance_resolution)
+    try:
+        c = check_motion(options.scene.placed(robot, pose), t, q, resolution=options.clearance_resolution)
+    except KinredundError as err:  # a stretch that cannot be proven within check_motion's budget of midpoints
+        return {}, {"cause": "error", "message": f"the clearance could not be checked: {err}"}
     if c.min_pair is None:
         return {"clearance": None, "clearance_pair": None, "clearance_time": None, "clearance_q": None}, None
     qc = np.array([np.interp(c.min_time, t, q[:, j]) for j in range(q.shape[1])])  # joints linear between samples
@@ -214,7 +218,7 @@ def clearance(robot: Robot, pose: np.ndarray, traj: Trajectory, options: SweepOp
     a, b = c.min_pair
     what = (f"touch (signed distance {c.min_distance:.4g} m)" if c.contact
             else f"come within {c.min_distance:.4g} m (the clearance is {options.clearance:g} m)")
-    return near, {"message": f"{a} and {b} {what} at t = {c.min_time:.6g} s",
+    return near, {"cause": "collision", "message": f"{a} and {b} {what} at t = {c.min_time:.6g} s",
                   "t_fail": clean_float(c.min_time), "q_last": _last(q[first - 1]) if first > 0 else None}
 
 
@@ -226,8 +230,9 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
                        options: SweepOptions) -> PlacementRecord:
     """Track the part path ``path`` with the part at ``pose`` and return its record.
 
-    A failure (no start, the tracker's exception, a joint outside its limits, a joint too fast with
-    ``speed_limit``) is a record with ``feasible=False`` and its cause, never an exception.
+    A failure (no start, the tracker's exception, a joint outside its limits, a run within the clearance of
+    the cell with a scene, a joint too fast with ``speed_limit``: the first that applies, in this order) is a
+    record with ``feasible=False`` and its cause, never an exception.
     """
     T = np.asarray(pose, float)
     x, y, z, yaw = pose_coordinates(T)
@@ -248,6 +253,7 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
         partial = getattr(err, "partial", None)
         ran = isinstance(partial, Trajectory) and len(partial.t)
         figs = {**figures(robot, part, index, partial), **clearance(robot, T, partial, options)[0]} if ran else {}
+        # (the tracker's failure is the cause; the partial run's clearance is a figure)
         figs.pop("violation", None)
         return PlacementRecord(**where, feasible=False, cause=_cause(err), message=str(err),
                                t_fail=clean_float(getattr(err, "t", None)), q_last=_last(getattr(err, "q", None)),
@@ -264,7 +270,7 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
             message=f"joint {j} ({robot.joint_names[j]}) left its limits [{robot.lower[j]:.6g}, "
                     f"{robot.upper[j]:.6g}] at t = {traj.t[k]:.6g} s (q = {q:.6g})", **figs)
     if collision is not None:
-        return PlacementRecord(**where, feasible=False, cause="collision", **collision, **figs)
+        return PlacementRecord(**where, feasible=False, **collision, **figs)
     if options.speed_limit and figs.get("speed_ratio") is not None and figs["speed_ratio"] > 1.0:
         return PlacementRecord(**where, feasible=False, cause="speed",
                                message=f"a joint runs at {figs['speed_ratio']:.3g} times its velocity limit", **figs)
