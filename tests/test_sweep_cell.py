@@ -135,6 +135,23 @@ def test_colliding_placements_are_infeasible_with_the_pair_and_the_distance_reco
     assert tight.clearance == pytest.approx(clear.clearance, abs=1e-9)
 
 
+def test_the_map_ranks_and_labels_the_clearance(tmp_path):
+    from kinredund.sweep import best
+    from kinredund.ui.plots_sweep import plot_sweep_map, sweep_map_figure, sweep_maps
+
+    clear, hit = records()
+    assert best(records(), "clearance") == [clear]  # the colliding placement is not ranked
+    maps = sweep_maps(records(), "clearance")
+    np.testing.assert_array_equal(maps["feasible"][:, 0], [1.0, 0.0])  # y = -0.2 clear, y = +0.2 hit
+    assert maps["quality"][0, 0] == clear.clearance and np.isnan(maps["quality"][1, 0])  # copied values
+    fig = sweep_map_figure(records(), "clearance")
+    labels = [ax.get_ylabel() for ax in fig.axes] + [t.get_text() for ax in fig.axes if ax.get_legend()
+                                                     for t in ax.get_legend().get_texts()]
+    assert "least clearance to the cell and itself [m]" in labels
+    assert any(f"clearance {clear.clearance:.3g} m" in text for text in labels)
+    assert plot_sweep_map(records(), tmp_path / "map.png", "clearance").stat().st_size > 10_000
+
+
 def test_without_a_scene_the_records_have_no_clearance():
     robot, path, index, _, _ = cell()
     r = evaluate_placement(robot, path, index, placements()[0], 0, SweepOptions(steps_per_loop=100, starts=2))
