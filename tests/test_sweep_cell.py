@@ -258,3 +258,18 @@ def test_a_scene_that_does_not_rebuild_the_same_is_refused():
     default = kr.Scene(planar)
     default.add_sphere("ball", 0.05, [0.0, 0.0, 1.0])
     assert sweep_scene(default, planar).objects[0][0] == "ball"
+
+
+def test_records_read_back_with_and_without_the_clearance_fields():
+    from kinredund.sweep import PlacementRecord
+
+    hit = records()[1]
+    data = hit.to_json_dict()
+    assert PlacementRecord.from_json_dict(data) == hit  # every field, the pair back as a tuple
+    old = {k: v for k, v in data.items() if not k.startswith("clearance")}  # a schema-version-1 record
+    assert PlacementRecord.from_json_dict(old).clearance is None
+    for bad in (["panda_link1_0"], ["a", 3], "a,b"):
+        with pytest.raises(KinredundError, match="clearance_pair must be two object names"):
+            PlacementRecord.from_json_dict({**data, "clearance_pair": bad})
+    with pytest.raises(KinredundError, match="clearance must be a finite number"):
+        PlacementRecord.from_json_dict({**data, "clearance": float("nan")})
