@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from kinredund.errors import GeometryError, KinredundError
+from kinredund.errors import KinredundError
 from kinredund.geometry import PairMatrix, Scene
 from kinredund.model.robot import Robot
 
@@ -118,7 +118,7 @@ def sweep_scene(scene, robot: Robot) -> SweepScene | None:
     spec = replace(spec, key=hashlib.sha256(pickle.dumps(spec, protocol=4)).hexdigest())
     try:
         rebuilt = spec.build(robot)
-    except (GeometryError, OSError) as err:
+    except (KinredundError, OSError) as err:  # a mesh file gone, a frame the robot lacks
         raise KinredundError(f"the scene cannot be rebuilt for the sweep's workers: {err}") from err
     same = rebuilt.pairs == scene.pairs
     if same and scene.pairs:
