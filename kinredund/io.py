@@ -23,7 +23,8 @@ lists it in ``kept``. A folder output (a ROS 2 bag) goes the same way through :f
 built in a temporary folder, renamed into place with the batch; it never replaces anything.
 
 Every file kinredund reads that a user names (a URDF, a record, a path file, a sweep file, a CSV export)
-goes through :func:`kinredund.inputs.read_input` (re-exported here): a regular file of at most :data:`MAX_INPUT_BYTES`, else an
+goes through :func:`kinredund.inputs.read_input` (re-exported here): a regular file of at most
+:data:`MAX_INPUT_BYTES`, else an
 :class:`~kinredund.errors.InputFileError` naming what it is. A FIFO would block the reader until something
 writes to it (a hang), a device such as ``/dev/zero`` never ends (memory runs out): both are refused
 before any byte is read.

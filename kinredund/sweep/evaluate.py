@@ -15,6 +15,7 @@ below). Whatever the tracker returns or raises becomes a :class:`~kinredund.swee
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,10 +29,12 @@ from kinredund.errors import (
     check_positive,
     check_size,
 )
+from kinredund.geometry import check_motion
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
+from kinredund.sweep.cell import SweepScene
 from kinredund.sweep.placement import PartPath, pose_coordinates
 from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks import get_task
@@ -57,6 +60,13 @@ class SweepOptions:
         speed_limit: a joint faster than its velocity limit makes the placement infeasible (cause
             ``speed``); by default the speed ratio is only reported (a slower path execution fixes it).
         starts, seed: multi-start of the start configuration's IK (:func:`kinredund.ik.solve_ik`).
+        scene: the cell (:class:`~kinredund.sweep.cell.SweepScene`, made by :func:`~kinredund.sweep.cell.sweep_scene`
+            from a Scene; world objects in the part frame), or None: no clearance checked.
+        clearance: with a scene, a placement whose motion comes closer than this to an object or to itself
+            (the scene's self pairs) [m] is infeasible (cause ``collision``); 0 (default): only contact is.
+        clearance_resolution: the least clearance along a run is found to within this [m]
+            (:func:`kinredund.geometry.check_motion`'s ``resolution``; its cost grows fast as it shrinks: on
+            the Panda 1e-4 m took 5 to 20 times the evaluations of 1e-3 m); a run within it of contact touches.
     """
 
     steps_per_loop: int = 200
@@ -69,6 +79,9 @@ class SweepOptions:
     speed_limit: bool = False
     starts: int = 8
     seed: int = 0
+    scene: SweepScene | None = None
+    clearance: float = 0.0
+    clearance_resolution: float = 1e-3
 
     def __post_init__(self) -> None:  # sizes bounded here, before any placement runs (errors.SIZES)
         spl = check_count(self.steps_per_loop, 1, "steps_per_loop", KinredundError)
@@ -81,6 +94,20 @@ class SweepOptions:
         if self.duration is not None:
             check_positive(self.duration, "duration [s]", KinredundError)
             check_size(self.steps, "steps", "samples", KinredundError)
+        if self.scene is not None and not isinstance(self.scene, SweepScene):
+            raise KinredundError(f"SweepOptions.scene must be a SweepScene (sweep_scene(scene, robot)), got "
+                                 f"{type(self.scene).__name__}")
+        check_clearance(self.clearance, self.scene is not None)
+        check_positive(self.clearance_resolution, "clearance_resolution [m]", KinredundError)
+
+
+def check_clearance(c, scene: bool) -> float:
+    """``c`` if it is a finite distance >= 0 [m] (> 0 only with a ``scene``), else KinredundError."""
+    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c < 0:
+        raise KinredundError(f"clearance must be a finite distance >= 0 [m], got {c!r}")
+    if c > 0 and not scene:
+        raise KinredundError(f"clearance = {c:g} m needs a scene (scene=, --scene FILE): the distances are its")
+    return float(c)
 
 
 def run_tracker(robot: Robot, path: Path, index: Index | None, q0: np.ndarray, options: SweepOptions) -> Trajectory:
@@ -166,6 +193,41 @@ def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> 
     return out
 
 
+def clearance(robot: Robot, pose: np.ndarray, traj: Trajectory, options: SweepOptions) -> tuple[dict, dict | None]:
+    """The run's least clearance in the cell at ``pose`` (between samples too), and the collision, if any.
+
+    Returns:
+        (figures, collision): the record's ``clearance`` [m], ``clearance_pair``, ``clearance_time`` [s] and
+        ``clearance_q`` (empty without a scene; None values when the scene checks no pair); and None, or the
+        record fields ``cause`` (``collision``; ``error`` when the motion could not be checked), ``message``,
+        ``t_fail`` (the time of the least clearance) and ``q_last`` (the last recorded configuration before the
+        first one under the clearance) when the motion comes within ``options.clearance`` or touches
+        (:func:`kinredund.geometry.check_motion`: its least clearance is within its resolution of the true one,
+        and ``contact`` when it is below that resolution).
+    """
+    if options.scene is None:
+        return {}, None
+    t, q = np.asarray(traj.t, float), np.asarray(traj.q, float)
+    try:
+        c = check_motion(options.scene.placed(robot, pose), t, q, resolution=options.clearance_resolution)
+    except KinredundError as err:  # a stretch that cannot be proven within check_motion's budget of midpoints
+        return {}, {"cause": "error", "message": f"the clearance could not be checked: {err}"}
+    if c.min_pair is None:
+        return {"clearance": None, "clearance_pair": None, "clearance_time": None, "clearance_q": None}, None
+    qc = np.array([np.interp(c.min_time, t, q[:, j]) for j in range(q.shape[1])])  # joints linear between samples
+    near = {"clearance": clean_float(c.min_distance), "clearance_pair": tuple(c.min_pair),
+            "clearance_time": clean_float(c.min_time), "clearance_q": _last(qc)}
+    if not (c.contact or c.min_distance < options.clearance):
+        return near, None
+    under = np.flatnonzero(c.distance < max(options.clearance, c.resolution))
+    first = int(under[0]) if len(under) else int(np.searchsorted(t, c.min_time, side="right"))
+    a, b = c.min_pair
+    what = (f"touch (signed distance {c.min_distance:.4g} m)" if c.contact
+            else f"come within {c.min_distance:.4g} m (the clearance is {options.clearance:g} m)")
+    return near, {"cause": "collision", "message": f"{a} and {b} {what} at t = {c.min_time:.6g} s",
+                  "t_fail": clean_float(c.min_time), "q_last": _last(q[first - 1]) if first > 0 else None}
+
+
 def _last(q) -> tuple[float, ...] | None:
     return None if q is None else tuple(float(v) for v in q)
 
@@ -175,7 +237,8 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
     """Track the part path ``path`` with the part at ``pose`` and return its record.
 
     A failure (no start, the tracker's exception, a joint outside its limits, a closed path whose joints
-    do not close or a rate burst (the record's own checks), a joint too fast with ``speed_limit``) is a
+    do not close or a rate burst (the record's own checks), a run within the clearance of the cell with a
+    scene, a joint too fast with ``speed_limit``: the first that applies, in this order) is a
     record with ``feasible=False`` and its cause, never an exception.
     """
     T = np.asarray(pose, float)
@@ -195,13 +258,17 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
         traj = run_tracker(robot, part, index, ik.q, options)
     except KinredundError as err:
         partial = getattr(err, "partial", None)
-        figs = figures(robot, part, index, partial) if isinstance(partial, Trajectory) and len(partial.t) else {}
+        ran = isinstance(partial, Trajectory) and len(partial.t)
+        figs = {**figures(robot, part, index, partial), **clearance(robot, T, partial, options)[0]} if ran else {}
+        # (the tracker's failure is the cause; the partial run's clearance is a figure)
         figs.pop("violation", None)
         return PlacementRecord(**where, feasible=False, cause=_cause(err), message=str(err),
                                t_fail=clean_float(getattr(err, "t", None)), q_last=_last(getattr(err, "q", None)),
                                **figs)
     figs = figures(robot, part, index, traj)
     violation = figs.pop("violation")
+    near, collision = clearance(robot, T, traj, options)
+    figs.update(near)
     if violation is not None:
         k, j = violation
         q = traj.q[k, j]
@@ -212,6 +279,8 @@ def evaluate_placement(robot: Robot, path: Path, index: Index | None, pose: np.n
     for check in ("loop_not_closed", "rate_burst"):  # a run that ended but is not what was asked
         if check in traj.meta:
             return PlacementRecord(**where, feasible=False, cause=check, message=traj.meta[check], **figs)
+    if collision is not None:
+        return PlacementRecord(**where, feasible=False, **collision, **figs)
     if options.speed_limit and figs.get("speed_ratio") is not None and figs["speed_ratio"] > 1.0:
         return PlacementRecord(**where, feasible=False, cause="speed",
                                message=f"a joint runs at {figs['speed_ratio']:.3g} times its velocity limit", **figs)

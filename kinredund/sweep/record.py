@@ -21,9 +21,10 @@ from kinredund.errors import KinredundError, check_choice
 #: ``speed_limit=True``), ``error`` another kinredund error, ``internal`` an unexpected exception,
 #: ``worker`` the Dask worker running the placement was lost, ``loop_not_closed`` the joints do not return at
 #: the end of a loop, ``rate_burst`` a step that does not shrink with the time step (the record's own checks,
-#: :mod:`kinredund.tracking.record_checks`).
-CAUSES = ("start", "path", "singularity", "limits", "speed", "error", "internal", "worker", "loop_not_closed",
-          "rate_burst")
+#: :mod:`kinredund.tracking.record_checks`), ``collision`` the motion came within the clearance of the
+#: sweep's scene or touched (``clearance_pair`` names the pair).
+CAUSES = ("start", "path", "singularity", "limits", "speed", "collision", "error", "internal", "worker",
+          "loop_not_closed", "rate_burst")
 
 #: criterion -> (record field, True when larger is better)
 CRITERIA = {
@@ -32,6 +33,7 @@ CRITERIA = {
     "speed": ("speed_ratio", False),
     "mean_z": ("mean_z", False),
     "drift": ("loop_drift", False),
+    "clearance": ("clearance", True),
 }
 
 
@@ -59,6 +61,12 @@ class PlacementRecord:
             space: ``Task.span_rows``; pose tasks mix [rad/rad] and [m/rad] rows).
         speed_ratio: the largest |thetadot_i| / (velocity limit of joint i) along the run.
         mean_z: the time average of the index z over the loop [rad^2 for joint deviations].
+        clearance: with a scene, the least signed distance over the (possibly partial) run [m], between
+            recorded points too (:func:`kinredund.geometry.check_motion`, to its resolution of 1e-4 m): scene
+            objects and the robot's self pairs; < 0 penetrating. None without a scene.
+        clearance_pair: the pair of ``clearance`` (two object names: robot objects, scene objects).
+        clearance_time: when it occurs [s] (between recorded points: joints linear between them).
+        clearance_q: the configuration there [rad or m] (recorded points linearly interpolated).
     """
 
     placement: int
@@ -80,6 +88,10 @@ class PlacementRecord:
     sigma_min: float | None = None
     speed_ratio: float | None = None
     mean_z: float | None = None
+    clearance: float | None = None
+    clearance_pair: tuple[str, str] | None = None
+    clearance_time: float | None = None
+    clearance_q: tuple[float, ...] | None = None
 
     def value(self, criterion: str) -> float | None:
         """The figure ``criterion`` ranks by (see :data:`CRITERIA`), or None."""
@@ -116,7 +128,7 @@ class PlacementRecord:
 #: the record's fields by the kind of value they hold (``placement`` and ``steps``: counts >= 0)
 _NUMBERS = ("x", "y", "z", "yaw")
 _OPTIONAL_NUMBERS = ("t_fail", "loop_drift", "position_error", "orientation_error", "limit_margin", "sigma_min",
-                     "speed_ratio", "mean_z")
+                     "speed_ratio", "mean_z", "clearance", "clearance_time")
 
 
 def _finite(key: str, v) -> float:
@@ -139,8 +151,14 @@ def _checked_field(key: str, v):
         if not (isinstance(v, str) or (v is None and key == "cause")):
             raise KinredundError(f"placement record: {key} must be a string, got {reprlib.repr(v)}")
         return v
-    if key in ("pose", "q_last"):
-        if v is None and key == "q_last":
+    if key == "clearance_pair":
+        if v is None:
+            return None
+        if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, str) for x in v)):
+            raise KinredundError(f"placement record: clearance_pair must be two object names, got {reprlib.repr(v)}")
+        return tuple(v)
+    if key in ("pose", "q_last", "clearance_q"):
+        if v is None and key != "pose":
             return None
         if not isinstance(v, list) or (key == "pose" and len(v) != 16):
             raise KinredundError(f"placement record: {key} must be a list of {'16 ' if key == 'pose' else ''}"
@@ -166,7 +184,8 @@ def best(records, criterion: str = "margin", count: int | None = None) -> list[P
         records: placement records (e.g. :func:`kinredund.sweep.sweep`'s result).
         criterion: ``margin`` (largest smallest margin to the joint limits first), ``sigma_min``
             (farthest from singular first), ``speed`` (smallest speed ratio first), ``mean_z`` (smallest
-            mean index first) or ``drift`` (smallest loop drift first).
+            mean index first), ``drift`` (smallest loop drift first) or ``clearance`` (farthest from the
+            scene's objects and from itself first; sweeps with a scene).
         count: keep the first ``count`` (all by default).
 
     Raises:

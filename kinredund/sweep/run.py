@@ -49,7 +49,7 @@ import signal
 import socket
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path as FilePath
 
 import numpy as np
@@ -58,7 +58,8 @@ from kinredund.errors import KinredundError, check_count, check_size
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
-from kinredund.sweep.evaluate import SweepOptions, evaluate_placement
+from kinredund.sweep.cell import sweep_scene
+from kinredund.sweep.evaluate import SweepOptions, check_clearance, evaluate_placement
 from kinredund.sweep.placement import check_placements, pose_coordinates
 from kinredund.sweep.record import PlacementRecord
 from kinredund.sweep.store import resumable_records, write_sweep_file
@@ -144,8 +145,15 @@ def header(job: SweepJob, count: int) -> dict:
     """The output file's header: what was swept (the token identifies it exactly)."""
     robot = job.robot
     return {"robot": robot.name, "task": robot.task, "nq": robot.nq, "path": type(job.path).__name__,
-            "index": None if job.index is None else type(job.index).__name__, "options": asdict(job.options),
+            "index": None if job.index is None else type(job.index).__name__, "options": options_dict(job.options),
             "placements": count, "token": job.token}
+
+
+def options_dict(options: SweepOptions) -> dict:
+    """The options for the file's header (JSON): the scene as its objects (:meth:`SweepScene.describe`)."""
+    out = {f.name: getattr(options, f.name) for f in fields(options)}
+    out["scene"] = None if options.scene is None else options.scene.describe()
+    return out
 
 
 def default_workers() -> int:
@@ -296,7 +304,8 @@ def batches(todo: list[int], size: int | None, threads: int) -> list[list[int]]:
 def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_per_loop: int = 200,
           loops: int = 1, duration: float | None = None, steps: int | None = None, scheme: str = "augmented",
           mode: str = "default", limits: bool = True, speed_limit: bool = False, starts: int = 8, seed: int = 0,
-          client=None, workers: int | None = None, scheduler: str | None = None, batch_size: int | None = None,
+          scene=None, clearance: float = 0.0, clearance_resolution: float = 1e-3, client=None,
+          workers: int | None = None, scheduler: str | None = None, batch_size: int | None = None,
           out: str | FilePath | None = None, resume: bool = False, progress=None) -> list[PlacementRecord]:
     """Track ``path`` (in the part frame) with the part at each of ``placements``; one record each.
 
@@ -309,6 +318,12 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
             or any list of rigid transforms.
         steps_per_loop, loops, duration, steps, scheme, mode, limits, speed_limit, starts, seed: the run
             at each placement (:class:`~kinredund.sweep.evaluate.SweepOptions`).
+        scene: a :class:`kinredund.geometry.Scene` of this robot, its world objects given in the part frame
+            (:mod:`kinredund.sweep.cell`: at each placement they move with the part, as the path does), or
+            None. Each placement's run is checked against it, self pairs included (records' ``clearance``).
+        clearance: with ``scene``, a run closer than this to an object or to itself is infeasible [m]
+            (cause ``collision``; 0: only contact is).
+        clearance_resolution: how closely each run's least clearance is found [m] (``SweepOptions``).
         client: a ``distributed.Client`` to run on (left open).
         workers: worker processes of the default local cluster (default: this machine's cores);
             0 runs serially in this process. The workers are spawned processes that import the main
@@ -327,8 +342,10 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
         KinredundError: bad options, an unreachable scheduler, ``out`` from another sweep on resume.
     """
     T = check_placements(placements)
+    check_clearance(clearance, scene is not None)  # before the scene is rebuilt
     options = SweepOptions(steps_per_loop, loops, duration, steps, scheme, mode, bool(limits), bool(speed_limit),
-                           starts, seed)
+                           starts, seed, sweep_scene(scene, robot), clearance,
+                           clearance_resolution)
     if sum(x is not None for x in (client, scheduler, workers)) > 1:
         raise KinredundError("give at most one of client=, scheduler= and workers= (workers sizes a local cluster)")
     if workers is not None:

@@ -19,7 +19,9 @@ from kinredund.io import atomic_write, read_text
 from kinredund.sweep.record import PlacementRecord
 
 KIND = "kinredund-sweep"
-SCHEMA_VERSION = 1
+#: 2 added the clearance fields and the options clearance, clearance_resolution and scene (version-1 files read
+#: alike: the new fields are None)
+SCHEMA_VERSION = 2
 
 
 def _dumps(obj) -> str:

@@ -61,7 +61,9 @@ def add_parser(sub) -> None:
                    "Track a closed path given in a part frame with the part at every placement of a grid; report "
                    "which placements are feasible and the best ones.",
                    ["kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --plot map.png",
-                    "kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --json sweep.jsonl --resume"], run)
+                    "kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --json sweep.jsonl --resume",
+                    "kinredund sweep panda --grid 0.3:0.6:4,-0.3:0.3:5 --scene cell.json --clearance 0.02 "
+                    "--criterion clearance"], run)
     add_robot(p)
     p.add_argument("--path", choices=("circle", "file"), default="circle",
                    help="circle: a circle about the part origin; file: a JSON path in part coordinates "
@@ -84,6 +86,17 @@ def add_parser(sub) -> None:
                    "(a run leaving them is still infeasible; default: held)")
     p.add_argument("--speed-limit", action="store_true", help="a joint above its velocity limit is infeasible "
                    "(default: velocities not checked)")
+    p.add_argument("--scene", type=Path, metavar="FILE",
+                   help="a scene file (JSON, docs/schema.md) whose world objects are given in the part frame (they "
+                        "move with the part, as the path does); each placement's motion is checked against them and "
+                        "against the robot itself, between samples too (default: no scene)")
+    p.add_argument("--clearance", type=float, default=0.0, metavar="C",
+                   help="with --scene: a placement whose motion comes closer than C [m] to an object or to itself is "
+                        "infeasible (cause collision; default 0: only contact)")
+    p.add_argument("--resolution", type=float, metavar="M",
+                   help="with --scene: how closely each motion's least clearance is found [m] (default 1e-3)")
+    p.add_argument("--pairs", type=Path, metavar="FILE",
+                   help="with --scene: a saved self-pair matrix (PairMatrix.save) (default: computed, seeded)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=at_least(0, "workers"), help="worker processes of the local Dask cluster "
                        "(default: this machine's cores; 0: serially in this process)")
@@ -118,6 +131,22 @@ def _part_path(args, robot):
     return part_circle(robot, args.radius, args.speed, normal=normal)
 
 
+#: the unit each criterion is printed with
+UNITS = {"margin": "rad", "sigma_min": "", "speed": "", "mean_z": "rad^2", "drift": "rad", "clearance": "m"}
+
+
+def _scene(args, robot):
+    """The scene of ``--scene`` around ``robot`` (None without it); --clearance and --pairs need it."""
+    if args.scene is None:
+        if args.clearance or args.pairs is not None or args.resolution is not None:
+            raise KinredundError("--clearance, --resolution and --pairs need --scene FILE (the cell whose distances "
+                                 "they are)")
+        return None
+    from kinredund.geometry import load_scene
+
+    return load_scene(args.scene, robot, pairs=args.pairs)
+
+
 def run(args) -> int:
     """The ``sweep`` command; exit code 0 if some placement is feasible, else 1."""
     from kinredund.model.robot import load_robot
@@ -130,21 +159,31 @@ def run(args) -> int:
     placements = grid(x=args.grid["x"], y=args.grid["y"], z=z, yaw=args.grid["yaw"])
     if args.resume and args.json is None:
         raise KinredundError("--resume needs --json FILE (the sweep file to resume)")
+    scene = _scene(args, robot)
     with Progress("sweep", quiet=args.quiet) as bar:  # a bar on a terminal, a line every few seconds elsewhere
         records = sweep(robot, path, index_for(robot, args.index), placements, steps_per_loop=args.steps,
                         loops=args.loops, limits=not args.no_limits, speed_limit=args.speed_limit,
-                        starts=args.starts, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
+                        starts=args.starts, seed=args.seed, scene=scene, clearance=args.clearance,
+                        clearance_resolution=1e-3 if args.resolution is None else args.resolution,
+                        workers=args.workers, scheduler=args.scheduler,
                         batch_size=args.batch_size, out=args.json, resume=args.resume, progress=bar)
     causes = Counter(r.cause for r in records if not r.feasible)
     feasible = sum(r.feasible for r in records)
     print(f"{robot.name}: {len(records)} placements at z = {z:.3f} m, {feasible} feasible"
           + "".join(f", {n} {c}" for c, n in sorted(causes.items())))
+    near = best(records, "clearance", 1)
+    if scene is not None and near:
+        print(f"largest clearance of a feasible placement: {near[0].clearance:.4g} m (#{near[0].placement}; "
+              f"--clearance {args.clearance:g} m)")
     top = best(records, args.criterion, args.top)
     if top:
         print(f"best by {args.criterion}:")
         for r in top:
+            near = ""
+            if r.clearance is not None and args.criterion != "clearance":
+                near = f"  clearance {r.clearance:.4g} m ({r.clearance_pair[0]}, {r.clearance_pair[1]})"
             print(f"  #{r.placement:<5d} x {r.x:+.3f} m  y {r.y:+.3f} m  yaw {math.degrees(r.yaw):+7.1f} deg  "
-                  f"{args.criterion} {r.value(args.criterion):.4g}")
+                  f"{args.criterion} {r.value(args.criterion):.4g} {UNITS[args.criterion]}{near}")
     if args.json:
         print(f"wrote {args.json}")
     if args.plot:

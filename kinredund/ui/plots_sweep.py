@@ -25,6 +25,7 @@ CRITERION_LABELS = {
     "speed": "largest joint speed / its limit [-]",
     "mean_z": "mean of z over the loop [rad$^2$]",
     "drift": "loop drift [rad]",
+    "clearance": "least clearance to the cell and itself [m]",
 }
 
 
@@ -101,8 +102,9 @@ def sweep_map_figure(records, criterion: str = "margin", *, title: str | None = 
         ax.set_ylim(min(ye[0], -0.1 * span), max(ye[-1], 0.1 * span))
         ax.set_aspect("equal")
         if top:
+            near = "" if top[0].clearance is None else f", clearance {top[0].clearance:.3g} m"
             ax.plot(top[0].x, top[0].y, marker="*", ms=14, color="tab:red", mec="k", zorder=5,
-                    label=f"best ({criterion}): yaw {np.degrees(top[0].yaw):.0f} deg")
+                    label=f"best ({criterion}): yaw {np.degrees(top[0].yaw):.0f} deg{near}")
             ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), fontsize=8, frameon=False)
     if title:
         fig.suptitle(title)
