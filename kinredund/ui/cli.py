@@ -13,6 +13,7 @@ import argparse
 import dataclasses
 import json
 import math
+import signal
 import sys
 from pathlib import Path
 
@@ -145,8 +146,10 @@ def _plan(case: str, args, label: str) -> int:
     more = {} if getattr(args, "samples", None) is None else {"samples": args.samples}
     try:
         result = plan_case(case, json_path=args.json, plot_path=args.plot, progress=bar, **more)
-    finally:
-        bar.close()
+    except BaseException:
+        bar.close()  # failed or interrupted
+        raise
+    bar.close("done" if result.ok else "failed")
     print(f"Section {case}: off-line plan with collision avoidance")
     _print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
     _wrote(args.json, args.plot)
@@ -274,6 +277,11 @@ def _cmd_ik(args) -> int:
     return EXIT_OK
 
 
+def _exit_on_signal(signum, frame) -> None:
+    """A signal handler: unwind (``finally`` blocks run) and exit with 128 + the signal's number."""
+    raise SystemExit(128 + signum)
+
+
 def _cmd_play(args) -> int:
     if args.html is None and not args.live:
         raise KinredundError(f"say what to do with {args.result}: --html FILE writes a standalone replay, "
@@ -291,12 +299,17 @@ def _cmd_play(args) -> int:
         from kinredund.ui.viz import play_live, stop_live
 
         url = play_live(rec.trajectory, robot=rec.robot, loop=True)
-        print(f"open {url} (Ctrl-C to stop)")
+        print(f"open {url} (Ctrl-C to stop)", flush=True)
+        # SIGTERM (kill, a service manager) stops the server as Ctrl-C does, then exits 143
+        previous = signal.signal(signal.SIGTERM, _exit_on_signal)
         try:
             while True:
                 time.sleep(1.0)
         except KeyboardInterrupt:
+            pass
+        finally:
             stop_live(url)
+            signal.signal(signal.SIGTERM, previous)
     return EXIT_OK
 
 

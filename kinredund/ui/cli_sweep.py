@@ -125,7 +125,8 @@ def run(args) -> int:
         records = sweep(robot, path, index_for(robot, args.index), placements, steps_per_loop=args.steps,
                         loops=args.loops, limits=not args.no_limits, speed_limit=args.speed_limit,
                         starts=args.starts, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
-                        batch_size=args.batch_size, out=args.json, resume=args.resume, progress=bar)
+                        batch_size=args.batch_size, out=args.json, resume=args.resume,
+                        progress=lambda done, total: bar(done, total, "placements"))
     causes = Counter(r.cause for r in records if not r.feasible)
     feasible = sum(r.feasible for r in records)
     print(f"{robot.name}: {len(records)} placements at z = {z:.3f} m, {feasible} feasible"

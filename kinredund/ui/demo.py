@@ -123,15 +123,19 @@ def run_demo(out: Path, quick: bool = False, stream=None, quiet: bool = False) -
     rows: list = []
     data: dict = {}
     failures = []
-    for label, fn in (("Chapter 4", lambda: _chapter4(out, 2 if quick else 10, rows, data, log, bar)),
-                      ("Chapter 3", lambda: _chapter3(out, rows, data, log, bar)),
-                      ("Chapter 6", lambda: _chapter6(out, rows, data, log, bar))):
-        try:
-            fn()
-        except Exception as err:  # noqa: BLE001 - report every failing chapter, then fail the run
-            failures.append(f"{label}: {type(err).__name__}: {err}")
-            log(f"{label} FAILED: {type(err).__name__}: {err}")
-    bar.close()
+    try:
+        for label, fn in (("Chapter 4", lambda: _chapter4(out, 2 if quick else 10, rows, data, log, bar)),
+                          ("Chapter 3", lambda: _chapter3(out, rows, data, log, bar)),
+                          ("Chapter 6", lambda: _chapter6(out, rows, data, log, bar))):
+            try:
+                fn()
+            except Exception as err:  # noqa: BLE001 - report every failing chapter, then fail the run
+                failures.append(f"{label}: {type(err).__name__}: {err}")
+                log(f"{label} FAILED: {type(err).__name__}: {err}")
+    except BaseException:
+        bar.close()  # interrupted
+        raise
+    bar.close("failed" if failures else "done")
     header = ["example", "run", "position error [m]", "trace error", "vect error", "normality residual",
               "joint drift from the start after the last loop [rad]", "notes (LU steps / thesis)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
