@@ -39,7 +39,7 @@ def _progress(label: str, args):
 
 # -- printing ----------------------------------------------------------------------------------------
 #: Units of the summary figures the commands print.
-_UNITS = {"position_error_max": "m", "max_position_residual": "m", "clearance_min": "m",
+_UNITS = {"position_error_max": "m", "axis_error_max": "rad", "max_position_residual": "m", "clearance_min": "m",
           "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
           "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
           "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m"}
@@ -69,9 +69,12 @@ def _format(key: str, value) -> str:
         if all(isinstance(v, str) for v in value):
             return ", ".join(value)
         items = [_number(v) for v in value]
-        text = f"[{', '.join(items)}]" if len(items) <= 7 else f"[{items[0]}, {items[1]}, ..., {items[-1]}] " \
-            f"({len(items)} values)"
-        return text + suffix
+        if len(items) <= 7:
+            return f"[{', '.join(items)}]{suffix}"
+        if len(set(items)) == 1:  # not [0, 0, ..., 0]
+            return f"{len(items)} values, all {items[0]}{suffix}"
+        low, high = min(value), max(value)
+        return f"{len(items)} values from {_number(low)} to {_number(high)}{suffix}"
     if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
         return _number(value) + suffix
     return str(value)
@@ -101,10 +104,14 @@ def _cmd_generate_robots(args) -> int:
 def _cmd_robots(args) -> int:
     from kinredund.model.loader import robot_table
 
-    print(f"{'name':14s} {'n':>2s}  {'task':8s} {'m':>1s}  {'redundancy':10s} {'default frame':24s} source")
-    for row in robot_table():
-        print(f"{row.name:14s} {row.n:2d}  {row.task:8s} {row.m:1d}  n - m = {row.n - row.m:<3d}"
-              f"{row.ee_frame:24s} {row.note}")
+    rows = robot_table()
+    cells = [("name", "n", "task", "m", "redundancy", "default frame", "source")]
+    cells += [(r.name, str(r.n), r.task, str(r.m), f"n - m = {r.n - r.m}", r.ee_frame, r.note) for r in rows]
+    widths = [max(len(c[k]) for c in cells) for k in range(6)]  # columns as wide as their longest entry
+    right = (False, True, False, True, False, False)
+    for c in cells:
+        print("  ".join(v.rjust(w) if r else v.ljust(w) for v, w, r in zip(c, widths, right, strict=False))
+              + "  " + c[6])
     return EXIT_OK
 
 
@@ -203,6 +210,11 @@ def _cmd_track(args) -> int:
     try:
         bar(0, 1, "loading the robot")
         robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
+        if robot.nq <= robot.task_dim:
+            bar.clear()
+            print(f"kinredund: note: {robot.name} has {robot.nq} joints for the {robot.task_dim} of its "
+                  f"{robot.task!r} task: it is not redundant, so --index {args.index} has no effect",
+                  file=sys.stderr)
         seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
         path, duration = _path_for(args, robot, seed_q)
         # the baselines ignore the index while they step; their normality residual is measured against it
@@ -360,6 +372,14 @@ def _check_outputs(args) -> None:
         seen[target] = name
 
 
+def in_cli_words(message: str) -> str:
+    """A library message with its Python advice in command-line words: ``robot.with_task('position')``
+    becomes ``--task position``."""
+    import re
+
+    return re.sub(r"robot\.with_task\('(\w+)'\)", r"--task \1", message)
+
+
 def _quiet_stdout() -> None:
     """After a broken pipe: point stdout at /dev/null so that the interpreter's last flush stays quiet."""
     import os
@@ -396,7 +416,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
         return code
     except KinredundError as err:
-        print(f"kinredund: error: {err}", file=sys.stderr)
+        print(f"kinredund: error: {in_cli_words(str(err))}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         kept = [] if batch is None else batch.kept  # checkpoints (a sweep file) stay, to be resumed
