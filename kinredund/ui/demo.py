@@ -60,7 +60,8 @@ def _chapter4(out: Path, loops: int, rows: list, data: dict, log, bar) -> None:
                              title=f"Example {name}: joint histories (default mode)")
         plot_errors(list(runs.values()), out / f"example_{tag}_errors.png", title=f"Example {name}: tracking errors")
         plot_loop_drift(list(runs.values()), out / f"example_{tag}_drift.png",
-                        title=f"Example {name}: joint drift per loop (thesis mode: one loop, as the thesis ran it)")
+                        title=f"Example {name}: joint drift from the start after each loop (thesis mode: one "
+                              "loop, as the thesis ran it)")
         plot_m_eigenvalues(runs["default"], out / f"example_{tag}_eigenvalues.png",
                            title=f"Example {name}: eigenvalues of M and the solver of each step")
         replay_html(runs["default"], out / f"example_{tag}.html", robot=ex.robot)
