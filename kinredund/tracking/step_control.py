@@ -60,7 +60,8 @@ _get_state = attrgetter(*STATE)
 
 
 class StepControl:
-    """Sub-stepping, jump check and watch for one :class:`PredictorCorrector` (``stepper``).
+    """Sub-stepping, jump check and watch for one
+    :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` (``stepper``).
 
     Attributes:
         watch: the :class:`~kinredund.tracking.watch.Watch`.
