@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import signal
 import sys
 from pathlib import Path
@@ -24,6 +23,9 @@ from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
 from kinredund.ui import options
 from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
+from kinredund.ui.summary import format_value as _format  # noqa: F401 - the CLI's summary format (tests)
+from kinredund.ui.summary import in_cli_words, print_table
+from kinredund.ui.summary import print_summary as _print_summary
 
 __all__ = ["EXIT_FAILED", "EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "REPRODUCIBLE", "build_parser", "main"]
 
@@ -37,56 +39,7 @@ def _progress(label: str, args):
     return bar
 
 
-# -- printing ----------------------------------------------------------------------------------------
-#: Units of the summary figures the commands print.
-_UNITS = {"position_error_max": "m", "axis_error_max": "rad", "max_position_residual": "m", "clearance_min": "m",
-          "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
-          "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
-          "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m"}
-
-
-def _number(v) -> str:
-    return str(v) if isinstance(v, (bool, int, np.integer)) else f"{float(v):.3g}"
-
-
-def _shown(value) -> bool:
-    """Whether a summary value says something (not None, NaN, or an empty list or dict)."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return False
-    return not (isinstance(value, (list, tuple, dict, str)) and len(value) == 0)
-
-
-def _format(key: str, value) -> str:
-    unit = _UNITS.get(key, "")
-    suffix = f" {unit}" if unit else ""
-    if key == "loop_drift":  # a list per loop from tracking, one float from a plan: one format
-        drift = [float(v) for v in (value if isinstance(value, (list, tuple, np.ndarray)) else [value])]
-        return f"{drift[-1]:.3g} rad after loop {len(drift)}" + (
-            f" (largest {max(drift):.3g} rad)" if len(drift) > 1 else "")
-    if isinstance(value, dict):
-        return ", ".join(f"{k.removesuffix('_s')} {_number(v)}{suffix}" for k, v in value.items() if _shown(v))
-    if isinstance(value, (list, tuple)):
-        if all(isinstance(v, str) for v in value):
-            return ", ".join(value)
-        items = [_number(v) for v in value]
-        if len(items) <= 7:
-            return f"[{', '.join(items)}]{suffix}"
-        if len(set(items)) == 1:  # not [0, 0, ..., 0]
-            return f"{len(items)} values, all {items[0]}{suffix}"
-        low, high = min(value), max(value)
-        return f"{len(items)} values from {_number(low)} to {_number(high)}{suffix}"
-    if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
-        return _number(value) + suffix
-    return str(value)
-
-
-def _print_summary(summary: dict) -> None:
-    """Print ``summary`` as aligned ``name value unit`` rows, leaving out empty values (None, NaN, {})."""
-    for key, value in summary.items():
-        if _shown(value):
-            print(f"  {key:26s} {_format(key, value)}")
-
-
+# -- printing (kinredund.ui.summary) ----------------------------------------------------------------
 def _wrote(*paths) -> None:
     for p in paths:
         if p is not None:
@@ -104,14 +57,8 @@ def _cmd_generate_robots(args) -> int:
 def _cmd_robots(args) -> int:
     from kinredund.model.loader import robot_table
 
-    rows = robot_table()
-    cells = [("name", "n", "task", "m", "redundancy", "default frame", "source")]
-    cells += [(r.name, str(r.n), r.task, str(r.m), f"n - m = {r.n - r.m}", r.ee_frame, r.note) for r in rows]
-    widths = [max(len(c[k]) for c in cells) for k in range(6)]  # columns as wide as their longest entry
-    right = (False, True, False, True, False, False)
-    for c in cells:
-        print("  ".join(v.rjust(w) if r else v.ljust(w) for v, w, r in zip(c, widths, right, strict=False))
-              + "  " + c[6])
+    rows = [(r.name, str(r.n), r.task, str(r.m), f"n - m = {r.n - r.m}", r.ee_frame, r.note) for r in robot_table()]
+    print_table(("name", "n", "task", "m", "redundancy", "default frame", "source"), rows, right=(1, 3))
     return EXIT_OK
 
 
@@ -370,14 +317,6 @@ def _check_outputs(args) -> None:
         if target in seen:
             raise KinredundError(f"--{seen[target]} and --{name} name the same file {str(value)!r}")
         seen[target] = name
-
-
-def in_cli_words(message: str) -> str:
-    """A library message with its Python advice in command-line words: ``robot.with_task('position')``
-    becomes ``--task position``."""
-    import re
-
-    return re.sub(r"robot\.with_task\('(\w+)'\)", r"--task \1", message)
 
 
 def _quiet_stdout() -> None:
