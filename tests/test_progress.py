@@ -179,3 +179,23 @@ def test_sigterm_stops_a_live_replay_server_as_ctrl_c_does(tmp_path):
                 os.kill(pid, signal.SIGKILL)
         assert proc.returncode == code, (sig, proc.returncode)
         assert not left, f"{signal.Signals(sig).name} left the meshcat server {left} running"
+
+
+def test_ctrl_c_on_the_demo_names_the_files_it_kept(tmp_path):
+    """The demo writes each file as it is done: interrupted, it says where they stay (it said 'no output
+    file was written' over a folder of figures)."""
+    out = tmp_path / "demo"
+    proc = _start(["demo", "--quick", "--out", str(out)], tmp_path)
+    try:
+        _wait_for_line(proc.stdout, "Example 4.1: done", timeout=600)
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=120)
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert f"the demo's files done so far stay in {out}/" in err and "no output file" not in err, err
+    assert (out / "example_4_1_joints.png").exists()
+    assert "demo: interrupted at" in err and "demo: done" not in err

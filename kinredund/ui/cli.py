@@ -343,11 +343,12 @@ def main(argv: list[str] | None = None) -> int:
     """
     from kinredund.io import output_batch
 
-    batch = None
+    batch = demo_out = None
     try:
         args = build_parser().parse_args(argv)
         _check_outputs(args)
         if args.command == "demo":
+            demo_out = Path(args.out)
             code = args.func(args)
         else:
             with output_batch() as batch:
@@ -359,8 +360,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt:
         kept = [] if batch is None else batch.kept  # checkpoints (a sweep file) stay, to be resumed
-        print("kinredund: interrupted; " + (f"kept {', '.join(map(str, kept))} (written as the run went: resume "
-              "from it)" if kept else "no output file was written"), file=sys.stderr)
+        words = f"kept {', '.join(map(str, kept))} (written as the run went: resume from it)" if kept \
+            else "no output file was written"
+        if demo_out is not None and demo_out.is_dir() and any(demo_out.iterdir()):
+            words = f"the demo's files done so far stay in {demo_out}/"  # it writes each file as it is done
+        print(f"kinredund: interrupted; {words}", file=sys.stderr)
         return EXIT_SIGINT
     except BrokenPipeError:
         _quiet_stdout()
