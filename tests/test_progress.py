@@ -96,6 +96,24 @@ def _wait_for_line(stream, text: str, timeout: float = 120.0) -> list[str]:
             return lines
 
 
+def _end(proc: subprocess.Popen) -> None:
+    """Kill the process group of a command this test started (after a failure), by its PID, and reap it."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def _ctrl_c(proc: subprocess.Popen) -> tuple[str, float]:
+    """Ctrl-C as a terminal sends it (SIGINT to the whole process group); (stderr, seconds to exit)."""
+    sent = time.monotonic()
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        proc.wait(timeout=120)  # a hang guard
+    finally:
+        _end(proc)
+    return proc.stderr.read(), time.monotonic() - sent
+
+
 def _children(pid: int) -> list[int]:
     """PIDs of the live processes whose parent is ``pid``."""
     out = []
@@ -138,15 +156,10 @@ def test_ctrl_c_on_a_dask_sweep_returns_promptly_and_names_the_kept_file(tmp_pat
         while not (out.exists() and len(out.read_text().splitlines()) >= 2):  # a placement is checkpointed
             assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else ""
             time.sleep(0.1)
-        sent = time.monotonic()
-        os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
-        proc.wait(timeout=120)
-        latency = time.monotonic() - sent
-        err = proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+    except BaseException:
+        _end(proc)
+        raise
+    err, latency = _ctrl_c(proc)
     assert proc.returncode == 130, err
     assert f"kept {out}" in err and out.exists()
     assert "sweep: interrupted at placements" in err and "sweep: done" not in err
@@ -171,9 +184,7 @@ def test_sigterm_stops_a_live_replay_server_as_ctrl_c_does(tmp_path):
             os.kill(proc.pid, sig)
             proc.wait(timeout=60)
         finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            _end(proc)
             left = [pid for pid in servers if _alive(pid)]
             for pid in left:  # the server a failing run left behind (started by this test, ended by PID)
                 os.kill(pid, signal.SIGKILL)
@@ -188,13 +199,10 @@ def test_ctrl_c_on_the_demo_names_the_files_it_kept(tmp_path):
     proc = _start(["demo", "--quick", "--out", str(out)], tmp_path)
     try:
         _wait_for_line(proc.stdout, "Example 4.1: done", timeout=600)
-        os.killpg(proc.pid, signal.SIGINT)
-        proc.wait(timeout=120)
-        err = proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+    except BaseException:
+        _end(proc)
+        raise
+    err, _ = _ctrl_c(proc)
     assert proc.returncode == 130, err
     assert f"the demo's files done so far stay in {out}/" in err and "no output file" not in err, err
     assert (out / "example_4_1_joints.png").exists()

@@ -258,10 +258,10 @@ def _cmd_play(args) -> int:
         from kinredund.ui.viz import play_live, stop_live
 
         url = play_live(rec.trajectory, robot=rec.robot, loop=True)
-        print(f"open {url} (Ctrl-C to stop)", flush=True)
         # SIGTERM (kill, a service manager) stops the server as Ctrl-C does, then exits 143
         previous = signal.signal(signal.SIGTERM, _exit_on_signal)
         try:
+            print(f"open {url} (Ctrl-C to stop)", flush=True)  # inside: a Ctrl-C right after it is the stop
             while True:
                 time.sleep(1.0)
         except KeyboardInterrupt:
