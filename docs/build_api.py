@@ -128,6 +128,8 @@ def build(out: Path) -> Path:
     pdoc.render.configure(docformat="google", show_source=False)
     with warnings.catch_warnings():  # a subpackage brings its modules along: naming them too is not an error
         warnings.filterwarnings("ignore", message="The module specification .* adds a module named")
+        # run from the checkout, the name is both the installed package and ./kinredund: the installed one is meant
+        warnings.filterwarnings("ignore", message="'kinredund' may refer to either the installed Python module")
         pdoc.pdoc(*public_modules(), output_directory=out)
     return out
 
