@@ -89,7 +89,7 @@ def test_plan_plot_help_announces_the_snapshot_file():
 ])
 def test_long_lists_are_summed_up_not_cut(value, shown):
     """`candidates [0, 0, ..., 0] (90 values)` said nothing a reader could use."""
-    from kinredund.ui.cli import _format
+    from kinredund.ui.summary import format_value as _format
 
     key = "candidates" if shown.startswith("90 values, all") else "clearance_min"
     assert _format(key, value) == shown

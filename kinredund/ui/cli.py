@@ -23,7 +23,6 @@ from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
 from kinredund.ui import options
 from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
-from kinredund.ui.summary import format_value as _format  # noqa: F401 - the CLI's summary format (tests)
 from kinredund.ui.summary import in_cli_words, print_table
 from kinredund.ui.summary import print_summary as _print_summary
 
