@@ -8,7 +8,7 @@ OUT ?= out
 PYTEST_SELECT := $(if $(CI),,-m "not slow")
 PYTEST_ARGS ?=
 
-.PHONY: venv install demo test test-all lint bench robots browser clean
+.PHONY: venv install demo test test-all lint bench robots browser docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -41,6 +41,11 @@ test-all: install
 lint: $(DEPS_STAMP)
 	$(BIN)/ruff check kinredund tests benchmarks examples
 
+# The API reference (pdoc, from the docstrings) into docs/api/; fails on a docstring reference to a name that
+# does not exist (docs/build_api.py)
+docs: install
+	$(BIN)/python docs/build_api.py --out docs/api
+
 robots: install
 	$(BIN)/kinredund generate-robots --out robots
 
@@ -49,4 +54,4 @@ bench: install
 	for b in benchmarks/[!_]*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info $(OUT)
+	rm -rf $(VENV) build *.egg-info $(OUT) docs/api

@@ -1,4 +1,4 @@
-"""Closed-form IK of the PUMA-derived 7-axis arm (issue 5): time per full solve, all branches.
+"""Closed-form IK of the PUMA-derived 7-axis arm: time per full solve, all branches.
 
 Over seeded random reachable poses (forward kinematics of random joint vectors): the median and p95
 time of one ``ClosedFormIK.solve_all`` (2 theta1 branches x 2 wrist branches), of the 2-D

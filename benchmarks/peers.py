@@ -1,4 +1,4 @@
-"""Peers side by side on the Panda circle (issue 8): our resolved-rate schemes against pink and the RTB.
+"""Peers side by side on the Panda circle: our resolved-rate schemes against pink and the RTB.
 
 Usage::
 

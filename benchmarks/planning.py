@@ -1,4 +1,4 @@
-"""Chapter 6 timing: the whole off-line plan of Sections 6.2 and 6.3 (issue 6).
+"""Chapter 6 timing: the whole off-line plan of Sections 6.2 and 6.3.
 
 Per case, one run of ``kinredund.thesis.chapter6.run_case`` with its stages (samples or roadmap,
 tracking, clearance verification) and the verdict. Section 6.2 stops at its feasibility check (the

@@ -1,4 +1,4 @@
-"""Random reachable circles (issue 15): the strict tracker, the cyclic planner and pink side by side.
+"""Random reachable circles: the strict tracker, the cyclic planner and pink side by side.
 
 Usage::
 

@@ -1,4 +1,4 @@
-"""Resolved-rate timing on the Panda and the CYBOTECH P-15 (issue 4).
+"""Resolved-rate timing on the Panda and the CYBOTECH P-15.
 
 Paths, 200 steps per loop: the Panda's 0.1 m circle through its home pose with the tool rolling +-15 deg
 about its axis (``panda_circle(wrist_amplitude=15 deg)``, the ``wrist15`` variant of ``peers.py``);

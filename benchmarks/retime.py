@@ -1,4 +1,4 @@
-"""Retiming time for a 7-axis loop of 200 and 2000 samples (issue 16).
+"""Retiming time for a 7-axis loop of 200 and 2000 samples.
 
 The loop: the Panda's 0.1 m benchmark circle (``panda_circle``) tracked at 1 m/s, faster than its URDF
 joint speeds allow, with 200 and 2000 steps per loop; the limits: the URDF's velocity limits and Franka's

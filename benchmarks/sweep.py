@@ -1,4 +1,4 @@
-"""Placement-sweep benchmark (issue 20): throughput serially and on a local Dask cluster, and the speed-up.
+"""Placement-sweep benchmark: throughput serially and on a local Dask cluster, and the speed-up.
 
 Usage::
 

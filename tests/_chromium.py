@@ -49,13 +49,13 @@ class Chromium:
     FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
              "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
-    def __init__(self, profile: Path):
+    def __init__(self, profile: Path, extra_flags: tuple[str, ...] = ()):
         to_child_r, self._to_child = os.pipe()
         self._from_child, from_child_w = os.pipe()
         # Chromium reads the DevTools pipe on fd 3 and writes on fd 4: a small trampoline moves our
         # ends there and execs the browser (same PID; no preexec_fn in this threaded process)
         args = [sys.executable, "-c", _TRAMPOLINE, str(to_child_r), str(from_child_w), shutil.which("chromium"),
-                *self.FLAGS, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"]
+                *self.FLAGS, *extra_flags, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"]
         self.proc = subprocess.Popen(args, pass_fds=(to_child_r, from_child_w), start_new_session=True,
                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         os.close(to_child_r)
@@ -118,7 +118,8 @@ class Page:
         self.browser.call("Page.navigate", {"url": url}, self.session)
 
     def evaluate(self, expression: str):
-        reply = self.browser.call("Runtime.evaluate", {"expression": expression, "returnByValue": True}, self.session)
+        params = {"expression": expression, "returnByValue": True, "awaitPromise": True}  # a Promise: its value
+        reply = self.browser.call("Runtime.evaluate", params, self.session)
         if "exceptionDetails" in reply:
             raise RuntimeError(f"{expression!r} raised: {reply['exceptionDetails']}")
         return reply["result"].get("value")
@@ -139,9 +140,10 @@ class Page:
 
 
 @contextlib.contextmanager
-def open_page(url: str, profile: Path, width: int = 800, height: int = 600):
-    """A headless Chromium showing ``url`` at ``width`` x ``height`` pixels; the browser is closed after."""
-    browser = Chromium(profile)
+def open_page(url: str, profile: Path, width: int = 800, height: int = 600, extra_flags: tuple[str, ...] = ()):
+    """A headless Chromium showing ``url`` at ``width`` x ``height`` pixels; the browser is closed after.
+    ``extra_flags`` go to Chromium (e.g. :data:`NO_WEBGL`)."""
+    browser = Chromium(profile, extra_flags)
     try:
         page = Page(browser, width, height)
         page.navigate(url)
@@ -151,3 +153,16 @@ def open_page(url: str, profile: Path, width: int = 800, height: int = 600):
 
 
 MESHCAT_READY = "typeof viewer !== 'undefined' && viewer.animator.duration > 0"
+
+#: Chromium without WebGL (as a browser with it turned off or its graphics driver blocked)
+NO_WEBGL = ("--disable-webgl", "--disable-webgl2", "--disable-3d-apis")
+
+
+def scrub(page: Page, t: float) -> None:
+    """Pause meshcat's animation and move it to ``t`` seconds of playback (as the page's time scrubber
+    does), then wait until it has been drawn: a fixed time instead of a running clock, so that what a test
+    sees does not depend on how fast the machine is."""
+    page.evaluate(f"(() => {{ const a = viewer.animator; a.pause(); a.seek({t!r}); a.display_progress({t!r}); "
+                  "viewer.set_dirty(); return true; })()")
+    page.wait_for(f"Math.abs(viewer.animator.time - {t!r}) < 1e-9", what=f"the animation at {t} s")
+    page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(() => r(true))))")

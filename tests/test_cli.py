@@ -404,14 +404,17 @@ def test_progress_lines_off_a_terminal_and_a_bar_on_one():
     from kinredund.ui.progress import Progress
 
     log = io.StringIO()
-    bar = Progress("plan 6.3", stream=log, interval=1e9)  # no timed lines: one per stage
+    bar = Progress("plan 6.3", stream=log, interval=1e9)  # no timed lines: the first call and each stage's end
     for stage, total in (("roadmap", 50), ("tracking", 720), ("clearance", 1)):
         for k in range(total + 1):
             bar(k, total, stage)
     bar.close()
     lines = log.getvalue().splitlines()
-    assert [line.split(": ")[1].split(" ")[0] for line in lines[:-1]] == ["roadmap", "tracking", "clearance"]
+    assert [line.split(": ")[1].split(" ")[0] for line in lines[:-1]] == ["roadmap", "roadmap", "tracking",
+                                                                        "clearance"]
     assert lines[0].startswith("plan 6.3: roadmap 0/50 (0%)") and lines[-1].startswith("plan 6.3: done")
+    # a stage's line says where it got to, not where it began
+    assert lines[1].startswith("plan 6.3: roadmap 50/50 (100%)") and lines[2].startswith("plan 6.3: tracking 720/720")
     quiet = io.StringIO()
     bar = Progress("x", stream=quiet, quiet=True)
     bar(1, 2, "a")

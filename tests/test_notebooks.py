@@ -3,7 +3,8 @@
 Each notebook is executed with nbclient in a fresh kernel that runs this interpreter: a kernelspec pointing
 at ``sys.executable`` is written to a temporary folder put first on ``JUPYTER_PATH``, so the venv's Python
 and its kinredund are used whatever kernels the machine has. The working folder is a temporary directory
-(files a notebook writes, e.g. ``out/``, never land in the repo) and ``MPLBACKEND=Agg``. Any cell error
+that must stay empty (a notebook writes its files into a temporary folder, never next to itself, e.g.
+``notebooks/out/``) and ``MPLBACKEND=Agg``. Any cell error
 fails the test with the cell's traceback. The notebooks also check their own numbers (finite differences,
 round-off levels), so a regression in the library shows up here too.
 """
@@ -82,10 +83,16 @@ def test_notebook_runs_top_to_bottom(name, jupyter_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("JUPYTER_PATH", str(jupyter_dir))  # our kernelspec is found first
     monkeypatch.setenv("MPLBACKEND", "Agg")
     monkeypatch.setenv("PYDEVD_DISABLE_FILE_VALIDATION", "1")
+    work, scratch = tmp_path / "work", tmp_path / "tmp"  # the notebook's folder, and the temporary files'
+    work.mkdir()
+    scratch.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
     nb = nbformat.read(NOTEBOOK_DIR / name, as_version=4)
     # the client owns its kernel manager, so it shuts the kernel down when the notebook is done
     client = NotebookClient(nb, kernel_name=KERNEL_NAME, timeout=CELL_TIMEOUT, allow_errors=False,
-                            resources={"metadata": {"path": str(tmp_path)}})
+                            resources={"metadata": {"path": str(work)}})
     start = time.perf_counter()
     client.execute()  # raises CellExecutionError (with the cell and its traceback) on any error or failed assert
     print(f"{name}: {time.perf_counter() - start:.1f} s")
+    # a notebook run from notebooks/ wrote its files there (03: notebooks/out/): they go to a temporary folder
+    assert sorted(p.name for p in work.iterdir()) == [], f"{name} wrote into the notebook's folder"

@@ -292,3 +292,85 @@ def test_snapshots_name_their_views_and_label_the_axes(tmp_path):
     np.testing.assert_allclose(arms[0].get_xdata(), r.kinematics.joint_origins(tr.q[0])[:, 0])
     out = snapshot_figure(_plan(still_joint=False), r, obstacle, tmp_path / "s.png")
     assert_png(out)
+
+
+# -- what the figures say (issue 29): legends off the data, one unit per quantity, honest ranges and labels ---
+@pytest.fixture(scope="module")
+def example_4_2():
+    from kinredund.thesis.chapter4 import load_example, run_example
+
+    return run_example(load_example("4.2"), loops=1)
+
+
+def _retimed_synthetic() -> Trajectory:
+    """A retimed-looking record: ``synthetic``'s joints with their exact rates and the limits in its meta."""
+    traj = synthetic(loops=1)
+    w = 2.0 * np.pi / 2.0
+    qdot = np.gradient(traj.q, traj.t, axis=0)
+    qddot = np.gradient(qdot, traj.t, axis=0)
+    limits = {"velocity": [1.2 * float(np.abs(qdot).max())] * 3, "acceleration": [1.2 * w * w] * 3}
+    return dataclasses.replace(traj, qdot=qdot, qddot=qddot, meta={"retime": {"limits": limits}})
+
+
+def _points_under_legends(fig) -> list[str]:
+    """The curves with a vertex under a legend of their axes (in display coordinates, after drawing)."""
+    fig.canvas.draw()
+    hits = []
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        box = legend.get_window_extent()
+        # the twin axes of a joint-history panel share its area: their curves count too
+        for other in [a for a in fig.axes if a.bbox.bounds == ax.bbox.bounds]:
+            for line in other.get_lines():
+                xy = line.get_transform().transform(np.asarray(line.get_xydata(), float))
+                inside = (xy[:, 0] > box.x0) & (xy[:, 0] < box.x1) & (xy[:, 1] > box.y0) & (xy[:, 1] < box.y1)
+                if inside.any():
+                    hits.append(f"{ax.get_ylabel()}: {line.get_label()} ({int(inside.sum())} points)")
+    return hits
+
+
+def test_legends_sit_off_the_data(example_4_2):
+    """Example 4.2's eigenvalue legend covered mu_3's curve, the retime plot's the joint angles."""
+    from kinredund.ui.plots_retime import retimed_figure
+
+    figures = {"eigenvalues": m_eigenvalues_figure(example_4_2), "errors": errors_figure(example_4_2),
+               "joints": joint_histories_figure(example_4_2), "drift": loop_drift_figure(example_4_2),
+               "retimed": retimed_figure(_retimed_synthetic())}
+    for name, fig in figures.items():
+        assert any(ax.get_legend() is not None for ax in fig.axes), name
+        assert _points_under_legends(fig) == [], name
+
+
+def test_a_positive_eigenvalue_panel_is_not_stretched_from_zero(example_4_2):
+    """Example 4.2's eigenvalues on null(J) lie between 0.94 and 1.06: the panel spanned 0 to 1.1 (a zero line
+    drawn far from the data). A panel whose data change sign keeps its zero line."""
+    top, bottom = m_eigenvalues_figure(example_4_2).axes[:2]
+    data = example_4_2.m_null_eigs
+    low, high = bottom.get_ylim()
+    span = float(data.max() - data.min())
+    assert low > 0.5 and high - low < 1.5 * span, (low, high, span)
+    assert "all > 0" in bottom.get_ylabel()
+    zero_lines = [line for line in top.get_lines() if np.all(np.asarray(line.get_ydata(), float) == 0.0)]
+    assert example_4_2.m_eigs.min() < 0 < example_4_2.m_eigs.max() and len(zero_lines) == 1
+
+
+def test_retime_plot_has_one_angle_unit():
+    """q was drawn in degrees next to qdot in rad/s and qddot in rad/s^2 (limits given in rad/s)."""
+    from kinredund.ui.plots_retime import retimed_figure
+
+    traj = _retimed_synthetic()
+    axes = retimed_figure(traj).axes
+    units = [ax.get_ylabel().rsplit("[", 1)[1].rstrip("]") for ax in axes]
+    assert units == ["rad", "rad/s", "rad/s$^2$"]
+    np.testing.assert_array_equal(axes[0].get_lines()[0].get_ydata(), traj.q[:, 0])  # drawn as recorded
+
+
+def test_drift_plot_says_what_it_plots():
+    """loop_drift is |q(k T) - q(0)|, the drift from the start after each loop: the plot said 'per loop'."""
+    traj = synthetic(loops=4, drift=1e-3)
+    (ax,) = loop_drift_figure(traj).axes
+    words = f"{ax.get_title()} {ax.get_ylabel()} {ax.get_xlabel()}"
+    assert "per loop" not in words and "from the start" in ax.get_ylabel()
+    np.testing.assert_allclose(ax.get_lines()[0].get_ydata(), 1e-3 * np.arange(1, 5), rtol=1e-9)  # cumulative

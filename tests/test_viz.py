@@ -16,14 +16,13 @@ import re
 import subprocess
 import sys
 import tempfile
-import time
 import urllib.error
 import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pytest
-from _chromium import MESHCAT_READY, needs_chromium, open_page
+from _chromium import MESHCAT_READY, NO_WEBGL, needs_chromium, open_page, scrub
 from conftest import robot
 
 from kinredund import ChoiceError, JointVectorError, PathError, TaskError
@@ -428,19 +427,26 @@ CAMERA_PROBE = """({camera: viewer.camera.matrixWorld.elements,
   target: viewer.controls.target.toArray()})"""
 
 
-def two_frames(url: str, profile: Path, gap: float = 1.0):
-    """Open ``url`` in headless Chromium (800x600) once meshcat has its animation; take two
-    screenshots ``gap`` seconds apart (real time: --virtual-time-budget does not advance meshcat's
-    clock). Returns (first, second, clock_first, clock_second, camera): RGB arrays, animation times
-    [s], and the browser's camera in the robot's frame (see :func:`camera_in_robot_frame`).
+#: the playback times the browser tests look at [s]: fixed, so no running clock is read
+FRAME_TIMES = (0.5, 1.5)
+
+
+def two_frames(url: str, profile: Path, times: tuple[float, float] = FRAME_TIMES):
+    """Open ``url`` in headless Chromium (800x600) once meshcat has its animation (and check it plays);
+    scrub the animation to each of ``times`` and take a screenshot there (a running clock, read twice,
+    wrapped between the reads under load). Returns (first, second, clock_first, clock_second, camera): RGB
+    arrays, the animation's times [s], and the browser's camera in the robot's frame (see
+    :func:`camera_in_robot_frame`).
     """
     with open_page(url, profile) as page:
         page.wait_for(MESHCAT_READY, what="its animation")
-        time.sleep(0.5)  # let the first frames render
-        first, clock_first = page.screenshot(), page.evaluate("viewer.animator.time")
-        time.sleep(gap)
-        second, clock_second = page.screenshot(), page.evaluate("viewer.animator.time")
+        assert page.evaluate("viewer.animator.playing"), "the animation does not play on load"
+        shots = []
+        for t in times:
+            scrub(page, t)
+            shots.append((page.screenshot(), page.evaluate("viewer.animator.time")))
         camera = camera_in_robot_frame(page.evaluate(CAMERA_PROBE))
+    (first, clock_first), (second, clock_second) = shots
     return first, second, clock_first, clock_second, camera
 
 
@@ -460,7 +466,7 @@ def assert_robot_plays(first: np.ndarray, second: np.ndarray, clock_first: float
     assert robot_pixels.sum() > 1000, "the robot's orange links are not on the screenshot"
     background = np.median(first.reshape(-1, 3), axis=0)
     assert np.abs(first[robot_pixels].mean(axis=0) - background).max() > 60
-    assert clock_second - clock_first > 0.5  # the animation clock runs in real time
+    assert (clock_first, clock_second) == pytest.approx(FRAME_TIMES, abs=1e-9)  # scrubbed there
     moved = orange_mask(second) ^ robot_pixels
     assert moved.sum() > 300, "the robot did not move between the two screenshots"
     changed = np.abs(second.astype(int) - first.astype(int)).max(axis=2) > 40
@@ -514,3 +520,53 @@ def test_replay_titles_name_robot_path_and_method():
     assert replay_title(dataclasses.replace(traj, meta={"example": "4.3"})).startswith("planar3r: Example 4.3,")
     plan = dataclasses.replace(traj, scheme="planner", meta={"example": "6.3"})
     assert replay_title(plan) == "planar3r: Section 6.3, planned motion around the obstacle"
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_replay_without_webgl_says_so_on_the_page(tmp_path):
+    """Where the browser gives no WebGL context, meshcat draws nothing: the page says why instead of
+    showing the title and the time over a blank page. With WebGL the notice stays hidden."""
+    page_file = replay_html(synthetic(duration=2.0, steps=41), tmp_path / "replay.html", robot=robot("planar3r"))
+    # innerText holds the rendered text only: a hidden notice is not in it
+    probe = """({shown: document.body.innerText.includes("needs WebGL"), text: document.body.innerText,
+                time: document.getElementById("kinredund-time").textContent})"""
+    for flags, webgl in ((NO_WEBGL, False), ((), True)):
+        profile = Path(tempfile.mkdtemp(prefix="chromium-", dir=tmp_path))
+        with open_page(page_file.as_uri(), profile, extra_flags=flags) as page:
+            page.wait_for("document.readyState === 'complete'", what="the loaded page")
+            if webgl:
+                page.wait_for(MESHCAT_READY, what="its animation")
+            seen = page.evaluate(probe)
+        assert seen["shown"] is not webgl, (flags, seen)
+        if not webgl:
+            assert "no WebGL" in seen["time"]
+
+
+def _hue_saturation(color: int) -> tuple[float, float]:
+    import colorsys
+
+    h, _, s = colorsys.rgb_to_hls(*(((color >> k) & 0xFF) / 255.0 for k in (16, 8, 0)))
+    return 360.0 * h, s
+
+
+def test_path_colours_stay_clear_of_the_world_axes(tmp_path):
+    """meshcat draws the world axes x, y, z in red, green and blue; the desired path was the z axis's blue
+    and the traced path the y axis's green. Each colour of the paths is either unsaturated or at least
+    40 deg of hue from every axis colour, and the legend names the axes."""
+    html = replay_html(synthetic(steps=21), tmp_path / "r.html", robot=robot("planar3r")).read_text()
+    cmds = scene_commands(html)
+    desired = next(c for c in cmds if c["type"] == "set_object" and c["path"] == "/meshcat/path/desired")
+    tracer = next(c for c in cmds if c["type"] == "set_object" and c["path"] == "/meshcat/path/tracer")
+    traced = next(c for c in cmds if c["type"] == "set_object" and c["path"] == "/meshcat/path/traced")
+    dots = traced["object"]["geometries"][0]["data"]["attributes"]["color"]["array"]
+    rgb = np.frombuffer(dots.data, dtype=np.float32).reshape(-1, 3)[0]
+    colours = {"desired path": desired["object"]["materials"][0]["color"],
+               "tracer": tracer["object"]["materials"][0]["color"],
+               "traced dots": int(round(rgb[0] * 255)) << 16 | int(round(rgb[1] * 255)) << 8 | int(round(rgb[2] * 255))}
+    axes = [0xFF0000, 0x00FF00, 0x0000FF]
+    for name, colour in colours.items():
+        hue, saturation = _hue_saturation(colour)
+        gaps = [min(abs(hue - _hue_saturation(a)[0]), 360.0 - abs(hue - _hue_saturation(a)[0])) for a in axes]
+        assert saturation < 0.3 or min(gaps) >= 40.0, f"{name} #{colour:06x}: hue {hue:.0f} deg, gaps {gaps}"
+    assert "world axes x, y, z" in html

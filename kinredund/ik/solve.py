@@ -229,7 +229,7 @@ def _check_options(robot, starts, tol, max_iter, timeout, seed, bounds) -> None:
     if robot.nq < robot.task_dim:
         raise TaskError(
             f"{robot.name} has {robot.nq} joints, fewer than the {robot.task_dim} of its {robot.task!r} task: "
-            "use robot.with_task('position') or 'planar'"
+            "use robot.with_task('position') or robot.with_task('planar')"
         )
 
 

@@ -17,7 +17,7 @@ def _center3(center, what: str) -> np.ndarray:
     if c.shape == (2,):
         c = np.append(c, 0.0)
     if c.shape != (3,):
-        raise PathError(f"{what} centre must be 2 or 3 finite numbers, got {center!r}")
+        raise PathError(f"{what} centre must be 2 or 3 finite numbers, got {c.tolist()}")
     return c
 
 
@@ -37,7 +37,7 @@ def _unit(v, what: str) -> np.ndarray:
     u = check_array(v, (3,), what, PathError)
     norm = float(np.linalg.norm(u))
     if norm < 1e-12:
-        raise PathError(f"{what} must be a non-zero 3-vector, got {v!r}")
+        raise PathError(f"{what} must be a non-zero 3-vector, got {u.tolist()}")
     return u / norm
 
 

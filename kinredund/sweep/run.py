@@ -243,7 +243,11 @@ def _dask_client(client, scheduler: str | None, workers: int | None):
         _restore_sigint(handler)
         c = Client(cluster)
         try:
+            c.run(ignore_interrupt)  # a terminal's Ctrl-C reaches the whole process group: this process decides
             yield c
+        except BaseException:
+            _kill_workers(cluster)  # interrupted or failed: do not wait for the placements in flight
+            raise
         finally:
             c.close()
     finally:
@@ -283,6 +287,29 @@ def _connect(scheduler: str):
         return Client(scheduler, timeout=f"{CONNECT_TIMEOUT}s")
     except (OSError, TimeoutError, ValueError, TypeError) as err:
         raise KinredundError(f"cannot reach the Dask scheduler at {scheduler!r}: {err}") from err
+
+
+def ignore_interrupt() -> None:
+    """Run on each worker of the local cluster: SIGINT ignored (the sweep's own process handles Ctrl-C)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _kill_workers(cluster) -> None:
+    """End the worker processes of our own local cluster at once, by PID, without a restart.
+
+    A nanny's close waits up to 4 s for its worker to finish the batch it runs (then kills it): Ctrl-C
+    must return within a second. The nannies are told first that the workers are going
+    (``close_gracefully``), so they do not start new ones.
+    """
+    import signal
+
+    for nanny in list(cluster.workers.values()):
+        with contextlib.suppress(Exception):
+            nanny.close_gracefully()
+            if nanny.pid:
+                os.kill(nanny.pid, signal.SIGKILL)
 
 
 def batches(todo: list[int], size: int | None, threads: int) -> list[list[int]]:

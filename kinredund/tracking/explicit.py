@@ -36,7 +36,7 @@ class ExplicitStepper(Stepper):
         self._check_rank(pt)
 
     def step(self) -> None:
-        """One explicit step (:meth:`advance`); a tracking failure is a TrackingError at the step's start."""
+        """One explicit step (the subclass's ``advance``); a tracking failure is a TrackingError at the step's start."""
         q, t, k = self.q, self.t, self.k
         try:
             self.advance()

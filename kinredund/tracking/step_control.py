@@ -57,7 +57,8 @@ PREDICTED_TOL = 0.01
 
 
 class StepControl:
-    """Sub-stepping, jump check and watch for one :class:`PredictorCorrector` (``stepper``).
+    """Sub-stepping, jump check and watch for one
+    :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` (``stepper``).
 
     Attributes:
         watch: the :class:`~kinredund.tracking.watch.Watch`.

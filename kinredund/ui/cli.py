@@ -12,12 +12,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
+import signal
 import sys
 import warnings
 from pathlib import Path
-
-import numpy as np
 
 from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
@@ -25,6 +23,8 @@ from kinredund.tasks import get_task
 from kinredund.trajectory import RecordWarning
 from kinredund.ui import options
 from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
+from kinredund.ui.summary import in_cli_words, print_table
+from kinredund.ui.summary import print_summary as _print_summary
 
 __all__ = ["EXIT_FAILED", "EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "REPRODUCIBLE", "build_parser", "main"]
 
@@ -38,54 +38,7 @@ def _progress(label: str, args):
     return bar
 
 
-# -- printing ----------------------------------------------------------------------------------------
-#: Units of the summary figures the commands print.
-_UNITS = {"position_error_max": "m", "max_position_residual": "m", "clearance_min": "m",
-          "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
-          "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
-          "max_joint_step_deg": "deg", "timings_s": "s", "speed_ratio_t": "s", "wrist_reach_needed": "m",
-          "wrist_reach_available": "m"}
-
-
-def _number(v) -> str:
-    return str(v) if isinstance(v, (bool, int, np.integer)) else f"{float(v):.3g}"
-
-
-def _shown(value) -> bool:
-    """Whether a summary value says something (not None, NaN, or an empty list or dict)."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return False
-    return not (isinstance(value, (list, tuple, dict, str)) and len(value) == 0)
-
-
-def _format(key: str, value) -> str:
-    unit = _UNITS.get(key, "")
-    suffix = f" {unit}" if unit else ""
-    if key == "loop_drift":  # a list per loop from tracking, one float from a plan: one format
-        drift = [float(v) for v in (value if isinstance(value, (list, tuple, np.ndarray)) else [value])]
-        return f"{drift[-1]:.3g} rad after loop {len(drift)}" + (
-            f" (largest {max(drift):.3g} rad)" if len(drift) > 1 else "")
-    if isinstance(value, dict):
-        return ", ".join(f"{k.removesuffix('_s')} {_number(v)}{suffix}" for k, v in value.items() if _shown(v))
-    if isinstance(value, (list, tuple)):
-        if all(isinstance(v, str) for v in value):
-            return ", ".join(value)
-        items = [_number(v) for v in value]
-        text = f"[{', '.join(items)}]" if len(items) <= 7 else f"[{items[0]}, {items[1]}, ..., {items[-1]}] " \
-            f"({len(items)} values)"
-        return text + suffix
-    if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
-        return _number(value) + suffix
-    return str(value)
-
-
-def _print_summary(summary: dict) -> None:
-    """Print ``summary`` as aligned ``name value unit`` rows, leaving out empty values (None, NaN, {})."""
-    for key, value in summary.items():
-        if _shown(value):
-            print(f"  {key:26s} {_format(key, value)}")
-
-
+# -- printing (kinredund.ui.summary) ----------------------------------------------------------------
 def _wrote(*paths) -> None:
     for p in paths:
         if p is not None:
@@ -103,10 +56,8 @@ def _cmd_generate_robots(args) -> int:
 def _cmd_robots(args) -> int:
     from kinredund.model.loader import robot_table
 
-    print(f"{'name':14s} {'n':>2s}  {'task':8s} {'m':>1s}  {'redundancy':10s} {'default frame':24s} source")
-    for row in robot_table():
-        print(f"{row.name:14s} {row.n:2d}  {row.task:8s} {row.m:1d}  n - m = {row.n - row.m:<3d}"
-              f"{row.ee_frame:24s} {row.note}")
+    rows = [(r.name, str(r.n), r.task, str(r.m), f"n - m = {r.n - r.m}", r.ee_frame, r.note) for r in robot_table()]
+    print_table(("name", "n", "task", "m", "redundancy", "default frame", "source"), rows, right=(1, 3))
     return EXIT_OK
 
 
@@ -153,8 +104,10 @@ def _plan(case: str, args, label: str) -> int:
     more = {} if getattr(args, "samples", None) is None else {"samples": args.samples}
     try:
         result = plan_case(case, json_path=args.json, plot_path=args.plot, progress=bar, **more)
-    finally:
-        bar.close()
+    except BaseException:
+        bar.close()  # failed or interrupted
+        raise
+    bar.close("done" if result.ok else "failed")
     print(f"Section {case}: off-line plan with collision avoidance")
     _print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
     _wrote(args.json, args.plot)
@@ -183,6 +136,11 @@ def _cmd_track(args) -> int:
     try:
         bar(0, 1, "loading the robot")
         robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
+        if robot.nq <= robot.task_dim:
+            bar.clear()
+            print(f"kinredund: note: {robot.name} has {robot.nq} joints for the {robot.task_dim} of its "
+                  f"{robot.task!r} task: it is not redundant, so --index {args.index} has no effect",
+                  file=sys.stderr)
         seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
         path, duration = path_for(args, robot, seed_q)
         # the baselines ignore the index while they step; their normality residual is measured against it
@@ -263,6 +221,11 @@ def _cmd_ik(args) -> int:
     return EXIT_OK
 
 
+def _exit_on_signal(signum, frame) -> None:
+    """A signal handler: unwind (``finally`` blocks run) and exit with 128 + the signal's number."""
+    raise SystemExit(128 + signum)
+
+
 def _cmd_play(args) -> int:
     if args.html is None and not args.live:
         raise KinredundError(f"say what to do with {args.result}: --html FILE writes a standalone replay, "
@@ -282,12 +245,17 @@ def _cmd_play(args) -> int:
         from kinredund.ui.viz import play_live, stop_live
 
         url = play_live(rec.trajectory, robot=rec.robot, loop=True)
-        print(f"open {url} (Ctrl-C to stop)")
+        # SIGTERM (kill, a service manager) stops the server as Ctrl-C does, then exits 143
+        previous = signal.signal(signal.SIGTERM, _exit_on_signal)
         try:
+            print(f"open {url} (Ctrl-C to stop)", flush=True)  # inside: a Ctrl-C right after it is the stop
             while True:
                 time.sleep(1.0)
         except KeyboardInterrupt:
+            pass
+        finally:
             stop_live(url)
+            signal.signal(signal.SIGTERM, previous)
     return EXIT_OK
 
 
@@ -356,11 +324,12 @@ def main(argv: list[str] | None = None) -> int:
     """
     from kinredund.io import output_batch
 
-    batch = None
+    batch = demo_out = None
     try:
         args = build_parser().parse_args(argv)
         _check_outputs(args)
         if args.command == "demo":
+            demo_out = Path(args.out)
             code = args.func(args)
         else:
             with output_batch() as batch:
@@ -368,12 +337,15 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
         return code
     except KinredundError as err:
-        print(f"kinredund: error: {err}", file=sys.stderr)
+        print(f"kinredund: error: {in_cli_words(str(err))}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         kept = [] if batch is None else batch.kept  # checkpoints (a sweep file) stay, to be resumed
-        print("kinredund: interrupted; " + (f"kept {', '.join(map(str, kept))} (written as the run went: resume "
-              "from it)" if kept else "no output file was written"), file=sys.stderr)
+        words = f"kept {', '.join(map(str, kept))} (written as the run went: resume from it)" if kept \
+            else "no output file was written"
+        if demo_out is not None and demo_out.is_dir() and any(demo_out.iterdir()):
+            words = f"the demo's files done so far stay in {demo_out}/"  # it writes each file as it is done
+        print(f"kinredund: interrupted; {words}", file=sys.stderr)
         return EXIT_SIGINT
     except BrokenPipeError:
         _quiet_stdout()

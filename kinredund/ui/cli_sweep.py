@@ -20,12 +20,20 @@ from kinredund.ui.options import add_quiet, add_robot, at_least, index_for, outp
 from kinredund.ui.progress import Progress
 
 GRID_HELP = ("the placements: x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw] - nx values from x0 to x1 [m] (both included), "
-             "ny from y0 to y1 [m], nyaw yaws from yaw0 to yaw1 [deg] about the base z axis (default yaw 0); "
+             "ny from y0 to y1 [m], nyaw yaws from yaw0 to yaw1 [rad] about the base z axis (default yaw 0); "
              "the part origin's position in the robot's base frame")
+#: how the summary line counts the placements that failed, by cause (kinredund.sweep.record.CAUSES); a cause
+#: of the limited tracker (TrackingError.CAUSES) reads "stopped: CAUSE"
+CAUSE_WORDS = {"start": "without a start", "path": "lost the path", "singularity": "at a singularity",
+               "limits": "out of the joint limits", "speed": "over a velocity limit", "error": "with an error",
+               "internal": "with an internal error", "worker": "lost with their worker",
+               "collision": "in collision", "loop_not_closed": "with joints that do not close",
+               "rate_burst": "with a rate burst"}
 
 
 def parse_grid(text: str) -> dict:
-    """``x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw]`` -> {"x": values [m], "y": values [m], "yaw": values [rad]}."""
+    """``x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw]`` -> {"x": values [m], "y": values [m], "yaw": values [rad]}
+    (every angle on the command line is in radians)."""
     parts = text.replace(" ", "").split(",")
     if len(parts) not in (2, 3):
         raise argparse.ArgumentTypeError(f"expected x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw], got {text!r}")
@@ -42,8 +50,7 @@ def parse_grid(text: str) -> dict:
             raise argparse.ArgumentTypeError(f"the {name} range needs finite ends and a count >= 1, got {part!r}")
         if count > MAX_PLACEMENTS:  # before linspace allocates it
             raise argparse.ArgumentTypeError(f"the {name} range's count must be at most {MAX_PLACEMENTS}, got {count}")
-        values = np.linspace(lo, hi, count)
-        axes[name] = np.radians(values) if name == "yaw" else values
+        axes[name] = np.linspace(lo, hi, count)
     axes.setdefault("yaw", np.zeros(1))
     sizes = [len(v) for v in axes.values()]
     try:
@@ -131,10 +138,6 @@ def _part_path(args, robot):
     return part_circle(robot, args.radius, args.speed, normal=normal)
 
 
-#: the unit each criterion is printed with
-UNITS = {"margin": "rad", "sigma_min": "", "speed": "", "mean_z": "rad^2", "drift": "rad", "clearance": "m"}
-
-
 def _scene(args, robot):
     """The scene of ``--scene`` around ``robot`` (None without it); --clearance and --pairs need it."""
     if args.scene is None:
@@ -166,24 +169,28 @@ def run(args) -> int:
                         starts=args.starts, seed=args.seed, scene=scene, clearance=args.clearance,
                         clearance_resolution=1e-3 if args.resolution is None else args.resolution,
                         workers=args.workers, scheduler=args.scheduler,
-                        batch_size=args.batch_size, out=args.json, resume=args.resume, progress=bar)
+                        batch_size=args.batch_size, out=args.json, resume=args.resume,
+                        progress=lambda done, total: bar(done, total, "placements"))
     causes = Counter(r.cause for r in records if not r.feasible)
     feasible = sum(r.feasible for r in records)
     print(f"{robot.name}: {len(records)} placements at z = {z:.3f} m, {feasible} feasible"
-          + "".join(f", {n} {c}" for c, n in sorted(causes.items())))
+          + "".join(f", {n} {CAUSE_WORDS.get(c, f'stopped: {c}')}" for c, n in sorted(causes.items())))
     near = best(records, "clearance", 1)
     if scene is not None and near:
         print(f"largest clearance of a feasible placement: {near[0].clearance:.4g} m (#{near[0].placement}; "
               f"--clearance {args.clearance:g} m)")
     top = best(records, args.criterion, args.top)
     if top:
+        from kinredund.ui.plots_sweep import CRITERION_UNITS
+
+        unit = CRITERION_UNITS[args.criterion]
         print(f"best by {args.criterion}:")
         for r in top:
             near = ""
             if r.clearance is not None and args.criterion != "clearance":
                 near = f"  clearance {r.clearance:.4g} m ({r.clearance_pair[0]}, {r.clearance_pair[1]})"
-            print(f"  #{r.placement:<5d} x {r.x:+.3f} m  y {r.y:+.3f} m  yaw {math.degrees(r.yaw):+7.1f} deg  "
-                  f"{args.criterion} {r.value(args.criterion):.4g} {UNITS[args.criterion]}{near}")
+            print(f"  #{r.placement:<5d} x {r.x:+.3f} m  y {r.y:+.3f} m  yaw {r.yaw:+.3f} rad  "
+                  f"{args.criterion} {r.value(args.criterion):.4g}" + (f" {unit}" if unit != "-" else "") + near)
     if args.json:
         print(f"wrote {args.json}")
     if args.plot:

@@ -60,7 +60,8 @@ def _chapter4(out: Path, loops: int, rows: list, data: dict, log, bar) -> None:
                              title=f"Example {name}: joint histories (default mode)")
         plot_errors(list(runs.values()), out / f"example_{tag}_errors.png", title=f"Example {name}: tracking errors")
         plot_loop_drift(list(runs.values()), out / f"example_{tag}_drift.png",
-                        title=f"Example {name}: joint drift per loop (thesis mode: one loop, as the thesis ran it)")
+                        title=f"Example {name}: joint drift from the start after each loop (thesis mode: one "
+                              "loop, as the thesis ran it)")
         plot_m_eigenvalues(runs["default"], out / f"example_{tag}_eigenvalues.png",
                            title=f"Example {name}: eigenvalues of M and the solver of each step")
         replay_html(runs["default"], out / f"example_{tag}.html", robot=ex.robot)
@@ -123,15 +124,19 @@ def run_demo(out: Path, quick: bool = False, stream=None, quiet: bool = False) -
     rows: list = []
     data: dict = {}
     failures = []
-    for label, fn in (("Chapter 4", lambda: _chapter4(out, 2 if quick else 10, rows, data, log, bar)),
-                      ("Chapter 3", lambda: _chapter3(out, rows, data, log, bar)),
-                      ("Chapter 6", lambda: _chapter6(out, rows, data, log, bar))):
-        try:
-            fn()
-        except Exception as err:  # noqa: BLE001 - report every failing chapter, then fail the run
-            failures.append(f"{label}: {type(err).__name__}: {err}")
-            log(f"{label} FAILED: {type(err).__name__}: {err}")
-    bar.close()
+    try:
+        for label, fn in (("Chapter 4", lambda: _chapter4(out, 2 if quick else 10, rows, data, log, bar)),
+                          ("Chapter 3", lambda: _chapter3(out, rows, data, log, bar)),
+                          ("Chapter 6", lambda: _chapter6(out, rows, data, log, bar))):
+            try:
+                fn()
+            except Exception as err:  # noqa: BLE001 - report every failing chapter, then fail the run
+                failures.append(f"{label}: {type(err).__name__}: {err}")
+                log(f"{label} FAILED: {type(err).__name__}: {err}")
+    except BaseException:
+        bar.close()  # interrupted
+        raise
+    bar.close("failed" if failures else "done")
     header = ["example", "run", "position error [m]", "trace error", "vect error", "normality residual",
               "joint drift from the start after the last loop [rad]", "notes (LU steps / thesis)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]

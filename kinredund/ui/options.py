@@ -111,10 +111,16 @@ def _sub(sub, commands: dict, name: str, help_: str, description: str, examples:
     return subcommand(sub, name, help_, description, examples, commands[name])
 
 
-def _add_outputs(p, *, html: bool = False, quiet: bool = False) -> None:
+#: what --plot of a Chapter 6 plan writes besides the figure (kinredund.ui.reproduce.snapshot_path)
+PLAN_PLOT_NOTE = ("; a plan that was tracked (6.3) also gets its configuration snapshots beside it, as "
+                  "NAME_snapshots.EXT")
+
+
+def _add_outputs(p, *, html: bool = False, quiet: bool = False, plot_note: str = "") -> None:
     p.add_argument("--json", type=output_file, metavar="FILE", help="write the result as JSON (default: not written)")
     p.add_argument("--plot", type=output_file, metavar="FILE",
-                   help="save the figure; the format follows the suffix: .png, .pdf or .svg (default: not drawn)")
+                   help=f"save the figure; the format follows the suffix: .png, .pdf or .svg{plot_note} "
+                        "(default: not drawn)")
     if html:
         p.add_argument("--html", type=output_file, metavar="FILE",
                        help="write a standalone HTML replay that plays offline in a browser (default: not written)")
@@ -191,7 +197,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     _add_tracking(p)
     p.add_argument("--steps", type=_SAMPLES, default=200, metavar="N",
                    help="steps per loop, as in the thesis (default: %(default)s)")
-    _add_outputs(p, quiet=True)
+    _add_outputs(p, quiet=True, plot_note=PLAN_PLOT_NOTE)
 
     p = _sub(sub, commands, "track", "track a path with a robot",
              "Find the optimal start on the path (joint-level IK), then track the path with the resolved-rate "
@@ -264,7 +270,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p.add_argument("--samples", type=at_least(4, "samples"), default=9, metavar="N",
                    help="sample points of the 6.2 planner, at least 4 for its cubic spline; 6.3 plans on a roadmap "
                         "instead (default: %(default)s)")
-    _add_outputs(p, quiet=True)
+    _add_outputs(p, quiet=True, plot_note=PLAN_PLOT_NOTE)
 
     p = _sub(sub, commands, "play", "replay a result JSON in the browser",
              "Replay any JSON the commands write: a trajectory (track, reproduce 4.x), a plan (plan, "

@@ -12,7 +12,10 @@ format follows the suffix: ``.png``, ``.pdf`` or ``.svg``.
   time, log scale.
 - :func:`plot_m_eigenvalues`: the eigenvalues of M (Eq. 4.24) and of its projection on the null
   space of J against time; steps solved by LU instead of the QP of Theorem 2 are shaded.
-- :func:`plot_loop_drift`: joint drift at the end of each loop, one curve per scheme, log scale.
+- :func:`plot_loop_drift`: joint drift from the start at the end of each loop, one curve per scheme,
+  log scale.
+
+Legends sit to the right of their axes, off the data (:func:`legend_outside`).
 """
 
 from __future__ import annotations
@@ -30,6 +33,9 @@ PLOT_FORMATS = ("png", "pdf", "svg")
 #: Values below this are drawn at it on log scales (an exact zero has no logarithm).
 LOG_FLOOR = 1e-17
 _DPI = 120
+#: the eigenvalue panels draw their zero line only when 0 lies within this share of the data's span of it
+#: (else the line stretched a panel of values 0.94-1.06 from 0 to 1.1)
+ZERO_LINE_REACH = 0.25
 
 
 # -- helpers ---------------------------------------------------------------------------------------
@@ -56,7 +62,15 @@ def _label(traj: Trajectory) -> str:
     return f"{traj.scheme} ({traj.mode})"
 
 
-def _new_figure(rows: int = 1, height: float = 3.6, width: float = 7.0):
+def legend_outside(ax, handles=None, labels=None, **kwargs):
+    """The legend of ``ax`` to the right of its axes, off the data (a ``loc="best"`` legend still covered
+    curves, e.g. Example 4.2's eigenvalues); the constrained layout makes room for it."""
+    args = () if handles is None else (handles, labels)
+    return ax.legend(*args, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small",
+                     frameon=False, **kwargs)
+
+
+def _new_figure(rows: int = 1, height: float = 3.6, width: float = 8.0):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -149,10 +163,13 @@ def joint_histories_figure(
         ax.set_ylabel("joint angle [deg]")
         if twin is not None:
             twin.set_ylabel("joint displacement [mm]")
-            twin.legend(loc="lower right", fontsize="small")
         ax.set_xlim(t[0], t[-1])
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize="small", ncols=min(len(chosen), 4))
+        handles, names = ax.get_legend_handles_labels()
+        if twin is not None:
+            more = twin.get_legend_handles_labels()
+            handles, names = handles + more[0], names + more[1]
+        legend_outside(twin or ax, handles, names)  # on the twin (drawn last) when there is one
         ax.set_title(title if title is not None else f"Joint histories: {tr.robot}, {_label(tr)}")
     return fig
 
@@ -200,7 +217,7 @@ def errors_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | None
     for ax in axes:
         ax.set_xlabel("time [s]")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="best", fontsize="small")
+        legend_outside(ax)
     return fig
 
 
@@ -240,7 +257,11 @@ def m_eigenvalues_figure(traj: Trajectory, *, title: str | None = None):
     for ax, values, fmt, ylabel in panels:
         for j in range(values.shape[1]):
             ax.plot(t, values[:, j], label=fmt.format(j + 1))
-        ax.axhline(0.0, color="black", linewidth=0.8)
+        low, high = float(values.min()), float(values.max())
+        if low - ZERO_LINE_REACH * (high - low) <= 0.0 <= high + ZERO_LINE_REACH * (high - low):
+            ax.axhline(0.0, color="black", linewidth=0.8)  # where the sign can change
+        elif low > 0.0:
+            ylabel += " (all > 0)"  # a zero line would stretch the panel from 0 (0 to 1.1 for 0.94-1.06)
         for mask, color, label in ((lu, "tab:red", "solved by LU"), (aug, "gold", r"solved by QP on $M + \rho J^T J$")):
             for k, (start, stop) in enumerate(_runs(mask)):
                 right = t[min(stop, len(t) - 1)]
@@ -252,14 +273,14 @@ def m_eigenvalues_figure(traj: Trajectory, *, title: str | None = None):
         handles, names = ax.get_legend_handles_labels()
         handles.append(Patch(facecolor="white", edgecolor="0.6", linewidth=0.5))
         names.append("unshaded: solved by QP on M")
-        ax.legend(handles, names, loc="best", fontsize="small", ncols=2)
+        legend_outside(ax, handles, names)
     lu_count = int(lu[1:].sum())  # labels of the steps: solver[0] is the start's (Trajectory.summary)
     axes[0].set_title(title if title is not None
                       else f"M along the path: {tr.robot}, {_label(tr)}, {lu_count} LU steps of {len(t) - 1}")
     return fig
 
 
-# -- drift per loop -----------------------------------------------------------------------------
+# -- drift from the start, after each loop -----------------------------------------------------------------------------
 _DRIFT_HINT = ": it is not a closed path (tracking records the drift per loop of closed paths only)"
 
 
@@ -275,12 +296,14 @@ def loop_drifts(traj: Trajectory) -> np.ndarray:
 def plot_loop_drift(
     trajs: Trajectory | Sequence[Trajectory], path: str | Path, *, title: str | None = None
 ) -> Path:
-    """Joint drift per loop, one curve per scheme, log: :func:`loop_drift_figure` written to ``path``."""
+    """Joint drift from the start after each loop, one curve per scheme, log: :func:`loop_drift_figure`
+    written to ``path``."""
     return save_figure(loop_drift_figure(trajs, title=title), path)
 
 
 def loop_drift_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | None = None):
-    """Joint drift at the end of each loop [rad] (``traj.loop_drift``), one curve per trajectory, log scale.
+    """Joint drift from the start at the end of each loop [rad] (``traj.loop_drift``: |q(k T) - q(0)|, not
+    the change over one loop), one curve per trajectory, log scale.
 
     A cyclic scheme keeps the drift at round-off level; the pseudoinverse (Liegeois) drifts.
 
@@ -295,12 +318,12 @@ def loop_drift_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | 
         loops = np.arange(1, len(drift) + 1)
         label = _label(tr) + (" (a single loop: one point)" if len(drift) == 1 else "")
         ax.semilogy(loops, _log_positive(drift), marker="o", color=f"C{k % 10}", label=label)
-    ax.set_xlabel("loop")
-    ax.set_ylabel("joint drift [rad]")
+    ax.set_xlabel("loops run")
+    ax.set_ylabel("joint drift from the start [rad]")
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(loc="best", fontsize="small")
-    ax.set_title(title if title is not None else f"Joint drift per loop: {items[0].robot}")
+    legend_outside(ax)
+    ax.set_title(title if title is not None else f"Joint drift from the start after each loop: {items[0].robot}")
     return fig
 
 
@@ -311,6 +334,7 @@ __all__ = [
     "joint_histories_figure",
     "loop_drift_figure",
     "loop_drifts",
+    "legend_outside",
     "m_eigenvalues_figure",
     "plot_errors",
     "plot_joint_histories",

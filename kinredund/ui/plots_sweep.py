@@ -18,14 +18,16 @@ from kinredund.errors import KinredundError, check_choice
 from kinredund.sweep.record import CRITERIA, PlacementRecord, best
 from kinredund.ui.plots import save_figure
 
+#: units of the criteria (``-``: a ratio or a mixed-unit figure); the command line prints them too
+CRITERION_UNITS = {"margin": "rad", "sigma_min": "-", "speed": "-", "mean_z": "rad^2", "drift": "rad",
+                   "clearance": "m"}
+_UNIT_TEX = {"rad^2": "rad$^2$"}
 #: axis labels of the criteria, with units
 CRITERION_LABELS = {
-    "margin": "smallest margin to the joint limits [rad]",
-    "sigma_min": "smallest singular value of J [-]",
-    "speed": "largest joint speed / its limit [-]",
-    "mean_z": "mean of z over the loop [rad$^2$]",
-    "drift": "loop drift [rad]",
-    "clearance": "least clearance to the cell and itself [m]",
+    name: f"{text} [{_UNIT_TEX.get(CRITERION_UNITS[name], CRITERION_UNITS[name])}]"
+    for name, text in (("margin", "smallest margin to the joint limits"), ("sigma_min", "smallest singular value of J"),
+                       ("speed", "largest joint speed / its limit"), ("mean_z", "mean of z over the loop"),
+                       ("drift", "loop drift"), ("clearance", "least clearance to the cell and itself"))
 }
 
 

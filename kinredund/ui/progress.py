@@ -4,22 +4,39 @@ The library reports progress through a callable ``progress(done, total, stage=No
 calls it after each step (without a stage), the planners name their stages (``roadmap``, ``tracking``,
 ``clearance``, ...). :class:`Progress` is that callable for the command line: on a terminal one tqdm
 bar whose description follows the stage (it restarts when the stage changes, so the whole run shows,
-not only the tracking); off a terminal (a log, CI, a pipe) a plain line at the first call, at each new
-stage and then every ``interval`` seconds; with ``quiet`` nothing.
+not only the tracking); off a terminal (a log, CI, a pipe) plain lines: one at the first call, one
+when a stage ends (where it got to), and one every ``interval`` seconds from a timer thread, so the log
+moves at a steady pace even through a stage that reports rarely; with ``quiet`` nothing.
+
+The last line says how the run ended: ``done``, ``failed`` or ``interrupted`` (:meth:`Progress.close`
+reads the exception in flight when it is called from a ``finally`` block or a ``with`` statement).
 """
 
 from __future__ import annotations
 
 import shutil
 import sys
+import threading
 import time
+
+from kinredund.errors import check_choice
 
 #: Seconds between two lines off a terminal.
 LOG_INTERVAL = 5.0
+#: How a run can end, as the last progress line says it.
+OUTCOMES = ("done", "failed", "interrupted")
+
+
+def outcome_of(exc: BaseException | None) -> str:
+    """``done`` without an exception, ``interrupted`` for Ctrl-C (KeyboardInterrupt) or a signal's
+    SystemExit, ``failed`` for any other exception."""
+    if exc is None:
+        return "done"
+    return "interrupted" if isinstance(exc, (KeyboardInterrupt, SystemExit)) else "failed"
 
 
 class Progress:
-    """Callable as ``progress(done, total, stage=None)``; ``close()`` ends the bar.
+    """Callable as ``progress(done, total, stage=None)``; ``close()`` ends the bar with the run's outcome.
 
     Args:
         label: what runs (``plan 6.3``), first on every line.
@@ -35,7 +52,11 @@ class Progress:
         self.interval = interval
         self.terminal = bool(getattr(self.stream, "isatty", lambda: False)())
         self.stage: str | None = None
+        self._done, self._total = 0, 1
         self._bar = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._timer: threading.Thread | None = None
         self._last_line = -float("inf")
         self._start = time.perf_counter()
 
@@ -43,18 +64,42 @@ class Progress:
         if self.quiet:
             return
         stage = stage if stage is not None else (self.stage or "working")
-        new_stage = stage != self.stage
-        self.stage = stage
         total = max(int(total), 1)
         done = min(max(int(done), 0), total)
-        if self.terminal:
-            self._draw(done, total, new_stage)
-            return
+        with self._lock:
+            previous = self.stage
+            new_stage = stage != previous
+            if new_stage and previous is not None and not self.terminal:
+                self._line(f"{previous} {self._done}/{self._total} ({self._percent()})")  # where it got to
+            self.stage, self._done, self._total = stage, done, total
+            if self.terminal:
+                self._draw(done, total, new_stage)
+            elif previous is None:
+                self._line(self._state())
+                self._start_timer()
+
+    def _percent(self) -> str:
+        return f"{100.0 * self._done / self._total:.0f}%"
+
+    def _state(self) -> str:
+        return f"{self.stage} {self._done}/{self._total} ({self._percent()})"
+
+    def _line(self, text: str) -> None:
+        """Print ``label: text, elapsed`` (off a terminal; the caller holds the lock)."""
         now = time.perf_counter()
-        if new_stage or now - self._last_line >= self.interval or (done == total and stage == "done"):
-            self._last_line = now
-            print(f"{self.label}: {stage} {done}/{total} ({100.0 * done / total:.0f}%), "
-                  f"{now - self._start:.1f} s", file=self.stream, flush=True)
+        self._last_line = now
+        print(f"{self.label}: {text}, {now - self._start:.1f} s", file=self.stream, flush=True)
+
+    def _start_timer(self) -> None:
+        """The thread that prints the current state every ``interval`` seconds without a line."""
+        def beat() -> None:
+            while not self._stop.wait(min(self.interval, 1.0)):
+                with self._lock:
+                    if not self._stop.is_set() and time.perf_counter() - self._last_line >= self.interval:
+                        self._line(self._state())
+
+        self._timer = threading.Thread(target=beat, name=f"progress {self.label}", daemon=True)
+        self._timer.start()
 
     def _draw(self, done: int, total: int, new_stage: bool) -> None:
         from tqdm import tqdm
@@ -86,20 +131,38 @@ class Progress:
         if self._bar is not None:
             self._bar.clear()
 
-    def close(self) -> None:
-        """End the bar (a terminal) or print the last line with the total time (elsewhere)."""
+    def close(self, outcome: str | None = None) -> None:
+        """End the bar and say how the run ended: ``done``, ``failed`` or ``interrupted``.
+
+        Args:
+            outcome: one of :data:`OUTCOMES`; default from the exception in flight (:func:`outcome_of` of
+                ``sys.exc_info()``, which a ``finally`` block sees), ``done`` without one.
+
+        Off a terminal the last line is ``label: outcome, elapsed`` (with the stage and count where a failed
+        or interrupted run stopped); on a terminal the bar is wiped and, unless ``done``, that line printed.
+        """
+        if outcome is None:
+            outcome = outcome_of(sys.exc_info()[1])
+        check_choice("progress outcome", outcome, OUTCOMES)
+        self._stop.set()
+        if self._timer is not None:
+            self._timer.join()
+            self._timer = None
         if self.quiet:
             return
-        elapsed = time.perf_counter() - self._start
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-        if self.stage is not None and not self.terminal:
-            print(f"{self.label}: done, {elapsed:.1f} s", file=self.stream, flush=True)
+        if self.stage is None or (self.terminal and outcome == "done"):
+            return
+        with self._lock:
+            if outcome == "done" and not self.terminal:
+                self._line(self._state())  # where the last stage got to, as at every stage's end
+            self._line(outcome if outcome == "done" else f"{outcome} at {self._state()}")
+        self.stage = None  # closed: a second close prints nothing
 
     def __enter__(self) -> Progress:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
-
+    def __exit__(self, kind, exc, tb) -> None:
+        self.close(outcome_of(exc))

@@ -37,8 +37,10 @@ from kinredund.ui.viz.scene import (
 
 ROBOT_NODE = "robot"
 FLOOR_NODE = "floor"
-PATH_COLOR = 0x1F4FE0
-TRACER_COLOR = 0x18A040
+#: meshcat's world axes (three.js AxesHelper): x red, y green, z blue; the path colours stay clear of them
+AXES_COLORS = (0xFF0000, 0x00FF00, 0x0000FF)
+PATH_COLOR = 0xC0189A  # magenta: not the blue of the z axis
+TRACER_COLOR = 0x202020  # near black: not the green of the y axis
 FLOOR_COLOR = 0x8C96A5
 #: Dots of the traced path drawn along one playback, at most.
 TRACE_DOTS = 60

@@ -3,8 +3,10 @@
 meshcat's static export is a page with the viewer and its control panel only. :func:`decorate_page`
 adds a panel in the top-left corner (plain HTML and CSS, no network) with the title (robot, path,
 scheme), a readout of the trajectory's time that follows the animation (read from the viewer's
-animator ten times a second) and a legend of the colours of the scene. The elements carry ids
-(:data:`TITLE_ID`, :data:`TIME_ID`, :data:`LEGEND_ID`) that the browser test reads.
+animator ten times a second) and a legend of the colours of the scene. Where the browser gives no WebGL
+context (meshcat would show a blank page), a notice in the middle of the page says so and what to do.
+The elements carry ids (:data:`TITLE_ID`, :data:`TIME_ID`, :data:`LEGEND_ID`, :data:`NOTICE_ID`) that
+the browser tests read.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from kinredund.trajectory import Trajectory
 TITLE_ID = "kinredund-title"
 TIME_ID = "kinredund-time"
 LEGEND_ID = "kinredund-legend"
+NOTICE_ID = "kinredund-no-webgl"
 
 
 def replay_title(traj: Trajectory, path_label: str | None = None) -> str:
@@ -40,11 +43,20 @@ def replay_title(traj: Trajectory, path_label: str | None = None) -> str:
     return f"{traj.robot}: {path_label}, {traj.scheme} scheme ({traj.mode} mode)"
 
 
-def _swatch(color: int, shape: str) -> str:
-    css = {"line": "width:22px;height:3px", "dot": "width:9px;height:9px;border-radius:50%",
-           "box": "width:14px;height:10px;opacity:0.6"}[shape]
+def _swatch(color: int | tuple[int, ...], shape: str) -> str:
+    """A legend swatch; several colours (the world axes) give one small swatch each."""
+    if isinstance(color, tuple):
+        return "".join(_swatch(c, {"line": "short"}.get(shape, shape)) for c in color)
+    css = {"line": "width:22px;height:3px", "short": "width:8px;height:3px", "dot": "width:9px;height:9px;"
+           "border-radius:50%", "box": "width:14px;height:10px;opacity:0.6"}[shape]
     style = f"display:inline-block;{css};background:#{color:06x};margin-right:6px;vertical-align:middle"
     return f'<span style="{style}"></span>'
+
+
+#: what the page says where the browser gives no WebGL context (meshcat draws nothing without one)
+NO_WEBGL = ("This replay needs WebGL, which this browser does not provide here (it may be turned off, or the "
+            "graphics driver blocked): the robot cannot be drawn. Open the file in a browser with WebGL and "
+            "hardware acceleration enabled (chrome://gpu or about:support tells).")
 
 
 def decorate_page(page: str, title: str, legend: list[tuple[str, int, str]], t0: float, duration: float) -> str:
@@ -53,7 +65,7 @@ def decorate_page(page: str, title: str, legend: list[tuple[str, int, str]], t0:
     Args:
         page: the HTML of ``Visualizer.static_html()``.
         title: the title line.
-        legend: (label, colour 0xRRGGBB, ``line``/``dot``/``box``) per entry.
+        legend: (label, colour 0xRRGGBB or a tuple of them, ``line``/``dot``/``box``) per entry.
         t0: the trajectory time of the first frame [s].
         duration: the playback's length [s].
 
@@ -72,10 +84,24 @@ def decorate_page(page: str, title: str, legend: list[tuple[str, int, str]], t0:
   <div id="{LEGEND_ID}" style="margin-top:4px;font-size:13px">{items}</div>
   <div style="margin-top:4px;font-size:11px;color:#555">play, pause and scrub: Open Controls, Animations</div>
 </div>
+<div id="{NOTICE_ID}" role="alert" style="display:none;position:absolute;left:50%;top:40%;z-index:11;
+  transform:translate(-50%,-50%);max-width:36em;font:15px/1.5 system-ui,sans-serif;color:#5a1010;
+  background:#fff4f2;border:1px solid #d9a59d;border-radius:6px;padding:14px 18px">{html.escape(NO_WEBGL)}</div>
 <script>
 (function () {{
   var t0 = {json.dumps(float(t0))}, duration = {json.dumps(float(duration))};
   var el = document.getElementById("{TIME_ID}");
+  var gl = null;
+  try {{
+    var canvas = document.createElement("canvas");
+    gl = window.WebGLRenderingContext && (canvas.getContext("webgl2") || canvas.getContext("webgl")
+                                          || canvas.getContext("experimental-webgl"));
+  }} catch (err) {{ gl = null; }}
+  if (!gl) {{
+    document.getElementById("{NOTICE_ID}").style.display = "block";
+    el.textContent = "no WebGL: nothing to play";
+    return;
+  }}
   setInterval(function () {{
     var a = (typeof viewer !== "undefined" && viewer.animator) ? viewer.animator.time : 0;
     el.textContent = "t = " + (t0 + a).toFixed(2) + " s of " + (t0 + duration).toFixed(2) + " s";

@@ -20,7 +20,14 @@ from pathlib import Path
 from kinredund.io import atomic_write_text
 from kinredund.model.robot import Robot
 from kinredund.trajectory import Trajectory
-from kinredund.ui.viz._meshcat import OBSTACLE_COLOR, PATH_COLOR, TRACER_COLOR, animated_visualizer, stop_visualizer
+from kinredund.ui.viz._meshcat import (
+    AXES_COLORS,
+    OBSTACLE_COLOR,
+    PATH_COLOR,
+    TRACER_COLOR,
+    animated_visualizer,
+    stop_visualizer,
+)
 from kinredund.ui.viz.page import decorate_page, replay_title
 from kinredund.ui.viz.scene import MAX_FRAMES, read_obstacle
 
@@ -40,7 +47,7 @@ def replay_html(
     """Write a standalone HTML file that replays ``traj`` in meshcat, at the trajectory's own speed.
 
     The page shows the robot's URDF visuals on a floor grid (z = 0), the desired end-effector path (a
-    blue line), the traced path (green dots) with a green marker on the reached end point, the
+    magenta line), the traced path (dark dots) with a dark marker on the reached end point, the
     obstacle of ``traj.meta["obstacle"]`` if there is one (purple, translucent), and a camera that
     frames them all; a corner panel gives the title, the time and the legend. The motion is resampled to at most
     ``max_frames`` keyframes spread over the trajectory's duration, so a long run stays a small file.
@@ -78,6 +85,7 @@ def replay_html(
         from kinredund.ui.viz.cell import CELL_COLOR, CLOSEST_COLOR
 
         legend += [("scene objects", CELL_COLOR, "box"), ("closest pair", CLOSEST_COLOR, "dot")]
+    legend.append(("world axes x, y, z (at the base)", AXES_COLORS, "line"))
     t = traj.t
     html = decorate_page(html, title if title is not None else replay_title(traj), legend,
                          float(t[0]), float(t[-1] - t[0]))
