@@ -54,7 +54,7 @@ from _bench import parser, print_table, write_json
 
 from kinredund.errors import KinredundError
 from kinredund.kinematics.angles import joint_drift
-from kinredund.model.robot import load_robot
+from kinredund.model.loader import load_robot
 from kinredund.planning.circles import CircleTask, random_circle, reachable, start_of
 from kinredund.planning.cyclic import plan
 from kinredund.planning.verify import limit_excursion, task_errors, verify_motion_on_path

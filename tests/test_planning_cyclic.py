@@ -28,6 +28,7 @@ from kinredund.planning.verify import (
     verify_motion_on_path,
 )
 from kinredund.planning.walk import shrunk_limits
+from kinredund.tasks.axis import frame_with_axis
 from kinredund.tracking import track
 
 STEPS = 200  # per loop, the benchmark's
@@ -171,6 +172,28 @@ def test_planner_on_a_planar_arm():
     r = robot("planar3r")
     path = Circle(r.fk(r.home)[:3, 3] - np.array([0.1, 0.0, 0.0]), 0.1, 0.2)
     result = plan(r, path, JointDeviation(r.home), loops=1)
+    _assert_completed(r, path, result, loops=1)
+
+
+@pytest.mark.parametrize("name", ["ur5", "ur10", "kinova", "z1", "talos_arm"])
+def test_planner_on_a_six_axis_arm_with_the_tool_axis_task(name):
+    """Every task kind plans: a 6-axis arm with the tool-axis task (m = 5), the README's UR5 circle. It
+    raised TaskError ("a pose target must have shape (4, 4)") before the targets came from the task object."""
+    r = robot(name)
+    assert r.task == "axis" and r.nq == 6
+    T = r.fk(r.home)  # the tool axis held at its home direction along a small circle through the home point
+    path = Circle(T[:3, 3] - np.array([0.04, 0.0, 0.0]), 0.04, 0.08, orientation=frame_with_axis(T[:3, 2]))
+    result = plan(r, path, JointDeviation(r.home), samples=12, starts=2, loops=1, steps_per_loop=STEPS)
+    _assert_completed(r, path, result, loops=1)
+    tr = result.trajectory
+    assert tr.task == "axis" and tr.axis_error.max() <= TASK_TOL  # the tool axis held, from the record
+
+
+def test_planner_on_the_position_task():
+    """The position task (m = 3) on the 7-axis Panda: the fourth task kind."""
+    r = robot("panda", "position")
+    path = Circle(r.fk(r.home)[:3, 3] - np.array([0.05, 0.0, 0.0]), 0.05, 0.1)
+    result = plan(r, path, JointDeviation(r.home), samples=12, starts=2, loops=1, steps_per_loop=STEPS)
     _assert_completed(r, path, result, loops=1)
 
 

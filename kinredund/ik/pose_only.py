@@ -47,6 +47,7 @@ def pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
     max_iter = min(s.max_iter, QUICK_MAX_ITER) if quick else s.max_iter
     slow_max = max(max_iter, min(s.max_iter, SLOW_MAX_ITER)) if quick else max_iter
     Q, p, K = jac(q)
+    own_g = res.m != (K.shape[0] if rows is None else len(rows))
     ev, phi = terms(Q, p)
     history = [phi]  # ||e||^2 at each iterate
     phi_ref, since = phi, 0
@@ -76,7 +77,9 @@ def pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
         since += 1
         if s.deadline is not None and perf_counter() > s.deadline:
             return StartOutcome(q, False, it, "timeout", res.residual(Q, p))
-        G = K if rows is None else K[rows]
+        # rows of K where they are the task's Jacobian (up to Jl^-1); a task whose residual is not a subset
+        # of K's rows (the tool axis, m = 5 of 6) gives its own exact G
+        G = res.jacobian(K, res.error(Q, p)[1]) if own_g else (K if rows is None else K[rows])
         if floor < 0.0:
             floor = DAMPING * float(np.abs(G).max()) ** 2
         e = np.array(ev)

@@ -75,6 +75,7 @@ from kinredund.planning.walk import (
     walk_costs,
     walk_knots,
 )
+from kinredund.tasks import get_task
 from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
@@ -220,7 +221,7 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
     _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin)
     t0 = perf_counter()
     timings: dict[str, float] = {}
-    flips = orientation_loop_flips(path) if robot.task == "pose" else None
+    flips = orientation_loop_flips(path) if get_task(robot.task).holds_rotation else None
     cycles = check_count(cycles, 1, "cycles", TaskError)
     if flips and cycles % 2:
         return CyclicPlan(False, "the path's orientation turns once about an axis per loop (a loop of SO(3) that is "

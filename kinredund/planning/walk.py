@@ -23,14 +23,15 @@ import copy
 
 import numpy as np
 
-from kinredund.errors import PathError
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index, JointDeviation
 from kinredund.paths import Path
-from kinredund.tasks import make_target
+from kinredund.tasks import get_task
 
 #: two candidates closer than this (max-abs) are the same local minimum [rad or m]
 SAME_CANDIDATE = 1e-6
+#: a candidate's task errors are at most this [m or rad]: a converged solve holds ~1e-12, a wrong branch ~1
+ON_TARGET = 1e-8
 
 
 def shrunk_limits(robot, margin: float):
@@ -43,13 +44,12 @@ def shrunk_limits(robot, margin: float):
 
 
 def target_at(robot, path: Path, t: float):
-    """The IK target of the path at t for the robot's task kind (pose, position or planar)."""
-    s = path(t)
-    if robot.task == "pose":
-        if s.Q is None:
-            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
-        return make_target("pose", (s.Q, s.p))
-    return make_target(robot.task, s.p[:2] if robot.task == "planar" else s.p)
+    """The IK target of the path at t for the robot's task kind (:meth:`kinredund.tasks.Task.target_at`).
+
+    Raises:
+        PathError: the task holds an orientation and the path gives none.
+    """
+    return get_task(robot.task).target_at(path, t)
 
 
 def inside_limits(robot, q) -> bool:
@@ -57,10 +57,20 @@ def inside_limits(robot, q) -> bool:
     return bool(np.all(q >= robot.lower) and np.all(q <= robot.upper))
 
 
+def on_target(robot, target, q, tol: float = ON_TARGET) -> bool:
+    """Every error the task records (:meth:`kinredund.tasks.Task.error_values`, the robot's own FK) within
+    ``tol`` at q: a solve's answer is a point of the path, not a stationary point elsewhere (a tool axis
+    reversed against the target's is a zero of some residuals, not of the task's errors)."""
+    T = robot.fk(q)
+    errors = get_task(robot.task).error_values(T[:3, :3], T[:3, 3], target)
+    return max(errors.values()) <= tol
+
+
 def local_minimum(inner, target, index: Index, seed, max_iter: int):
-    """A within-limits local minimum of z from ``seed`` (q, z), or None."""
+    """A within-limits local minimum of z from ``seed`` (q, z) on the target, or None."""
     res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
-    if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)):
+    if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)
+            and on_target(inner, target, res.q)):
         return None
     return res.q, float(res.objective)
 

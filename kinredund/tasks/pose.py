@@ -218,6 +218,7 @@ class PoseTask(Task):
     dim = 6
     has_orientation = True
     error_names = ("position_error", "trace_error", "vect_error")
+    holds_rotation = True
 
     def make_target(self, target, *, z: float = 0.0) -> Target:
         """Validate a 4x4 homogeneous pose (or a (Q, p) pair).
@@ -245,6 +246,10 @@ class PoseTask(Task):
         v = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], axis=1)
         out["vect_error"] = np.linalg.norm(v, axis=1)
         return out
+
+    def orientation_angles(self, Q, Q_d):
+        """The angle of Q_d^T Q [rad] at each point (the vect error is not an angle)."""
+        return np.array([orientation_error(a, b) for a, b in zip(Q, Q_d, strict=True)])
 
     def span_rows(self, Q, K, Q_d):
         """K itself: J = K (velocity form) or H K with H invertible near the path (Eq. 2.14)."""

@@ -31,7 +31,8 @@ import numpy as np
 
 from kinredund.errors import check_choice
 from kinredund.io import write_json
-from kinredund.model.robot import Robot, load_robot
+from kinredund.model.loader import load_robot
+from kinredund.model.robot import Robot
 from kinredund.paths import Ellipse
 from kinredund.planning import spatial
 from kinredund.planning.clearance import link_model

@@ -29,7 +29,7 @@ REACH_TOL = 1e-6
 
 def loadable_name(robot: Robot) -> str:
     """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
-    from kinredund.model.robot import known_robots
+    from kinredund.model.loader import known_robots
 
     if robot.name in known_robots() or robot.urdf_path is None:
         return robot.name

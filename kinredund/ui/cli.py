@@ -12,88 +12,24 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import sys
 from pathlib import Path
-
-import numpy as np
 
 from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
 from kinredund.ui import options
 from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
+from kinredund.ui.report import outcome, print_summary, progress_for, wrote
 
 __all__ = ["EXIT_FAILED", "EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "REPRODUCIBLE", "build_parser", "main"]
-
-
-def _progress(label: str, args):
-    """The progress display of a command (:class:`kinredund.ui.progress.Progress`), shown at once."""
-    from kinredund.ui.progress import Progress
-
-    bar = Progress(label, quiet=getattr(args, "quiet", False))
-    bar(0, 1, "starting")
-    return bar
-
-
-# -- printing ----------------------------------------------------------------------------------------
-#: Units of the summary figures the commands print.
-_UNITS = {"position_error_max": "m", "max_position_residual": "m", "clearance_min": "m",
-          "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
-          "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
-          "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m"}
-
-
-def _number(v) -> str:
-    return str(v) if isinstance(v, (bool, int, np.integer)) else f"{float(v):.3g}"
-
-
-def _shown(value) -> bool:
-    """Whether a summary value says something (not None, NaN, or an empty list or dict)."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return False
-    return not (isinstance(value, (list, tuple, dict, str)) and len(value) == 0)
-
-
-def _format(key: str, value) -> str:
-    unit = _UNITS.get(key, "")
-    suffix = f" {unit}" if unit else ""
-    if key == "loop_drift":  # a list per loop from tracking, one float from a plan: one format
-        drift = [float(v) for v in (value if isinstance(value, (list, tuple, np.ndarray)) else [value])]
-        return f"{drift[-1]:.3g} rad after loop {len(drift)}" + (
-            f" (largest {max(drift):.3g} rad)" if len(drift) > 1 else "")
-    if isinstance(value, dict):
-        return ", ".join(f"{k.removesuffix('_s')} {_number(v)}{suffix}" for k, v in value.items() if _shown(v))
-    if isinstance(value, (list, tuple)):
-        if all(isinstance(v, str) for v in value):
-            return ", ".join(value)
-        items = [_number(v) for v in value]
-        text = f"[{', '.join(items)}]" if len(items) <= 7 else f"[{items[0]}, {items[1]}, ..., {items[-1]}] " \
-            f"({len(items)} values)"
-        return text + suffix
-    if isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(value, bool):
-        return _number(value) + suffix
-    return str(value)
-
-
-def _print_summary(summary: dict) -> None:
-    """Print ``summary`` as aligned ``name value unit`` rows, leaving out empty values (None, NaN, {})."""
-    for key, value in summary.items():
-        if _shown(value):
-            print(f"  {key:26s} {_format(key, value)}")
-
-
-def _wrote(*paths) -> None:
-    for p in paths:
-        if p is not None:
-            print(f"wrote {p}")
 
 
 # -- commands --------------------------------------------------------------------------------------
 def _cmd_generate_robots(args) -> int:
     from kinredund.model.generate import generate_robots
 
-    _wrote(*generate_robots(Path(args.out)))
+    wrote(*generate_robots(Path(args.out)))
     return EXIT_OK
 
 
@@ -110,8 +46,10 @@ def _cmd_robots(args) -> int:
 def _cmd_reproduce(args) -> int:
     name = args.example
     if name in ("6.2", "6.3"):
-        return _plan(name, args, label=f"reproduce {name}")
-    bar = _progress(f"reproduce {name}", args)
+        from kinredund.ui.cli_plan import run_case
+
+        return run_case(name, args, label=f"reproduce {name}")
+    bar = progress_for(f"reproduce {name}", args)
     if name in ("4.1", "4.2", "4.3"):
         from kinredund.ui.reproduce import example
 
@@ -122,7 +60,7 @@ def _cmd_reproduce(args) -> int:
         finally:
             bar.close()
         print(f"Example {name}: {args.scheme} scheme, {args.mode} mode, {args.loops} loop(s) of {args.steps} steps")
-        _print_summary(traj.summary())
+        print_summary(traj.summary())
     else:
         from kinredund.ui.reproduce import helix
 
@@ -132,56 +70,9 @@ def _cmd_reproduce(args) -> int:
         finally:
             bar.close()
         print("Section 3.2: helix tracked by the hybrid closed-form IK")
-        _print_summary({k: v for k, v in out.items() if not isinstance(v, (list, dict))})
-    _wrote(args.json, args.plot)
+        print_summary({k: v for k, v in out.items() if not isinstance(v, (list, dict))})
+    wrote(args.json, args.plot)
     return EXIT_OK
-
-
-def _plan(case: str, args, label: str) -> int:
-    """Run a Chapter 6 case (``reproduce 6.x`` and ``plan``); EXIT_FAILED when the plan fails its check."""
-    bar = _progress(label, args)
-    from kinredund.ui.reproduce import plan_case, snapshot_path
-
-    more = {} if getattr(args, "samples", None) is None else {"samples": args.samples}
-    try:
-        result = plan_case(case, json_path=args.json, plot_path=args.plot, progress=bar, **more)
-    finally:
-        bar.close()
-    print(f"Section {case}: off-line plan with collision avoidance")
-    _print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
-    _wrote(args.json, args.plot)
-    if args.plot is not None and result.trajectory is not None:
-        _wrote(snapshot_path(args.plot))
-    if not result.ok:
-        print(f"kinredund: plan failed: {result.reason}", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
-
-
-def _path_for(args, robot, q_start: np.ndarray):
-    """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
-
-    Circles and ellipses start at the pose of ``q_start``.
-    """
-    from kinredund import paths
-
-    if args.path == "file":
-        if args.path_file is None:
-            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
-        path, duration = paths.read_path_file(args.path_file)
-        return path, (duration if path.period is None else None)
-    T0 = robot.fk(q_start)
-    p0 = T0[:3, 3]
-    if args.path == "ellipse":
-        center = args.center if args.center is not None else p0[:2] - np.array([args.radius, 0.0])
-        return paths.Ellipse(center[:2], args.radius, args.radius / 2, rate=args.speed / args.radius), None
-    normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
-    center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
-    if center.shape == (2,):
-        center = np.append(center, p0[2] if not get_task(robot.task).planar else 0.0)
-    # pose tasks hold the start orientation along the circle
-    return paths.Circle(center, args.radius, args.speed, normal=tuple(normal),
-                        orientation=T0[:3, :3] if get_task(robot.task).has_orientation else None), None
 
 
 def _write_partial(out, err: TrackingError) -> None:
@@ -192,18 +83,14 @@ def _write_partial(out, err: TrackingError) -> None:
 
 
 def _cmd_track(args) -> int:
-    bar = _progress(f"track {args.robot}", args)
+    bar = progress_for(f"track {args.robot}", args)
     from kinredund.ik.solve import solve_ik
-    from kinredund.model.robot import load_robot
     from kinredund.tracking import track
 
     try:
         bar(0, 1, "loading the robot")
-        robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
-        seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
-        path, duration = _path_for(args, robot, seed_q)
         # the baselines ignore the index while they step; their normality residual is measured against it
-        index = options.index_for(robot, args.index)
+        robot, seed_q, path, duration, index = options.setup_for(args, args.robot)
         s0 = path(0.0)
         target = get_task(robot.task).target_from_sample(s0)
         bar(0, 1, "the optimal start (IK)")
@@ -231,20 +118,20 @@ def _cmd_track(args) -> int:
     finally:
         bar.close()
     print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode, index {args.index}")
-    _print_summary(traj.summary())
+    print_summary(traj.summary())
     if args.json:
         traj.save_json(args.json)
     if args.plot:
         from kinredund.ui.plots import plot_joint_histories
 
         plot_joint_histories(traj, args.plot)
-    _wrote(args.json, args.plot, args.html)
+    wrote(args.json, args.plot, args.html)
     return EXIT_OK
 
 
 def _cmd_ik(args) -> int:
     from kinredund.ik.solve import solve_ik
-    from kinredund.model.robot import load_robot
+    from kinredund.model.loader import load_robot
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
     if get_task(robot.task).has_orientation:
@@ -267,11 +154,8 @@ def _cmd_ik(args) -> int:
     print(json.dumps(out, indent=2))
     if args.json:
         write_json(args.json, out)
-        _wrote(args.json)
-    if not res.converged:
-        print(f"kinredund: IK did not converge: {res.reason}", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
+        wrote(args.json)
+    return outcome(res.converged, f"IK did not converge: {res.reason}")
 
 
 def _cmd_play(args) -> int:
@@ -284,7 +168,7 @@ def _cmd_play(args) -> int:
     if args.html is not None:
         from kinredund.ui.viz import replay_html
 
-        _wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title))
+        wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title))
     if args.live:
         import time
 
@@ -300,10 +184,6 @@ def _cmd_play(args) -> int:
     return EXIT_OK
 
 
-def _cmd_plan(args) -> int:
-    return _plan(args.case, args, label=f"plan {args.case}")
-
-
 def _cmd_demo(args) -> int:
     from kinredund.ui.demo import run_demo
 
@@ -311,7 +191,7 @@ def _cmd_demo(args) -> int:
 
 
 # -- the parser (kinredund.ui.options) --------------------------------------------------------------
-COMMANDS = {"demo": _cmd_demo, "reproduce": _cmd_reproduce, "track": _cmd_track, "ik": _cmd_ik, "plan": _cmd_plan,
+COMMANDS = {"demo": _cmd_demo, "reproduce": _cmd_reproduce, "track": _cmd_track, "ik": _cmd_ik,
             "play": _cmd_play, "generate-robots": _cmd_generate_robots, "robots": _cmd_robots}
 
 

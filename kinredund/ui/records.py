@@ -22,7 +22,8 @@ import numpy as np
 
 from kinredund.errors import KinredundError
 from kinredund.io import read_json_object
-from kinredund.model.robot import Robot, load_robot
+from kinredund.model.loader import load_robot
+from kinredund.model.robot import Robot
 from kinredund.trajectory import Trajectory
 
 
@@ -98,4 +99,4 @@ def replay_record(path: str | Path) -> Replayable:
     from kinredund.ui.viz.page import replay_title
 
     traj = Trajectory.from_json_dict(data)
-    return Replayable(traj, load_robot(traj.robot), replay_title(traj), kind)
+    return Replayable(traj, load_robot(traj.robot, task=traj.task), replay_title(traj), kind)
