@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import load_benchmark, robot
 
-from kinredund.errors import KinredundError, PathError, TaskError
+from kinredund.errors import KinredundError, OptionError, PathError, TaskError
 from kinredund.indices import JointDeviation
 from kinredund.paths import Circle, Helix
 from kinredund.planning.circles import (
@@ -18,6 +18,7 @@ from kinredund.planning.circles import (
     start_of,
 )
 from kinredund.planning.cyclic import CLOSURE_TOL, TASK_TOL, plan
+from kinredund.planning.options import PlanOptions
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
 from kinredund.planning.verify import (
     JUMP_FACTOR,
@@ -217,7 +218,7 @@ def test_plan_refuses_a_frenet_circle_with_one_cycle_and_says_why():
     result = plan(r, path, JointDeviation(r.home))
     assert not result.ok and result.cause == "orientation_loop" and "not contractible" in result.reason
     assert result.samples is None
-    with pytest.raises(TaskError, match="cycles"):
+    with pytest.raises(OptionError, match="cycles"):
         plan(r, path, JointDeviation(r.home), cycles=0)
 
 
@@ -230,12 +231,30 @@ def test_plan_rejects_bad_input():
     path = Circle(r.fk(r.home)[:3, 3], 0.05, 0.1, orientation=r.fk(r.home)[:3, :3])
     with pytest.raises(TaskError, match="Index"):
         plan(r, path, "z")
-    with pytest.raises(TaskError, match="samples"):
+    with pytest.raises(OptionError, match="samples"):
         plan(r, path, index, samples=3)
     with pytest.raises(TaskError, match="redundant"):
         plan(robot("planar3r", "position"), Circle((1.0, 1.0, 0.0), 0.1), JointDeviation(np.zeros(3)))
     with pytest.raises(TaskError, match="inside the joint limits"):
         plan(r, path, index, q0=r.upper + 0.1)
+
+
+@pytest.mark.parametrize(("option", "value", "match"), [
+    ("rounds", -1, "rounds must be an integer >= 0"), ("max_candidates", 0, "max_candidates must be an integer >= 1"),
+    ("seed", -1, "seed must be an integer >= 0"), ("margin", "0.1", "margin"), ("margin", float("nan"), "margin"),
+    ("margin", 10.0, "quarter of panda's narrowest joint range"), ("budget", -1, "budget must be an integer >= 0"),
+    ("loops", 10**9, "at most"), ("max_jump", 0.0, "max_jump"), ("samples", 24.0, "samples must be an integer"),
+    ("steps", 100, "unknown plan option"),
+])
+def test_plan_refuses_each_bad_option_once_before_any_work(option, value, match):
+    """One options object (PlanOptions) checks every option before any solve: no silent cap (a margin of 10 rad
+    was capped at a quarter of each range), no run that cannot end (10**9 loops), no negative count accepted."""
+    r = robot("panda")
+    path = Circle(r.fk(r.home)[:3, 3], 0.05, 0.1, orientation=r.fk(r.home)[:3, :3])
+    with pytest.raises(OptionError, match=match):
+        plan(r, path, JointDeviation(r.home), **{option: value})
+    with pytest.raises(OptionError, match=match):  # the same refusal from the options object itself
+        PlanOptions.of(**{option: value}).check_for(r)
 
 
 def test_plan_says_why_when_the_path_leaves_the_reachable_set():

@@ -53,11 +53,12 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import KinredundError, PathError, TaskError, check_count, check_positive
+from kinredund.errors import KinredundError, PathError, TaskError
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
 from kinredund.planning.branches import choose
+from kinredund.planning.options import PlanOptions
 from kinredund.planning.spline import JointSpline
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
 from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
@@ -160,7 +161,7 @@ class CyclicPlan:
                 "notes": list(self.notes), "timings_s": {k: float(v) for k, v in self.timings.items()}}
 
 
-def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin):
+def _check_args(robot, path, index) -> None:
     if not isinstance(path, Path) or path.period is None:
         raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
     if not isinstance(index, Index):
@@ -168,45 +169,27 @@ def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_
     if robot.nq <= robot.task_dim:
         raise TaskError(f"{robot.name} has {robot.nq} joints for a {robot.task_dim}-D {robot.task!r} task: "
                         "the cyclic planner needs a redundant arm (use robot.with_task('position'))")
-    check_count(samples, 4, "samples (at least 4 for a cubic spline)", TaskError)
-    check_count(starts, 1, "starts", TaskError)
-    check_count(loops, 1, "loops", TaskError)
-    check_count(steps_per_loop, 4, "steps_per_loop", TaskError)
-    check_positive(max_jump, "max_jump [rad]", TaskError)
-    if not (np.isfinite(margin) and margin >= 0):
-        raise TaskError(f"margin must be a number >= 0 [rad or m], got {margin!r}")
 
 
-def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8, seed: int = 0,
-         loops: int = 2, steps_per_loop: int = 200, max_jump: float = 0.25, margin: float = 1e-3,
-         max_candidates: int = 8, budget: int = 16, rounds: int = 4, max_iter: int = 200, q0=None,
-         cycles: int = 1, progress=None, meta: dict | None = None) -> CyclicPlan:
+def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *, q0=None, progress=None,
+         meta: dict | None = None, **overrides) -> CyclicPlan:
     """Plan a cyclic within-limits joint motion along the closed ``path`` that follows z's optima.
 
     Args:
         robot: a redundant :class:`kinredund.Robot` (its task kind sets the target: pose, position, planar).
         path: a closed path (with a period); pose tasks need its orientation.
         index: the user's performance index z (:mod:`kinredund.indices`).
-        samples: N, the equally spaced sample times k T / N.
-        starts: random starts inside the limits per sample (four times as many at the first sample),
-            ``np.random.default_rng(seed)``.
-        seed: the random seed.
-        loops, steps_per_loop: the tracking (the verification checks closure after every loop).
-        max_jump: the largest joint change between consecutive knots [rad or m]; edges above it are
-            refined or dropped (module docstring).
-        margin: the limits are shrunk by this for the samples and refinements [rad or m].
-        max_candidates: the candidates kept per sample (lowest z first; the chosen walk's are always kept).
-        budget: the most points inserted into one refined interval.
-        rounds: re-plans with an inserted sample where the motion leaves the limits.
-        max_iter: iterations of each joint-level solve.
+        options: the :class:`~kinredund.planning.options.PlanOptions` (samples, starts, seed, loops,
+            steps_per_loop, max_jump, margin, max_candidates, budget, rounds, max_iter, cycles); default
+            its defaults. ``overrides``: any of those by name (``plan(..., samples=32)``), validated with them.
         q0: a start inside the limits (n,): the walk then starts (and ends) at the within-limits minimum
             of z reached from it at t = 0 (the branch the strict tracker would follow from q0); default
             the shortest closed walk from any candidate.
-        cycles: the joint motion repeats every ``cycles`` loops of the path. A pose path whose
-            orientation loop is not contractible (:mod:`.topology`) admits no within-limits joint path
-            that closes after an odd number of loops: the plan then fails at once and says so (with 2 it
-            may exist, though it needs the arm to swing wide). The samples cover ``cycles`` loops (N per
-            loop) and the closure is checked after every ``cycles`` loops.
+        The options' ``cycles``: a path whose orientation loop is not contractible (:mod:`.topology`, a task
+            holding the whole rotation) admits no within-limits joint path that closes after an odd number
+            of loops: the plan then fails at once and says so (with 2 it may exist, though it needs the arm
+            to swing wide). The samples cover ``cycles`` loops (N per loop) and the closure is checked after
+            every ``cycles`` loops.
         progress: ``progress(done, total)`` during the tracking.
         meta: extra entries for ``Trajectory.meta``.
 
@@ -216,13 +199,18 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         verification does not pass.
 
     Raises:
-        TaskError, PathError: bad arguments (an open path, a non-redundant arm, a bad count).
+        PathError, TaskError: an open path, not an index, a non-redundant arm, a q0 outside the limits.
+        OptionError: an option outside its range (:class:`~kinredund.planning.options.PlanOptions`).
     """
-    _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin)
+    _check_args(robot, path, index)
+    opt = PlanOptions.of(options, **overrides)
+    opt.check_for(robot)
+    samples, starts, seed, max_jump, budget, max_iter = (opt.samples, opt.starts, opt.seed, opt.max_jump, opt.budget,
+                                                        opt.max_iter)
     t0 = perf_counter()
     timings: dict[str, float] = {}
     flips = orientation_loop_flips(path) if get_task(robot.task).holds_rotation else None
-    cycles = check_count(cycles, 1, "cycles", TaskError)
+    cycles, max_candidates = opt.cycles, opt.max_candidates
     if flips and cycles % 2:
         return CyclicPlan(False, "the path's orientation turns once about an axis per loop (a loop of SO(3) that is "
                           "not contractible), and a joint path inside the limits maps to contractible loops "
@@ -235,7 +223,7 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
     period = float(path.period)
     n = int(samples) * cycles
     ts = np.arange(n) * period / n
-    inner = shrunk_limits(robot, float(margin))
+    inner = shrunk_limits(robot, opt.margin)
     targets = [target_at(robot, path, float(t)) for t in ts]
     rng = np.random.default_rng(seed)
     lo, hi = inner.sample_box()
@@ -305,16 +293,17 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
                            "within-limits path), not a local minimum of the index: the minimum followed ceases to "
                            "exist there (a fold)" for a, b in off]
     return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes,
-                         loops, steps_per_loop, rounds, max_iter, progress, meta, timings, t0)
+                         opt, progress, meta, timings, t0)
 
 
-def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, loops,
-                  steps_per_loop, rounds, max_iter, progress, meta, timings, t0) -> CyclicPlan:
+def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, opt,
+                  progress, meta, timings, t0) -> CyclicPlan:
     """Steps 3-5 of :func:`plan`: spline, tracking, verification; re-planned with an inserted knot where
     the motion leaves the limits. ``path`` is the user's path run ``cycles`` times (one period of the
     joint motion), ``user_path`` the user's."""
     period = float(path.period)
-    per_cycle = int(steps_per_loop) * cycles
+    loops, rounds, max_iter = opt.loops, opt.rounds, opt.max_iter
+    per_cycle = opt.steps_per_loop * cycles
     info = dict(meta or {}, planner="cyclic", index=type(index).__name__)
     for attempt in range(int(rounds) + 1):
         rows.sort(key=lambda r: r[0])
