@@ -198,6 +198,21 @@ def test_planner_on_the_position_task():
     _assert_completed(r, path, result, loops=1)
 
 
+def test_planner_adds_samples_where_the_closed_walk_breaks_within_its_budget():
+    """At 4 samples and no bisection the Panda's fold has no closed walk; the planner inserts sample times
+    where the walk breaks (up to refine_samples) and completes; with refine_samples=0 it says why."""
+    r, path, z, _ = _case("panda_fold")
+    coarse = {"samples": 4, "budget": 0, "starts": 2, "loops": 1, "steps_per_loop": STEPS}
+    failed = plan(r, path, z, refine_samples=0, **coarse)
+    assert not failed.ok and failed.cause == "no_closed_walk" and "refine_samples=0" in failed.reason
+    assert failed.trajectory is None and failed.samples.sample_t.size == 4
+    result = plan(r, path, z, **coarse)
+    _assert_completed(r, path, result, loops=1)
+    st = result.samples.sample_t
+    assert 4 < st.size <= 4 + 24 and np.all(np.diff(st) > 0) and st[-1] < path.period
+    assert any("sample(s) added" in note for note in result.notes)
+
+
 # -- which closed paths admit a closed joint path --------------------------------------------------------
 def test_orientation_loop_class():
     Q0 = robot("panda").fk(robot("panda").home)[:3, :3]

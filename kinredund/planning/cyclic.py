@@ -50,30 +50,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from time import perf_counter
+from typing import ClassVar
 
 import numpy as np
 
-from kinredund.errors import KinredundError, PathError, TaskError
-from kinredund.ik.solve import solve_ik
+from kinredund.errors import KinredundError, PathError, TaskError, check_choice
 from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
-from kinredund.planning.branches import choose
 from kinredund.planning.options import PlanOptions
+from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.spline import JointSpline
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
 from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
 from kinredund.planning.walk import (
-    CandidatePool,
     closest_within_limits,
-    continue_candidates,
     inside_limits,
-    local_minimum,
     off_optimum_intervals,
-    refine_walk,
-    restrict_start,
     shrunk_limits,
     target_at,
-    walk_costs,
     walk_knots,
 )
 from kinredund.tasks import get_task
@@ -147,6 +141,15 @@ class CyclicPlan:
     cycles: int = 1
     cause: str = ""
 
+    #: the failure causes ("" when ok), as TrackingError.CAUSES: a plan with another cause is refused
+    CAUSES: ClassVar[tuple[str, ...]] = ("", "orientation_loop", "no_minimum", "no_closed_walk", "tracking_failed",
+                                         "verification")
+
+    def __post_init__(self) -> None:
+        check_choice("plan cause", self.cause, self.CAUSES)
+        if self.ok != (self.cause == ""):
+            raise KinredundError(f"a plan is ok exactly when it has no cause, got ok={self.ok} cause={self.cause!r}")
+
     def summary(self) -> dict:
         """Scalars and short lists: the figures a report prints."""
         s = self.samples
@@ -205,12 +208,10 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
     _check_args(robot, path, index)
     opt = PlanOptions.of(options, **overrides)
     opt.check_for(robot)
-    samples, starts, seed, max_jump, budget, max_iter = (opt.samples, opt.starts, opt.seed, opt.max_jump, opt.budget,
-                                                        opt.max_iter)
     t0 = perf_counter()
     timings: dict[str, float] = {}
     flips = orientation_loop_flips(path) if get_task(robot.task).holds_rotation else None
-    cycles, max_candidates = opt.cycles, opt.max_candidates
+    cycles = opt.cycles
     if flips and cycles % 2:
         return CyclicPlan(False, "the path's orientation turns once about an axis per loop (a loop of SO(3) that is "
                           "not contractible), and a joint path inside the limits maps to contractible loops "
@@ -221,72 +222,44 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
     user_path, path = path, (path if cycles == 1 else RepeatedPath(path, cycles))
     first_notes = [f"the joint motion repeats every {cycles} loops of the path"] if cycles > 1 else []
     period = float(path.period)
-    n = int(samples) * cycles
-    ts = np.arange(n) * period / n
+    n = opt.samples * cycles
     inner = shrunk_limits(robot, opt.margin)
-    targets = [target_at(robot, path, float(t)) for t in ts]
-    rng = np.random.default_rng(seed)
-    lo, hi = inner.sample_box()
+    cands = CandidateSet(inner, path, index, opt, np.arange(n) * period / n)
 
     # -- step 1: within-limits minima of z at the samples (forward sweep with random starts, backward sweep)
-    pools = [CandidatePool() for _ in range(n)]
-    links: set = set()  # pairs of candidate labels one solve joined (the same branch at neighbouring samples)
-    counter = [0]
-    start = None
     if q0 is not None:
         q0 = robot.check_q(q0, "q0")
         if not inside_limits(robot, q0):
             raise TaskError(f"q0 must lie inside the joint limits of {robot.name}, got {np.round(q0, 6).tolist()}")
-        start = pools[0].add(local_minimum(inner, targets[0], index, q0, max_iter), counter)
-        if start < 0:
+        if not cands.start_from(q0):
             return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
                               None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles,
                               cause="no_minimum")
-    for k in range(n):
-        if k > 0:
-            continue_candidates(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
-        for _ in range(int(starts) * (4 if k == 0 else 1)):
-            pools[k].add(local_minimum(inner, targets[k], index, rng.uniform(lo, hi), max_iter), counter)
-        if not pools[k].q:  # seed from a within-limits point on the path (pose-only multi-start)
-            feasible = solve_ik(inner, targets[k], None, bounds=True, starts=4 * int(starts), seed=seed + k)
-            if feasible.converged:
-                pools[k].add(local_minimum(inner, targets[k], index, feasible.q, max_iter), counter)
-        if not pools[k].q:
-            timings["samples_s"] = perf_counter() - t0
-            return CyclicPlan(False, f"sample {k + 1} of {n} (t = {ts[k]:.4g} s) has no within-limits local "
-                              f"minimum of the index ({int(starts) * (4 if k == 0 else 1)} random starts and the "
-                              "previous sample's minima): the path may leave the reachable set there",
-                              None, None, None, timings=timings, cycles=cycles, cause="no_minimum")
-        pools[k].trim(max_candidates, keep=start if k == 0 else None)
-    continue_candidates(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
-    for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
-        continue_candidates(inner, targets, index, pools, k, k - 1, links, counter, max_iter)
-    continue_candidates(inner, targets, index, pools, 0, n - 1, links, counter, max_iter)
-    for k, pool in enumerate(pools):
-        pool.trim(2 * max_candidates, keep=start if k == 0 else None)
+    missing = cands.collect()
     timings["samples_s"] = perf_counter() - t0
+    if missing:
+        return CyclicPlan(False, missing, None, None, None, timings=timings, cycles=cycles, cause="no_minimum")
 
     # -- step 2: the shortest closed walk through the candidates, refined where it must be
     t1 = perf_counter()
-    costs = walk_costs(pools, max_jump)
-    i0 = None if start is None else pools[0].label.index(start)
-    restrict_start(costs, i0)
-    refined: dict = {}
-    choice, total = choose(costs)
-    if choice is None or not np.isfinite(total):
-        refine_walk(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter)
-        restrict_start(costs, i0)
-        choice, total = choose(costs)
+    choice, refined, costs = cands.refined_walk()
     timings["walk_s"] = perf_counter() - t1
+    ts, pools = np.array(cands.ts), cands.pools
     candidates = tuple(np.array(p.q) for p in pools)
     objective = tuple(np.array(p.z) for p in pools)
-    if choice is None or not np.isfinite(total):
-        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
-        where = f" (no continuous way from sample {bad[0] + 1} to {(bad[0] + 1) % n + 1})" if bad else ""
+    if choice is None:
+        n = len(ts)
+        bad = cands.broken(costs)
+        where = f" (no continuous way from t = {ts[bad[0]]:.4g} s to {cands.end(bad[0]):.4g} s)" if bad else ""
         smp = CyclicSamples(np.zeros(0), np.zeros((0, robot.nq)), (), (), ts, candidates, objective)
-        return CyclicPlan(False, "no continuous closed walk through the within-limits minima at this sampling "
-                          f"resolution{where}: try more samples", None, smp, None, timings=timings, cycles=cycles,
-                          cause="no_closed_walk")
+        return CyclicPlan(False, "no continuous closed walk through the within-limits minima"
+                          f"{where} after {cands.added} added sample(s) (refine_samples={opt.refine_samples}, "
+                          f"{n} samples in all): the minima followed end in folds that no within-limits "
+                          "self-motion of at most max_jump per knot joins", None, smp, None, timings=timings,
+                          cycles=cycles, cause="no_closed_walk")
+    links = cands.links
+    if cands.added:
+        first_notes.append(f"{cands.added} sample(s) added where the closed walk broke")
     rows = walk_knots(ts, pools, choice, refined)
     off = off_optimum_intervals(ts, period, pools, choice, links, refined)
     notes = first_notes + [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous "

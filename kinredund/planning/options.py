@@ -43,6 +43,8 @@ class PlanOptions:
             quarter of the robot's narrowest joint range (:meth:`check_for`).
         max_candidates: the candidates kept per sample (lowest z first), at least 1.
         budget: the most points inserted into one refined interval (0: no refinement).
+        refine_samples: the most sample times added where no closed walk exists at the current sampling
+            (in the middle of each interval the walk cannot cross), before the plan says why (0: none).
         rounds: re-plans with an inserted knot where the motion leaves the limits (0: none).
         max_iter: iterations of each joint-level solve.
         cycles: the joint motion repeats every ``cycles`` loops of the path.
@@ -61,13 +63,14 @@ class PlanOptions:
     margin: float = 1e-3
     max_candidates: int = 8
     budget: int = 16
+    refine_samples: int = 24
     rounds: int = 4
     max_iter: int = 200
     cycles: int = 1
 
     def __post_init__(self) -> None:
         counts = {"samples": 4, "starts": 1, "seed": 0, "loops": 1, "steps_per_loop": 4, "max_candidates": 1,
-                  "budget": 0, "rounds": 0, "max_iter": 1, "cycles": 1}
+                  "budget": 0, "refine_samples": 0, "rounds": 0, "max_iter": 1, "cycles": 1}
         for name, minimum in counts.items():
             object.__setattr__(self, name, check_count(getattr(self, name), minimum, name, OptionError))
         object.__setattr__(self, "max_jump", _length(self.max_jump, "max_jump [rad or m]", positive=True))
