@@ -10,13 +10,6 @@ from conftest import load_benchmark, robot
 from kinredund.errors import KinredundError, OptionError, PathError, TaskError
 from kinredund.indices import JointDeviation
 from kinredund.paths import Circle, Helix
-from kinredund.planning.circles import (
-    NAMED_CASES,
-    RADIUS_RANGE,
-    SPEED_RANGE,
-    random_circle,
-    start_of,
-)
 from kinredund.planning.cyclic import CLOSURE_TOL, TASK_TOL, plan
 from kinredund.planning.options import PlanOptions
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
@@ -32,6 +25,10 @@ from kinredund.planning.walk import shrunk_limits
 from kinredund.tasks.axis import frame_with_axis
 from kinredund.tracking import track
 
+#: the task generator of the random-tasks benchmark (benchmarks/_circles.py: not part of the library)
+_circles = load_benchmark("_circles")
+NAMED_CASES, RADIUS_RANGE, SPEED_RANGE = _circles.NAMED_CASES, _circles.RADIUS_RANGE, _circles.SPEED_RANGE
+random_circle, start_of = _circles.random_circle, _circles.start_of
 STEPS = 200  # per loop, the benchmark's
 #: the strict tracker without joint limits (the thesis's scheme)
 UNBOUNDED = {"limits": False}

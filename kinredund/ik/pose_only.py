@@ -77,8 +77,7 @@ def pose_only(s: Setup, q: np.ndarray) -> StartOutcome:
         since += 1
         if s.deadline is not None and perf_counter() > s.deadline:
             return StartOutcome(q, False, it, "timeout", res.residual(Q, p))
-        # rows of K where they are the task's Jacobian (up to Jl^-1); a task whose residual is not a subset
-        # of K's rows (the tool axis, m = 5 of 6) gives its own exact G
+        # K's rows (the Jacobian up to Jl^-1), or the task's own G where e is no subset of them (tool axis)
         G = res.jacobian(K, res.error(Q, p)[1]) if own_g else (K if rows is None else K[rows])
         if floor < 0.0:
             floor = DAMPING * float(np.abs(G).max()) ** 2
