@@ -30,10 +30,20 @@ The samples are solved inside the limits shrunk by ``margin`` [rad or m]: betwee
 joints follow the spline, which may overshoot a value held at a limit by a little; the margin keeps
 that overshoot inside the real limits (the verification checks the real ones).
 
-Where the chosen walk changes branch (a refined interval, or a sample whose candidate is not the one
-the previous sample's candidate continued to) the result says, in ``off_optimum`` and ``notes``, that it
-follows its reference there rather than the index's optimum: between those times no local minimum of z
-is followed continuously, and the plan takes the continuous within-limits path it found instead.
+6. **Following z** (:mod:`.follow`, ``follow=True``): the verified reference motion is measured by an
+   independent bounded solve of z at every recorded point; the index tracked becomes z itself wherever
+   its bounded optimum exists near the motion and is strongly stable, the reference only across folds
+   and singular stretches (a C^2 blend between them), and the blended motion replaces the reference
+   motion when it passes the same verification. ``off_optimum`` and ``notes`` say exactly where the
+   motion is not z's bounded optimum (measured: outside those intervals an independent solve from the
+   planned configuration does not move it).
+
+Where no closed walk exists at the sampling, sample times are added in the middle of the intervals the
+walk cannot cross (:mod:`.sampling`, at most ``refine_samples``) before the plan says why. The options
+are one validated :class:`~kinredund.planning.options.PlanOptions`; the causes of a failed plan are
+:attr:`CyclicPlan.CAUSES`. Constraints beyond the joint limits (a collision scene) belong where the
+candidates are solved (:mod:`.walk`'s ``local_minimum``), in the tracker's constraints and in the
+verification (:mod:`.verify`).
 
 A pose path whose orientation turns once about an axis per loop (a circle's Frenet frame) admits no
 within-limits joint path that closes after one loop (:mod:`.topology`); :func:`plan` says so at once, and
@@ -57,6 +67,7 @@ import numpy as np
 from kinredund.errors import KinredundError, PathError, TaskError, check_choice
 from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
+from kinredund.planning.follow import follow_optimum
 from kinredund.planning.options import PlanOptions
 from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.spline import JointSpline
@@ -262,11 +273,8 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
         first_notes.append(f"{cands.added} sample(s) added where the closed walk broke")
     rows = walk_knots(ts, pools, choice, refined)
     off = off_optimum_intervals(ts, period, pools, choice, links, refined)
-    notes = first_notes + [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous "
-                           "within-limits path), not a local minimum of the index: the minimum followed ceases to "
-                           "exist there (a fold)" for a, b in off]
-    return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes,
-                         opt, progress, meta, timings, t0)
+    return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off,
+                         first_notes, opt, progress, meta, timings, t0)
 
 
 def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, opt,
@@ -313,8 +321,19 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
                              f"{check.limit_violation:.3g}")
                 continue
         break
-    timings["total_s"] = perf_counter() - t0
     reason = _verdict(check)
+    if not reason:  # step 6: z's own optimum wherever it is strongly stable (planning.follow)
+        t1 = perf_counter()
+        accept = lambda tr: not _verdict(verify_motion_on_path(robot, user_path, tr.t, tr.q, per_cycle))  # noqa: E731
+        traj, off, note = follow_optimum(robot, path, index, ref, traj, per_cycle, -(-int(loops) // cycles),
+                                         opt.max_jump, accept, progress, info, enabled=opt.follow)
+        check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
+        timings["follow_s"] = perf_counter() - t1
+        notes += ([note] if note else []) + [
+            f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
+            "path), not z's bounded optimum: that minimum ceases to exist or is not strongly stable there (a fold, a "
+            "singular stretch)" for a, b in off]
+    timings["total_s"] = perf_counter() - t0
     return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles,
                       "verification" if reason else "")
 

@@ -48,6 +48,9 @@ class PlanOptions:
         rounds: re-plans with an inserted knot where the motion leaves the limits (0: none).
         max_iter: iterations of each joint-level solve.
         cycles: the joint motion repeats every ``cycles`` loops of the path.
+        follow: follow z's own bounded optimum wherever it is strongly stable, the spline reference only
+            across folds and singular stretches (:mod:`kinredund.planning.follow`); False: the reference
+            all along (the thesis's Eqs. 6.23-6.28), with the measured intervals off z's optimum reported.
 
     Raises:
         OptionError: a value outside its range, or loops x steps_per_loop over the tracker's
@@ -67,12 +70,16 @@ class PlanOptions:
     rounds: int = 4
     max_iter: int = 200
     cycles: int = 1
+    follow: bool = True
 
     def __post_init__(self) -> None:
         counts = {"samples": 4, "starts": 1, "seed": 0, "loops": 1, "steps_per_loop": 4, "max_candidates": 1,
                   "budget": 0, "refine_samples": 0, "rounds": 0, "max_iter": 1, "cycles": 1}
         for name, minimum in counts.items():
             object.__setattr__(self, name, check_count(getattr(self, name), minimum, name, OptionError))
+        if not isinstance(self.follow, (bool, np.bool_)):
+            raise OptionError(f"follow must be True or False, got {self.follow!r}")
+        object.__setattr__(self, "follow", bool(self.follow))
         object.__setattr__(self, "max_jump", _length(self.max_jump, "max_jump [rad or m]", positive=True))
         object.__setattr__(self, "margin", _length(self.margin, "margin [rad or m]", positive=False))
         total = -(-self.loops // self.cycles) * self.cycles * self.steps_per_loop  # what the tracker records
