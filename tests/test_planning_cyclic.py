@@ -346,3 +346,26 @@ def _planar_start(r, path):
     res = solve_ik(r, path(0.0).p[:2], JointDeviation(np.zeros(3)), starts=8, seed=0)
     assert res.converged
     return res.q
+
+
+def test_blended_index_derivatives_and_weight_against_central_differences():
+    """b = w z + (1 - w) h of planning.follow: its gradient and Hessian (check_index), d(grad b)/dt and
+    dw/dt against central differences in t, w = 1 outside the intervals and 0 inside past the ramps."""
+    from kinredund.indices import TimeVaryingReference, check_index
+    from kinredund.planning.follow import BlendedIndex, Weight
+
+    period, ramp = 2.0, 0.1
+    weight = Weight([(-0.2, 0.5), (1.2, 1.6)], period, ramp)  # the first wraps around t = 0
+    assert weight(1.0) == (1.0, 0.0) and weight(0.3)[0] == 0.0 and weight(1.4)[0] == 0.0
+    assert weight(1.95)[0] == 0.0 and 0.0 < weight(1.85)[0] < 1.0  # the wrapped interval: plateau, ramp
+    ref = TimeVaryingReference(lambda t: np.array([np.sin(t), np.cos(2 * t), 0.3 * t]),
+                               lambda t: np.array([np.cos(t), -2 * np.sin(2 * t), 0.3]))
+    b = BlendedIndex(JointDeviation(np.array([0.2, -0.1, 0.4]), np.array([1.0, 2.0, 0.5])), ref, weight)
+    theta, eps = np.array([0.3, -0.2, 0.7]), 1e-6
+    for t in (0.42, 0.46, 1.25, 1.27, 1.53, 1.85, 1.0, 0.3):  # on the ramps, outside and inside
+        w, dw = weight(t)
+        assert 0.0 <= w <= 1.0
+        assert abs(dw - (weight(t + eps)[0] - weight(t - eps)[0]) / (2 * eps)) <= 1e-6
+        fd = (b.gradient(theta, t + eps) - b.gradient(theta, t - eps)) / (2 * eps)
+        assert np.abs(b.time_derivative_of_gradient(theta, t) - fd).max() <= 1e-6
+    check_index(b, theta)  # t = 0.0: on the wrapped interval's plateau (w = 0)
