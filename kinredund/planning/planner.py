@@ -41,7 +41,7 @@ import numpy as np
 from kinredund.errors import TaskError
 from kinredund.indices import Index
 from kinredund.paths import Path
-from kinredund.planning.branches import Candidate, Transition, candidates, choose, target_of, transition
+from kinredund.planning.branches import Candidate, Transition, candidates, choose, transition
 from kinredund.planning.clearance import link_model
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, check_weights
@@ -283,7 +283,8 @@ def plan(
         pool = [robot.check_q(s, f"seed of sample {k + 1}") for s in user]
         pool += [c.q for c in cands[-1]] if cands else []
         pool += [rng.uniform(lo, hi) for _ in range(int(starts))]
-        found = candidates(robot, index, target_of(robot, p), pool, model, obstacle, link_radius, tool_tip, max_iter,
+        target = get_task(robot.task).target_at(path, t)
+        found = candidates(robot, index, target, pool, model, obstacle, link_radius, tool_tip, max_iter,
                            limit=max_candidates)
         if not found:
             timings["samples_s"] = perf_counter() - t_start

@@ -46,6 +46,7 @@ from kinredund.planning.clearance import PENETRATION_TOL, link_clearance, link_m
 from kinredund.planning.obstacles import EllipticCylinder
 from kinredund.planning.spline import unwrap_samples
 from kinredund.planning.stages import PlanResult, Samples, failure, tool_tip_length, track_and_verify
+from kinredund.tasks import get_task
 
 #: cost of a move along the self-motion within one time slice, against squared joint steps [rad^2]: the
 #: search advances in time wherever it can (the closest-point tracking follows slow self-motions only)
@@ -308,7 +309,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         if progress is not None:
             progress(k, len(rm.t), "placing the roadmap on the path")
         ref = np.concatenate([q4, np.zeros(n_wrist)])
-        res = closest_on_path(robot, path(t).p, ref)
+        res = closest_on_path(robot, get_task(robot.task).target_at(path, t), ref)
         qs.append(ref + wrap_joints(res.q - ref, robot.revolute) if res.converged else ref)
     q_u, turns = unwrap_samples(np.array(qs), robot.revolute)
     ps = np.array([path(t).p for t in rm.t])

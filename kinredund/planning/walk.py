@@ -24,8 +24,9 @@ import copy
 import numpy as np
 
 from kinredund.ik.solve import solve_ik
-from kinredund.indices import Index, JointDeviation
+from kinredund.indices import Index
 from kinredund.paths import Path
+from kinredund.planning.branches import closest_on_path
 from kinredund.tasks import get_task
 
 #: two candidates closer than this (max-abs) are the same local minimum [rad or m]
@@ -76,21 +77,19 @@ def local_minimum(inner, target, index: Index, seed, max_iter: int):
 
 
 def closest_within_limits(inner, target, reference, seed=None, max_iter: int = 200, fallback: bool = False):
-    """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25),
-    from ``seed`` (default the reference), or None. With ``fallback``, where that solve does not converge,
-    the within-limits point on g = x the pose-only solve reached from the seed.
-
-    The seed is first put on g = x by a pose-only solve: from the reference itself the index's gradient
-    and the multipliers vanish and the constrained solve's line search cannot step back onto g = x.
+    """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25,
+    :func:`~kinredund.planning.branches.closest_on_path` with the limits as bounds), from ``seed`` (default
+    the reference, clipped into the limits), or None. With ``fallback``, where that solve does not
+    converge, the within-limits point on g = x a pose-only solve reaches from the seed.
     """
     seed = np.clip(np.asarray(reference if seed is None else seed, float), inner.lower, inner.upper)
-    first = solve_ik(inner, target, None, q0=seed, bounds=True, max_iter=max_iter)
-    start = first.q if first.converged else seed
-    res = solve_ik(inner, target, JointDeviation(np.asarray(reference, float)), q0=start, bounds=True,
-                   max_iter=max_iter)
+    res = closest_on_path(inner, target, np.asarray(reference, float), seed=seed, max_iter=max_iter, bounds=True)
     if res.converged and inside_limits(inner, res.q):
         return res.q
-    return first.q if fallback and first.converged and inside_limits(inner, first.q) else None
+    if not fallback:
+        return None
+    first = solve_ik(inner, target, None, q0=seed, bounds=True, max_iter=max_iter)
+    return first.q if first.converged and inside_limits(inner, first.q) else None
 
 
 class CandidatePool:
