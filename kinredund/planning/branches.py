@@ -214,7 +214,7 @@ def _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
     if not (ma.converged and mb.converged):
         return out
     am = a1 + wrap_joints(ma.q - a1, robot.revolute)
-    for route in routes(robot, target_m, am, mb.q, step=0.5 * max_jump):
+    for route in routes(robot, get_task(robot.task).point_target(target_m.p), am, mb.q, step=0.5 * max_jump):
         pts = route.points
         keep = [0]
         for i in range(1, len(pts)):
