@@ -369,3 +369,20 @@ def test_blended_index_derivatives_and_weight_against_central_differences():
         fd = (b.gradient(theta, t + eps) - b.gradient(theta, t - eps)) / (2 * eps)
         assert np.abs(b.time_derivative_of_gradient(theta, t) - fd).max() <= 1e-6
     check_index(b, theta)  # t = 0.0: on the wrapped interval's plateau (w = 0)
+
+
+def test_both_planners_share_one_validated_cause_vocabulary():
+    """CyclicPlan and the Chapter 6 PlanResult take their cause from planning.stages.PLAN_CAUSES: an unknown
+    cause, a failure without a cause or an ok plan with one are refused."""
+    from kinredund.errors import ChoiceError
+    from kinredund.planning.cyclic import CyclicPlan
+    from kinredund.planning.stages import PLAN_CAUSES, failure
+
+    assert CyclicPlan.CAUSES is PLAN_CAUSES
+    assert failure("no way", ("l1",), {}, cause="no_closed_walk").cause == "no_closed_walk"
+    with pytest.raises(ChoiceError, match="plan cause"):
+        failure("no way", ("l1",), {}, cause="bad_luck")
+    with pytest.raises(KinredundError, match="exactly when"):
+        CyclicPlan(False, "failed", None, None, None)
+    with pytest.raises(KinredundError, match="exactly when"):
+        CyclicPlan(True, "", None, None, None, cause="verification")

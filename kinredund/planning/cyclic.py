@@ -64,13 +64,14 @@ from typing import ClassVar
 
 import numpy as np
 
-from kinredund.errors import KinredundError, PathError, TaskError, check_choice
+from kinredund.errors import KinredundError, PathError, TaskError
 from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
 from kinredund.planning.follow import follow_optimum
 from kinredund.planning.options import PlanOptions
 from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.spline import JointSpline
+from kinredund.planning.stages import PLAN_CAUSES, check_cause
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
 from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
 from kinredund.planning.walk import (
@@ -152,14 +153,11 @@ class CyclicPlan:
     cycles: int = 1
     cause: str = ""
 
-    #: the failure causes ("" when ok), as TrackingError.CAUSES: a plan with another cause is refused
-    CAUSES: ClassVar[tuple[str, ...]] = ("", "orientation_loop", "no_minimum", "no_closed_walk", "tracking_failed",
-                                         "verification")
+    #: the failure causes ("" when ok), as TrackingError.CAUSES: one vocabulary with the Chapter 6 planner's
+    CAUSES: ClassVar[tuple[str, ...]] = PLAN_CAUSES
 
     def __post_init__(self) -> None:
-        check_choice("plan cause", self.cause, self.CAUSES)
-        if self.ok != (self.cause == ""):
-            raise KinredundError(f"a plan is ok exactly when it has no cause, got ok={self.ok} cause={self.cause!r}")
+        check_cause(self.ok, self.cause)
 
     def summary(self) -> dict:
         """Scalars and short lists: the figures a report prints."""

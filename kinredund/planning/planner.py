@@ -177,9 +177,9 @@ def _weights(weights, n: int) -> np.ndarray:
 
 
 def _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, starts, seed, link_radius, tool_tip,
-                       max_iter, max_candidates, check_reach, progress) -> list[list[Candidate]] | str:
-    """Step 1 of :func:`plan`: the collision-free local minima of the policy at every sample, or why a
-    sample has none (``check_reach``: the wrist-reach screen of the default policy)."""
+                       max_iter, max_candidates, check_reach, progress) -> list[list[Candidate]] | tuple[str, str]:
+    """Step 1 of :func:`plan`: the collision-free local minima of the policy at every sample, or (cause,
+    reason) where a sample has none (``check_reach``: the wrist-reach screen of the default policy)."""
     rng = np.random.default_rng(seed)
     lo, hi = robot.sample_box()
     cands: list[list[Candidate]] = []
@@ -187,7 +187,7 @@ def _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, star
     if not get_task(robot.task).planar and not get_task(robot.task).has_orientation:
         wr = wrist_reach(robot, ps, obstacle.normal_at(ps))
         if wr is not None and (wr.end_margin.min() < 0 or (check_reach and wr.margin.min() < 0)):
-            return _reach_reason(wr, ts, ps, model.names)
+            return "out_of_reach", _reach_reason(wr, ts, ps, model.names)
     for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
         if progress is not None:
             progress(k, len(ts), "samples")
@@ -201,7 +201,7 @@ def _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, star
         found = candidates(robot, index, target, pool, model, obstacle, link_radius, tool_tip, max_iter,
                            limit=max_candidates)
         if not found:
-            return (
+            return "no_minimum", (
                 f"sample S{k + 1} (t = {t:.4g} s, p = {np.round(p, 4).tolist()}) has no collision-free "
                 f"configuration at a local minimum of the policy ({len(pool)} seeds): the point may be out of "
                 "reach, or the obstacle too large for the arm")
@@ -322,9 +322,9 @@ def plan(
     # -- step 1: the sample points at joint level (Eqs. 6.21-6.22) and the branch choice ----------
     cands = _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, starts, seed, link_radius, tool_tip,
                                max_iter, max_candidates, check_reach and policy is None, progress)
-    if isinstance(cands, str):
+    if isinstance(cands, tuple):
         timings["samples_s"] = perf_counter() - t_start
-        return failure(cands, names, timings)
+        return failure(cands[1], names, timings, cause=cands[0])
     n = ts.size
     trans: list[list[list[Transition]]] = []
     for k in range(n):
@@ -342,7 +342,7 @@ def plan(
         bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
         where = f" (none between S{bad[0] + 1} and S{(bad[0] + 1) % n + 1})" if bad else ""
         return failure(f"no cyclic sequence of sample configurations with continuous transitions{where}: "
-                        "try more samples or other sample times", names, timings)
+                        "try more samples or other sample times", names, timings, cause="no_closed_walk")
     smp = _chosen_samples(robot, path, ts, W, cands, trans, choice, notes)
     timings["samples_s"] = perf_counter() - t_start
     return track_and_verify(robot, path, obstacle, smp, model, planner="chapter6", spline=spline,

@@ -320,7 +320,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         if isinstance(err, TaskError):
             raise
         timings["roadmap_s"] = perf_counter() - t_start
-        return failure(str(err), names, timings)
+        return failure(str(err), names, timings, cause="no_closed_walk")
     timings["roadmap_s"] = perf_counter() - t_start
     n_wrist = robot.nq - 4
     qs = []
