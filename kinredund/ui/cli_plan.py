@@ -58,7 +58,8 @@ def _plan_robot(args) -> int:
         bar(0, 1, "samples, candidates and the closed walk")
         result = plan(robot, path, index, samples=ROBOT_SAMPLES if args.samples is None else args.samples,
                       starts=args.starts, seed=args.seed, loops=args.loops, steps_per_loop=args.steps,
-                      q0=args.q0, progress=lambda d, n: bar(d, n, "tracking"),
+                      q0=args.q0, refine_samples=args.refine_samples, follow=not args.no_follow,
+                      progress=lambda d, n: bar(d, n, "tracking"),
                       meta={"path": args.path, "index": args.index})
     finally:
         bar.close()
@@ -127,6 +128,11 @@ def add_parser(sub) -> None:
                    help="loops tracked; the check requires closure after each (default: %(default)s)")
     p.add_argument("--steps", type=at_least(4), default=200, metavar="N",
                    help="tracking steps per loop (default: %(default)s)")
+    p.add_argument("--refine-samples", type=at_least(0), default=24, metavar="N",
+                   help="sample times added where no closed walk exists at the sampling (default: %(default)s)")
+    p.add_argument("--no-follow", action="store_true",
+                   help="track the spline reference all along instead of z's own optimum wherever it is strongly "
+                        "stable (default: follow z; off_optimum says where the motion is not z's optimum)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the result as JSON (default: not written)")
     p.add_argument("--plot", type=Path, metavar="FILE",
                    help="save the figure; the format follows the suffix: .png, .pdf or .svg (default: not drawn)")
