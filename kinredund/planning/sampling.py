@@ -3,9 +3,9 @@ times and the closed walk through them, with the samples refined where the walk 
 
 :class:`CandidateSet` holds, per sample time, the within-limits local minima of z (Eq. 4.3 with the
 joint limits as bounds) in a :class:`~kinredund.planning.walk.CandidatePool`, and the pairs of candidates
-one continuation joined (the same branch). :meth:`CandidateSet.collect` fills them (a forward sweep with
-random starts, the loop closed, a backward sweep); :meth:`CandidateSet.closed_walk` finds the shortest
-closed walk with joint jumps below ``max_jump``, bisecting long edges (Section 6.2.2.1,
+one continuation joined (the same branch). :meth:`CandidateSet.collect` fills them (a forward sweep
+with the robot's home and random starts, the loop closed, a backward sweep); :meth:`CandidateSet.closed_walk`
+finds the shortest closed walk with joint jumps below ``max_jump``, bisecting long edges (Section 6.2.2.1,
 :func:`~kinredund.planning.walk.refine_walk`); where none exists, :meth:`CandidateSet.insert_sample` adds a
 sample time in the middle of each interval the walk cannot cross, within the user's ``refine_samples``
 budget (:class:`~kinredund.planning.options.PlanOptions`), before the planner says why it failed.
@@ -22,6 +22,7 @@ from kinredund.planning.branches import choose
 from kinredund.planning.walk import (
     CandidatePool,
     continue_candidates,
+    inside_limits,
     local_minimum,
     refine_walk,
     restrict_start,
@@ -84,6 +85,8 @@ class CandidateSet:
             if k > 0:
                 self._continue(k - 1, k)
             tries = opt.starts * (4 if k == 0 else 1)
+            if k == 0 and inside_limits(self.inner, self.inner.home):  # the robot's home seeds the first sample too
+                self.pools[0].add(self._minimum(0, self.inner.home), self.counter)
             self._seed_pool(k, tries, opt.seed + k)
             if not self.pools[k].q:
                 return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s) has no within-limits local minimum of the "

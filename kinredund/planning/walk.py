@@ -31,6 +31,8 @@ from kinredund.tasks import get_task
 
 #: two candidates closer than this (max-abs) are the same local minimum [rad or m]
 SAME_CANDIDATE = 1e-6
+#: the weight of z in the walk's edge costs [rad per unit of z]: it only breaks ties between equally long walks
+Z_TIE = 1e-9
 #: a candidate's task errors are at most this [m or rad]: a converged solve holds ~1e-12, a wrong branch ~1
 ON_TARGET = 1e-8
 
@@ -158,13 +160,16 @@ def bisect_within_limits(inner, path, ta, qa, tb, qb, max_jump, budget, max_iter
 
 
 def walk_costs(pools, max_jump):
-    """Edge costs of the layered graph: the joint distance where no joint jumps by more than max_jump."""
+    """Edge costs of the layered graph: the joint distance where no joint jumps by more than max_jump, plus
+    :data:`Z_TIE` times the mean z of its ends, so that of walks equally long (a branch and its copy shifted
+    by whole turns on a wide joint) the one of lower z is chosen."""
     n = len(pools)
     out = []
     for k in range(n):
         A, B = np.array(pools[k].q), np.array(pools[(k + 1) % n].q)
         d = A[:, None, :] - B[None, :, :]
-        c = np.linalg.norm(d, axis=2)
+        za, zb = np.asarray(pools[k].z, float), np.asarray(pools[(k + 1) % n].z, float)
+        c = np.linalg.norm(d, axis=2) + Z_TIE * 0.5 * (za[:, None] + zb[None, :])
         c[np.abs(d).max(axis=2) > max_jump] = np.inf
         out.append(c)
     return out
