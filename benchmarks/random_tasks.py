@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/random_tasks.py [--robot NAME] [--n N] [--seed S] [--json FILE]
 
-Tasks (:mod:`kinredund.planning.circles`, whose docstring is the full description): per robot (``panda``
+Tasks (`benchmarks/_circles.py`, whose docstring is the full description): per robot (``panda``
 and ``xarm7`` unless ``--robot`` names one), N tasks (default 300) drawn from
 ``np.random.default_rng(S)``: a configuration q_c uniform inside the limits (5 % off each end), the circle
 centred on its end point p_c, radius uniform in 1-10 cm, the orientation either held at Q_c (plane
@@ -51,11 +51,11 @@ from collections import Counter
 
 import numpy as np
 from _bench import optional, parser, print_table, write_json
+from _circles import CircleTask, random_circle, reachable, start_of
 
 from kinredund.errors import KinredundError
 from kinredund.kinematics.angles import joint_drift
-from kinredund.model.robot import load_robot
-from kinredund.planning.circles import CircleTask, random_circle, reachable, start_of
+from kinredund.model.loader import load_robot
 from kinredund.planning.cyclic import plan
 from kinredund.planning.verify import limit_excursion, task_errors, verify_motion_on_path
 from kinredund.tracking import track

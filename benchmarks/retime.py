@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from _bench import parser, print_table, time_calls, write_json
 
-from kinredund.model.robot import load_robot
+from kinredund.model.loader import load_robot
 from kinredund.problems import panda_circle
 from kinredund.retime import limits_for, retime
 from kinredund.retime.joint_path import joint_path

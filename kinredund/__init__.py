@@ -48,7 +48,8 @@ from kinredund.geometry import (
 from kinredund.ik import IKResult, check_optimality, solve_ik
 from kinredund.indices import CustomIndex, Index, JointDeviation, TimeVaryingReference, mid_range, minimum_norm
 from kinredund.kinematics.hd import HDTable
-from kinredund.model.robot import Robot, known_robots, load_robot, robot_from_hd
+from kinredund.model.loader import known_robots, load_robot
+from kinredund.model.robot import Robot, robot_from_hd
 from kinredund.paths import (
     AxisPath,
     Circle,

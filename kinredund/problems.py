@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from kinredund.indices import JointDeviation
-from kinredund.model.robot import Robot, load_robot
+from kinredund.model.loader import load_robot
+from kinredund.model.robot import Robot
 from kinredund.paths import Circle
 
 

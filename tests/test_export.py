@@ -202,7 +202,7 @@ def test_cli_existing_bag_folder_writes_nothing(tmp_path):
 def test_cli_input_that_is_not_a_joint_trajectory(tmp_path):
     (tmp_path / "ik.json").write_text(json.dumps({"robot": "panda", "q": [0.0] * 7}))
     out = run("retime", "ik.json", "--amax", "10", "--csv", "r.csv", cwd=tmp_path)
-    assert out.returncode == 2 and "not a kinredund trajectory" in out.stderr
+    assert out.returncode == 2 and "not a kinredund record" in out.stderr
     assert not (tmp_path / "r.csv").exists()
 
 

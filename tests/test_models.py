@@ -21,7 +21,7 @@ import kinredund
 from kinredund.kinematics.hd import HDTable
 from kinredund.model.catalog import SHIPPED_TABLES
 from kinredund.model.generate import validated_urdf
-from kinredund.model.robot import shipped_robot_dir
+from kinredund.model.loader import shipped_robot_dir
 from kinredund.model.urdf import EE_FRAME, hd_to_model, hd_to_urdf, load_urdf_text_model
 
 REPO = Path(__file__).resolve().parent.parent

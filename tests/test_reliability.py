@@ -285,7 +285,7 @@ def test_an_index_that_turns_nan_is_reported_not_silent():
 
 # -- records ----------------------------------------------------------------------------------------
 def test_a_record_of_a_relative_urdf_replays_from_another_folder(tmp_path, monkeypatch):
-    from kinredund.model.robot import shipped_robot_dir
+    from kinredund.model.loader import shipped_robot_dir
     from kinredund.trajectory import Trajectory
 
     work, elsewhere = tmp_path / "work", tmp_path / "elsewhere"
@@ -297,7 +297,7 @@ def test_a_record_of_a_relative_urdf_replays_from_another_folder(tmp_path, monke
                  "--q0", "0.3,1,1", "--json", "rec.json"]) == EXIT_OK
     assert Trajectory.load_json(work / "rec.json").robot == str(work / "arm.urdf")
     monkeypatch.chdir(elsewhere)
-    from kinredund.model.robot import load_robot
+    from kinredund.model.loader import load_robot
 
     assert load_robot(Trajectory.load_json(work / "rec.json").robot).nq == 3
 

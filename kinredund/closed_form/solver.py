@@ -116,7 +116,7 @@ class ClosedFormIK:
     def __init__(self, robot=None, references=None, objective: str = "angle", *,
                  singular_tol: float = 1e-8, samples: int = 96):
         if robot is None:
-            from kinredund.model.robot import load_robot
+            from kinredund.model.loader import load_robot
 
             robot = load_robot("puma7")
         self.robot = robot

@@ -106,7 +106,7 @@ class JointSamples:
         if not isinstance(traj, Trajectory):
             raise ExportError(f"export takes a kinredund Trajectory, got {type(traj).__name__}")
         if joint_names is None:
-            from kinredund.model.robot import load_robot
+            from kinredund.model.loader import load_robot
 
             joint_names = load_robot(traj.robot, task=traj.task).joint_names
         traj = traj.checked(len(joint_names))

@@ -1,4 +1,4 @@
-"""The arms of example-robot-data that :func:`~kinredund.model.robot.load_robot` knows by name.
+"""The arms of example-robot-data that :func:`~kinredund.model.loader.load_robot` knows by name.
 
 example-robot-data 6.0.0 ships URDF files and meshes only (no Python module): they are found under
 ``cmeel.prefix/share/example-robot-data/robots`` on ``sys.path`` and loaded by path.

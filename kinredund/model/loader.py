@@ -38,7 +38,7 @@ from kinredund.model.frames import resolve_frame
 from kinredund.model.robot import NO_LIMIT, Robot, robot_from_hd, robot_revolute
 from kinredund.model.source import record_source, split_source
 from kinredund.model.urdf import EE_FRAME, load_urdf
-from kinredund.tasks import get_task
+from kinredund.tasks import get_task, task_names
 from kinredund.tasks.axis import frame_with_axis
 
 #: a home is accepted when the task Jacobian's smallest singular value is at least this fraction of
@@ -218,22 +218,12 @@ def check_tool_axis(tool_axis) -> np.ndarray:
 
 
 def task_jacobian(K: np.ndarray, R: np.ndarray, task: str) -> np.ndarray:
-    """The rows of K (Eq. 2.16, [omega; pdot]) that a task constrains, for conditioning checks.
-
-    ``axis``: pdot and the two components of omega normal to the tool axis a = R e_z, the frame's z
-    axis (the rate of a is omega x a; the spin about a is free).
+    """Rows with the row space of the task's Jacobian at a configuration with rotation R and velocity
+    Jacobian K (Eq. 2.16, [omega; pdot]), for conditioning checks: the task's own
+    :meth:`~kinredund.tasks.Task.span_rows` with the path's rotation taken as R (the tool-axis task:
+    pdot and the two components of omega normal to the axis a = R e_z; the spin about a is free).
     """
-    if task == "planar":
-        return K[3:5]
-    if task == "position":
-        return K[3:6]
-    if task == "axis":
-        a = R[:, 2]
-        helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        b1 = np.cross(a, helper)
-        b1 /= np.linalg.norm(b1)
-        return np.vstack([np.vstack([b1, np.cross(a, b1)]) @ K[:3], K[3:6]])
-    return K
+    return get_task(task).span_rows(R, K, R)
 
 
 def conditioning(kin: Kinematics, q: np.ndarray, task: str) -> float:
@@ -308,8 +298,8 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
     locked = stored.get("locked") if locked is None else locked
     if task is not None:
         get_task(task)  # ChoiceError for an unknown kind
-    if tool_axis is not None and task not in (None, "axis"):
-        raise TaskError(f"tool_axis is for task='axis', not {task!r}")
+    if tool_axis is not None and task is not None and not get_task(task).takes_tool_axis:
+        raise TaskError(f"tool_axis is for a task that holds the tool's axis ({_axis_kinds()}), not {task!r}")
     axis = None if tool_axis is None else check_tool_axis(tool_axis)
     turned = axis is not None and not np.array_equal(axis, _AXES["z"])
     robot = _load(key, ee_frame, task, axis, turned, joints, locked)
@@ -361,11 +351,17 @@ def _default_ee_frame(model: pin.Model) -> str:
     return model.frames[len(model.frames) - 1].name
 
 
+def _axis_kinds() -> str:
+    """The task kinds that take a tool axis, for messages: ``task='axis'``."""
+    return " or ".join(f"task={name!r}" for name in task_names() if get_task(name).takes_tool_axis)
+
+
 def _with_tool_axis(model: pin.Model, frame: str, axis: np.ndarray | None, task: str) -> tuple[pin.Model, str]:
     """(model, end-effector frame): for a tool axis other than z, a copy of the model with a frame at
     ``frame``'s origin whose z axis is the tool axis (the axis task holds the frame's z axis)."""
-    if axis is not None and task != "axis":
-        raise TaskError(f"tool_axis is for task='axis', and this robot's task is {task!r}: give task='axis'")
+    if axis is not None and not get_task(task).takes_tool_axis:
+        raise TaskError(f"tool_axis is for a task that holds the tool's axis ({_axis_kinds()}), and this robot's "
+                        f"task is {task!r}: give one of those")
     if axis is None or np.array_equal(axis, _AXES["z"]):
         return model, frame
     fid, _ = resolve_frame(model, frame)

@@ -192,17 +192,3 @@ def robot_from_hd(table: HDTable, task: str = "pose") -> Robot:
     from kinredund.model.urdf import hd_to_model
 
     return Robot(table.name, hd_to_model(table), EE_FRAME, task, hd=table)
-
-
-_MOVED = {"load_robot": "loader", "known_robots": "loader", "shipped_robot_dir": "loader",
-          "ERD_ARMS": "erd", "erd_share_dir": "erd"}
-
-
-def __getattr__(name: str):
-    """The loader's names (:mod:`kinredund.model.loader`, which builds on this module, and the catalogue
-    :mod:`kinredund.model.erd`) stay importable from here."""
-    if name in _MOVED:
-        from importlib import import_module
-
-        return getattr(import_module(f"kinredund.model.{_MOVED[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -69,11 +69,6 @@ class Transition:
     clearance: tuple = ()
 
 
-def target_of(robot, p: np.ndarray):
-    """The IK target of an end point: (x, y) for planar tasks, p otherwise."""
-    return get_task(robot.task).point_target(p)
-
-
 def fit_limits(q: np.ndarray, lower, upper, revolute) -> np.ndarray | None:
     """q with revolute joints shifted by the fewest whole turns into the limits, or None if impossible."""
     q = q.copy()
@@ -123,9 +118,10 @@ def candidates(robot, index: Index, target, seeds, model: LinkModel, obstacle: O
     return found[:limit] if limit else found
 
 
-def closest_on_path(robot, target, reference: np.ndarray, seed=None, max_iter: int = 200):
+def closest_on_path(robot, target, reference: np.ndarray, seed=None, max_iter: int = 200, bounds: bool = False):
     """A configuration on g(theta) = x locally closest to ``reference``: min 1/2 ||theta - reference||^2
-    (the index of Eq. 6.25), from ``seed`` (default: the reference).
+    (the index of Eq. 6.25), from ``seed`` (default: the reference); with ``bounds`` inside the joint limits.
+    The one closest-point solve of the planners (the Chapter 6 planner, the roadmap, the cyclic planner).
 
     The seed is first projected onto g = x by a pose-only solve: started exactly at the reference, the
     index's gradient and the multipliers are zero, and the IK's exact-penalty line search (whose weight
@@ -135,9 +131,9 @@ def closest_on_path(robot, target, reference: np.ndarray, seed=None, max_iter: i
         The :class:`~kinredund.ik.solve.IKResult`.
     """
     seed = reference if seed is None else seed
-    first = solve_ik(robot, target, None, q0=seed, max_iter=max_iter)
+    first = solve_ik(robot, target, None, q0=seed, bounds=bounds, max_iter=max_iter)
     start = first.q if first.converged else seed
-    return solve_ik(robot, target, JointDeviation(reference), q0=start, max_iter=max_iter)
+    return solve_ik(robot, target, JointDeviation(reference), q0=start, bounds=bounds, max_iter=max_iter)
 
 
 def bisect(robot, path, ta: float, qa, tb: float, qb, max_jump: float, budget: int, max_iter: int = 200):
@@ -158,7 +154,7 @@ def bisect(robot, path, ta: float, qa, tb: float, qb, max_jump: float, budget: i
             return None
         tm = 0.5 * (pts[k][0] + pts[k + 1][0])
         mean = 0.5 * (pts[k][1] + pts[k + 1][1])
-        res = closest_on_path(robot, target_of(robot, path(tm).p), mean, max_iter=max_iter)
+        res = closest_on_path(robot, get_task(robot.task).target_at(path, tm), mean, max_iter=max_iter)
         qm = mean + wrap_joints(res.q - mean, robot.revolute)
         worst = max(np.abs(qm - pts[k][1]).max(), np.abs(pts[k + 1][1] - qm).max())
         if not res.converged or worst >= 0.95 * jumps[k]:
@@ -206,19 +202,19 @@ def _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
     the route's points are spread over the middle half of the interval and put back on the path."""
     t1, tm, t2 = ta + 0.25 * (tb - ta), 0.5 * (ta + tb), tb - 0.25 * (tb - ta)
     out = []
-    ra = closest_on_path(robot, target_of(robot, path(t1).p), qa, max_iter=max_iter)
-    rb = closest_on_path(robot, target_of(robot, path(t2).p), qb, max_iter=max_iter)
+    ra = closest_on_path(robot, get_task(robot.task).target_at(path, t1), qa, max_iter=max_iter)
+    rb = closest_on_path(robot, get_task(robot.task).target_at(path, t2), qb, max_iter=max_iter)
     if not (ra.converged and rb.converged):
         return out
     a1 = qa + wrap_joints(ra.q - qa, robot.revolute)
     b2 = qb + wrap_joints(rb.q - qb, robot.revolute)
-    target_m = target_of(robot, path(tm).p)
+    target_m = get_task(robot.task).target_at(path, tm)
     ma = closest_on_path(robot, target_m, a1, max_iter=max_iter)
     mb = closest_on_path(robot, target_m, b2, max_iter=max_iter)
     if not (ma.converged and mb.converged):
         return out
     am = a1 + wrap_joints(ma.q - a1, robot.revolute)
-    for route in routes(robot, target_m, am, mb.q, step=0.5 * max_jump):
+    for route in routes(robot, get_task(robot.task).point_target(target_m.p), am, mb.q, step=0.5 * max_jump):
         pts = route.points
         keep = [0]
         for i in range(1, len(pts)):
@@ -232,7 +228,7 @@ def _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
         placed = [(ta, qa), (t1, a1)]
         ok = True
         for tt, c in zip(times[1:-1], sel[1:-1], strict=True):
-            res = closest_on_path(robot, target_of(robot, path(tt).p), c, max_iter=max_iter)
+            res = closest_on_path(robot, get_task(robot.task).target_at(path, tt), c, max_iter=max_iter)
             if not res.converged:
                 ok = False
                 break

@@ -30,10 +30,20 @@ The samples are solved inside the limits shrunk by ``margin`` [rad or m]: betwee
 joints follow the spline, which may overshoot a value held at a limit by a little; the margin keeps
 that overshoot inside the real limits (the verification checks the real ones).
 
-Where the chosen walk changes branch (a refined interval, or a sample whose candidate is not the one
-the previous sample's candidate continued to) the result says, in ``off_optimum`` and ``notes``, that it
-follows its reference there rather than the index's optimum: between those times no local minimum of z
-is followed continuously, and the plan takes the continuous within-limits path it found instead.
+6. **Following z** (:mod:`.follow`, ``follow=True``): the verified reference motion is measured by an
+   independent bounded solve of z at every recorded point; the index tracked becomes z itself wherever
+   its bounded optimum exists near the motion and is strongly stable, the reference only across folds
+   and singular stretches (a C^2 blend between them), and the blended motion replaces the reference
+   motion when it passes the same verification. ``off_optimum`` and ``notes`` say exactly where the
+   motion is not z's bounded optimum (measured: outside those intervals an independent solve from the
+   planned configuration does not move it).
+
+Where no closed walk exists at the sampling, sample times are added in the middle of the intervals the
+walk cannot cross (:mod:`.sampling`, at most ``refine_samples``) before the plan says why. The options
+are one validated :class:`~kinredund.planning.options.PlanOptions`; the causes of a failed plan are
+:attr:`CyclicPlan.CAUSES`. Constraints beyond the joint limits (a collision scene) belong where the
+candidates are solved (:mod:`.walk`'s ``local_minimum``), in the tracker's constraints and in the
+verification (:mod:`.verify`).
 
 A pose path whose orientation turns once about an axis per loop (a circle's Frenet frame) admits no
 within-limits joint path that closes after one loop (:mod:`.topology`); :func:`plan` says so at once, and
@@ -50,31 +60,29 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from time import perf_counter
+from typing import ClassVar
 
 import numpy as np
 
-from kinredund.errors import KinredundError, PathError, TaskError, check_count, check_positive
-from kinredund.ik.solve import solve_ik
+from kinredund.errors import KinredundError, PathError, TaskError
 from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
-from kinredund.planning.branches import choose
+from kinredund.planning.follow import follow_optimum
+from kinredund.planning.options import PlanOptions
+from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.spline import JointSpline
+from kinredund.planning.stages import PLAN_CAUSES, check_cause
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
 from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
 from kinredund.planning.walk import (
-    CandidatePool,
     closest_within_limits,
-    continue_candidates,
     inside_limits,
-    local_minimum,
     off_optimum_intervals,
-    refine_walk,
-    restrict_start,
     shrunk_limits,
     target_at,
-    walk_costs,
     walk_knots,
 )
+from kinredund.tasks import get_task
 from kinredund.tracking import track
 from kinredund.trajectory import Trajectory
 
@@ -145,6 +153,12 @@ class CyclicPlan:
     cycles: int = 1
     cause: str = ""
 
+    #: the failure causes ("" when ok), as TrackingError.CAUSES: one vocabulary with the Chapter 6 planner's
+    CAUSES: ClassVar[tuple[str, ...]] = PLAN_CAUSES
+
+    def __post_init__(self) -> None:
+        check_cause(self.ok, self.cause)
+
     def summary(self) -> dict:
         """Scalars and short lists: the figures a report prints."""
         s = self.samples
@@ -159,7 +173,7 @@ class CyclicPlan:
                 "notes": list(self.notes), "timings_s": {k: float(v) for k, v in self.timings.items()}}
 
 
-def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin):
+def _check_args(robot, path, index) -> None:
     if not isinstance(path, Path) or path.period is None:
         raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
     if not isinstance(index, Index):
@@ -167,45 +181,27 @@ def _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_
     if robot.nq <= robot.task_dim:
         raise TaskError(f"{robot.name} has {robot.nq} joints for a {robot.task_dim}-D {robot.task!r} task: "
                         "the cyclic planner needs a redundant arm (use robot.with_task('position'))")
-    check_count(samples, 4, "samples (at least 4 for a cubic spline)", TaskError)
-    check_count(starts, 1, "starts", TaskError)
-    check_count(loops, 1, "loops", TaskError)
-    check_count(steps_per_loop, 4, "steps_per_loop", TaskError)
-    check_positive(max_jump, "max_jump [rad]", TaskError)
-    if not (np.isfinite(margin) and margin >= 0):
-        raise TaskError(f"margin must be a number >= 0 [rad or m], got {margin!r}")
 
 
-def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8, seed: int = 0,
-         loops: int = 2, steps_per_loop: int = 200, max_jump: float = 0.25, margin: float = 1e-3,
-         max_candidates: int = 8, budget: int = 16, rounds: int = 4, max_iter: int = 200, q0=None,
-         cycles: int = 1, progress=None, meta: dict | None = None) -> CyclicPlan:
+def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *, q0=None, progress=None,
+         meta: dict | None = None, **overrides) -> CyclicPlan:
     """Plan a cyclic within-limits joint motion along the closed ``path`` that follows z's optima.
 
     Args:
         robot: a redundant :class:`kinredund.Robot` (its task kind sets the target: pose, position, planar).
         path: a closed path (with a period); pose tasks need its orientation.
         index: the user's performance index z (:mod:`kinredund.indices`).
-        samples: N, the equally spaced sample times k T / N.
-        starts: random starts inside the limits per sample (four times as many at the first sample),
-            ``np.random.default_rng(seed)``.
-        seed: the random seed.
-        loops, steps_per_loop: the tracking (the verification checks closure after every loop).
-        max_jump: the largest joint change between consecutive knots [rad or m]; edges above it are
-            refined or dropped (module docstring).
-        margin: the limits are shrunk by this for the samples and refinements [rad or m].
-        max_candidates: the candidates kept per sample (lowest z first; the chosen walk's are always kept).
-        budget: the most points inserted into one refined interval.
-        rounds: re-plans with an inserted sample where the motion leaves the limits.
-        max_iter: iterations of each joint-level solve.
+        options: the :class:`~kinredund.planning.options.PlanOptions` (samples, starts, seed, loops,
+            steps_per_loop, max_jump, margin, max_candidates, budget, rounds, max_iter, cycles); default
+            its defaults. ``overrides``: any of those by name (``plan(..., samples=32)``), validated with them.
         q0: a start inside the limits (n,): the walk then starts (and ends) at the within-limits minimum
             of z reached from it at t = 0 (the branch the strict tracker would follow from q0); default
             the shortest closed walk from any candidate.
-        cycles: the joint motion repeats every ``cycles`` loops of the path. A pose path whose
-            orientation loop is not contractible (:mod:`.topology`) admits no within-limits joint path
-            that closes after an odd number of loops: the plan then fails at once and says so (with 2 it
-            may exist, though it needs the arm to swing wide). The samples cover ``cycles`` loops (N per
-            loop) and the closure is checked after every ``cycles`` loops.
+        The options' ``cycles``: a path whose orientation loop is not contractible (:mod:`.topology`, a task
+            holding the whole rotation) admits no within-limits joint path that closes after an odd number
+            of loops: the plan then fails at once and says so (with 2 it may exist, though it needs the arm
+            to swing wide). The samples cover ``cycles`` loops (N per loop) and the closure is checked after
+            every ``cycles`` loops.
         progress: ``progress(done, total)`` during the tracking.
         meta: extra entries for ``Trajectory.meta``.
 
@@ -215,13 +211,16 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
         verification does not pass.
 
     Raises:
-        TaskError, PathError: bad arguments (an open path, a non-redundant arm, a bad count).
+        PathError, TaskError: an open path, not an index, a non-redundant arm, a q0 outside the limits.
+        OptionError: an option outside its range (:class:`~kinredund.planning.options.PlanOptions`).
     """
-    _check_args(robot, path, index, samples, starts, loops, steps_per_loop, max_jump, margin)
+    _check_args(robot, path, index)
+    opt = PlanOptions.of(options, **overrides)
+    opt.check_for(robot)
     t0 = perf_counter()
     timings: dict[str, float] = {}
-    flips = orientation_loop_flips(path) if robot.task == "pose" else None
-    cycles = check_count(cycles, 1, "cycles", TaskError)
+    flips = orientation_loop_flips(path) if get_task(robot.task).holds_rotation else None
+    cycles = opt.cycles
     if flips and cycles % 2:
         return CyclicPlan(False, "the path's orientation turns once about an axis per loop (a loop of SO(3) that is "
                           "not contractible), and a joint path inside the limits maps to contractible loops "
@@ -232,88 +231,58 @@ def plan(robot, path: Path, index: Index, *, samples: int = 24, starts: int = 8,
     user_path, path = path, (path if cycles == 1 else RepeatedPath(path, cycles))
     first_notes = [f"the joint motion repeats every {cycles} loops of the path"] if cycles > 1 else []
     period = float(path.period)
-    n = int(samples) * cycles
-    ts = np.arange(n) * period / n
-    inner = shrunk_limits(robot, float(margin))
-    targets = [target_at(robot, path, float(t)) for t in ts]
-    rng = np.random.default_rng(seed)
-    lo, hi = inner.sample_box()
+    n = opt.samples * cycles
+    inner = shrunk_limits(robot, opt.margin)
+    cands = CandidateSet(inner, path, index, opt, np.arange(n) * period / n)
 
     # -- step 1: within-limits minima of z at the samples (forward sweep with random starts, backward sweep)
-    pools = [CandidatePool() for _ in range(n)]
-    links: set = set()  # pairs of candidate labels one solve joined (the same branch at neighbouring samples)
-    counter = [0]
-    start = None
     if q0 is not None:
         q0 = robot.check_q(q0, "q0")
         if not inside_limits(robot, q0):
             raise TaskError(f"q0 must lie inside the joint limits of {robot.name}, got {np.round(q0, 6).tolist()}")
-        start = pools[0].add(local_minimum(inner, targets[0], index, q0, max_iter), counter)
-        if start < 0:
+        if not cands.start_from(q0):
             return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
                               None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles,
                               cause="no_minimum")
-    for k in range(n):
-        if k > 0:
-            continue_candidates(inner, targets, index, pools, k - 1, k, links, counter, max_iter)
-        for _ in range(int(starts) * (4 if k == 0 else 1)):
-            pools[k].add(local_minimum(inner, targets[k], index, rng.uniform(lo, hi), max_iter), counter)
-        if not pools[k].q:  # seed from a within-limits point on the path (pose-only multi-start)
-            feasible = solve_ik(inner, targets[k], None, bounds=True, starts=4 * int(starts), seed=seed + k)
-            if feasible.converged:
-                pools[k].add(local_minimum(inner, targets[k], index, feasible.q, max_iter), counter)
-        if not pools[k].q:
-            timings["samples_s"] = perf_counter() - t0
-            return CyclicPlan(False, f"sample {k + 1} of {n} (t = {ts[k]:.4g} s) has no within-limits local "
-                              f"minimum of the index ({int(starts) * (4 if k == 0 else 1)} random starts and the "
-                              "previous sample's minima): the path may leave the reachable set there",
-                              None, None, None, timings=timings, cycles=cycles, cause="no_minimum")
-        pools[k].trim(max_candidates, keep=start if k == 0 else None)
-    continue_candidates(inner, targets, index, pools, n - 1, 0, links, counter, max_iter)  # close the loop
-    for k in range(n - 1, 0, -1):  # backward: branches first found late, continued to the earlier samples
-        continue_candidates(inner, targets, index, pools, k, k - 1, links, counter, max_iter)
-    continue_candidates(inner, targets, index, pools, 0, n - 1, links, counter, max_iter)
-    for k, pool in enumerate(pools):
-        pool.trim(2 * max_candidates, keep=start if k == 0 else None)
+    missing = cands.collect()
     timings["samples_s"] = perf_counter() - t0
+    if missing:
+        return CyclicPlan(False, missing, None, None, None, timings=timings, cycles=cycles, cause="no_minimum")
 
     # -- step 2: the shortest closed walk through the candidates, refined where it must be
     t1 = perf_counter()
-    costs = walk_costs(pools, max_jump)
-    i0 = None if start is None else pools[0].label.index(start)
-    restrict_start(costs, i0)
-    refined: dict = {}
-    choice, total = choose(costs)
-    if choice is None or not np.isfinite(total):
-        refine_walk(inner, path, ts, period, pools, costs, refined, max_jump, budget, max_iter)
-        restrict_start(costs, i0)
-        choice, total = choose(costs)
+    choice, refined, costs = cands.refined_walk()
     timings["walk_s"] = perf_counter() - t1
+    ts, pools = np.array(cands.ts), cands.pools
     candidates = tuple(np.array(p.q) for p in pools)
     objective = tuple(np.array(p.z) for p in pools)
-    if choice is None or not np.isfinite(total):
-        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
-        where = f" (no continuous way from sample {bad[0] + 1} to {(bad[0] + 1) % n + 1})" if bad else ""
+    if choice is None:
+        n = len(ts)
+        bad = cands.broken(costs)
+        where = f" (no continuous way from t = {ts[bad[0]]:.4g} s to {cands.end(bad[0]):.4g} s)" if bad else ""
         smp = CyclicSamples(np.zeros(0), np.zeros((0, robot.nq)), (), (), ts, candidates, objective)
-        return CyclicPlan(False, "no continuous closed walk through the within-limits minima at this sampling "
-                          f"resolution{where}: try more samples", None, smp, None, timings=timings, cycles=cycles,
-                          cause="no_closed_walk")
+        return CyclicPlan(False, "no continuous closed walk through the within-limits minima"
+                          f"{where} after {cands.added} added sample(s) (refine_samples={opt.refine_samples}, "
+                          f"{n} samples in all): the minima followed end in folds that no within-limits "
+                          "self-motion of at most max_jump per knot joins", None, smp, None, timings=timings,
+                          cycles=cycles, cause="no_closed_walk")
+    links = cands.links
+    if cands.added:
+        first_notes.append(f"{cands.added} sample(s) added where the closed walk broke")
     rows = walk_knots(ts, pools, choice, refined)
     off = off_optimum_intervals(ts, period, pools, choice, links, refined)
-    notes = first_notes + [f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous "
-                           "within-limits path), not a local minimum of the index: the minimum followed ceases to "
-                           "exist there (a fold)" for a, b in off]
-    return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes,
-                         loops, steps_per_loop, rounds, max_iter, progress, meta, timings, t0)
+    return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off,
+                         first_notes, opt, progress, meta, timings, t0)
 
 
-def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, loops,
-                  steps_per_loop, rounds, max_iter, progress, meta, timings, t0) -> CyclicPlan:
+def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, opt,
+                  progress, meta, timings, t0) -> CyclicPlan:
     """Steps 3-5 of :func:`plan`: spline, tracking, verification; re-planned with an inserted knot where
     the motion leaves the limits. ``path`` is the user's path run ``cycles`` times (one period of the
     joint motion), ``user_path`` the user's."""
     period = float(path.period)
-    per_cycle = int(steps_per_loop) * cycles
+    loops, rounds, max_iter = opt.loops, opt.rounds, opt.max_iter
+    per_cycle = opt.steps_per_loop * cycles
     info = dict(meta or {}, planner="cyclic", index=type(index).__name__)
     for attempt in range(int(rounds) + 1):
         rows.sort(key=lambda r: r[0])
@@ -350,8 +319,19 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
                              f"{check.limit_violation:.3g}")
                 continue
         break
-    timings["total_s"] = perf_counter() - t0
     reason = _verdict(check)
+    if not reason:  # step 6: z's own optimum wherever it is strongly stable (planning.follow)
+        t1 = perf_counter()
+        accept = lambda tr: not _verdict(verify_motion_on_path(robot, user_path, tr.t, tr.q, per_cycle))  # noqa: E731
+        traj, off, note = follow_optimum(robot, path, index, ref, traj, per_cycle, -(-int(loops) // cycles),
+                                         opt.max_jump, accept, progress, info, enabled=opt.follow)
+        check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
+        timings["follow_s"] = perf_counter() - t1
+        notes += ([note] if note else []) + [
+            f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
+            "path), not z's bounded optimum: that minimum ceases to exist or is not strongly stable there (a fold, a "
+            "singular stretch)" for a, b in off]
+    timings["total_s"] = perf_counter() - t0
     return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles,
                       "verification" if reason else "")
 

@@ -41,7 +41,7 @@ import numpy as np
 from kinredund.errors import TaskError
 from kinredund.indices import Index
 from kinredund.paths import Path
-from kinredund.planning.branches import Candidate, Transition, candidates, choose, target_of, transition
+from kinredund.planning.branches import Candidate, Transition, candidates, choose, transition
 from kinredund.planning.clearance import link_model
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, check_weights
@@ -176,6 +176,61 @@ def _weights(weights, n: int) -> np.ndarray:
     return w
 
 
+def _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, starts, seed, link_radius, tool_tip,
+                       max_iter, max_candidates, check_reach, progress) -> list[list[Candidate]] | tuple[str, str]:
+    """Step 1 of :func:`plan`: the collision-free local minima of the policy at every sample, or (cause,
+    reason) where a sample has none (``check_reach``: the wrist-reach screen of the default policy)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.sample_box()
+    cands: list[list[Candidate]] = []
+    ps = np.array([path(t).p for t in ts])
+    if not get_task(robot.task).planar and not get_task(robot.task).has_orientation:
+        wr = wrist_reach(robot, ps, obstacle.normal_at(ps))
+        if wr is not None and (wr.end_margin.min() < 0 or (check_reach and wr.margin.min() < 0)):
+            return "out_of_reach", _reach_reason(wr, ts, ps, model.names)
+    for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
+        if progress is not None:
+            progress(k, len(ts), "samples")
+        index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
+        user = seeds.get(k)
+        user = [] if user is None else ([user] if np.ndim(user) == 1 else list(user))
+        pool = [robot.check_q(s, f"seed of sample {k + 1}") for s in user]
+        pool += [c.q for c in cands[-1]] if cands else []
+        pool += [rng.uniform(lo, hi) for _ in range(int(starts))]
+        target = get_task(robot.task).target_at(path, t)
+        found = candidates(robot, index, target, pool, model, obstacle, link_radius, tool_tip, max_iter,
+                           limit=max_candidates)
+        if not found:
+            return "no_minimum", (
+                f"sample S{k + 1} (t = {t:.4g} s, p = {np.round(p, 4).tolist()}) has no collision-free "
+                f"configuration at a local minimum of the policy ({len(pool)} seeds): the point may be out of "
+                "reach, or the obstacle too large for the arm")
+        cands.append(found)
+    return cands
+
+
+def _chosen_samples(robot, path, ts, W, cands, trans, choice, notes) -> Samples:
+    """The samples along the chosen branches with the refined points of their transitions (whole turns
+    accumulated); a transition that is not collision-free at its refined points goes into ``notes``."""
+    n = ts.size
+    rows = []  # (t, q, kind, candidate count, objective, clearance, weights)
+    acc = np.zeros(robot.nq)
+    for k in range(n):
+        c = cands[k][choice[k]]
+        rows.append((ts[k], c.q + acc, "policy", len(cands[k]), c.objective, c.clearance, W[k]))
+        tr = trans[k][choice[k]][choice[(k + 1) % n]]
+        for (tm, qm), cm in zip(tr.points, tr.clearance, strict=True):
+            rows.append((tm, qm + acc, "refined", 0, np.nan, cm, np.full(2, np.nan)))
+        acc = acc + tr.shift
+        if tr.min_clearance <= 0:
+            notes.append(f"the transition between S{k + 1} and S{(k + 1) % n + 1} is not collision-free at its "
+                         f"refined points (worst clearance {tr.min_clearance:.3g} m)")
+    smp = Samples(np.array([r[0] for r in rows]), np.array([path(r[0]).p for r in rows]),
+                  np.array([r[1] for r in rows]), acc, tuple(r[3] for r in rows), np.array([r[4] for r in rows]),
+                  np.array([r[5] for r in rows]), np.array([r[6] for r in rows]), tuple(r[2] for r in rows))
+    return smp
+
+
 def plan(
     robot,
     path: Path,
@@ -265,33 +320,11 @@ def plan(
     notes: list[str] = []
 
     # -- step 1: the sample points at joint level (Eqs. 6.21-6.22) and the branch choice ----------
-    rng = np.random.default_rng(seed)
-    lo, hi = robot.sample_box()
-    cands: list[list[Candidate]] = []
-    ps = np.array([path(t).p for t in ts])
-    if not get_task(robot.task).planar and not get_task(robot.task).has_orientation:
-        wr = wrist_reach(robot, ps, obstacle.normal_at(ps))
-        if wr is not None and (wr.end_margin.min() < 0 or (check_reach and policy is None and wr.margin.min() < 0)):
-            timings["samples_s"] = perf_counter() - t_start
-            return failure(_reach_reason(wr, ts, ps, names), names, timings)
-    for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
-        if progress is not None:
-            progress(k, len(ts), "samples")
-        index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
-        user = seeds.get(k)
-        user = [] if user is None else ([user] if np.ndim(user) == 1 else list(user))
-        pool = [robot.check_q(s, f"seed of sample {k + 1}") for s in user]
-        pool += [c.q for c in cands[-1]] if cands else []
-        pool += [rng.uniform(lo, hi) for _ in range(int(starts))]
-        found = candidates(robot, index, target_of(robot, p), pool, model, obstacle, link_radius, tool_tip, max_iter,
-                           limit=max_candidates)
-        if not found:
-            timings["samples_s"] = perf_counter() - t_start
-            return failure(
-                f"sample S{k + 1} (t = {t:.4g} s, p = {np.round(p, 4).tolist()}) has no collision-free "
-                f"configuration at a local minimum of the policy ({len(pool)} seeds): the point may be out of "
-                "reach, or the obstacle too large for the arm", names, timings)
-        cands.append(found)
+    cands = _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, starts, seed, link_radius, tool_tip,
+                               max_iter, max_candidates, check_reach and policy is None, progress)
+    if isinstance(cands, tuple):
+        timings["samples_s"] = perf_counter() - t_start
+        return failure(cands[1], names, timings, cause=cands[0])
     n = ts.size
     trans: list[list[list[Transition]]] = []
     for k in range(n):
@@ -309,22 +342,8 @@ def plan(
         bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
         where = f" (none between S{bad[0] + 1} and S{(bad[0] + 1) % n + 1})" if bad else ""
         return failure(f"no cyclic sequence of sample configurations with continuous transitions{where}: "
-                        "try more samples or other sample times", names, timings)
-    rows = []  # (t, q, kind, candidate count, objective, clearance, weights)
-    acc = np.zeros(robot.nq)
-    for k in range(n):
-        c = cands[k][choice[k]]
-        rows.append((ts[k], c.q + acc, "policy", len(cands[k]), c.objective, c.clearance, W[k]))
-        tr = trans[k][choice[k]][choice[(k + 1) % n]]
-        for (tm, qm), cm in zip(tr.points, tr.clearance, strict=True):
-            rows.append((tm, qm + acc, "refined", 0, np.nan, cm, np.full(2, np.nan)))
-        acc = acc + tr.shift
-        if tr.min_clearance <= 0:
-            notes.append(f"the transition between S{k + 1} and S{(k + 1) % n + 1} is not collision-free at its "
-                         f"refined points (worst clearance {tr.min_clearance:.3g} m)")
-    smp = Samples(np.array([r[0] for r in rows]), np.array([path(r[0]).p for r in rows]),
-                  np.array([r[1] for r in rows]), acc, tuple(r[3] for r in rows), np.array([r[4] for r in rows]),
-                  np.array([r[5] for r in rows]), np.array([r[6] for r in rows]), tuple(r[2] for r in rows))
+                        "try more samples or other sample times", names, timings, cause="no_closed_walk")
+    smp = _chosen_samples(robot, path, ts, W, cands, trans, choice, notes)
     timings["samples_s"] = perf_counter() - t_start
     return track_and_verify(robot, path, obstacle, smp, model, planner="chapter6", spline=spline,
                              steps_per_loop=steps_per_loop, substeps=substeps, link_radius=link_radius,

@@ -46,6 +46,7 @@ from kinredund.planning.clearance import PENETRATION_TOL, link_clearance, link_m
 from kinredund.planning.obstacles import EllipticCylinder
 from kinredund.planning.spline import unwrap_samples
 from kinredund.planning.stages import PlanResult, Samples, failure, tool_tip_length, track_and_verify
+from kinredund.tasks import get_task
 
 #: cost of a move along the self-motion within one time slice, against squared joint steps [rad^2]: the
 #: search advances in time wherever it can (the closest-point tracking follows slow self-motions only)
@@ -151,33 +152,12 @@ class Roadmap:
     margin: float
 
 
-def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, grid: int = 360,
-                  max_jump: float = 0.25, progress=None) -> Roadmap:
-    """The cyclic collision-free motion with the largest clearance margin on the roadmap (module docstring).
-
-    The margin is bisected in :data:`MARGIN_RANGE` (:data:`MARGIN_BISECTIONS` steps); ``tool_tip`` [m] is
-    the last link's tip left out of its clearance, as in
-    :func:`~kinredund.planning.clearance.link_clearance`. ``progress(done, total, "roadmap")`` is called
-    after each time slice and each bisection.
-
-    Raises:
-        TaskError: the arm is not of Table 4.1's architecture.
-        KinredundError: no cycle even with a zero margin (the message says so).
-    """
-    arch = check_architecture(robot)
-    period = float(path.period)
-    # screening with a lower bound of the distance (exact inside, never above the truth outside)
-    bound = obstacle.surface_bound if isinstance(obstacle, EllipticCylinder) else None
-    theta1 = np.linspace(-math.pi, math.pi, grid, endpoint=False)
-    ts = np.arange(slices) * period / slices
+def _slices(arch, path, obstacle, ts, theta1, tool_tip, bound, report) -> tuple[np.ndarray, np.ndarray]:
+    """(Q, C): the self-motion configurations (slices, 4 branches, grid, 4) at every time slice and their
+    clearance (-inf where a link penetrates or the point is not reached)."""
+    slices, grid = len(ts), len(theta1)
     Q = np.zeros((slices, 4, grid, 4))
     C = np.full((slices, 4, grid), -np.inf)
-    total = slices + MARGIN_BISECTIONS + 1
-
-    def report(done):
-        if progress is not None:
-            progress(done, total, "roadmap")
-
     for k, t in enumerate(ts):
         report(k)
         q, ok = self_motion(arch, path(t).p, theta1)
@@ -187,12 +167,12 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
         whole_out = (pen + tip <= PENETRATION_TOL).reshape(4, grid)  # no point of the last link inside, P included
         Q[k] = q
         C[k] = np.where(ok & whole_out, c.min(axis=1).reshape(4, grid), -np.inf)
-    # candidate edges (same slice: index +-1, +-2 any branch; next slice: index -2..2 any branch)
-    n_nodes = slices * 4 * grid + 4 * grid  # the last block is slice 0 again, one period later
+    return Q, C
 
-    def node(k, b, i):
-        return (k * 4 + b) * grid + i
 
+def _edges(Q, slices: int, grid: int, max_jump: float, node):
+    """The roadmap's candidate edges (same slice: index +-1, +-2 any branch; next slice: index -2..2 any
+    branch) with joint jumps at most ``max_jump``: (src, dst, kind, same-slice flags, weights)."""
     K, B, I = np.meshgrid(np.arange(slices), np.arange(4), np.arange(grid), indexing="ij")
     src, dst, kind = [], [], []
     for bb in range(4):
@@ -213,6 +193,59 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
     dq = wrap_joints(Q[kind[:, 3], kind[:, 4], kind[:, 5]] - Q[kind[:, 0], kind[:, 1], kind[:, 2]])
     same = src // (4 * grid) == dst // (4 * grid)
     weight = np.sum(dq**2, axis=1) + np.where(same, SAME_SLICE_COST, 1e-6)
+    return src, dst, kind, same, weight
+
+
+def _decode(best, Q, ts, dt: float, grid: int) -> tuple[np.ndarray, np.ndarray]:
+    """(times, joints) of a node sequence; within a slice the self-motion is spread over its interval."""
+    by_slice: dict[int, list[np.ndarray]] = {}
+    for nd in best[:-1]:
+        k, rest = divmod(nd, 4 * grid)
+        b, i = divmod(rest, grid)
+        by_slice.setdefault(k, []).append(Q[k, b, i])
+    times, qs = [], []
+    for k in sorted(by_slice):
+        chain = by_slice[k]
+        for j, q in enumerate(chain):
+            times.append(ts[k] + dt * j / len(chain))
+            qs.append(q)
+    q_arr, _ = unwrap_samples(np.array(qs), np.ones(4, bool))
+    return np.array(times), q_arr
+
+
+def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, grid: int = 360,
+                  max_jump: float = 0.25, progress=None) -> Roadmap:
+    """The cyclic collision-free motion with the largest clearance margin on the roadmap (module docstring).
+
+    The margin is bisected in :data:`MARGIN_RANGE` (:data:`MARGIN_BISECTIONS` steps); ``tool_tip`` [m] is
+    the last link's tip left out of its clearance, as in
+    :func:`~kinredund.planning.clearance.link_clearance`. ``progress(done, total, "roadmap")`` is called
+    after each time slice and each bisection.
+
+    Raises:
+        TaskError: the arm is not of Table 4.1's architecture.
+        KinredundError: no cycle even with a zero margin (the message says so).
+    """
+    arch = check_architecture(robot)
+    period = float(path.period)
+    # screening with a lower bound of the distance (exact inside, never above the truth outside)
+    bound = obstacle.surface_bound if isinstance(obstacle, EllipticCylinder) else None
+    theta1 = np.linspace(-math.pi, math.pi, grid, endpoint=False)
+    ts = np.arange(slices) * period / slices
+    total = slices + MARGIN_BISECTIONS + 1
+
+    def report(done):
+        if progress is not None:
+            progress(done, total, "roadmap")
+
+    Q, C = _slices(arch, path, obstacle, ts, theta1, tool_tip, bound, report)
+    # candidate edges (same slice: index +-1, +-2 any branch; next slice: index -2..2 any branch)
+    n_nodes = slices * 4 * grid + 4 * grid  # the last block is slice 0 again, one period later
+
+    def node(k, b, i):
+        return (k * 4 + b) * grid + i
+
+    src, dst, kind, same, weight = _edges(Q, slices, grid, max_jump, node)
     cl_src = C[kind[:, 0], kind[:, 1], kind[:, 2]]
     cl_dst = C[kind[:, 3], kind[:, 4], kind[:, 5]]
 
@@ -252,21 +285,8 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
             hi = mid
         else:
             best, best_margin, lo = seq, mid, mid
-    # decode: node -> (time, q); within a slice the self-motion is spread over the slice's interval
-    dt = period / slices
-    by_slice: dict[int, list[np.ndarray]] = {}
-    for nd in best[:-1]:
-        k, rest = divmod(nd, 4 * grid)
-        b, i = divmod(rest, grid)
-        by_slice.setdefault(k, []).append(Q[k, b, i])
-    times, qs = [], []
-    for k in sorted(by_slice):
-        chain = by_slice[k]
-        for j, q in enumerate(chain):
-            times.append(ts[k] + dt * j / len(chain))
-            qs.append(q)
-    q_arr, _ = unwrap_samples(np.array(qs), np.ones(4, bool))
-    return Roadmap(np.array(times), q_arr, float(best_margin))
+    times, q_arr = _decode(best, Q, ts, period / slices, grid)
+    return Roadmap(times, q_arr, float(best_margin))
 
 
 def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, max_jump: float = 0.25,
@@ -300,7 +320,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         if isinstance(err, TaskError):
             raise
         timings["roadmap_s"] = perf_counter() - t_start
-        return failure(str(err), names, timings)
+        return failure(str(err), names, timings, cause="no_closed_walk")
     timings["roadmap_s"] = perf_counter() - t_start
     n_wrist = robot.nq - 4
     qs = []
@@ -308,7 +328,7 @@ def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, ma
         if progress is not None:
             progress(k, len(rm.t), "placing the roadmap on the path")
         ref = np.concatenate([q4, np.zeros(n_wrist)])
-        res = closest_on_path(robot, path(t).p, ref)
+        res = closest_on_path(robot, get_task(robot.task).target_at(path, t), ref)
         qs.append(ref + wrap_joints(res.q - ref, robot.revolute) if res.converged else ref)
     q_u, turns = unwrap_samples(np.array(qs), robot.revolute)
     ps = np.array([path(t).p for t in rm.t])

@@ -13,7 +13,7 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import KinredundError, TaskError
+from kinredund.errors import KinredundError, TaskError, check_choice
 from kinredund.indices import TimeVaryingReference
 from kinredund.io import json_ready
 from kinredund.paths import Path
@@ -58,6 +58,26 @@ class Samples:
         return json_ready({f.name: getattr(self, f.name) for f in fields(self)})
 
 
+#: the causes of a failed plan, one vocabulary for both planners ("" when a plan is ok): ``orientation_loop``
+#: (no closed within-limits joint path for that many cycles), ``out_of_reach`` (a sample the arm cannot
+#: reach as the policy needs), ``no_minimum`` (a sample without a candidate), ``no_closed_walk`` (no cyclic
+#: sequence of candidates), ``tracking_failed``, ``verification`` (the motion failed its own check: limits,
+#: path, closure, jumps) and ``collision`` (the motion touches the obstacle)
+PLAN_CAUSES = ("", "orientation_loop", "out_of_reach", "no_minimum", "no_closed_walk", "tracking_failed",
+               "verification", "collision")
+
+
+def check_cause(ok: bool, cause: str) -> None:
+    """A plan's cause is one of :data:`PLAN_CAUSES`, and empty exactly when the plan is ok.
+
+    Raises:
+        ChoiceError: an unknown cause; KinredundError: ok with a cause, or a failure without one.
+    """
+    check_choice("plan cause", cause, PLAN_CAUSES)
+    if bool(ok) != (cause == ""):
+        raise KinredundError(f"a plan is ok exactly when it has no cause, got ok={ok} cause={cause!r}")
+
+
 @dataclass(frozen=True)
 class PlanResult:
     """The outcome of :func:`plan`.
@@ -74,6 +94,7 @@ class PlanResult:
         reason: "" when ok, else why not.
         timings: wall times of the stages [s].
         notes: remarks that are not failures.
+        cause: why the plan failed, one of :data:`PLAN_CAUSES` ("" when ok).
     """
 
     trajectory: Trajectory | None
@@ -86,6 +107,10 @@ class PlanResult:
     reason: str
     timings: dict = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    cause: str = ""
+
+    def __post_init__(self) -> None:
+        check_cause(self.ok, self.cause)
 
     @property
     def clearance_min(self) -> np.ndarray | None:
@@ -100,6 +125,7 @@ class PlanResult:
         out = {
             "ok": self.ok,
             "reason": self.reason,
+            "cause": self.cause,
             "samples": 0 if self.samples is None else int(len(self.samples.t)),
             "candidates": None if self.samples is None else list(self.samples.candidates),
             "links": list(self.link_names),
@@ -141,9 +167,10 @@ def winding(path: Path, obstacle: Obstacle, period: float, count: int = 720) -> 
     return float((ang[-1] - ang[0]) / (2 * np.pi))
 
 
-def failure(reason, names, timings, samples=None, trajectory=None, notes=()) -> PlanResult:
-    """A :class:`PlanResult` with ``ok=False`` and ``reason``, without a verified motion."""
-    return PlanResult(trajectory, samples, None, None, names, float("nan"), False, reason, timings, tuple(notes))
+def failure(reason, names, timings, samples=None, trajectory=None, notes=(), *, cause: str) -> PlanResult:
+    """A :class:`PlanResult` with ``ok=False``, ``reason`` and ``cause``, without a verified motion."""
+    return PlanResult(trajectory, samples, None, None, names, float("nan"), False, reason, timings, tuple(notes),
+                      cause)
 
 
 def track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model: LinkModel, *, planner: str,
@@ -174,7 +201,7 @@ def track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model:
                      meta=info, limits=False)
     except KinredundError as err:
         timings["tracking_s"] = perf_counter() - t1
-        return failure(f"the tracking failed: {err}", names, timings, smp, notes=notes)
+        return failure(f"the tracking failed: {err}", names, timings, smp, notes=notes, cause="tracking_failed")
     timings["tracking_s"] = perf_counter() - t1
     q_spline = spl.values(traj.t)
     gap = float(np.abs(traj.q - q_spline).max())
@@ -202,4 +229,5 @@ def track_and_verify(robot, path: Path, obstacle: Obstacle, smp: Samples, model:
                        "(see kinredund.planning.planner)")
     if traj.loop_drift is not None and traj.loop_drift[0] > 1e-6:
         notes.append(f"the joint path does not close: drift {traj.loop_drift[0]:.3g} rad after one loop")
-    return PlanResult(traj, smp, q_spline, rep, names, gap, not reason, reason, timings, tuple(notes))
+    return PlanResult(traj, smp, q_spline, rep, names, gap, not reason, reason, timings, tuple(notes),
+                      "collision" if reason else "")

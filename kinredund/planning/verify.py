@@ -22,7 +22,7 @@ import numpy as np
 
 from kinredund.errors import PathError, check_array
 from kinredund.paths import Path
-from kinredund.tasks import get_task, orientation_error
+from kinredund.tasks import get_task
 
 #: a step is a jump when its joint change exceeds this multiple of its neighbours' largest change
 JUMP_FACTOR = 4.0
@@ -92,13 +92,7 @@ def task_errors(robot, path: Path, t, q) -> tuple[np.ndarray, np.ndarray]:
     samples = [path(float(tk)) for tk in t]
     Q, Q_d = T[:, :3, :3], np.array([s.Q for s in samples]) if task.has_orientation else None
     errors = task.errors_many(Q, T[:, :3, 3], Q_d, np.array([s.p for s in samples]))
-    if "axis_error" in errors:
-        ang = errors["axis_error"]
-    elif Q_d is not None:
-        ang = np.array([orientation_error(a, b) for a, b in zip(Q, Q_d, strict=True)])
-    else:
-        ang = np.zeros(len(t))
-    return errors["position_error"], ang
+    return errors["position_error"], task.orientation_angles(Q, Q_d)
 
 
 def joint_jumps(q) -> tuple[float, float, tuple[int, ...]]:

@@ -23,14 +23,18 @@ import copy
 
 import numpy as np
 
-from kinredund.errors import PathError
 from kinredund.ik.solve import solve_ik
-from kinredund.indices import Index, JointDeviation
+from kinredund.indices import Index
 from kinredund.paths import Path
-from kinredund.tasks import make_target
+from kinredund.planning.branches import closest_on_path
+from kinredund.tasks import get_task
 
 #: two candidates closer than this (max-abs) are the same local minimum [rad or m]
 SAME_CANDIDATE = 1e-6
+#: the weight of z in the walk's edge costs [rad per unit of z]: it only breaks ties between equally long walks
+Z_TIE = 1e-9
+#: a candidate's task errors are at most this [m or rad]: a converged solve holds ~1e-12, a wrong branch ~1
+ON_TARGET = 1e-8
 
 
 def shrunk_limits(robot, margin: float):
@@ -43,13 +47,12 @@ def shrunk_limits(robot, margin: float):
 
 
 def target_at(robot, path: Path, t: float):
-    """The IK target of the path at t for the robot's task kind (pose, position or planar)."""
-    s = path(t)
-    if robot.task == "pose":
-        if s.Q is None:
-            raise PathError("a pose task needs a path with orientation (e.g. Circle(..., frenet=True))")
-        return make_target("pose", (s.Q, s.p))
-    return make_target(robot.task, s.p[:2] if robot.task == "planar" else s.p)
+    """The IK target of the path at t for the robot's task kind (:meth:`kinredund.tasks.Task.target_at`).
+
+    Raises:
+        PathError: the task holds an orientation and the path gives none.
+    """
+    return get_task(robot.task).target_at(path, t)
 
 
 def inside_limits(robot, q) -> bool:
@@ -57,30 +60,38 @@ def inside_limits(robot, q) -> bool:
     return bool(np.all(q >= robot.lower) and np.all(q <= robot.upper))
 
 
+def on_target(robot, target, q, tol: float = ON_TARGET) -> bool:
+    """Every error the task records (:meth:`kinredund.tasks.Task.error_values`, the robot's own FK) within
+    ``tol`` at q: a solve's answer is a point of the path, not a stationary point elsewhere (a tool axis
+    reversed against the target's is a zero of some residuals, not of the task's errors)."""
+    T = robot.fk(q)
+    errors = get_task(robot.task).error_values(T[:3, :3], T[:3, 3], target)
+    return max(errors.values()) <= tol
+
+
 def local_minimum(inner, target, index: Index, seed, max_iter: int):
-    """A within-limits local minimum of z from ``seed`` (q, z), or None."""
+    """A within-limits local minimum of z from ``seed`` (q, z) on the target, or None."""
     res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
-    if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)):
+    if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)
+            and on_target(inner, target, res.q)):
         return None
     return res.q, float(res.objective)
 
 
 def closest_within_limits(inner, target, reference, seed=None, max_iter: int = 200, fallback: bool = False):
-    """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25),
-    from ``seed`` (default the reference), or None. With ``fallback``, where that solve does not converge,
-    the within-limits point on g = x the pose-only solve reached from the seed.
-
-    The seed is first put on g = x by a pose-only solve: from the reference itself the index's gradient
-    and the multipliers vanish and the constrained solve's line search cannot step back onto g = x.
+    """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25,
+    :func:`~kinredund.planning.branches.closest_on_path` with the limits as bounds), from ``seed`` (default
+    the reference, clipped into the limits), or None. With ``fallback``, where that solve does not
+    converge, the within-limits point on g = x a pose-only solve reaches from the seed.
     """
     seed = np.clip(np.asarray(reference if seed is None else seed, float), inner.lower, inner.upper)
-    first = solve_ik(inner, target, None, q0=seed, bounds=True, max_iter=max_iter)
-    start = first.q if first.converged else seed
-    res = solve_ik(inner, target, JointDeviation(np.asarray(reference, float)), q0=start, bounds=True,
-                   max_iter=max_iter)
+    res = closest_on_path(inner, target, np.asarray(reference, float), seed=seed, max_iter=max_iter, bounds=True)
     if res.converged and inside_limits(inner, res.q):
         return res.q
-    return first.q if fallback and first.converged and inside_limits(inner, first.q) else None
+    if not fallback:
+        return None
+    first = solve_ik(inner, target, None, q0=seed, bounds=True, max_iter=max_iter)
+    return first.q if first.converged and inside_limits(inner, first.q) else None
 
 
 class CandidatePool:
@@ -149,13 +160,16 @@ def bisect_within_limits(inner, path, ta, qa, tb, qb, max_jump, budget, max_iter
 
 
 def walk_costs(pools, max_jump):
-    """Edge costs of the layered graph: the joint distance where no joint jumps by more than max_jump."""
+    """Edge costs of the layered graph: the joint distance where no joint jumps by more than max_jump, plus
+    :data:`Z_TIE` times the mean z of its ends, so that of walks equally long (a branch and its copy shifted
+    by whole turns on a wide joint) the one of lower z is chosen."""
     n = len(pools)
     out = []
     for k in range(n):
         A, B = np.array(pools[k].q), np.array(pools[(k + 1) % n].q)
         d = A[:, None, :] - B[None, :, :]
-        c = np.linalg.norm(d, axis=2)
+        za, zb = np.asarray(pools[k].z, float), np.asarray(pools[(k + 1) % n].z, float)
+        c = np.linalg.norm(d, axis=2) + Z_TIE * 0.5 * (za[:, None] + zb[None, :])
         c[np.abs(d).max(axis=2) > max_jump] = np.inf
         out.append(c)
     return out

@@ -150,7 +150,7 @@ def retime(traj: Trajectory, limits: Limits, *, robot=None, loops: int | None = 
     if not isinstance(traj, Trajectory):
         raise RetimeError(f"retime takes a kinredund Trajectory, got {type(traj).__name__}")
     if robot is None:
-        from kinredund.model.robot import load_robot
+        from kinredund.model.loader import load_robot
 
         robot = load_robot(traj.robot, task=traj.task)
     traj = traj.checked(robot.nq)

@@ -187,7 +187,8 @@ def figures(robot: Robot, path: Path, index: Index | None, traj: Trajectory) -> 
         out["loop_drift"] = clean_float(np.max(traj.loop_drift))
     if traj.position_error is not None and len(traj.position_error):
         out["position_error"] = clean_float(np.max(traj.position_error))
-    orientation = traj.vect_error if robot.task == "pose" else traj.axis_error if robot.task == "axis" else None
+    name = get_task(robot.task).orientation_error_name  # the field that sums up the task's orientation error
+    orientation = None if name is None else getattr(traj, name)
     if orientation is not None and len(orientation):
         out["orientation_error"] = clean_float(np.max(orientation))
     return out

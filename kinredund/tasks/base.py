@@ -24,11 +24,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, PathError
 
 if TYPE_CHECKING:
     from kinredund.kinematics.state import HessianContraction
-    from kinredund.paths import PathSample
+    from kinredund.paths import Path, PathSample
 
 #: the formulations of the resolved-rate scheme: displacement Jacobian J (Eq. 4.15) or twist K (Eq. 4.31)
 FORMULATIONS = ("augmented", "velocity")
@@ -152,6 +152,9 @@ class Task(ABC):
         has_orientation: the task holds (part of) the orientation: it needs a path with orientation.
         point_rows: the rows of K = [omega; pdot] of the end point's coordinates that the task holds.
         error_names: the names of :meth:`error_values`, as the record's fields.
+        holds_rotation: the task holds the whole rotation (a loop of the path's orientation that is not
+            contractible then admits no within-limits joint path closing after one loop, :mod:`kinredund.
+            planning.topology`).
     """
 
     name: str = ""
@@ -160,6 +163,7 @@ class Task(ABC):
     has_orientation: bool = False
     point_rows: np.ndarray = np.array([3, 4, 5])
     error_names: tuple[str, ...] = ("position_error",)
+    holds_rotation: bool = False
 
     @abstractmethod
     def make_target(self, target, *, z: float = 0.0) -> Target:
@@ -175,6 +179,42 @@ class Task(ABC):
         Not validated again: a path sample is (its constructor checks it).
         """
         return Target(self.name, np.asarray(sample.p, float), sample.Q if self.has_orientation else None)
+
+    def target_at(self, path: Path, t: float) -> Target:
+        """The target of ``path`` at time t [s] (:meth:`target_from_sample` of ``path(t)``).
+
+        Raises:
+            PathError: the task holds an orientation and the path gives none.
+        """
+        sample = path(float(t))
+        if self.has_orientation and sample.Q is None:
+            raise PathError(f"the {self.name} task needs a path with orientation (e.g. Circle(..., frenet=True) "
+                            "or Circle(..., orientation=Q))")
+        return self.target_from_sample(sample)
+
+    @property
+    def takes_tool_axis(self) -> bool:
+        """The task holds one axis of the end frame (its z axis) and leaves the spin about it free:
+        ``load_robot(..., tool_axis=...)`` chooses that axis."""
+        return self.has_orientation and not self.holds_rotation
+
+    @property
+    def orientation_error_name(self) -> str | None:
+        """The record's field that sums up the orientation error (the last of :attr:`error_names`), or
+        None for a task without orientation."""
+        return self.error_names[-1] if self.has_orientation else None
+
+    def orientation_angles(self, Q: np.ndarray, Q_d: np.ndarray | None) -> np.ndarray:
+        """The orientation error as an angle [rad] at N points (N,): the angle the task holds (the tool
+        axis's for the axis task), zeros for a task without orientation.
+
+        Args:
+            Q, Q_d: reached and desired rotations (N, 3, 3) (Q_d None where the task has none).
+        """
+        if not self.has_orientation:
+            return np.zeros(len(Q))
+        p = np.zeros((len(Q), 3))
+        return self.errors_many(Q, p, Q_d, p)[self.orientation_error_name]
 
     def point_target(self, p: np.ndarray) -> np.ndarray:
         """The IK target of an end point p (3,): the point's coordinates that the task holds."""

@@ -230,6 +230,7 @@ class PoseTask(Task):
     dim = 6
     has_orientation = True
     error_names = ("position_error", "trace_error", "vect_error")
+    holds_rotation = True
 
     def make_target(self, target, *, z: float = 0.0) -> Target:
         """Validate a 4x4 homogeneous pose (or a (Q, p) pair).
@@ -268,6 +269,10 @@ class PoseTask(Task):
         return (f"the end frame is turned by {angle:.4g} deg from the path's orientation: the residual "
                 "[2 vect(Q_d^T Q); p - p_d] vanishes at half turns too (spurious zeros), so a start must be "
                 "within pi/2 of it")
+
+    def orientation_angles(self, Q, Q_d):
+        """The angle of Q_d^T Q [rad] at each point (the vect error is not an angle)."""
+        return np.array([orientation_error(a, b) for a, b in zip(Q, Q_d, strict=True)])
 
     def span_rows(self, Q, K, Q_d):
         """K itself: J = K (velocity form) or H K with H invertible near the path (Eq. 2.14)."""

@@ -31,7 +31,8 @@ import numpy as np
 
 from kinredund.errors import check_choice
 from kinredund.io import write_json
-from kinredund.model.robot import Robot, load_robot
+from kinredund.model.loader import load_robot
+from kinredund.model.robot import Robot
 from kinredund.paths import Ellipse
 from kinredund.planning import spatial
 from kinredund.planning.clearance import link_model
@@ -102,7 +103,7 @@ def _run(case: str, samples: int, progress) -> tuple[PlanResult, dict, Robot, Ob
         extra = {"links": [float(v) for v in np.abs(robot.hd.a)], "feasibility": check,
                  "obstacle": obstacle.to_dict()}
         if not check["reachable"]:
-            return failure(check["reason"], link_model(robot).names, {}), extra, robot, obstacle
+            return failure(check["reason"], link_model(robot).names, {}, cause="out_of_reach"), extra, robot, obstacle
         result = plan(robot, path, obstacle, samples=samples, progress=progress, meta={"example": "6.2"})
         return result, extra, robot, obstacle
     # the policy's optima at the samples do not join into a collision-free loop on this arm; the branch

@@ -19,7 +19,8 @@ import numpy as np
 
 from kinredund.errors import ChoiceError
 from kinredund.indices import Index, JointDeviation, mid_range, minimum_norm
-from kinredund.model.robot import Robot, load_robot
+from kinredund.model.loader import load_robot
+from kinredund.model.robot import Robot
 from kinredund.paths import Circle, Path
 
 EXAMPLES = ("4.1", "4.2", "4.3")

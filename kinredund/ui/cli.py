@@ -23,33 +23,17 @@ from kinredund.tasks import get_task
 from kinredund.trajectory import RecordWarning
 from kinredund.ui import options
 from kinredund.ui.options import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, REPRODUCIBLE
-from kinredund.ui.summary import in_cli_words, print_table
-from kinredund.ui.summary import print_summary as _print_summary
+from kinredund.ui.report import outcome, progress_for, wrote
+from kinredund.ui.summary import in_cli_words, print_summary, print_table
 
 __all__ = ["EXIT_FAILED", "EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "REPRODUCIBLE", "build_parser", "main"]
-
-
-def _progress(label: str, args):
-    """The progress display of a command (:class:`kinredund.ui.progress.Progress`), shown at once."""
-    from kinredund.ui.progress import Progress
-
-    bar = Progress(label, quiet=getattr(args, "quiet", False))
-    bar(0, 1, "starting")
-    return bar
-
-
-# -- printing (kinredund.ui.summary) ----------------------------------------------------------------
-def _wrote(*paths) -> None:
-    for p in paths:
-        if p is not None:
-            print(f"wrote {p}")
 
 
 # -- commands --------------------------------------------------------------------------------------
 def _cmd_generate_robots(args) -> int:
     from kinredund.model.generate import generate_robots
 
-    _wrote(*generate_robots(Path(args.out)))
+    wrote(*generate_robots(Path(args.out)))
     return EXIT_OK
 
 
@@ -64,8 +48,10 @@ def _cmd_robots(args) -> int:
 def _cmd_reproduce(args) -> int:
     name = args.example
     if name in ("6.2", "6.3"):
-        return _plan(name, args, label=f"reproduce {name}")
-    bar = _progress(f"reproduce {name}", args)
+        from kinredund.ui.cli_plan import run_case
+
+        return run_case(name, args, label=f"reproduce {name}")
+    bar = progress_for(f"reproduce {name}", args)
     if name in ("4.1", "4.2", "4.3"):
         from kinredund.ui.reproduce import example
 
@@ -78,7 +64,7 @@ def _cmd_reproduce(args) -> int:
         finally:
             bar.close()
         print(f"Example {name}: {args.scheme} scheme, {args.mode} mode, {args.loops} loop(s) of {args.steps} steps")
-        _print_summary(traj.summary())
+        print_summary(traj.summary())
         for key in ("loop_not_closed", "rate_burst"):
             if key in traj.meta:
                 print(f"kinredund: note: {traj.meta[key]}", file=sys.stderr)
@@ -91,31 +77,8 @@ def _cmd_reproduce(args) -> int:
         finally:
             bar.close()
         print("Section 3.2: helix tracked by the hybrid closed-form IK")
-        _print_summary({k: v for k, v in out.items() if not isinstance(v, (list, dict))})
-    _wrote(args.json, args.plot)
-    return EXIT_OK
-
-
-def _plan(case: str, args, label: str) -> int:
-    """Run a Chapter 6 case (``reproduce 6.x`` and ``plan``); EXIT_FAILED when the plan fails its check."""
-    bar = _progress(label, args)
-    from kinredund.ui.reproduce import plan_case, snapshot_path
-
-    more = {} if getattr(args, "samples", None) is None else {"samples": args.samples}
-    try:
-        result = plan_case(case, json_path=args.json, plot_path=args.plot, progress=bar, **more)
-    except BaseException:
-        bar.close()  # failed or interrupted
-        raise
-    bar.close("done" if result.ok else "failed")
-    print(f"Section {case}: off-line plan with collision avoidance")
-    _print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
-    _wrote(args.json, args.plot)
-    if args.plot is not None and result.trajectory is not None:
-        _wrote(snapshot_path(args.plot))
-    if not result.ok:
-        print(f"kinredund: plan failed: {result.reason}", file=sys.stderr)
-        return EXIT_FAILED
+        print_summary({k: v for k, v in out.items() if not isinstance(v, (list, dict))})
+    wrote(args.json, args.plot)
     return EXIT_OK
 
 
@@ -127,24 +90,20 @@ def _write_partial(out, err: TrackingError) -> None:
 
 
 def _cmd_track(args) -> int:
-    bar = _progress(f"track {args.robot}", args)
+    bar = progress_for(f"track {args.robot}", args)
     from kinredund.ik.solve import solve_ik
-    from kinredund.model.robot import load_robot
     from kinredund.tracking import track
-    from kinredund.ui.cli_track import path_for, say_speed, stop_hint
+    from kinredund.ui.cli_track import say_speed, stop_hint
 
     try:
         bar(0, 1, "loading the robot")
-        robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
+        # the baselines ignore the index while they step; their normality residual is measured against it
+        robot, seed_q, path, duration, index = options.setup_for(args, args.robot)
         if robot.nq <= robot.task_dim:
             bar.clear()
             print(f"kinredund: note: {robot.name} has {robot.nq} joints for the {robot.task_dim} of its "
                   f"{robot.task!r} task: it is not redundant, so --index {args.index} has no effect",
                   file=sys.stderr)
-        seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
-        path, duration = path_for(args, robot, seed_q)
-        # the baselines ignore the index while they step; their normality residual is measured against it
-        index = options.index_for(robot, args.index)
         s0 = path(0.0)
         target = get_task(robot.task).target_from_sample(s0)
         bar(0, 1, "the optimal start (IK)")
@@ -174,14 +133,14 @@ def _cmd_track(args) -> int:
     finally:
         bar.close()
     print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode, index {args.index}")
-    _print_summary(traj.summary())
+    print_summary(traj.summary())
     if args.json:
         traj.save_json(args.json)
     if args.plot:
         from kinredund.ui.plots import plot_joint_histories
 
         plot_joint_histories(traj, args.plot)
-    _wrote(args.json, args.plot, args.html)
+    wrote(args.json, args.plot, args.html)
     say_speed(traj, robot, args)
     failed = [traj.meta[k] for k in ("loop_not_closed", "rate_burst") if k in traj.meta]  # no success (track())
     for why in failed:
@@ -191,7 +150,7 @@ def _cmd_track(args) -> int:
 
 def _cmd_ik(args) -> int:
     from kinredund.ik.solve import solve_ik
-    from kinredund.model.robot import load_robot
+    from kinredund.model.loader import load_robot
 
     robot = load_robot(args.robot, ee_frame=args.ee_frame, task=args.task)
     if get_task(robot.task).has_orientation:
@@ -214,11 +173,8 @@ def _cmd_ik(args) -> int:
     print(json.dumps(out, indent=2))
     if args.json:
         write_json(args.json, out)
-        _wrote(args.json)
-    if not res.converged:
-        print(f"kinredund: IK did not converge: {res.reason}", file=sys.stderr)
-        return EXIT_FAILED
-    return EXIT_OK
+        wrote(args.json)
+    return outcome(res.converged, f"IK did not converge: {res.reason}")
 
 
 def _exit_on_signal(signum, frame) -> None:
@@ -238,7 +194,7 @@ def _cmd_play(args) -> int:
         from kinredund.ui.viz import replay_html
 
         scene = None if args.scene is None else load_scene(args.scene, rec.robot)
-        _wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title, scene=scene))
+        wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title, scene=scene))
     if args.live:
         import time
 
@@ -259,10 +215,6 @@ def _cmd_play(args) -> int:
     return EXIT_OK
 
 
-def _cmd_plan(args) -> int:
-    return _plan(args.case, args, label=f"plan {args.case}")
-
-
 def _cmd_demo(args) -> int:
     from kinredund.ui.demo import run_demo
 
@@ -270,7 +222,7 @@ def _cmd_demo(args) -> int:
 
 
 # -- the parser (kinredund.ui.options) --------------------------------------------------------------
-COMMANDS = {"demo": _cmd_demo, "reproduce": _cmd_reproduce, "track": _cmd_track, "ik": _cmd_ik, "plan": _cmd_plan,
+COMMANDS = {"demo": _cmd_demo, "reproduce": _cmd_reproduce, "track": _cmd_track, "ik": _cmd_ik,
             "play": _cmd_play, "generate-robots": _cmd_generate_robots, "robots": _cmd_robots}
 
 

@@ -58,13 +58,12 @@ def _write_outputs(traj, names, args) -> None:
 
 
 def _cmd_retime(args) -> int:
-    from kinredund.model.robot import load_robot
     from kinredund.retime import limits_for, retime
     from kinredund.retime.time_law import sample_ratios
-    from kinredund.trajectory import Trajectory
+    from kinredund.ui.records import replay_record
 
-    traj = Trajectory.load_json(args.result)
-    robot = load_robot(traj.robot, task=traj.task)
+    rec = replay_record(args.result)  # a trajectory (track, plan ROBOT) or a plan of Chapter 6 (plan 6.x)
+    traj, robot = rec.trajectory, rec.robot
     limits = limits_for(robot, args.amax, velocity=args.vmax, jerk=args.jmax, tool_speed=args.tool_speed)
     res = retime(traj, limits, robot=robot, loops=args.loops, closed=False if args.open else None,
                  rest_to_rest=args.rest_to_rest)
@@ -97,13 +96,12 @@ def _cmd_retime(args) -> int:
 
 
 def _cmd_export(args) -> int:
-    from kinredund.model.robot import load_robot
-    from kinredund.trajectory import Trajectory
+    from kinredund.ui.records import replay_record
 
     if args.csv is None and args.bag is None:
         raise KinredundError("say what to write: --csv FILE and/or --bag FOLDER")
-    traj = Trajectory.load_json(args.result)
-    _write_outputs(traj, load_robot(traj.robot, task=traj.task).joint_names, args)
+    rec = replay_record(args.result)
+    _write_outputs(rec.trajectory, rec.robot.joint_names, args)
     return 0
 
 
@@ -115,7 +113,7 @@ def add_parsers(sub) -> None:
                    RETIME_HELP, ["kinredund track panda --json run.json",
                                  "kinredund retime run.json --amax 5 --vmax 1.5 --json timed.json --plot timed.png",
                                  "kinredund retime run.json --amax 5 --jmax 500 --bag timed_bag"], _cmd_retime)
-    p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track --json)")
+    p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track or plan --json)")
     p.add_argument("--amax", type=_limit, required=True,
                    help="joint acceleration limits [rad/s^2 or m/s^2]: one number or one per joint (URDFs have none)")
     p.add_argument("--vmax", type=_limit,
@@ -149,7 +147,7 @@ def add_parsers(sub) -> None:
                    "bag holding one trajectory_msgs/msg/JointTrajectory.",
                    ["kinredund export run.json --csv run.csv", "kinredund export timed.json --bag timed_bag"],
                    _cmd_export)
-    p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track or retime --json)")
+    p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track, plan or retime --json)")
     p.add_argument("--csv", type=output_file, help="the CSV file to write (default: not written)")
     p.add_argument("--bag", type=Path,
                    help="the ROS 2 bag folder to write, which must not exist (default: not written)")

@@ -152,7 +152,7 @@ def _scene(args, robot):
 
 def run(args) -> int:
     """The ``sweep`` command; exit code 0 if some placement is feasible, else 1."""
-    from kinredund.model.robot import load_robot
+    from kinredund.model.loader import load_robot
     from kinredund.sweep import best, grid, sweep
     from kinredund.ui.cli import EXIT_FAILED, EXIT_OK
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import OptionError, check_size
-from kinredund.tasks import task_names
+from kinredund.errors import KinredundError, OptionError, check_size
+from kinredund.tasks import get_task, task_names
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
 REPRODUCIBLE = ("3.2", "4.1", "4.2", "4.3", "6.2", "6.3")
@@ -148,6 +148,73 @@ def add_robot(p) -> None:
                         "robot's own task)")
 
 
+def add_path(p) -> None:
+    """The path options of ``track`` and ``plan``: --path, --path-file, --center, --radius, --speed, --normal."""
+    p.add_argument("--path", choices=("circle", "ellipse", "file"), default="circle",
+                   help="circle and ellipse start at the end effector's start pose; file reads --path-file "
+                        "(default: %(default)s)")
+    p.add_argument("--path-file", type=Path, metavar="FILE",
+                   help="for --path file: JSON with 't' [s], 'p' [m] and optionally 'Q', 'closed' (true when "
+                        "absent); times count from the first sample (default: none)")
+    p.add_argument("--center", type=vector, metavar="X,Y[,Z]",
+                   help="centre of the circle or ellipse [m] (default: --radius along -x from the start point)")
+    p.add_argument("--radius", type=float, default=0.1, metavar="R",
+                   help="radius of the circle, semi-major axis of the ellipse [m] (default: %(default)s)")
+    p.add_argument("--speed", type=float, default=0.1, metavar="V",
+                   help="speed along the path [m/s] (default: %(default)s)")
+    p.add_argument("--normal", type=vector, metavar="X,Y,Z",
+                   help="normal of the circle's plane (default: 0,0,1, a horizontal circle)")
+
+
+def path_for(args, robot, q_start: np.ndarray):
+    """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
+
+    Circles and ellipses start at the pose of ``q_start``.
+    """
+    from kinredund import paths
+
+    if args.path == "file":
+        if args.path_file is None:
+            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
+        path, duration = paths.read_path_file(args.path_file)
+        return path, (duration if path.period is None else None)
+    T0 = robot.fk(q_start)
+    p0 = T0[:3, 3]
+    task = get_task(robot.task)
+    center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
+    if center.shape == (2,):  # in the plane of the start point (a planar arm's plane is z = 0)
+        center = np.append(center, p0[2] if not task.planar else 0.0)
+    held = T0[:3, :3] if task.has_orientation else None  # tasks with orientation hold the start's
+    if args.path == "ellipse":  # in the horizontal plane of its centre, through the start point by default
+        ellipse = paths.Ellipse(center, args.radius, args.radius / 2, rate=args.speed / args.radius)
+        return (ellipse if held is None else _holding(ellipse, held)), None
+    normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
+    return paths.Circle(center, args.radius, args.speed, normal=tuple(normal), orientation=held), None
+
+
+def _holding(path, Q0: np.ndarray):
+    """``path`` (a point path) with the constant orientation Q0: a pose path (omega = 0)."""
+    from kinredund.paths import FunctionPath
+
+    def sample(t: float):
+        s = path.sample(t)
+        return Q0, s.p, np.zeros(3), s.v
+
+    return FunctionPath(sample, period=path.period, has_orientation=True)
+
+
+def setup_for(args, name: str):
+    """(robot, start seed, path, open path's duration or None, index) of ``track`` and ``plan``: the robot
+    ``name`` with --ee-frame and --task, the seed --q0 (default its home), the path of :func:`path_for`
+    from there and the index of --index."""
+    from kinredund.model.loader import load_robot
+
+    robot = load_robot(name, ee_frame=args.ee_frame, task=args.task)
+    seed_q = robot.home if args.q0 is None else robot.check_q(args.q0, "--q0")
+    path, duration = path_for(args, robot, seed_q)
+    return robot, seed_q, path, duration, index_for(robot, args.index)
+
+
 def add_quiet(p) -> None:
     p.add_argument("--quiet", action="store_true",
                    help="no progress on standard error (default: a bar on a terminal, else a line per stage "
@@ -206,20 +273,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
               "kinredund track planar3r --path ellipse --radius 0.5 --loops 3 --plot joints.png",
               "kinredund track xarm7 --task position --scheme pseudoinverse --json run.json"])
     add_robot(p)
-    p.add_argument("--path", choices=("circle", "ellipse", "file"), default="circle",
-                   help="circle and ellipse start at the end effector's start pose; file reads --path-file "
-                        "(default: %(default)s)")
-    p.add_argument("--path-file", type=Path, metavar="FILE",
-                   help="for --path file: JSON with 't' [s], 'p' [m] and optionally 'Q', 'closed' (true when "
-                        "absent); times count from the first sample (default: none)")
-    p.add_argument("--center", type=vector, metavar="X,Y[,Z]",
-                   help="centre of the circle or ellipse [m] (default: --radius along -x from the start point)")
-    p.add_argument("--radius", type=float, default=0.1, metavar="R",
-                   help="radius of the circle, semi-major axis of the ellipse [m] (default: %(default)s)")
-    p.add_argument("--speed", type=float, default=0.1, metavar="V",
-                   help="speed along the path [m/s] (default: %(default)s)")
-    p.add_argument("--normal", type=vector, metavar="X,Y,Z",
-                   help="normal of the circle's plane (default: 0,0,1, a horizontal circle)")
+    add_path(p)
     p.add_argument("--q0", type=vector, metavar="Q1,Q2,...",
                    help="a configuration near the start [rad, m for prismatic joints] (default: the robot's home)")
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
@@ -260,17 +314,9 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p.add_argument("--json", type=output_file, metavar="FILE",
                    help="also write the result as JSON (default: not written)")
 
-    p = _sub(sub, commands, "plan", "off-line planning with collision avoidance (Chapter 6)",
-             "Plan a collision-free cyclic motion around the obstacle of Section 6.2 (planar) or 6.3 (spatial): "
-             "joint-level samples, a spline through them, resolved-rate tracking and a clearance check. Exit "
-             "code 1 when the plan fails its check (6.2 has no collision-free plan: the reason is printed).",
-             ["kinredund plan 6.3 --json plan.json --plot plan.png",
-              "kinredund play plan.json --html plan.html"])
-    p.add_argument("case", choices=("6.2", "6.3"), help="the thesis section")
-    p.add_argument("--samples", type=at_least(4, "samples"), default=9, metavar="N",
-                   help="sample points of the 6.2 planner, at least 4 for its cubic spline; 6.3 plans on a roadmap "
-                        "instead (default: %(default)s)")
-    _add_outputs(p, quiet=True, plot_note=PLAN_PLOT_NOTE)
+    from kinredund.ui.cli_plan import add_parser as add_plan_parser  # plan: any robot, or 6.2 / 6.3
+
+    add_plan_parser(sub)
 
     p = _sub(sub, commands, "play", "replay a result JSON in the browser",
              "Replay any JSON the commands write: a trajectory (track, reproduce 4.x), a plan (plan, "

@@ -21,6 +21,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError
 from kinredund.planning.obstacles import EllipticCylinder, Obstacle, obstacle_from_dict
+from kinredund.tasks import get_task
 from kinredund.ui.plots import save_figure
 
 #: A joint whose range over the motion is below this is drawn as "still" [rad].
@@ -148,7 +149,7 @@ def snapshot_figure(result, robot, obstacle: Obstacle, path_out: str | Path | No
         raise KinredundError("no tracked motion to draw: the plan stopped before tracking")
     ts = np.linspace(tr.t[0], tr.t[-1], count, endpoint=False) if times is None else np.asarray(times, float)
     idx = [int(np.argmin(np.abs(tr.t - t))) for t in ts]
-    spatial = robot.task != "planar"
+    spatial = not get_task(robot.task).planar
     views = [("top view (x-y plane)", 0, 1, "x [m]", "y [m]")]
     if spatial:
         views.append(("side view (x-z plane)", 0, 2, "x [m]", "z [m]"))

@@ -22,7 +22,8 @@ import numpy as np
 
 from kinredund.errors import KinredundError, check_array
 from kinredund.io import read_json_object
-from kinredund.model.robot import Robot, load_robot
+from kinredund.model.loader import load_robot
+from kinredund.model.robot import Robot
 from kinredund.trajectory import Trajectory
 
 

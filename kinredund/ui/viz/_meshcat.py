@@ -373,7 +373,7 @@ def animated_visualizer(traj: Trajectory, robot: Robot | None, *, loop: bool, ce
     scene cannot be built; otherwise the caller stops it (:func:`stop_visualizer`).
     """
     if robot is None:
-        from kinredund.model.robot import load_robot
+        from kinredund.model.loader import load_robot
 
         robot = load_robot(traj.robot)
     vis = start_visualizer()
