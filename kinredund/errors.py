@@ -72,6 +72,11 @@ class ChoiceError(KinredundError, ValueError):
         super().__init__(f"unknown {what} {value!r}; allowed: {', '.join(self.allowed)}")
 
 
+class GeometryError(KinredundError, ValueError):
+    """A collision shape, pose, mesh file or scene that cannot be used (a negative size, a pose that is not a
+    rigid transform, a missing or unreadable mesh); the message names the object and what is allowed."""
+
+
 class SingularityError(KinredundError, ArithmeticError):
     """A (kinematic or algorithmic) singularity met by a solver; fields say where."""
 

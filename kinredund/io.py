@@ -11,6 +11,10 @@ What an output path may be (:func:`check_output_path`, docs/schema.md):
 - anything else (a directory, a device such as ``/dev/null`` or ``/dev/full``, a FIFO, a socket) is
   refused with an :class:`~kinredund.errors.OutputPathError`: it is never replaced by a file.
 
+The outputs of one command are checked together before any work (:func:`check_outputs`): paths resolved
+(``sub/../a.json`` is ``a.json``, a link is its target), two outputs at one path or one inside a folder
+output are refused; :func:`output_batch` refuses the same overlaps for library callers.
+
 The temporary file lives next to the (resolved) target, named ``.NAME.XXXX.tmp``, and is removed on
 any failure. Inside :func:`output_batch` the renames wait until the batch ends, so the outputs of one
 command land together or none does; a checkpoint (``atomic_write(..., immediate=True)``: the sweep file,
@@ -47,6 +51,68 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
+def file_path(path) -> Path:
+    """``path`` as a Path, refused (OutputPathError) if empty or if it names a folder: a text ending in a
+    separator (``out.csv/``), which ``Path`` would silently turn into the file ``out.csv``."""
+    if isinstance(path, (str, os.PathLike)) and not str(path).strip():
+        raise OutputPathError(path, "the path is empty")
+    text = os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
+    if isinstance(text, str) and text.endswith(("/", os.sep)):
+        raise OutputPathError(path, "it ends with a path separator, so it names a folder: give a file name")
+    try:
+        return Path(path)
+    except TypeError as err:
+        raise OutputPathError(path, f"not a file path ({type(path).__name__})") from err
+
+
+def real_path(path) -> Path:
+    """``path`` absolute, with symbolic links, ``.`` and ``..`` resolved (lexically where it does not exist
+    yet): two paths write the same place exactly when their real paths are equal."""
+    return Path(os.path.realpath(os.fspath(path)))
+
+
+def check_outputs(outputs) -> dict[str, Path]:
+    """The one check of a command's outputs, before any work: each path on its own, then all together.
+
+    Args:
+        outputs: (label, path, kind) triples; ``kind`` is ``"file"`` (:func:`check_output_path`) or
+            ``"folder"`` (a folder output such as a ROS 2 bag: :func:`check_new_folder`); a None path
+            is skipped.
+
+    Returns:
+        label -> the real path (:func:`real_path`) each output will occupy.
+
+    Raises:
+        OutputPathError: a path refused on its own, or two outputs that would overwrite each other: the
+            same real path (``sub/../a.json`` and ``a.json``, a link and its target, a file and a bag),
+            or one inside the other (a ``--csv`` inside the ``--bag`` folder).
+    """
+    seen: dict[str, Path] = {}
+    for label, path, kind in outputs:
+        if path is None:
+            continue
+        real = real_path(check_new_folder(path) if kind == "folder" else check_output_path(path))
+        for other, where in seen.items():
+            overlap = _overlap(real, where)
+            if overlap == "same":
+                raise OutputPathError(path, f"{other} and {label} name the same path {str(real)!r}: one "
+                                            "would overwrite the other")
+            if overlap is not None:
+                mine, theirs = (label, real), (other, where)
+                inner, outer = (mine, theirs) if overlap == "inside" else (theirs, mine)
+                raise OutputPathError(path, f"{inner[0]} ({str(inner[1])!r}) lies inside {outer[0]} "
+                                            f"({str(outer[1])!r}): give separate paths")
+        seen[label] = real
+    return seen
+
+
+def _overlap(real: Path, other: Path) -> str | None:
+    """How two real paths overlap: ``same``, ``inside`` (real lies inside other), ``contains``, or None."""
+    if real == other:
+        return "same"
+    return "inside" if other in real.parents else "contains" if real in other.parents else None
+
+
 def check_output_path(path) -> Path:
     """The file that writing to ``path`` replaces or creates (a symlink resolved), or OutputPathError.
 
@@ -57,12 +123,7 @@ def check_output_path(path) -> Path:
         OutputPathError: ``path`` is empty, a directory, a device, a FIFO or a socket, a dangling symlink,
             or a symlink to one of those, or lies under something that is not a folder.
     """
-    if isinstance(path, (str, os.PathLike)) and not str(path).strip():
-        raise OutputPathError(path, "the path is empty")
-    try:
-        path = Path(path)
-    except TypeError as err:
-        raise OutputPathError(path, f"not a file path ({type(path).__name__})") from err
+    path = file_path(path)
     target = path
     try:
         if path.is_symlink():
@@ -148,10 +209,26 @@ def _stage(tmp: str, target: Path, immediate: bool = False) -> None:
         if batch is not None and target not in batch.kept:
             batch.kept.append(target)
         return
-    for earlier in [entry for entry in batch.staged if entry[1] == target]:
+    for earlier in [entry for entry in batch.staged if entry[1] == target]:  # a file written again
         _remove(earlier[0])
         batch.staged.remove(earlier)
     batch.staged.append((tmp, target))
+
+
+def _check_batch(target: Path, folder: bool) -> None:
+    """Refuse (before anything is created) an output of the current batch that would overwrite another:
+    a folder output and a file at one real path, or one inside the other. A file written again to the
+    same path is fine (the last write wins)."""
+    batch = _BATCH.get()
+    if batch is None:
+        return
+    real = real_path(target)
+    for tmp, other in batch.staged:
+        overlap = _overlap(real, real_path(other))
+        if overlap == "same" and not folder and not os.path.isdir(tmp):
+            continue
+        if overlap is not None:
+            raise OutputPathError(target, f"it overlaps {str(other)!r}, another output of this command")
 
 
 def check_new_folder(path) -> Path:
@@ -166,11 +243,31 @@ def check_new_folder(path) -> Path:
     return path
 
 
+def output_folder(path) -> Path:
+    """The folder ``path`` that a command writes its files into (``demo --out``), created if missing.
+
+    Raises:
+        OutputPathError: ``path`` is empty, or exists and is not a folder (a regular file, a device, a
+            dangling link), or the folder cannot be created (a path under a file, no permission).
+    """
+    path = Path(path)
+    if not str(path).strip():
+        raise OutputPathError(path, "the path is empty")
+    if os.path.lexists(path) and not path.is_dir():
+        raise OutputPathError(path, "it exists and is not a folder: give a folder (new or existing) for the outputs")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputPathError(path, err.strerror or str(err)) from err
+    return path
+
+
 def atomic_write_dir(path, build) -> Path:
     """Write a folder output: ``build(folder)`` fills a fresh ``folder`` (a path inside a temporary folder
     next to ``path``, not created yet), which is then renamed to ``path`` (inside :func:`output_batch`, when
     the batch ends). ``path`` must not exist (:func:`check_new_folder`); on any failure nothing is left."""
     path = check_new_folder(path)
+    _check_batch(path, folder=True)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -187,6 +284,9 @@ def _removed_on_failure(tmp: str, path: Path):
     """Remove the temporary ``tmp`` if the block fails; a file-system error becomes OutputPathError(path)."""
     try:
         yield
+    except OutputPathError:
+        _remove(tmp)
+        raise
     except OSError as err:
         _remove(tmp)
         raise OutputPathError(path, err.strerror or str(err)) from err
@@ -214,6 +314,7 @@ def atomic_write(path: Path, write, mode: str = "w", *, immediate: bool = False)
     """
     path = Path(path)
     target = check_output_path(path)
+    _check_batch(target, folder=False)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")

@@ -228,6 +228,11 @@ class Trajectory:
             k = int(np.argmax(np.diff(t) <= 0.0))
             raise PathError(f"trajectory times must increase strictly; t[{k + 1}] = {t[k + 1]} <= t[{k}] = {t[k]}",
                             t=float(t[k + 1]))
+        with np.errstate(over="ignore"):
+            span = float(t[-1] - t[0])
+        if not np.isfinite(span):  # t from -1e308 to 1e308: each time finite, the duration not a number
+            raise PathError(f"trajectory times span from {t[0]:.6g} s to {t[-1]:.6g} s: the duration overflows "
+                            "a float (times must span a finite duration)", t=float(t[-1]))
         n = len(t)
         out = {"t": t, "q": check_array(self.q, (n, nq), "trajectory q", JointVectorError,
                                           f"robot {self.robot!r} (one row per time)")}

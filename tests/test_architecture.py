@@ -17,6 +17,7 @@ LAYERS = [
     ("indices", "paths"),
     ("tasks",),
     ("model",),
+    ("geometry",),
     ("trajectory", "problems", "export"),
     ("ik", "closed_form", "tracking", "planning", "retime", "sweep"),
     ("thesis",),

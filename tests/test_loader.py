@@ -473,3 +473,43 @@ def test_section_6_3_arm_loads_by_name_and_equals_the_planner_s():
         assert np.abs(r.fk(q) - ref.fk(q)).max() < 1e-14  # the planner's arm is this model
     with pytest.raises(kinredund.ChoiceError):
         load_robot("cybotech_p15_x8", joints=["j1"])
+
+
+def test_concurrent_urdf_parses_leave_the_process_stderr_where_it_was():
+    """fd 2 is the process's: two captures interleaved (thread B starts while A's parser runs) used to end
+    with fd 2 pointing at A's deleted temporary file (issue 26). The lock makes B wait for A."""
+    import os
+
+    from kinredund.model import urdf
+
+    before = os.fstat(2)
+    a_in, b_in, a_done = threading.Event(), threading.Event(), threading.Event()
+
+    def slow_parse():  # thread A: still "parsing" when B starts its capture
+        a_in.set()
+        b_in.wait(0.5)  # with the lock, B cannot get in: A goes on after the timeout
+
+    def quick_parse():  # thread B: ends after A, restoring what it saw as fd 2 (A's temporary file)
+        b_in.set()
+        a_done.wait(5.0)
+
+    def first():
+        urdf._capture_stderr_fd(slow_parse)
+        a_done.set()
+
+    a = threading.Thread(target=first)
+    a.start()
+    a_in.wait(5.0)
+    b = threading.Thread(target=urdf._capture_stderr_fd, args=(quick_parse,))
+    b.start()
+    a.join()
+    b.join()
+    after = os.fstat(2)
+    assert (after.st_dev, after.st_ino) == (before.st_dev, before.st_ino)
+    robots = []
+    threads = [threading.Thread(target=lambda: robots.append(load_robot("panda"))) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(robots) == 4 and (os.fstat(2).st_dev, os.fstat(2).st_ino) == (before.st_dev, before.st_ino)

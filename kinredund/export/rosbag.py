@@ -14,17 +14,22 @@ leaves nothing, and a destination that exists is refused before anything is writ
 
 from __future__ import annotations
 
+import re
+import sqlite3
 from pathlib import Path
 
 import numpy as np
 
-from kinredund.export.samples import ExportError, JointSamples, from_nanoseconds, to_nanoseconds
-from kinredund.io import atomic_write_dir
+from kinredund.errors import OutputPathError
+from kinredund.export.samples import ExportError, JointSamples, distinct_nanoseconds, from_nanoseconds
+from kinredund.io import atomic_write_dir, check_new_folder
 from kinredund.trajectory import Trajectory
 
 MSGTYPE = "trajectory_msgs/msg/JointTrajectory"
 DEFAULT_TOPIC = "/joint_trajectory_controller/joint_trajectory"
 BAG_VERSION = 8
+#: the longest ``time_from_start`` [s]: builtin_interfaces/msg/Duration's ``sec`` is an int32
+MAX_DURATION = 2**31 - 1
 
 
 def _typestore():
@@ -33,14 +38,28 @@ def _typestore():
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
+def check_bag_times(t) -> np.ndarray:
+    """The times [s] as the whole nanoseconds a ``time_from_start`` (a ROS 2 Duration) holds.
+
+    Raises:
+        ExportError: a time before 0, past :data:`MAX_DURATION` (the Duration's ``sec`` is an int32), or
+            two samples in one nanosecond (:func:`~kinredund.export.samples.distinct_nanoseconds`).
+    """
+    ns = distinct_nanoseconds(t)
+    if ns[0] < 0:
+        raise ExportError(f"a JointTrajectory's times start at 0 or later, got t[0] = {float(t[0])!r} s")
+    if ns[-1] // 1_000_000_000 > MAX_DURATION:
+        raise ExportError(f"the last time t = {float(t[-1]):.6g} s is past {MAX_DURATION} s, the longest "
+                          "time_from_start a ROS 2 Duration holds (its sec field is a 32-bit integer)")
+    return ns
+
+
 def _message(samples: JointSamples, store):
     types = store.types
     Duration, Time = types["builtin_interfaces/msg/Duration"], types["builtin_interfaces/msg/Time"]
     Point = types["trajectory_msgs/msg/JointTrajectoryPoint"]
     empty = np.zeros(0)
-    ns = to_nanoseconds(samples.t)
-    if ns[0] < 0:
-        raise ExportError(f"a JointTrajectory's times start at 0 or later, got t[0] = {samples.t[0]} s")
+    ns = check_bag_times(samples.t)
     points = []
     for k in range(len(ns)):
         sec, nsec = divmod(int(ns[k]), 1_000_000_000)
@@ -52,12 +71,42 @@ def _message(samples: JointSamples, store):
     return types[MSGTYPE](header=header, joint_names=list(samples.joint_names), points=points)
 
 
+#: one token of a ROS 2 name: letters, digits and underscores, not starting with a digit, no "__"
+_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def check_topic(topic) -> str:
+    """``topic`` if it is a fully qualified ROS 2 topic name, else ExportError saying which rule it breaks.
+
+    The rules of the ROS 2 design article "Topic and Service name mapping to DDS" (as rcl's
+    ``rmw_validate_full_topic_name``): a ``/`` then tokens separated by single ``/``; each token
+    letters, digits and underscores, not starting with a digit, without ``__``; no ``/`` at the end.
+    A bag stores the fully qualified name, so ``~`` and ``{}`` substitutions and relative names are
+    refused (write ``/ns/name``).
+    """
+    example = f"e.g. {DEFAULT_TOPIC}"
+    if not isinstance(topic, str) or not topic:
+        raise ExportError(f"the topic must be a non-empty ROS 2 name ({example}), got {topic!r}")
+    if not topic.startswith("/"):
+        raise ExportError(f"the topic {topic!r} is not fully qualified: a bag's topic starts with '/' ({example})")
+    if topic == "/" or topic.endswith("/"):
+        raise ExportError(f"the topic {topic!r} ends with '/': a ROS 2 name ends with a token ({example})")
+    for token in topic[1:].split("/"):
+        if not token:
+            raise ExportError(f"the topic {topic!r} has an empty token ('//'): separate tokens with one '/'")
+        if not _TOKEN.fullmatch(token) or "__" in token:
+            raise ExportError(f"the topic {topic!r} has the token {token!r}: a ROS 2 token holds letters, digits and "
+                              "single underscores only and does not start with a digit")
+    return topic
+
+
 def check_new_bag(folder: str | Path) -> Path:
-    """``folder`` as a Path if nothing is there yet, else ExportError (a bag is never overwritten)."""
-    folder = Path(folder)
-    if folder.exists() or folder.is_symlink():
-        raise ExportError(f"the bag folder {folder} exists already: give a new folder (a bag is never overwritten)")
-    return folder
+    """``folder`` as a Path if nothing is there yet (:func:`kinredund.io.check_new_folder`), else ExportError
+    (a bag is never overwritten)."""
+    try:
+        return check_new_folder(folder)
+    except OutputPathError as err:
+        raise ExportError(f"a ROS 2 bag: {err}") from err
 
 
 def write_bag(data: JointSamples | Trajectory, folder: str | Path, joint_names=None,
@@ -65,19 +114,28 @@ def write_bag(data: JointSamples | Trajectory, folder: str | Path, joint_names=N
     """Write the samples (or a record's) as a ROS 2 bag folder; return the folder.
 
     Raises:
-        ExportError: the folder exists already, or the record is not a joint trajectory.
+        ExportError: the folder exists already, the topic is not a ROS 2 name (:func:`check_topic`), the
+            times do not fit a JointTrajectory (:func:`check_bag_times`), or the record is not a joint
+            trajectory.
     """
     from rosbags.rosbag2 import Writer
 
     folder = check_new_bag(folder)
+    topic = check_topic(topic)
     samples = data.checked() if isinstance(data, JointSamples) else JointSamples.from_trajectory(data, joint_names)
     store = _typestore()
     raw = store.serialize_cdr(_message(samples, store), MSGTYPE)
 
     def build(path: Path) -> None:
-        with Writer(path, version=BAG_VERSION) as writer:
-            conn = writer.add_connection(topic, MSGTYPE, typestore=store)
-            writer.write(conn, 0, raw)
+        from rosbags.rosbag2 import WriterError
+
+        try:
+            with Writer(path, version=BAG_VERSION) as writer:
+                conn = writer.add_connection(topic, MSGTYPE, typestore=store)
+                writer.write(conn, 0, raw)
+        except (OSError, sqlite3.Error, WriterError) as err:  # a full disk shows as either of the first two
+            raise OutputPathError(folder, f"the bag could not be written ({type(err).__name__}: {err}); nothing "
+                                          "was left behind") from err
 
     atomic_write_dir(folder, build)  # with the command's other outputs (kinredund.io.output_batch)
     return folder

@@ -15,9 +15,42 @@ class ExportError(KinredundError, ValueError):
 
 
 
+#: the largest time [s] whose whole nanoseconds fit an int64 (2^63 - 1 ns, about 292 years)
+MAX_NANOSECOND_TIME = (2**63 - 1024) / 1e9
+
+
 def to_nanoseconds(t) -> np.ndarray:
-    """Times [s] as whole nanoseconds (int64): what a ROS 2 Duration holds (sec, nanosec)."""
-    return np.round(np.asarray(t, float) * 1e9).astype(np.int64)
+    """Times [s] as whole nanoseconds (int64): what a ROS 2 Duration holds (sec, nanosec).
+
+    Raises:
+        ExportError: a time that is not finite, or beyond +-:data:`MAX_NANOSECOND_TIME` (its nanoseconds
+            do not fit an int64: numpy would wrap them silently to another number).
+    """
+    t = np.asarray(t, float)
+    bad = ~np.isfinite(t) | (np.abs(t) > MAX_NANOSECOND_TIME)
+    if np.any(bad):
+        k, count = int(np.flatnonzero(bad)[0]), np.count_nonzero(bad)
+        raise ExportError(f"time t[{k}] = {float(t.flat[k])!r} s cannot be held in whole nanoseconds (int64): "
+                          f"times must be finite and within +-{MAX_NANOSECOND_TIME:.4g} s ({count} are not)")
+    return np.round(t * 1e9).astype(np.int64)
+
+
+def distinct_nanoseconds(t) -> np.ndarray:
+    """:func:`to_nanoseconds` of increasing times, refused if two samples round to the same nanosecond.
+
+    Raises:
+        ExportError: as :func:`to_nanoseconds`, or samples k and k+1 closer than half a nanosecond (a
+            file of such stamps would hold two points at one time, which its reader refuses).
+    """
+    ns = to_nanoseconds(t)
+    same = np.flatnonzero(np.diff(ns) <= 0)
+    if same.size:
+        k, t = int(same[0]), np.ravel(t)
+        raise ExportError(f"samples {k} and {k + 1} (t = {float(t[k])!r} s and {float(t[k + 1])!r} s) "
+                          f"fall in the same nanosecond ({same.size} such pairs): a ROS 2 Duration and a retimed "
+                          "record hold whole nanoseconds, so two samples would share one time; track with "
+                          "fewer steps or a lower speed")
+    return ns
 
 
 def from_nanoseconds(ns) -> np.ndarray:

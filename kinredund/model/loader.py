@@ -34,6 +34,7 @@ from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS
 from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.frames import resolve_frame
 from kinredund.model.robot import NO_LIMIT, Robot, robot_from_hd, robot_revolute
+from kinredund.model.source import record_source, split_source
 from kinredund.model.urdf import EE_FRAME, load_urdf
 from kinredund.tasks import get_task
 from kinredund.tasks.axis import frame_with_axis
@@ -99,19 +100,28 @@ def _finite_mid(lo: float, hi: float) -> float:
 
 def reduce_model(model: pin.Model, joints, locked, mimic: dict, frame_id: int, source: str
                  ) -> tuple[pin.Model, dict[str, float]]:
-    """Keep ``joints`` (names, or None for all), lock the others; return (model, locked values).
+    """Keep ``joints`` (names, or None for every joint that can move), lock the others; return (model,
+    locked values).
 
     A locked joint sits at ``locked[name]`` if given, else at a mimic's law of its (locked) master,
-    else at the middle of its limits (0 where they are absent).
+    else at the middle of its limits (0 where they are absent). A joint whose limits leave it no range
+    (lower = upper) cannot move: by default it is locked at that value, and naming it in ``joints`` is
+    refused (a coordinate that cannot move leaves the tracker and the IK no room).
 
     Raises:
         ChoiceError: a kept or locked name is not a joint of the model.
         JointVectorError: a locked value is not a finite number inside the joint's limits.
-        URDFError: a kept joint is a mimic joint, or a locked mimic joint on the end-effector's chain
-            follows a kept joint (its motion would be lost).
+        URDFError: a kept joint is a mimic joint or has no range, or a locked mimic joint on the
+            end-effector's chain follows a kept joint (its motion would be lost).
     """
     names = list(model.names)[1:]
-    keep = names if joints is None else _joint_list(joints, names)
+    stuck = [n for n in names if model.joints[model.getJointId(n)].nq == 1
+             and model.lowerPositionLimit[model.idx_qs[model.getJointId(n)]]
+             == model.upperPositionLimit[model.idx_qs[model.getJointId(n)]]]
+    keep = [n for n in names if n not in stuck] if joints is None else _joint_list(joints, names)
+    if set(stuck) & set(keep):
+        raise URDFError(source, f"joint(s) {', '.join(n for n in keep if n in stuck)} have lower = upper limit: they "
+                                "cannot move; leave them out of joints= (they are then locked at that value)")
     if locked is not None and not isinstance(locked, Mapping):
         raise ChoiceError("locked (a dict joint name -> value)", locked, [n for n in names if n not in keep])
     locked = {} if locked is None else dict(locked)
@@ -287,18 +297,30 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
         FrameNotFoundError: ``ee_frame`` is not in the model (lists the frames) or no joint moves it.
         ChoiceError, JointVectorError, TaskError: a bad task, tool axis, joint name or locked value.
     """
+    if isinstance(name_or_path, Path):
+        key, stored = str(name_or_path), {}
+    elif isinstance(name_or_path, str):
+        key, stored = split_source(name_or_path)  # a record's name: options follow it (model.source)
+    else:
+        raise UnknownRobotError(repr(name_or_path), known_robots())
+    ee_frame = stored.get("ee_frame") if ee_frame is None else ee_frame  # an argument given wins
+    tool_axis = stored.get("tool_axis") if tool_axis is None else tool_axis
+    joints = stored.get("joints") if joints is None else joints
+    locked = stored.get("locked") if locked is None else locked
     if task is not None:
         get_task(task)  # ChoiceError for an unknown kind
     if tool_axis is not None and task not in (None, "axis"):
         raise TaskError(f"tool_axis is for task='axis', not {task!r}")
     axis = None if tool_axis is None else check_tool_axis(tool_axis)
     turned = axis is not None and not np.array_equal(axis, _AXES["z"])
-    if isinstance(name_or_path, Path):
-        key = str(name_or_path)
-    elif isinstance(name_or_path, str):
-        key = name_or_path
-    else:
-        raise UnknownRobotError(repr(name_or_path), known_robots())
+    robot = _load(key, ee_frame, task, axis, turned, joints, locked)
+    base = key if robot.urdf_path is None or key in known_robots() else str(robot.urdf_path)
+    robot.source = record_source(base, ee_frame=ee_frame, tool_axis=axis, joints=joints, locked=locked)
+    return robot
+
+
+def _load(key: str, ee_frame, task, axis, turned: bool, joints, locked) -> Robot:
+    """:func:`load_robot` once its options are checked."""
     if key in SHIPPED_TABLES:
         if joints is not None or locked is not None:
             raise ChoiceError("option for a thesis robot (joints=/locked= are for URDF arms)", key, ["none"])

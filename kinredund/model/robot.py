@@ -58,6 +58,8 @@ class Robot:
         home: a default configuration inside the limits.
         locked: joint name -> value of the joints of the file that were locked (``load_robot(joints=)``).
         continuous: the names of the joints that were continuous in the URDF.
+        source: what :func:`kinredund.load_robot` reloads this robot from, options included
+            (:mod:`kinredund.model.source`; a record stores it), or None for a robot not made by it.
         kinematics: this thread's :class:`~kinredund.kinematics.state.Kinematics` (one per thread).
     """
 
@@ -94,6 +96,7 @@ class Robot:
         self.tool_axis = np.array((0.0, 0.0, 1.0) if tool_axis is None else tool_axis, dtype=float)
         self.locked = dict(locked or {})
         self.continuous = tuple(continuous)
+        self.source: str | None = None  # set by load_robot: what a record stores to reload it (model.source)
         self.lower = np.array(model.lowerPositionLimit, dtype=float)
         self.upper = np.array(model.upperPositionLimit, dtype=float)
         for a in (self.lower, self.upper, self.tool_axis):
@@ -133,11 +136,13 @@ class Robot:
 
     def with_task(self, task: str) -> Robot:
         """The same robot with another task kind (a new workspace; the model is shared)."""
-        return Robot(
+        other = Robot(
             self.name, self.model, self.ee_frame, task, hd=self.hd, urdf_path=self.urdf_path,
             package_dirs=self.package_dirs, home=self.home, tool_axis=self.tool_axis, locked=self.locked,
             continuous=self.continuous,
         )
+        other.source = self.source
+        return other
 
     def __repr__(self) -> str:
         return f"Robot({self.name!r}, nq={self.nq}, ee_frame={self.ee_frame!r}, task={self.task!r})"

@@ -12,6 +12,7 @@ import contextlib
 import io
 import os
 import tempfile
+import threading
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -147,9 +148,20 @@ def hd_to_urdf(table: HDTable) -> str:
     return header + ET.tostring(root, encoding="unicode") + "\n"
 
 
+#: file descriptor 2 belongs to the whole process: one capture at a time. Without it, two threads
+#: loading robots interleave their dup2 calls and the second restores fd 2 to the first one's deleted
+#: temporary file, so everything the process prints on stderr afterwards is lost (issue 26).
+_STDERR_LOCK = threading.Lock()
+
+
 def _capture_stderr_fd(fn):
-    """Run ``fn`` while capturing what C++ code prints on file descriptor 2; return (result, text)."""
-    with tempfile.TemporaryFile(mode="w+b") as tmp:
+    """Run ``fn`` while capturing what C++ code prints on file descriptor 2; return (result, error, text).
+
+    Serialised by a process-wide lock (fd 2 is shared by every thread): concurrent callers wait, and fd 2
+    always points back at the process's stderr afterwards. While a capture runs, what another thread
+    writes to fd 2 lands in the capture.
+    """
+    with _STDERR_LOCK, tempfile.TemporaryFile(mode="w+b") as tmp:
         saved = os.dup(2)
         try:
             os.dup2(tmp.fileno(), 2)

@@ -19,6 +19,9 @@ Distances are exact (to round-off), not sampled:
   (reported as :data:`SEGMENT_TOL` per metre). A capsule of radius r is the segment distance minus r.
   Zero or negative means contact or penetration.
 
+For coal (``kinredund.geometry``): :meth:`Obstacle.prism_points` gives a prism holding the obstacle, for
+``Scene.add_convex``; tests/test_geometry.py checks these distances against coal's on it.
+
 Units: lengths [m], angles [rad].
 """
 
@@ -125,6 +128,27 @@ class Obstacle:
         """The JSON form drawn by playback (``Trajectory.meta["obstacle"]``)."""
         raise NotImplementedError
 
+    def heights(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        """(bottom, top) heights [m] of the solid over points (..., 2 or 3) of its directrix."""
+        raise NotImplementedError
+
+    def prism_points(self, segments: int = 64) -> np.ndarray:
+        """Vertices [m], shape (2 segments, 3), of a prism holding the obstacle, for coal (``Scene.add_convex``).
+
+        Its section is the polygon circumscribing the ellipse (a regular polygon around the unit circle, which
+        holds the circle, stretched by a, b: an affine map keeps the containment); it runs from the bottom to the
+        top (an inclined top's plane for a cut cylinder). It exceeds the obstacle by at most
+        max(a, b) (1 / cos(pi / segments) - 1) [m].
+        """
+        k = np.arange(segments)
+        t = (2 * k + 1) * np.pi / segments
+        r = 1.0 / np.cos(np.pi / segments)
+        e1, e2 = self.axes()
+        xy = (self.center[:2] + np.multiply.outer(r * self.a * np.cos(t), e1)
+              + np.multiply.outer(r * self.b * np.sin(t), e2))
+        bottom, top = self.heights(xy)
+        return np.concatenate([np.column_stack([xy, bottom]), np.column_stack([xy, top])])
+
     # -- segments ---------------------------------------------------------------------------------
     def segment_distance(self, p0, p1, radius: float = 0.0) -> np.ndarray:
         """Minimum signed distance [m] between segments p0-p1 (shape (..., 3)) and the obstacle:
@@ -200,6 +224,11 @@ class EllipseObstacle(Obstacle):
 
     thickness: float = 0.02
 
+    def heights(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        """The drawn slab: ``thickness`` about the centre's height [m]."""
+        z = np.full(np.shape(xy)[:-1], float(self.center[2]))
+        return z - 0.5 * self.thickness, z + 0.5 * self.thickness
+
     def to_dict(self) -> dict:
         return {"kind": "ellipse", "center": [float(v) for v in self.center], "a": self.a, "b": self.b,
                 "angle": self.angle, "axis": [0.0, 0.0, 1.0], "height": float(self.thickness)}
@@ -245,6 +274,10 @@ class EllipticCylinder(Obstacle):
         """(z_bottom, z_top) of the (bounding) cylinder [m]."""
         h = 0.5 * self.height
         return float(self.center[2] - h), float(self.center[2] + h)
+
+    def heights(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        """The bottom plane and the top (flat or inclined) over points of the directrix [m]."""
+        return np.full(np.shape(xy)[:-1], self.z_range[0]), self.top_height(xy)
 
     def top_height(self, xy) -> np.ndarray:
         """The height of the top above points (..., 2 or 3) [m]."""

@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from kinredund.export.samples import from_nanoseconds, to_nanoseconds
+from kinredund.export.samples import ExportError, distinct_nanoseconds, from_nanoseconds
 from kinredund.kinematics.angles import joint_drift
 from kinredund.retime.joint_path import JointPath, joint_path
 from kinredund.retime.limits import Limits, RetimeError
@@ -211,10 +211,10 @@ def _chained_record(traj: Trajectory, jp: JointPath, law: TimeLaw, limits: Limit
     sd, sdd = law.sd[rows], law.sdd[rows]
     qdot = q1 * sd[:, None]
     qddot = q1 * sdd[:, None] + q2 * (sd * sd)[:, None]
-    t = from_nanoseconds(to_nanoseconds(t))  # whole nanoseconds, as a bag holds them: exports read back exactly
-    if np.any(np.diff(t) <= 0.0):
-        raise RetimeError("two retimed samples fall within the same nanosecond: the record is sampled too finely "
-                          "for these limits")
+    try:  # whole nanoseconds, as a bag holds them: exports read back exactly
+        t = from_nanoseconds(distinct_nanoseconds(t))
+    except ExportError as err:  # times beyond int64 nanoseconds, or two samples in one nanosecond
+        raise RetimeError(f"the retimed record cannot be stored: {err}") from err
     kw = {name: getattr(traj, name)[src] for name in PER_POINT_FIELDS if getattr(traj, name) is not None}
     drift = None
     if jp.closed:

@@ -9,6 +9,7 @@ record read back from a sweep file equals the one written.
 from __future__ import annotations
 
 import math
+import reprlib
 from dataclasses import dataclass, fields
 
 from kinredund.errors import KinredundError, check_choice
@@ -92,16 +93,59 @@ class PlacementRecord:
 
     @classmethod
     def from_json_dict(cls, data: dict) -> PlacementRecord:
-        """The record of :meth:`to_json_dict`; KinredundError on a missing or unknown key."""
+        """The record of :meth:`to_json_dict`, every field checked (a sweep file may have been edited).
+
+        Raises:
+            KinredundError: not an object, a missing or unknown key, or a value of the wrong kind: a
+                number that is not finite (JSON readers accept ``NaN``), a bool or string for a number,
+                a pose that is not 16 numbers, a negative placement or step count.
+        """
         if not isinstance(data, dict):
-            raise KinredundError(f"a placement record must be a JSON object, got {data!r}")
+            raise KinredundError(f"a placement record must be a JSON object, got {reprlib.repr(data)}")
         names = [f.name for f in fields(cls)]
-        missing = [k for k in ("placement", "pose", "feasible") if k not in data]
+        missing = [k for k in ("placement", "pose", "x", "y", "z", "yaw", "feasible") if k not in data]
         unknown = sorted(set(data) - set(names))
         if missing or unknown:
             raise KinredundError(f"not a placement record: missing keys {missing}, unknown keys {unknown}")
-        kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()}
-        return cls(**kw)
+        return cls(**{k: _checked_field(k, v) for k, v in data.items()})
+
+
+#: the record's fields by the kind of value they hold (``placement`` and ``steps``: counts >= 0)
+_NUMBERS = ("x", "y", "z", "yaw")
+_OPTIONAL_NUMBERS = ("t_fail", "loop_drift", "position_error", "orientation_error", "limit_margin", "sigma_min",
+                     "speed_ratio", "mean_z")
+
+
+def _finite(key: str, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise KinredundError(f"placement record: {key} must be a finite number, got {reprlib.repr(v)}")
+    return float(v)
+
+
+def _checked_field(key: str, v):
+    """The value of field ``key`` read from JSON, checked (KinredundError naming the field otherwise)."""
+    if key in ("placement", "steps"):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise KinredundError(f"placement record: {key} must be an integer >= 0, got {reprlib.repr(v)}")
+        return v
+    if key == "feasible":
+        if not isinstance(v, bool):
+            raise KinredundError(f"placement record: feasible must be true or false, got {reprlib.repr(v)}")
+        return v
+    if key in ("cause", "message"):
+        if not (isinstance(v, str) or (v is None and key == "cause")):
+            raise KinredundError(f"placement record: {key} must be a string, got {reprlib.repr(v)}")
+        return v
+    if key in ("pose", "q_last"):
+        if v is None and key == "q_last":
+            return None
+        if not isinstance(v, list) or (key == "pose" and len(v) != 16):
+            raise KinredundError(f"placement record: {key} must be a list of {'16 ' if key == 'pose' else ''}"
+                                 f"numbers, got {reprlib.repr(v)}")
+        return tuple(_finite(key, x) for x in v)
+    if v is None and key in _OPTIONAL_NUMBERS:
+        return None
+    return _finite(key, v)
 
 
 def clean_float(v) -> float | None:

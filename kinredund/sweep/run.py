@@ -45,6 +45,8 @@ import logging
 import math
 import os
 import pickle
+import signal
+import threading
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path as FilePath
@@ -150,6 +152,52 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
+def check_scheduler(address) -> str:
+    """``address`` if it is the address of a Dask scheduler (``tcp://host:port``), else KinredundError.
+
+    Checked before any work with distributed's own parser, so that a malformed address (no port, a port
+    that is not a number or out of range, an unknown scheme such as ``http``) is named as bad input.
+    """
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    hint = "give the scheduler's address as tcp://host:port (e.g. tcp://127.0.0.1:8786)"
+    if not isinstance(address, str) or not address.strip():
+        raise KinredundError(f"the Dask scheduler address must be a non-empty string: {hint}; got {address!r}")
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme != "inproc":
+            host, port = parse_host_port(location)
+            if not host or not 0 < port < 65536:
+                raise ValueError(f"host {host!r}, port {port} (1 to 65535)")
+    except (ValueError, TypeError) as err:
+        raise KinredundError(f"{address!r} is not a Dask scheduler address ({err}): {hint}") from err
+    return address
+
+
+def _ignore_sigint():
+    """Ignore SIGINT while the local cluster starts (its worker processes are spawned meanwhile); return
+    the handler to restore, or None (nothing changed) outside the main thread.
+
+    A spawned process inherits an ignored signal and Python leaves it ignored, so a Ctrl-C at the
+    terminal, sent to the whole process group, reaches only this process, which closes the cluster and
+    names the sweep file kept, instead of every worker printing its own KeyboardInterrupt traceback
+    (issue 26). The price: a Ctrl-C during the start itself (a few seconds) is ignored. (Blocking SIGINT
+    instead, which would keep that Ctrl-C for later, does not reach the workers: they are started from
+    the cluster's own threads, whose signal masks were measured to be clear.)
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return signal.SIG_DFL if old is None else old  # None: a handler set outside Python, restored as the default
+
+
+def _restore_sigint(handler) -> None:
+    if handler is not None:
+        signal.signal(signal.SIGINT, handler)
+
+
 @contextlib.contextmanager
 def _dask_client(client, scheduler: str | None, workers: int | None):
     """The client to run on: the caller's, one connected to ``scheduler``, or a new local cluster's."""
@@ -169,15 +217,21 @@ def _dask_client(client, scheduler: str | None, workers: int | None):
             c.close()
         return
     # everything on the loopback interface; the scheduler's HTTP routes on a free port (no dashboard: no bokeh)
+    handler = _ignore_sigint()
     try:
         cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
                                host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
                                env=WORKER_ENV)
     except RuntimeError as err:  # a worker process did not start
+        _restore_sigint(handler)
         raise KinredundError(
             f"the local Dask cluster did not start ({err}): its worker processes are spawned and import the "
             "main module, so a script must call sweep() under `if __name__ == '__main__':`") from err
+    except BaseException:
+        _restore_sigint(handler)
+        raise
     try:
+        _restore_sigint(handler)
         c = Client(cluster)
         try:
             yield c
@@ -223,7 +277,7 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
         workers: worker processes of the default local cluster (default: this machine's cores);
             0 runs serially in this process. The workers are spawned processes that import the main
             module: a script calls :func:`sweep` under ``if __name__ == "__main__":``.
-        scheduler: the address of an existing Dask scheduler (``tcp://host:port``).
+        scheduler: the address of an existing Dask scheduler (``tcp://host:port``; :func:`check_scheduler`).
         batch_size: placements per task (default: see the module docstring).
         out: the sweep file, written as batches complete (``.jsonl``: JSON lines; else one JSON object).
         resume: keep the records already in ``out`` (it must come from the same sweep) and run the rest.
@@ -245,6 +299,8 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
         check_count(workers, 0, "workers", KinredundError)
     if batch_size is not None:
         check_count(batch_size, 1, "batch_size", KinredundError)
+    if scheduler is not None:
+        check_scheduler(scheduler)
     if resume and out is None:
         raise KinredundError("resume=True needs out= (the partial sweep file to resume from)")
     job = make_job(robot, path, index, options)
@@ -254,15 +310,19 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
         done = resumable_records(out, head, T)
     todo = [k for k in range(len(T)) if k not in done]
     last_write = [time.monotonic()]
+    unwritten = [False]  # records computed since the file was last written
 
     def write(force: bool = False) -> None:
-        if out is not None and (force or time.monotonic() - last_write[0] >= WRITE_INTERVAL):
+        # only new records are written: a sweep that stops before computing any (an unreachable
+        # scheduler, a bad option) leaves an existing file as it was, never replaced by a bare header
+        if out is not None and unwritten[0] and (force or time.monotonic() - last_write[0] >= WRITE_INTERVAL):
             write_sweep_file(out, head, [done[k] for k in sorted(done)])
-            last_write[0] = time.monotonic()
+            last_write[0], unwritten[0] = time.monotonic(), False
 
     def finish(records: list[PlacementRecord]) -> None:
         for r in records:
             done[r.placement] = r
+        unwritten[0] = unwritten[0] or bool(records)
         write()
         if progress is not None:
             progress(len(done), len(T))

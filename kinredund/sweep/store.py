@@ -82,5 +82,7 @@ def resumable_records(path: str | Path, header: dict, placements: np.ndarray) ->
         if not (0 <= r.placement < len(placements)) or not np.array_equal(np.reshape(r.pose, (4, 4)),
                                                                            placements[r.placement]):
             raise KinredundError(f"{path}: record of placement {r.placement} does not match this sweep's placement")
+        if r.placement in kept:
+            raise KinredundError(f"{path}: placement {r.placement} has two records: the file was edited or mixed")
         kept[r.placement] = r
     return kept

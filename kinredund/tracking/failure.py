@@ -28,9 +28,12 @@ REACH_TOL = 1e-6
 
 
 def loadable_name(robot: Robot) -> str:
-    """What :func:`kinredund.load_robot` reloads the robot from: its name if known, else its URDF file."""
+    """What :func:`kinredund.load_robot` reloads the robot from: its ``source`` (name or URDF file, with the
+    options it was loaded with) if load_robot made it, else its name if known, else its URDF file."""
     from kinredund.model.robot import known_robots
 
+    if robot.source is not None:
+        return robot.source
     if robot.name in known_robots() or robot.urdf_path is None:
         return robot.name
     return str(robot.urdf_path)

@@ -282,9 +282,11 @@ def _cmd_play(args) -> int:
 
     rec = replay_record(args.result)
     if args.html is not None:
+        from kinredund.geometry import load_scene
         from kinredund.ui.viz import replay_html
 
-        _wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title))
+        scene = None if args.scene is None else load_scene(args.scene, rec.robot)
+        _wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title, scene=scene))
     if args.live:
         import time
 
@@ -320,31 +322,25 @@ def build_parser() -> argparse.ArgumentParser:
     return options.build_parser(COMMANDS)
 
 
-#: the options that name an output file; every one is checked before any work (kinredund.io.check_output_path)
-OUTPUT_OPTIONS = ("json", "plot", "html", "csv", "partial")  # --bag is a new folder: cli_retime checks it
+#: the options that name an output, and its kind: every one is checked before any work (kinredund.io.check_outputs)
+OUTPUT_OPTIONS = {"json": "file", "plot": "file", "html": "file", "csv": "file", "partial": "file", "bag": "folder"}
 #: 128 + the signal number, as a shell reports a process ended by SIGINT or SIGPIPE
 EXIT_SIGINT, EXIT_SIGPIPE = 130, 141
 
 
 def _check_outputs(args) -> None:
-    """Refuse every bad output path before any work: a directory, a device, a FIFO, a dangling symlink,
-    a path under a file, a plot suffix matplotlib does not write, or two options naming one file."""
+    """Refuse every bad output path before any work (:func:`kinredund.io.check_outputs`): a directory, a
+    device, a FIFO, a dangling symlink, a path under a file, a bag folder that exists, two options that
+    would overwrite each other (compared resolved, the bag folder included), a plot suffix matplotlib
+    does not write."""
     from kinredund.errors import check_choice
-    from kinredund.io import check_output_path
+    from kinredund.io import check_outputs
 
-    seen: dict = {}
-    for name in OUTPUT_OPTIONS:
-        value = getattr(args, name, None)
-        if value is None:
-            continue
-        target = check_output_path(value)
-        if name == "plot":
-            from kinredund.ui.plots import PLOT_FORMATS
+    check_outputs((f"--{name}", getattr(args, name, None), kind) for name, kind in OUTPUT_OPTIONS.items())
+    if getattr(args, "plot", None) is not None:
+        from kinredund.ui.plots import PLOT_FORMATS
 
-            check_choice("--plot format (file suffix)", Path(value).suffix.lower().lstrip("."), PLOT_FORMATS)
-        if target in seen:
-            raise KinredundError(f"--{seen[target]} and --{name} name the same file {str(value)!r}")
-        seen[target] = name
+        check_choice("--plot format (file suffix)", Path(args.plot).suffix.lower().lstrip("."), PLOT_FORMATS)
 
 
 def _quiet_stdout() -> None:

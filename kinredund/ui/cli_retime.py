@@ -15,8 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import KinredundError
-from kinredund.export.rosbag import check_new_bag
-from kinredund.ui.options import at_least, subcommand
+from kinredund.ui.options import at_least, output_file, subcommand
 
 RETIME_HELP = """Retime a tracking record (kinredund track --json) under joint speed and acceleration limits:
 a new time law along the same optimal joint path (TOPP-RA, time-optimal; periodic for a closed path, so
@@ -33,6 +32,17 @@ def _limit(text: str) -> float | np.ndarray:
     if not values:
         raise argparse.ArgumentTypeError(f"expected a number or comma-separated numbers, got {text!r}")
     return values[0] if len(values) == 1 else np.array(values)
+
+
+def _topic(text: str) -> str:
+    """An argparse type: a fully qualified ROS 2 topic name (:func:`kinredund.export.rosbag.check_topic`)."""
+    from kinredund.export.rosbag import check_topic
+    from kinredund.export.samples import ExportError
+
+    try:
+        return check_topic(text)
+    except ExportError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
 
 
 def _write_outputs(traj, names, args) -> None:
@@ -53,8 +63,6 @@ def _cmd_retime(args) -> int:
     from kinredund.retime.time_law import sample_ratios
     from kinredund.trajectory import Trajectory
 
-    if args.bag is not None:
-        check_new_bag(args.bag)  # before any work
     traj = Trajectory.load_json(args.result)
     robot = load_robot(traj.robot, task=traj.task)
     limits = limits_for(robot, args.amax, velocity=args.vmax, jerk=args.jmax, tool_speed=args.tool_speed)
@@ -94,8 +102,6 @@ def _cmd_export(args) -> int:
 
     if args.csv is None and args.bag is None:
         raise KinredundError("say what to write: --csv FILE and/or --bag FOLDER")
-    if args.bag is not None:
-        check_new_bag(args.bag)  # before any work
     traj = Trajectory.load_json(args.result)
     _write_outputs(traj, load_robot(traj.robot, task=traj.task).joint_names, args)
     return 0
@@ -127,14 +133,15 @@ def add_parsers(sub) -> None:
                    help="closed paths: start the first loop from rest and stop at the end of the last (one "
                         "time-optimal law over all loops), for a controller that starts from standstill; default a "
                         "periodic loop law, which starts and ends at the loop's speed")
-    p.add_argument("--json", type=Path,
+    p.add_argument("--json", type=output_file,
                    help="write the retimed record (with qdot, qddot) as JSON (default: not written)")
-    p.add_argument("--csv", type=Path, help="write it as CSV: t, q_<joint>..., qdot_<joint>..., qddot_<joint>... "
-                                            "(default: not written)")
+    p.add_argument("--csv", type=output_file,
+                   help="write it as CSV: t, q_<joint>..., qdot_<joint>..., qddot_<joint>... (default: not written)")
     p.add_argument("--bag", type=Path, help="write it as a ROS 2 bag folder (must not exist): one "
                                             "trajectory_msgs/msg/JointTrajectory (default: not written)")
-    p.add_argument("--topic", default=DEFAULT_TOPIC, help=f"the bag's topic (default {DEFAULT_TOPIC})")
-    p.add_argument("--plot", type=Path,
+    p.add_argument("--topic", type=_topic, default=DEFAULT_TOPIC,
+                   help=f"the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")
+    p.add_argument("--plot", type=output_file,
                    help="plot q, qdot, qddot with the limits (.png, .pdf, .svg) (default: not drawn)")
 
     p = subcommand(sub, "export", "write a trajectory record as CSV or a ROS 2 bag",
@@ -143,7 +150,8 @@ def add_parsers(sub) -> None:
                    ["kinredund export run.json --csv run.csv", "kinredund export timed.json --bag timed_bag"],
                    _cmd_export)
     p.add_argument("result", type=Path, help="a trajectory JSON (kinredund track or retime --json)")
-    p.add_argument("--csv", type=Path, help="the CSV file to write (default: not written)")
+    p.add_argument("--csv", type=output_file, help="the CSV file to write (default: not written)")
     p.add_argument("--bag", type=Path,
                    help="the ROS 2 bag folder to write, which must not exist (default: not written)")
-    p.add_argument("--topic", default=DEFAULT_TOPIC, help=f"the bag's topic (default {DEFAULT_TOPIC})")
+    p.add_argument("--topic", type=_topic, default=DEFAULT_TOPIC,
+                   help=f"the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")

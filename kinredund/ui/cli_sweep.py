@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import KinredundError
-from kinredund.ui.options import add_quiet, add_robot, at_least, index_for, subcommand, vector
+from kinredund.ui.options import add_quiet, add_robot, at_least, index_for, output_file, subcommand, vector
 from kinredund.ui.progress import Progress
 
 GRID_HELP = ("the placements: x0:x1:nx,y0:y1:ny[,yaw0:yaw1:nyaw] - nx values from x0 to x1 [m] (both included), "
@@ -83,11 +83,12 @@ def add_parser(sub) -> None:
                        "(tcp://host:port; default: a local cluster)")
     p.add_argument("--batch-size", type=at_least(1),
                    help="placements per Dask task (default: guided - large batches first, single placements last)")
-    p.add_argument("--json", type=Path, help="the sweep file, written as batches complete (.jsonl: JSON lines; "
+    p.add_argument("--json", type=output_file, help="the sweep file, written as batches complete (.jsonl: JSON lines; "
                    "default: not written)")
     p.add_argument("--resume", action="store_true", help="resume the sweep in --json, running only what it lacks; "
                    "a --json file that does not exist yet starts the sweep (default: start anew)")
-    p.add_argument("--plot", type=Path, help="the feasibility and quality map (.png, .pdf or .svg; default: not drawn)")
+    p.add_argument("--plot", type=output_file,
+                   help="the feasibility and quality map (.png, .pdf or .svg; default: not drawn)")
     p.add_argument("--criterion", choices=tuple(CRITERIA), default="margin",
                    help="what ranks the feasible placements (default margin: farthest from the joint limits)")
     p.add_argument("--top", type=at_least(0), default=5, help="best placements to print (default 5)")

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from kinredund.io import atomic_write_text, write_json
+from kinredund.io import atomic_write_text, output_folder, write_json
 from kinredund.tasks import get_task
 
 
@@ -113,7 +113,7 @@ def run_demo(out: Path, quick: bool = False, stream=None, quiet: bool = False) -
     from kinredund.ui.progress import Progress
 
     stream = stream or sys.stdout
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(out)  # a file or a device named by --out: OutputPathError (exit 2)
     bar = Progress("demo", quiet=quiet)
 
     def log(msg):

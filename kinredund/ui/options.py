@@ -58,6 +58,18 @@ def vector(text: str) -> np.ndarray:
     return np.array(values)
 
 
+def output_file(text: str) -> Path:
+    """An argparse type: the path of an output file (:func:`kinredund.io.file_path`: ``out.csv/`` names a
+    folder and is refused, not turned into ``out.csv``)."""
+    from kinredund.errors import OutputPathError
+    from kinredund.io import file_path
+
+    try:
+        return file_path(text)
+    except OutputPathError as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: {err.reason}") from err
+
+
 def at_least(minimum: int):
     """An argparse type: an integer >= ``minimum`` (the bound the library checks too, so both agree)."""
     def parse(text: str) -> int:
@@ -91,11 +103,11 @@ def _sub(sub, commands: dict, name: str, help_: str, description: str, examples:
 
 
 def _add_outputs(p, *, html: bool = False, quiet: bool = False) -> None:
-    p.add_argument("--json", type=Path, metavar="FILE", help="write the result as JSON (default: not written)")
-    p.add_argument("--plot", type=Path, metavar="FILE",
+    p.add_argument("--json", type=output_file, metavar="FILE", help="write the result as JSON (default: not written)")
+    p.add_argument("--plot", type=output_file, metavar="FILE",
                    help="save the figure; the format follows the suffix: .png, .pdf or .svg (default: not drawn)")
     if html:
-        p.add_argument("--html", type=Path, metavar="FILE",
+        p.add_argument("--html", type=output_file, metavar="FILE",
                        help="write a standalone HTML replay that plays offline in a browser (default: not written)")
     if quiet:
         add_quiet(p)
@@ -205,7 +217,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p.add_argument("--starts", type=_COUNT, default=8, metavar="N",
                    help="IK starts tried for the optimal start configuration (default: %(default)s)")
     _add_outputs(p, html=True, quiet=True)
-    p.add_argument("--partial", type=Path, metavar="FILE",
+    p.add_argument("--partial", type=output_file, metavar="FILE",
                    help="where tracking stops (a fold, a singularity, the path out of reach, ...), write the record "
                         "up to there with the failure's cause, time and last good configuration as JSON, which "
                         "`kinredund play` replays (default: not written)")
@@ -230,7 +242,8 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p.add_argument("--starts", type=_COUNT, default=1, metavar="N",
                    help="starts tried, the others random within the limits (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default: %(default)s)")
-    p.add_argument("--json", type=Path, metavar="FILE", help="also write the result as JSON (default: not written)")
+    p.add_argument("--json", type=output_file, metavar="FILE",
+                   help="also write the result as JSON (default: not written)")
 
     p = _sub(sub, commands, "plan", "off-line planning with collision avoidance (Chapter 6)",
              "Plan a collision-free cyclic motion around the obstacle of Section 6.2 (planar) or 6.3 (spatial): "
@@ -249,10 +262,13 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
              "reproduce 6.x) or the Section 3.2 helix (reproduce 3.2). Say what to do: --html, --live or both.",
              ["kinredund play run.json --html run.html", "kinredund play plan.json --live"])
     p.add_argument("result", type=Path, help="a JSON file written by track, reproduce or plan")
-    p.add_argument("--html", type=Path, metavar="FILE",
+    p.add_argument("--html", type=output_file, metavar="FILE",
                    help="write a standalone HTML replay that plays offline (default: not written)")
     p.add_argument("--live", action="store_true",
                    help="serve the replay on a local meshcat server until Ctrl-C (default: off)")
+    p.add_argument("--scene", type=Path, metavar="FILE",
+                   help="with --html: a scene file (docs/schema.md) whose objects are drawn, the closest pair marked "
+                        "(default: none)")
 
     p = _sub(sub, commands, "generate-robots", "write robots/*.urdf from the thesis's HD tables",
              "Write the URDF files of the thesis's robots from their Hartenberg-Denavit tables.",
@@ -268,4 +284,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     from kinredund.ui.cli_sweep import add_parser as add_sweep_parser  # the placement sweep (its own module)
 
     add_sweep_parser(sub)
+    from kinredund.ui.cli_check import add_parser as add_check_parser  # check a motion in a scene (issue 24)
+
+    add_check_parser(sub)
     return parser

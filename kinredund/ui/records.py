@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, check_array
 from kinredund.io import read_json_object
 from kinredund.model.robot import Robot, load_robot
 from kinredund.trajectory import Trajectory
@@ -54,15 +54,29 @@ def record_kind(data: dict) -> str:
         "`plan 6.x --json` or `reproduce 6.x --json` (a plan), or `reproduce 3.2 --json` (the helix)")
 
 
+def _motion(data: dict, what: str, columns: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """(t, q) of a plan or helix record, checked: N times and an (N, columns) array of finite numbers.
+
+    Raises:
+        KinredundError: a missing key or an array of the wrong kind or shape (a file posing as a record).
+    """
+    t = check_array(data.get("t"), (None,), f"{what}: times 't' [s]", KinredundError)
+    q = check_array(data.get("q"), (len(t), columns), f"{what}: joint values 'q'", KinredundError,
+                    f"{len(t)} times")
+    if np.any(np.diff(t) <= 0.0):
+        raise KinredundError(f"{what}: times 't' must be strictly increasing")
+    return t, q
+
+
 def _plan(data: dict) -> Replayable:
     from kinredund.thesis.chapter6 import case_setup
 
     case = str(data["example"])
     robot, path, _ = case_setup(case)
-    t, q = np.asarray(data["t"], float), np.asarray(data["q"], float)
-    if t.size == 0:
+    if isinstance(data.get("t"), list) and not data["t"]:
         reason = data.get("reason") or "no reason recorded"
         raise KinredundError(f"the plan of Section {case} has no motion to replay (it failed: {reason})")
+    t, q = _motion(data, f"the plan of Section {case}", robot.nq)
     p = np.array([robot.fk(qi)[:3, 3] for qi in q])
     desired = np.array([path(ti).p for ti in t])
     traj = Trajectory(robot=robot.name, task=robot.task, t=t, q=q, p=p, p_desired=desired, scheme="planner",
@@ -72,11 +86,16 @@ def _plan(data: dict) -> Replayable:
 
 
 def _helix(data: dict) -> Replayable:
-    robot = load_robot(str(data.get("robot", "puma7")))
-    t, q4 = np.asarray(data["t"], float), np.asarray(data["q"], float)
+    if data.get("robot", "puma7") != "puma7":
+        raise KinredundError(f"the Section 3.2 helix is tracked by puma7, not {data['robot']!r}")
+    robot = load_robot("puma7")
+    t, q4 = _motion(data, "the Section 3.2 helix", None)
+    if q4.shape[1] > robot.nq:
+        raise KinredundError(f"the Section 3.2 helix: 'q' has {q4.shape[1]} joints, {robot.name} has {robot.nq}")
     q = np.zeros((len(t), robot.nq))
     q[:, : q4.shape[1]] = q4  # the wrist joints are not part of Section 3.2's positioning problem: held at 0
-    centre = np.asarray(data["wrist_centre"], float)
+    centre = check_array(data["wrist_centre"], (len(t), 3), "the Section 3.2 helix: 'wrist_centre' [m]",
+                         KinredundError, f"{len(t)} times")
     traj = Trajectory(robot=robot.name, task="position", t=t, q=q, p=centre, p_desired=centre.copy(),
                       scheme="closed_form", meta={"example": "3.2"})
     return Replayable(traj, robot, f"{robot.name}: Section 3.2, wrist centre on the helix (closed form)", "helix")
@@ -98,4 +117,4 @@ def replay_record(path: str | Path) -> Replayable:
     from kinredund.ui.viz.page import replay_title
 
     traj = Trajectory.from_json_dict(data)
-    return Replayable(traj, load_robot(traj.robot), replay_title(traj), kind)
+    return Replayable(traj, load_robot(traj.robot, task=traj.task), replay_title(traj), kind)

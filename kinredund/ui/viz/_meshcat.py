@@ -363,10 +363,11 @@ def set_animation(vis, anim, loop: bool) -> None:
     vis.set_animation(anim, play=True, repetitions=math.inf if loop else 1)
 
 
-def animated_visualizer(traj: Trajectory, robot: Robot | None, *, loop: bool, **scene):
+def animated_visualizer(traj: Trajectory, robot: Robot | None, *, loop: bool, cell=None, **scene):
     """A new local meshcat server playing ``traj`` (:func:`build_scene` with ``scene``'s options).
 
-    ``robot`` defaults to ``kinredund.load_robot(traj.robot)``. The server is stopped again if the
+    ``robot`` defaults to ``kinredund.load_robot(traj.robot)``; ``cell``, a :class:`kinredund.Scene`, adds its
+    objects and the closest pair (:func:`kinredund.ui.viz.cell.draw_cell`). The server is stopped again if the
     scene cannot be built; otherwise the caller stops it (:func:`stop_visualizer`).
     """
     if robot is None:
@@ -375,7 +376,15 @@ def animated_visualizer(traj: Trajectory, robot: Robot | None, *, loop: bool, **
         robot = load_robot(traj.robot)
     vis = start_visualizer()
     try:
-        set_animation(vis, build_scene(vis, traj, robot, **scene), loop=loop)
+        anim = build_scene(vis, traj, robot, **scene)
+        if cell is not None:
+            from kinredund.ui.viz.cell import draw_cell
+
+            fps, realtime = scene.get("fps", 30.0), scene.get("realtime", True)
+            frames = resample(traj.checked(robot.nq), fps, scene.get("max_frames", MAX_FRAMES), realtime)
+            keys = [float(c * fps) if realtime else k for k, c in enumerate(frames.times)]  # as build_scene's
+            draw_cell(vis, import_meshcat(), cell, frames, anim, keys)
+        set_animation(vis, anim, loop=loop)
     except BaseException:
         stop_visualizer(vis)
         raise

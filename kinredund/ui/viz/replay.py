@@ -35,6 +35,7 @@ def replay_html(
     loop: bool = True,
     max_frames: int = MAX_FRAMES,
     title: str | None = None,
+    scene=None,
 ) -> Path:
     """Write a standalone HTML file that replays ``traj`` in meshcat, at the trajectory's own speed.
 
@@ -53,6 +54,8 @@ def replay_html(
         loop: play in a loop (else once, stopping on the last frame).
         max_frames: the cap on the number of keyframes.
         title: the title on the page; default robot, path and scheme (:func:`~kinredund.ui.viz.page.replay_title`).
+        scene: a :class:`kinredund.Scene` around the robot: its objects are drawn (orange, translucent; attached
+            ones move with their frame) and the closest pair's witness points marked (red dots) at every frame.
 
     Returns:
         The path written.
@@ -61,7 +64,7 @@ def replay_html(
         KinredundError: an unknown robot, a trajectory that does not fit it, a malformed obstacle,
             or a meshcat server that does not start.
     """
-    vis = animated_visualizer(traj, robot, loop=loop, fps=fps, show_path=show_path, max_frames=max_frames)
+    vis = animated_visualizer(traj, robot, loop=loop, fps=fps, show_path=show_path, max_frames=max_frames, cell=scene)
     try:
         html = vis.static_html()
     finally:
@@ -71,6 +74,10 @@ def replay_html(
         legend = legend[1:]
     if read_obstacle(traj) is not None:
         legend.append(("obstacle", OBSTACLE_COLOR, "box"))
+    if scene is not None:
+        from kinredund.ui.viz.cell import CELL_COLOR, CLOSEST_COLOR
+
+        legend += [("scene objects", CELL_COLOR, "box"), ("closest pair", CLOSEST_COLOR, "dot")]
     t = traj.t
     html = decorate_page(html, title if title is not None else replay_title(traj), legend,
                          float(t[0]), float(t[-1] - t[0]))

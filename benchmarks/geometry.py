@@ -1,0 +1,100 @@
+"""Collision-geometry timings: one scene query on the Panda, by collision model and with or without broadphase.
+
+Usage::
+
+    python benchmarks/geometry.py [--json FILE] [--repeat N]
+
+The scene: the Panda's self pairs (its pair matrix) and five objects (a table, a ball, a post, a bar and a
+tool held by the hand). Three collision models of the same robot:
+
+- ``hulls``: the URDF's collision meshes as convex hulls (``geometry="convex"``, the default);
+- ``meshes``: the same meshes exact (``geometry="mesh"``, triangle BVHs, for final checks);
+- ``primitives``: example-robot-data's ``panda_collision.urdf`` (spheres and cylinders).
+
+Per model, the median and p95 [us] over seeded configurations (``_bench.time_in_turn``: all calls of one model
+in turn, so their ratios hold under background load) of
+
+- ``distances``: ``scene.distances(q)``, every checked pair exact, with witness points and normals;
+- ``distances_bp``: ``scene.distances(q, influence=INFLUENCE)``, the bounding-sphere broadphase first;
+- ``rows_bp``: ``scene.distance_rows(q, influence=INFLUENCE)``, distances and rows G (d_dot = G q_dot);
+- ``min_distance``: ``scene.min_distance(q)`` (every pair in one Pinocchio call, one result read);
+
+and the ratios without / with the broadphase and of each model to the hulls. The issue's target for the
+default (hulls) is at most 30 us per query from Python; the script prints what it measures, and how many pairs
+each query computed exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from _bench import parser, print_table, time_in_turn, write_json
+
+import kinredund
+from kinredund.model.erd import erd_share_dir
+
+#: the broadphase distance [m]: pairs whose bounding spheres are farther apart are not computed
+INFLUENCE = 0.05
+TARGET_US = 30.0
+
+
+def panda_scene(model: str) -> kinredund.Scene:
+    r = kinredund.load_robot("panda")
+    kw = {"geometry": "mesh"} if model == "meshes" else {}
+    if model == "primitives":
+        kw["collision_urdf"] = erd_share_dir() / "panda_description/urdf/panda_collision.urdf"
+    s = kinredund.Scene(r, **kw)
+    s.add_box("table", [1.2, 0.8, 0.04], {"xyz": [0.5, 0.0, -0.03]})
+    s.add_sphere("ball", 0.05, [0.45, 0.3, 0.45])
+    s.add_cylinder("post", 0.04, 0.8, {"xyz": [-0.4, 0.3, 0.4]})
+    s.add_capsule("bar", 0.02, 0.5, {"xyz": [0.3, -0.45, 0.6], "rpy": [1.2, 0.0, 0.0]})
+    s.add_box("tool", [0.02, 0.02, 0.12], {"xyz": [0.0, 0.0, 0.12]}, attach_to="panda_hand")
+    return s
+
+
+def bench_model(model: str, repeat: int) -> dict:
+    s = panda_scene(model)
+    r = s.robot
+    rng = np.random.default_rng(0)
+    qs = [r.home] + [r.random_configuration(rng, 0.1) for _ in range(19)]
+    it = {"i": 0}
+
+    def q():
+        it["i"] = (it["i"] + 1) % len(qs)
+        return qs[it["i"]]
+
+    calls = {
+        "distances": lambda: s.distances(q()),
+        "distances_bp": lambda: s.distances(q(), influence=INFLUENCE),
+        "rows_bp": lambda: s.distance_rows(q(), influence=INFLUENCE),
+        "min_distance": lambda: s.min_distance(q()),
+    }
+    times = time_in_turn(calls, repeat=repeat, warmup=5)
+    exact = [len(s.distances(x, influence=INFLUENCE)) for x in qs]
+    return {"pairs": len(s.pairs), "self_pairs": len(s.pair_matrix.enabled),
+            "exact_pairs_bp_median": float(np.median(exact)), **times,
+            "ratio_bp": times["distances"]["median_us"] / times["distances_bp"]["median_us"]}
+
+
+def main() -> None:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--repeat", type=int, default=400, help="timed calls per query (meshes: a tenth)")
+    args = p.parse_args()
+    out = {"influence_m": INFLUENCE, "target_us": TARGET_US}
+    for model in ("hulls", "primitives", "meshes"):
+        out[model] = bench_model(model, args.repeat if model != "meshes" else max(20, args.repeat // 10))
+    rows = []
+    for model in ("hulls", "primitives", "meshes"):
+        m = out[model]
+        rows.append([model, m["pairs"], m["exact_pairs_bp_median"], m["distances"]["median_us"],
+                     m["distances_bp"]["median_us"], m["rows_bp"]["median_us"], m["min_distance"]["median_us"],
+                     m["ratio_bp"], m["distances"]["median_us"] / out["hulls"]["distances"]["median_us"]])
+    print(f"Panda, self pairs + 5 objects; broadphase influence {INFLUENCE} m; median us per call")
+    print_table(rows, ["model", "pairs", "exact (bp)", "distances", "dist. (bp)", "rows (bp)", "min_distance",
+                       "no bp / bp", "vs hulls"])
+    best = min(out["hulls"][k]["median_us"] for k in ("distances_bp", "rows_bp", "min_distance"))
+    print(f"target for the default (hulls): <= {TARGET_US:g} us per query; fastest hull query measured: {best:.0f} us")
+    write_json(args.json, out)
+
+
+if __name__ == "__main__":
+    main()
