@@ -314,8 +314,23 @@ class Scene:
         ``G[k] = n_k^T (J_b(p_b) - J_a(p_a))`` at the witness points (``kinredund.geometry.engine``).
         """
         q, ws, ks, d, n, pa, pb = self._exact(q, influence)
+        influence = None if influence is None else float(influence)
         if not len(ks):
-            return DistanceRows((), d, np.zeros((0, self.robot.nq)), None if influence is None else float(influence))
+            return DistanceRows((), d, np.zeros((0, self.robot.nq)), influence, np.zeros(0, int), n, pa, pb)
         G = ws.rows(q, ks, n, pa, pb)
-        return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G,
-                            None if influence is None else float(influence))
+        return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G, influence, np.asarray(ks), n, pa, pb)
+
+    def distance_curvature(self, q, rows: DistanceRows, weights) -> np.ndarray:
+        """sum_k w_k n_k^T (Hess p_b - Hess p_a) [m/rad^2] (n, n): the second-order term of the distance rows
+        ``rows`` (from :meth:`distance_rows` at the same q), the witness points held fixed to their bodies.
+
+        It leaves out the surfaces' curvature at the witness points (exact for flat faces); as a constraint's
+        share of the tracker's system it changes the Newton corrector's rate only
+        (:meth:`~kinredund.geometry.engine.Workspace.curvature`).
+        """
+        q = self._q(q)
+        w = np.asarray(weights, dtype=float)
+        if rows.index is None or w.shape != (len(rows.pairs),):
+            raise GeometryError(f"weights must be one number per row ({len(rows.pairs)}) of a distance_rows() record")
+        ws = self.workspace()
+        return ws.curvature(q, rows.index, w, rows.normal, rows.point_a, rows.point_b)

@@ -1,0 +1,164 @@
+"""A Scene's distances held as general inequality rows: every checked pair kept its clearance apart (issue 27).
+
+One row per pair the :class:`~kinredund.geometry.scene.Scene` checks (its enabled self pairs and its objects'
+pairs), identified by the pair's position in ``scene.pairs``, so that a row keeps its number, and the active
+set its meaning, from step to step while witness points and normals move:
+
+    c_k(theta) = d_k(theta) - clearance_k >= 0,   grad c_k = G_k = n_k^T (J_b(p_b) - J_a(p_a)),
+
+with d_k the signed distance [m] of pair k (coal, through ``scene.distance_rows``), n_k the unit normal from
+its first object to its second and p_a, p_b the witness points. ``clearance_k`` is ``self_clearance`` for a
+pair of two objects that move with the robot (its links, and objects attached to it) and ``clearance`` for a
+pair with a world obstacle (MoveIt Servo's defaults: 1 cm and 2 cm).
+
+Only pairs whose bounding spheres come within ``influence`` [m] are computed exactly (the Scene's
+broadphase); any other pair is farther apart than ``influence``, and its row reports the lower bound
+``influence - clearance_k`` > 0 with a zero gradient. Such a row is never near zero, so it is never active
+and no switch is located on it; a pair is computed exactly from the step on which it comes within
+``influence`` (the default, the largest clearance + 5 cm, is far beyond a step's motion).
+
+The curvature term (the rows' share of M in the system, :meth:`SceneClearance.curvature`) holds the witness
+points fixed to their bodies: sum_k w_k n_k^T (Hess p_b - Hess p_a) from the kinematics layer's point
+Hessians. It ignores the surfaces' curvature at the witness points (and the turning of the normal), so it
+is exact between flat faces only; elsewhere it changes the Newton corrector's rate of convergence, not the
+first-order conditions (the task, c_A = 0, grad z + J^T lambda - G_A^T nu = 0) that the corrector holds.
+Where the witness features change (a vertex of a hull against a face, then an edge) the distance is still
+continuously differentiable; its rows change continuously.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from kinredund.errors import OptionError, check_choice
+from kinredund.geometry.records import DistanceRows
+from kinredund.geometry.scene import Scene
+from kinredund.tracking.constraints.base import Constraint
+
+#: how :meth:`SceneClearance.curvature` is taken (class docstring)
+CURVATURES = ("differences", "witness")
+#: the default broadphase reach beyond the largest clearance [m]
+INFLUENCE_MARGIN = 0.05
+
+
+def _clearance(value, what: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (np.isfinite(v) and v >= 0.0) or isinstance(value, bool):
+        raise OptionError(f"{what} must be a finite distance >= 0 [m], got {value!r}")
+    return v
+
+
+class SceneClearance(Constraint):
+    """Every pair ``scene`` checks kept ``clearance`` [m] apart (``self_clearance`` [m] for the robot's own).
+
+    Args:
+        scene: the :class:`~kinredund.geometry.scene.Scene` (its robot must be the tracked one). Do not change
+            it (add, move, ignore) while the constraint is in use: its rows are the scene's pairs at
+            construction.
+        clearance: the least distance [m] between the robot (and what it carries) and a world obstacle.
+        self_clearance: the least distance [m] between two of the robot's objects (attached ones included);
+            None leaves the robot's own pairs unchecked.
+        influence: the broadphase distance [m] (> the clearances): pairs surely farther apart are not computed.
+            Default: the largest clearance + :data:`INFLUENCE_MARGIN`.
+
+    Raises:
+        OptionError: not a Scene, a clearance < 0 or not finite, an influence not above the clearances, a
+            scene that checks no pair (with these settings).
+    """
+
+    cause = "collision"
+
+    def __init__(self, scene: Scene, clearance: float = 0.02, self_clearance: float | None = 0.01,
+                 influence: float | None = None, curvature: str = "differences"):
+        check_choice("curvature of the distance rows", curvature, CURVATURES)
+        self.curvature_mode = curvature
+        if not isinstance(scene, Scene):
+            raise OptionError(f"scene must be a kinredund Scene, got {type(scene).__name__}")
+        self.scene, self.clearance = scene, _clearance(clearance, "the clearance")
+        self.self_clearance = None if self_clearance is None else _clearance(self_clearance, "the self clearance")
+        moving = set(scene.robot_objects) | {o for o in scene.objects if scene.object(o).attach_to is not None}
+        self._scene_pairs = scene.pairs
+        index, clear = [], []
+        for k, (a, b) in enumerate(self._scene_pairs):
+            own = a in moving and b in moving
+            if own and self.self_clearance is None:
+                continue
+            index.append(k)
+            clear.append(self.self_clearance if own else self.clearance)
+        if not index:
+            raise OptionError("the scene checks no pair (add an object, or check the robot's own pairs with "
+                              "self_clearance=...)")
+        self.index, self.clearances = np.array(index), np.array(clear)
+        self.pairs = tuple(self._scene_pairs[k] for k in index)
+        self._row = np.full(len(self._scene_pairs), -1)
+        self._row[self.index] = np.arange(len(index))
+        top = float(self.clearances.max())
+        self.influence = top + INFLUENCE_MARGIN if influence is None else _clearance(influence, "the influence")
+        if not self.influence > top:
+            raise OptionError(f"the influence ({self.influence} m) must exceed the largest clearance ({top} m): "
+                              "a pair beyond it must not be able to be under its clearance")
+        self._local = threading.local()
+
+    @property
+    def size(self) -> int:
+        return len(self.index)
+
+    def names(self) -> list[str]:
+        return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
+
+    def _query(self, q: np.ndarray) -> tuple[DistanceRows, np.ndarray, np.ndarray, np.ndarray]:
+        """(the scene's distance rows within the influence, their rows here, c (size,), G (size, n)) at q,
+        kept for the last q of this thread (the stepper asks for values, rows and curvature at one q)."""
+        if self.scene.pairs is not self._scene_pairs:
+            raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
+        q = np.asarray(q, float)
+        last = getattr(self._local, "last", None)
+        if last is not None and np.array_equal(last[0], q):
+            return last[1]
+        rec = self.scene.distance_rows(q, self.influence)
+        keep = self._row[rec.index]
+        mine = np.flatnonzero(keep >= 0)
+        rows = keep[mine]
+        c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
+        c[rows] = rec.d[mine] - self.clearances[rows]
+        G = np.zeros((self.size, len(q)))
+        G[rows] = rec.G[mine]
+        out = (rec, mine, rows, c, G)
+        self._local.last = (q.copy(), out)
+        return out
+
+    def values(self, q: np.ndarray) -> np.ndarray:
+        return self._query(q)[3].copy()
+
+    def gradients(self, q: np.ndarray) -> np.ndarray:
+        return self._query(q)[4].copy()
+
+    def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        out = self._query(q)
+        return out[3].copy(), out[4].copy()
+
+    def distance(self, q: np.ndarray) -> np.ndarray:
+        """The pairs' distances d [m] (size,), the ones beyond the influence as the lower bound ``influence``."""
+        return self._query(q)[3] + self.clearances
+
+    def curvature(self, q: np.ndarray, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """sum_i w_i Hess c_i over ``rows``: central differences of the rows (``curvature="differences"``,
+        the true Hessian where the distance is twice differentiable), or ``"witness"``: sum_i w_i n_i^T
+        (Hess p_b - Hess p_a), the witness points fixed to their bodies (the surfaces' curvature left out:
+        module docstring); rows beyond the influence contribute nothing."""
+        if self.curvature_mode == "differences":
+            return super().curvature(q, w, rows)
+        rec, mine, here, _, _ = self._query(q)
+        weight = np.zeros(len(rec.pairs))
+        pos = {int(r): int(k) for r, k in zip(here, mine, strict=True)}
+        for wi, r in zip(np.asarray(w, float), np.asarray(rows, int), strict=True):
+            if int(r) in pos:
+                weight[pos[int(r)]] += wi
+        if not np.any(weight):
+            return np.zeros((len(q), len(q)))
+        return self.scene.distance_curvature(np.asarray(q, float), rec, weight)
