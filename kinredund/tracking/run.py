@@ -51,7 +51,8 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
     Args:
         robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, limits,
             project_start, strict, constraints, qp_solver, scene, clearance, self_clearance: as for
-            :class:`~kinredund.tracking.tracker.Tracker` (by default the default mode's optimal schemes keep the joints within the robot's limits; ``limits=False`` is
+            :class:`~kinredund.tracking.tracker.Tracker` (by default the default mode's optimal schemes
+            keep the joints within the robot's limits; ``limits=False`` is
             the thesis's unconstrained scheme; ``strict`` the step control and the fold and singularity
             watch).
         steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most

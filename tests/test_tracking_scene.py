@@ -1,0 +1,159 @@
+"""A Scene's distances held in the tracker (issue 27): SceneClearance rows, track(..., scene=, clearance=).
+
+Named case ``panda_elbow_ball``: the circle ``panda_elbow_circle`` of test_tracking_limits with a 5 cm sphere
+put through the Scene where the within-limits optimum's upper arm (panda_link3's hull, at the elbow) passes:
+the free optimum comes to 0.5 cm of it, 2.5 cm under the 2 cm clearance, over about a fifth of the loop. Distances are checked afresh with coal
+(``scene.distances``) on the recorded configurations. Tolerances: the corrector holds the active row to
+~1e-12 (its tol); the bars are the issue's (1e-9 m clearance, 1e-10 closure and tracking, 1e-12 for the
+run without an active distance, which takes the same steps as the run without a scene).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from test_tracking_limits import case
+
+import kinredund as kr
+from kinredund.errors import OptionError, TrackingError
+from kinredund.kinematics.state import point_curvature
+
+#: the sphere's center [m] and radius [m], and the clearance [m] of the named case
+BALL = ([-0.3178, 0.2255, 0.3518], 0.05)
+CLEARANCE = 0.02
+
+
+@functools.cache
+def setup():
+    r, path, index, q0 = case("panda_elbow_circle")
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", BALL[1], BALL[0])
+    return r, path, index, q0, sc
+
+
+@functools.cache
+def run(loops=1, with_scene=True):
+    r, path, index, q0, sc = setup()
+    if not with_scene:
+        return kr.track(r, path, index, q0, loops=loops)
+    return kr.track(r, path, index, q0, loops=loops, scene=sc, clearance=CLEARANCE, self_clearance=False)
+
+
+def ball_distance(sc, qs) -> np.ndarray:
+    """The least distance [m] of the ball from the robot at each q, afresh from coal."""
+    return np.array([min(v for p, v in sc.distances(q).as_dict().items() if "ball" in p) for q in np.atleast_2d(qs)])
+
+
+def test_point_curvature_against_differences():
+    """sum c^T Hess p of a point fixed to a link (the kinematics layer's point Hessian) vs central differences."""
+    r = setup()[0]
+    m, rng = r.model, np.random.default_rng(3)
+    q = 0.5 * (r.lower + r.upper) + 0.3 * rng.standard_normal(7)
+    for j in (2, 4, 7):
+        loc, c = rng.standard_normal(3) * 0.1, rng.standard_normal(3)
+
+        def f(x, j=j, loc=loc, c=c):
+            d = m.createData()
+            pin.forwardKinematics(m, d, x)
+            return c @ d.oMi[j].act(loc)
+
+        e, n = 1e-4, len(q)
+        E = np.eye(n) * e
+        H = np.array([[(f(q + E[a] + E[b]) - f(q + E[a] - E[b]) - f(q - E[a] + E[b]) + f(q - E[a] - E[b]))
+                       / (4 * e * e) for b in range(n)] for a in range(n)])
+        d = m.createData()
+        pin.forwardKinematics(m, d, q)
+        p = d.oMi[j].act(loc)
+        pin.computeJointJacobians(m, d, q)
+        assert np.abs(point_curvature(m, d, np.array([j]), p[None], c[None]) - H).max() <= 1e-7  # O(e^2)
+
+
+def test_rows_are_the_scene_pairs_and_far_pairs_a_lower_bound():
+    r, path, index, q0, sc = setup()
+    c = kr.SceneClearance(sc, clearance=CLEARANCE, self_clearance=0.01)
+    assert c.size == len(sc.pairs) and c.pairs == sc.pairs  # one row per checked pair, in the scene's order
+    rows = sc.distance_rows(q0, c.influence)
+    vals, G = c.rows_at(q0)
+    for k, pair in enumerate(rows.pairs):
+        i = sc.pairs.index(pair)
+        own = "ball" not in pair
+        assert vals[i] == pytest.approx(rows.d[k] - (0.01 if own else CLEARANCE), abs=1e-15)
+        assert np.allclose(G[i], rows.G[k], rtol=0, atol=1e-15)
+    far = [i for i, p in enumerate(sc.pairs) if p not in rows.pairs]
+    assert far and np.all(sc.distances(q0).distance[far] > c.influence)  # the bound holds
+    assert np.all(vals[far] == c.influence - c.clearances[far]) and not G[far].any()
+    assert "ball" in c.names()[sc.pairs.index(("panda_link3_0", "ball"))]
+
+
+def test_witness_curvature_is_the_scene_s():
+    r, path, index, q0, sc = setup()
+    c = kr.SceneClearance(sc, self_clearance=None, curvature="witness")
+    rows = sc.distance_rows(q0, c.influence)
+    k = rows.pairs.index(("panda_link3_0", "ball"))
+    w = np.zeros(len(rows.pairs))
+    w[k] = 2.0
+    i = c.pairs.index(("panda_link3_0", "ball"))
+    assert np.allclose(c.curvature(q0, np.array([2.0]), np.array([i])), sc.distance_curvature(q0, rows, w),
+                       rtol=0, atol=1e-14)
+
+
+def test_the_free_optimum_runs_under_the_clearance():
+    d = ball_distance(setup()[4], run(with_scene=False).q)
+    assert d[0] > 0.1 and d.min() < CLEARANCE - 0.02  # the named case is what it claims: 2.5 cm under
+
+
+def test_clearance_held_and_equal_to_the_free_run_where_inactive():
+    sc = setup()[4]
+    tr, free = run(), run(with_scene=False)
+    d = ball_distance(sc, tr.q)
+    assert d.min() >= CLEARANCE - 1e-9  # every recorded point, afresh with coal
+    sw = [w for w in tr.meta["switches"] if w.get("constraint")]
+    assert {w["kind"] for w in sw} == {"reach", "release"} and all("ball" in w["name"] for w in sw)
+    assert ball_distance(sc, np.array([w["q"] for w in sw])).min() >= CLEARANCE - 1e-9  # at the switching times
+    active = np.array([bool(a) for a in tr.meta["constraints"]["active"]])
+    assert 10 < active.sum() < len(active) - 10
+    assert np.abs(tr.q[~active] - free.q[~active]).max() <= 1e-12  # no distance active: the run without a scene
+    assert np.abs(tr.q[active] - free.q[active]).max() > 0.01  # and where one is, the arm is pushed out
+    assert tr.position_error.max() <= 1e-10 and tr.loop_drift.max() <= 1e-10
+
+
+@pytest.mark.slow
+def test_clearance_held_and_closed_after_ten_loops():
+    sc = setup()[4]
+    tr = run(loops=10)
+    assert ball_distance(sc, tr.q).min() >= CLEARANCE - 1e-9
+    assert tr.loop_drift.max() <= 1e-10 and tr.position_error.max() <= 1e-10
+
+
+def test_a_start_under_the_clearance_is_refused():
+    r, path, index, q0, _ = setup()
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", 0.05, sc.object_pose("panda_link4_0", q0)[:3, 3])  # in contact at the start
+    with pytest.raises(TrackingError, match=r"panda_link4_0 and ball kept 0.02 m apart by") as err:
+        kr.track(r, path, index, q0, scene=sc, self_clearance=False)
+    assert err.value.cause == "collision"
+    sc.move("ball", [0.0, 0.0, 2.0])  # clear, but under a clearance larger than its distance
+    d = ball_distance(sc, q0)[0]
+    with pytest.raises(TrackingError, match=r"ball kept .* apart by") as err:
+        kr.Tracker(r, path, index, q0, 0.01, scene=sc, clearance=d + 0.01, self_clearance=False)
+    assert err.value.cause == "collision" and "0.01" in str(err.value)
+
+
+def test_options_are_checked():
+    r, path, index, q0, sc = setup()
+    with pytest.raises(OptionError, match="need scene="):
+        kr.track(r, path, index, q0, clearance=0.02)
+    with pytest.raises(OptionError, match="clearance"):
+        kr.SceneClearance(sc, clearance=-0.01)
+    with pytest.raises(OptionError, match="influence"):
+        kr.SceneClearance(sc, clearance=0.05, influence=0.03)
+    c = kr.SceneClearance(sc, self_clearance=None)
+    sc2 = kr.Scene(r)
+    c2 = kr.SceneClearance(sc2)
+    sc2.add_sphere("late", 0.05, [2.0, 0.0, 0.0])
+    with pytest.raises(OptionError, match="changed"):
+        c2.values(q0)
+    assert c.size == sum("ball" in p for p in sc.pairs)
