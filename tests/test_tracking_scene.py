@@ -2,7 +2,8 @@
 
 Named case ``panda_elbow_ball``: the circle ``panda_elbow_circle`` of test_tracking_limits with a 5 cm sphere
 put through the Scene where the within-limits optimum's upper arm (panda_link3's hull, at the elbow) passes:
-the free optimum comes to 0.5 cm of it, 2.5 cm under the 2 cm clearance, over about a fifth of the loop. Distances are checked afresh with coal
+the free optimum comes to 0.5 cm of it, 2.5 cm under the 2 cm clearance, over about a fifth of the loop.
+Distances are checked afresh with coal
 (``scene.distances``) on the recorded configurations. Tolerances: the corrector holds the active row to
 ~1e-12 (its tol); the bars are the issue's (1e-9 m clearance, 1e-10 closure and tracking, 1e-12 for the
 run without an active distance, which takes the same steps as the run without a scene).
