@@ -158,3 +158,29 @@ def test_options_are_checked():
     with pytest.raises(OptionError, match="changed"):
         c2.values(q0)
     assert c.size == sum("ball" in p for p in sc.pairs)
+
+
+@pytest.mark.slow
+def test_the_hand_into_the_upper_arm_is_held_then_stops_named():
+    """Self-collision: on ``panda_elbow_circle`` the free optimum brings the fingers into the upper arm
+    (panda_link1/2's hulls, to -5 mm). Held 1 cm apart, two finger parts press on link1 and link2 at once and
+    [J; G_A] loses rank (sigma_min 0.02 and falling): the run stops, cause ``collision`` naming the pairs,
+    at a last good configuration that is clear, with a partial record that kept 1 cm at every point."""
+    r, path, index, q0, _ = setup()
+    sc = kr.Scene(r)
+    free = ball_distance_self(sc, run(with_scene=False).q)
+    assert free.min() < 0.0  # the free optimum collides with itself
+    with pytest.raises(TrackingError) as err:
+        kr.track(r, path, index, q0, scene=sc)
+    e = err.value
+    assert e.cause == "collision" and 0 < e.t < path.period
+    assert any("finger" in n and "panda_link" in n for n in e.watched["constraints"])
+    assert ball_distance_self(sc, e.q)[0] >= 0.01 - 1e-9
+    part = e.partial
+    assert len(part.t) > 100 and ball_distance_self(sc, part.q).min() >= 0.01 - 1e-9
+    assert any(part.meta["constraints"]["active"])  # held over part of the way before the stop
+
+
+def ball_distance_self(sc, qs) -> np.ndarray:
+    """The least distance [m] between two of the robot's objects at each q, afresh from coal."""
+    return np.array([sc.distances(q).min_distance for q in np.atleast_2d(qs)])
