@@ -12,6 +12,7 @@ run without an active distance, which takes the same steps as the run without a 
 from __future__ import annotations
 
 import functools
+import json
 
 import numpy as np
 import pinocchio as pin
@@ -184,3 +185,22 @@ def test_the_hand_into_the_upper_arm_is_held_then_stops_named():
 def ball_distance_self(sc, qs) -> np.ndarray:
     """The least distance [m] between two of the robot's objects at each q, afresh from coal."""
     return np.array([sc.distances(q).min_distance for q in np.atleast_2d(qs)])
+
+
+def test_cli_track_with_a_scene(tmp_path, capsys):
+    from kinredund.ui.cli import EXIT_USAGE, main
+
+    r = kr.load_robot("panda")
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", 0.05, r.fk(r.home)[:3, 3])  # where the circle starts: the hand in it
+    f = kr.geometry.save_scene(sc, tmp_path / "scene.json")
+    assert main(["track", "panda", "--steps", "20", "--scene", str(f), "--quiet"]) != 0
+    assert "and ball kept 0.02 m apart by" in capsys.readouterr().err
+    sc.move("ball", [0.0, 0.6, 1.2])  # out of the way: held with the self pairs, recorded
+    f = kr.geometry.save_scene(sc, tmp_path / "scene.json")
+    js = tmp_path / "t.json"
+    assert main(["track", "panda", "--steps", "20", "--scene", str(f), "--clearance", "0.03",
+                 "--self-clearance", "off", "--json", str(js), "--quiet"]) == 0
+    names = json.loads(js.read_text())["meta"]["constraints"]["names"]
+    assert names and all("ball kept 0.03 m apart" in n for n in names)  # no self pairs
+    assert main(["track", "panda", "--clearance", "0.03", "--quiet"]) == EXIT_USAGE
