@@ -295,10 +295,10 @@ def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
     constraint = with_scene.stepper.general[0]
     spent, query = [0.0], SceneClearance._query
 
-    def timed_query(q):
+    def timed_query(q, rows=True):
         t0 = time.perf_counter()
         try:
-            return query(constraint, q)
+            return query(constraint, q, rows)
         finally:
             spent[0] += time.perf_counter() - t0
 

@@ -204,3 +204,26 @@ def test_cli_track_with_a_scene(tmp_path, capsys):
     names = json.loads(js.read_text())["meta"]["constraints"]["names"]
     assert names and all("ball kept 0.03 m apart" in n for n in names)  # no self pairs
     assert main(["track", "panda", "--clearance", "0.03", "--quiet"]) == EXIT_USAGE
+
+
+def test_skipped_queries_give_lower_bounds():
+    """Between exact queries the values are the last exact ones lowered by B.|dq| (Scene.motion_bound):
+    never above the exact c, and every distance change of random joint moves stays within that bound."""
+    r, path, index, q0, sc = setup()
+    B = sc.motion_bound()
+    assert B.shape == (len(sc.pairs), 7) and np.all(B < 3.0) and np.all(B.sum(axis=1) > 0)  # the Panda's reach
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        q1 = q0 + rng.uniform(-0.3, 0.3, 7)
+        q2 = q1 + rng.uniform(-0.05, 0.05, 7)
+        d1, d2 = sc.distances(q1).distance, sc.distances(q2).distance
+        assert np.all(np.abs(d2 - d1) <= B @ np.abs(q2 - q1) + 1e-12)
+    c = kr.SceneClearance(sc, self_clearance=0.01)
+    c.values(q0)  # exact here
+    skipped = 0
+    for k in range(1, 30):
+        q = q0 + 1e-3 * k * np.sin(np.arange(7) + k)
+        lower, true = c.values(q), sc.distances(q).distance - c.clearances  # every pair exactly
+        assert np.all(lower <= true + 1e-12)
+        skipped += not np.array_equal(lower, true)
+    assert skipped > 5

@@ -28,7 +28,7 @@ from kinredund.geometry.collision_model import CAPSULE_RADIUS, robot_geometry
 from kinredund.geometry.engine import Workspace
 from kinredund.geometry.pairs import PairMatrix, self_pairs
 from kinredund.geometry.records import DistanceRows, Distances
-from kinredund.model.robot import Robot
+from kinredund.model.robot import Robot, robot_revolute
 
 SHAPES = ("box", "sphere", "cylinder", "capsule", "convex", "mesh")
 
@@ -260,6 +260,29 @@ class Scene:
         ws = self.workspace()
         ws.place(self._q(q))
         return ws.gdata.oMg[self._names.index(name)].homogeneous
+
+    def motion_bound(self) -> np.ndarray:
+        """B (pairs, n) [m/rad or m/m]: along a straight joint path from q to q', the distance of checked pair k
+        changes by at most sum_j B[k, j] |q'_j - q_j| (in the order of :attr:`pairs`).
+
+        Configuration-independent: an object's points stay within L_j of joint j's origin, L_j its bounding
+        spheres' farthest reach through the chain (the joint offsets' lengths summed: the triangle inequality),
+        so a revolute joint j moves them by at most L_j |dq_j| (a prismatic one by |dq_j|). A joint that moves
+        both objects of a pair moves them rigidly together and leaves their distance alone.
+        """
+        model = self.robot.model
+        revolute = robot_revolute(model)
+        joints, centres, radii = self._spheres
+        far = np.linalg.norm(centres, axis=2).max(axis=1, initial=0.0) + radii.max(axis=1, initial=0.0)
+        L = np.zeros((len(joints), model.nv))  # per object
+        for o, k in enumerate(joints):
+            reach, j = float(far[o]), int(k)
+            while j > 0:  # joint j moves object o: its origin is within `reach` of every point of it
+                L[o, model.idx_vs[j]] = reach if revolute[j - 1] else 1.0
+                reach += float(np.linalg.norm(model.jointPlacements[j].translation))
+                j = model.parents[j]
+        a, b = L[self._first], L[self._second]
+        return np.where((a > 0) & (b > 0), 0.0, a + b)
 
     # -- queries --------------------------------------------------------------------------------
     def _candidates(self, ws: Workspace, influence) -> np.ndarray:

@@ -17,6 +17,13 @@ broadphase); any other pair is farther apart than ``influence``, and its row rep
 and no switch is located on it; a pair is computed exactly from the step on which it comes within
 ``influence`` (the default, the largest clearance + 5 cm, is far beyond a step's motion).
 
+Between steps the stepper asks only for the values, to see whether a row has been reached. While every row
+is far from zero these need no query: along a straight joint path pair k's distance changes by at most
+sum_j B_kj |dq_j| (``Scene.motion_bound``), so the last exact values lowered by that amount are lower
+bounds; a query is made when one of them comes within :data:`SKIP_MARGIN` of zero, and always for rows,
+gradients and curvature. So ``values`` (and the record's smallest value per point) are exact near the
+clearances and lower bounds elsewhere.
+
 The curvature term (the rows' share of M in the system, :meth:`SceneClearance.curvature`) holds the witness
 points fixed to their bodies: sum_k w_k n_k^T (Hess p_b - Hess p_a) from the kinematics layer's point
 Hessians. It ignores the surfaces' curvature at the witness points (and the turning of the normal), so it
@@ -33,12 +40,13 @@ import threading
 import numpy as np
 
 from kinredund.errors import OptionError, check_choice
-from kinredund.geometry.records import DistanceRows
 from kinredund.geometry.scene import Scene
 from kinredund.tracking.constraints.base import Constraint
 
 #: how :meth:`SceneClearance.curvature` is taken (class docstring)
 CURVATURES = ("differences", "witness")
+#: a values-only query is skipped while every row's lower bound stays above this [m] (class docstring)
+SKIP_MARGIN = 0.005
 #: the default broadphase reach beyond the largest clearance [m]
 INFLUENCE_MARGIN = 0.05
 
@@ -97,11 +105,13 @@ class SceneClearance(Constraint):
         self.pairs = tuple(self._scene_pairs[k] for k in index)
         self._row = np.full(len(self._scene_pairs), -1)
         self._row[self.index] = np.arange(len(index))
+        self._pair_index = {p: k for k, p in enumerate(self._scene_pairs)}
         top = float(self.clearances.max())
         self.influence = top + INFLUENCE_MARGIN if influence is None else _clearance(influence, "the influence")
         if not self.influence > top:
             raise OptionError(f"the influence ({self.influence} m) must exceed the largest clearance ({top} m): "
                               "a pair beyond it must not be able to be under its clearance")
+        self._bound = scene.motion_bound()[self.index]  # row k's distance changes by at most bound[k] @ |dq|
         self._local = threading.local()
 
     @property
@@ -111,29 +121,41 @@ class SceneClearance(Constraint):
     def names(self) -> list[str]:
         return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
 
-    def _query(self, q: np.ndarray) -> tuple[DistanceRows, np.ndarray, np.ndarray, np.ndarray]:
-        """(the scene's distance rows within the influence, their rows here, c (size,), G (size, n)) at q,
-        kept for the last q of this thread (the stepper asks for values, rows and curvature at one q)."""
+    def _query(self, q: np.ndarray, rows: bool = True) -> tuple:
+        """(the scene's record within the influence, its entries that are rows here, their rows, c (size,),
+        G (size, n) or None) at q; G only where ``rows`` (a values-only query skips the Jacobians). Kept for
+        the last q of this thread (the stepper asks for values, rows and curvature at one q)."""
         if self.scene.pairs is not self._scene_pairs:
             raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
         q = np.asarray(q, float)
         last = getattr(self._local, "last", None)
-        if last is not None and np.array_equal(last[0], q):
+        if last is not None and (last[1][4] is not None or not rows) and np.array_equal(last[0], q):
             return last[1]
-        rec = self.scene.distance_rows(q, self.influence)
-        keep = self._row[rec.index]
+        if not rows and last is not None:  # far from every clearance: the last exact values, lowered
+            lower = last[1][3] - self._bound @ np.abs(q - last[0])
+            if float(lower.min()) > SKIP_MARGIN:
+                return (None, None, None, lower, None)
+        if rows:
+            rec = self.scene.distance_rows(q, self.influence)
+            d, index = rec.d, rec.index
+        else:
+            rec = self.scene.distances(q, self.influence)
+            d, index = rec.distance, np.array([self._pair_index[p] for p in rec.pairs], dtype=int)
+        keep = self._row[index]
         mine = np.flatnonzero(keep >= 0)
-        rows = keep[mine]
+        here = keep[mine]
         c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
-        c[rows] = rec.d[mine] - self.clearances[rows]
-        G = np.zeros((self.size, len(q)))
-        G[rows] = rec.G[mine]
-        out = (rec, mine, rows, c, G)
+        c[here] = d[mine] - self.clearances[here]
+        G = None
+        if rows:
+            G = np.zeros((self.size, len(q)))
+            G[here] = rec.G[mine]
+        out = (rec, mine, here, c, G)
         self._local.last = (q.copy(), out)
         return out
 
     def values(self, q: np.ndarray) -> np.ndarray:
-        return self._query(q)[3].copy()
+        return self._query(q, rows=False)[3].copy()
 
     def gradients(self, q: np.ndarray) -> np.ndarray:
         return self._query(q)[4].copy()
@@ -144,7 +166,7 @@ class SceneClearance(Constraint):
 
     def distance(self, q: np.ndarray) -> np.ndarray:
         """The pairs' distances d [m] (size,), the ones beyond the influence as the lower bound ``influence``."""
-        return self._query(q)[3] + self.clearances
+        return self._query(q, rows=False)[3] + self.clearances
 
     def curvature(self, q: np.ndarray, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """sum_i w_i Hess c_i over ``rows``: central differences of the rows (``curvature="differences"``,
