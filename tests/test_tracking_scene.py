@@ -227,3 +227,16 @@ def test_skipped_queries_give_lower_bounds():
         assert np.all(lower <= true + 1e-12)
         skipped += not np.array_equal(lower, true)
     assert skipped > 5
+
+
+def test_gradient_against_differences():
+    """G of the ball's row against central differences of its value (step 1e-6: O(1e-12) error), where the
+    free optimum is closest to the ball."""
+    sc = setup()[4]
+    free = run(with_scene=False)
+    q = free.q[int(np.argmin(ball_distance(sc, free.q)))]
+    c = kr.SceneClearance(sc, self_clearance=None)
+    i = c.pairs.index(("panda_link3_0", "ball"))
+    E = np.eye(7) * 1e-6
+    fd = np.array([(c.rows_at(q + e)[0][i] - c.rows_at(q - e)[0][i]) / 2e-6 for e in E])
+    assert np.abs(c.gradients(q)[i] - fd).max() <= 1e-8
