@@ -240,3 +240,24 @@ def test_gradient_against_differences():
     E = np.eye(7) * 1e-6
     fd = np.array([(c.rows_at(q + e)[0][i] - c.rows_at(q - e)[0][i]) / 2e-6 for e in E])
     assert np.abs(c.gradients(q)[i] - fd).max() <= 1e-8
+
+
+class _Row:
+    """Row i of a constraint as a one-row constraint (for test_tracking_clearance's kkt_check)."""
+
+    def __init__(self, c, i):
+        self.c, self.i = c, i
+
+    def gradients(self, q):
+        return self.c.gradients(q)[self.i: self.i + 1]
+
+
+def test_first_order_conditions_with_the_ball_row_hold_independently():
+    """At every point grad z vanishes on the null space of [J; G_active; e_fixed] (an SVD basis, G afresh from
+    the scene), and the least-squares multipliers of the active rows and bounds have the right sign."""
+    from test_tracking_clearance import kkt_check
+
+    r, path, index, q0, sc = setup()
+    c = kr.SceneClearance(sc, self_clearance=None)
+    worst, seen = kkt_check(r, index, run(), [_Row(c, i) for i in range(c.size)])
+    assert seen > 10 and worst <= 1e-9
