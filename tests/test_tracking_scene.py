@@ -261,3 +261,31 @@ def test_first_order_conditions_with_the_ball_row_hold_independently():
     c = kr.SceneClearance(sc, self_clearance=None)
     worst, seen = kkt_check(r, index, run(), [_Row(c, i) for i in range(c.size)])
     assert seen > 10 and worst <= 1e-9
+
+
+def test_switching_times_agree_with_bisection():
+    """The ball's row is met and left where the within-limits optimum's distance to the ball crosses the
+    clearance (nu = 0 at both): bisection on it, the optimum from the bounded joint-level IK (to 1e-12: ~1e-10 s
+    at the ~0.01 m/s the distance changes) and
+    the distance from coal, independent of the tracker's Brent search, to 1e-9 s."""
+    r, path, index, _, sc = setup()
+    tr = run()
+    dt = tr.meta["dt"]
+
+    def margin(t, seed):
+        res = kr.solve_ik(r, path(t).p, index, q0=seed, bounds=True, tol=1e-12)
+        assert res.converged
+        return float(ball_distance(sc, res.q)[0]) - CLEARANCE
+
+    rows = [w for w in tr.meta["switches"] if w.get("constraint")]
+    assert [w["kind"] for w in rows] == ["reach", "release"]
+    for w in rows:
+        seed = np.array(w["q"])
+        lo, hi = w["t"] - 0.5 * dt, w["t"] + 0.5 * dt
+        f_lo = margin(lo, seed)
+        assert f_lo * margin(hi, seed) < 0  # a crossing in the bracket
+        while hi - lo > 1e-11:
+            mid = 0.5 * (lo + hi)
+            f = margin(mid, seed)
+            lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
+        assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
