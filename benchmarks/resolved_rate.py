@@ -35,7 +35,9 @@ from a second pass where our default steps and pink's take their steps in turn, 
 that drift and background load hit them alike (``in_turn_us``). With the joint limits held
 (``limits=True``): the step on the same path (``step_limits_us``, no bound is met there) in turn with
 pink's limited step (``limits_over_pink``), and the step over one loop of :data:`SWITCHING_CIRCLE`,
-where joint 4 meets its limit and leaves it (median, mean, the rate QP's share). Run:
+where joint 4 meets its limit and leaves it (median, mean, the rate QP's share). With a Scene (issue 27):
+the step with five obstacles and the robot's own pairs held apart against the step with the limits only, in
+turn (``scene_over_limits``), and the share of it in the distance queries (``scene_query_share``). Run:
 ``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
 ``pip install .[bench]``; without it the pink columns are left out). The JSON holds ``robots`` (the
 figures per robot) and ``keys`` (what each figure times).
@@ -91,6 +93,12 @@ KEYS = {
     "evals_per_step": "evaluations of the scheme per default-mode step (augmented), two loops",
     "predictor_miss_median": "median |q_predicted - q_corrected| [rad] of the default mode's predictor, second loop",
     "predictor_miss_max": "largest |q_predicted - q_corrected| [rad], second loop",
+    "scene_in_turn_us": "Tracker.step() with a five-object scene and the self pairs held apart (scene=, 2 cm and "
+                        "1 cm; SCENE_OBJECTS, none active on the path) and with the limits only, in turn (Panda)",
+    "scene_over_limits": "scene_in_turn_us: step_scene_us / step_limits_us (issue 27's target <= 1.5)",
+    "scene_query_share": "share of the scene step's time in SceneClearance's distance queries (coal, broadphase, rows)",
+    "scene_pairs": "pairs the scene checks (rows of the constraint)",
+    "scene_pairs_near": "of those, the pairs within the influence distance (computed by coal) at the end",
     "default_over_pink": "in_turn_us: step_default_us / pink_step_us",
     "default_velocity_over_pink": "in_turn_us: step_default_velocity_us / pink_step_us",
 }
@@ -198,6 +206,7 @@ def bench(name: str, steps: int) -> dict:
             out["limits_in_turn_us"] = turn
             out["limits_over_pink"] = turn["step_limits_us"] / turn["pink_limits_step_us"]
         out.update(switching_figures())
+        out.update(scene_figures(robot, path, index, q0, dt, steps))
     out.update(predictor_figures(robot, path, index, q0, dt))
     # with their defaults (limits held) where the start is inside the limits; Example 4.3's is not
     out.update(record_figures(robot, path, index, q0, repeat=max(1, min(5, steps // 200)), limits=name == "panda"))
@@ -251,6 +260,54 @@ def switching_figures() -> dict:
         with_switch += len(stepper.switches) > before
     return {"switching_step_us": float(np.median(times) * 1e6), "switching_step_mean_us": float(times.mean() * 1e6),
             "switching_steps_with_switch": with_switch, "switching_qp_share": qp_time[0] / float(times.sum())}
+
+
+#: five obstacles around the Panda circle's workspace (name, shape, size or radius [m], position [m]): clear of
+#: the arm by 17-39 cm along the path (none active), the broadphase passing about 5 of the 124 pairs to coal
+SCENE_OBJECTS = (("table", "box", [0.8, 0.8, 0.04], [0.45, 0.0, -0.05]),
+                 ("post", "box", [0.06, 0.06, 0.8], [0.75, -0.35, 0.4]),
+                 ("ball", "sphere", 0.06, [0.3, 0.45, 0.5]),
+                 ("shelf", "box", [0.3, 0.2, 0.02], [0.3, -0.55, 0.7]),
+                 ("lamp", "sphere", 0.05, [0.0, 0.0, 1.25]))
+
+
+def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
+    """The step with :data:`SCENE_OBJECTS` and the robot's own pairs held apart (2 cm, 1 cm) against the step
+    with the limits only, in turn; the share of the scene step spent in the distance queries."""
+    import time
+
+    import kinredund
+    from kinredund.tracking.constraints.scene import SceneClearance
+
+    scene = kinredund.Scene(robot)
+    for name, shape, size, pos in SCENE_OBJECTS:
+        if shape == "box":
+            scene.add_box(name, size, pos)
+        else:
+            scene.add_sphere(name, size, pos)
+    with_scene = Tracker(robot, path, index, q0, dt, scene=scene)
+    plain = Tracker(robot, path, index, q0, dt, limits=True)
+    constraint = with_scene.stepper.general[0]
+    spent, query = [0.0], SceneClearance._query
+
+    def timed_query(q, rows=True):
+        t0 = time.perf_counter()
+        try:
+            return query(constraint, q, rows)
+        finally:
+            spent[0] += time.perf_counter() - t0
+
+    constraint._query = timed_query
+    turn = {k: v["median_us"] for k, v in time_in_turn({"step_scene_us": with_scene.step,
+                                                        "step_limits_us": plain.step}, steps, 5).items()}
+    spent[0] = 0.0
+    t0 = time.perf_counter()
+    for _ in range(200):
+        with_scene.step()
+    total = time.perf_counter() - t0
+    return {"scene_in_turn_us": turn, "scene_over_limits": turn["step_scene_us"] / turn["step_limits_us"],
+            "scene_query_share": spent[0] / total, "scene_pairs": constraint.size,
+            "scene_pairs_near": len(scene.distance_rows(with_scene.q, constraint.influence).pairs)}
 
 
 def record_figures(robot, path, index, q0, repeat: int = 5, loops: int = 2, limits: bool = True) -> dict:
@@ -343,6 +400,12 @@ def main() -> None:
               + f"; on a circle with switches: median {panda['switching_step_us']:.3g} us, mean "
               f"{panda['switching_step_mean_us']:.3g} us ({panda['switching_steps_with_switch']} steps with a switch), "
               f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP")
+    if "scene_over_limits" in panda:
+        turn = panda["scene_in_turn_us"]
+        print(f"Panda, five-object scene and self pairs held: step {turn['step_scene_us']:.3g} us against "
+              f"{turn['step_limits_us']:.3g} us with the limits only: {panda['scene_over_limits']:.2f} (target <= "
+              f"1.5); {100 * panda['scene_query_share']:.2g} % of it in the distance queries "
+              f"({panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
     for name, r in results.items():
         print(f"{name}: track() {r['track_step_us']:.3g} us per step against Tracker.step() {r['tracker_step_us']:.3g} "
               f"us: ratio {r['track_over_step']:.2f} (target <= 1.3); {r['track_read_over_step']:.2f} with its "

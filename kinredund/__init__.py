@@ -63,7 +63,7 @@ from kinredund.paths import (
 )
 from kinredund.planning.cyclic import CyclicPlan, plan
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking import JointLimits, PlaneClearance, SphereClearance, Tracker, track
+from kinredund.tracking import JointLimits, PlaneClearance, SceneClearance, SphereClearance, Tracker, track
 from kinredund.trajectory import Trajectory
 
 __version__ = _version("kinredund")
@@ -96,6 +96,7 @@ __all__ = [
     "PathError",
     "PathSample",
     "PlaneClearance",
+    "SceneClearance",
     "Robot",
     "SampledPath",
     "Scene",

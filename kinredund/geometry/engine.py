@@ -23,6 +23,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from kinredund.kinematics.state import point_curvature
+
 #: GJK's stopping tolerance (coal's default is 1e-6): separated distances to ~1e-9 m, at no measurable cost on
 #: the Panda's hulls, so that the rates can be checked by central differences
 GJK_TOLERANCE = 1e-9
@@ -171,3 +173,17 @@ class Workspace:
         coef = np.concatenate([n, _cross(p, n)], axis=1)  # (2k, 6) against the rows [v; omega]
         both = (coef @ self.data.J) * self._supports.take(joints, axis=0)
         return both[:k] + both[k:]
+
+    def curvature(self, q: np.ndarray, ks: np.ndarray, weight: np.ndarray, normal: np.ndarray, point_a: np.ndarray,
+                  point_b: np.ndarray) -> np.ndarray:
+        """sum_k w_k n_k^T (Hess p_b - Hess p_a) (n, n) over pairs ``ks`` at q: the witness points held fixed to
+        their bodies (:func:`~kinredund.kinematics.state.point_curvature`; a world object's point is fixed).
+
+        The distance's own Hessian adds the surfaces' curvature at the witness points (and the turning of the
+        normal), which this leaves out: it is exact for a pair of flat faces, and for a distance row used as a
+        constraint it changes only the Newton corrector's rate, not the point it converges to.
+        """
+        pin.computeJointJacobians(self.model, self.data, q)
+        joints = np.concatenate([self.joints.take(self.first.take(ks)), self.joints.take(self.second.take(ks))])
+        coef = np.concatenate([-normal, normal]) * np.concatenate([weight, weight])[:, None]
+        return point_curvature(self.model, self.data, joints, np.concatenate([point_a, point_b]), coef)

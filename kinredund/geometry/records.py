@@ -76,12 +76,19 @@ class DistanceRows:
         d: their signed distances [m], shape (k,).
         G: rows n^T (J_b(p_b) - J_a(p_a)) [m/rad], shape (k, n) (``kinredund.geometry.engine``).
         influence: the broadphase distance [m] or None.
+        index: the pairs' positions in ``scene.pairs`` (k,) (stable while the scene is unchanged).
+        normal, point_a, point_b: the unit normals (first to second object) and witness points [m], world
+            frame, shape (k, 3) each: what ``scene.distance_curvature`` takes.
     """
 
     pairs: tuple[tuple[str, str], ...]
     d: np.ndarray
     G: np.ndarray
     influence: float | None
+    index: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    point_a: np.ndarray | None = None
+    point_b: np.ndarray | None = None
 
     def __iter__(self):
         return iter((self.d, self.G))

@@ -28,7 +28,7 @@ from kinredund.geometry.collision_model import CAPSULE_RADIUS, robot_geometry
 from kinredund.geometry.engine import Workspace
 from kinredund.geometry.pairs import PairMatrix, self_pairs
 from kinredund.geometry.records import DistanceRows, Distances
-from kinredund.model.robot import Robot
+from kinredund.model.robot import Robot, robot_revolute
 
 SHAPES = ("box", "sphere", "cylinder", "capsule", "convex", "mesh")
 
@@ -261,6 +261,29 @@ class Scene:
         ws.place(self._q(q))
         return ws.gdata.oMg[self._names.index(name)].homogeneous
 
+    def motion_bound(self) -> np.ndarray:
+        """B (pairs, n) [m/rad or m/m]: along a straight joint path from q to q', the distance of checked pair k
+        changes by at most sum_j B[k, j] |q'_j - q_j| (in the order of :attr:`pairs`).
+
+        Configuration-independent: an object's points stay within L_j of joint j's origin, L_j its bounding
+        spheres' farthest reach through the chain (the joint offsets' lengths summed: the triangle inequality),
+        so a revolute joint j moves them by at most L_j |dq_j| (a prismatic one by |dq_j|). A joint that moves
+        both objects of a pair moves them rigidly together and leaves their distance alone.
+        """
+        model = self.robot.model
+        revolute = robot_revolute(model)
+        joints, centres, radii = self._spheres
+        far = np.linalg.norm(centres, axis=2).max(axis=1, initial=0.0) + radii.max(axis=1, initial=0.0)
+        L = np.zeros((len(joints), model.nv))  # per object
+        for o, k in enumerate(joints):
+            reach, j = float(far[o]), int(k)
+            while j > 0:  # joint j moves object o: its origin is within `reach` of every point of it
+                L[o, model.idx_vs[j]] = reach if revolute[j - 1] else 1.0
+                reach += float(np.linalg.norm(model.jointPlacements[j].translation))
+                j = model.parents[j]
+        a, b = L[self._first], L[self._second]
+        return np.where((a > 0) & (b > 0), 0.0, a + b)
+
     # -- queries --------------------------------------------------------------------------------
     def _candidates(self, ws: Workspace, influence) -> np.ndarray:
         if influence is None:
@@ -314,8 +337,23 @@ class Scene:
         ``G[k] = n_k^T (J_b(p_b) - J_a(p_a))`` at the witness points (``kinredund.geometry.engine``).
         """
         q, ws, ks, d, n, pa, pb = self._exact(q, influence)
+        influence = None if influence is None else float(influence)
         if not len(ks):
-            return DistanceRows((), d, np.zeros((0, self.robot.nq)), None if influence is None else float(influence))
+            return DistanceRows((), d, np.zeros((0, self.robot.nq)), influence, np.zeros(0, int), n, pa, pb)
         G = ws.rows(q, ks, n, pa, pb)
-        return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G,
-                            None if influence is None else float(influence))
+        return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G, influence, np.asarray(ks), n, pa, pb)
+
+    def distance_curvature(self, q, rows: DistanceRows, weights) -> np.ndarray:
+        """sum_k w_k n_k^T (Hess p_b - Hess p_a) [m/rad^2] (n, n): the second-order term of the distance rows
+        ``rows`` (from :meth:`distance_rows` at the same q), the witness points held fixed to their bodies.
+
+        It leaves out the surfaces' curvature at the witness points (exact for flat faces); as a constraint's
+        share of the tracker's system it changes the Newton corrector's rate only
+        (:meth:`~kinredund.geometry.engine.Workspace.curvature`).
+        """
+        q = self._q(q)
+        w = np.asarray(weights, dtype=float)
+        if rows.index is None or w.shape != (len(rows.pairs),):
+            raise GeometryError(f"weights must be one number per row ({len(rows.pairs)}) of a distance_rows() record")
+        ws = self.workspace()
+        return ws.curvature(q, rows.index, w, rows.normal, rows.point_a, rows.point_b)

@@ -119,6 +119,39 @@ class Kinematics:
         return _rows(J, model.nv), self._origins(M)
 
 
+def point_curvature(model: pin.Model, data, joints: np.ndarray, points: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """sum_k coef_k^T Hess p_k (n, n): the second derivatives of material points' positions, contracted.
+
+    p_k is the point of joint ``joints[k]``'s body at world position ``points[k]`` [m] (it moves with that
+    body), ``coef[k]`` a 3-vector (e.g. a distance row's normal, with its multiplier). With the body's
+    world-frame Jacobian [v; omega] (v the velocity of the body point at the world origin),
+    dp/dq_i = v_i + omega_i x p, so
+
+        d2p/dq_i dq_k = dv_i/dq_k + domega_i/dq_k x p + omega_i x (v_k + omega_k x p),
+
+    from Pinocchio's kinematic Hessians (layout fixed as :func:`fix_hessian_layout`). Needs ``data`` after
+    ``pin.computeJointJacobians(model, data, q)`` at the q of the points; symmetrised (the exact Hessian is).
+    """
+    pin.computeJointKinematicHessians(model, data)
+    n = model.nv
+    H = np.zeros((n, n))
+    world = pin.ReferenceFrame.WORLD
+    for j in np.unique(joints):
+        if j == 0:  # the world: a fixed point
+            continue
+        mine = np.flatnonzero(joints == j)
+        a = coef[mine].sum(axis=0)
+        b = np.cross(points[mine], coef[mine]).sum(axis=0)  # sum_k p_k x c_k
+        dJ = fix_hessian_layout(pin.getJointKinematicHessian(model, data, int(j), world))  # [a, i, k]
+        H += np.tensordot(np.concatenate([a, b]), dJ, axes=(0, 0))  # c.dv_i/dq_k + (p x c).domega_i/dq_k
+        J = pin.getJointJacobian(model, data, int(j), world).reshape(6, n)
+        v, w = J[:3], J[3:]
+        for k in mine:  # c . (omega_i x Jp_k) = omega_i . (Jp_k x c)
+            Jp = v + np.cross(w.T, points[k]).T
+            H += w.T @ np.cross(Jp.T, coef[k]).T
+    return 0.5 * (H + H.T)
+
+
 class HessianContraction:
     """dK of one configuration in Pinocchio's buffer, contracted on demand: sum_a mu_a dK[a, i, k].
 

@@ -14,9 +14,9 @@
   inequality rows); the stepper's state as one value in :mod:`.state`.
 """
 
-from kinredund.tracking.constraints import Constraint, JointLimits, PlaneClearance, SphereClearance
+from kinredund.tracking.constraints import Constraint, JointLimits, PlaneClearance, SceneClearance, SphereClearance
 from kinredund.tracking.run import MAX_STEPS, track
 from kinredund.tracking.tracker import LINEAR_SOLVERS, MODES, QP_BACKENDS, SCHEMES, Tracker
 
 __all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Constraint", "JointLimits",
-           "PlaneClearance", "SphereClearance", "Tracker", "track"]
+           "PlaneClearance", "SceneClearance", "SphereClearance", "Tracker", "track"]

@@ -59,15 +59,15 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
           steps_per_loop: int = 200, loops: int = 1, duration: float | None = None, steps: int | None = None,
           linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
           diagnostics: bool = True, liegeois_gain: float = 1.0, limits=None, project_start: bool = False,
-          strict: bool = True, constraints=None, qp_solver: str = "proxqp", progress=None,
-          meta: dict | None = None) -> Trajectory:
+          strict: bool = True, constraints=None, qp_solver: str = "proxqp", scene=None, clearance=None,
+          self_clearance=None, progress=None, meta: dict | None = None) -> Trajectory:
     """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
 
     Args:
         robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, limits,
-            project_start, strict, constraints, qp_solver: as for :class:`~kinredund.tracking.tracker.Tracker`
-            (by default the
-            default mode's optimal schemes keep the joints within the robot's limits; ``limits=False`` is
+            project_start, strict, constraints, qp_solver, scene, clearance, self_clearance: as for
+            :class:`~kinredund.tracking.tracker.Tracker` (by default the default mode's optimal schemes
+            keep the joints within the robot's limits; ``limits=False`` is
             the thesis's unconstrained scheme; ``strict`` the step control and the fold and singularity
             watch).
         steps_per_loop, loops: a closed path's steps per loop and loops (integers >= 1, at most
@@ -92,7 +92,8 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
     """
     options = {"scheme": scheme, "mode": mode, "linear_solver": linear_solver, "qp_backend": qp_backend, "tol": tol,
                "liegeois_gain": liegeois_gain, "limits": limits, "project_start": project_start, "strict": strict,
-               "constraints": constraints, "qp_solver": qp_solver}
+               "constraints": constraints, "qp_solver": qp_solver,
+               "scene": scene, "clearance": clearance, "self_clearance": self_clearance}
     span = {"steps_per_loop": steps_per_loop, "loops": loops, "duration": duration, "steps": steps}
     traj = _run(robot, path, index, q0, span, options, diagnostics, progress, meta)
     say_open_loop(traj, scheme, mode)

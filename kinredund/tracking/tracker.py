@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from kinredund.errors import OptionError, PathError, check_choice, check_flag, check_positive
+from kinredund.geometry.scene import Scene
 from kinredund.ik.solve import check_index_at
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
@@ -36,6 +37,7 @@ from kinredund.paths import Path
 from kinredund.tasks import get_task
 from kinredund.tracking.baselines import Liegeois, Pseudoinverse
 from kinredund.tracking.constraints.joint_limits import JointLimits
+from kinredund.tracking.constraints.scene import SceneClearance
 from kinredund.tracking.explicit import ExplicitEuler
 from kinredund.tracking.limited import LimitedPredictorCorrector
 from kinredund.tracking.point import Evaluator
@@ -105,6 +107,11 @@ class Tracker:
             :class:`~kinredund.tracking.constraints.SphereClearance`; :mod:`kinredund.tracking.rows`): the run
             stops with ``cause="collision"`` where one cannot be held. ``qp_solver``: the rate QP's solver at a
             weakly active row (``proxqp``, or ``daqp`` where installed).
+        scene, clearance, self_clearance: a :class:`~kinredund.geometry.scene.Scene` whose pairs are held apart
+            (a :class:`~kinredund.tracking.constraints.SceneClearance` added to ``constraints``): ``clearance``
+            [m] from its obstacles (default 0.02) and ``self_clearance`` [m] between the robot's own objects
+            (default 0.01, MoveIt Servo's; ``False`` leaves them unchecked). A ``q0`` under a clearance is
+            refused (``cause="collision"``, naming the pair and by how much).
         strict: the default mode's step control, jump check and fold and singularity watch
             (:mod:`kinredund.tracking.step_control`; on by default): a step the corrector fails is retried in
             sub-steps, and the run stops before a fold or a singularity with a
@@ -133,7 +140,8 @@ class Tracker:
                  mode: str = "default", linear_solver: str | None = None, qp_backend: str | None = None,
                  tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0,
                  limits: bool | JointLimits | None = None, project_start: bool = False, strict: bool = True,
-                 constraints=None, qp_solver: str = "proxqp"):
+                 constraints=None, qp_solver: str = "proxqp", scene=None, clearance: float | None = None,
+                 self_clearance: float | bool | None = None):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -162,7 +170,8 @@ class Tracker:
         check_index_at(robot, index, q)  # a wrong length or a malformed custom index: said here, in its words
         limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
-        self.limits, constraints = limits, list(constraints or ())
+        self.limits, constraints = limits, list(constraints or ()) + scene_constraints(robot, scene, clearance,
+                                                                                       self_clearance)
         if constraints and not (mode == "default" and scheme in ("augmented", "velocity")):
             raise OptionError(f"constraints are held by the default mode's augmented and velocity schemes only, "
                               f"not by mode={mode!r}, scheme={scheme!r}")
@@ -211,3 +220,24 @@ class Tracker:
     lamdot = _from_stepper("lamdot", "The multipliers' rates at :attr:`t`.")
     solver = _from_stepper("solver", "The step's linear-solver label (``qp``, ``qp_aug``, ``lu``; ``lstsq`` for the "
                                      "baselines).")
+
+
+def scene_constraints(robot: Robot, scene, clearance, self_clearance) -> list:
+    """[SceneClearance] for ``track(..., scene=)`` (defaults 2 cm and 1 cm), [] without a scene.
+
+    Raises:
+        OptionError: a clearance without a scene, or a scene of another robot.
+    """
+    if scene is None:
+        if clearance is not None or self_clearance is not None:
+            raise OptionError("clearance and self_clearance need scene= (a kinredund Scene of this robot)")
+        return []
+    if not isinstance(scene, Scene):
+        raise OptionError(f"scene must be a kinredund Scene, got {type(scene).__name__}")
+    if list(scene.robot.joint_names) != list(robot.joint_names):
+        raise OptionError(f"the scene is of a robot with joints {list(scene.robot.joint_names)}, not the tracked "
+                          f"{list(robot.joint_names)}")
+    if self_clearance is True:
+        raise OptionError("self_clearance takes a distance [m] (default 0.01) or False, not True")
+    own = None if self_clearance is False else (0.01 if self_clearance is None else self_clearance)
+    return [SceneClearance(scene, 0.02 if clearance is None else clearance, own)]

@@ -59,6 +59,22 @@ def vector(text: str) -> np.ndarray:
     return np.array(values)
 
 
+def distance(text: str) -> float:
+    """A distance >= 0 [m] for argparse."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (np.isfinite(value) and value >= 0.0):
+        raise argparse.ArgumentTypeError(f"expected a distance >= 0 [m], got {text!r}")
+    return value
+
+
+def distance_or_off(text: str) -> float | bool:
+    """A distance >= 0 [m], or ``off`` (False), for argparse."""
+    return False if text == "off" else distance(text)
+
+
 def output_file(text: str) -> Path:
     """An argparse type: the path of an output file (:func:`kinredund.io.file_path`: ``out.csv/`` names a
     folder and is refused, not turned into ``out.csv``)."""
@@ -290,6 +306,14 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                    help="where tracking stops (a fold, a singularity, the path out of reach, ...), write the record "
                         "up to there with the failure's cause, time and last good configuration as JSON, which "
                         "`kinredund play` replays (default: not written)")
+    p.add_argument("--scene", type=Path, metavar="FILE",
+                   help="a scene file (JSON, docs/schema.md) whose objects, and the robot's own links, are held "
+                        "apart while tracking (the start is checked; a stop names the pair) (default: none)")
+    p.add_argument("--clearance", type=distance, default=None, metavar="M",
+                   help="with --scene: the least distance [m] from its obstacles (default: 0.02)")
+    p.add_argument("--self-clearance", type=distance_or_off, default=None, metavar="M|off",
+                   help="with --scene: the least distance [m] between the robot's own objects, or off "
+                        "(default: 0.01)")
 
     p = _sub(sub, commands, "ik", "joint-level (constrained) inverse kinematics",
              "Solve the joint-level problem of Eq. (4.3): reach the target and, with --index, minimise a "

@@ -6,11 +6,14 @@
   bounds);
 - :class:`~kinredund.tracking.constraints.clearance.SphereClearance`,
   :class:`~kinredund.tracking.constraints.clearance.PlaneClearance`: a frame's origin kept clear of a sphere
-  or a plane (general rows).
+  or a plane (general rows);
+- :class:`~kinredund.tracking.constraints.scene.SceneClearance`: every pair a
+  :class:`~kinredund.geometry.scene.Scene` checks kept its clearance apart (general rows, one per pair).
 """
 
 from kinredund.tracking.constraints.base import Constraint
 from kinredund.tracking.constraints.clearance import PlaneClearance, SphereClearance
 from kinredund.tracking.constraints.joint_limits import JointLimits
+from kinredund.tracking.constraints.scene import SceneClearance
 
-__all__ = ["Constraint", "JointLimits", "PlaneClearance", "SphereClearance"]
+__all__ = ["Constraint", "JointLimits", "PlaneClearance", "SceneClearance", "SphereClearance"]

@@ -1,0 +1,197 @@
+"""A Scene's distances held as general inequality rows: every checked pair kept its clearance apart (issue 27).
+
+One row per pair the :class:`~kinredund.geometry.scene.Scene` checks (its enabled self pairs and its objects'
+pairs), identified by the pair's position in ``scene.pairs``, so that a row keeps its number, and the active
+set its meaning, from step to step while witness points and normals move:
+
+    c_k(theta) = d_k(theta) - clearance_k >= 0,   grad c_k = G_k = n_k^T (J_b(p_b) - J_a(p_a)),
+
+with d_k the signed distance [m] of pair k (coal, through ``scene.distance_rows``), n_k the unit normal from
+its first object to its second and p_a, p_b the witness points. ``clearance_k`` is ``self_clearance`` for a
+pair of two objects that move with the robot (its links, and objects attached to it) and ``clearance`` for a
+pair with a world obstacle (MoveIt Servo's defaults: 1 cm and 2 cm).
+
+Only pairs whose bounding spheres come within ``influence`` [m] are computed exactly (the Scene's
+broadphase); any other pair is farther apart than ``influence``, and its row reports the lower bound
+``influence - clearance_k`` > 0 with a zero gradient. Such a row is never near zero, so it is never active
+and no switch is located on it; a pair is computed exactly from the step on which it comes within
+``influence`` (the default, the largest clearance + 5 cm, is far beyond a step's motion).
+
+Between steps the stepper asks only for the values, to see whether a row has been reached. While every row
+is far from zero these need no query: along a straight joint path pair k's distance changes by at most
+sum_j B_kj |dq_j| (``Scene.motion_bound``), so the last exact values lowered by that amount are lower
+bounds; a query is made when one of them comes within :data:`SKIP_MARGIN` of zero, and always for rows,
+gradients and curvature. So ``values`` (and the record's smallest value per point) are exact near the
+clearances and lower bounds elsewhere.
+
+The curvature term (the rows' share of M in the system, :meth:`SceneClearance.curvature`) is by default
+taken by central differences of the rows (``curvature="differences"``: 2n queries of the near pairs, made
+only while a row is active), the true Hessian of the distance where it is twice differentiable. The
+alternative ``curvature="witness"`` holds the witness points fixed to their bodies: sum_k w_k n_k^T
+(Hess p_b - Hess p_a) from the kinematics layer's point Hessians (``Scene.distance_curvature``). It ignores
+the surfaces' curvature at the witness points and the turning of the normal, so it is exact between flat
+faces only. That does not move the first-order conditions the corrector holds (the task, c_A = 0,
+grad z + J^T lambda - G_A^T nu = 0), but M also gives the rates (Eq. 4.24) and with them the predictor:
+for a 5 cm sphere against the Panda's upper-arm hull it was 0.24 where the true Hessian is 2.2 (the
+sphere's curvature), and on one placement the corrector then failed (t = 3.64 s) where the differences
+went on; on the named test case both hold the clearance.
+
+Smoothness: a sphere (any strictly convex object) against a hull has a continuously differentiable distance
+while apart, so its row changes continuously as the witness feature changes (a face, an edge, a vertex).
+Between two polytopes (two hulls: the self pairs) it is not where faces or edges come parallel (the witness
+points are not unique); there the held optimum may jump, and the strict step control stops the run.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from kinredund.errors import OptionError, check_choice
+from kinredund.geometry.scene import Scene
+from kinredund.tracking.constraints.base import Constraint
+
+#: how :meth:`SceneClearance.curvature` is taken (class docstring)
+CURVATURES = ("differences", "witness")
+#: a values-only query is skipped while every row's lower bound stays above this [m] (class docstring)
+SKIP_MARGIN = 0.005
+#: the default broadphase reach beyond the largest clearance [m]
+INFLUENCE_MARGIN = 0.05
+
+
+def _clearance(value, what: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (np.isfinite(v) and v >= 0.0) or isinstance(value, bool):
+        raise OptionError(f"{what} must be a finite distance >= 0 [m], got {value!r}")
+    return v
+
+
+class SceneClearance(Constraint):
+    """Every pair ``scene`` checks kept ``clearance`` [m] apart (``self_clearance`` [m] for the robot's own).
+
+    Args:
+        scene: the :class:`~kinredund.geometry.scene.Scene` (its robot must be the tracked one). Do not change
+            it (add, move, ignore) while the constraint is in use: its rows are the scene's pairs at
+            construction.
+        clearance: the least distance [m] between the robot (and what it carries) and a world obstacle.
+        self_clearance: the least distance [m] between two of the robot's objects (attached ones included);
+            None leaves the robot's own pairs unchecked.
+        influence: the broadphase distance [m] (> the clearances): pairs surely farther apart are not computed.
+            Default: the largest clearance + :data:`INFLUENCE_MARGIN`.
+        curvature: ``"differences"`` (default) or ``"witness"``: how the rows' second derivatives are taken
+            (module docstring).
+
+    Raises:
+        OptionError: not a Scene, a clearance < 0 or not finite, an influence not above the clearances, a
+            scene that checks no pair (with these settings).
+    """
+
+    cause = "collision"
+
+    def __init__(self, scene: Scene, clearance: float = 0.02, self_clearance: float | None = 0.01,
+                 influence: float | None = None, curvature: str = "differences"):
+        check_choice("curvature of the distance rows", curvature, CURVATURES)
+        self.curvature_mode = curvature
+        if not isinstance(scene, Scene):
+            raise OptionError(f"scene must be a kinredund Scene, got {type(scene).__name__}")
+        self.scene, self.clearance = scene, _clearance(clearance, "the clearance")
+        self.self_clearance = None if self_clearance is None else _clearance(self_clearance, "the self clearance")
+        moving = set(scene.robot_objects) | {o for o in scene.objects if scene.object(o).attach_to is not None}
+        self._scene_pairs = scene.pairs
+        index, clear = [], []
+        for k, (a, b) in enumerate(self._scene_pairs):
+            own = a in moving and b in moving
+            if own and self.self_clearance is None:
+                continue
+            index.append(k)
+            clear.append(self.self_clearance if own else self.clearance)
+        if not index:
+            raise OptionError("the scene checks no pair (add an object, or check the robot's own pairs with "
+                              "self_clearance=...)")
+        self.index, self.clearances = np.array(index), np.array(clear)
+        self.pairs = tuple(self._scene_pairs[k] for k in index)
+        self._row = np.full(len(self._scene_pairs), -1)
+        self._row[self.index] = np.arange(len(index))
+        self._pair_index = {p: k for k, p in enumerate(self._scene_pairs)}
+        top = float(self.clearances.max())
+        self.influence = top + INFLUENCE_MARGIN if influence is None else _clearance(influence, "the influence")
+        if not self.influence > top:
+            raise OptionError(f"the influence ({self.influence} m) must exceed the largest clearance ({top} m): "
+                              "a pair beyond it must not be able to be under its clearance")
+        self._bound = scene.motion_bound()[self.index]  # row k's distance changes by at most bound[k] @ |dq|
+        self._local = threading.local()
+
+    @property
+    def size(self) -> int:
+        return len(self.index)
+
+    def names(self) -> list[str]:
+        return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
+
+    def _query(self, q: np.ndarray, rows: bool = True) -> tuple:
+        """(the scene's record within the influence, its entries that are rows here, their rows, c (size,),
+        G (size, n) or None) at q; G only where ``rows`` (a values-only query skips the Jacobians). Kept for
+        the last q of this thread (the stepper asks for values, rows and curvature at one q)."""
+        if self.scene.pairs is not self._scene_pairs:
+            raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
+        q = np.asarray(q, float)
+        last = getattr(self._local, "last", None)
+        if last is not None and (last[1][4] is not None or not rows) and np.array_equal(last[0], q):
+            return last[1]
+        if not rows and last is not None:  # far from every clearance: the last exact values, lowered
+            lower = last[1][3] - self._bound @ np.abs(q - last[0])
+            if float(lower.min()) > SKIP_MARGIN:
+                return (None, None, None, lower, None)
+        if rows:
+            rec = self.scene.distance_rows(q, self.influence)
+            d, index = rec.d, rec.index
+        else:
+            rec = self.scene.distances(q, self.influence)
+            d, index = rec.distance, np.array([self._pair_index[p] for p in rec.pairs], dtype=int)
+        keep = self._row[index]
+        mine = np.flatnonzero(keep >= 0)
+        here = keep[mine]
+        c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
+        c[here] = d[mine] - self.clearances[here]
+        G = None
+        if rows:
+            G = np.zeros((self.size, len(q)))
+            G[here] = rec.G[mine]
+        out = (rec, mine, here, c, G)
+        self._local.last = (q.copy(), out)
+        return out
+
+    def values(self, q: np.ndarray) -> np.ndarray:
+        return self._query(q, rows=False)[3].copy()
+
+    def gradients(self, q: np.ndarray) -> np.ndarray:
+        return self._query(q)[4].copy()
+
+    def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        out = self._query(q)
+        return out[3].copy(), out[4].copy()
+
+    def distance(self, q: np.ndarray) -> np.ndarray:
+        """The pairs' distances d [m] (size,), the ones beyond the influence as the lower bound ``influence``."""
+        return self._query(q, rows=False)[3] + self.clearances
+
+    def curvature(self, q: np.ndarray, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """sum_i w_i Hess c_i over ``rows``: central differences of the rows (``curvature="differences"``,
+        the true Hessian where the distance is twice differentiable), or ``"witness"``: sum_i w_i n_i^T
+        (Hess p_b - Hess p_a), the witness points fixed to their bodies (the surfaces' curvature left out:
+        module docstring); rows beyond the influence contribute nothing."""
+        if self.curvature_mode == "differences":
+            return super().curvature(q, w, rows)
+        rec, mine, here, _, _ = self._query(q)
+        weight = np.zeros(len(rec.pairs))
+        pos = {int(r): int(k) for r, k in zip(here, mine, strict=True)}
+        for wi, r in zip(np.asarray(w, float), np.asarray(rows, int), strict=True):
+            if int(r) in pos:
+                weight[pos[int(r)]] += wi
+        if not np.any(weight):
+            return np.zeros((len(q), len(q)))
+        return self.scene.distance_curvature(np.asarray(q, float), rec, weight)

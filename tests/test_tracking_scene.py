@@ -1,0 +1,291 @@
+"""A Scene's distances held in the tracker (issue 27): SceneClearance rows, track(..., scene=, clearance=).
+
+Named case ``panda_elbow_ball``: the circle ``panda_elbow_circle`` of test_tracking_limits with a 5 cm sphere
+put through the Scene where the within-limits optimum's upper arm (panda_link3's hull, at the elbow) passes:
+the free optimum runs 5 mm into it (2.5 cm under the 2 cm clearance) over part of the loop.
+Distances are checked afresh with coal
+(``scene.distances``) on the recorded configurations. Tolerances: the corrector holds the active row to
+~1e-12 (its tol); the bars are the issue's (1e-9 m clearance, 1e-10 closure and tracking, 1e-12 for the
+run without an active distance, which takes the same steps as the run without a scene).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from test_tracking_limits import case
+
+import kinredund as kr
+from kinredund.errors import OptionError, TrackingError
+from kinredund.kinematics.state import point_curvature
+
+#: the sphere's center [m] and radius [m], and the clearance [m] of the named case
+BALL = ([-0.3178, 0.2255, 0.3518], 0.05)
+CLEARANCE = 0.02
+
+
+@functools.cache
+def setup():
+    r, path, index, q0 = case("panda_elbow_circle")
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", BALL[1], BALL[0])
+    return r, path, index, q0, sc
+
+
+@functools.cache
+def run(loops=1, with_scene=True):
+    r, path, index, q0, sc = setup()
+    if not with_scene:
+        return kr.track(r, path, index, q0, loops=loops)
+    return kr.track(r, path, index, q0, loops=loops, scene=sc, clearance=CLEARANCE, self_clearance=False)
+
+
+def ball_distance(sc, qs) -> np.ndarray:
+    """The least distance [m] of the ball from the robot at each q, afresh from coal."""
+    return np.array([min(v for p, v in sc.distances(q).as_dict().items() if "ball" in p) for q in np.atleast_2d(qs)])
+
+
+def test_point_curvature_against_differences():
+    """sum c^T Hess p of a point fixed to a link (the kinematics layer's point Hessian) vs central differences."""
+    r = setup()[0]
+    m, rng = r.model, np.random.default_rng(3)
+    q = 0.5 * (r.lower + r.upper) + 0.3 * rng.standard_normal(7)
+    for j in (2, 4, 7):
+        loc, c = rng.standard_normal(3) * 0.1, rng.standard_normal(3)
+
+        def f(x, j=j, loc=loc, c=c):
+            d = m.createData()
+            pin.forwardKinematics(m, d, x)
+            return c @ d.oMi[j].act(loc)
+
+        e, n = 1e-4, len(q)
+        E = np.eye(n) * e
+        H = np.array([[(f(q + E[a] + E[b]) - f(q + E[a] - E[b]) - f(q - E[a] + E[b]) + f(q - E[a] - E[b]))
+                       / (4 * e * e) for b in range(n)] for a in range(n)])
+        d = m.createData()
+        pin.forwardKinematics(m, d, q)
+        p = d.oMi[j].act(loc)
+        pin.computeJointJacobians(m, d, q)
+        assert np.abs(point_curvature(m, d, np.array([j]), p[None], c[None]) - H).max() <= 1e-7  # O(e^2)
+
+
+def test_rows_are_the_scene_pairs_and_far_pairs_a_lower_bound():
+    r, path, index, q0, sc = setup()
+    c = kr.SceneClearance(sc, clearance=CLEARANCE, self_clearance=0.01)
+    assert c.size == len(sc.pairs) and c.pairs == sc.pairs  # one row per checked pair, in the scene's order
+    rows = sc.distance_rows(q0, c.influence)
+    vals, G = c.rows_at(q0)
+    for k, pair in enumerate(rows.pairs):
+        i = sc.pairs.index(pair)
+        own = "ball" not in pair
+        assert vals[i] == pytest.approx(rows.d[k] - (0.01 if own else CLEARANCE), abs=1e-15)
+        assert np.allclose(G[i], rows.G[k], rtol=0, atol=1e-15)
+    far = [i for i, p in enumerate(sc.pairs) if p not in rows.pairs]
+    assert far and np.all(sc.distances(q0).distance[far] > c.influence)  # the bound holds
+    assert np.all(vals[far] == c.influence - c.clearances[far]) and not G[far].any()
+    assert "ball" in c.names()[sc.pairs.index(("panda_link3_0", "ball"))]
+
+
+def test_witness_curvature_is_the_scene_s():
+    r, path, index, q0, sc = setup()
+    c = kr.SceneClearance(sc, self_clearance=None, curvature="witness")
+    rows = sc.distance_rows(q0, c.influence)
+    k = rows.pairs.index(("panda_link3_0", "ball"))
+    w = np.zeros(len(rows.pairs))
+    w[k] = 2.0
+    i = c.pairs.index(("panda_link3_0", "ball"))
+    assert np.allclose(c.curvature(q0, np.array([2.0]), np.array([i])), sc.distance_curvature(q0, rows, w),
+                       rtol=0, atol=1e-14)
+
+
+def test_the_free_optimum_runs_under_the_clearance():
+    d = ball_distance(setup()[4], run(with_scene=False).q)
+    assert d[0] > 0.1 and d.min() < -0.004  # the named case is what it claims: 5 mm into the ball
+
+
+def test_clearance_held_and_equal_to_the_free_run_where_inactive():
+    sc = setup()[4]
+    tr, free = run(), run(with_scene=False)
+    d = ball_distance(sc, tr.q)
+    assert d.min() >= CLEARANCE - 1e-9  # every recorded point, afresh with coal
+    sw = [w for w in tr.meta["switches"] if w.get("constraint")]
+    assert {w["kind"] for w in sw} == {"reach", "release"} and all("ball" in w["name"] for w in sw)
+    assert ball_distance(sc, np.array([w["q"] for w in sw])).min() >= CLEARANCE - 1e-9  # at the switching times
+    active = np.array([bool(a) for a in tr.meta["constraints"]["active"]])
+    assert 10 < active.sum() < len(active) - 10
+    assert np.abs(tr.q[~active] - free.q[~active]).max() <= 1e-12  # no distance active: the run without a scene
+    assert np.abs(tr.q[active] - free.q[active]).max() > 0.01  # and where one is, the arm is pushed out
+    assert tr.position_error.max() <= 1e-10 and tr.loop_drift.max() <= 1e-10
+
+
+@pytest.mark.slow
+def test_clearance_held_and_closed_after_ten_loops():
+    sc = setup()[4]
+    tr = run(loops=10)
+    assert ball_distance(sc, tr.q).min() >= CLEARANCE - 1e-9
+    assert tr.loop_drift.max() <= 1e-10 and tr.position_error.max() <= 1e-10
+
+
+def test_a_start_under_the_clearance_is_refused():
+    r, path, index, q0, _ = setup()
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", 0.05, sc.object_pose("panda_link4_0", q0)[:3, 3])  # in contact at the start
+    with pytest.raises(TrackingError, match=r"panda_link4_0 and ball kept 0.02 m apart by") as err:
+        kr.track(r, path, index, q0, scene=sc, self_clearance=False)
+    assert err.value.cause == "collision"
+    sc.move("ball", [0.0, 0.0, 2.0])  # clear, but under a clearance larger than its distance
+    d = ball_distance(sc, q0)[0]
+    with pytest.raises(TrackingError, match=r"ball kept .* apart by") as err:
+        kr.Tracker(r, path, index, q0, 0.01, scene=sc, clearance=d + 0.01, self_clearance=False)
+    assert err.value.cause == "collision" and "0.01" in str(err.value)
+
+
+def test_options_are_checked():
+    r, path, index, q0, sc = setup()
+    with pytest.raises(OptionError, match="need scene="):
+        kr.track(r, path, index, q0, clearance=0.02)
+    with pytest.raises(OptionError, match="clearance"):
+        kr.SceneClearance(sc, clearance=-0.01)
+    with pytest.raises(OptionError, match="influence"):
+        kr.SceneClearance(sc, clearance=0.05, influence=0.03)
+    c = kr.SceneClearance(sc, self_clearance=None)
+    sc2 = kr.Scene(r)
+    c2 = kr.SceneClearance(sc2)
+    sc2.add_sphere("late", 0.05, [2.0, 0.0, 0.0])
+    with pytest.raises(OptionError, match="changed"):
+        c2.values(q0)
+    assert c.size == sum("ball" in p for p in sc.pairs)
+
+
+@pytest.mark.slow
+def test_the_hand_into_the_upper_arm_is_held_then_stops_named():
+    """Self-collision: on ``panda_elbow_circle`` the free optimum brings the fingers into the upper arm
+    (panda_link1/2's hulls, to -5 mm). Held 1 cm apart, two finger parts press on link1 and link2 at once and
+    [J; G_A] loses rank (sigma_min 0.02 and falling): the run stops, cause ``collision`` naming the pairs,
+    at a last good configuration that is clear, with a partial record that kept 1 cm at every point."""
+    r, path, index, q0, _ = setup()
+    sc = kr.Scene(r)
+    free = ball_distance_self(sc, run(with_scene=False).q)
+    assert free.min() < 0.0  # the free optimum collides with itself
+    with pytest.raises(TrackingError) as err:
+        kr.track(r, path, index, q0, scene=sc)
+    e = err.value
+    assert e.cause == "collision" and 0 < e.t < path.period
+    assert any("finger" in n and "panda_link" in n for n in e.watched["constraints"])
+    assert ball_distance_self(sc, e.q)[0] >= 0.01 - 1e-9
+    part = e.partial
+    assert len(part.t) > 100 and ball_distance_self(sc, part.q).min() >= 0.01 - 1e-9
+    assert any(part.meta["constraints"]["active"])  # held over part of the way before the stop
+
+
+def ball_distance_self(sc, qs) -> np.ndarray:
+    """The least distance [m] between two of the robot's objects at each q, afresh from coal."""
+    return np.array([sc.distances(q).min_distance for q in np.atleast_2d(qs)])
+
+
+def test_cli_track_with_a_scene(tmp_path, capsys):
+    from kinredund.ui.cli import EXIT_USAGE, main
+
+    r = kr.load_robot("panda")
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", 0.05, r.fk(r.home)[:3, 3])  # where the circle starts: the hand in it
+    f = kr.geometry.save_scene(sc, tmp_path / "scene.json")
+    assert main(["track", "panda", "--steps", "20", "--scene", str(f), "--quiet"]) != 0
+    assert "and ball kept 0.02 m apart by" in capsys.readouterr().err
+    sc.move("ball", [0.0, 0.6, 1.2])  # out of the way: held with the self pairs, recorded
+    f = kr.geometry.save_scene(sc, tmp_path / "scene.json")
+    js = tmp_path / "t.json"
+    assert main(["track", "panda", "--steps", "20", "--scene", str(f), "--clearance", "0.03",
+                 "--self-clearance", "off", "--json", str(js), "--quiet"]) == 0
+    names = json.loads(js.read_text())["meta"]["constraints"]["names"]
+    assert names and all("ball kept 0.03 m apart" in n for n in names)  # no self pairs
+    assert main(["track", "panda", "--clearance", "0.03", "--quiet"]) == EXIT_USAGE
+
+
+def test_skipped_queries_give_lower_bounds():
+    """Between exact queries the values are the last exact ones lowered by B.|dq| (Scene.motion_bound):
+    never above the exact c, and every distance change of random joint moves stays within that bound."""
+    r, path, index, q0, sc = setup()
+    B = sc.motion_bound()
+    assert B.shape == (len(sc.pairs), 7) and np.all(B < 3.0) and np.all(B.sum(axis=1) > 0)  # the Panda's reach
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        q1 = q0 + rng.uniform(-0.3, 0.3, 7)
+        q2 = q1 + rng.uniform(-0.05, 0.05, 7)
+        d1, d2 = sc.distances(q1).distance, sc.distances(q2).distance
+        assert np.all(np.abs(d2 - d1) <= B @ np.abs(q2 - q1) + 1e-12)
+    c = kr.SceneClearance(sc, self_clearance=0.01)
+    c.values(q0)  # exact here
+    skipped = 0
+    for k in range(1, 30):
+        q = q0 + 1e-3 * k * np.sin(np.arange(7) + k)
+        lower, true = c.values(q), sc.distances(q).distance - c.clearances  # every pair exactly
+        assert np.all(lower <= true + 1e-12)
+        skipped += not np.array_equal(lower, true)
+    assert skipped > 5
+
+
+def test_gradient_against_differences():
+    """G of the ball's row against central differences of its value (step 1e-6: O(1e-12) error), where the
+    free optimum is closest to the ball."""
+    sc = setup()[4]
+    free = run(with_scene=False)
+    q = free.q[int(np.argmin(ball_distance(sc, free.q)))]
+    c = kr.SceneClearance(sc, self_clearance=None)
+    i = c.pairs.index(("panda_link3_0", "ball"))
+    E = np.eye(7) * 1e-6
+    fd = np.array([(c.rows_at(q + e)[0][i] - c.rows_at(q - e)[0][i]) / 2e-6 for e in E])
+    assert np.abs(c.gradients(q)[i] - fd).max() <= 1e-8
+
+
+class _Row:
+    """Row i of a constraint as a one-row constraint (for test_tracking_clearance's kkt_check)."""
+
+    def __init__(self, c, i):
+        self.c, self.i = c, i
+
+    def gradients(self, q):
+        return self.c.gradients(q)[self.i: self.i + 1]
+
+
+def test_first_order_conditions_with_the_ball_row_hold_independently():
+    """At every point grad z vanishes on the null space of [J; G_active; e_fixed] (an SVD basis, G afresh from
+    the scene), and the least-squares multipliers of the active rows and bounds have the right sign."""
+    from test_tracking_clearance import kkt_check
+
+    r, path, index, q0, sc = setup()
+    c = kr.SceneClearance(sc, self_clearance=None)
+    worst, seen = kkt_check(r, index, run(), [_Row(c, i) for i in range(c.size)])
+    assert seen > 10 and worst <= 1e-9
+
+
+def test_switching_times_agree_with_bisection():
+    """The ball's row is met and left where the within-limits optimum's distance to the ball crosses the
+    clearance (nu = 0 at both): bisection on it, the optimum from the bounded joint-level IK (to 1e-12: ~1e-10 s
+    at the ~0.01 m/s the distance changes) and
+    the distance from coal, independent of the tracker's Brent search, to 1e-9 s."""
+    r, path, index, _, sc = setup()
+    tr = run()
+    dt = tr.meta["dt"]
+
+    def margin(t, seed):
+        res = kr.solve_ik(r, path(t).p, index, q0=seed, bounds=True, tol=1e-12)
+        assert res.converged
+        return float(ball_distance(sc, res.q)[0]) - CLEARANCE
+
+    rows = [w for w in tr.meta["switches"] if w.get("constraint")]
+    assert [w["kind"] for w in rows] == ["reach", "release"]
+    for w in rows:
+        seed = np.array(w["q"])
+        lo, hi = w["t"] - 0.5 * dt, w["t"] + 0.5 * dt
+        f_lo = margin(lo, seed)
+        assert f_lo * margin(hi, seed) < 0  # a crossing in the bracket
+        while hi - lo > 1e-11:
+            mid = 0.5 * (lo + hi)
+            f = margin(mid, seed)
+            lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
+        assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
