@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field
+from math import isfinite
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,7 @@ from kinredund.geometry.pairs import PairMatrix, self_pairs
 from kinredund.geometry.records import DistanceRows, Distances
 from kinredund.model.robot import Robot
 
+_F64 = np.dtype(np.float64)
 SHAPES = ("box", "sphere", "cylinder", "capsule", "convex", "mesh")
 
 
@@ -272,8 +274,8 @@ class Scene:
 
     def _q(self, q) -> np.ndarray:
         """q validated: a finite float array of the robot's length as is (the hot path), else ``robot.check_q``."""
-        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.robot.nq,) and np.isfinite(q).all():
-            return q
+        if type(q) is np.ndarray and q.dtype is _F64 and q.shape == (self.robot.nq,) and isfinite(q @ q):
+            return q  # (q @ q is inf or nan when an entry is; an overflow of huge values goes to check_q)
         return self.robot.check_q(q)
 
     def _exact(self, q, influence):
@@ -316,6 +318,6 @@ class Scene:
         q, ws, ks, d, n, pa, pb = self._exact(q, influence)
         if not len(ks):
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), None if influence is None else float(influence))
-        G = ws.rows(q, ks, n, pa, pb)
+        G = ws.rows(ks, n)
         return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G,
                             None if influence is None else float(influence))
