@@ -106,6 +106,9 @@ class Workspace:
                 supports[jt, model.idx_vs[t]:model.idx_vs[t] + model.nvs[t]] = 1.0
         self._signed = np.stack([-supports[joints[first]], supports[joints[second]]], axis=1)
         self._points = np.empty((0, 3))
+        n_obj = len(geometry.geometryObjects)
+        self._map_shape, self._map_size = (n_obj, n_obj), n_obj * n_obj
+        self._cell_ab, self._cell_ba = first * n_obj + second, second * n_obj + first
         self._ones = np.ones((2 * len(first), 1))
 
     def place(self, q: np.ndarray) -> None:
@@ -167,23 +170,22 @@ class Workspace:
     def closest(self, q: np.ndarray) -> tuple[int, float]:
         """(pair index, signed distance [m]) of the closest pair at q, the first of equals in pair order.
 
-        Branch and bound on :meth:`lower_bounds`: pairs in order of their bound, each computed exactly until
-        the next bound exceeds both the least distance found and 0 (below 0 a bound says nothing about how
-        deep two objects penetrate). The same answer as computing every pair (``pin.computeDistances``): a
-        pair left out is farther than its bound, which is farther than the least distance.
+        Bounded by :meth:`lower_bounds`: the pair of the least bound is computed first, giving d_0; a pair whose
+        bound exceeds max(d_0, 0) is farther than d_0 (below 0 a bound says nothing about how deep two objects
+        penetrate), and coal computes the others in one Pinocchio call (``gdata.activeCollisionPairs`` is left
+        set to them). The same answer as computing every pair (``pin.computeDistances`` over all of them).
         """
         self.place(q)
         lb = self.lower_bounds()
-        bounds = lb.tolist()
-        gm, gd, one = self.geometry, self.gdata, pin.computeDistance
-        best, best_k = np.inf, -1
-        for k in np.argsort(lb, kind="stable").tolist():
-            if bounds[k] > best and bounds[k] > 0.0:
-                break
-            dk = one(gm, gd, k).min_distance
-            if dk < best or (dk == best and k < best_k):
-                best, best_k = dk, k
-        return best_k, best
+        gm, gd = self.geometry, self.gdata
+        bound = max(pin.computeDistance(gm, gd, int(lb.argmin())).min_distance, 0.0)
+        active = lb <= bound
+        cells = np.zeros(self._map_size, dtype=bool)
+        cells[self._cell_ab] = active  # both (a, b) and (b, a): whichever triangle Pinocchio reads
+        cells[self._cell_ba] = active
+        gd.setActiveCollisionPairs(gm, cells.reshape(self._map_shape))
+        k = pin.computeDistances(gm, gd)
+        return k, gd.distanceResults[k].min_distance
 
     def rows(self, ks: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """Rows n^T (J_b(p_b) - J_a(p_a)) [m/rad] of pairs ``ks``, shape (k, nv) (module docstring), after
