@@ -90,14 +90,14 @@ class Workspace:
         self._fixed = [np.eye(4)] if 0 in pose_joints else []
         s = np.arange(n * m)
         self._local = np.vstack([centres.reshape(n * m, 3).T, np.ones(n * m)])
-        self._centre_index = (block * 4 * n * m)[:, None] + (np.arange(3) * n * m)[None, :] + s[:, None]
+        centre_index = (block * 4 * n * m)[:, None] + (np.arange(3) * n * m)[None, :] + s[:, None]  # (n*m, 3)
         # the broadphase's sphere pairs, flattened: pair p's m*m sphere pairs are rows p*m*m ... (p+1)*m*m - 1
         i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
         self._sa = (first[:, None] * m + i.ravel()[None, :]).ravel()
         self._sb = (second[:, None] * m + j.ravel()[None, :]).ravel()
         self._radii = radii.reshape(-1)[self._sa] + radii.reshape(-1)[self._sb]
-        # the same as flat indices into the (n*m, 3) centres: a 1-D take is faster than take(axis=0)
-        self._sa3, self._sb3 = (self._sa * 3)[:, None] + np.arange(3), (self._sb * 3)[:, None] + np.arange(3)
+        # the centres of each sphere pair's a and b as flat indices into the product of the poses and centres
+        self._pair_centres = centre_index.ravel()[np.stack([self._sa, self._sb])[:, :, None] * 3 + np.arange(3)]
         self._mm = m * m
         self._reach = (None, None)  # (limit, (radii + limit)^2) of the last broadphase distance
         # which columns of q move each joint's body (the world's row is all zeros), and per pair the first
@@ -117,16 +117,16 @@ class Workspace:
         """Forward kinematics and every object's world pose at q."""
         pin.updateGeometryPlacements(self.model, self.data, self.geometry, self.gdata, q)
 
-    def sphere_centres(self) -> np.ndarray:
-        """Every bounding sphere's centre in the world [m], shape (n_objects * slabs, 3), after :meth:`place`."""
+    def _centre_products(self) -> np.ndarray:
+        """The poses of the joints that carry objects times every local centre, shape (4 J, n_objects * slabs)."""
         oMi = self.data.oMi
         poses = np.array(self._fixed + [oMi[j].homogeneous for j in self._moving])
-        return (poses.reshape(-1, 4) @ self._local).take(self._centre_index)
+        return poses.reshape(-1, 4) @ self._local
 
     def _gaps(self) -> np.ndarray:
         """Centre of sphere a less centre of sphere b for every sphere pair [m], shape (pairs * m * m, 3)."""
-        c = self.sphere_centres().ravel()
-        return c.take(self._sa3) - c.take(self._sb3)
+        ab = self._centre_products().take(self._pair_centres)
+        return ab[0] - ab[1]
 
     def near_pairs(self, limit: float) -> np.ndarray:
         """The pairs (indices) whose bounding spheres come within ``limit`` [m], after :meth:`place`: every other

@@ -248,6 +248,10 @@ class Scene:
         """Every pair the scene checks: enabled self pairs, then the scene objects' pairs."""
         return self._pair_names
 
+    def _names_of(self, ks: np.ndarray) -> tuple[tuple[str, str], ...]:
+        names = self._pair_names
+        return tuple([names[k] for k in ks.tolist()])
+
     def _pair_index(self, a: str, b: str) -> int:
         for k, p in enumerate(self._pair_names):
             if p == (a, b) or p == (b, a):
@@ -294,7 +298,7 @@ class Scene:
                 others are surely farther); None computes every checked pair.
         """
         q, _, ks, d, n, pa, pb = self._exact(q, influence)
-        return Distances(q.copy(), tuple(self._pair_names[k] for k in ks), d, pa, pb, n,
+        return Distances(q.copy(), self._names_of(ks), d, pa, pb, n,
                          None if influence is None else float(influence), len(self._pair_names))
 
     def min_distance(self, q) -> float:
@@ -319,5 +323,5 @@ class Scene:
         if not len(ks):
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), None if influence is None else float(influence))
         G = ws.rows(ks, n)
-        return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G,
+        return DistanceRows(self._names_of(ks), d, G,
                             None if influence is None else float(influence))
