@@ -272,7 +272,7 @@ class Scene:
         if influence is None:
             return np.arange(len(self._first))
         influence = float(influence)
-        if not np.isfinite(influence) or influence < 0:
+        if not isfinite(influence) or influence < 0:
             raise GeometryError(f"influence must be a finite distance >= 0 [m] or None, got {influence!r}")
         return ws.near_pairs(influence)
 
