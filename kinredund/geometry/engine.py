@@ -167,7 +167,7 @@ class Workspace:
             return d, (pb - pa) / d[:, None], pa, pb
         n = np.zeros((k, 3))
         for r in np.flatnonzero(d <= 0).tolist():
-            n[r] = gd.distanceResults[ks[r]].normal
+            n[r] = results[r].normal
         return d, unit_normals(d, n, pa, pb), pa, pb
 
     def closest(self, q: np.ndarray) -> tuple[int, float]:
