@@ -37,18 +37,18 @@ def time_calls(fn, repeat: int = 2000, warmup: int = 50) -> dict:
     return time_in_turn({"fn": fn}, repeat, warmup)["fn"]
 
 
-def time_in_turn(fns: dict, repeat: int = 2000, warmup: int = 50) -> dict:
+def time_in_turn(fns: dict, repeat: int = 2000, warmup: int = 50, clock=time.perf_counter) -> dict:
     """:func:`time_calls` for several functions called in turn (one call of each per round).
 
     Background load and the machine's drift then hit all of them alike, so their ratios hold even
     when the absolute times of one run move. Garbage collection is off while timing (as in
-    ``peers.py``'s round robin). Returns {name: {"median_us", "p95_us"}}.
+    ``peers.py``'s round robin). ``clock=time.thread_time`` counts this thread's CPU time only (not the
+    time the scheduler gives other processes on a loaded machine). Returns {name: {"median_us", "p95_us"}}.
     """
     for _ in range(warmup):
         for fn in fns.values():
             fn()
     ts = {name: np.empty(repeat) for name in fns}
-    clock = time.perf_counter
     gc.disable()
     try:
         for i in range(repeat):

@@ -159,6 +159,31 @@ def test_min_distance_and_closest_agree_with_the_record():
     assert abs(s.min_distance(q) - rec.min_distance) <= DIST_TOL
 
 
+@pytest.mark.parametrize("collision", ["hulls", "primitives"])
+def test_closest_by_bounds_is_the_least_of_every_pair(collision):
+    """closest/min_distance compute only pairs whose bounding-sphere gap does not rule them out: over the whole
+    joint box (penetrating configurations included, where a gap bound says nothing below 0) they must find the
+    least of every pair's distance and its pair."""
+    r = robot("panda")
+    kw = {}
+    if collision == "primitives":
+        from kinredund.model.erd import erd_share_dir
+        kw["collision_urdf"] = erd_share_dir() / "panda_description/urdf/panda_collision.urdf"
+    s = kr.Scene(r, **kw) if kw else scene("panda")
+    s.add_box("table", [1.2, 1.2, 0.04], {"xyz": [0.4, 0.0, -0.2]})  # below both models' bases
+    s.add_sphere("ball", 0.06, [0.45, 0.25, 0.45])
+    s.add_box("tool", [0.02, 0.02, 0.1], {"xyz": [0.0, 0.0, 0.3]}, attach_to="panda_hand")  # past the fingers
+    rng = np.random.default_rng(7)
+    least = []
+    for q in [r.home] + [r.random_configuration(rng, 0.0) for _ in range(40)]:
+        every = s.distances(q)
+        pair, d = s.closest(q)
+        assert pair == every.closest and abs(d - every.min_distance) <= DIST_TOL, (q, pair, every.closest)
+        assert abs(s.min_distance(q) - every.min_distance) <= DIST_TOL
+        least.append(every.min_distance)
+    assert min(least) < 0 < max(least)  # both branches of the bound were taken
+
+
 def test_workspaces_are_per_thread():
     s = scene("panda")
     r = robot("panda")

@@ -19,6 +19,8 @@ checked against central differences in the tests.
 
 from __future__ import annotations
 
+from operator import attrgetter
+
 import coal
 import numpy as np
 import pinocchio as pin
@@ -60,14 +62,6 @@ def unit_normals(d: np.ndarray, n: np.ndarray, pa: np.ndarray, pb: np.ndarray) -
     return out
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a x b of (k, 3) arrays (``np.cross`` costs ~20 us of argument handling at this size)."""
-    return a[:, _YZX] * b[:, _ZXY] - a[:, _ZXY] * b[:, _YZX]
-
-
-_YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])
-
-
 class Workspace:
     """Pinocchio and coal data for one geometry model (not shared between threads).
 
@@ -92,87 +86,130 @@ class Workspace:
         self.joints, self.first, self.second = joints, first, second
         self.centres, self.radii = centres, radii
         n, m = centres.shape[:2]
+        # every sphere centre in one product: the poses of the joints that carry objects (J, 4, 4) times the
+        # centres in homogeneous coordinates (4, n*m); sphere s is column s of its joint's block, rows 0-2
+        pose_joints = sorted(set(joints.tolist()))
+        block = np.searchsorted(pose_joints, np.repeat(joints, m))
+        self._moving = [j for j in pose_joints if j > 0]  # the world's pose (joint 0) is the identity
+        self._fixed = [np.eye(4)] if 0 in pose_joints else []
+        s = np.arange(n * m)
+        self._local = np.vstack([centres.reshape(n * m, 3).T, np.ones(n * m)])
+        centre_index = (block * 4 * n * m)[:, None] + (np.arange(3) * n * m)[None, :] + s[:, None]  # (n*m, 3)
         # the broadphase's sphere pairs, flattened: pair p's m*m sphere pairs are rows p*m*m ... (p+1)*m*m - 1
-        self._centres = centres.reshape(n * m, 3)
-        self._sphere_joint = np.repeat(joints, m)
         i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
         self._sa = (first[:, None] * m + i.ravel()[None, :]).ravel()
         self._sb = (second[:, None] * m + j.ravel()[None, :]).ravel()
         self._radii = radii.reshape(-1)[self._sa] + radii.reshape(-1)[self._sb]
+        # the centres of each sphere pair's a and b as flat indices into the product of the poses and centres
+        self._pair_centres = centre_index.ravel()[np.stack([self._sa, self._sb])[:, :, None] * 3 + np.arange(3)]
         self._mm = m * m
-        self._poses = None
-        # which columns of q move each joint's body (the world's row is all zeros)
-        self._supports = np.zeros((model.njoints, model.nv))
-        for j in range(1, model.njoints):
-            for s in model.supports[j].tolist()[1:]:
-                self._supports[j, model.idx_vs[s]:model.idx_vs[s] + model.nvs[s]] = 1.0
+        self._reach = (None, None)  # (limit, (radii + limit)^2) of the last broadphase distance
+        # which columns of q move each joint's body (the world's row is all zeros), and per pair the first
+        # object's columns negated and the second's: rows of pair k are sum_s (coef_s J)[k] * _signed[k, s]
+        supports = np.zeros((model.njoints, model.nv))
+        for jt in range(1, model.njoints):
+            for t in model.supports[jt].tolist()[1:]:
+                supports[jt, model.idx_vs[t]:model.idx_vs[t] + model.nvs[t]] = 1.0
+        self._signed = np.stack([-supports[joints[first]], supports[joints[second]]], axis=1)
+        self._points = np.empty((0, 3))
+        n_obj = len(geometry.geometryObjects)
+        self._map_shape, self._map_size = (n_obj, n_obj), n_obj * n_obj
+        self._cell_ab, self._cell_ba = first * n_obj + second, second * n_obj + first
+        self._ones = np.ones((2 * len(first), 1))
 
     def place(self, q: np.ndarray) -> None:
         """Forward kinematics and every object's world pose at q."""
         pin.updateGeometryPlacements(self.model, self.data, self.geometry, self.gdata, q)
-        self._poses = None
 
-    def joint_poses(self) -> np.ndarray:
-        """Every joint's world pose, shape (njoints, 4, 4), after :meth:`place` (read once per placement)."""
-        if self._poses is None:
-            oMi = self.data.oMi
-            self._poses = np.array([oMi[j].homogeneous for j in range(self.model.njoints)])
-        return self._poses
+    def _centre_products(self) -> np.ndarray:
+        """The poses of the joints that carry objects times every local centre, shape (4 J, n_objects * slabs)."""
+        oMi = self.data.oMi
+        poses = np.array(self._fixed + [oMi[j].homogeneous for j in self._moving])
+        return poses.reshape(-1, 4) @ self._local
+
+    def _gaps(self) -> np.ndarray:
+        """Centre of sphere a less centre of sphere b for every sphere pair [m], shape (pairs * m * m, 3)."""
+        ab = self._centre_products().take(self._pair_centres)
+        return ab[0] - ab[1]
 
     def near_pairs(self, limit: float) -> np.ndarray:
         """The pairs (indices) whose bounding spheres come within ``limit`` [m], after :meth:`place`: every other
         pair is farther apart than ``limit`` (``shapes.bounding_spheres``). Compared squared, without roots."""
-        M = self.joint_poses().take(self._sphere_joint, axis=0)  # take: 3x faster than fancy indexing here
-        c = np.einsum("kab,kb->ka", M[:, :3, :3], self._centres) + M[:, :3, 3]
-        diff = c.take(self._sa, axis=0) - c.take(self._sb, axis=0)
-        reach = self._radii + limit
-        close = np.einsum("ka,ka->k", diff, diff) <= reach * reach
+        diff = self._gaps()
+        if self._reach[0] != limit:
+            reach = self._radii + limit
+            self._reach = (limit, reach * reach)
+        close = (diff * diff) @ _ONES3 <= self._reach[1]
         return np.flatnonzero(close.reshape(-1, self._mm).any(axis=1))
+
+    def lower_bounds(self) -> np.ndarray:
+        """A lower bound [m] on each pair's distance, after :meth:`place`: the least gap between their bounding
+        spheres (every point of an object is in one of its spheres), less 1e-9 m for rounding."""
+        diff = self._gaps()
+        gap = np.sqrt((diff * diff) @ _ONES3) - self._radii
+        return gap.reshape(-1, self._mm).min(axis=1) - 1e-9
 
     def distances(self, ks) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(signed distances [m], unit normals from first to second object, p_first, p_second) of pairs ``ks``,
         shapes (k,), (k, 3), (k, 3), (k, 3), after :meth:`place`.
 
         Three reads per pair (Python's access to coal's results costs about a microsecond each): the normal
-        of a separated pair is (p_b - p_a) / d; coal's own is read only for pairs in contact.
+        of a separated pair is (p_b - p_a) / d; coal's own is read only for pairs in contact. The witness
+        points are kept (``_points``, p_first rows then p_second rows) for :meth:`rows`.
         """
-        d, pa, pb = [], [], []
+        ks = ks.tolist()
+        k = len(ks)
         gm, gd, one = self.geometry, self.gdata, pin.computeDistance
-        for k in ks:
-            res = one(gm, gd, int(k))
-            d.append(res.min_distance)
-            pa.append(res.getNearestPoint1())
-            pb.append(res.getNearestPoint2())
-        if not d:
-            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
-        d, pa, pb = np.array(d), np.array(pa), np.array(pb)
-        n = np.zeros_like(pa)
-        for r in np.flatnonzero(d <= 0):
-            n[r] = gd.distanceResults[int(ks[r])].normal
+        results = [one(gm, gd, pair) for pair in ks]  # references into gdata.distanceResults
+        d = np.array(list(map(_DISTANCE, results)))
+        P = np.array(list(map(_POINT1, results)) + list(map(_POINT2, results))).reshape(2 * k, 3)
+        self._points = P
+        pa, pb = P[:k], P[k:]
+        if k and d.min() > 1e-12:  # all separated: the common case, without unit_normals' masks
+            return d, (pb - pa) / d[:, None], pa, pb
+        n = np.zeros((k, 3))
+        for r in np.flatnonzero(d <= 0).tolist():
+            n[r] = results[r].normal
         return d, unit_normals(d, n, pa, pb), pa, pb
 
     def closest(self, q: np.ndarray) -> tuple[int, float]:
-        """(pair index, signed distance [m]) of the closest pair at q: every pair computed in one Pinocchio call."""
-        k = pin.computeDistances(self.model, self.data, self.geometry, self.gdata, q)
-        return k, self.gdata.distanceResults[k].min_distance
+        """(pair index, signed distance [m]) of the closest pair at q, the first of equals in pair order.
 
-    def rows(self, q: np.ndarray, ks: np.ndarray, normal: np.ndarray, point_a: np.ndarray,
-             point_b: np.ndarray) -> np.ndarray:
+        Bounded by :meth:`lower_bounds`: the pair of the least bound is computed first, giving d_0; a pair whose
+        bound exceeds max(d_0, 0) is farther than d_0 (below 0 a bound says nothing about how deep two objects
+        penetrate), and coal computes the others in one Pinocchio call (``gdata.activeCollisionPairs`` is left
+        set to them). The same answer as computing every pair (``pin.computeDistances`` over all of them).
+        """
+        self.place(q)
+        lb = self.lower_bounds()
+        gm, gd = self.geometry, self.gdata
+        bound = max(pin.computeDistance(gm, gd, int(lb.argmin())).min_distance, 0.0)
+        active = lb <= bound
+        cells = np.zeros(self._map_size, dtype=bool)
+        cells[self._cell_ab] = active  # both (a, b) and (b, a): whichever triangle Pinocchio reads
+        cells[self._cell_ba] = active
+        gd.setActiveCollisionPairs(gm, cells.reshape(self._map_shape))
+        k = pin.computeDistances(gm, gd)
+        return k, gd.distanceResults[k].min_distance
+
+    def rows(self, ks: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """Rows n^T (J_b(p_b) - J_a(p_a)) [m/rad] of pairs ``ks``, shape (k, nv) (module docstring), after
-        :meth:`place`.
+        :meth:`distances` of the same pairs (its witness points) at the placed configuration.
 
         From Pinocchio's world-frame joint Jacobians ``data.J`` ([v; omega], v the velocity of the body point at
         the world origin, every joint's column), kept to the joints that move each body:
-        n^T J(p) = (n^T J_v + (p x n)^T J_omega) restricted to the supports of the body's joint.
+        n^T J(p) = (n^T J_v + (p x n)^T J_omega) restricted to the supports of the body's joint. The
+        coefficients [n, p x n] are bilinear in (1, p) and n: one product of their outer product with
+        ``_LIFT`` @ J.
         """
-        pin.computeJointJacobians(self.model, self.data, q)
+        pin.computeJointJacobians(self.model, self.data)  # from the placement's forward kinematics
         k = len(ks)
-        joints = np.concatenate([self.joints.take(self.first.take(ks)), self.joints.take(self.second.take(ks))])
-        n = np.concatenate([-normal, normal])  # the first object's rows count negatively
-        p = np.concatenate([point_a, point_b])
-        coef = np.concatenate([n, _cross(p, n)], axis=1)  # (2k, 6) against the rows [v; omega]
-        both = (coef @ self.data.J) * self._supports.take(joints, axis=0)
-        return both[:k] + both[k:]
+        n2 = np.concatenate([normal, normal])
+        P = np.concatenate([self._ones[:2 * k], self._points], axis=1)  # (1, p) per row
+        outer = (P[:, :, None] * n2[:, None, :]).reshape(2 * k, 12)
+        both = (outer @ (_LIFT @ self.data.J)).reshape(2, k, -1)
+        return np.einsum("skc,ksc->kc", both, self._signed.take(ks, axis=0))
+
 
     def curvature(self, q: np.ndarray, ks: np.ndarray, weight: np.ndarray, normal: np.ndarray, point_a: np.ndarray,
                   point_b: np.ndarray) -> np.ndarray:
@@ -187,3 +224,20 @@ class Workspace:
         joints = np.concatenate([self.joints.take(self.first.take(ks)), self.joints.take(self.second.take(ks))])
         coef = np.concatenate([-normal, normal]) * np.concatenate([weight, weight])[:, None]
         return point_curvature(self.model, self.data, joints, np.concatenate([point_a, point_b]), coef)
+
+
+def _lift() -> np.ndarray:
+    """E (12, 6) with [n, p x n] = (outer((1, p), n)).ravel() @ E: n from the row for 1, p x n from the rows
+    for p (the Levi-Civita symbol)."""
+    E = np.zeros((4, 3, 6))
+    E[0, :, :3] = np.eye(3)
+    for i, j, sign in ((0, 1, 1), (1, 2, 1), (2, 0, 1), (1, 0, -1), (2, 1, -1), (0, 2, -1)):
+        E[1 + i, j, 3 + 3 - i - j] = sign  # (p x n)_m = eps_mij p_i n_j
+    return E.reshape(12, 6)
+
+
+_LIFT = _lift()
+# coal's result accessors, mapped over a list of results (faster than attribute lookups in a loop)
+_DISTANCE = attrgetter("min_distance")
+_POINT1, _POINT2 = coal.DistanceResult.getNearestPoint1, coal.DistanceResult.getNearestPoint2
+_ONES3 = np.ones(3)  # (diff * diff) @ _ONES3: squared norms of rows, half the time of einsum at ~1000 rows

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field
+from math import isfinite
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,7 @@ from kinredund.geometry.pairs import PairMatrix, self_pairs
 from kinredund.geometry.records import DistanceRows, Distances
 from kinredund.model.robot import Robot, robot_revolute
 
+_F64 = np.dtype(np.float64)
 SHAPES = ("box", "sphere", "cylinder", "capsule", "convex", "mesh")
 
 
@@ -246,6 +248,10 @@ class Scene:
         """Every pair the scene checks: enabled self pairs, then the scene objects' pairs."""
         return self._pair_names
 
+    def _names_of(self, ks: np.ndarray) -> tuple[tuple[str, str], ...]:
+        names = self._pair_names
+        return tuple([names[k] for k in ks.tolist()])
+
     def _pair_index(self, a: str, b: str) -> int:
         for k, p in enumerate(self._pair_names):
             if p == (a, b) or p == (b, a):
@@ -289,14 +295,14 @@ class Scene:
         if influence is None:
             return np.arange(len(self._first))
         influence = float(influence)
-        if not np.isfinite(influence) or influence < 0:
+        if not isfinite(influence) or influence < 0:
             raise GeometryError(f"influence must be a finite distance >= 0 [m] or None, got {influence!r}")
         return ws.near_pairs(influence)
 
     def _q(self, q) -> np.ndarray:
         """q validated: a finite float array of the robot's length as is (the hot path), else ``robot.check_q``."""
-        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.robot.nq,) and np.isfinite(q).all():
-            return q
+        if type(q) is np.ndarray and q.dtype is _F64 and q.shape == (self.robot.nq,) and isfinite(q @ q):
+            return q  # (q @ q is inf or nan when an entry is; an overflow of huge values goes to check_q)
         return self.robot.check_q(q)
 
     def _exact(self, q, influence):
@@ -315,7 +321,7 @@ class Scene:
                 others are surely farther); None computes every checked pair.
         """
         q, _, ks, d, n, pa, pb = self._exact(q, influence)
-        return Distances(q.copy(), tuple(self._pair_names[k] for k in ks), d, pa, pb, n,
+        return Distances(q.copy(), self._names_of(ks), d, pa, pb, n,
                          None if influence is None else float(influence), len(self._pair_names))
 
     def min_distance(self, q) -> float:
@@ -340,8 +346,8 @@ class Scene:
         influence = None if influence is None else float(influence)
         if not len(ks):
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), influence, np.zeros(0, int), n, pa, pb)
-        G = ws.rows(q, ks, n, pa, pb)
-        return DistanceRows(tuple(self._pair_names[k] for k in ks), d, G, influence, np.asarray(ks), n, pa, pb)
+        G = ws.rows(ks, n)
+        return DistanceRows(self._names_of(ks), d, G, influence, np.asarray(ks), n, pa, pb)
 
     def distance_curvature(self, q, rows: DistanceRows, weights) -> np.ndarray:
         """sum_k w_k n_k^T (Hess p_b - Hess p_a) [m/rad^2] (n, n): the second-order term of the distance rows
