@@ -5,7 +5,10 @@
   and a frame added at the sphere's center (h = ||p_f - c||^2 - d_min^2 >= 0 with d_min = radius +
   clearance: the same set as our row c = ||p_f - c|| - radius - clearance >= 0); pink's default
   configuration and velocity limits, the daqp solver, the target of each step the path's point at its end
-  (dead-beat: pink has no feed-forward input), ``integrate_inplace``. ``pink.barriers.SelfCollisionBarrier``
+  (dead-beat: pink has no feed-forward input), ``integrate_inplace``. The barrier's gain is pink's default
+  (1); its ``safe_displacement_gain`` is pink's default (3) or 0 (``PINK_VARIANTS``): the default adds a
+  damping gamma ||v||^2 to the QP with gamma = 3 / ||grad h||^2 (large, as grad h = 2 (p_f - c)^T J_p is
+  small), which holds the arm back from the path. ``pink.barriers.SelfCollisionBarrier``
   is not used: it watches pairs of the robot's own collision model (an obstacle outside the robot is not one
   of them) and needs smooth convex geometries, which the URDF meshes are not.
 - :func:`figures`: the smallest clearance, the drift per loop and the position error of a recorded joint
@@ -21,6 +24,8 @@ from kinredund.kinematics.angles import joint_drift
 POSTURE_COST = 1e-3  # [cost] / [rad], pink's README value; the frame task costs 1 /m (position only)
 BARRIER_GAIN = 1.0  # pink's default
 SOLVER = "daqp"  # pink's fastest solver, the one its examples pick
+#: pink's barrier variants: name -> safe_displacement_gain (None: BodySphericalBarrier's default, 3)
+PINK_VARIANTS = {"pink_barrier": None, "pink_barrier_sd0": 0.0}
 
 
 def pink_missing() -> str | None:
@@ -45,9 +50,10 @@ class PinkBarrier:
         q0: the start [rad].
         dt: the time step [s].
         sphere: a :class:`~kinredund.tracking.SphereClearance` or None.
+        safe_gain: the barrier's ``safe_displacement_gain`` (None: pink's default).
     """
 
-    def __init__(self, robot, path, index, q0, dt, sphere=None):
+    def __init__(self, robot, path, index, q0, dt, sphere=None, safe_gain: float | None = None):
         import pink
         import pinocchio as pin
         from pink.barriers import BodySphericalBarrier
@@ -59,8 +65,10 @@ class PinkBarrier:
             parent = model.frames[0].parentJoint  # the universe
             model.addFrame(pin.Frame("obstacle_center", parent, 0, pin.SE3(np.eye(3), sphere.center),
                                      pin.FrameType.OP_FRAME))
+            extra = {} if safe_gain is None else {"safe_displacement_gain": safe_gain}
             self.barriers.append(BodySphericalBarrier((sphere.frame, "obstacle_center"),
-                                                      d_min=sphere.radius + sphere.clearance, gain=BARRIER_GAIN))
+                                                      d_min=sphere.radius + sphere.clearance, gain=BARRIER_GAIN,
+                                                      **extra))
         self.conf = pink.Configuration(model, model.createData(), np.asarray(q0, float))
         self.frame = FrameTask(robot.ee_frame, position_cost=1.0, orientation_cost=0.0)
         post = PostureTask(cost=POSTURE_COST)

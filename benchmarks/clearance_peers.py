@@ -13,7 +13,9 @@ within-limits optimum at t = 0 and takes the same time step T / 200, for N loops
   default mode with the joint limits: argmin z s.t. the task, the limits and the clearance, held exactly;
 - ``kinredund_free``: the same without the sphere (the within-limits optimum: how far it runs in);
 - ``pink_barrier``: pin-pink with ``BodySphericalBarrier`` on the same frame point (``_clearance.py``
-  says how: position task, posture task, daqp, pink's default limits);
+  says how: position task, posture task, daqp, pink's default limits), the barrier's defaults;
+- ``pink_barrier_sd0``: the same with the barrier's ``safe_displacement_gain`` 0 (the default's damping
+  holds the arm back from the path);
 - ``pink``: the same without the barrier.
 
 Figures per method: the smallest clearance over the run [m] (< 0: inside the sphere), the joint drift
@@ -31,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 from _bench import parser, print_table, summary_us, write_json
-from _clearance import PinkBarrier, figures, pink_missing
+from _clearance import PINK_VARIANTS, PinkBarrier, figures, pink_missing
 
 from kinredund.errors import check_choice
 from kinredund.ik import solve_ik
@@ -42,7 +44,7 @@ from kinredund.tracking import SphereClearance, Tracker
 from kinredund.ui.plots import LOG_FLOOR
 
 STEPS_PER_LOOP = 200
-METHODS = ("kinredund", "kinredund_free", "pink_barrier", "pink")
+METHODS = ("kinredund", "kinredund_free", *PINK_VARIANTS, "pink")
 #: the circle (a configuration on it, plane normal, start direction, radius [m]; 0.1 m/s) and the sphere
 #: (frame, center [m], radius [m]) of tests/test_tracking_clearance.py's panda_elbow_sphere
 CIRCLE = ([0.5981, -1.2209, -0.1932, -2.5949, -0.0485, 1.3779, 1.2498], [0.4405, -0.8901, 0.117],
@@ -77,10 +79,11 @@ class _Ours:
 
 
 def _make(method, robot, path, index, q0, dt, sphere):
-    held = sphere if method in ("kinredund", "pink_barrier") else None
     if method.startswith("kinredund"):
-        return _Ours(robot, path, index, q0, dt, held)
-    return PinkBarrier(robot, path, index, q0, dt, held)
+        return _Ours(robot, path, index, q0, dt, sphere if method == "kinredund" else None)
+    if method in PINK_VARIANTS:
+        return PinkBarrier(robot, path, index, q0, dt, sphere, PINK_VARIANTS[method])
+    return PinkBarrier(robot, path, index, q0, dt)
 
 
 def run(loops: int = 20, methods=METHODS, steps_per_loop: int = STEPS_PER_LOOP) -> dict:
@@ -137,7 +140,7 @@ def run(loops: int = 20, methods=METHODS, steps_per_loop: int = STEPS_PER_LOOP) 
 
 
 def write_plot(results: dict, path: Path) -> None:
-    """Clearance over time and drift per loop, one curve per method (written atomically)."""
+    """Clearance over the first two loops and drift per loop, one curve per method (written atomically)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -146,16 +149,20 @@ def write_plot(results: dict, path: Path) -> None:
     fig = Figure(figsize=(13, 4.5), layout="constrained")
     FigureCanvasAgg(fig)
     ax_c, ax_d = fig.subplots(1, 2)
+    period = results["settings"]["dt"] * results["settings"]["steps_per_loop"]
     for k, (m, r) in enumerate(results["methods"].items()):
         style = "-" if m.startswith("kinredund") else "--"
-        ax_c.plot(r["t"], 100 * np.array(r["clearance"]), style, lw=1, label=m)
+        t = np.array(r["t"])
+        first = t <= 2 * period + 1e-9  # the first two loops: the later ones repeat them (or drift: right)
+        ax_c.plot(t[first], 100 * np.array(r["clearance"])[first], style, lw=2.5 if m == "kinredund" else 1,
+                  zorder=3 if m == "kinredund" else 2, label=m)
         if r["drift"]:
             d = np.maximum(np.array(r["drift"]), LOG_FLOOR)
             ax_d.semilogy(np.arange(1, len(d) + 1), d, style, marker="os^v"[k % 4], ms=4, label=m)
     ax_c.axhline(0.0, color="k", lw=0.8)
     ax_c.set_xlabel("t [s]")
     ax_c.set_ylabel("elbow clearance from the sphere [cm]")
-    ax_c.set_title("Panda circle, sphere in the elbow's way")
+    ax_c.set_title("Panda circle, sphere in the elbow's way (first two loops)")
     ax_d.set_xlabel("loop")
     ax_d.set_ylabel(f"joint drift after the loop [rad] (floor {LOG_FLOOR:g})")
     ax_d.xaxis.get_major_locator().set_params(integer=True)

@@ -25,13 +25,15 @@ Methods, from the same q0 with the time step T / steps (default 200), L loops (d
   either completes, holds the clearance (>= -1e-9 m at every point, recomputed) and closes (drift <=
   1e-10 rad after each loop), or stops with a named :class:`~kinredund.errors.TrackingError` cause; the
   causes are counted, and a completed run that does not hold or close is counted as ``wrong``;
-- ``pink``: pin-pink with ``BodySphericalBarrier`` on the same frame point (``_clearance.py``), daqp,
-  pink's default limits: completed (no exception, position error <= 1 mm), its smallest clearance and its
-  drift after L loops.
+- ``pink_barrier`` and ``pink_barrier_sd0``: pin-pink with ``BodySphericalBarrier`` on the same frame
+  point (``_clearance.py``), daqp, pink's default limits, the barrier's default ``safe_displacement_gain``
+  (3) or 0: completed (no exception, position error <= 1 mm), its smallest clearance and its drift after
+  L loops.
 
-Figures per robot and method: completion rate, the smallest clearance over the completions (min and
-median of the per-run minima), the runs with a clearance below -1 mm, the closure after L loops (median,
-max), the stop causes. pink is optional (``pip install .[bench]``): without it its column is skipped.
+Figures per robot and method: completion rate, the smallest clearance over the runs that reached the end
+(completed, or pink off the path; min and median of the per-run minima), those with a clearance below
+-1 mm, the closure after L loops (median, max; same runs), the stop causes. pink is optional (``pip
+install .[bench]``): without it its columns are skipped.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 from _bench import parser, print_table, write_json
-from _clearance import PinkBarrier, figures, pink_missing
+from _clearance import PINK_VARIANTS, PinkBarrier, figures, pink_missing
 
 from kinredund.errors import KinredundError, TrackingError
 from kinredund.ik import solve_ik
@@ -59,6 +61,7 @@ SPEED = 0.1  # [m/s]
 HOLD_TOL, CLOSURE_TOL = 1e-9, 1e-10  # [m], [rad]: the issue's bars
 PINK_TRACK_TOL, PINK_INSIDE = 1e-3, -1e-3  # [m]: a pink run within 1 mm of the path; a clearance below -1 mm
 MAX_DRAWS, SPHERE_DRAWS = 50, 20
+METHODS = ("kinredund", *PINK_VARIANTS)
 
 
 def _unit(v):
@@ -126,8 +129,8 @@ def run_ours(robot, path, index, q0, sphere, loops: int, steps: int) -> dict:
     return {"completed": True, "held_and_closed": bool(held), **_short(f)}
 
 
-def run_pink(robot, path, index, q0, sphere, loops: int, steps: int) -> dict:
-    runner = PinkBarrier(robot, path, index, q0, float(path.period) / steps, sphere)
+def run_pink(robot, path, index, q0, sphere, loops: int, steps: int, safe_gain: float | None) -> dict:
+    runner = PinkBarrier(robot, path, index, q0, float(path.period) / steps, sphere, safe_gain)
     rec = [runner.state()]
     for _ in range(loops * steps):
         try:
@@ -157,14 +160,14 @@ def run_robot(name: str, n: int, loops: int, seed: int, steps: int, pink: bool, 
         t0 = time.perf_counter()
         row["kinredund"] = run_ours(robot, path, index, q0, sphere, loops, steps)
         row["kinredund"]["time_s"] = time.perf_counter() - t0
-        if pink:
+        for m, safe_gain in PINK_VARIANTS.items() if pink else ():
             t0 = time.perf_counter()
-            row["pink"] = run_pink(robot, path, index, q0, sphere, loops, steps)
-            row["pink"]["time_s"] = time.perf_counter() - t0
+            row[m] = run_pink(robot, path, index, q0, sphere, loops, steps, safe_gain)
+            row[m]["time_s"] = time.perf_counter() - t0
         tasks.append(row)
         if progress:
             print(f"{name} {i + 1}/{n}: penetration {100 * depth:.1f} cm; " + ", ".join(
-                f"{m} {'ok' if row[m]['completed'] else row[m]['cause']}" for m in ("kinredund", "pink") if m in row),
+                f"{m} {'ok' if row[m]['completed'] else row[m]['cause']}" for m in METHODS if m in row),
                 flush=True)
     return {"robot": name, "frame": frame, "n": n, "seed": seed, "rejected_draws": rejected, "tasks": tasks}
 
@@ -173,8 +176,9 @@ def summarise(result: dict, method: str) -> dict:
     """Counts and figures of one method over a robot's tasks (module docstring)."""
     rows = [r[method] for r in result["tasks"] if method in r]
     done = [r for r in rows if r["completed"]]
-    mins = [r["clearance_min"] for r in done]
-    closure = [r["drift"][-1] for r in done]
+    ran = [r for r in rows if "clearance_min" in r]  # to the end (completed, or pink off the path)
+    mins = [r["clearance_min"] for r in ran]
+    closure = [r["drift"][-1] for r in ran]
     out = {"tasks": len(rows), "completed": len(done), "completion_rate": len(done) / len(rows) if rows else None,
            "clearance_min": min(mins, default=None),
            "clearance_min_median": float(np.median(mins)) if mins else None,
@@ -200,10 +204,11 @@ def write_plot(results: dict, path: Path) -> None:
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, len(results), squeeze=False)[0]
     for ax, (name, res) in zip(axes, results.items(), strict=True):
-        for m, marker in (("kinredund", "o"), ("pink", "x")):
-            pts = [(i, 100 * r[m]["clearance_min"]) for i, r in enumerate(res["tasks"]) if m in r and r[m]["completed"]]
+        for m, marker in zip(METHODS, "ox+", strict=True):
+            pts = [(i, 100 * r[m]["clearance_min"]) for i, r in enumerate(res["tasks"])
+                   if "clearance_min" in r.get(m, {})]
             if pts:
-                ax.plot(*zip(*pts, strict=True), marker, ls="none", label=f"{m} (completed)")
+                ax.plot(*zip(*pts, strict=True), marker, ls="none", label=m)
         stops = [i for i, r in enumerate(res["tasks"]) if not r["kinredund"]["completed"]]
         ax.plot(stops, [0.0] * len(stops), "s", mfc="none", ls="none", label="kinredund stopped (named cause)")
         ax.plot(range(len(res["tasks"])), [-100 * r["penetration"] for r in res["tasks"]], "_", ms=10,
@@ -238,7 +243,7 @@ def main() -> None:
     results = {}
     for name in [args.robot] if args.robot else ROBOTS:
         res = run_robot(name, n, loops, args.seed, steps, why is None, progress=not args.quiet)
-        res["summary"] = {m: summarise(res, m) for m in ("kinredund", "pink") if why is None or m == "kinredund"}
+        res["summary"] = {m: summarise(res, m) for m in METHODS if why is None or m == "kinredund"}
         results[name] = res
     rows = []
     for name, res in results.items():
@@ -251,7 +256,7 @@ def main() -> None:
                        f"closure@{loops} max", "time med s", "stops"])
     wall = time.perf_counter() - t0
     print(f"whole run: {wall:.1f} s")
-    out = {"robots": results, "skipped": {"pink": why} if why else {},
+    out = {"robots": results, "skipped": {m: why for m in PINK_VARIANTS} if why else {},
            "settings": {"loops": loops, "steps_per_loop": steps, "seed": args.seed, "speed": SPEED}, "wall_s": wall}
     write_json(args.json, out)
     if args.plot is not None:
