@@ -30,9 +30,11 @@ Methods, from the same q0 with the time step T / steps (default 200), L loops (d
   (3) or 0: completed (no exception, position error <= 1 mm), its smallest clearance and its drift after
   L loops.
 
-Figures per robot and method: completion rate, the smallest clearance over the runs that reached the end
+Figures per robot and method: completion rate (and for kinredund's ``collision`` stops, the
+``underlying_cause`` they report), the smallest clearance over the runs that reached the end
 (completed, or pink off the path; min and median of the per-run minima), those with a clearance below
--1 mm, the closure after L loops (median, max; same runs), the stop causes. pink is optional (``pip
+-1 mm, the runs closed to 1e-10 rad and the closure after L loops (median, max; same runs), the stop
+causes. pink is optional (``pip
 install .[bench]``): without it its columns are skipped.
 """
 
@@ -120,8 +122,8 @@ def run_ours(robot, path, index, q0, sphere, loops: int, steps: int) -> dict:
         tr = track(robot, path, index, q0, loops=loops, steps_per_loop=steps, constraints=[sphere],
                    diagnostics=False)
     except TrackingError as err:
-        return {"completed": False, "cause": err.cause, "t": err.t,
-                "stop_clear": None if err.q is None else float(sphere.values(err.q)[0])}
+        return {"completed": False, "cause": err.cause, "underlying_cause": err.watched.get("underlying_cause"),
+                "t": err.t, "stop_clear": None if err.q is None else float(sphere.values(err.q)[0])}
     except KinredundError as err:
         return {"completed": False, "cause": type(err).__name__, "message": str(err)[:200]}
     f = figures(robot, path, sphere, q0, tr.t, tr.q, steps)
@@ -183,9 +185,12 @@ def summarise(result: dict, method: str) -> dict:
            "clearance_min": min(mins, default=None),
            "clearance_min_median": float(np.median(mins)) if mins else None,
            "inside_by_1mm": sum(m < PINK_INSIDE for m in mins),
+           "closed": sum(c <= CLOSURE_TOL for c in closure),
            "closure_median": float(np.median(closure)) if closure else None,
            "closure_max": max(closure, default=None),
            "causes": dict(Counter(r["cause"] for r in rows if not r["completed"])),
+           "underlying_causes": dict(Counter(str(r.get("underlying_cause")) for r in rows if not r["completed"]
+                                             and "underlying_cause" in r)),
            "time_median_s": float(np.median([r["time_s"] for r in rows])) if rows else None}
     if method == "kinredund":
         out["held_and_closed"] = sum(r["held_and_closed"] for r in done)
@@ -250,10 +255,14 @@ def main() -> None:
         for m, s in res["summary"].items():
             rows.append([name, m, s["tasks"], s["completed"], s.get("held_and_closed", "-"), s.get("wrong", "-"),
                          s["clearance_min"] if s["clearance_min"] is not None else "-", s["inside_by_1mm"],
-                         s["closure_max"] if s["closure_max"] is not None else "-", s["time_median_s"],
-                         ", ".join(f"{c} {k}" for c, k in s["causes"].items())])
+                         s["closed"], s["closure_median"] if s["closure_median"] is not None else "-",
+                         s["time_median_s"], ", ".join(f"{c} {k}" for c, k in s["causes"].items())])
     print_table(rows, ["robot", "method", "tasks", "completed", "held+closed", "wrong", "min clear m", "< -1 mm",
-                       f"closure@{loops} max", "time med s", "stops"])
+                       "closed", f"closure@{loops} med", "time med s", "stops"])
+    for name, res in results.items():
+        under = res["summary"]["kinredund"]["underlying_causes"]
+        if under:
+            print(f"{name}: kinredund's collision stops, how: " + ", ".join(f"{c} {k}" for c, k in under.items()))
     wall = time.perf_counter() - t0
     print(f"whole run: {wall:.1f} s")
     out = {"robots": results, "skipped": {m: why for m in PINK_VARIANTS} if why else {},
