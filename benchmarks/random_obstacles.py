@@ -23,8 +23,9 @@ Methods, from the same q0 with the time step T / steps (default 200), L loops (d
 
 - ``kinredund``: ``track(robot, path, z, q0, loops=L, constraints=[SphereClearance(...)])``. Every run
   either completes, holds the clearance (>= -1e-9 m at every point, recomputed) and closes (drift <=
-  1e-10 rad after each loop), or stops with a named :class:`~kinredund.errors.TrackingError` cause; the
-  causes are counted, and a completed run that does not hold or close is counted as ``wrong``;
+  1e-10 rad after each loop), or stops with a named :class:`~kinredund.errors.TrackingError` cause at a
+  configuration that is clear, on the path and inside the limits (checked afresh); the causes are
+  counted, and a completed run that does not hold or close is counted as ``wrong``;
 - ``pink_barrier`` and ``pink_barrier_sd0``: pin-pink with ``BodySphericalBarrier`` on the same frame
   point (``_clearance.py``), daqp, pink's default limits, the barrier's default ``safe_displacement_gain``
   (3) or 0: completed (no exception, position error <= 1 mm), its smallest clearance and its drift after
@@ -122,8 +123,14 @@ def run_ours(robot, path, index, q0, sphere, loops: int, steps: int) -> dict:
         tr = track(robot, path, index, q0, loops=loops, steps_per_loop=steps, constraints=[sphere],
                    diagnostics=False)
     except TrackingError as err:
-        return {"completed": False, "cause": err.cause, "underlying_cause": err.watched.get("underlying_cause"),
-                "t": err.t, "stop_clear": None if err.q is None else float(sphere.values(err.q)[0])}
+        out = {"completed": False, "cause": err.cause, "underlying_cause": err.watched.get("underlying_cause"),
+               "t": err.t, "stop_clear": None}
+        if err.q is not None:  # where it stopped, checked afresh: clear, on the path, inside the limits
+            q = np.asarray(err.q, float)
+            out.update(stop_clear=float(sphere.values(q)[0]),
+                       stop_off_path=float(np.linalg.norm(robot.fk(q)[:3, 3] - path(err.t).p)),
+                       stop_outside=float(max(0.0, np.max(robot.lower - q), np.max(q - robot.upper))))
+        return out
     except KinredundError as err:
         return {"completed": False, "cause": type(err).__name__, "message": str(err)[:200]}
     f = figures(robot, path, sphere, q0, tr.t, tr.q, steps)
@@ -194,6 +201,9 @@ def summarise(result: dict, method: str) -> dict:
            "time_median_s": float(np.median([r["time_s"] for r in rows])) if rows else None}
     if method == "kinredund":
         out["held_and_closed"] = sum(r["held_and_closed"] for r in done)
+        out["stops_clear_on_path_inside"] = sum(  # to the tracker's bars, 1e-9 m and 1e-10 rad
+            r.get("stop_clear") is not None and r["stop_clear"] >= -HOLD_TOL and r["stop_off_path"] <= HOLD_TOL
+            and r["stop_outside"] <= CLOSURE_TOL for r in rows if not r["completed"])
         out["wrong"] = len(done) - out["held_and_closed"]  # completed without holding or closing
     return out
 
@@ -214,13 +224,16 @@ def write_plot(results: dict, path: Path) -> None:
                    if "clearance_min" in r.get(m, {})]
             if pts:
                 ax.plot(*zip(*pts, strict=True), marker, ls="none", label=m)
-        stops = [i for i, r in enumerate(res["tasks"]) if not r["kinredund"]["completed"]]
-        ax.plot(stops, [0.0] * len(stops), "s", mfc="none", ls="none", label="kinredund stopped (named cause)")
+        stops = [(i, 100 * (r["kinredund"].get("stop_clear") or 0.0)) for i, r in enumerate(res["tasks"])
+                 if not r["kinredund"]["completed"]]  # at the clearance of its last good state
+        if stops:
+            ax.plot(*zip(*stops, strict=True), "s", mfc="none", ls="none", label="kinredund stopped (named cause)")
         ax.plot(range(len(res["tasks"])), [-100 * r["penetration"] for r in res["tasks"]], "_", ms=10,
                 label="within-limits optimum, no sphere")
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_title(f"{name}: smallest elbow clearance per task")
         ax.set_xlabel("task")
+        ax.xaxis.get_major_locator().set_params(integer=True)
         ax.set_ylabel("smallest clearance [cm]")
         ax.grid(True, alpha=0.3)
     axes[-1].legend(fontsize=8)
@@ -260,9 +273,12 @@ def main() -> None:
     print_table(rows, ["robot", "method", "tasks", "completed", "held+closed", "wrong", "min clear m", "< -1 mm",
                        "closed", f"closure@{loops} med", "time med s", "stops"])
     for name, res in results.items():
-        under = res["summary"]["kinredund"]["underlying_causes"]
+        ours = res["summary"]["kinredund"]
+        under = ours["underlying_causes"]
         if under:
-            print(f"{name}: kinredund's collision stops, how: " + ", ".join(f"{c} {k}" for c, k in under.items()))
+            print(f"{name}: kinredund's collision stops, how: " + ", ".join(f"{c} {k}" for c, k in under.items())
+                  + f"; clear, on the path and inside the limits: {ours['stops_clear_on_path_inside']}"
+                  f"/{sum(under.values())}")
     wall = time.perf_counter() - t0
     print(f"whole run: {wall:.1f} s")
     out = {"robots": results, "skipped": {m: why for m in PINK_VARIANTS} if why else {},

@@ -56,7 +56,8 @@ def test_random_obstacles_smoke(tmp_path):
     for name, r in res["robots"].items():
         s = r["summary"]["kinredund"]
         assert s["tasks"] == 1 and s["completed"] + sum(s["causes"].values()) == 1, name
-        assert s["wrong"] == 0  # every completion holds and closes; every stop is named
+        assert s["wrong"] == 0  # every completion holds and closes; every stop is named, clear and on the path
+        assert s["stops_clear_on_path_inside"] == sum(s["causes"].values())
         for task in r["tasks"]:
             assert task["penetration"] >= 0.01 - 1e-12  # the free optimum runs at least 1 cm in
             ours = task["kinredund"]
