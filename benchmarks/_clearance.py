@@ -1,4 +1,4 @@
-"""Shared pieces of the clearance benchmarks (issue 27): pink with a sphere barrier, and the figures of a run.
+"""Shared pieces of the clearance benchmarks: pink with a sphere barrier, and the figures of a run.
 
 - :class:`PinkBarrier`: pin-pink's differential IK on a position task with a posture task toward the
   index's reference and, for the obstacle, ``pink.barriers.BodySphericalBarrier`` between the watched frame

@@ -1,4 +1,4 @@
-"""A sphere in the elbow's way (issue 27): kinredund holding the clearance against pink with its barrier.
+"""A sphere in the elbow's way: kinredund holding the clearance against pink with its barrier.
 
 Usage::
 

@@ -1,4 +1,4 @@
-"""Random circles with a sphere in the elbow's way (issue 27): kinredund holding the clearance against pink.
+"""Random circles with a sphere in the elbow's way: kinredund holding the clearance against pink.
 
 Usage::
 

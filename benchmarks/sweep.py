@@ -41,8 +41,8 @@ import numpy as np  # noqa: E402
 from _bench import parser, print_table, write_json  # noqa: E402
 
 from kinredund.sweep import grid, sweep  # noqa: E402
+from kinredund.sweep.cluster import WORKER_ENV  # noqa: E402
 from kinredund.sweep.placement import panda_part_circle  # noqa: E402
-from kinredund.sweep.run import WORKER_ENV  # noqa: E402
 
 
 def placements(side: int) -> np.ndarray:

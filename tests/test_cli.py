@@ -290,7 +290,7 @@ def test_plan_6_2_failure_prints_no_empty_rows_and_play_explains(tmp_path, capsy
 
 
 def test_summary_numbers_have_one_format(capsys):
-    from kinredund.ui.report import print_summary as _print_summary
+    from kinredund.ui.summary import print_summary as _print_summary
 
     _print_summary({"loop_drift": [1.234567e-15, 2.5e-15], "x": None, "y": float("nan"), "z": {}, "w": [],
                     "timings_s": {"roadmap_s": 12.345, "total_s": 20.0}, "position_error_max": 1.23456e-12})

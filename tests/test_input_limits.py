@@ -260,24 +260,24 @@ def silent_server():
 
 def test_a_scheduler_that_never_answers_is_an_error(silent_server, monkeypatch):
     """Client() waited for the handshake for ever (past 90 s with an HTTP server on the port)."""
-    from kinredund.sweep import run
+    from kinredund.sweep import cluster
 
-    monkeypatch.setattr(run, "CONNECT_TIMEOUT", 0.5)
-    err = _in_thread(lambda: run._connect(silent_server))
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", 0.5)
+    err = _in_thread(lambda: cluster.connect(silent_server))
     assert isinstance(err, KinredundError) and "does not speak Dask's protocol" in str(err)
     for bad, message in (("tcp://[::1", "not a Dask scheduler address"), ("bogus://x:1", "unknown address scheme")):
-        err = _in_thread(lambda bad=bad: run._connect(bad))
+        err = _in_thread(lambda bad=bad: cluster.connect(bad))
         assert isinstance(err, KinredundError) and message in str(err), err
 
 
 def test_a_real_scheduler_still_connects():
     from distributed import LocalCluster
 
-    from kinredund.sweep.run import _connect
+    from kinredund.sweep.cluster import connect
 
     with LocalCluster(n_workers=0, processes=False, protocol="tcp", host="127.0.0.1",
                       dashboard_address="127.0.0.1:0") as cluster:
-        client = _connect(cluster.scheduler_address)
+        client = connect(cluster.scheduler_address)
         try:
             assert client.status == "running" and client.scheduler.address == cluster.scheduler_address
         finally:

@@ -108,7 +108,7 @@ def test_a_sweep_that_fails_before_computing_keeps_the_existing_sweep_file(tmp_p
     def unreachable(*args, **kw):
         raise KinredundError("cannot reach the Dask scheduler at 'tcp://127.0.0.1:1'")
 
-    monkeypatch.setattr(sweep_run, "_dask_client", unreachable)
+    monkeypatch.setattr(sweep_run, "dask_client", unreachable)
     with pytest.raises(KinredundError, match="cannot reach"):
         sweep(robot, path, kr.JointDeviation(robot.home), placements, steps_per_loop=20, scheduler="tcp://127.0.0.1:1",
               out=done)
@@ -207,7 +207,7 @@ def test_a_full_disk_while_writing_a_bag_is_a_clear_error_and_leaves_nothing(tmp
 @pytest.mark.parametrize("address", ["foo", "tcp://host:notaport", "tcp://[::1", "http://127.0.0.1:8786", "",
                                      "tcp://127.0.0.1:99999"])
 def test_a_malformed_scheduler_address_is_bad_input(address):
-    from kinredund.sweep.run import check_scheduler
+    from kinredund.sweep.cluster import check_scheduler
 
     with pytest.raises(KinredundError, match="scheduler"):
         check_scheduler(address)

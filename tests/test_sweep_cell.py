@@ -222,7 +222,7 @@ def test_cli_sweep_with_a_scene(tmp_path, capsys):
                  "--resolution", str(RESOLUTION), "--pairs", str(pairs),
                  "--json", str(out), "--quiet"])
     text = capsys.readouterr().out
-    assert code == 0 and "1 feasible, 1 collision" in text and "clearance" in text and " m (" in text
+    assert code == 0 and "1 feasible, 1 in collision" in text and "clearance" in text and " m (" in text
     _, back = read_sweep_file(out)
     assert [r.cause for r in back] == [None, "collision"]
     with pytest.raises(SystemExit):

@@ -132,6 +132,7 @@ def _cmd_track(args) -> int:
                              steps_per_loop=args.steps, loops=args.loops,
                              progress=lambda d, n: bar(d, n, "tracking"), **span)
         except TrackingError as err:  # a run that stopped: a result that failed (exit 1), not bad input
+            bar.close("failed")  # returned, not raised: the finally below would say done
             if args.partial is not None and err.partial is not None:
                 # the partial record is this command's output: returning (not raising) lets its batch land
                 _write_partial(args.partial, err)
