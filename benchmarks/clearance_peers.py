@@ -38,7 +38,7 @@ from _clearance import PINK_VARIANTS, PinkBarrier, figures, pink_missing
 from kinredund.errors import check_choice
 from kinredund.ik import solve_ik
 from kinredund.indices import JointDeviation
-from kinredund.model.robot import load_robot
+from kinredund.model.loader import load_robot
 from kinredund.paths import Circle
 from kinredund.tracking import SphereClearance, Tracker
 from kinredund.ui.plots import LOG_FLOOR
@@ -177,7 +177,6 @@ def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--plot", type=Path, default=None, help="write the figure to this file (png, svg, pdf)")
     p.add_argument("--loops", type=int, default=20, help="loops of the circle (default 20)")
-    p.add_argument("--smoke", action="store_true", help="the smallest setting: 1 loop of 50 steps")
     args = p.parse_args()
     if args.loops < 1:
         p.error(f"--loops must be >= 1, got {args.loops}")

@@ -52,7 +52,7 @@ from _clearance import PINK_VARIANTS, PinkBarrier, figures, pink_missing
 from kinredund.errors import KinredundError, TrackingError
 from kinredund.ik import solve_ik
 from kinredund.indices import JointDeviation
-from kinredund.model.robot import load_robot
+from kinredund.model.loader import load_robot
 from kinredund.paths import Circle
 from kinredund.tracking import SphereClearance, track
 
@@ -248,7 +248,6 @@ def main() -> None:
     p.add_argument("--loops", type=int, default=5, help="loops per run (default 5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the task generator (default 0)")
     p.add_argument("--plot", type=Path, default=None, help="write the figure to this file (png, svg, pdf)")
-    p.add_argument("--smoke", action="store_true", help="the smallest setting: 1 task per robot, 1 loop of 50 steps")
     p.add_argument("--quiet", action="store_true", help="no line per task")
     args = p.parse_args()
     if args.n < 1 or args.loops < 1:

@@ -17,7 +17,9 @@ import pytest
 from conftest import load_benchmark
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
-SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("[!_]*.py"))
+#: scripts whose smoke runs are in a test of their own that checks their figures too (test_clearance_benchmarks.py)
+OWN_TEST = {"clearance_peers", "random_obstacles"}
+SCRIPTS = sorted(p.stem for p in BENCHMARKS.glob("[!_]*.py") if p.stem not in OWN_TEST)
 #: [s] a smoke run takes a few seconds; this only turns a hang into a failure (no speed is asserted)
 HANG = 300
 #: the scripts whose smallest run still takes over ~10 s (sweep starts a local Dask cluster)

@@ -46,7 +46,10 @@ def test_readme_snippet_runs_verbatim(k, tmp_path):
         claimed = [c[0] for c in claims]
         assert len(claimed) == len(figures), (claimed, out)
         for said, got in zip(claimed, figures, strict=True):
-            assert abs(math.log10(abs(got) / said)) <= 1.0, f"the comment says ~{said:g}, it printed {got:g}"
+            if got == 0.0:  # a round-off figure may come out exactly 0 on another kernel: a claim at round-off holds
+                assert abs(said) < 1e-12, f"the comment says ~{said:g}, it printed 0"
+                continue
+            assert abs(math.log10(abs(got) / abs(said))) <= 1.0, f"the comment says ~{said:g}, it printed {got:g}"
 
 
 @pytest.mark.parametrize("script", EXAMPLES, ids=[p.stem for p in EXAMPLES])
