@@ -103,12 +103,18 @@ class Chromium:
                     pass
 
 
+#: [s] how long the first call may wait for a starting browser (not a speed bar: a hang turned into a failure)
+STARTUP = 90.0
+
+
 class Page:
     """One page of a :class:`Chromium`: navigate, evaluate JavaScript, take screenshots."""
 
     def __init__(self, browser: Chromium, width: int, height: int):
         self.browser = browser
-        target = next(t for t in browser.call("Target.getTargets")["targetInfos"] if t["type"] == "page")
+        # the first call waits for the browser to start: under load (a full CI run on 2 cores) that took over 20 s
+        targets = browser.call("Target.getTargets", timeout=STARTUP)["targetInfos"]
+        target = next(t for t in targets if t["type"] == "page")
         self.session = browser.call("Target.attachToTarget", {"targetId": target["targetId"], "flatten": True})[
             "sessionId"]
         browser.call("Emulation.setDeviceMetricsOverride",
