@@ -157,3 +157,22 @@ def test_a_pair_matrix_of_another_robot_is_refused(tmp_path):
     path.write_text(json.dumps({"format": "kinredund-pair-matrix", "robot": "x"}))
     with pytest.raises(GeometryError, match="malformed"):
         kr.PairMatrix.load(path)
+
+
+def slider() -> kr.Robot:
+    """An RP arm (a revolute base, a prismatic joint across its axis, 0 to 6 m): its two capsules are
+    adjacent, so the robot has no candidate self pair at all."""
+    from kinredund.kinematics.hd import HDTable
+    from kinredund.model.robot import robot_from_hd
+
+    table = HDTable(alpha=[np.pi / 2, 0.0], a=[0.5, 1.0], b=[0.0, 0.0], kinds="RP", lower=[-np.pi, 0.0],
+                    upper=[np.pi, 6.0])
+    return robot_from_hd(table, task="position")
+
+
+def test_a_robot_without_candidate_self_pairs_gets_a_scene():
+    """self_pairs with nothing to sample (every pair adjacent) raised AttributeError ('list' has no tolist)."""
+    s = kr.Scene(slider())
+    assert s.pair_matrix.enabled == () and s.pair_matrix.counts()["adjacent"] == 1
+    s.add_sphere("ball", 0.05, [1.0, -3.0, 0.0])
+    assert s.min_distance(np.array([0.0, 3.0])) < 0.0  # the slid capsule runs through the ball
