@@ -220,3 +220,19 @@ def test_scene_clearance_skipped_values_stay_lower_bounds_on_a_slid_arm():
         lower = c.values(np.array(q))
         assert np.all(lower <= exact + 1e-12)
     assert np.allclose(lower, exact, rtol=0.0, atol=1e-12)  # beyond the box: queried
+
+
+@pytest.mark.parametrize("gap", [5e-13, 1e-11, 1e-9])
+def test_normal_of_a_pair_within_a_micrometre(gap):
+    """A ball right above the slid capsule: the normal from the capsule to the ball is +z. It was
+    (p_b - p_a) / d: a zero vector at d <= 1e-12 m (a zero distance row) and 7e-7 off at 1e-11 m."""
+    from kinredund.geometry.collision_model import CAPSULE_RADIUS
+
+    s = kr.Scene(slider())
+    q = np.array([0.3, 6.0])
+    above = s.object_pose("joint_2_capsule", q)[:3, 3] + [0.0, 0.0, CAPSULE_RADIUS + 0.05 + gap]
+    s.add_sphere("ball", 0.05, above)
+    d = s.distances(q)
+    k = d.index("joint_2_capsule", "ball")
+    assert abs(d.distance[k] - gap) <= DIST_TOL
+    assert np.allclose(d.normal[k], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-9)
