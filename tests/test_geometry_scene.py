@@ -157,3 +157,82 @@ def test_a_pair_matrix_of_another_robot_is_refused(tmp_path):
     path.write_text(json.dumps({"format": "kinredund-pair-matrix", "robot": "x"}))
     with pytest.raises(GeometryError, match="malformed"):
         kr.PairMatrix.load(path)
+
+
+def slider() -> kr.Robot:
+    """An RP arm (a revolute base, a prismatic joint across its axis, 0 to 6 m): its two capsules are
+    adjacent, so the robot has no candidate self pair at all."""
+    from kinredund.kinematics.hd import HDTable
+    from kinredund.model.robot import robot_from_hd
+
+    table = HDTable(alpha=[np.pi / 2, 0.0], a=[0.5, 1.0], b=[0.0, 0.0], kinds="RP", lower=[-np.pi, 0.0],
+                    upper=[np.pi, 6.0])
+    return robot_from_hd(table, task="position")
+
+
+def test_a_robot_without_candidate_self_pairs_gets_a_scene():
+    """self_pairs with nothing to sample (every pair adjacent) raised AttributeError ('list' has no tolist)."""
+    s = kr.Scene(slider())
+    assert s.pair_matrix.enabled == () and s.pair_matrix.counts()["adjacent"] == 1
+    s.add_sphere("ball", 0.05, [1.0, -3.0, 0.0])
+    assert s.min_distance(np.array([0.0, 3.0])) < 0.0  # the slid capsule runs through the ball
+
+
+def test_motion_bound_takes_a_prismatic_slide_into_account():
+    """Turning the base moves the capsule beyond the slide by its distance from the axis (about 6 m at full
+    slide): the bound of the distance change counted the offsets at q = 0 only (1.56 m/rad) and was 4x short."""
+    s = kr.Scene(slider())
+    s.add_sphere("ball", 0.05, [9.0, 0.0, 0.0])
+    B = s.motion_bound()
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q1 = np.array([rng.uniform(-np.pi, np.pi), rng.uniform(0.0, 6.0)])
+        q2 = np.clip(q1 + rng.uniform(-0.05, 0.05, 2), [-np.pi, 0.0], [np.pi, 6.0])
+        change = np.abs(s.distances(q2).distance - s.distances(q1).distance)  # every pair, in s.pairs' order
+        assert np.all(change <= B @ np.abs(q2 - q1) + 1e-12)
+
+
+def test_check_motion_finds_the_contact_of_a_slid_link():
+    """The slid capsule sweeps through ball B between two samples 1.2 m clear of it, while another stretch
+    comes within 2 cm of ball A: with the slide left out of the joints' reach check_motion proved the sweep
+    free (4 evaluations) and reported no contact; at q = (0, 6) the capsule is 0.1 m deep in B."""
+    from kinredund.geometry.motion import check_motion
+
+    s = kr.Scene(slider())
+    q = np.array([[-0.3, 6.0], [0.3, 6.0], [0.9, 6.0]])
+    s.add_sphere("B", 0.05, s.object_pose("joint_2_capsule", np.array([0.0, 6.0]))[:3, 3])
+    s.add_sphere("A", 0.05, s.object_pose("joint_2_capsule", q[2])[:3, 3] + [0.0, 0.0, 0.12])
+    assert min(s.min_distance(x) for x in q) > 0.0 and s.min_distance(np.array([0.0, 6.0])) < -0.09
+    c = check_motion(s, [0.0, 1.0, 2.0], q)
+    assert c.contact and c.min_pair == ("joint_2_capsule", "B") and c.min_distance < 0.0 and 0.0 < c.min_time < 1.0
+
+
+def test_scene_clearance_skipped_values_stay_lower_bounds_on_a_slid_arm():
+    """SceneClearance's values between exact queries (the last exact ones lowered by the motion bound) are
+    never above the exact ones, also where a turn of the base swings the slid capsule; beyond the slide's
+    limit (where the bound does not hold) they are exact."""
+    s = kr.Scene(slider())
+    s.add_sphere("ball", 0.05, [3.0, -3.0, 0.0])
+    c = kr.SceneClearance(s, clearance=0.02, self_clearance=None, influence=20.0)
+    c.values(np.array([0.0, 6.0]))  # exact here
+    for q in ([0.02, 6.0], [0.05, 5.9], [0.0, 7.5]):
+        exact = s.distances(np.array(q)).distance - c.clearances
+        lower = c.values(np.array(q))
+        assert np.all(lower <= exact + 1e-12)
+    assert np.allclose(lower, exact, rtol=0.0, atol=1e-12)  # beyond the box: queried
+
+
+@pytest.mark.parametrize("gap", [5e-13, 1e-11, 1e-9])
+def test_normal_of_a_pair_within_a_micrometre(gap):
+    """A ball right above the slid capsule: the normal from the capsule to the ball is +z. It was
+    (p_b - p_a) / d: a zero vector at d <= 1e-12 m (a zero distance row) and 7e-7 off at 1e-11 m."""
+    from kinredund.geometry.collision_model import CAPSULE_RADIUS
+
+    s = kr.Scene(slider())
+    q = np.array([0.3, 6.0])
+    above = s.object_pose("joint_2_capsule", q)[:3, 3] + [0.0, 0.0, CAPSULE_RADIUS + 0.05 + gap]
+    s.add_sphere("ball", 0.05, above)
+    d = s.distances(q)
+    k = d.index("joint_2_capsule", "ball")
+    assert abs(d.distance[k] - gap) <= DIST_TOL
+    assert np.allclose(d.normal[k], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-9)

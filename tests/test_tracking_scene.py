@@ -289,3 +289,18 @@ def test_switching_times_agree_with_bisection():
             f = margin(mid, seed)
             lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
         assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
+
+
+def test_a_scene_of_another_robot_with_the_same_joint_names_is_refused():
+    """Two HD-table arms share the joint names joint_1 ... joint_3: a scene of the one held the other's
+    clearances with the wrong links' distances (only the names were compared)."""
+    from kinredund.kinematics.hd import HDTable
+    from kinredund.model.robot import robot_from_hd
+    from kinredund.tracking.tracker import scene_constraints
+
+    planar = kr.load_robot("planar3r")
+    other = robot_from_hd(HDTable(np.zeros(3), [0.5, 0.6, 0.3], np.zeros(3)), task="planar")
+    assert other.joint_names == planar.joint_names
+    with pytest.raises(OptionError, match="placements"):
+        scene_constraints(planar, kr.Scene(other), None, False)
+    assert len(scene_constraints(planar, kr.Scene(kr.load_robot("planar3r")), 0.02, None)) == 1

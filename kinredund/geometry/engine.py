@@ -49,16 +49,26 @@ def no_warm_start(request) -> None:
         request.enable_cached_gjk_guess = False
 
 
+#: below this distance [m] a pair's normal is coal's own, not (p_b - p_a) / d: the witness points' rounding
+#: (~1e-16 of their size) over d tilts the latter (1e-6 at d = 1e-11 m, a zero vector at d <= 1e-12 m)
+NEAR_CONTACT = 1e-6
+
+
 def unit_normals(d: np.ndarray, n: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-    """coal's normals, made sure: (p_b - p_a) / d for separated pairs (|p_b - p_a| = d; coal leaves the normal
-    unset between two exact meshes), coal's own for touching or penetrating pairs where it is a unit vector,
-    else zeros."""
-    out = (pb - pa) / np.where(d > 1e-12, d, 1.0)[:, None]
-    inside = np.flatnonzero(d <= 1e-12)
-    if len(inside):
-        m = n[inside]
+    """coal's normals, made sure: (p_b - p_a) / d for pairs farther apart than :data:`NEAR_CONTACT`
+    (|p_b - p_a| = d); nearer ones (touching or penetrating too) take coal's own ``n`` where it is a unit
+    vector, else (coal leaves it unset between two exact meshes) (p_b - p_a) / |p_b - p_a| while apart, else
+    zeros."""
+    diff = pb - pa
+    out = diff / np.where(d > NEAR_CONTACT, d, 1.0)[:, None]
+    near = np.flatnonzero(d <= NEAR_CONTACT)
+    if len(near):
+        m, g = n[near], diff[near]
         unit = np.abs(np.einsum("ka,ka->k", m, m) - 1.0) < 1e-6
-        out[inside] = np.where(unit[:, None], m, 0.0)
+        length = np.sqrt(np.einsum("ka,ka->k", g, g))
+        apart = (d[near] > 0) & (length > 0)
+        points = g / np.where(apart, length, 1.0)[:, None] * apart[:, None]
+        out[near] = np.where(unit[:, None], m, points)
     return out
 
 
@@ -154,8 +164,8 @@ class Workspace:
         shapes (k,), (k, 3), (k, 3), (k, 3), after :meth:`place`.
 
         Three reads per pair (Python's access to coal's results costs about a microsecond each): the normal
-        of a separated pair is (p_b - p_a) / d; coal's own is read only for pairs in contact. The witness
-        points are kept (``_points``, p_first rows then p_second rows) for :meth:`rows`.
+        of a pair apart is (p_b - p_a) / d; coal's own is read only for pairs within :data:`NEAR_CONTACT`. The
+        witness points are kept (``_points``, p_first rows then p_second rows) for :meth:`rows`.
         """
         ks = ks.tolist()
         k = len(ks)
@@ -165,10 +175,10 @@ class Workspace:
         P = np.array(list(map(_POINT1, results)) + list(map(_POINT2, results))).reshape(2 * k, 3)
         self._points = P
         pa, pb = P[:k], P[k:]
-        if k and d.min() > 1e-12:  # all separated: the common case, without unit_normals' masks
+        if k and d.min() > NEAR_CONTACT:  # all apart: the common case, without unit_normals' masks
             return d, (pb - pa) / d[:, None], pa, pb
         n = np.zeros((k, 3))
-        for r in np.flatnonzero(d <= 0).tolist():
+        for r in np.flatnonzero(d <= NEAR_CONTACT).tolist():
             n[r] = results[r].normal
         return d, unit_normals(d, n, pa, pb), pa, pb
 

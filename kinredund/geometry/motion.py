@@ -7,7 +7,8 @@ the joints move linearly, and no point of the robot (nor of an object it carries
     delta = sum_i |dq_i| R_i,
 
 R_i the reach of joint i: the longest distance from its axis to a point of a body it moves, bounded from the
-model once (the joint offsets along the chain plus each object's bounding spheres; 1 for a prismatic joint).
+model and the motion (the joint offsets along the chain, the slides of the prismatic joints in it up to the
+motion's largest |q|, plus each object's bounding spheres; 1 for a prismatic joint).
 Each pair's signed distance changes by at most the displacement of its two bodies (2 delta between two robot
 bodies), so over a stretch the clearance is at least (d_k + d_(k+1))/2 - delta. A stretch whose bound falls
 below the least clearance found so far (minus ``resolution``) is halved and its midpoint evaluated, until every
@@ -58,19 +59,11 @@ class Clearance:
     evaluations: int
 
 
-def joint_reach(scene: Scene) -> np.ndarray:
-    """R_i [m] for each joint (module docstring): the longest distance from joint i to a point it moves, or 1 for
-    a prismatic joint (its points move by |dq_i| exactly)."""
-    model, ws = scene.robot.model, scene.workspace()
-    objects = np.max(np.linalg.norm(ws.centres, axis=2) + ws.radii, axis=1)  # from each object's joint origin
-    reach = np.zeros(model.njoints)
-    for k, j in enumerate(ws.joints.tolist()):
-        along = 0.0
-        while j > 0:  # up the chain: this object moves with j and every ancestor of j
-            reach[j] = max(reach[j], along + objects[k])
-            along += float(np.linalg.norm(model.jointPlacements[j].translation))
-            j = model.parents[j]
-    return np.where(scene.robot.revolute, reach[1:], 1.0)
+def joint_reach(scene: Scene, extent=None) -> np.ndarray:
+    """R_i for each joint (module docstring): the longest distance [m] from joint i to a point it moves, 1 for a
+    prismatic joint (its points move by |dq_i| exactly); ``extent`` bounds |q| over the motion, as for
+    :meth:`~kinredund.geometry.scene.Scene.object_reach` (a prismatic joint's slide lengthens the chain)."""
+    return scene.object_reach(extent).max(axis=0, initial=0.0)
 
 
 def check_motion(scene: Scene, t, q, *, resolution: float = RESOLUTION) -> Clearance:
@@ -95,7 +88,7 @@ def check_motion(scene: Scene, t, q, *, resolution: float = RESOLUTION) -> Clear
     pairs = tuple(c[0] for c in closest)
     k0 = int(np.argmin(d))
     best = [float(d[k0]), pairs[k0], float(t[k0]), len(q)]
-    R = joint_reach(scene)
+    R = joint_reach(scene, np.abs(q).max(axis=0))  # |q_j| between two samples is at most theirs
     for k in range(len(q) - 1):
         _stretch(scene, R, res, (t[k], q[k], d[k]), (t[k + 1], q[k + 1], d[k + 1]), best)
     return Clearance(t, d, pairs, best[0], best[1], best[2], best[0] <= res, res, best[3])

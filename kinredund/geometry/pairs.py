@@ -175,7 +175,7 @@ def self_pairs(robot: Robot, geom: RobotGeometry, *, samples: int = SAMPLES, see
     at_home = np.zeros(len(todo), dtype=bool)
     for s, q in enumerate(qs):
         ws.place(q)
-        near = ws.near_pairs(never_closer) if len(todo) else []
+        near = ws.near_pairs(never_closer) if len(todo) else np.zeros(0, dtype=int)
         for k, d in zip(near, ws.distances(near)[0], strict=True):
             closest[k] = min(closest[k], d)
             if d <= 0.0:

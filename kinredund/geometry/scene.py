@@ -29,7 +29,7 @@ from kinredund.geometry.collision_model import CAPSULE_RADIUS, robot_geometry
 from kinredund.geometry.engine import Workspace
 from kinredund.geometry.pairs import PairMatrix, self_pairs
 from kinredund.geometry.records import DistanceRows, Distances
-from kinredund.model.robot import Robot, robot_revolute
+from kinredund.model.robot import Robot
 
 _F64 = np.dtype(np.float64)
 SHAPES = ("box", "sphere", "cylinder", "capsule", "convex", "mesh")
@@ -267,26 +267,39 @@ class Scene:
         ws.place(self._q(q))
         return ws.gdata.oMg[self._names.index(name)].homogeneous
 
-    def motion_bound(self) -> np.ndarray:
+    def object_reach(self, extent=None) -> np.ndarray:
+        """L (objects, n) [m/rad or m/m]: along a straight joint path, joint j moves every point of object o
+        (in the geometry model's order: the robot's objects, then the scene's) by at most L[o, j] |dq_j|.
+
+        An object's points lie within its bounding spheres' farthest reach of its joint's origin; up the chain
+        each joint offset adds its length and a prismatic joint p its slide |q_p| (the triangle inequality), so
+        a revolute joint j moves them by at most that distance from its origin times |dq_j| (a prismatic one
+        by |dq_j|). ``extent`` (n,) [rad or m] bounds |q_j| over the motion (only the prismatic joints' count);
+        the default, max(|lower|, |upper|), holds within the robot's joint box.
+        """
+        model, robot = self.robot.model, self.robot
+        ext = np.maximum(np.abs(robot.lower), np.abs(robot.upper)) if extent is None else np.abs(extent)
+        joints, centres, radii = self._spheres
+        far = (np.linalg.norm(centres, axis=2) + radii).max(axis=1, initial=0.0)
+        L = np.zeros((len(joints), model.nv))
+        for o, k in enumerate(joints.tolist()):
+            reach, j = float(far[o]), k
+            while j > 0:  # joint j moves object o: its origin is within `reach` of every point of it
+                revolute = bool(robot.revolute[j - 1])
+                L[o, model.idx_vs[j]] = reach if revolute else 1.0
+                reach += float(np.linalg.norm(model.jointPlacements[j].translation))
+                reach += 0.0 if revolute else float(ext[model.idx_qs[j]])  # the slide moves the origin
+                j = model.parents[j]
+        return L
+
+    def motion_bound(self, extent=None) -> np.ndarray:
         """B (pairs, n) [m/rad or m/m]: along a straight joint path from q to q', the distance of checked pair k
         changes by at most sum_j B[k, j] |q'_j - q_j| (in the order of :attr:`pairs`).
 
-        Configuration-independent: an object's points stay within L_j of joint j's origin, L_j its bounding
-        spheres' farthest reach through the chain (the joint offsets' lengths summed: the triangle inequality),
-        so a revolute joint j moves them by at most L_j |dq_j| (a prismatic one by |dq_j|). A joint that moves
-        both objects of a pair moves them rigidly together and leaves their distance alone.
+        From :meth:`object_reach` (``extent`` as there: by default, for paths within the joint box). A joint
+        that moves both objects of a pair moves them rigidly together and leaves their distance alone.
         """
-        model = self.robot.model
-        revolute = robot_revolute(model)
-        joints, centres, radii = self._spheres
-        far = np.linalg.norm(centres, axis=2).max(axis=1, initial=0.0) + radii.max(axis=1, initial=0.0)
-        L = np.zeros((len(joints), model.nv))  # per object
-        for o, k in enumerate(joints):
-            reach, j = float(far[o]), int(k)
-            while j > 0:  # joint j moves object o: its origin is within `reach` of every point of it
-                L[o, model.idx_vs[j]] = reach if revolute[j - 1] else 1.0
-                reach += float(np.linalg.norm(model.jointPlacements[j].translation))
-                j = model.parents[j]
+        L = self.object_reach(extent)
         a, b = L[self._first], L[self._second]
         return np.where((a > 0) & (b > 0), 0.0, a + b)
 

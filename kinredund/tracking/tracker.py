@@ -237,7 +237,19 @@ def scene_constraints(robot: Robot, scene, clearance, self_clearance) -> list:
     if list(scene.robot.joint_names) != list(robot.joint_names):
         raise OptionError(f"the scene is of a robot with joints {list(scene.robot.joint_names)}, not the tracked "
                           f"{list(robot.joint_names)}")
+    if not same_chain(scene.robot.model, robot.model):
+        raise OptionError(f"the scene is of a robot {scene.robot.name!r} whose joints have the tracked robot's names "
+                          f"but other placements or kinds than {robot.name!r}'s: make the Scene of the tracked robot")
     if self_clearance is True:
         raise OptionError("self_clearance takes a distance [m] (default 0.01) or False, not True")
     own = None if self_clearance is False else (0.01 if self_clearance is None else self_clearance)
     return [SceneClearance(scene, 0.02 if clearance is None else clearance, own)]
+
+
+def same_chain(a, b) -> bool:
+    """Do two Pinocchio models have one kinematic chain: parents, joint kinds and joint placements (to 1e-12)?"""
+    if a.njoints != b.njoints or list(a.parents) != list(b.parents):
+        return False
+    kinds = all(x.shortname() == y.shortname() for x, y in zip(a.joints, b.joints, strict=True))
+    return kinds and all(np.allclose(x.homogeneous, y.homogeneous, rtol=0.0, atol=1e-12)
+                         for x, y in zip(a.jointPlacements, b.jointPlacements, strict=True))

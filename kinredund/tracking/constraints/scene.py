@@ -19,8 +19,9 @@ and no switch is located on it; a pair is computed exactly from the step on whic
 
 Between steps the stepper asks only for the values, to see whether a row has been reached. While every row
 is far from zero these need no query: along a straight joint path pair k's distance changes by at most
-sum_j B_kj |dq_j| (``Scene.motion_bound``), so the last exact values lowered by that amount are lower
-bounds; a query is made when one of them comes within :data:`SKIP_MARGIN` of zero, and always for rows,
+sum_j B_kj |dq_j| (``Scene.motion_bound``; between configurations whose prismatic joints are within the
+extent of their limits, which it takes for their slides), so the last exact values lowered by that amount are
+lower bounds; a query is made when one of them comes within :data:`SKIP_MARGIN` of zero, and always for rows,
 gradients and curvature. So ``values`` (and the record's smallest value per point) are exact near the
 clearances and lower bounds elsewhere.
 
@@ -122,7 +123,9 @@ class SceneClearance(Constraint):
         if not self.influence > top:
             raise OptionError(f"the influence ({self.influence} m) must exceed the largest clearance ({top} m): "
                               "a pair beyond it must not be able to be under its clearance")
-        self._bound = scene.motion_bound()[self.index]  # row k's distance changes by at most bound[k] @ |dq|
+        robot = scene.robot  # row k's distance changes by at most bound[k] @ |dq| between q in the box |q| <= extent
+        self._extent = np.where(robot.revolute, np.inf, np.maximum(np.abs(robot.lower), np.abs(robot.upper)))
+        self._bound = scene.motion_bound(self._extent)[self.index]
         self._local = threading.local()
 
     @property
@@ -142,7 +145,8 @@ class SceneClearance(Constraint):
         last = getattr(self._local, "last", None)
         if last is not None and (last[1][4] is not None or not rows) and np.array_equal(last[0], q):
             return last[1]
-        if not rows and last is not None:  # far from every clearance: the last exact values, lowered
+        if not rows and last is not None and self._boxed(q) and self._boxed(last[0]):
+            # far from every clearance: the last exact values, lowered
             lower = last[1][3] - self._bound @ np.abs(q - last[0])
             if float(lower.min()) > SKIP_MARGIN:
                 return (None, None, None, lower, None)
@@ -164,6 +168,10 @@ class SceneClearance(Constraint):
         out = (rec, mine, here, c, G)
         self._local.last = (q.copy(), out)
         return out
+
+    def _boxed(self, q: np.ndarray) -> bool:
+        """Is q where the motion bound holds (no prismatic joint slid beyond its limits' extent)?"""
+        return bool(np.all(np.abs(q) <= self._extent))
 
     def values(self, q: np.ndarray) -> np.ndarray:
         return self._query(q, rows=False)[3].copy()
