@@ -138,12 +138,14 @@ def _cmd_track(args) -> int:
                 _write_partial(args.partial, err)
             print(f"kinredund: tracking stopped: {err}{stop_hint(err, args)}", file=sys.stderr)
             return EXIT_FAILED
+        failed = [traj.meta[k] for k in ("loop_not_closed", "rate_burst") if k in traj.meta]  # no success (track())
         if args.html:
             bar(0, 1, "the HTML replay")
             from kinredund.ui.viz import replay_html
             from kinredund.ui.viz.page import replay_title
 
             replay_html(traj, args.html, robot=robot, title=replay_title(traj, args.path))
+        bar.close("failed" if failed else "done")  # exit 1 below: the progress does not say done
     finally:
         bar.close()
     print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode, index {args.index}")
@@ -156,7 +158,6 @@ def _cmd_track(args) -> int:
         plot_joint_histories(traj, args.plot)
     wrote(args.json, args.plot, args.html)
     say_speed(traj, robot, args)
-    failed = [traj.meta[k] for k in ("loop_not_closed", "rate_burst") if k in traj.meta]  # no success (track())
     for why in failed:
         print(f"kinredund: {why}", file=sys.stderr)
     return EXIT_FAILED if failed else EXIT_OK
