@@ -243,3 +243,22 @@ def test_ctrl_c_on_the_demo_names_the_files_it_kept(tmp_path):
     assert f"the demo's files done so far stay in {out}/" in err and "no output file" not in err, err
     assert (out / "example_4_1_joints.png").exists()
     assert "demo: interrupted at" in err and "demo: done" not in err
+
+
+def test_a_stop_at_the_start_says_there_is_no_partial_record(monkeypatch, capsys, tmp_path):
+    """``track --partial FILE`` whose run stops before its first step (no partial record) says so, instead
+    of exiting 1 with no file and no word about it."""
+    import kinredund.tracking as tracking
+    from kinredund.errors import TrackingError
+    from kinredund.ui.cli import EXIT_FAILED, main
+
+    def stop_at_start(*args, **kw):
+        raise TrackingError("the start is too close to the scene", cause="collision", t=0.0)
+
+    monkeypatch.setattr(tracking, "track", stop_at_start)
+    out = tmp_path / "partial.json"
+    code = main(["track", "planar3r", "--radius", "0.5", "--steps", "20", "--quiet", "--partial", str(out)])
+    err = capsys.readouterr().err
+    assert code == EXIT_FAILED, err
+    assert not out.exists()
+    assert f"no partial record to write to {out}" in err, err
