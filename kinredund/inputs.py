@@ -100,15 +100,21 @@ def read_text(path: str | Path) -> str:
         raise KinredundError(f"{path} is not UTF-8 text (byte {err.start}): a JSON file must be UTF-8") from err
 
 
+def parse_json(text: str, where) -> object:
+    """The JSON value of ``text`` read from ``where`` (a file, a line of one); KinredundError naming ``where``
+    if it is not JSON or nests arrays or objects too deeply to read (Python's parser recurses: a
+    RecursionError otherwise)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise KinredundError(f"{where} is not valid JSON: {err}") from err
+    except RecursionError as err:
+        raise KinredundError(f"{where} nests JSON arrays or objects too deeply to read") from err
+
+
 def read_json_object(path: str | Path) -> dict:
     """The JSON object in ``path``; KinredundError (naming the file) if unreadable, not JSON or not an object."""
-    text = read_text(path)
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise KinredundError(f"{path} is not valid JSON: {err}") from err
-    except RecursionError as err:
-        raise KinredundError(f"{path} nests JSON arrays or objects too deeply to read") from err
+    data = parse_json(read_text(path), path)
     if not isinstance(data, dict):
         raise KinredundError(f"{path} does not hold a JSON object")
     return data

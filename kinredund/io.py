@@ -49,6 +49,7 @@ from kinredund.inputs import (  # noqa: F401  (the readers, here too for their c
     MAX_INPUT_BYTES,
     check_regular_file,
     file_kind,
+    parse_json,
     read_input,
     read_json_object,
     read_text,

@@ -428,3 +428,26 @@ def test_progress_lines_off_a_terminal_and_a_bar_on_one():
     bar.close()
     drawn = term.getvalue()
     assert "track panda: the optimal start (IK)" in drawn and "track panda: tracking" in drawn and "100/200" in drawn
+
+
+def test_every_output_option_is_checked_and_typed_as_an_output_file():
+    """Every option that names a file the command writes (``--json``, ``--plot``, ``--html``, ``--csv``,
+    ``--partial``) is in :data:`kinredund.ui.cli.OUTPUT_OPTIONS` (checked before any work) and parsed by
+    :func:`kinredund.ui.options.output_file` (``out.json/`` names a folder and is refused, not turned into
+    ``out.json``), on every subcommand."""
+    from kinredund.ui.cli import OUTPUT_OPTIONS, build_parser
+    from kinredund.ui.options import output_file
+
+    files = {name for name, kind in OUTPUT_OPTIONS.items() if kind == "file"}
+    untyped, unchecked = [], []
+    for name, sub in _subparsers(build_parser()).items():
+        for action in sub._actions:
+            if action.dest in files and action.type is not output_file:
+                untyped.append(f"{name} {'/'.join(action.option_strings)}")
+            if action.type is output_file and action.dest not in OUTPUT_OPTIONS:
+                unchecked.append(f"{name} {'/'.join(action.option_strings)}")
+    assert not untyped, f"output options not typed with options.output_file: {untyped}"
+    assert not unchecked, f"output options missing from OUTPUT_OPTIONS: {unchecked}"
+    with pytest.raises(SystemExit) as exc:
+        main(["check", "run.json", "--scene", "cell.json", "--json", "out.json/"])
+    assert exc.value.code == EXIT_USAGE

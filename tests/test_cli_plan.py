@@ -69,3 +69,15 @@ def test_plan_refuses_an_open_path_and_an_unknown_robot(tmp_path):
     out = run("plan", "no_such_robot", cwd=tmp_path)
     assert out.returncode == 2 and "kinredund: error:" in out.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["open.json"]
+
+
+def test_plan_of_a_thesis_case_refuses_the_robot_plan_outputs(tmp_path, capsys):
+    """``plan 6.2|6.3`` writes no HTML replay nor partial record: --html and --partial are refused before
+    any work (exit 2), not left silently unwritten (plan 6.2 ran and exited 1 with no word about them)."""
+    from kinredund.ui.cli import EXIT_USAGE, main
+
+    for option in ("--html", "--partial"):
+        code = main(["plan", "6.2", "--quiet", option, str(tmp_path / "out.file")])
+        err = capsys.readouterr().err
+        assert code == EXIT_USAGE and f"{option} apply to a robot's plan" in err, err
+    assert list(tmp_path.iterdir()) == []

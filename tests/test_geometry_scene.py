@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 
 import numpy as np
 import pytest
@@ -131,6 +132,19 @@ def test_a_corrupt_mesh_is_refused(tmp_path):
     bad.write_bytes(b"solid nothing\nthis is not a facet\n")
     with pytest.raises(GeometryError, match="broken.stl"):
         new_scene().add_mesh("m", bad)
+
+
+def test_a_mesh_that_is_not_a_regular_file_is_refused_without_reading(tmp_path):
+    """A scene's mesh file goes through the input check (kinredund.inputs): a FIFO is named as such before
+    trimesh opens it (it said 'does not exist', and a FIFO that exists was never read through the check)."""
+    fifo = tmp_path / "part.stl"
+    os.mkfifo(fifo)
+    with pytest.raises(GeometryError, match="part.stl.*a FIFO"):
+        new_scene().add_mesh("m", fifo)
+    folder = tmp_path / "folder.stl"
+    folder.mkdir()
+    with pytest.raises(GeometryError, match="folder.stl.*a directory"):
+        new_scene().add_mesh("m", folder)
 
 
 def test_bad_scene_files_are_refused(tmp_path):

@@ -303,3 +303,17 @@ def test_values_read_from_a_file_are_shortened_in_messages():
         with pytest.raises(error) as err:
             Trajectory.from_json_dict({**ok, key: bad})
         assert len(str(err.value)) < 400 and "..." in str(err.value), key
+
+
+@pytest.mark.parametrize("suffix", [".jsonl", ".json"])
+def test_a_sweep_file_nested_too_deeply_is_refused_not_an_internal_error(tmp_path, suffix):
+    """A sweep file read on ``--resume`` whose JSON nests too deeply: a KinredundError naming it (it was a
+    RecursionError from json.loads: exit 3, an internal error, for bad input)."""
+    from kinredund.sweep.store import read_sweep_file
+
+    deep = "[" * 200_000 + "]" * 200_000
+    head = '{"kind": "kinredund-sweep", "schema_version": 2}'
+    path = tmp_path / f"s{suffix}"
+    path.write_text(f"{head}\n{deep}\n" if suffix == ".jsonl" else deep)
+    with pytest.raises(KinredundError, match="too deeply"):
+        read_sweep_file(path)

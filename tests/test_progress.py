@@ -146,6 +146,42 @@ def test_a_failing_command_does_not_say_done(tmp_path):
     assert not any(line.startswith("track planar3r: done") for line in lines), run.stderr
 
 
+def _last_progress(err: str, label: str) -> str:
+    lines = [line for line in err.strip().splitlines() if line.startswith(f"{label}: ")]
+    assert lines, err
+    return lines[-1]
+
+
+def test_a_track_whose_joints_do_not_close_exits_1_and_says_failed(monkeypatch, capsys):
+    """A finished tracking run whose record fails its own check (``loop_not_closed``) exits 1: its progress
+    ends with 'failed' (it said 'done', then the exit code 1)."""
+    import kinredund.tracking as tracking
+    from kinredund.ui.cli import EXIT_FAILED, main
+
+    real = tracking.track
+
+    def open_loop(*args, **kw):
+        traj = real(*args, **kw)
+        traj.meta["loop_not_closed"] = "the joints do not return (a reproducer)"
+        return traj
+
+    monkeypatch.setattr(tracking, "track", open_loop)
+    code = main(["track", "planar3r", "--radius", "0.5", "--speed", "0.5", "--steps", "20"])
+    err = capsys.readouterr().err
+    assert code == EXIT_FAILED, err
+    assert _last_progress(err, "track planar3r").startswith("track planar3r: failed"), err
+
+
+def test_a_sweep_without_a_feasible_placement_exits_1_and_says_failed(capsys):
+    """A sweep that finds no feasible placement exits 1: its progress ends with 'failed', not 'done'."""
+    from kinredund.ui.cli import EXIT_FAILED, main
+
+    code = main(["sweep", "planar3r", "--grid", "9:9:1,9:9:2", "--steps", "20", "--workers", "0"])
+    err = capsys.readouterr().err
+    assert code == EXIT_FAILED, err
+    assert _last_progress(err, "sweep").startswith("sweep: failed"), err
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_ctrl_c_on_a_dask_sweep_returns_promptly_and_names_the_kept_file(tmp_path):
     out = tmp_path / "sweep.jsonl"
@@ -207,3 +243,22 @@ def test_ctrl_c_on_the_demo_names_the_files_it_kept(tmp_path):
     assert f"the demo's files done so far stay in {out}/" in err and "no output file" not in err, err
     assert (out / "example_4_1_joints.png").exists()
     assert "demo: interrupted at" in err and "demo: done" not in err
+
+
+def test_a_stop_at_the_start_says_there_is_no_partial_record(monkeypatch, capsys, tmp_path):
+    """``track --partial FILE`` whose run stops before its first step (no partial record) says so, instead
+    of exiting 1 with no file and no word about it."""
+    import kinredund.tracking as tracking
+    from kinredund.errors import TrackingError
+    from kinredund.ui.cli import EXIT_FAILED, main
+
+    def stop_at_start(*args, **kw):
+        raise TrackingError("the start is too close to the scene", cause="collision", t=0.0)
+
+    monkeypatch.setattr(tracking, "track", stop_at_start)
+    out = tmp_path / "partial.json"
+    code = main(["track", "planar3r", "--radius", "0.5", "--steps", "20", "--quiet", "--partial", str(out)])
+    err = capsys.readouterr().err
+    assert code == EXIT_FAILED, err
+    assert not out.exists()
+    assert f"no partial record to write to {out}" in err, err

@@ -21,7 +21,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from kinredund.errors import GeometryError, check_array, check_positive
+from kinredund.errors import GeometryError, InputFileError, check_array, check_positive
+from kinredund.inputs import check_regular_file
 
 #: the largest departure from orthonormality accepted in a rotation matrix, and from 1 in a quaternion's norm
 RIGID_TOL = 1e-6
@@ -147,7 +148,9 @@ def load_mesh(file, scale=1.0, *, convex: bool = True):
             triangles (a BVH; distances are slower, and 0 rather than negative inside).
 
     Raises:
-        GeometryError: the file is missing, of an unknown type, unreadable, or holds no triangles; a bad scale.
+        GeometryError: the file is missing, not a regular file (a FIFO, a device), larger than
+            :data:`kinredund.inputs.MAX_INPUT_BYTES`, of an unknown type, unreadable, or holds no triangles;
+            a bad scale.
     """
     import trimesh
 
@@ -155,8 +158,11 @@ def load_mesh(file, scale=1.0, *, convex: bool = True):
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise GeometryError(f"mesh file {str(file)!r}: unknown type {path.suffix!r}; "
                             f"allowed: {', '.join(MESH_SUFFIXES)}")
-    if not path.is_file():
-        raise GeometryError(f"mesh file {str(file)!r} does not exist")
+    try:  # a regular file of bounded size: a FIFO would hang trimesh, a huge file exhaust memory
+        check_regular_file(path)
+    except InputFileError as err:
+        why = err.reason if path.exists() else "does not exist"
+        raise GeometryError(f"mesh file {str(file)!r}: {why}") from err
     s = np.broadcast_to(np.asarray(scale, dtype=float), (3,)) if np.ndim(scale) == 0 else vector(scale, 3, "scale")
     if not np.all(np.isfinite(s)) or np.any(s <= 0):
         raise GeometryError(f"mesh scale must be one or three finite numbers > 0, got {scale!r}")

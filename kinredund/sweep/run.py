@@ -139,7 +139,8 @@ def header(job: SweepJob, count: int) -> dict:
 
 
 def options_dict(options: SweepOptions) -> dict:
-    """The options for the file's header (JSON): the scene as its objects (:meth:`SweepScene.describe`)."""
+    """The options for the file's header (JSON): the scene as its objects
+    (:meth:`kinredund.sweep.cell.SweepScene.describe`)."""
     out = {f.name: getattr(options, f.name) for f in fields(options)}
     out["scene"] = None if options.scene is None else options.scene.describe()
     return out

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import KinredundError
-from kinredund.io import atomic_write, read_text
+from kinredund.io import atomic_write, parse_json, read_text
 from kinredund.sweep.record import PlacementRecord
 
 KIND = "kinredund-sweep"
@@ -48,15 +48,12 @@ def read_sweep_file(path: str | Path) -> tuple[dict, list[PlacementRecord]]:
     """(header, records) of a sweep file; KinredundError (naming the file) if it is not one."""
     path = Path(path)
     text = read_text(path)
-    try:
-        if path.suffix == ".jsonl":
-            lines = [json.loads(line) for line in text.splitlines() if line.strip()]
-            head, rows = (lines[0], lines[1:]) if lines else ({}, [])
-        else:
-            data = json.loads(text)
-            head, rows = (data.get("sweep", {}), data.get("records", [])) if isinstance(data, dict) else ({}, [])
-    except json.JSONDecodeError as err:
-        raise KinredundError(f"{path} is not a sweep file (invalid JSON: {err})") from err
+    if path.suffix == ".jsonl":
+        lines = [parse_json(line, f"{path} line {k}") for k, line in enumerate(text.splitlines(), 1) if line.strip()]
+        head, rows = (lines[0], lines[1:]) if lines else ({}, [])
+    else:
+        data = parse_json(text, path)
+        head, rows = (data.get("sweep", {}), data.get("records", [])) if isinstance(data, dict) else ({}, [])
     if not isinstance(head, dict) or head.get("kind") != KIND or not isinstance(rows, list):
         raise KinredundError(f"{path} is not a kinredund sweep file (no header of kind {KIND!r})")
     try:

@@ -83,7 +83,11 @@ def _cmd_reproduce(args) -> int:
 
 
 def _write_partial(out, err: TrackingError) -> None:
-    """``--partial FILE``: the record up to a tracking stop with the failure (cause, time, state) as JSON."""
+    """``--partial FILE``: the record up to a tracking stop with the failure (cause, time, state) as JSON;
+    a stop before the first step has none, which is said (not a silent missing file)."""
+    if err.partial is None:
+        print(f"kinredund: note: no partial record to write to {out}: the run stopped at its start", file=sys.stderr)
+        return
     failure = {"cause": err.cause, "t": err.t, "q": err.q, "watched": err.watched, "message": str(err)}
     err.partial.save_json(out, extra={"failure": json_ready(failure)})
     print(f"wrote the partial record up to t = {err.partial.t[-1]:.6g} s to {out}", file=sys.stderr)
@@ -133,17 +137,19 @@ def _cmd_track(args) -> int:
                              progress=lambda d, n: bar(d, n, "tracking"), **span)
         except TrackingError as err:  # a run that stopped: a result that failed (exit 1), not bad input
             bar.close("failed")  # returned, not raised: the finally below would say done
-            if args.partial is not None and err.partial is not None:
+            if args.partial is not None:
                 # the partial record is this command's output: returning (not raising) lets its batch land
                 _write_partial(args.partial, err)
             print(f"kinredund: tracking stopped: {err}{stop_hint(err, args)}", file=sys.stderr)
             return EXIT_FAILED
+        failed = [traj.meta[k] for k in ("loop_not_closed", "rate_burst") if k in traj.meta]  # no success (track())
         if args.html:
             bar(0, 1, "the HTML replay")
             from kinredund.ui.viz import replay_html
             from kinredund.ui.viz.page import replay_title
 
             replay_html(traj, args.html, robot=robot, title=replay_title(traj, args.path))
+        bar.close("failed" if failed else "done")  # exit 1 below: the progress does not say done
     finally:
         bar.close()
     print(f"{robot.name}: {args.path}, {args.scheme} scheme, {args.mode} mode, index {args.index}")
@@ -156,7 +162,6 @@ def _cmd_track(args) -> int:
         plot_joint_histories(traj, args.plot)
     wrote(args.json, args.plot, args.html)
     say_speed(traj, robot, args)
-    failed = [traj.meta[k] for k in ("loop_not_closed", "rate_burst") if k in traj.meta]  # no success (track())
     for why in failed:
         print(f"kinredund: {why}", file=sys.stderr)
     return EXIT_FAILED if failed else EXIT_OK

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from kinredund.ui.options import EXIT_FAILED, EXIT_OK, subcommand
+from kinredund.ui.options import EXIT_FAILED, EXIT_OK, output_file, subcommand
 
 CHECK_HELP = """Check a saved motion against a cell: the least clearance along it (signed distance [m] between
 the robot, its self pairs, the scene's obstacles and what it carries), the pair and the time, checking between
@@ -64,5 +64,7 @@ def add_parser(sub) -> None:
                    help="how closely the least clearance is found [m] (default: %(default)s)")
     p.add_argument("--pairs", type=Path,
                    help="a saved self-pair matrix (PairMatrix.save) (default: computed, seeded)")
-    p.add_argument("--json", type=Path, help="write the clearance per sample and the verdict (default: not written)")
-    p.add_argument("--plot", type=Path, help="plot the clearance over time (.png, .pdf, .svg) (default: not drawn)")
+    p.add_argument("--json", type=output_file,
+                   help="write the clearance per sample and the verdict (default: not written)")
+    p.add_argument("--plot", type=output_file,
+                   help="plot the clearance over time (.png, .pdf, .svg) (default: not drawn)")

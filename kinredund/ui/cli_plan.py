@@ -13,7 +13,7 @@ cause and reason on stderr; with ``--partial FILE`` what the tracker recorded be
 
 from __future__ import annotations
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, OptionError
 from kinredund.ui import options
 from kinredund.ui.options import PLAN_PLOT_NOTE, at_least, output_file, subcommand
 from kinredund.ui.report import outcome, progress_for, wrote
@@ -91,6 +91,10 @@ def _plan_robot(args) -> int:
 
 def _cmd_plan(args) -> int:
     if args.target in CASES:
+        given = [f"--{name}" for name in ("html", "partial") if getattr(args, name) is not None]
+        if given:  # refused before any work, not silently left unwritten
+            raise OptionError(f"{' and '.join(given)} apply to a robot's plan, not to the thesis's case {args.target}: "
+                              f"write --json FILE, then `kinredund play FILE --html REPLAY.html`")
         return run_case(args.target, args, label=f"plan {args.target}")
     return _plan_robot(args)
 
@@ -141,7 +145,8 @@ def add_parser(sub) -> None:
                    help=f"save the figure; the format follows the suffix: .png, .pdf or .svg{PLAN_PLOT_NOTE} "
                         "(default: not drawn)")
     p.add_argument("--html", type=output_file, metavar="FILE",
-                   help="a robot's plan: a standalone HTML replay (default: not written)")
+                   help="a robot's plan (not 6.2, 6.3): a standalone HTML replay (default: not written)")
     p.add_argument("--partial", type=output_file, metavar="FILE",
-                   help="a robot's plan whose tracking stops: the record up to there (default: not written)")
+                   help="a robot's plan (not 6.2, 6.3) whose tracking stops: the record up to there "
+                        "(default: not written)")
     options.add_quiet(p)

@@ -171,6 +171,7 @@ def run(args) -> int:
                         workers=args.workers, scheduler=args.scheduler,
                         batch_size=args.batch_size, out=args.json, resume=args.resume,
                         progress=lambda done, total: bar(done, total, "placements"))
+        bar.close("done" if any(r.feasible for r in records) else "failed")  # none feasible: exit 1 below
     causes = Counter(r.cause for r in records if not r.feasible)
     feasible = sum(r.feasible for r in records)
     print(f"{robot.name}: {len(records)} placements at z = {z:.3f} m, {feasible} feasible"
