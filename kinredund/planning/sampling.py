@@ -41,9 +41,13 @@ class CandidateSet:
         links: pairs of candidate labels one continuation joined.
         start: the label of the start candidate at sample 0 (from ``q0``) or None.
         added: the samples inserted where the walk broke.
+        keepout: the plan's scene and clearances (:class:`~kinredund.planning.keepout.Keepout`) or None: a
+            minimum under a clearance is not a candidate.
+        rejected: (pair, distance - clearance [m]) of the last minimum rejected so, or None.
+        collided: a sample had no candidate while minima were rejected there for their clearance.
     """
 
-    def __init__(self, inner, path, index, opt, ts):
+    def __init__(self, inner, path, index, opt, ts, keepout=None):
         self.inner, self.path, self.index, self.opt = inner, path, index, opt
         self.period = float(path.period)
         self.ts = [float(t) for t in ts]
@@ -55,13 +59,22 @@ class CandidateSet:
         self.added = 0
         self.rng = np.random.default_rng(opt.seed)
         self.box = inner.sample_box()
+        self.keepout, self.rejected, self.collided = keepout, None, False
+        self._keep = None if keepout is None else self._clear
+
+    def _clear(self, q) -> bool:
+        """The keepout's verdict on a minimum, the last rejection remembered for the failure's message."""
+        margin, pair = self.keepout.margins(q)
+        if margin < 0.0:
+            self.rejected = (pair, margin)
+        return margin >= 0.0
 
     def _minimum(self, k: int, seed) -> tuple | None:
-        return local_minimum(self.inner, self.targets[k], self.index, seed, self.opt.max_iter)
+        return local_minimum(self.inner, self.targets[k], self.index, seed, self.opt.max_iter, self._keep)
 
     def _continue(self, a: int, b: int) -> None:
         continue_candidates(self.inner, self.targets, self.index, self.pools, a, b, self.links, self.counter,
-                            self.opt.max_iter)
+                            self.opt.max_iter, self._keep)
 
     def _seed_pool(self, k: int, tries: int, seed: int) -> None:
         """Random starts at sample k; where none reaches a minimum, a within-limits point on the path from a
@@ -82,12 +95,18 @@ class CandidateSet:
         """Step 1: the candidates at every sample; '' or why a sample has none."""
         n, opt = len(self.ts), self.opt
         for k in range(n):
+            self.rejected = None
             if k > 0:
                 self._continue(k - 1, k)
             tries = opt.starts * (4 if k == 0 else 1)
             if k == 0 and inside_limits(self.inner, self.inner.home):  # the robot's home seeds the first sample too
                 self.pools[0].add(self._minimum(0, self.inner.home), self.counter)
             self._seed_pool(k, tries, opt.seed + k)
+            if not self.pools[k].q and self.rejected is not None:
+                self.collided = True
+                (a, b), margin = self.rejected
+                return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s): every within-limits local minimum of the "
+                        f"index found there is under the clearance ({a} and {b} {-margin:.3g} m under it)")
             if not self.pools[k].q:
                 return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s) has no within-limits local minimum of the "
                         f"index ({tries} random starts and the previous sample's minima): the path may leave the "
