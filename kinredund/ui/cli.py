@@ -17,7 +17,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from kinredund.errors import KinredundError, OptionError, TrackingError
+from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
 from kinredund.trajectory import RecordWarning
