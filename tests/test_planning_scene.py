@@ -1,0 +1,147 @@
+"""The cyclic planner with a collision scene (issue 27): ``plan(..., scene=, clearance=, self_clearance=)``.
+
+Named case: ``panda_elbow_circle`` (test_tracking_limits) with the 5 cm sphere of test_tracking_scene put where
+the within-limits optimum's upper arm (panda_link3's hull) passes: the plan without the scene runs 5 mm into it.
+Distances are recomputed afresh with coal (``scene.distances``) on the recorded configurations, not taken from
+the planner's figures. Bars: the tracker's corrector holds an active distance row to ~1e-12, so a recorded
+point keeps the clearance to 1e-9 m (the issue's bar); task and closure bars are the planner's own TASK_TOL and
+CLOSURE_TOL (test_planning_cyclic).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+from test_tracking_limits import case
+from test_tracking_scene import BALL, CLEARANCE, ball_distance
+
+import kinredund as kr
+from kinredund.errors import OptionError
+from kinredund.planning.cyclic import CLOSURE_TOL, TASK_TOL
+from kinredund.planning.keepout import POINT_TOL, verify_clearance
+from kinredund.planning.options import PlanOptions
+from kinredund.planning.verify import task_errors
+
+PLAN = {"samples": 12, "starts": 4, "loops": 2}
+STEPS = 200  # PlanOptions' default steps_per_loop
+
+
+@functools.cache
+def setup():
+    r, path, index, q0 = case("panda_elbow_circle")
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", BALL[1], BALL[0])
+    return r, path, index, q0, sc
+
+
+@functools.cache
+def planned(with_scene: bool = True):
+    r, path, index, _, sc = setup()
+    if not with_scene:
+        return kr.plan(r, path, index, **PLAN)
+    return kr.plan(r, path, index, scene=sc, clearance=CLEARANCE, self_clearance=False, **PLAN)
+
+
+def keepout():
+    r, *_, sc = setup()
+    return PlanOptions(scene=sc, clearance=CLEARANCE, self_clearance=False).keepout_for(r)
+
+
+def test_plan_with_the_scene_keeps_the_clearance_closed_and_on_the_path():
+    r, path, _, _, sc = setup()
+    res = planned()
+    assert res.ok and res.cause == "", res.reason
+    tr = res.trajectory
+    assert len(tr.t) == PLAN["loops"] * STEPS + 1
+    assert ball_distance(sc, tr.q).min() >= CLEARANCE - POINT_TOL  # every recorded point, afresh from coal
+    assert np.all(tr.q >= r.lower) and np.all(tr.q <= r.upper)
+    pos, _ = task_errors(r, path, tr.t, tr.q)
+    assert pos.max() <= TASK_TOL
+    for k in range(1, PLAN["loops"] + 1):
+        assert np.abs(tr.q[k * STEPS] - tr.q[0]).max() <= CLOSURE_TOL
+    for cands in res.samples.candidates:  # no candidate under the clearance
+        assert ball_distance(sc, cands).min() >= CLEARANCE
+    assert res.clearance.ok and res.clearance.geometry == "convex"
+    assert res.summary()["clearance"]["ok"] is True
+
+
+@pytest.mark.slow
+def test_without_the_scene_the_plan_runs_into_the_sphere():
+    """The case is one: the plan without the scene completes, through the sphere's clearance."""
+    sc = setup()[4]
+    free = planned(with_scene=False)
+    assert free.ok, free.reason
+    assert ball_distance(sc, free.trajectory.q).min() < 0.0  # into the sphere itself
+    chk = verify_clearance(keepout(), free.trajectory.t, free.trajectory.q)
+    assert not chk.ok and "ball" in chk.point_pair
+
+
+def test_verification_names_the_pair_and_the_time_of_the_worst_point():
+    r, path, index, q0, sc = setup()
+    free = kr.track(r, path, index, q0, loops=1)  # the free optimum: 5 mm into the sphere
+    d = ball_distance(sc, free.q)
+    chk = verify_clearance(keepout(), free.t, free.q)
+    k = int(np.argmin(d))
+    assert not chk.ok and "ball" in chk.point_pair
+    assert abs(chk.point_margin - (d[k] - CLEARANCE)) <= 1e-12  # the same coal query, rounding only
+    assert chk.point_time == free.t[k]  # copied, not computed
+    assert "ball" in chk.reason() and f"{free.t[k]:.6g}" in chk.reason()
+
+
+def test_verification_checks_between_the_recorded_points():
+    """Two clear points, the upper arm either side of the sphere (the base joint turned from the free optimum's
+    deepest point by +0.2 and -1.0 rad): the straight joint path between them sweeps through the sphere, and
+    only the check between points sees it."""
+    r, path, index, q0, sc = setup()
+    free = kr.track(r, path, index, q0, loops=1)
+    deepest = free.q[int(np.argmin(ball_distance(sc, free.q)))]
+    turn = np.zeros(r.nq)
+    turn[0] = 1.0
+    t, q = np.array([0.0, 1.0]), np.array([deepest + 0.2 * turn, deepest - 1.0 * turn])
+    assert ball_distance(sc, q).min() >= CLEARANCE
+    chk = verify_clearance(keepout(), t, q)
+    assert chk.point_margin >= 0.0 and chk.between_margin < -CLEARANCE  # into the sphere between the points
+    assert ball_distance(sc, q[0] + (chk.between_time - t[0]) * (q[1] - q[0]))[0] == pytest.approx(
+        chk.between_margin + CLEARANCE, abs=1e-12)  # the reported time is where that distance is (t[1]-t[0] = 1)
+    assert not chk.ok and "ball" in chk.between_pair and t[0] < chk.between_time < t[1]
+    assert "between recorded points" in chk.reason()
+
+
+def test_no_candidate_keeps_the_clearance_fails_with_collision_naming_the_pair():
+    r, path, index, _, sc = setup()
+    res = kr.plan(r, path, index, scene=sc, clearance=1.0, self_clearance=False, samples=4, starts=1, loops=1)
+    assert not res.ok and res.cause == "collision" and res.trajectory is None
+    assert "ball" in res.reason and "under the clearance" in res.reason
+
+
+def test_bad_scene_options_are_refused():
+    r, path, index, _, sc = setup()
+    with pytest.raises(OptionError, match="finite distance >= 0"):
+        PlanOptions(scene=sc, clearance=-0.01)
+    with pytest.raises(OptionError, match="need scene="):
+        PlanOptions(clearance=0.02)
+    with pytest.raises(OptionError, match="must be a kinredund Scene"):
+        PlanOptions(scene="cell.json")
+    with pytest.raises(OptionError, match="self_clearance"):
+        PlanOptions(scene=sc, self_clearance=True)
+    with pytest.raises(OptionError, match="clearance_resolution"):
+        PlanOptions(scene=sc, clearance_resolution=0.0)
+    other = kr.Scene(kr.load_robot("xarm7"))
+    other.add_sphere("ball", 0.05, [0.5, 0.0, 0.5])
+    with pytest.raises(OptionError, match="not the tracked"):
+        kr.plan(r, path, index, scene=other)
+
+
+def test_cli_plan_with_a_scene(tmp_path, capsys):
+    from kinredund.ui.cli import main
+
+    assert main(["plan", "panda", "--clearance", "0.02", "--quiet"]) != 0
+    assert "need --scene" in capsys.readouterr().err
+    r, *_, sc = setup()
+    f = kr.geometry.save_scene(sc, tmp_path / "scene.json")
+    code = main(["plan", "panda", "--samples", "4", "--starts", "1", "--loops", "1", "--steps", "20", "--scene",
+                 str(f), "--clearance", "1.0", "--self-clearance", "off", "--quiet"])
+    assert code == 1
+    assert "plan failed (collision)" in capsys.readouterr().err
