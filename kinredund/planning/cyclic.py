@@ -361,7 +361,7 @@ def _follow(robot, path, user_path, index, ref, traj, per_cycle, opt, progress, 
     notes += ([note] if note else []) + [
         f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
         "path), not z's bounded optimum: that minimum ceases to exist or is not strongly stable there (a fold, a "
-        "singular stretch)" for a, b in off]
+        "singular stretch, a clearance held)" for a, b in off]
     return traj, check, off
 
 
