@@ -41,9 +41,8 @@ that overshoot inside the real limits (the verification checks the real ones).
 Where no closed walk exists at the sampling, sample times are added in the middle of the intervals the
 walk cannot cross (:mod:`.sampling`, at most ``refine_samples``) before the plan says why. The options
 are one validated :class:`~kinredund.planning.options.PlanOptions`; the causes of a failed plan are
-:attr:`CyclicPlan.CAUSES`. A collision scene (the options' ``scene``, ``clearance``, ``self_clearance``) is
-held in all three places (:mod:`.keepout`): a candidate under a clearance is not one, the tracking holds the
-distances as exact constraints, and the verification checks them at and between the recorded points; a
+:attr:`CyclicPlan.CAUSES`. A collision scene (options ``scene``, ``clearance``, ``self_clearance``) is held in
+the candidates, the tracking and the verification, at and between the recorded points (:mod:`.keepout`); a
 motion under a clearance fails with cause ``collision`` naming the pair and the time.
 
 A pose path whose orientation turns once about an axis per loop (a circle's Frenet frame) admits no
@@ -69,7 +68,7 @@ from kinredund.errors import KinredundError, PathError, TaskError
 from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
 from kinredund.planning.follow import follow_optimum
-from kinredund.planning.keepout import ClearanceCheck, verify_clearance
+from kinredund.planning.keepout import ClearanceCheck, verify_clearance, with_clearance
 from kinredund.planning.options import PlanOptions
 from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.spline import JointSpline
@@ -335,7 +334,7 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
     reason = _verdict(check)
     if not reason:  # step 6: z's own optimum wherever it is strongly stable (planning.follow)
         traj, check, off = _follow(robot, path, user_path, index, ref, traj, per_cycle, opt, progress, info, notes,
-                                   timings)
+                                   timings, keep)
     cause = "verification" if reason else ""
     clear = None
     if keep is not None and traj is not None:  # the clearance at and between the recorded points (planning.keepout)
@@ -348,11 +347,12 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
     return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles, cause, clear)
 
 
-def _follow(robot, path, user_path, index, ref, traj, per_cycle, opt, progress, info, notes, timings):
+def _follow(robot, path, user_path, index, ref, traj, per_cycle, opt, progress, info, notes, timings, keep):
     """Step 6 of :func:`plan` (:mod:`.follow`): (trajectory, check, off_optimum) of the motion that follows z
-    wherever it can, the notes added to ``notes``."""
+    wherever it can (accepted where it passes the checks, the clearance's too), the notes added to ``notes``."""
     t1 = perf_counter()
-    accept = lambda tr: not _verdict(verify_motion_on_path(robot, user_path, tr.t, tr.q, per_cycle))  # noqa: E731
+    accept = with_clearance(lambda tr: not _verdict(verify_motion_on_path(robot, user_path, tr.t, tr.q, per_cycle)),
+                            keep)
     traj, off, note = follow_optimum(robot, path, index, ref, traj, per_cycle, -(-int(opt.loops) // opt.cycles),
                                      opt.max_jump, accept, progress, info, enabled=opt.follow,
                                      track_kw=opt.scene_kw())

@@ -140,3 +140,10 @@ def verify_clearance(keep: Keepout, t, q) -> ClearanceCheck:
     ok = point[k][0] >= -POINT_TOL and between >= -0.5 * keep.resolution  # so the true minimum >= c - resolution
     return ClearanceCheck(bool(ok), float(point[k][0]), point[k][1], float(t[k]), float(between), pair_b, time_b,
                           keep.scene.geometry, keep.resolution)
+
+
+def with_clearance(accept, keep: Keepout | None):
+    """``accept(trajectory)`` and, with a keepout, its :func:`verify_clearance` passing too."""
+    if keep is None:
+        return accept
+    return lambda tr: accept(tr) and verify_clearance(keep, tr.t, tr.q).ok
