@@ -138,6 +138,15 @@ def test_no_candidate_keeps_the_clearance_fails_with_collision_naming_the_pair()
     assert "ball" in res.reason and "under the clearance" in res.reason
 
 
+def test_a_start_whose_minimum_is_under_the_clearance_fails_with_collision():
+    """A 1 cm pin on the path an eighth of a loop on: the wrist (panda_link6's hull) holds it at t = 0 already."""
+    r, path, index, q0, _ = setup()
+    sc = kr.Scene(r)
+    sc.add_sphere("pin", 0.01, path(float(path.period) / 8).p)
+    res = kr.plan(r, path, index, scene=sc, clearance=CLEARANCE, self_clearance=False, samples=4, q0=q0)
+    assert not res.ok and res.cause == "collision" and "pin" in res.reason and "reached from q0" in res.reason
+
+
 def test_bad_scene_options_are_refused():
     r, path, index, _, sc = setup()
     with pytest.raises(OptionError, match="finite distance >= 0"):

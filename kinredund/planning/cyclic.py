@@ -74,7 +74,7 @@ from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.spline import JointSpline
 from kinredund.planning.stages import PLAN_CAUSES, check_cause
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
-from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
+from kinredund.planning.verify import MotionCheck, verify_motion_on_path, worst_per_excursion
 from kinredund.planning.walk import (
     closest_within_limits,
     inside_limits,
@@ -251,9 +251,10 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
         if not inside_limits(robot, q0):
             raise TaskError(f"q0 must lie inside the joint limits of {robot.name}, got {np.round(q0, 6).tolist()}")
         if not cands.start_from(q0):
-            return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
+            under = cands.under_clearance() and f" that keeps the clearance ({cands.under_clearance()})"
+            return CyclicPlan(False, f"no within-limits local minimum of the index{under} was reached from q0 at t = 0",
                               None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles,
-                              cause="no_minimum")
+                              cause="no_minimum" if cands.rejected is None else "collision")
     missing = cands.collect()
     timings["samples_s"] = perf_counter() - t0
     if missing:
@@ -275,7 +276,8 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
         return CyclicPlan(False, "no continuous closed walk through the within-limits minima"
                           f"{where} after {cands.added} added sample(s) (refine_samples={opt.refine_samples}, "
                           f"{n} samples in all): the minima followed end in folds that no within-limits "
-                          "self-motion of at most max_jump per knot joins", None, smp, None, timings=timings,
+                          f"self-motion of at most max_jump per knot joins{cands.under_clearance() and '; '}"
+                          f"{cands.under_clearance()}", None, smp, None, timings=timings,
                           cycles=cycles, cause="no_closed_walk")
     links = cands.links
     if cands.added:
@@ -318,7 +320,7 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
         check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
         if check.limit_violation > 0 and attempt < rounds:
             added = 0
-            for k in _worst_per_excursion(robot, traj.q):
+            for k in worst_per_excursion(robot, traj.q):
                 tk = float(traj.t[k]) % period
                 ref_k = np.clip(traj.q[k], inner.lower, inner.upper)
                 qk = closest_within_limits(inner, target_at(robot, path, tk), ref_k, seed=traj.q[k],
@@ -363,23 +365,6 @@ def _follow(robot, path, user_path, index, ref, traj, per_cycle, opt, progress, 
         "path), not z's bounded optimum: that minimum ceases to exist or is not strongly stable there (a fold, a "
         "singular stretch, a clearance held)" for a, b in off]
     return traj, check, off
-
-
-def _worst_per_excursion(robot, q) -> list[int]:
-    """The recorded point of the largest excursion beyond the limits in each run of consecutive points
-    outside them."""
-    over = limit_excursion(robot, q)
-    out, k = [], 0
-    while k < len(over):
-        if over[k] > 0:
-            j = k
-            while j < len(over) and over[j] > 0:
-                j += 1
-            out.append(k + int(np.argmax(over[k:j])))
-            k = j
-        else:
-            k += 1
-    return out
 
 
 def _verdict(check: MotionCheck) -> str:

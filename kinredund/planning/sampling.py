@@ -44,6 +44,7 @@ class CandidateSet:
         keepout: the plan's scene and clearances (:class:`~kinredund.planning.keepout.Keepout`) or None: a
             minimum under a clearance is not a candidate.
         rejected: (pair, distance - clearance [m]) of the last minimum rejected so, or None.
+        rejections: how many minima were rejected so.
         collided: a sample had no candidate while minima were rejected there for their clearance.
     """
 
@@ -59,14 +60,14 @@ class CandidateSet:
         self.added = 0
         self.rng = np.random.default_rng(opt.seed)
         self.box = inner.sample_box()
-        self.keepout, self.rejected, self.collided = keepout, None, False
+        self.keepout, self.rejected, self.rejections, self.collided = keepout, None, 0, False
         self._keep = None if keepout is None else self._clear
 
     def _clear(self, q) -> bool:
         """The keepout's verdict on a minimum, the last rejection remembered for the failure's message."""
         margin, pair = self.keepout.margins(q)
         if margin < 0.0:
-            self.rejected = (pair, margin)
+            self.rejected, self.rejections = (pair, margin), self.rejections + 1
         return margin >= 0.0
 
     def _minimum(self, k: int, seed) -> tuple | None:
@@ -86,6 +87,14 @@ class CandidateSet:
             if feasible.converged:
                 self.pools[k].add(self._minimum(k, feasible.q), self.counter)
 
+    def under_clearance(self) -> str:
+        """'' without rejections, else how many minima were rejected for their clearance and the last one's pair."""
+        if self.rejected is None:
+            return ""
+        (a, b), margin = self.rejected
+        return (f"{self.rejections} minima under the clearance were no candidates; the last: {a} and {b} "
+                f"{-margin:.3g} m under it")
+
     def start_from(self, q0) -> bool:
         """The start candidate: the within-limits minimum reached from q0 at sample 0 (False: none)."""
         self.start = self.pools[0].add(self._minimum(0, q0), self.counter)
@@ -95,18 +104,17 @@ class CandidateSet:
         """Step 1: the candidates at every sample; '' or why a sample has none."""
         n, opt = len(self.ts), self.opt
         for k in range(n):
-            self.rejected = None
+            before = self.rejections
             if k > 0:
                 self._continue(k - 1, k)
             tries = opt.starts * (4 if k == 0 else 1)
             if k == 0 and inside_limits(self.inner, self.inner.home):  # the robot's home seeds the first sample too
                 self.pools[0].add(self._minimum(0, self.inner.home), self.counter)
             self._seed_pool(k, tries, opt.seed + k)
-            if not self.pools[k].q and self.rejected is not None:
+            if not self.pools[k].q and self.rejections > before:
                 self.collided = True
-                (a, b), margin = self.rejected
                 return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s): every within-limits local minimum of the "
-                        f"index found there is under the clearance ({a} and {b} {-margin:.3g} m under it)")
+                        f"index found there is under the clearance ({self.under_clearance()})")
             if not self.pools[k].q:
                 return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s) has no within-limits local minimum of the "
                         f"index ({tries} random starts and the previous sample's minima): the path may leave the "
