@@ -11,6 +11,7 @@ CLOSURE_TOL (test_planning_cyclic).
 from __future__ import annotations
 
 import functools
+import json
 
 import numpy as np
 import pytest
@@ -176,3 +177,23 @@ def test_cli_plan_with_a_scene(tmp_path, capsys):
                  str(f), "--clearance", "1.0", "--self-clearance", "off", "--quiet"])
     assert code == 1
     assert "plan failed (collision)" in capsys.readouterr().err
+    sc2 = kr.Scene(r)
+    sc2.add_sphere("ball", BALL[1], [0.0, 0.6, 1.2])  # out of the way; the self pairs at their default 1 cm
+    f = kr.geometry.save_scene(sc2, tmp_path / "far.json")
+    out = tmp_path / "plan.json"
+    assert main(["plan", "panda", "--samples", "8", "--starts", "2", "--loops", "1", "--steps", "50", "--scene",
+                 str(f), "--json", str(out), "--quiet"]) == 0
+    plan = json.loads(out.read_text())["plan"]
+    assert plan["ok"] and plan["clearance"]["ok"] and plan["clearance"]["point_margin"] >= 0.0
+    q = np.array(json.loads(out.read_text())["q"])
+    assert min(sc2.distances(x).min_distance for x in q) >= 0.01 - POINT_TOL  # the self clearance, afresh
+
+
+def test_scene_only_checks_the_pairs_given_and_leaves_the_scene_alone():
+    r, *_, sc = setup()
+    ball = {p for p in sc.pairs if "ball" in p}
+    sub = sc.only({(b, a) for a, b in ball})  # either order
+    assert set(sub.pairs) == ball and len(sc.pairs) > len(ball) and sc.ignored == ()
+    q = r.home
+    d = min(d for p, d in sc.distances(q).as_dict().items() if "ball" in p)
+    assert sub.min_distance(q) == pytest.approx(d, abs=1e-9)  # one distance queried twice (coal's GJK tolerance)

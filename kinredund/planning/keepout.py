@@ -22,14 +22,11 @@ Units: times [s], joints [rad or m], distances [m].
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from kinredund.geometry.motion import check_motion
-from kinredund.geometry.scene_file import load_scene, save_scene
 from kinredund.tracking.constraints.scene import SceneClearance
 
 #: a recorded point keeps its clearance to this [m]: the tracker's corrector holds an active row to ~1e-12
@@ -116,17 +113,6 @@ class Keepout:
         return [(pairs, c) for c, pairs in sorted(out.items())]
 
 
-def _scene_of(scene, pairs: set):
-    """A copy of ``scene`` (through its file form) that checks only ``pairs``."""
-    with tempfile.TemporaryDirectory() as folder:
-        copy = load_scene(save_scene(scene, Path(folder) / "scene.json"), scene.robot, pairs=scene.pair_matrix,
-                          geometry=scene.geometry)
-    for a, b in copy.pairs:
-        if (a, b) not in pairs:
-            copy.ignore(a, b)
-    return copy
-
-
 def verify_clearance(keep: Keepout, t, q) -> ClearanceCheck:
     """The module docstring's step 3 on the recorded motion (t, q): at the points, and between them."""
     t, q = np.asarray(t, float), np.atleast_2d(np.asarray(q, float))
@@ -134,7 +120,7 @@ def verify_clearance(keep: Keepout, t, q) -> ClearanceCheck:
     k = int(np.argmin([m for m, _ in point]))
     between, pair_b, time_b = np.inf, None, float("nan")
     for pairs, c in keep.groups():
-        found = check_motion(_scene_of(keep.scene, pairs), t, q, resolution=0.5 * keep.resolution)  # to r/2
+        found = check_motion(keep.scene.only(pairs), t, q, resolution=0.5 * keep.resolution)  # to r/2
         if found.min_distance - c < between:
             between, pair_b, time_b = found.min_distance - c, found.min_pair, found.min_time
     ok = point[k][0] >= -POINT_TOL and between >= -0.5 * keep.resolution  # so the true minimum >= c - resolution
