@@ -5,7 +5,7 @@ between the robot (and what it carries) and a world obstacle, ``self_clearance``
 robot's own objects (None: those pairs unchecked). The per-pair clearances are the tracker's own
 (:class:`~kinredund.tracking.constraints.scene.SceneClearance`), so the three places a plan holds them agree:
 
-1. **Candidates** (:meth:`Keepout.clear`): a within-limits minimum of z whose distance to some pair is under
+1. **Candidates** (:meth:`Keepout.margins`): a within-limits minimum of z whose distance to some pair is under
    that pair's clearance is not a candidate (rejected at the candidate, from the scene's own distances).
 2. **Tracking**: the planned motion is tracked with the scene's distances as exact inequality constraints
    (``track(..., scene=, clearance=, self_clearance=)``).
@@ -100,10 +100,6 @@ class Keepout:
             if c is not None and d - c < best:
                 best, pair = d - c, p
         return float(best), pair
-
-    def clear(self, q) -> bool:
-        """Every checked pair at least its clearance apart at q (a candidate may be kept)."""
-        return self.margins(q)[0] >= 0.0
 
     def groups(self) -> list[tuple[set, float]]:
         """(pairs, clearance) per distinct clearance: the pairs check_motion checks together."""

@@ -71,7 +71,7 @@ def on_target(robot, target, q, tol: float = ON_TARGET) -> bool:
 
 def local_minimum(inner, target, index: Index, seed, max_iter: int, keep=None):
     """A within-limits local minimum of z from ``seed`` (q, z) on the target, or None; with ``keep`` (a
-    predicate of q, e.g. :meth:`kinredund.planning.keepout.Keepout.clear`) None too where it says no."""
+    predicate of q: the plan's clearances, :class:`kinredund.planning.keepout.Keepout`) None too where it says no."""
     res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
     if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)
             and on_target(inner, target, res.q)):
