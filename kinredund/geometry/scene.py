@@ -15,6 +15,7 @@ skips the pairs that are surely farther apart. A scene is changed from one threa
 
 from __future__ import annotations
 
+import copy
 import threading
 from dataclasses import dataclass, field
 from math import isfinite
@@ -196,6 +197,17 @@ class Scene:
         self._pair_index(a, b)
         self._ignored.add(frozenset((a, b)))
         self._build()
+
+    def only(self, pairs) -> Scene:
+        """A copy of this scene that checks only those of its pairs in ``pairs`` ((a, b) in either order), the others
+        ignored; the objects and the robot's geometry are shared (neither is changed in place), the workspace is not.
+        """
+        keep = {frozenset(p) for p in pairs}
+        clone = copy.copy(self)
+        clone._objects = dict(self._objects)
+        clone._ignored = set(self._ignored) | {frozenset(p) for p in self._pair_names if frozenset(p) not in keep}
+        clone._build()
+        return clone
 
     @property
     def ignored(self) -> tuple[tuple[str, str], ...]:

@@ -41,9 +41,9 @@ that overshoot inside the real limits (the verification checks the real ones).
 Where no closed walk exists at the sampling, sample times are added in the middle of the intervals the
 walk cannot cross (:mod:`.sampling`, at most ``refine_samples``) before the plan says why. The options
 are one validated :class:`~kinredund.planning.options.PlanOptions`; the causes of a failed plan are
-:attr:`CyclicPlan.CAUSES`. Constraints beyond the joint limits (a collision scene) belong where the
-candidates are solved (:mod:`.walk`'s ``local_minimum``), in the tracker's constraints and in the
-verification (:mod:`.verify`).
+:attr:`CyclicPlan.CAUSES`. A collision scene (options ``scene``, ``clearance``, ``self_clearance``) is held in
+the candidates, the tracking and the verification, at and between the recorded points (:mod:`.keepout`); a
+motion under a clearance fails with cause ``collision`` naming the pair and the time.
 
 A pose path whose orientation turns once about an axis per loop (a circle's Frenet frame) admits no
 within-limits joint path that closes after one loop (:mod:`.topology`); :func:`plan` says so at once, and
@@ -68,12 +68,13 @@ from kinredund.errors import KinredundError, PathError, TaskError
 from kinredund.indices import Index, TimeVaryingReference
 from kinredund.paths import Path
 from kinredund.planning.follow import follow_optimum
+from kinredund.planning.keepout import ClearanceCheck, verify_clearance, with_clearance
 from kinredund.planning.options import PlanOptions
 from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.spline import JointSpline
 from kinredund.planning.stages import PLAN_CAUSES, check_cause
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
-from kinredund.planning.verify import MotionCheck, limit_excursion, verify_motion_on_path
+from kinredund.planning.verify import MotionCheck, verify_motion_on_path, worst_per_excursion
 from kinredund.planning.walk import (
     closest_within_limits,
     inside_limits,
@@ -138,7 +139,10 @@ class CyclicPlan:
         cycles: the joint motion repeats every ``cycles`` loops of the path.
         cause: a short machine-readable tag of the failure ("" when ok): ``orientation_loop`` (no closed
             joint path exists for this many cycles, :mod:`.topology`), ``no_minimum`` (a sample without a
-            within-limits minimum), ``no_closed_walk``, ``tracking_failed``, ``verification``.
+            within-limits minimum), ``no_closed_walk``, ``tracking_failed``, ``verification``, ``collision``
+            (with a scene: a sample whose minima are all under the clearance, a tracking stopped by a pair, or
+            a verified motion under the clearance; the reason names the pair and the time).
+        clearance: with a scene, the clearance verification of ``trajectory`` (:mod:`.keepout`), else None.
     """
 
     ok: bool
@@ -152,6 +156,7 @@ class CyclicPlan:
     partial: Trajectory | None = None
     cycles: int = 1
     cause: str = ""
+    clearance: ClearanceCheck | None = None
 
     #: the failure causes ("" when ok), as TrackingError.CAUSES: one vocabulary with the Chapter 6 planner's
     CAUSES: ClassVar[tuple[str, ...]] = PLAN_CAUSES
@@ -170,6 +175,7 @@ class CyclicPlan:
                 "candidates": None if s is None else [int(len(c)) for c in s.candidates],
                 "off_optimum": [list(iv) for iv in self.off_optimum],
                 "check": None if self.check is None else self.check.to_dict(),
+                "clearance": None if self.clearance is None else self.clearance.to_dict(),
                 "notes": list(self.notes), "timings_s": {k: float(v) for k, v in self.timings.items()}}
 
 
@@ -197,6 +203,8 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
         q0: a start inside the limits (n,): the walk then starts (and ends) at the within-limits minimum
             of z reached from it at t = 0 (the branch the strict tracker would follow from q0); default
             the shortest closed walk from any candidate.
+        The options' ``scene``, ``clearance``, ``self_clearance``: the scene's pairs kept apart (module
+            docstring, :mod:`.keepout`).
         The options' ``cycles``: a path whose orientation loop is not contractible (:mod:`.topology`, a task
             holding the whole rotation) admits no within-limits joint path that closes after an odd number
             of loops: the plan then fails at once and says so (with 2 it may exist, though it needs the arm
@@ -212,11 +220,13 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
 
     Raises:
         PathError, TaskError: an open path, not an index, a non-redundant arm, a q0 outside the limits.
-        OptionError: an option outside its range (:class:`~kinredund.planning.options.PlanOptions`).
+        OptionError: an option outside its range (:class:`~kinredund.planning.options.PlanOptions`), a scene
+            of another robot.
     """
     _check_args(robot, path, index)
     opt = PlanOptions.of(options, **overrides)
     opt.check_for(robot)
+    keep = opt.keepout_for(robot)
     t0 = perf_counter()
     timings: dict[str, float] = {}
     flips = orientation_loop_flips(path) if get_task(robot.task).holds_rotation else None
@@ -233,7 +243,7 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
     period = float(path.period)
     n = opt.samples * cycles
     inner = shrunk_limits(robot, opt.margin)
-    cands = CandidateSet(inner, path, index, opt, np.arange(n) * period / n)
+    cands = CandidateSet(inner, path, index, opt, np.arange(n) * period / n, keep)
 
     # -- step 1: within-limits minima of z at the samples (forward sweep with random starts, backward sweep)
     if q0 is not None:
@@ -241,13 +251,15 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
         if not inside_limits(robot, q0):
             raise TaskError(f"q0 must lie inside the joint limits of {robot.name}, got {np.round(q0, 6).tolist()}")
         if not cands.start_from(q0):
-            return CyclicPlan(False, "no within-limits local minimum of the index was reached from q0 at t = 0",
+            under = cands.under_clearance() and f" that keeps the clearance ({cands.under_clearance()})"
+            return CyclicPlan(False, f"no within-limits local minimum of the index{under} was reached from q0 at t = 0",
                               None, None, None, timings={"samples_s": perf_counter() - t0}, cycles=cycles,
-                              cause="no_minimum")
+                              cause="no_minimum" if cands.rejected is None else "collision")
     missing = cands.collect()
     timings["samples_s"] = perf_counter() - t0
     if missing:
-        return CyclicPlan(False, missing, None, None, None, timings=timings, cycles=cycles, cause="no_minimum")
+        return CyclicPlan(False, missing, None, None, None, timings=timings, cycles=cycles,
+                          cause="collision" if cands.collided else "no_minimum")
 
     # -- step 2: the shortest closed walk through the candidates, refined where it must be
     t1 = perf_counter()
@@ -264,7 +276,8 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
         return CyclicPlan(False, "no continuous closed walk through the within-limits minima"
                           f"{where} after {cands.added} added sample(s) (refine_samples={opt.refine_samples}, "
                           f"{n} samples in all): the minima followed end in folds that no within-limits "
-                          "self-motion of at most max_jump per knot joins", None, smp, None, timings=timings,
+                          f"self-motion of at most max_jump per knot joins{cands.under_clearance() and '; '}"
+                          f"{cands.under_clearance()}", None, smp, None, timings=timings,
                           cycles=cycles, cause="no_closed_walk")
     links = cands.links
     if cands.added:
@@ -272,11 +285,11 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
     rows = walk_knots(ts, pools, choice, refined)
     off = off_optimum_intervals(ts, period, pools, choice, links, refined)
     return _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off,
-                         first_notes, opt, progress, meta, timings, t0)
+                         first_notes, opt, progress, meta, timings, t0, keep)
 
 
 def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candidates, objective, off, notes, opt,
-                  progress, meta, timings, t0) -> CyclicPlan:
+                  progress, meta, timings, t0, keep=None) -> CyclicPlan:
     """Steps 3-5 of :func:`plan`: spline, tracking, verification; re-planned with an inserted knot where
     the motion leaves the limits. ``path`` is the user's path run ``cycles`` times (one period of the
     joint motion), ``user_path`` the user's."""
@@ -293,20 +306,21 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
         spl = JointSpline(kt, kq, period, np.zeros(robot.nq), "periodic")  # Section 6.2.2.2
         t1 = perf_counter()
         ref = TimeVaryingReference(spl, spl.rate)  # Eqs. (6.23)-(6.25)
-        kw = {"limits": True}
+        kw = {"limits": True, **opt.scene_kw()}
         try:
             traj = track(robot, path, ref, kq[0], steps_per_loop=per_cycle, loops=-(-int(loops) // cycles),
                          progress=progress, meta=dict(info, knots=len(kt), cycles=cycles), **kw)  # Eqs. (6.26)-(6.28)
         except KinredundError as err:
             timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
             partial = getattr(err, "partial", None)
+            cause = "collision" if getattr(err, "cause", "") == "collision" else "tracking_failed"
             return CyclicPlan(False, f"the tracking of the planned reference failed: {err}", None, smp, None, off,
-                              tuple(notes), timings, partial, cycles, "tracking_failed")
+                              tuple(notes), timings, partial, cycles, cause)
         timings["tracking_s"] = timings.get("tracking_s", 0.0) + perf_counter() - t1
         check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
         if check.limit_violation > 0 and attempt < rounds:
             added = 0
-            for k in _worst_per_excursion(robot, traj.q):
+            for k in worst_per_excursion(robot, traj.q):
                 tk = float(traj.t[k]) % period
                 ref_k = np.clip(traj.q[k], inner.lower, inner.upper)
                 qk = closest_within_limits(inner, target_at(robot, path, tk), ref_k, seed=traj.q[k],
@@ -321,36 +335,36 @@ def _track_rounds(robot, inner, path, user_path, cycles, index, rows, ts, candid
         break
     reason = _verdict(check)
     if not reason:  # step 6: z's own optimum wherever it is strongly stable (planning.follow)
+        traj, check, off = _follow(robot, path, user_path, index, ref, traj, per_cycle, opt, progress, info, notes,
+                                   timings, keep)
+    cause = "verification" if reason else ""
+    clear = None
+    if keep is not None and traj is not None:  # the clearance at and between the recorded points (planning.keepout)
         t1 = perf_counter()
-        accept = lambda tr: not _verdict(verify_motion_on_path(robot, user_path, tr.t, tr.q, per_cycle))  # noqa: E731
-        traj, off, note = follow_optimum(robot, path, index, ref, traj, per_cycle, -(-int(loops) // cycles),
-                                         opt.max_jump, accept, progress, info, enabled=opt.follow)
-        check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
-        timings["follow_s"] = perf_counter() - t1
-        notes += ([note] if note else []) + [
-            f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
-            "path), not z's bounded optimum: that minimum ceases to exist or is not strongly stable there (a fold, a "
-            "singular stretch)" for a, b in off]
+        clear = verify_clearance(keep, traj.t, traj.q)
+        timings["clearance_s"] = perf_counter() - t1
+        if not clear.ok:
+            reason, cause = "; ".join(filter(None, [clear.reason(), reason])), "collision"
     timings["total_s"] = perf_counter() - t0
-    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles,
-                      "verification" if reason else "")
+    return CyclicPlan(not reason, reason, traj, smp, check, off, tuple(notes), timings, None, cycles, cause, clear)
 
 
-def _worst_per_excursion(robot, q) -> list[int]:
-    """The recorded point of the largest excursion beyond the limits in each run of consecutive points
-    outside them."""
-    over = limit_excursion(robot, q)
-    out, k = [], 0
-    while k < len(over):
-        if over[k] > 0:
-            j = k
-            while j < len(over) and over[j] > 0:
-                j += 1
-            out.append(k + int(np.argmax(over[k:j])))
-            k = j
-        else:
-            k += 1
-    return out
+def _follow(robot, path, user_path, index, ref, traj, per_cycle, opt, progress, info, notes, timings, keep):
+    """Step 6 of :func:`plan` (:mod:`.follow`): (trajectory, check, off_optimum) of the motion that follows z
+    wherever it can (accepted where it passes the checks, the clearance's too), the notes added to ``notes``."""
+    t1 = perf_counter()
+    accept = with_clearance(lambda tr: not _verdict(verify_motion_on_path(robot, user_path, tr.t, tr.q, per_cycle)),
+                            keep)
+    traj, off, note = follow_optimum(robot, path, index, ref, traj, per_cycle, -(-int(opt.loops) // opt.cycles),
+                                     opt.max_jump, accept, progress, info, enabled=opt.follow,
+                                     track_kw=opt.scene_kw())
+    check = verify_motion_on_path(robot, user_path, traj.t, traj.q, per_cycle)
+    timings["follow_s"] = perf_counter() - t1
+    notes += ([note] if note else []) + [
+        f"between t = {a:.4g} s and {b:.4g} s the motion follows its reference (a continuous within-limits "
+        "path), not z's bounded optimum: that minimum ceases to exist or is not strongly stable there (a fold, a "
+        "singular stretch, a clearance held)" for a, b in off]
+    return traj, check, off
 
 
 def _verdict(check: MotionCheck) -> str:

@@ -153,11 +153,12 @@ def _off(robot, path, index, traj, per: int, max_jump: float, stable_min: float 
 
 
 def follow_optimum(robot, path, index: Index, reference: Index, traj, per: int, loops: int, max_jump: float,
-                   accept, progress=None, meta=None, enabled: bool = True):
+                   accept, progress=None, meta=None, enabled: bool = True, track_kw: dict | None = None):
     """Steps 1-3 of the module docstring: (trajectory, off_optimum, note) for the tracked reference
     motion ``traj`` (``per`` recorded steps per period, ``loops`` periods); ``accept(trajectory)`` is the
     planner's own verification (limits, task error, closure, no jump), which the blended motion must pass.
-    ``enabled`` False: the reference motion is kept and only measured."""
+    ``enabled`` False: the reference motion is kept and only measured. ``track_kw``: more arguments of the
+    tracking (a plan's scene and clearances)."""
     period = float(path.period)
     ramp = max(RAMP_FRACTION * period, 2.0 * period / per)
     t = traj.t[:per]
@@ -175,7 +176,7 @@ def follow_optimum(robot, path, index: Index, reference: Index, traj, per: int, 
         if not start.converged:
             raise KinredundError(f"no start on the blended optimum: {start.reason}")
         out = track(robot, path, blended, start.q, steps_per_loop=per, loops=loops, progress=progress,
-                    meta=dict(meta or {}, follows="z where w = 1"), limits=True)
+                    meta=dict(meta or {}, follows="z where w = 1"), limits=True, **(track_kw or {}))
     except KinredundError as err:
         return traj, _measured(t, moved, bad, period, ramp), f"following z's optimum failed ({err}): the motion " \
                                                              "follows its reference"

@@ -14,7 +14,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from kinredund.errors import OptionError, check_count
+from kinredund.planning.keepout import Keepout
 from kinredund.tracking import MAX_STEPS
+from kinredund.tracking.tracker import scene_constraints
 
 
 def _length(value, what: str, *, positive: bool) -> float:
@@ -51,10 +53,18 @@ class PlanOptions:
         follow: follow z's own bounded optimum wherever it is strongly stable, the spline reference only
             across folds and singular stretches (:mod:`kinredund.planning.follow`); False: the reference
             all along (the thesis's Eqs. 6.23-6.28), with the measured intervals off z's optimum reported.
+        scene: a :class:`~kinredund.geometry.scene.Scene` of the planned robot whose pairs the plan keeps apart
+            (:mod:`kinredund.planning.keepout`), or None.
+        clearance: with a scene, the least distance [m] from its obstacles (default 0.02, the tracker's).
+        self_clearance: with a scene, the least distance [m] between the robot's own objects (default 0.01),
+            or False to leave them unchecked.
+        clearance_resolution: with a scene, the motion between recorded points (joints linear) must keep at
+            least clearance - this [m], proven by :func:`~kinredund.geometry.motion.check_motion` (a motion
+            held on a clearance sags by about (step length)^2 / (8 radius) between points).
 
     Raises:
         OptionError: a value outside its range, or loops x steps_per_loop over the tracker's
-            :data:`~kinredund.tracking.MAX_STEPS`.
+            :data:`~kinredund.tracking.MAX_STEPS`; a clearance without a scene, a clearance < 0, not a Scene.
     """
 
     samples: int = 24
@@ -71,6 +81,10 @@ class PlanOptions:
     max_iter: int = 200
     cycles: int = 1
     follow: bool = True
+    scene: object = None
+    clearance: float | None = None
+    self_clearance: float | bool | None = None
+    clearance_resolution: float = 1e-3
 
     def __post_init__(self) -> None:
         counts = {"samples": 4, "starts": 1, "seed": 0, "loops": 1, "steps_per_loop": 4, "max_candidates": 1,
@@ -82,6 +96,9 @@ class PlanOptions:
         object.__setattr__(self, "follow", bool(self.follow))
         object.__setattr__(self, "max_jump", _length(self.max_jump, "max_jump [rad or m]", positive=True))
         object.__setattr__(self, "margin", _length(self.margin, "margin [rad or m]", positive=False))
+        object.__setattr__(self, "clearance_resolution", _length(self.clearance_resolution,
+                                                                 "clearance_resolution [m]", positive=True))
+        self.keepout_for(getattr(self.scene, "robot", None))  # the scene's own checks (the robot's in check_for)
         total = -(-self.loops // self.cycles) * self.cycles * self.steps_per_loop  # what the tracker records
         if total > MAX_STEPS:
             raise OptionError(f"loops x steps_per_loop must be at most {MAX_STEPS} (the record holds every step), "
@@ -113,3 +130,18 @@ class PlanOptions:
         if self.margin > 0.25 * span:
             raise OptionError(f"margin must be at most a quarter of {robot.name}'s narrowest joint range "
                               f"({0.25 * span:.6g} rad or m), got {self.margin!r}")
+
+    def scene_kw(self) -> dict:
+        """``track()``'s scene=, clearance=, self_clearance= of these options ({} without a scene)."""
+        return {} if self.scene is None else {"scene": self.scene, "clearance": self.clearance,
+                                              "self_clearance": self.self_clearance}
+
+    def keepout_for(self, robot):
+        """The scene's clearances as the tracker holds them (:class:`~kinredund.planning.keepout.Keepout`), or
+        None without a scene.
+
+        Raises:
+            OptionError: a clearance without a scene, not a Scene, a scene of another robot, a clearance < 0.
+        """
+        held = scene_constraints(robot, self.scene, self.clearance, self.self_clearance)
+        return Keepout(held[0], self.clearance_resolution) if held else None

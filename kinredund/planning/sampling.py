@@ -41,9 +41,14 @@ class CandidateSet:
         links: pairs of candidate labels one continuation joined.
         start: the label of the start candidate at sample 0 (from ``q0``) or None.
         added: the samples inserted where the walk broke.
+        keepout: the plan's scene and clearances (:class:`~kinredund.planning.keepout.Keepout`) or None: a
+            minimum under a clearance is not a candidate.
+        rejected: (pair, distance - clearance [m]) of the last minimum rejected so, or None.
+        rejections: how many minima were rejected so.
+        collided: a sample had no candidate while minima were rejected there for their clearance.
     """
 
-    def __init__(self, inner, path, index, opt, ts):
+    def __init__(self, inner, path, index, opt, ts, keepout=None):
         self.inner, self.path, self.index, self.opt = inner, path, index, opt
         self.period = float(path.period)
         self.ts = [float(t) for t in ts]
@@ -55,13 +60,22 @@ class CandidateSet:
         self.added = 0
         self.rng = np.random.default_rng(opt.seed)
         self.box = inner.sample_box()
+        self.keepout, self.rejected, self.rejections, self.collided = keepout, None, 0, False
+        self._keep = None if keepout is None else self._clear
+
+    def _clear(self, q) -> bool:
+        """The keepout's verdict on a minimum, the last rejection remembered for the failure's message."""
+        margin, pair = self.keepout.margins(q)
+        if margin < 0.0:
+            self.rejected, self.rejections = (pair, margin), self.rejections + 1
+        return margin >= 0.0
 
     def _minimum(self, k: int, seed) -> tuple | None:
-        return local_minimum(self.inner, self.targets[k], self.index, seed, self.opt.max_iter)
+        return local_minimum(self.inner, self.targets[k], self.index, seed, self.opt.max_iter, self._keep)
 
     def _continue(self, a: int, b: int) -> None:
         continue_candidates(self.inner, self.targets, self.index, self.pools, a, b, self.links, self.counter,
-                            self.opt.max_iter)
+                            self.opt.max_iter, self._keep)
 
     def _seed_pool(self, k: int, tries: int, seed: int) -> None:
         """Random starts at sample k; where none reaches a minimum, a within-limits point on the path from a
@@ -73,6 +87,14 @@ class CandidateSet:
             if feasible.converged:
                 self.pools[k].add(self._minimum(k, feasible.q), self.counter)
 
+    def under_clearance(self) -> str:
+        """'' without rejections, else how many minima were rejected for their clearance and the last one's pair."""
+        if self.rejected is None:
+            return ""
+        (a, b), margin = self.rejected
+        return (f"{self.rejections} minima under the clearance were no candidates; the last: {a} and {b} "
+                f"{-margin:.3g} m under it")
+
     def start_from(self, q0) -> bool:
         """The start candidate: the within-limits minimum reached from q0 at sample 0 (False: none)."""
         self.start = self.pools[0].add(self._minimum(0, q0), self.counter)
@@ -82,12 +104,17 @@ class CandidateSet:
         """Step 1: the candidates at every sample; '' or why a sample has none."""
         n, opt = len(self.ts), self.opt
         for k in range(n):
+            before = self.rejections
             if k > 0:
                 self._continue(k - 1, k)
             tries = opt.starts * (4 if k == 0 else 1)
             if k == 0 and inside_limits(self.inner, self.inner.home):  # the robot's home seeds the first sample too
                 self.pools[0].add(self._minimum(0, self.inner.home), self.counter)
             self._seed_pool(k, tries, opt.seed + k)
+            if not self.pools[k].q and self.rejections > before:
+                self.collided = True
+                return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s): every within-limits local minimum of the "
+                        f"index found there is under the clearance ({self.under_clearance()})")
             if not self.pools[k].q:
                 return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s) has no within-limits local minimum of the "
                         f"index ({tries} random starts and the previous sample's minima): the path may leave the "

@@ -78,6 +78,23 @@ def limit_excursion(robot, q) -> np.ndarray:
     return np.maximum(np.maximum(robot.lower - q, q - robot.upper), 0.0).max(axis=1)
 
 
+def worst_per_excursion(robot, q) -> list[int]:
+    """The recorded point of the largest excursion beyond the limits in each run of consecutive points
+    outside them."""
+    over = limit_excursion(robot, q)
+    out, k = [], 0
+    while k < len(over):
+        if over[k] > 0:
+            j = k
+            while j < len(over) and over[j] > 0:
+                j += 1
+            out.append(k + int(np.argmax(over[k:j])))
+            k = j
+        else:
+            k += 1
+    return out
+
+
 def task_errors(robot, path: Path, t, q) -> tuple[np.ndarray, np.ndarray]:
     """(position error [m], orientation error [rad]) of each (t_k, q_k) with the robot's own FK.
 

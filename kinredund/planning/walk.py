@@ -69,11 +69,14 @@ def on_target(robot, target, q, tol: float = ON_TARGET) -> bool:
     return max(errors.values()) <= tol
 
 
-def local_minimum(inner, target, index: Index, seed, max_iter: int):
-    """A within-limits local minimum of z from ``seed`` (q, z) on the target, or None."""
+def local_minimum(inner, target, index: Index, seed, max_iter: int, keep=None):
+    """A within-limits local minimum of z from ``seed`` (q, z) on the target, or None; with ``keep`` (a
+    predicate of q: the plan's clearances, :class:`kinredund.planning.keepout.Keepout`) None too where it says no."""
     res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
     if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)
             and on_target(inner, target, res.q)):
+        return None
+    if keep is not None and not keep(res.q):
         return None
     return res.q, float(res.objective)
 
@@ -123,10 +126,11 @@ class CandidatePool:
         self.q, self.z, self.label = ([v[i] for i in keep] for v in (self.q, self.z, self.label))
 
 
-def continue_candidates(inner, targets, index, pools, a, b, links, counter, max_iter) -> None:
-    """Continue every candidate of sample a to sample b; the pairs of labels joined go into ``links``."""
+def continue_candidates(inner, targets, index, pools, a, b, links, counter, max_iter, keep=None) -> None:
+    """Continue every candidate of sample a to sample b; the pairs of labels joined go into ``links``
+    (``keep``: as for :func:`local_minimum`)."""
     for la, q in zip(list(pools[a].label), list(pools[a].q), strict=True):
-        lb = pools[b].add(local_minimum(inner, targets[b], index, q, max_iter), counter)
+        lb = pools[b].add(local_minimum(inner, targets[b], index, q, max_iter, keep), counter)
         if lb >= 0:
             links.add(frozenset((la, lb)))
 

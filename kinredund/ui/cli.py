@@ -17,7 +17,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from kinredund.errors import KinredundError, OptionError, TrackingError
+from kinredund.errors import KinredundError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
 from kinredund.trajectory import RecordWarning
@@ -93,18 +93,6 @@ def _write_partial(out, err: TrackingError) -> None:
     print(f"wrote the partial record up to t = {err.partial.t[-1]:.6g} s to {out}", file=sys.stderr)
 
 
-def _scene_options(args, robot) -> dict:
-    """track()'s scene=, clearance=, self_clearance= from --scene, --clearance, --self-clearance."""
-    if args.scene is None:
-        if args.clearance is not None or args.self_clearance is not None:
-            raise OptionError("--clearance and --self-clearance need --scene FILE")
-        return {}
-    from kinredund.geometry import load_scene
-
-    return {"scene": load_scene(args.scene, robot), "clearance": args.clearance,
-            "self_clearance": args.self_clearance}
-
-
 def _cmd_track(args) -> int:
     bar = progress_for(f"track {args.robot}", args)
     from kinredund.ik.solve import solve_ik
@@ -128,7 +116,7 @@ def _cmd_track(args) -> int:
             raise KinredundError(f"no starting configuration on the path: {res.reason}")
         # a closed path runs --loops loops of --steps steps; an open one --steps steps over its duration
         span = {} if duration is None else {"duration": duration, "steps": args.steps}
-        span.update(_scene_options(args, robot))
+        span.update(options.scene_options(args, robot))
         try:
             with warnings.catch_warnings():  # said below, once, with the exit code
                 warnings.simplefilter("ignore", RecordWarning)

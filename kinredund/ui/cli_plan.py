@@ -1,6 +1,7 @@
 """The ``kinredund plan`` command: a cyclic within-limits plan for any robot, or the thesis's Chapter 6 cases.
 
-``plan ROBOT [--task ...] [--path circle|ellipse|file ...] [--index ...] [--samples N] [--json F]`` runs
+``plan ROBOT [--task ...] [--path circle|ellipse|file ...] [--index ...] [--samples N] [--scene F --clearance M
+--self-clearance M|off] [--json F]`` runs
 :func:`kinredund.planning.cyclic.plan` (``kr.plan``) on the robot's own task along a closed path built as
 ``track`` builds it (:func:`kinredund.ui.options.path_for`), and writes the planned motion as a
 trajectory record (:meth:`kinredund.trajectory.Trajectory.save_json`, the plan's figures under the key
@@ -61,16 +62,17 @@ def _plan_robot(args) -> int:
                       starts=args.starts, seed=args.seed, loops=args.loops, steps_per_loop=args.steps,
                       q0=args.q0, refine_samples=args.refine_samples, follow=not args.no_follow,
                       progress=lambda d, n: bar(d, n, "tracking"),
-                      meta={"path": args.path, "index": args.index})
+                      meta={"path": args.path, "index": args.index}, **options.scene_options(args, robot))
     except BaseException:
         bar.close()  # failed or interrupted (Progress.close reads the exception in flight)
         raise
     bar.close("done" if result.ok else "failed")
     summary = result.summary()
     print(f"{robot.name}: cyclic plan along a {args.path}, task {robot.task}, index {args.index}")
-    print_summary({k: v for k, v in summary.items() if k not in ("reason", "check")})
-    if result.check is not None:
-        print_summary({f"check.{k}": v for k, v in result.check.to_dict().items()})
+    print_summary({k: v for k, v in summary.items() if k not in ("reason", "check", "clearance")})
+    for part in ("check", "clearance"):
+        if summary[part] is not None:
+            print_summary({f"{part}.{k}": v for k, v in summary[part].items()})
     if result.trajectory is not None and args.json is not None:
         result.trajectory.save_json(args.json, extra={"plan": summary})
         wrote(args.json)
@@ -140,6 +142,8 @@ def add_parser(sub) -> None:
     p.add_argument("--no-follow", action="store_true",
                    help="track the spline reference all along instead of z's own optimum wherever it is strongly "
                         "stable (default: follow z; off_optimum says where the motion is not z's optimum)")
+    options.add_scene(p, "by the plan: its candidates, its tracking and its check, between the recorded points too "
+                         "(a motion under a clearance fails with cause collision naming the pair and the time)")
     p.add_argument("--json", type=output_file, metavar="FILE", help="write the result as JSON (default: not written)")
     p.add_argument("--plot", type=output_file, metavar="FILE",
                    help=f"save the figure; the format follows the suffix: .png, .pdf or .svg{PLAN_PLOT_NOTE} "

@@ -237,6 +237,34 @@ def add_quiet(p) -> None:
                         "and every 5 s)")
 
 
+def add_scene(p, held: str) -> None:
+    """``--scene FILE --clearance M --self-clearance M|off`` (``track``, ``plan``); :func:`scene_options` reads them."""
+    p.add_argument("--scene", type=Path, metavar="FILE",
+                   help="a scene file (JSON, docs/schema.md) whose objects, and the robot's own links, are held "
+                        f"apart {held} (default: none)")
+    p.add_argument("--clearance", type=distance, default=None, metavar="M",
+                   help="with --scene: the least distance [m] from its obstacles (default: 0.02)")
+    p.add_argument("--self-clearance", type=distance_or_off, default=None, metavar="M|off",
+                   help="with --scene: the least distance [m] between the robot's own objects, or off "
+                        "(default: 0.01)")
+
+
+def scene_options(args, robot) -> dict:
+    """``track()``'s and ``plan()``'s scene=, clearance=, self_clearance= from :func:`add_scene`'s options.
+
+    Raises:
+        OptionError: --clearance or --self-clearance without --scene.
+    """
+    if args.scene is None:
+        if args.clearance is not None or args.self_clearance is not None:
+            raise OptionError("--clearance and --self-clearance need --scene FILE")
+        return {}
+    from kinredund.geometry import load_scene
+
+    return {"scene": load_scene(args.scene, robot), "clearance": args.clearance,
+            "self_clearance": args.self_clearance}
+
+
 def _add_tracking(p) -> None:
     p.add_argument("--loops", type=_SAMPLES, default=1, metavar="N",
                    help="loops of the closed path to track (default: %(default)s)")
@@ -306,14 +334,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                    help="where tracking stops (a fold, a singularity, the path out of reach, ...), write the record "
                         "up to there with the failure's cause, time and last good configuration as JSON, which "
                         "`kinredund play` replays (default: not written)")
-    p.add_argument("--scene", type=Path, metavar="FILE",
-                   help="a scene file (JSON, docs/schema.md) whose objects, and the robot's own links, are held "
-                        "apart while tracking (the start is checked; a stop names the pair) (default: none)")
-    p.add_argument("--clearance", type=distance, default=None, metavar="M",
-                   help="with --scene: the least distance [m] from its obstacles (default: 0.02)")
-    p.add_argument("--self-clearance", type=distance_or_off, default=None, metavar="M|off",
-                   help="with --scene: the least distance [m] between the robot's own objects, or off "
-                        "(default: 0.01)")
+    add_scene(p, "while tracking (the start is checked; a stop names the pair)")
 
     p = _sub(sub, commands, "ik", "joint-level (constrained) inverse kinematics",
              "Solve the joint-level problem of Eq. (4.3): reach the target and, with --index, minimise a "
