@@ -291,7 +291,7 @@ def test_plan_rejects_bad_input():
     ("seed", -1, "seed must be an integer >= 0"), ("margin", "0.1", "margin"), ("margin", float("nan"), "margin"),
     ("margin", 10.0, "quarter of panda's narrowest joint range"), ("budget", -1, "budget must be an integer >= 0"),
     ("loops", 10**9, "at most"), ("max_jump", 0.0, "max_jump"), ("samples", 24.0, "samples must be an integer"),
-    ("steps", 100, "unknown plan option"),
+    ("steps", 100, "unknown plan option"), ("starts", 2501, "starts must be at most 2500"),
 ])
 def test_plan_refuses_each_bad_option_once_before_any_work(option, value, match):
     """One options object (PlanOptions) checks every option before any solve: no silent cap (a margin of 10 rad
