@@ -513,3 +513,21 @@ def test_concurrent_urdf_parses_leave_the_process_stderr_where_it_was():
     for t in threads:
         t.join()
     assert len(robots) == 4 and (os.fstat(2).st_dev, os.fstat(2).st_ino) == (before.st_dev, before.st_ino)
+
+
+def test_a_urdf_in_a_folder_with_braces_reloads_from_its_record_name(tmp_path):
+    """A record names a URDF robot loaded with options as path + JSON options; the options were looked for
+    from the first '{', so a file under a folder such as 'arm{v2}' could not be reloaded from its record."""
+    import shutil
+
+    from kinredund.model.loader import shipped_robot_dir
+
+    folder = tmp_path / "arm{v2}"
+    folder.mkdir()
+    urdf = folder / "planar3r_ch6.urdf"
+    shutil.copy(shipped_robot_dir() / "planar3r_ch6.urdf", urdf)
+    r = kinredund.load_robot(urdf, "ee", task="planar")
+    again = kinredund.load_robot(r.source, task="planar")
+    assert again.urdf_path == r.urdf_path and again.ee_frame == "ee" and again.source == r.source
+    q = r.home + 0.1
+    assert np.abs(again.fk(q) - r.fk(q)).max() == 0.0  # the same model, built again from the same file

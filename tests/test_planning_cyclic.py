@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import load_benchmark, robot
+from conftest import load_benchmark, robot, rounding
 
 from kinredund.errors import KinredundError, OptionError, PathError, TaskError
 from kinredund.ik.solve import solve_ik
@@ -291,7 +291,7 @@ def test_plan_rejects_bad_input():
     ("seed", -1, "seed must be an integer >= 0"), ("margin", "0.1", "margin"), ("margin", float("nan"), "margin"),
     ("margin", 10.0, "quarter of panda's narrowest joint range"), ("budget", -1, "budget must be an integer >= 0"),
     ("loops", 10**9, "at most"), ("max_jump", 0.0, "max_jump"), ("samples", 24.0, "samples must be an integer"),
-    ("steps", 100, "unknown plan option"),
+    ("steps", 100, "unknown plan option"), ("starts", 2501, "starts must be at most 2500"),
 ])
 def test_plan_refuses_each_bad_option_once_before_any_work(option, value, match):
     """One options object (PlanOptions) checks every option before any solve: no silent cap (a margin of 10 rad
@@ -386,3 +386,23 @@ def test_both_planners_share_one_validated_cause_vocabulary():
         CyclicPlan(False, "failed", None, None, None)
     with pytest.raises(KinredundError, match="exactly when"):
         CyclicPlan(True, "", None, None, None, cause="verification")
+
+
+def test_a_bad_run_across_t0_is_one_interval_and_the_weight_is_zero_on_all_of_it():
+    """Bad points at both ends of the period are one run through t = 0 (the loop closes): the weight must
+    follow the reference (w = 0) at every one of them. Before, the run was split into an interval ending
+    past the period and one starting before 0, and Weight took the first that matched: w = 1 (z's own
+    optimum, at a fold) at t = 0.85 here, and 0.5 at 0.9."""
+    from kinredund.planning.follow import Weight, bad_intervals
+
+    period, per, ramp = 1.0, 20, 0.1
+    t = np.arange(per) * period / per
+    bad = np.zeros(per, bool)
+    bad[:3] = bad[-3:] = True  # t = 0, 0.05, 0.1 and 0.85, 0.9, 0.95
+    intervals = bad_intervals(t, bad, period, ramp)
+    assert len(intervals) == 1
+    weight = Weight(intervals, period, ramp)
+    fine = np.linspace(0.85, 1.1, 251)  # from the first bad point to the last one through t = 0
+    assert max(abs(weight(tk)[0]) for tk in fine) <= rounding()  # 1 - s(1): zero but for rounding
+    assert all(weight(tk)[0] == 1.0 for tk in t[6:14])  # past the ramps: z itself (the literal 1.0 returned)
+    assert len(bad_intervals(t, bad, period, 0.0)) == 1

@@ -31,14 +31,20 @@ def record_source(base: str, *, ee_frame=None, tool_axis=None, joints=None, lock
 
 
 def split_source(text: str) -> tuple[str, dict]:
-    """(base, options) of a string of :func:`record_source`; a plain name or path gives (text, {})."""
-    start = text.find("{")
-    if start <= 0 or not text.endswith("}"):
+    """(base, options) of a string of :func:`record_source`; a plain name or path gives (text, {}).
+
+    The options are the JSON object that ends the string, from the first '{' where one parses (a path may
+    hold braces too: ``/data/arm{v2}/arm.urdf{"joints":[...]}``).
+    """
+    if not text.endswith("}"):
         return text, {}
-    try:
-        options = json.loads(text[start:])
-    except ValueError:
-        return text, {}
-    if not isinstance(options, dict) or not set(options) <= set(OPTIONS):
-        return text, {}
-    return text[:start], options
+    start = text.find("{", 1)
+    while start > 0:
+        try:
+            options = json.loads(text[start:])
+        except ValueError:
+            options = None
+        if isinstance(options, dict) and options and set(options) <= set(OPTIONS):  # record_source writes no {}
+            return text[:start], options
+        start = text.find("{", start + 1)
+    return text, {}

@@ -131,6 +131,9 @@ def bad_intervals(t, bad, period: float, ramp: float) -> list[tuple[float, float
             merged[-1][1] = max(merged[-1][1], b)
         else:
             merged.append([a, b])
+    if len(merged) > 1 and merged[-1][1] - period >= merged[0][0]:  # runs at both ends: one run through t = 0
+        last = merged.pop()
+        merged[0] = [last[0] - period, max(merged[0][1], last[1] - period)]
     return [(float(a), float(b)) for a, b in merged]
 
 

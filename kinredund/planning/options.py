@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from kinredund.errors import OptionError, check_count
+from kinredund.errors import MAX_STARTS, OptionError, check_count
 from kinredund.planning.keepout import Keepout
 from kinredund.tracking import MAX_STEPS
 from kinredund.tracking.tracker import scene_constraints
@@ -30,13 +30,19 @@ def _length(value, what: str, *, positive: bool) -> float:
     return v
 
 
+#: the most random starts per sample: a sample none of them reached is seeded by one pose-only solve with four
+#: times as many, and :func:`kinredund.ik.solve_ik` takes at most :data:`~kinredund.errors.MAX_STARTS`
+MAX_PLAN_STARTS = MAX_STARTS // 4
+
+
 @dataclass(frozen=True)
 class PlanOptions:
     """How :func:`kinredund.planning.cyclic.plan` samples, walks, tracks and re-plans.
 
     Attributes:
         samples: N, equally spaced sample times k T / N per loop (at least 4, for the cubic spline).
-        starts: random starts inside the limits per sample (four times as many at the first sample).
+        starts: random starts inside the limits per sample (four times as many at the first sample, and
+            in the pose-only solve that seeds a sample none of them reached): at most :data:`MAX_PLAN_STARTS`.
         seed: the seed of ``np.random.default_rng`` for those starts (>= 0).
         loops: loops tracked (the verification checks closure after every loop).
         steps_per_loop: tracking steps per loop (at least 4).
@@ -91,6 +97,9 @@ class PlanOptions:
                   "budget": 0, "refine_samples": 0, "rounds": 0, "max_iter": 1, "cycles": 1}
         for name, minimum in counts.items():
             object.__setattr__(self, name, check_count(getattr(self, name), minimum, name, OptionError))
+        if self.starts > MAX_PLAN_STARTS:  # else solve_ik refuses 4 x starts deep in the run, after the solves before
+            raise OptionError(f"starts must be at most {MAX_PLAN_STARTS} (four times as many seed one pose-only "
+                              f"solve, which takes at most {MAX_STARTS}), got {self.starts}")
         if not isinstance(self.follow, (bool, np.bool_)):
             raise OptionError(f"follow must be True or False, got {self.follow!r}")
         object.__setattr__(self, "follow", bool(self.follow))
