@@ -312,3 +312,18 @@ def test_records_that_are_not_joint_paths_are_refused():
         retime({"t": [0, 1]}, lim, robot=robot)
     with pytest.raises(RetimeError, match="limits"):
         retime(tr, Limits.make(3, 1.0, 1.0), robot=robot)
+
+
+def test_the_law_does_not_depend_on_how_fast_the_record_ran():
+    """Time scaling is invariant to the record's own timing: the same joint path tracked at 1e6 m/s (a loop of
+    about a microsecond) gets the law of the 1 m/s record. TOPP-RA ran on the record's time and found no law for
+    it (its tolerances are absolute; it now runs on one unit per lap). Bar: the two problems are the same up to
+    the rounding of the scaled times, and TOPP-RA's seidel solver is direct, so 1e-9 relative."""
+    robot, path, index, q0 = panda_circle(cached_robot("panda"), speed=1e6)
+    fast = track(robot, path, index, q0, steps_per_loop=200, loops=1)
+    assert fast.t[-1] < 1e-5
+    res = retime(fast, limits_for(robot, PANDA_AMAX), robot=robot, loops=10)
+    slow = retimed()
+    assert abs(res.loop_duration - slow.loop_duration) <= 1e-9 * slow.loop_duration
+    v, a = ratios(res)
+    assert v <= 1.0 + REL and a <= 1.0 + REL

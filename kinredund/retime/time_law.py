@@ -147,13 +147,15 @@ def _toppra_classes():
     from toppra.constraint import LinearConstraint
 
     class LoopPath(toppra.interpolator.AbstractGeometricPath):
-        """``loops`` laps of a joint path (one lap for an open path), in toppra's interface."""
+        """``loops`` laps of a joint path (one lap for an open path), in toppra's interface, on the parameter
+        sigma = s / period (one unit per lap): d^k q / d sigma^k = period^k q^(k)(s)."""
 
         def __init__(self, jp: JointPath, loops: int):
             self.jp, self.loops = jp, loops
 
         def __call__(self, path_positions, order=0):
-            out = self.jp(path_positions, order)
+            c = self.jp.period
+            out = self.jp(np.asarray(path_positions) * c, order) * c**order
             return out[0] if np.ndim(path_positions) == 0 else out
 
         @property
@@ -162,17 +164,18 @@ def _toppra_classes():
 
         @property
         def path_interval(self):
-            return np.array([0.0, self.loops * self.jp.period])
+            return np.array([0.0, float(self.loops)])
 
     class ToolSpeed(LinearConstraint):
-        """|dp/ds| sd <= v_tool: an upper bound on x = sd^2 at each grid point."""
+        """|dp/d sigma| sigma-dot <= v_tool: an upper bound on x = sigma-dot^2 at each grid point."""
 
         def __init__(self, jp: JointPath, speed: float):
             super().__init__()
             self.jp, self.speed, self.dof = jp, speed, jp.n
 
         def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
-            rate = np.linalg.norm(self.jp.tool_derivative(gridpoints, 1), axis=1)
+            c = self.jp.period
+            rate = np.linalg.norm(self.jp.tool_derivative(np.asarray(gridpoints) * c, 1), axis=1) * c
             with np.errstate(divide="ignore"):
                 xmax = np.where(rate > 1e-12, (self.speed / rate) ** 2, _NO_BOUND)
             return None, None, None, None, None, None, np.column_stack([np.zeros_like(xmax), xmax])
@@ -181,7 +184,12 @@ def _toppra_classes():
 
 
 def _toppra_run(jp: JointPath, limits: Limits, loops: int) -> tuple[np.ndarray, np.ndarray]:
-    """(grid, sd) of TOPP-RA over ``loops`` laps from rest to rest."""
+    """(grid, sd) of TOPP-RA over ``loops`` laps from rest to rest.
+
+    TOPP-RA runs on sigma = s / period (one unit per lap), not on the record's time s: it works with
+    x = sigma-dot^2 and its solver's tolerances are absolute, so a record whose loop lasts a microsecond
+    (x ~ 1e12 in s) had no law. The law is the same: s-dot = period sigma-dot.
+    """
     toppra, LoopPath, ToolSpeed = _toppra_classes()
     period, N = jp.period, len(jp.s) - 1
     grid = np.concatenate([jp.s[:N] + k * period for k in range(loops)] + [[loops * period]])
@@ -191,12 +199,13 @@ def _toppra_run(jp: JointPath, limits: Limits, loops: int) -> tuple[np.ndarray, 
     if limits.tool_speed is not None:
         constraints.append(ToolSpeed(jp, limits.tool_speed))
     with _quiet_toppra():
-        algo = toppra.algorithm.TOPPRA(constraints, LoopPath(jp, loops), gridpoints=grid, solver_wrapper="seidel")
-        _, sd, _ = algo.compute_parameterization(0.0, 0.0)
-    if sd is None or not np.all(np.isfinite(sd)):
+        algo = toppra.algorithm.TOPPRA(constraints, LoopPath(jp, loops), gridpoints=grid / period,
+                                       solver_wrapper="seidel")
+        _, sigma_dot, _ = algo.compute_parameterization(0.0, 0.0)
+    if sigma_dot is None or not np.all(np.isfinite(sigma_dot)):
         raise RetimeError("TOPP-RA found no time law along this joint path under these limits (the path is not "
                           "controllable or badly conditioned: check the joint path and the limits)")
-    return grid, sd
+    return grid, period * sigma_dot  # s-dot = period sigma-dot
 
 
 def _with_times(s: np.ndarray, sd: np.ndarray, periodic: bool) -> TimeLaw:
