@@ -15,8 +15,7 @@ import json
 
 import numpy as np
 import pytest
-from test_tracking_limits import case
-from test_tracking_scene import BALL, CLEARANCE, ball_distance
+from test_tracking_scene import BALL, CLEARANCE, ball_distance, setup
 
 import kinredund as kr
 from kinredund.errors import OptionError
@@ -27,14 +26,6 @@ from kinredund.planning.verify import task_errors
 
 PLAN = {"samples": 12, "starts": 4, "loops": 2}
 STEPS = 200  # PlanOptions' default steps_per_loop
-
-
-@functools.cache
-def setup():
-    r, path, index, q0 = case("panda_elbow_circle")
-    sc = kr.Scene(r)
-    sc.add_sphere("ball", BALL[1], BALL[0])
-    return r, path, index, q0, sc
 
 
 @functools.cache
