@@ -61,6 +61,33 @@ def time_in_turn(fns: dict, repeat: int = 2000, warmup: int = 50, clock=time.per
     return {name: summary_us(t) for name, t in ts.items()}
 
 
+def step_in_turn(runners: dict, total: int) -> tuple[dict, dict, dict]:
+    """Step every runner ``total`` times, one step of each in turn (so load hits them alike), with the garbage
+    collector off. A runner has ``step()`` and ``state()``. Returns (times [s] per step, states from the start,
+    failure message) per runner name; a runner that raises stops there and its failure is a result, not a crash."""
+    times = {m: [] for m in runners}
+    rec = {m: [r.state()] for m, r in runners.items()}
+    failed = {}
+    gc.disable()
+    try:
+        for k in range(total):
+            for m, r in runners.items():
+                if m in failed:
+                    continue
+                t0 = time.perf_counter()
+                try:
+                    r.step()
+                except Exception as err:  # noqa: BLE001 - a method failing is a result, not a crash
+                    cause = getattr(err, "cause", None) or type(err).__name__
+                    failed[m] = f"step {k + 1}: {cause}: {str(err)[:200]}"
+                    continue
+                times[m].append(time.perf_counter() - t0)
+                rec[m].append(r.state())
+    finally:
+        gc.enable()
+    return times, rec, failed
+
+
 def summary_us(seconds) -> dict:
     """{"median_us", "p95_us"} of per-call times given in seconds."""
     return {"median_us": float(np.median(seconds) * 1e6), "p95_us": float(np.percentile(seconds, 95) * 1e6)}

@@ -27,12 +27,11 @@ and say so.
 
 from __future__ import annotations
 
-import gc
 import time
 from pathlib import Path
 
 import numpy as np
-from _bench import parser, print_table, summary_us, write_json
+from _bench import parser, print_table, step_in_turn, summary_us, write_json
 from _clearance import PINK_VARIANTS, PinkBarrier, figures, pink_missing
 
 from kinredund.errors import check_choice
@@ -105,27 +104,7 @@ def run(loops: int = 20, methods=METHODS, steps_per_loop: int = STEPS_PER_LOOP) 
             skipped[m] = why
             continue
         runners[m] = _make(m, robot, path, index, q0, dt, sphere)
-    total = loops * steps_per_loop
-    times = {m: [] for m in runners}
-    rec = {m: [r.state()] for m, r in runners.items()}
-    failed = {}
-    gc.disable()
-    try:
-        for k in range(total):
-            for m, r in runners.items():
-                if m in failed:
-                    continue
-                t0 = time.perf_counter()
-                try:
-                    r.step()
-                except Exception as err:  # noqa: BLE001 - a method failing is a result, not a crash
-                    cause = getattr(err, "cause", None) or type(err).__name__
-                    failed[m] = f"step {k + 1}: {cause}: {str(err)[:200]}"
-                    continue
-                times[m].append(time.perf_counter() - t0)
-                rec[m].append(r.state())
-    finally:
-        gc.enable()
+    times, rec, failed = step_in_turn(runners, loops * steps_per_loop)
     out = {}
     for m in runners:
         ts, qs = zip(*rec[m], strict=True)

@@ -38,12 +38,11 @@ then it says so (``drift_at_rounding``) and gives the peers' drift alone, as a r
 
 from __future__ import annotations
 
-import gc
 import time
 from pathlib import Path
 
 import numpy as np
-from _bench import parser, print_table, summary_us, write_json
+from _bench import parser, print_table, step_in_turn, summary_us, write_json
 
 from kinredund.errors import check_choice
 from kinredund.kinematics.angles import joint_drift
@@ -194,26 +193,7 @@ def run(loops: int = 20, variants=tuple(VARIANTS), methods=METHODS, steps_per_lo
                 runners[m] = _make(m, robot, path, index, q0, dt)
             except ImportError as err:
                 skipped[m] = f"not installed: {err}"
-        total = loops * steps_per_loop
-        times = {m: np.empty(total) for m in runners}
-        rec = {m: [r.state()] for m, r in runners.items()}
-        failed = {}
-        gc.disable()
-        try:
-            for k in range(total):
-                for m, r in runners.items():
-                    if m in failed:
-                        continue
-                    t0 = time.perf_counter()
-                    try:
-                        r.step()
-                    except Exception as err:  # noqa: BLE001 - a peer failing is a result, not a crash
-                        failed[m] = f"step {k + 1}: {type(err).__name__}: {err}"
-                        continue
-                    times[m][k] = time.perf_counter() - t0
-                    rec[m].append(r.state())
-        finally:
-            gc.enable()
+        times, rec, failed = step_in_turn(runners, loops * steps_per_loop)
         res = {}
         for m in runners:
             if m in failed:
