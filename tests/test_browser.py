@@ -128,3 +128,42 @@ def test_panda_replay_floor_under_the_robot_title_and_time(panda_page, tmp_path)
     assert np.median(floor_px[:, 0]) > np.median(robot_px[:, 0])
     assert np.median(floor_px[:, 0]) > 0.5 * rows  # in the lower half, not a strip near the horizon
     assert floor_px[:, 0].max() - floor_px[:, 0].min() > 0.3 * rows  # seen from above, not edge-on
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_live_replay_of_a_scene_shows_its_objects(tmp_path):
+    """``kinredund play RUN --live --scene CELL``, the command a user types, serves a page whose scene holds the
+    cell's objects on screen (the live replay ignored --scene: only --html drew it)."""
+    import json
+    import os
+    import signal
+
+    from test_geometry_viz import assert_cell_shows
+
+    exe = Path(sys.executable).with_name("kinredund")
+    run, cell = tmp_path / "run.json", tmp_path / "cell.json"
+    made = subprocess.run([str(exe), "track", "planar3r", "--steps", "40", "--quiet", "--json", str(run)],
+                          capture_output=True, text=True, timeout=300)
+    assert made.returncode == 0, made.stderr
+    cell.write_text(json.dumps({"format": "kinredund-scene", "version": 1, "objects": [
+        {"name": "wall", "shape": "box", "size": [0.2, 4.0, 1.0], "pose": {"xyz": [3.5, 0.0, 0.0]}}]}))
+    proc = subprocess.Popen([str(exe), "play", str(run), "--live", "--scene", str(cell)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        import select
+
+        assert select.select([proc.stdout], [], [], 120)[0], "no output in 120 s"  # a hang guard, not a speed bar
+        line = proc.stdout.readline()  # "open URL (Ctrl-C to stop)", or "" if the command failed
+        assert line.startswith("open http"), proc.stderr.read() if proc.poll() is not None else line
+        assert_cell_shows(line.split()[1], tmp_path)
+    finally:
+        os.kill(proc.pid, signal.SIGINT)  # how a live replay ends; it stops its server
+        try:
+            proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)  # the group this test started, by its PID
+                proc.wait()
+    assert proc.returncode == 0
+

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -262,6 +265,25 @@ def test_play_needs_an_action_and_says_so(tmp_path, capsys):
     bad.write_text('{"hello": 1}')
     assert main(["play", str(bad), "--html", str(tmp_path / "x.html")]) == EXIT_USAGE
     assert "not a kinredund record" in capsys.readouterr().err
+
+
+def test_play_live_reads_its_scene_before_serving(tmp_path):
+    """``play --live --scene`` with a missing scene file: the error naming the file, before any server starts
+    (the scene was ignored with --live: the replay was served without it, until Ctrl-C)."""
+    js, missing = tmp_path / "t.json", tmp_path / "no_cell.json"
+    assert main(["track", "planar3r", "--steps", "20", "--json", str(js), "--quiet"]) == 0
+    exe = Path(sys.executable).with_name("kinredund")
+    proc = subprocess.Popen([str(exe), "play", str(js), "--live", "--scene", str(missing)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=120)  # a hang guard: the old code served until Ctrl-C
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)  # the group this test started (the server with it), by its PID
+            proc.wait()
+    assert proc.returncode == EXIT_USAGE, err
+    assert str(missing) in err and "No such file" in err
+    assert "open http" not in out
 
 
 def test_play_replays_the_helix_of_3_2(tmp_path, capsys):

@@ -196,18 +196,21 @@ def _cmd_play(args) -> int:
     from kinredund.ui.records import replay_record
 
     rec = replay_record(args.result)
-    if args.html is not None:
+    scene = None
+    if args.scene is not None:  # drawn by both replays
         from kinredund.geometry import load_scene
+
+        scene = load_scene(args.scene, rec.robot)
+    if args.html is not None:
         from kinredund.ui.viz import replay_html
 
-        scene = None if args.scene is None else load_scene(args.scene, rec.robot)
         wrote(replay_html(rec.trajectory, args.html, robot=rec.robot, title=rec.title, scene=scene))
     if args.live:
         import time
 
         from kinredund.ui.viz import play_live, stop_live
 
-        url = play_live(rec.trajectory, robot=rec.robot, loop=True)
+        url = play_live(rec.trajectory, robot=rec.robot, loop=True, scene=scene)
         # SIGTERM (kill, a service manager) stops the server as Ctrl-C does, then exits 143
         previous = signal.signal(signal.SIGTERM, _exit_on_signal)
         try:

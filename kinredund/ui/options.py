@@ -373,8 +373,8 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
     p.add_argument("--live", action="store_true",
                    help="serve the replay on a local meshcat server until Ctrl-C (default: off)")
     p.add_argument("--scene", type=Path, metavar="FILE",
-                   help="with --html: a scene file (docs/schema.md) whose objects are drawn, the closest pair marked "
-                        "(default: none)")
+                   help="a scene file (docs/schema.md) whose objects both replays (--html, --live) draw, the closest "
+                        "pair marked (default: none)")
 
     p = _sub(sub, commands, "generate-robots", "write robots/*.urdf from the thesis's HD tables",
              "Write the URDF files of the thesis's robots from their Hartenberg-Denavit tables.",

@@ -29,6 +29,7 @@ def play_live(
     fps: float = 30,
     show_path: bool = True,
     max_frames: int = MAX_FRAMES,
+    scene=None,
 ) -> str:
     """Replay ``traj`` on a new local meshcat server and return the viewer's URL.
 
@@ -42,7 +43,8 @@ def play_live(
         realtime: play at the trajectory's own speed; if False, one stored step per frame at ``fps``.
         loop: repeat forever (else once).
         open_browser: also open the URL in the system's web browser.
-        fps, show_path, max_frames: as in :func:`kinredund.ui.viz.replay_html`.
+        fps, show_path, max_frames, scene: as in :func:`kinredund.ui.viz.replay_html` (``scene``, a
+            :class:`kinredund.Scene`: its objects drawn, the closest pair marked at every frame).
 
     Returns:
         The viewer's URL, e.g. ``http://127.0.0.1:7000/static/``.
@@ -51,7 +53,7 @@ def play_live(
         KinredundError: as :func:`kinredund.ui.viz.replay_html`.
     """
     vis = animated_visualizer(traj, robot, loop=loop, fps=fps, show_path=show_path, max_frames=max_frames,
-                              realtime=realtime)
+                              realtime=realtime, cell=scene)
     url = vis.url()
     _LIVE[url] = vis
     if open_browser:
