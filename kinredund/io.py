@@ -3,17 +3,8 @@
 Every file kinredund writes goes through :func:`atomic_write`, so no reader ever sees a half-written
 file and a failed write leaves nothing behind.
 
-What an output path may be (:func:`check_output_path`, docs/schema.md):
-
-- a new path (its missing folders are created), or an existing regular file, which is replaced;
-- a symbolic link to a regular file: the link is followed, the file it points to is replaced and the
-  link stays a link; a dangling link, or a link to anything else, is refused;
-- anything else (a directory, a device such as ``/dev/null`` or ``/dev/full``, a FIFO, a socket) is
-  refused with an :class:`~kinredund.errors.OutputPathError`: it is never replaced by a file.
-
-The outputs of one command are checked together before any work (:func:`check_outputs`): paths resolved
-(``sub/../a.json`` is ``a.json``, a link is its target), two outputs at one path or one inside a folder
-output are refused; :func:`output_batch` refuses the same overlaps for library callers.
+What an output path may be, and the check of a command's outputs together: :mod:`kinredund.outputs`
+(re-exported here); :func:`output_batch` refuses the same overlaps for library callers.
 
 The temporary file lives next to the (resolved) target, named ``.NAME.XXXX.tmp``, and is removed on
 any failure. Inside :func:`output_batch` the renames wait until the batch ends, so the outputs of one
@@ -54,105 +45,18 @@ from kinredund.inputs import (  # noqa: F401  (the readers, here too for their c
     read_json_object,
     read_text,
 )
+from kinredund.outputs import (  # noqa: F401  (the output checks, here too for their callers)
+    check_new_folder,
+    check_output_path,
+    check_outputs,
+    file_path,
+    output_folder,
+    overlap,
+    real_path,
+)
 
 #: the renames waiting for the end of the innermost :func:`output_batch` (None outside one)
 _BATCH: contextvars.ContextVar[Batch | None] = contextvars.ContextVar("kinredund_output_batch", default=None)
-
-
-def file_path(path) -> Path:
-    """``path`` as a Path, refused (OutputPathError) if empty or if it names a folder: a text ending in a
-    separator (``out.csv/``), which ``Path`` would silently turn into the file ``out.csv``."""
-    if isinstance(path, (str, os.PathLike)) and not str(path).strip():
-        raise OutputPathError(path, "the path is empty")
-    text = os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
-    if isinstance(text, str) and text.endswith(("/", os.sep)):
-        raise OutputPathError(path, "it ends with a path separator, so it names a folder: give a file name")
-    try:
-        return Path(path)
-    except TypeError as err:
-        raise OutputPathError(path, f"not a file path ({type(path).__name__})") from err
-
-
-def real_path(path) -> Path:
-    """``path`` absolute, with symbolic links, ``.`` and ``..`` resolved (lexically where it does not exist
-    yet): two paths write the same place exactly when their real paths are equal."""
-    return Path(os.path.realpath(os.fspath(path)))
-
-
-def check_outputs(outputs) -> dict[str, Path]:
-    """The one check of a command's outputs, before any work: each path on its own, then all together.
-
-    Args:
-        outputs: (label, path, kind) triples; ``kind`` is ``"file"`` (:func:`check_output_path`) or
-            ``"folder"`` (a folder output such as a ROS 2 bag: :func:`check_new_folder`); a None path
-            is skipped.
-
-    Returns:
-        label -> the real path (:func:`real_path`) each output will occupy.
-
-    Raises:
-        OutputPathError: a path refused on its own, or two outputs that would overwrite each other: the
-            same real path (``sub/../a.json`` and ``a.json``, a link and its target, a file and a bag),
-            or one inside the other (a ``--csv`` inside the ``--bag`` folder).
-    """
-    seen: dict[str, Path] = {}
-    for label, path, kind in outputs:
-        if path is None:
-            continue
-        real = real_path(check_new_folder(path) if kind == "folder" else check_output_path(path))
-        for other, where in seen.items():
-            overlap = _overlap(real, where)
-            if overlap == "same":
-                raise OutputPathError(path, f"{other} and {label} name the same path {str(real)!r}: one "
-                                            "would overwrite the other")
-            if overlap is not None:
-                mine, theirs = (label, real), (other, where)
-                inner, outer = (mine, theirs) if overlap == "inside" else (theirs, mine)
-                raise OutputPathError(path, f"{inner[0]} ({str(inner[1])!r}) lies inside {outer[0]} "
-                                            f"({str(outer[1])!r}): give separate paths")
-        seen[label] = real
-    return seen
-
-
-def _overlap(real: Path, other: Path) -> str | None:
-    """How two real paths overlap: ``same``, ``inside`` (real lies inside other), ``contains``, or None."""
-    if real == other:
-        return "same"
-    return "inside" if other in real.parents else "contains" if real in other.parents else None
-
-
-def check_output_path(path) -> Path:
-    """The file that writing to ``path`` replaces or creates (a symlink resolved), or OutputPathError.
-
-    Nothing is created: a folder that does not exist yet is fine as long as its nearest existing
-    ancestor is a folder.
-
-    Raises:
-        OutputPathError: ``path`` is empty, a directory, a device, a FIFO or a socket, a dangling symlink,
-            or a symlink to one of those, or lies under something that is not a folder.
-    """
-    path = file_path(path)
-    target = path
-    try:
-        if path.is_symlink():
-            target = path.resolve()
-            if not target.exists():
-                raise OutputPathError(path, f"a symbolic link to {str(target)!r}, which does not exist: "
-                                            "kinredund follows a link only to an existing regular file")
-        st = os.stat(target)
-    except FileNotFoundError:
-        st = None
-    except (OSError, RuntimeError) as err:  # a symlink loop, a path under a file, no permission
-        raise OutputPathError(path, getattr(err, "strerror", None) or str(err)) from err
-    if st is not None and not stat.S_ISREG(st.st_mode):
-        via = f" (through the symbolic link to {str(target)!r})" if target != path else ""
-        raise OutputPathError(path, f"{file_kind(st.st_mode)}{via}: kinredund writes only a regular file or a new path")
-    folder = target.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    if folder.exists() and not folder.is_dir():
-        raise OutputPathError(path, f"{str(folder)!r} is not a folder")
-    return target
 
 
 class Batch:
@@ -181,13 +85,54 @@ def output_batch():
         raise
     finally:
         _BATCH.reset(token)
-    for k, (tmp, target) in enumerate(batch.staged):
-        try:
+    _commit(batch.staged)
+
+
+def _commit(staged: list[tuple[str, Path]]) -> None:
+    """Rename the staged temporaries onto their targets, all or none as far as POSIX allows: each file about to be
+    replaced is first kept as a hard link (a copy where the file system has none) beside it; if a rename fails,
+    the outputs already renamed are undone (the kept files put back, new paths removed) and every temporary and
+    kept file is removed. A crash between two renames can still leave some: POSIX has no multi-file rename.
+
+    Raises:
+        OutputPathError: naming the output whose backup or rename the file system refused.
+    """
+    kept: dict[Path, str] = {}
+    done: list[Path] = []
+    try:
+        for tmp, target in staged:
+            if os.path.isfile(target) and not os.path.isdir(tmp):
+                failed = target
+                kept[target] = _keep(tmp, target)
+        for tmp, target in staged:
+            failed = target
             _rename(tmp, target)
-        except OSError as err:
-            for later, _ in batch.staged[k:]:
-                _remove(later)
-            raise OutputPathError(target, err.strerror or str(err)) from err
+            done.append(target)
+    except OSError as err:
+        for target in reversed(done):
+            if target in kept:
+                os.replace(kept.pop(target), target)
+            else:
+                _remove(str(target))
+        for tmp, _ in staged:
+            _remove(tmp)
+        for backup in kept.values():
+            _remove(backup)
+        raise OutputPathError(failed, f"{err.strerror or err}; no output of the batch was written") from err
+    for backup in kept.values():
+        _remove(backup)
+
+
+def _keep(tmp: str, target: Path) -> str:
+    """A second name for the file ``target`` (a hard link, else a copy), next to its temporary ``tmp``."""
+    backup = tmp + ".old"
+    try:
+        os.link(target, backup)
+    except FileExistsError:
+        raise
+    except OSError:
+        shutil.copy2(target, backup)
+    return backup
 
 
 def _rename(tmp: str, target: Path) -> None:
@@ -232,42 +177,11 @@ def _check_batch(target: Path, folder: bool) -> None:
         return
     real = real_path(target)
     for tmp, other in batch.staged:
-        overlap = _overlap(real, real_path(other))
-        if overlap == "same" and not folder and not os.path.isdir(tmp):
+        how = overlap(real, real_path(other))
+        if how == "same" and not folder and not os.path.isdir(tmp):
             continue
-        if overlap is not None:
+        if how is not None:
             raise OutputPathError(target, f"it overlaps {str(other)!r}, another output of this command")
-
-
-def check_new_folder(path) -> Path:
-    """``path`` as a Path if nothing exists there (a folder output never replaces anything), else
-    OutputPathError."""
-    path = Path(path)
-    if not str(path).strip():
-        raise OutputPathError(path, "the path is empty")
-    if path.exists() or path.is_symlink():
-        raise OutputPathError(path, "it exists already: give a new folder (a folder output is never overwritten)")
-    check_output_path(path)  # a path under a file is refused here
-    return path
-
-
-def output_folder(path) -> Path:
-    """The folder ``path`` that a command writes its files into (``demo --out``), created if missing.
-
-    Raises:
-        OutputPathError: ``path`` is empty, or exists and is not a folder (a regular file, a device, a
-            dangling link), or the folder cannot be created (a path under a file, no permission).
-    """
-    path = Path(path)
-    if not str(path).strip():
-        raise OutputPathError(path, "the path is empty")
-    if os.path.lexists(path) and not path.is_dir():
-        raise OutputPathError(path, "it exists and is not a folder: give a folder (new or existing) for the outputs")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise OutputPathError(path, err.strerror or str(err)) from err
-    return path
 
 
 def atomic_write_dir(path, build) -> Path:

@@ -12,7 +12,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "kinredund"
 
 #: the layers in data-flow order; a module may import only from its own layer or earlier ones
 LAYERS = [
-    ("errors", "inputs", "io"),
+    ("errors", "inputs", "outputs", "io"),
     ("kinematics",),
     ("indices", "paths"),
     ("tasks",),

@@ -93,6 +93,25 @@ def test_a_library_batch_refuses_a_file_inside_a_bag_folder_and_leaves_nothing(t
     assert _names(tmp_path) == []
 
 
+def test_a_batch_whose_rename_fails_midway_puts_back_the_files_it_replaced(tmp_path):
+    """All or nothing: the batch renames its temporaries in turn; the second rename fails (a folder appeared at
+    its path while the outputs were written), and the first output, already renamed over an existing file,
+    is put back. Reproducer: a.json held the new content while b.json was missing (one output of two)."""
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    write_json(a, {"old": 1})
+    os.chmod(a, 0o640)
+    with pytest.raises(OutputPathError) as caught, output_batch():
+        write_json(a, {"new": 1})
+        write_json(tmp_path / "c.json", {"new": 1})
+        write_json(b, {"new": 1})
+        b.mkdir()  # the file system refuses the rename of b.json's temporary (a directory is in the way)
+    assert caught.value.path == str(b) and "no output of the batch was written" in str(caught.value)
+    assert json.loads(a.read_text()) == {"old": 1}
+    assert os.stat(a).st_mode & 0o777 == 0o640  # the same file, put back
+    assert _names(tmp_path) == ["a.json", "b.json"]  # c.json is gone again, no temporary or backup is left
+    assert b.is_dir() and not list(b.iterdir())
+
+
 def test_a_sweep_that_fails_before_computing_keeps_the_existing_sweep_file(tmp_path, monkeypatch):
     """Reproducer: `sweep panda --scheduler tcp://127.0.0.1:1 --json finished.jsonl` replaced a finished
     sweep file by its bare header (an unreachable scheduler, simulated here without the 10 s timeout)."""
