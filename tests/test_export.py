@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -64,6 +65,47 @@ def test_bag_round_trip_message_type_and_joint_names(tmp_path):
         assert [(c.topic, c.msgtype, c.msgcount) for c in reader.connections] == [
             (DEFAULT_TOPIC, "trajectory_msgs/msg/JointTrajectory", 1)]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]  # the temporary folder is gone
+
+
+def test_read_bag_refuses_what_is_not_a_bag_folder_of_regular_files(tmp_path):
+    """read_bag goes through the project's input check (kinredund.inputs): a missing path, a file, a folder
+    without metadata.yaml, a FIFO or a folder where metadata.yaml or a storage file should be: an ExportError naming
+    the path and what a bag is. Reproducer: a FIFO metadata.yaml hung the reader (here cut by SIGALRM), a file gave
+    "Unrecognized storage format '.json'", a folder in place of the database "disk I/O error"."""
+    import shutil
+    import signal
+
+    write_bag(samples(), tmp_path / "bag")
+    (tmp_path / "run.json").write_text("{}")
+    (db,) = (p.name for p in (tmp_path / "bag").iterdir() if p.suffix == ".db3")
+
+    def bag_with(name: str, make) -> Path:
+        folder = tmp_path / f"bag_{make.__name__}_{name.replace('.', '_')}"
+        shutil.copytree(tmp_path / "bag", folder)
+        (folder / name).unlink()
+        make(folder / name)
+        return folder
+
+    def hung(signum, frame):
+        raise TimeoutError("read_bag blocked on a FIFO")
+
+    cases = [(tmp_path / "nope", "nope", "no such folder"), (tmp_path / "run.json", "run.json", "a regular file"),
+             (bag_with("metadata.yaml", lambda p: None), "metadata.yaml", "No such file"),
+             (bag_with("metadata.yaml", os.mkfifo), "metadata.yaml", "a FIFO"),
+             (bag_with(db, os.mkdir), db, "a directory"),
+             (bag_with(db, os.mkfifo), db, "a FIFO")]  # last: sqlite blocked on it where no signal could cut it
+    previous = signal.signal(signal.SIGALRM, hung)
+    try:
+        for folder, named, why in cases:
+            signal.alarm(20)  # a hang guard, not a speed bar
+            with pytest.raises(ExportError) as caught:
+                read_bag(folder)
+            signal.alarm(0)
+            text = str(caught.value)
+            assert named in text and why in text and "a ROS 2 bag is a folder" in text, text
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
 
 
 def test_json_csv_and_bag_agree(tmp_path):

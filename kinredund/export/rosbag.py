@@ -14,14 +14,16 @@ leaves nothing, and a destination that exists is refused before anything is writ
 
 from __future__ import annotations
 
+import os
 import re
 import sqlite3
-from pathlib import Path
+from pathlib import Path, PurePath
 
 import numpy as np
 
-from kinredund.errors import OutputPathError
+from kinredund.errors import KinredundError, OutputPathError
 from kinredund.export.samples import ExportError, JointSamples, distinct_nanoseconds, from_nanoseconds
+from kinredund.inputs import check_regular_file, file_kind, read_text
 from kinredund.io import atomic_write_dir, check_new_folder
 from kinredund.trajectory import Trajectory
 
@@ -145,10 +147,11 @@ def read_bag(folder: str | Path, topic: str | None = None) -> JointSamples:
     """The samples of the first JointTrajectory message in a bag (on ``topic`` if given).
 
     Raises:
-        ExportError: not a readable bag, or no JointTrajectory message in it.
+        ExportError: not a readable bag (:func:`check_bag_folder`), or no JointTrajectory message in it.
     """
     from rosbags.rosbag2 import Reader
 
+    check_bag_folder(folder)
     store = _typestore()
     try:
         with Reader(folder) as reader:
@@ -170,3 +173,35 @@ def read_bag(folder: str | Path, topic: str | None = None) -> JointSamples:
         more[key] = np.array(rows) if rows and all(len(r) == len(msg.joint_names) for r in rows) else None
     q = np.array([np.asarray(p.positions, float) for p in pts])
     return JointSamples(tuple(msg.joint_names), from_nanoseconds(ns), q, **more).checked()
+
+
+#: what a bag is, said when something else is given
+BAG_IS = "a ROS 2 bag is a folder holding metadata.yaml and the storage files it lists (.db3 or .mcap)"
+
+
+def check_bag_folder(folder) -> Path:
+    """``folder`` as a Path if it is a bag folder whose metadata.yaml and listed storage files are regular files
+    (:func:`kinredund.inputs.check_regular_file`: a FIFO would block the reader, sqlite included).
+
+    Raises:
+        ExportError: naming the path and what it is instead, and what a bag is.
+    """
+    from ruamel.yaml import YAML
+    from ruamel.yaml.error import YAMLError
+
+    path = Path(folder)
+    if not path.is_dir():
+        what = "a regular file" if path.is_file() else file_kind(os.stat(path).st_mode) if path.exists() else (
+            "no such folder")
+        raise ExportError(f"cannot read the bag {str(path)!r}: {what}; {BAG_IS}")
+    try:
+        listed = YAML(typ="safe").load(read_text(path / "metadata.yaml"))["rosbag2_bagfile_information"][
+            "relative_file_paths"]
+        for name in listed:
+            check_regular_file(path / PurePath(str(name)).name)
+    except KinredundError as err:
+        raise ExportError(f"cannot read the bag {str(path)!r}: {err}; {BAG_IS}") from err
+    except (YAMLError, TypeError, KeyError) as err:
+        raise ExportError(f"cannot read the bag {str(path)!r}: its metadata.yaml does not list the storage files "
+                          f"({type(err).__name__}: {err}); {BAG_IS}") from err
+    return path
