@@ -10,6 +10,7 @@ import threading
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import rounding
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -29,6 +30,7 @@ from kinredund.model.erd import ERD_ARMS, erd_share_dir
 from kinredund.model.loader import HOME_CONDITION, conditioning, known_robots, load_robot, robot_table
 from kinredund.model.urdf import load_urdf
 from kinredund.paths import Circle
+from kinredund.tasks import TASKS
 
 #: a tracked record at these step counts agrees with the path to round-off: the default mode corrects
 #: every step to the closure tolerance (1e-12 on a ~1 m scale); 1e-9 m leaves room for a long arm
@@ -531,3 +533,16 @@ def test_a_urdf_in_a_folder_with_braces_reloads_from_its_record_name(tmp_path):
     assert again.urdf_path == r.urdf_path and again.ee_frame == "ee" and again.source == r.source
     q = r.home + 0.1
     assert np.abs(again.fk(q) - r.fk(q)).max() == 0.0  # the same model, built again from the same file
+
+
+@pytest.mark.parametrize("task", sorted(TASKS))
+def test_a_retasked_robot_pickles_and_reloads_as_itself(task):
+    """``with_task`` from an axis robot with a turned tool axis: a pickled copy reloads from its ``source`` (what a
+    record and a Dask worker use) as the same robot: the task, the end-effector frame and its pose. Reproducer: the
+    source kept the tool axis, which load_robot refuses for a task without one ('position': TaskError)."""
+    r = load_robot("panda", task="axis", tool_axis="x").with_task(task)
+    back = pickle.loads(pickle.dumps(r))
+    again = load_robot(back.source, task=back.task)
+    assert (again.task, again.ee_frame, again.task_dim) == (task, r.ee_frame, r.task_dim)
+    for q in np.random.default_rng(7).uniform(r.lower, r.upper, (5, r.nq)):
+        np.testing.assert_allclose(again.fk(q), r.fk(q), rtol=0, atol=rounding(1.0))  # the same chain, computed twice

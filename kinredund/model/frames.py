@@ -12,6 +12,11 @@ FRAME_PREFERENCE = (pin.FrameType.BODY, pin.FrameType.OP_FRAME, pin.FrameType.FI
                     pin.FrameType.JOINT, pin.FrameType.SENSOR)
 
 
+#: the end of the name of the frame ``load_robot`` adds at the end-effector frame's origin, its z axis turned onto a
+#: tool axis other than z (``<ee_frame>_tool_axis``)
+TOOL_AXIS_FRAME = "_tool_axis"
+
+
 def resolve_frame(model: pin.Model, name) -> tuple[int, str]:
     """(frame id, description) of the frame called ``name``, preferring a link when names are shared.
 

@@ -34,7 +34,7 @@ from kinredund.errors import (
 from kinredund.kinematics.state import Kinematics
 from kinredund.model.catalog import SHIPPED_HOMES, SHIPPED_TABLES, SHIPPED_TASKS, TABLE_ROBOTS
 from kinredund.model.erd import ERD_ARMS, erd_share_dir
-from kinredund.model.frames import resolve_frame
+from kinredund.model.frames import TOOL_AXIS_FRAME, resolve_frame
 from kinredund.model.robot import NO_LIMIT, Robot, robot_from_hd, robot_revolute
 from kinredund.model.source import record_source, split_source
 from kinredund.model.urdf import EE_FRAME, load_urdf
@@ -366,7 +366,7 @@ def _with_tool_axis(model: pin.Model, frame: str, axis: np.ndarray | None, task:
         return model, frame
     fid, _ = resolve_frame(model, frame)
     base = model.frames[fid]
-    name = f"{frame}_tool_axis"
+    name = frame + TOOL_AXIS_FRAME
     model = pin.Model(model)
     turn = pin.SE3(frame_with_axis(axis), np.zeros(3))
     model.addFrame(pin.Frame(name, base.parentJoint, fid, base.placement * turn, pin.FrameType.OP_FRAME))

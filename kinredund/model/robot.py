@@ -21,7 +21,8 @@ import pinocchio as pin
 from kinredund.errors import JointVectorError, check_joint_vector
 from kinredund.kinematics.hd import REVOLUTE, HDTable
 from kinredund.kinematics.state import Kinematics, PerThread
-from kinredund.model.frames import resolve_frame
+from kinredund.model.frames import TOOL_AXIS_FRAME, resolve_frame
+from kinredund.model.source import record_source, split_source
 from kinredund.model.urdf import EE_FRAME
 from kinredund.tasks import get_task
 
@@ -135,13 +136,29 @@ class Robot:
         return list(self.model.names)[1:]
 
     def with_task(self, task: str) -> Robot:
-        """The same robot with another task kind (a new workspace; the model is shared)."""
+        """The same robot with another task kind (a new workspace; the model is shared).
+
+        A tool axis belongs to the tasks that hold one (``axis``): for another kind the end-effector frame is the
+        one a turned tool axis was added to (the same origin), as ``load_robot(name, task=task)`` gives, and
+        ``source`` drops the axis, so that a record or a pickled copy reloads this robot (``load_robot`` refuses a
+        tool axis for such a task).
+        """
+        frame, axis, source = self.ee_frame, self.tool_axis, self.source
+        if not get_task(task).takes_tool_axis:
+            parent = self.model.frames[self.model.frames[self.ee_frame_id].parentFrame].name
+            if not np.array_equal(axis, (0.0, 0.0, 1.0)) and frame == parent + TOOL_AXIS_FRAME:  # added by load_robot
+                frame = parent
+            axis = None
+            if source is not None:
+                base, options = split_source(source)
+                options.pop("tool_axis", None)
+                source = record_source(base, **options)
         other = Robot(
-            self.name, self.model, self.ee_frame, task, hd=self.hd, urdf_path=self.urdf_path,
-            package_dirs=self.package_dirs, home=self.home, tool_axis=self.tool_axis, locked=self.locked,
+            self.name, self.model, frame, task, hd=self.hd, urdf_path=self.urdf_path,
+            package_dirs=self.package_dirs, home=self.home, tool_axis=axis, locked=self.locked,
             continuous=self.continuous,
         )
-        other.source = self.source
+        other.source = source
         return other
 
     def __repr__(self) -> str:
