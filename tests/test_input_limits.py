@@ -9,6 +9,7 @@ instead of blocking the suite.
 from __future__ import annotations
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -145,6 +146,23 @@ def test_sizes_are_bounded_in_one_place_with_the_reason():
         check_size(MAX_SAMPLES + 1, "steps", "samples")
     with pytest.raises(TaskError, match="must be an integer >= 1"):
         check_size(True, "starts", "starts", TaskError)
+
+
+def test_track_bounds_its_steps_with_check_size_words():
+    """track()'s closed and open runs refuse a record longer than SIZES["samples"] in errors.check_size's words
+    (its own copy of the message said "the record holds every step"), before any step."""
+    from kinredund.model.loader import load_robot
+    from kinredund.paths import Circle
+    from kinredund.tracking import track
+
+    r = load_robot("planar3r")
+    why = re.escape(SIZES["samples"][1])
+    circle = Circle(center=[1.0, 0.5, 0.0], radius=0.1, speed=0.1)
+    with pytest.raises(OptionError, match=rf"loops x steps_per_loop \(3 x {MAX_SAMPLES // 2}\) must be at most "
+                                          rf"{MAX_SAMPLES} \({why}\), got {3 * (MAX_SAMPLES // 2)}"):
+        track(r, circle, None, r.home, steps_per_loop=MAX_SAMPLES // 2, loops=3)
+    with pytest.raises(OptionError, match=rf"steps must be at most {MAX_SAMPLES} \({why}\), got {MAX_SAMPLES + 1}"):
+        track(r, circle, None, r.home, duration=1.0, steps=MAX_SAMPLES + 1)  # a duration: run as an open path
 
 
 def test_retime_refuses_more_loops_than_a_record_may_hold():

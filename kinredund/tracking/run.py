@@ -8,7 +8,15 @@ endless.
 
 from __future__ import annotations
 
-from kinredund.errors import MAX_SAMPLES, OptionError, PathError, TrackingError, check_count, check_positive
+from kinredund.errors import (
+    MAX_SAMPLES,
+    OptionError,
+    PathError,
+    TrackingError,
+    check_count,
+    check_positive,
+    check_size,
+)
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
@@ -42,16 +50,12 @@ def _steps(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, i
     if path.period is not None and duration is None:
         spl = check_count(steps_per_loop, 1, "steps_per_loop", OptionError)
         loops = check_count(loops, 1, "loops", OptionError)
-        if spl * loops > MAX_STEPS:
-            raise OptionError(f"loops x steps_per_loop must be at most {MAX_STEPS} (the record holds every step), "
-                              f"got {loops} x {spl} = {loops * spl}")
+        check_size(spl * loops, f"loops x steps_per_loop ({loops} x {spl})", "samples")  # the record holds every step
         return path.period / spl, spl * loops, loops
     if duration is None or steps is None:
         raise PathError("an open path needs duration > 0 [s] and steps >= 1")
     duration = check_positive(duration, "duration [s] of an open path", PathError)
-    steps = check_count(steps, 1, "steps", OptionError)
-    if steps > MAX_STEPS:
-        raise OptionError(f"steps must be at most {MAX_STEPS} (the record holds every step), got {steps}")
+    steps = check_size(steps, "steps", "samples")
     return duration / steps, steps, None
 
 
