@@ -222,6 +222,62 @@ def test_every_option_has_help_with_its_default():
     assert "examples:" in parser.epilog
 
 
+def _help_examples() -> dict[str, list[list[str]]]:
+    """The examples of every ``--help`` (``kinredund --help`` as ""), by subcommand: each command's words after
+    ``kinredund``, the parts of a ``&&`` chain as two commands, a trailing comment (after 3 spaces) left out."""
+    import re
+    import shlex
+
+    from kinredund.ui.cli import build_parser
+
+    parser = build_parser()
+    examples = {}
+    for name, p in [("", parser), *_subparsers(parser).items()]:
+        lines = [line.strip() for line in p.epilog.split("examples:\n", 1)[1].splitlines()]
+        commands = [re.split(r"\s{3,}", line)[0] for line in lines if line.startswith("kinredund ")]
+        examples[name] = [shlex.split(part)[1:] for c in commands for part in c.split("&&")]
+        assert examples[name] and all(words for words in examples[name]), (name, lines)
+    return examples
+
+
+def test_every_help_example_parses_as_its_subcommand():
+    from kinredund.ui.cli import build_parser
+
+    parser = build_parser()
+    for name, commands in _help_examples().items():
+        for words in commands:
+            args = parser.parse_args(words)  # SystemExit(2) on an example the parser refuses
+            assert args.command == words[0], words
+        assert not name or name in [words[0] for words in commands], name  # one example of its own at least
+
+
+#: examples run in test_every_help_example_runs, by --help: quick, or marked slow (a whole planner or sweep run)
+_SLOW_HELP = {"", "demo", "plan", "sweep", "reproduce"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in _SLOW_HELP else n
+                                  for n in ["", "demo", "reproduce", "track", "ik", "plan", "play", "generate-robots",
+                                            "robots", "retime", "export", "sweep", "check"]])
+def test_every_help_example_runs(name, tmp_path, monkeypatch, capsys):
+    """The examples of one ``--help``, run in order as printed in a new folder (the files they read, run.json,
+    timed.json and a scene cell.json, put there first; an absolute output path moved into the folder): each exits
+    0. A ``--live`` replay serves until Ctrl-C: it is only parsed. Reproducer: ``kinredund track xarm7 --task
+    position --scheme pseudoinverse`` exited 1 (the baseline does not close the loop)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["track", "planar3r", "--steps", "40", "--json", "run.json", "--quiet"]) == 0
+    assert main(["retime", "run.json", "--amax", "5", "--json", "timed.json"]) == 0
+    (tmp_path / "cell.json").write_text(json.dumps({"format": "kinredund-scene", "version": 1, "objects": [
+        {"name": "wall", "shape": "box", "size": [0.2, 4.0, 1.0], "pose": {"xyz": [1.5, 0.0, 0.0]}}]}))
+    commands = _help_examples()[name]
+    assert commands, name
+    for words in commands:
+        if "--live" in words:
+            continue
+        words = [str(tmp_path / Path(w).name) if w.startswith("/") else w for w in words]
+        code = main(words)
+        assert code == 0, (words, capsys.readouterr().err[-2000:])
+
+
 def test_help_renders_units_and_defaults(capsys):
     with pytest.raises(SystemExit) as err:
         main(["track", "--help"])

@@ -315,7 +315,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
              "scheme, keeping the extra joints at the optimum of the performance index.",
              ["kinredund track panda --html panda.html",
               "kinredund track planar3r --path ellipse --radius 0.5 --loops 3 --plot joints.png",
-              "kinredund track xarm7 --task position --scheme pseudoinverse --json run.json"])
+              "kinredund track xarm7 --task position --scheme velocity --json run.json"])
     add_robot(p)
     add_path(p)
     p.add_argument("--q0", type=vector, metavar="Q1,Q2,...",
