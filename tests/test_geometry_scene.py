@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -161,6 +162,29 @@ def test_bad_scene_files_are_refused(tmp_path):
         path.write_text(json.dumps(data))
         with pytest.raises(GeometryError, match=words):
             kr.load_scene(path, panda(), pairs=panda_pairs())
+
+
+def test_a_bad_object_of_a_scene_file_is_named_with_the_file(tmp_path):
+    """A value the Scene refuses (a negative size, an unknown frame, a pose that is no rigid transform, a missing
+    mesh) is reported with the file, the object's index and its name, as a malformed entry is. Reproducer:
+    `kinredund check run.json --scene cell.json` said only "box size [m] must be three numbers > 0"."""
+    path = tmp_path / "cell.json"
+    objects = [({"name": "ok", "shape": "sphere", "radius": 0.1, "pose": {"xyz": [2.0, 0.0, 0.0]}}, None),
+               ({"name": "table", "shape": "box", "size": [1.0, -0.5, 0.1]}, "three numbers > 0"),
+               ({"name": "tool", "shape": "sphere", "radius": 0.1, "attach_to": "flange"}, "no frame 'flange'"),
+               ({"name": "tilt", "shape": "sphere", "radius": 0.1, "pose": {"xyz": [1, 0, 0], "quat": [0, 0, 0, 2]}},
+                "quat"),
+               ({"name": "part", "shape": "mesh", "file": "part.stl"}, "part.stl")]
+    for entry, words in objects[1:]:
+        path.write_text(json.dumps({"format": "kinredund-scene", "objects": [objects[0][0], entry]}))
+        with pytest.raises(GeometryError) as caught:
+            kr.load_scene(path, panda(), pairs=panda_pairs())
+        text = str(caught.value)
+        assert text.startswith(f"{path}: object 1 ({entry['name']!r}): ") and words in text, text
+    path.write_text(json.dumps({"format": "kinredund-scene", "objects": [objects[0][0]],
+                                "ignored_pairs": [["ok", "nothing"]]}))
+    with pytest.raises(GeometryError, match=rf"^{re.escape(str(path))}: ignored pair \['ok', 'nothing'\]: .*nothing"):
+        kr.load_scene(path, panda(), pairs=panda_pairs())
 
 
 def test_a_pair_matrix_of_another_robot_is_refused(tmp_path):

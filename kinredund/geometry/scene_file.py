@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from kinredund.errors import GeometryError
+from kinredund.errors import GeometryError, KinredundError
 from kinredund.geometry.scene import SHAPES, Scene
 from kinredund.geometry.shapes import pose_dict
 from kinredund.io import read_json_object, write_json
@@ -75,7 +75,10 @@ def load_scene(file, robot, *, pairs=None, geometry: str | None = None) -> Scene
     for pair in data.get("ignored_pairs", []):
         if not (isinstance(pair, list) and len(pair) == 2):
             raise GeometryError(f"{where}: an ignored pair must be [name, name], got {pair!r}")
-        scene.ignore(*pair)
+        try:
+            scene.ignore(*pair)
+        except KinredundError as err:
+            raise GeometryError(f"{where}: ignored pair {pair!r}: {err}") from err
     return scene
 
 
@@ -92,6 +95,13 @@ def _add(scene: Scene, entry, folder: Path, where: str) -> None:
     if missing or set(entry) - allowed:
         raise GeometryError(f"{where}: a {shape} takes {', '.join(keys)} (and pose, attach_to); "
                             f"missing {missing}, unknown {sorted(set(entry) - allowed)}")
+    try:
+        _place(scene, shape, entry, folder)
+    except KinredundError as err:  # a value the Scene refuses: named with the file and the object
+        raise GeometryError(f"{where}: {err}") from err
+
+
+def _place(scene: Scene, shape: str, entry: dict, folder: Path) -> None:
     pose, attach = entry.get("pose"), entry.get("attach_to")
     name = entry["name"]
     if shape == "box":
