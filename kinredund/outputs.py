@@ -2,7 +2,8 @@
 
 What an output path may be (:func:`check_output_path`):
 
-- a new path (its missing folders are created), or an existing regular file, which is replaced;
+- a new path (its missing folders are created), or an existing regular file that may be written, which is
+  replaced (a write-protected one is refused, though a rename needs only the folder's permission);
 - a symbolic link to a regular file: the link is followed, the file it points to is replaced and the
   link stays a link; a dangling link, or a link to anything else, is refused;
 - anything else (a directory, a device such as ``/dev/null`` or ``/dev/full``, a FIFO, a socket) is
@@ -93,7 +94,8 @@ def check_output_path(path) -> Path:
 
     Raises:
         OutputPathError: ``path`` is empty, a directory, a device, a FIFO or a socket, a dangling symlink,
-            or a symlink to one of those, or lies under something that is not a folder.
+            or a symlink to one of those, a write-protected file (no write bit, or one this user may not write),
+            or lies under something that is not a folder.
     """
     path = file_path(path)
     target = path
@@ -111,6 +113,9 @@ def check_output_path(path) -> Path:
     if st is not None and not stat.S_ISREG(st.st_mode):
         via = f" (through the symbolic link to {str(target)!r})" if target != path else ""
         raise OutputPathError(path, f"{file_kind(st.st_mode)}{via}: kinredund writes only a regular file or a new path")
+    if st is not None and (not st.st_mode & 0o222 or not os.access(target, os.W_OK)):  # a rename would replace it
+        raise OutputPathError(path, f"it is write-protected (mode {stat.S_IMODE(st.st_mode):04o}): kinredund does "
+                                    "not replace a file you may not write; make it writable or give another path")
     folder = target.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent

@@ -112,6 +112,24 @@ def test_a_batch_whose_rename_fails_midway_puts_back_the_files_it_replaced(tmp_p
     assert b.is_dir() and not list(b.iterdir())
 
 
+def test_a_write_protected_output_is_refused_before_any_work(tmp_path):
+    """An existing output file with no write permission (chmod 444, or one this user may not write) is refused
+    with the reason and what to do, before the command runs; the file is untouched. Reproducer: `kinredund track
+    planar3r --json ro.json` exited 0 having replaced the protected file (a rename needs only the folder's
+    permission)."""
+    protected = tmp_path / "ro.json"
+    protected.write_text('{"kept": true}')
+    protected.chmod(0o444)
+    run = subprocess.run([str(SCRIPT), "track", "planar3r", "--steps", "20", "--json", str(protected)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == EXIT_USAGE, run.stderr
+    assert f"cannot write {str(protected)!r}: it is write-protected" in run.stderr
+    assert "track planar3r: tracking" not in run.stderr  # refused before the work
+    assert json.loads(protected.read_text()) == {"kept": True} and _names(tmp_path) == ["ro.json"]
+    with pytest.raises(OutputPathError, match="write-protected"):
+        write_json(protected, {})
+
+
 def test_a_sweep_that_fails_before_computing_keeps_the_existing_sweep_file(tmp_path, monkeypatch):
     """Reproducer: `sweep panda --scheduler tcp://127.0.0.1:1 --json finished.jsonl` replaced a finished
     sweep file by its bare header (an unreachable scheduler, simulated here without the 10 s timeout)."""
