@@ -342,6 +342,19 @@ def test_play_live_reads_its_scene_before_serving(tmp_path):
     assert "open http" not in out
 
 
+def test_an_orientation_or_plane_the_task_cannot_hold_is_refused(capsys):
+    """ik --rpy for a task without orientation, and track --normal tilting a circle out of a planar task's plane:
+    refused naming what the task holds (both exited 0: the rotation was ignored, and the vertical circle was
+    tracked as its shadow on the plane, a line back and forth)."""
+    assert main(["ik", "planar3r", "--target", "1,1", "--rpy", "1,2,3"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "--rpy" in err and "'planar'" in err and "no orientation" in err, err
+    assert main(["track", "planar3r", "--normal", "1,0,0", "--quiet"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "--normal" in err and "0,0,1" in err and "'planar'" in err, err
+    assert main(["track", "planar3r", "--normal", "0,0,-2", "--steps", "20", "--quiet"]) == 0  # the plane itself
+
+
 def test_play_replays_the_helix_of_3_2(tmp_path, capsys):
     js, html = tmp_path / "h.json", tmp_path / "h.html"
     assert main(["reproduce", "3.2", "--json", str(js), "--quiet"]) == 0

@@ -171,6 +171,9 @@ def _cmd_ik(args) -> int:
         Q = (rotation_from_invariants([0, 0, 1], y_) @ rotation_from_invariants([0, 1, 0], p_)
              @ rotation_from_invariants([1, 0, 0], r_))
         target = (Q, args.target)  # what kinredund.tasks.make_target takes
+    elif args.rpy is not None:
+        raise KinredundError(f"--rpy gives an orientation, and {robot.name}'s {robot.task!r} task holds no orientation "
+                             "(it reaches a point): leave --rpy out, or give a task with one (--task pose)")
     else:
         target = args.target
     index = None if args.index == "none" else options.index_for(robot, args.index)

@@ -205,6 +205,9 @@ def path_for(args, robot, q_start: np.ndarray):
         ellipse = paths.Ellipse(center, args.radius, args.radius / 2, rate=args.speed / args.radius)
         return (ellipse if held is None else _holding(ellipse, held)), None
     normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
+    if task.planar and np.any(normal[:2] != 0.0):  # a tilted circle would be tracked as its shadow on the plane
+        raise KinredundError(f"--normal {','.join(f'{v:g}' for v in normal)}: the {robot.task!r} task follows x and y "
+                             "only, so the circle must lie in its plane: --normal 0,0,1 (or leave it out)")
     return paths.Circle(center, args.radius, args.speed, normal=tuple(normal), orientation=held), None
 
 
