@@ -127,9 +127,9 @@ def check_output_path(path) -> Path:
 def check_new_folder(path) -> Path:
     """``path`` as a Path if nothing exists there (a folder output never replaces anything), else
     OutputPathError."""
-    path = Path(path)
-    if not str(path).strip():
+    if not os.fspath(path).strip():  # the text given: Path("") would be "." (the current folder)
         raise OutputPathError(path, "the path is empty")
+    path = Path(path)
     if path.exists() or path.is_symlink():
         raise OutputPathError(path, "it exists already: give a new folder (a folder output is never overwritten)")
     check_output_path(path)  # a path under a file is refused here
@@ -143,9 +143,9 @@ def output_folder(path) -> Path:
         OutputPathError: ``path`` is empty, or exists and is not a folder (a regular file, a device, a
             dangling link), or the folder cannot be created (a path under a file, no permission).
     """
-    path = Path(path)
-    if not str(path).strip():
+    if not os.fspath(path).strip():  # the text given: Path("") would be "." (the current folder)
         raise OutputPathError(path, "the path is empty")
+    path = Path(path)
     if os.path.lexists(path) and not path.is_dir():
         raise OutputPathError(path, "it exists and is not a folder: give a folder (new or existing) for the outputs")
     try:

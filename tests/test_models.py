@@ -201,6 +201,22 @@ def test_generate_robots_command_writes_identical_files(tmp_path):
     assert not list(tmp_path.glob("*.tmp"))
 
 
+def test_generate_robots_and_demo_refuse_an_empty_or_file_output_folder(tmp_path, monkeypatch, capsys):
+    """--out "" wrote the URDFs (and the demo its folder) into the current folder, and generate-robots --out FILE
+    said "cannot write 'FILE/planar3r.urdf': Not a directory": both are refused as demo --out FILE is
+    (kinredund.io.output_folder), and nothing is written."""
+    from kinredund.ui.cli import EXIT_USAGE, main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "file.txt").write_text("x")
+    for command in ("generate-robots", "demo"):  # demo --out "" too (the same check)
+        assert main([command, "--out", ""]) == EXIT_USAGE
+        assert "the path is empty" in capsys.readouterr().err
+    assert main(["generate-robots", "--out", "file.txt"]) == EXIT_USAGE
+    assert "'file.txt': it exists and is not a folder" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file.txt"]
+
+
 def test_turn_into_limits_keeps_the_pose_and_lands_inside():
     """Angles turned by multiples of 2 pi land at the lowest value >= the lower limit, inside the limits
     where any turn can put them (ok), and the forward kinematics does not change."""

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from kinredund.errors import URDFError
-from kinredund.io import atomic_write_text
+from kinredund.io import atomic_write_text, output_folder
 from kinredund.kinematics.hd import HDTable
 from kinredund.kinematics.state import Kinematics
 from kinredund.model.catalog import SHIPPED_TABLES
@@ -41,11 +41,16 @@ def validated_urdf(table: HDTable, rng_seed: int = 0, samples: int = 5) -> str:
     return text
 
 
-def generate_robots(out_dir: Path) -> list[Path]:
-    """Write every shipped robot's URDF into ``out_dir``; return the paths written."""
+def generate_robots(out_dir: str | Path) -> list[Path]:
+    """Write every shipped robot's URDF into ``out_dir`` (created if missing); return the paths written.
+
+    Raises:
+        OutputPathError: ``out_dir`` is empty or exists and is not a folder (:func:`kinredund.io.output_folder`).
+    """
+    out_dir = output_folder(out_dir)
     written = []
     for name, make in SHIPPED_TABLES.items():
-        path = Path(out_dir) / f"{name}.urdf"
+        path = out_dir / f"{name}.urdf"
         atomic_write_text(path, validated_urdf(make()))
         written.append(path)
     return written

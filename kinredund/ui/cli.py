@@ -33,7 +33,7 @@ __all__ = ["EXIT_FAILED", "EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "REPRODUCIBL
 def _cmd_generate_robots(args) -> int:
     from kinredund.model.generate import generate_robots
 
-    wrote(*generate_robots(Path(args.out)))
+    wrote(*generate_robots(args.out))
     return EXIT_OK
 
 
@@ -231,7 +231,7 @@ def _cmd_play(args) -> int:
 def _cmd_demo(args) -> int:
     from kinredund.ui.demo import run_demo
 
-    return run_demo(Path(args.out), quick=args.quick, quiet=args.quiet)
+    return run_demo(args.out, quick=args.quick, quiet=args.quiet)  # the text: an empty one is refused
 
 
 # -- the parser (kinredund.ui.options) --------------------------------------------------------------

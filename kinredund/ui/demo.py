@@ -106,7 +106,7 @@ def _chapter6(out: Path, rows: list, data: dict, log, bar) -> None:
         log(f"Section {case}: done in {time.perf_counter() - t0:.1f} s")
 
 
-def run_demo(out: Path, quick: bool = False, stream=None, quiet: bool = False) -> int:
+def run_demo(out: str | Path, quick: bool = False, stream=None, quiet: bool = False) -> int:
     """Reproduce every example into ``out``; print the table; return the exit code (0 when all ran).
 
     Progress goes to standard error (:class:`kinredund.ui.progress.Progress`; nothing with ``quiet``).
