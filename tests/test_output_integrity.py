@@ -112,6 +112,30 @@ def test_a_batch_whose_rename_fails_midway_puts_back_the_files_it_replaced(tmp_p
     assert b.is_dir() and not list(b.iterdir())
 
 
+def test_an_output_that_is_an_input_of_the_command_is_refused(tmp_path, monkeypatch, capsys):
+    """An output naming the record, scene or path file the command reads (compared resolved) is refused before
+    any work, and the input is untouched. Reproducer: `export run.json --csv run.json`, `play run.json --html
+    run.json` and `check run.json --scene cell.json --json cell.json` exited 0 having replaced their input."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["track", "planar3r", "--steps", "20", "--json", "run.json", "--quiet"]) == EXIT_OK
+    (tmp_path / "cell.json").write_text(json.dumps({"format": "kinredund-scene", "version": 1, "objects": [
+        {"name": "ball", "shape": "sphere", "radius": 0.1, "pose": {"xyz": [5.0, 0.0, 0.0]}}]}))
+    (tmp_path / "sub").mkdir()
+    kept = {name: (tmp_path / name).read_text() for name in ("run.json", "cell.json")}
+    capsys.readouterr()
+    for argv, output, read in (
+            (["export", "run.json", "--csv", "run.json"], "--csv", "the record"),
+            (["play", "run.json", "--html", "sub/../run.json"], "--html", "the record"),
+            (["retime", "run.json", "--amax", "5", "--json", "run.json"], "--json", "the record"),
+            (["check", "run.json", "--scene", "cell.json", "--json", "cell.json"], "--json", "--scene"),
+            (["track", "planar3r", "--scene", "cell.json", "--partial", "cell.json"], "--partial", "--scene")):
+        assert main(argv) == EXIT_USAGE, argv
+        err = capsys.readouterr().err
+        assert f"{output} names {read} this command reads" in err, (argv, err)
+    assert {name: (tmp_path / name).read_text() for name in kept} == kept
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cell.json", "run.json", "sub"]
+
+
 def test_a_write_protected_output_is_refused_before_any_work(tmp_path):
     """An existing output file with no write permission (chmod 444, or one this user may not write) is refused
     with the reason and what to do, before the command runs; the file is untouched. Reproducer: `kinredund track

@@ -17,7 +17,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from kinredund.errors import KinredundError, TrackingError
+from kinredund.errors import KinredundError, OutputPathError, TrackingError
 from kinredund.io import json_ready, write_json
 from kinredund.tasks import get_task
 from kinredund.trajectory import RecordWarning
@@ -246,6 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: the options that name an output, and its kind: every one is checked before any work (kinredund.io.check_outputs)
 OUTPUT_OPTIONS = {"json": "file", "plot": "file", "html": "file", "csv": "file", "partial": "file", "bag": "folder"}
+#: the inputs a command reads, by option, and their name in the message: an output may not replace one
+INPUT_OPTIONS = {"result": "the record", "scene": "--scene", "path_file": "--path-file"}
 #: 128 + the signal number, as a shell reports a process ended by SIGINT or SIGPIPE
 EXIT_SIGINT, EXIT_SIGPIPE = 130, 141
 
@@ -254,11 +256,17 @@ def _check_outputs(args) -> None:
     """Refuse every bad output path before any work (:func:`kinredund.io.check_outputs`): a directory, a
     device, a FIFO, a dangling symlink, a path under a file, a bag folder that exists, two options that
     would overwrite each other (compared resolved, the bag folder included), a plot suffix matplotlib
-    does not write."""
+    does not write, an output that is an input of the command (the record, --scene, --path-file)."""
     from kinredund.errors import check_choice
-    from kinredund.io import check_outputs
+    from kinredund.io import check_outputs, real_path
 
-    check_outputs((f"--{name}", getattr(args, name, None), kind) for name, kind in OUTPUT_OPTIONS.items())
+    outputs = check_outputs((f"--{name}", getattr(args, name, None), kind) for name, kind in OUTPUT_OPTIONS.items())
+    inputs = {label: given for name, label in INPUT_OPTIONS.items() if (given := getattr(args, name, None)) is not None}
+    for output, real in outputs.items():
+        for label, given in inputs.items():
+            if real == real_path(given):
+                raise OutputPathError(getattr(args, output[2:]), f"{output} names {label} this command reads "
+                                      f"({str(given)!r}): writing it would replace the input; give another path")
     if getattr(args, "plot", None) is not None:
         from kinredund.ui.plots import PLOT_FORMATS
 
