@@ -113,9 +113,10 @@ def test_a_batch_whose_rename_fails_midway_puts_back_the_files_it_replaced(tmp_p
 
 
 def test_an_output_that_is_an_input_of_the_command_is_refused(tmp_path, monkeypatch, capsys):
-    """An output naming the record, scene or path file the command reads (compared resolved) is refused before
-    any work, and the input is untouched. Reproducer: `export run.json --csv run.json`, `play run.json --html
-    run.json` and `check run.json --scene cell.json --json cell.json` exited 0 having replaced their input."""
+    """An output naming the record, scene, path file or pair matrix the command reads (compared resolved) is
+    refused before any work, and the input is untouched. Reproducer: `export run.json --csv run.json`, `play
+    run.json --html run.json` and `check run.json --scene cell.json --json cell.json` exited 0 having replaced
+    their input."""
     monkeypatch.chdir(tmp_path)
     assert main(["track", "planar3r", "--steps", "20", "--json", "run.json", "--quiet"]) == EXIT_OK
     (tmp_path / "cell.json").write_text(json.dumps({"format": "kinredund-scene", "version": 1, "objects": [
@@ -128,7 +129,9 @@ def test_an_output_that_is_an_input_of_the_command_is_refused(tmp_path, monkeypa
             (["play", "run.json", "--html", "sub/../run.json"], "--html", "the record"),
             (["retime", "run.json", "--amax", "5", "--json", "run.json"], "--json", "the record"),
             (["check", "run.json", "--scene", "cell.json", "--json", "cell.json"], "--json", "--scene"),
-            (["track", "planar3r", "--scene", "cell.json", "--partial", "cell.json"], "--partial", "--scene")):
+            (["track", "planar3r", "--scene", "cell.json", "--partial", "cell.json"], "--partial", "--scene"),
+            (["check", "run.json", "--scene", "cell.json", "--pairs", "pairs.json", "--plot", "sub/x.png",
+              "--json", "./pairs.json"], "--json", "--pairs")):
         assert main(argv) == EXIT_USAGE, argv
         err = capsys.readouterr().err
         assert f"{output} names {read} this command reads" in err, (argv, err)

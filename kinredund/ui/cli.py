@@ -247,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
 #: the options that name an output, and its kind: every one is checked before any work (kinredund.io.check_outputs)
 OUTPUT_OPTIONS = {"json": "file", "plot": "file", "html": "file", "csv": "file", "partial": "file", "bag": "folder"}
 #: the inputs a command reads, by option, and their name in the message: an output may not replace one
-INPUT_OPTIONS = {"result": "the record", "scene": "--scene", "path_file": "--path-file"}
+INPUT_OPTIONS = {"result": "the record", "scene": "--scene", "path_file": "--path-file", "pairs": "--pairs"}
 #: 128 + the signal number, as a shell reports a process ended by SIGINT or SIGPIPE
 EXIT_SIGINT, EXIT_SIGPIPE = 130, 141
 
@@ -256,7 +256,7 @@ def _check_outputs(args) -> None:
     """Refuse every bad output path before any work (:func:`kinredund.io.check_outputs`): a directory, a
     device, a FIFO, a dangling symlink, a path under a file, a bag folder that exists, two options that
     would overwrite each other (compared resolved, the bag folder included), a plot suffix matplotlib
-    does not write, an output that is an input of the command (the record, --scene, --path-file)."""
+    does not write, an output that is an input of the command (the record, --scene, --path-file, --pairs)."""
     from kinredund.errors import check_choice
     from kinredund.io import check_outputs, real_path
 
