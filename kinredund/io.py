@@ -109,16 +109,19 @@ def _commit(staged: list[tuple[str, Path]]) -> None:
             _rename(tmp, target)
             done.append(target)
     except OSError as err:
+        lost = []
         for target in reversed(done):
-            if target in kept:
-                os.replace(kept.pop(target), target)
-            else:
-                _remove(str(target))
+            backup = kept.pop(target, None)
+            try:
+                os.replace(backup, target) if backup else _remove(str(target))
+            except OSError:  # the file system refuses even that: say which output is left, and where the old one is
+                lost.append(str(target) + (f" (its old content is in {backup})" if backup else ""))
         for tmp, _ in staged:
             _remove(tmp)
         for backup in kept.values():
             _remove(backup)
-        raise OutputPathError(failed, f"{err.strerror or err}; no output of the batch was written") from err
+        outcome = f"could not undo {', '.join(lost)}" if lost else "no output of the batch was written"
+        raise OutputPathError(failed, f"{err.strerror or err}; {outcome}") from err
     for backup in kept.values():
         _remove(backup)
 
