@@ -254,3 +254,22 @@ def test_cli_help_texts():
     assert out.returncode == 0 and "--amax" in text and "--tool-speed" in text and "same optimal joint path" in text
     out = subprocess.run([str(SCRIPT), "export", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and "--bag" in out.stdout and "JointTrajectory" in out.stdout
+
+
+def test_a_topic_without_a_bag_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    """``--topic`` names the bag's topic: given without ``--bag`` (export, retime) it is refused, not ignored
+    (both exited 0 and wrote only the CSV or JSON, the topic dropped)."""
+    from kinredund.ui.cli import EXIT_USAGE, main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["track", "planar3r", "--steps", "20", "--json", "run.json", "--quiet"]) == 0
+    capsys.readouterr()
+    for argv in (["export", "run.json", "--csv", "x.csv", "--topic", "/arm/cmd"],
+                 ["retime", "run.json", "--amax", "5", "--json", "t.json", "--topic", "/arm/cmd"]):
+        assert main(argv) == EXIT_USAGE, argv
+        err = capsys.readouterr().err
+        assert "--topic names the bag's topic" in err and "--bag FOLDER" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.json"]
+    assert main(["export", "run.json", "--bag", "b", "--topic", "/arm/cmd"]) == 0
+    assert read_bag(tmp_path / "b", topic="/arm/cmd").q.shape == (21, 3)
+

@@ -45,8 +45,14 @@ def _topic(text: str) -> str:
         raise argparse.ArgumentTypeError(str(err)) from err
 
 
+def _check_topic(args) -> None:
+    """--topic without --bag: refused before any work (it would be ignored)."""
+    if args.topic is not None and args.bag is None:
+        raise KinredundError("--topic names the bag's topic: give --bag FOLDER too, or leave --topic out")
+
+
 def _write_outputs(traj, names, args) -> None:
-    from kinredund.export import write_bag, write_csv
+    from kinredund.export import DEFAULT_TOPIC, write_bag, write_csv
 
     if getattr(args, "json", None) is not None:
         traj.save_json(args.json)
@@ -54,7 +60,7 @@ def _write_outputs(traj, names, args) -> None:
     if args.csv is not None:
         print(f"wrote {write_csv(traj, args.csv, names)}")
     if args.bag is not None:
-        print(f"wrote {write_bag(traj, args.bag, names, topic=args.topic)}")
+        print(f"wrote {write_bag(traj, args.bag, names, topic=args.topic or DEFAULT_TOPIC)}")
 
 
 def _cmd_retime(args) -> int:
@@ -62,6 +68,7 @@ def _cmd_retime(args) -> int:
     from kinredund.retime.time_law import sample_ratios
     from kinredund.ui.records import replay_record
 
+    _check_topic(args)
     rec = replay_record(args.result)  # a trajectory (track, plan ROBOT) or a plan of Chapter 6 (plan 6.x)
     traj, robot = rec.trajectory, rec.robot
     limits = limits_for(robot, args.amax, velocity=args.vmax, jerk=args.jmax, tool_speed=args.tool_speed)
@@ -100,6 +107,7 @@ def _cmd_export(args) -> int:
 
     if args.csv is None and args.bag is None:
         raise KinredundError("say what to write: --csv FILE and/or --bag FOLDER")
+    _check_topic(args)
     rec = replay_record(args.result)
     _write_outputs(rec.trajectory, rec.robot.joint_names, args)
     return 0
@@ -137,8 +145,8 @@ def add_parsers(sub) -> None:
                    help="write it as CSV: t, q_<joint>..., qdot_<joint>..., qddot_<joint>... (default: not written)")
     p.add_argument("--bag", type=Path, help="write it as a ROS 2 bag folder (must not exist): one "
                                             "trajectory_msgs/msg/JointTrajectory (default: not written)")
-    p.add_argument("--topic", type=_topic, default=DEFAULT_TOPIC,
-                   help=f"the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")
+    p.add_argument("--topic", type=_topic,
+                   help=f"with --bag: the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")
     p.add_argument("--plot", type=output_file,
                    help="plot q, qdot, qddot with the limits (.png, .pdf, .svg) (default: not drawn)")
 
@@ -151,5 +159,5 @@ def add_parsers(sub) -> None:
     p.add_argument("--csv", type=output_file, help="the CSV file to write (default: not written)")
     p.add_argument("--bag", type=Path,
                    help="the ROS 2 bag folder to write, which must not exist (default: not written)")
-    p.add_argument("--topic", type=_topic, default=DEFAULT_TOPIC,
-                   help=f"the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")
+    p.add_argument("--topic", type=_topic,
+                   help=f"with --bag: the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")
