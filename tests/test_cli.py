@@ -355,6 +355,21 @@ def test_an_orientation_or_plane_the_task_cannot_hold_is_refused(capsys):
     assert main(["track", "planar3r", "--normal", "0,0,-2", "--steps", "20", "--quiet"]) == 0  # the plane itself
 
 
+def test_path_options_that_the_path_does_not_take_are_refused(tmp_path, capsys):
+    """--path-file without --path file, --center or --normal with --path file, and --normal with an ellipse (which
+    lies in a horizontal plane) are refused naming the option, not ignored (each exited 0 tracking another path
+    than the one described)."""
+    path_file = tmp_path / "p.json"
+    path_file.write_text(json.dumps({"t": [0.0, 1.0, 2.0], "p": [[1.0, 1.0, 0.0], [1.1, 1.0, 0.0], [1.0, 1.0, 0.0]]}))
+    for argv, words in ((["--path-file", str(path_file)], "--path-file is read with --path file"),
+                        (["--path", "file", "--path-file", str(path_file), "--center", "1,1"], "--center"),
+                        (["--path", "file", "--path-file", str(path_file), "--normal", "0,0,1"], "--normal"),
+                        (["--path", "ellipse", "--normal", "0,1,0"], "--normal")):
+        assert main(["track", "planar3r", "--steps", "20", "--quiet", *argv]) == EXIT_USAGE, argv
+        err = capsys.readouterr().err
+        assert words in err, (argv, err)
+
+
 def test_play_replays_the_helix_of_3_2(tmp_path, capsys):
     js, html = tmp_path / "h.json", tmp_path / "h.html"
     assert main(["reproduce", "3.2", "--json", str(js), "--quiet"]) == 0

@@ -3,7 +3,7 @@
 ``plan ROBOT [--task ...] [--path circle|ellipse|file ...] [--index ...] [--samples N] [--scene F --clearance M
 --self-clearance M|off] [--json F]`` runs
 :func:`kinredund.planning.cyclic.plan` (``kr.plan``) on the robot's own task along a closed path built as
-``track`` builds it (:func:`kinredund.ui.options.path_for`), and writes the planned motion as a
+``track`` builds it (:func:`kinredund.ui.path_options.path_for`), and writes the planned motion as a
 trajectory record (:meth:`kinredund.trajectory.Trajectory.save_json`, the plan's figures under the key
 ``plan``): ``play``, ``retime`` and ``export`` take it as they take ``track --json``. ``plan 6.2|6.3``
 runs the thesis's cases as ``reproduce 6.2|6.3`` does.

@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError, OptionError, check_size
-from kinredund.tasks import get_task, task_names
+from kinredund.errors import OptionError, check_size
+from kinredund.tasks import task_names
+from kinredund.ui.path_options import path_for
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
 REPRODUCIBLE = ("3.2", "4.1", "4.2", "4.3", "6.2", "6.3")
@@ -180,46 +181,6 @@ def add_path(p) -> None:
                    help="speed along the path [m/s] (default: %(default)s)")
     p.add_argument("--normal", type=vector, metavar="X,Y,Z",
                    help="normal of the circle's plane (default: 0,0,1, a horizontal circle)")
-
-
-def path_for(args, robot, q_start: np.ndarray):
-    """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
-
-    Circles and ellipses start at the pose of ``q_start``.
-    """
-    from kinredund import paths
-
-    if args.path == "file":
-        if args.path_file is None:
-            raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
-        path, duration = paths.read_path_file(args.path_file)
-        return path, (duration if path.period is None else None)
-    T0 = robot.fk(q_start)
-    p0 = T0[:3, 3]
-    task = get_task(robot.task)
-    center = args.center if args.center is not None else p0 - args.radius * np.array([1.0, 0.0, 0.0])
-    if center.shape == (2,):  # in the plane of the start point (a planar arm's plane is z = 0)
-        center = np.append(center, p0[2] if not task.planar else 0.0)
-    held = T0[:3, :3] if task.has_orientation else None  # tasks with orientation hold the start's
-    if args.path == "ellipse":  # in the horizontal plane of its centre, through the start point by default
-        ellipse = paths.Ellipse(center, args.radius, args.radius / 2, rate=args.speed / args.radius)
-        return (ellipse if held is None else _holding(ellipse, held)), None
-    normal = args.normal if args.normal is not None else np.array([0.0, 0.0, 1.0])
-    if task.planar and np.any(normal[:2] != 0.0):  # a tilted circle would be tracked as its shadow on the plane
-        raise KinredundError(f"--normal {','.join(f'{v:g}' for v in normal)}: the {robot.task!r} task follows x and y "
-                             "only, so the circle must lie in its plane: --normal 0,0,1 (or leave it out)")
-    return paths.Circle(center, args.radius, args.speed, normal=tuple(normal), orientation=held), None
-
-
-def _holding(path, Q0: np.ndarray):
-    """``path`` (a point path) with the constant orientation Q0: a pose path (omega = 0)."""
-    from kinredund.paths import FunctionPath
-
-    def sample(t: float):
-        s = path.sample(t)
-        return Q0, s.p, np.zeros(3), s.v
-
-    return FunctionPath(sample, period=path.period, has_orientation=True)
 
 
 def setup_for(args, name: str):
