@@ -370,6 +370,15 @@ def test_path_options_that_the_path_does_not_take_are_refused(tmp_path, capsys):
         assert words in err, (argv, err)
 
 
+def test_reproduce_refuses_tracking_options_where_they_do_not_apply(capsys):
+    """--loops, --steps, --mode and --scheme apply to 4.1-4.3: given to 3.2 or 6.x (which fix their own) they are
+    refused naming them, before any work (they were ignored: exit 0 with the reproduction's own settings)."""
+    for argv in (["3.2", "--scheme", "pseudoinverse"], ["6.3", "--loops", "3", "--mode", "thesis"]):
+        assert main(["reproduce", *argv, "--quiet"]) == EXIT_USAGE, argv
+        err = capsys.readouterr().err
+        assert all(option in err for option in argv if option.startswith("--")) and "4.1-4.3" in err, err
+
+
 def test_play_replays_the_helix_of_3_2(tmp_path, capsys):
     js, html = tmp_path / "h.json", tmp_path / "h.html"
     assert main(["reproduce", "3.2", "--json", str(js), "--quiet"]) == 0

@@ -47,6 +47,13 @@ def _cmd_robots(args) -> int:
 
 def _cmd_reproduce(args) -> int:
     name = args.example
+    if name not in ("4.1", "4.2", "4.3"):  # the closed form and the plans fix their own settings
+        parser = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+        given = [f"--{k}" for k in ("loops", "steps", "mode", "scheme")
+                 if getattr(args, k) != parser["reproduce"].get_default(k)]
+        if given:
+            raise KinredundError(f"{', '.join(given)} apply to Examples 4.1-4.3 (tracking), not to {name}: leave "
+                                 "them out")
     if name in ("6.2", "6.3"):
         from kinredund.ui.cli_plan import run_case
 
