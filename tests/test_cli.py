@@ -379,6 +379,14 @@ def test_reproduce_refuses_tracking_options_where_they_do_not_apply(capsys):
         assert all(option in err for option in argv if option.startswith("--")) and "4.1-4.3" in err, err
 
 
+def test_a_plot_path_without_a_suffix_is_named_as_such(capsys):
+    """--plot joints (no suffix) said "unknown --plot format (file suffix) ''": it says the file has no suffix and
+    which to give."""
+    assert main(["track", "planar3r", "--plot", "joints", "--quiet"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "--plot 'joints' has no suffix" in err and ".png, .pdf or .svg" in err, err
+
+
 def test_play_replays_the_helix_of_3_2(tmp_path, capsys):
     js, html = tmp_path / "h.json", tmp_path / "h.html"
     assert main(["reproduce", "3.2", "--json", str(js), "--quiet"]) == 0

@@ -264,7 +264,6 @@ def _check_outputs(args) -> None:
     device, a FIFO, a dangling symlink, a path under a file, a bag folder that exists, two options that
     would overwrite each other (compared resolved, the bag folder included), a plot suffix matplotlib
     does not write, an output that is an input of the command (the record, --scene, --path-file, --pairs)."""
-    from kinredund.errors import check_choice
     from kinredund.io import check_outputs, real_path
 
     outputs = check_outputs((f"--{name}", getattr(args, name, None), kind) for name, kind in OUTPUT_OPTIONS.items())
@@ -275,9 +274,9 @@ def _check_outputs(args) -> None:
                 raise OutputPathError(getattr(args, output[2:]), f"{output} names {label} this command reads "
                                       f"({str(given)!r}): writing it would replace the input; give another path")
     if getattr(args, "plot", None) is not None:
-        from kinredund.ui.plots import PLOT_FORMATS
+        from kinredund.ui.plots import plot_format
 
-        check_choice("--plot format (file suffix)", Path(args.plot).suffix.lower().lstrip("."), PLOT_FORMATS)
+        plot_format(args.plot, "--plot")
 
 
 def _quiet_stdout() -> None:

@@ -87,8 +87,21 @@ def save_figure(fig, path: str | Path) -> Path:
         ChoiceError: the suffix is not one of :data:`PLOT_FORMATS`.
     """
     path = Path(path)
-    fmt = check_choice("plot format (file suffix)", path.suffix.lower().lstrip("."), PLOT_FORMATS)
+    fmt = plot_format(path)
     return atomic_write(path, lambda fh: fig.savefig(fh, format=fmt, dpi=_DPI), "wb")
+
+
+def plot_format(path: str | Path, what: str = "the plot") -> str:
+    """The format a figure file takes from its suffix (``png``, ``pdf`` or ``svg``: :data:`PLOT_FORMATS`).
+
+    Raises:
+        ChoiceError: another suffix; KinredundError: none (``what`` names the file's option in the message).
+    """
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if not suffix:
+        raise KinredundError(f"{what} {str(path)!r} has no suffix: the format follows it, give "
+                             f"{', '.join('.' + f for f in PLOT_FORMATS[:-1])} or .{PLOT_FORMATS[-1]}")
+    return check_choice(f"{what} format (file suffix)", suffix, PLOT_FORMATS)
 
 
 def _log_positive(values: np.ndarray) -> np.ndarray:
@@ -330,6 +343,7 @@ def loop_drift_figure(trajs: Trajectory | Sequence[Trajectory], *, title: str | 
 __all__ = [
     "LOG_FLOOR",
     "PLOT_FORMATS",
+    "plot_format",
     "errors_figure",
     "joint_histories_figure",
     "loop_drift_figure",
