@@ -14,11 +14,12 @@ from hypothesis import strategies as st
 from kinredund import ChoiceError, TaskError
 from kinredund.kinematics.angles import wrap_joints
 from kinredund.paths import Ellipse
-from kinredund.planning.branches import PENETRATION_PENALTY, candidates, choose, clearance_of, transition
+from kinredund.planning.branches import PENETRATION_PENALTY, candidates, clearance_of, entries, transition
 from kinredund.planning.clearance import link_model, verify_motion
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder
 from kinredund.planning.planner import default_policy
 from kinredund.planning.selfmotion import routes, trace
+from kinredund.planning.walk import choose
 from kinredund.thesis.chapter4 import load_example, run_example
 from kinredund.thesis.chapter6 import case_robot, planar_feasibility, planar_setup
 from kinredund.ui.cli import EXIT_FAILED, main
@@ -220,8 +221,8 @@ def test_transition_between_candidates_is_refined_on_the_path():
     for t in (0.0, 0.5):
         p = path(t).p
         index = default_policy(r, ob, ob.normal_at(p), (1e-3, 1.0))
-        found = candidates(r, index, p[:2], [rng.uniform(-np.pi, np.pi, 3) for _ in range(8)], model, ob, 0.0, tip,
-                           200)
+        found = entries(candidates(r, index, p[:2], [rng.uniform(-np.pi, np.pi, 3) for _ in range(8)], model, ob,
+                                   0.0, tip, 200))
         assert found and all(c.clearance.min() > 0 for c in found)
         cands.append(found)
     max_jump = 0.15

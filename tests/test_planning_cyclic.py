@@ -371,17 +371,22 @@ def test_blended_index_derivatives_and_weight_against_central_differences():
     check_index(b, theta)  # t = 0.0: on the wrapped interval's plateau (w = 0)
 
 
-def test_both_planners_share_one_validated_cause_vocabulary():
-    """CyclicPlan and the Chapter 6 PlanResult take their cause from planning.stages.PLAN_CAUSES: an unknown
-    cause, a failure without a cause or an ok plan with one are refused."""
-    from kinredund.errors import ChoiceError
-    from kinredund.planning.cyclic import CyclicPlan
-    from kinredund.planning.stages import PLAN_CAUSES, failure
+def test_every_planner_returns_the_one_result_with_one_validated_cause_vocabulary():
+    """kr.plan, the Chapter 6 planner and the roadmap return the pipeline's one PlanResult, whose cause comes from
+    planning.result.PLAN_CAUSES: an unknown cause, a failure without a cause or an ok plan with one are refused."""
+    import inspect
 
-    assert CyclicPlan.CAUSES is PLAN_CAUSES
-    assert failure("no way", ("l1",), {}, cause="no_closed_walk").cause == "no_closed_walk"
+    from kinredund.errors import ChoiceError
+    from kinredund.planning import cyclic, planner, roadmap
+    from kinredund.planning.cyclic import CyclicPlan
+    from kinredund.planning.result import PLAN_CAUSES, PlanResult
+
+    assert CyclicPlan is PlanResult and CyclicPlan.CAUSES is PLAN_CAUSES
+    for fn in (cyclic.plan, planner.plan, roadmap.plan_roadmap):
+        assert inspect.signature(fn).return_annotation in (PlanResult, "PlanResult")
+    assert PlanResult(False, "no way", cause="no_closed_walk").cause == "no_closed_walk"
     with pytest.raises(ChoiceError, match="plan cause"):
-        failure("no way", ("l1",), {}, cause="bad_luck")
+        PlanResult(False, "no way", cause="bad_luck")
     with pytest.raises(KinredundError, match="exactly when"):
         CyclicPlan(False, "failed", None, None, None)
     with pytest.raises(KinredundError, match="exactly when"):

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinredund.errors import TaskError
+from kinredund.errors import OptionError, TaskError
 from kinredund.planning.obstacles import Obstacle, segment_minimum
 
 #: a point of the last link deeper than the end point by more than this is a penetration [m]
@@ -248,3 +248,30 @@ def verify_motion(robot, obstacle: Obstacle, t, q, *, substeps: int = 8, radius:
     change = np.abs(minimum2 - minimum) if check_doubling else None
     return ClearanceReport(model.names, tt, clear, pen, minimum, tt[k], minimum - 0.5 * bound, bound, change,
                            float(tip.max()), int(substeps), float(radius), float(tool_tip))
+
+
+def tool_tip_length(model: LinkModel, tool_tip) -> float:
+    """The last link's tip left out of its clearance [m]: default 1/6 of its length, else checked in
+    [0, length).
+
+    Raises:
+        OptionError: a tip that is not a length in [0, length).
+    """
+    length = float(model.lengths[-1])
+    if tool_tip is None:
+        return length / 6.0
+    try:
+        tip = float(tool_tip)
+    except (TypeError, ValueError) as err:
+        raise OptionError(f"tool_tip must be a length [m], got {tool_tip!r}") from err
+    if not (0.0 <= tip < length):
+        raise OptionError(f"tool_tip must be in [0, {length:.4g}) m (the last link), got {tool_tip!r}")
+    return tip
+
+
+def winding(path, obstacle: Obstacle, period: float, count: int = 720) -> float:
+    """How many times the path goes around the obstacle's centre in the xy-plane over one period."""
+    ts = np.linspace(0.0, period, count + 1)
+    xy = np.array([path(t).p[:2] for t in ts]) - obstacle.center[:2]
+    ang = np.unwrap(np.arctan2(xy[:, 1], xy[:, 0]))
+    return float((ang[-1] - ang[0]) / (2 * np.pi))

@@ -61,7 +61,7 @@ def _plan_robot(args) -> int:
         result = plan(robot, path, index, samples=ROBOT_SAMPLES if args.samples is None else args.samples,
                       starts=args.starts, seed=args.seed, loops=args.loops, steps_per_loop=args.steps,
                       q0=args.q0, refine_samples=args.refine_samples, follow=not args.no_follow,
-                      progress=lambda d, n: bar(d, n, "tracking"),
+                      progress=bar,
                       meta={"path": args.path, "index": args.index}, **options.scene_options(args, robot))
     except BaseException:
         bar.close()  # failed or interrupted (Progress.close reads the exception in flight)
