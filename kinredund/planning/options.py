@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from kinredund.errors import MAX_STARTS, OptionError, check_choice, check_count
+from kinredund.errors import MAX_STARTS, OptionError, check_choice, check_count, check_size
 from kinredund.planning.keepout import Keepout
 from kinredund.planning.spline import SPLINE_KINDS
 from kinredund.tracking import MAX_STEPS
@@ -29,6 +29,11 @@ def _length(value, what: str, *, positive: bool) -> float:
     if not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
         raise OptionError(f"{what} must be a finite number {bound}, got {value!r}")
     return v
+
+
+#: the options that size a plan's work: (name, least value, their kind of :data:`~kinredund.errors.SIZES`)
+SIZED = (("samples", 4, "plan_samples"), ("refine_samples", 0, "plan_samples"), ("max_candidates", 1, "candidates"),
+         ("budget", 0, "refinements"), ("rounds", 0, "rounds"), ("max_iter", 1, "iterations"))
 
 
 #: the most random starts per sample: a sample none of them reached is seeded by one pose-only solve with four
@@ -96,10 +101,12 @@ class PlanOptions:
     spline: str = "periodic"
 
     def __post_init__(self) -> None:
-        counts = {"samples": 4, "starts": 1, "seed": 0, "loops": 1, "steps_per_loop": 4, "max_candidates": 1,
-                  "budget": 0, "refine_samples": 0, "rounds": 0, "max_iter": 1, "cycles": 1}
+        counts = {"starts": 1, "seed": 0, "loops": 1, "steps_per_loop": 4, "cycles": 1}
         for name, minimum in counts.items():
             object.__setattr__(self, name, check_count(getattr(self, name), minimum, name, OptionError))
+        for name, minimum, size in SIZED:  # bounded (errors.SIZES), before any work
+            object.__setattr__(self, name, check_size(getattr(self, name), name, size, minimum=minimum))
+        check_size(self.samples * self.cycles, f"samples x cycles ({self.samples} x {self.cycles})", "plan_samples")
         if self.starts > MAX_PLAN_STARTS:  # else solve_ik refuses 4 x starts deep in the run, after the solves before
             raise OptionError(f"starts must be at most {MAX_PLAN_STARTS} (four times as many seed one pose-only "
                               f"solve, which takes at most {MAX_STARTS}), got {self.starts}")
@@ -187,7 +194,7 @@ class ObstacleOptions(PlanOptions):
         weights: (w1 [m^2], w2) of Eq. (6.21)/(6.44), or one pair per sample, shape (N, 2).
         policy: ``policy(robot, obstacle, normal, (w1, w2)) -> Index``; None: the thesis's policy.
         seeds: {sample index: configuration or list of configurations} added to the seeds there.
-        substeps: clearance checks per tracking step.
+        substeps: clearance checks per tracking step (at most ``MAX_STEPS`` clearance checks in all).
         link_radius: capsule radius of the links [m].
         tool_tip: the last link's tip excluded from its clearance [m]; None: 1/6 of its length.
         check_doubling: repeat the clearance check at twice the resolution.
@@ -228,6 +235,8 @@ class ObstacleOptions(PlanOptions):
         if self.scene is not None:
             raise OptionError("the obstacle planner checks its obstacle: give a scene to kinredund.plan instead")
         object.__setattr__(self, "substeps", check_count(self.substeps, 1, "substeps", OptionError))
+        check_size(self.substeps * self.loops * self.steps_per_loop, "substeps x loops x steps_per_loop "
+                   f"({self.substeps} x {self.loops} x {self.steps_per_loop}: the clearance checks)", "samples")
         object.__setattr__(self, "link_radius", _length(self.link_radius, "link_radius [m]", positive=False))
         if self.tool_tip is not None:
             object.__setattr__(self, "tool_tip", _length(self.tool_tip, "tool_tip [m]", positive=False))
@@ -241,6 +250,19 @@ class ObstacleOptions(PlanOptions):
             raise OptionError("seeds must be a dict {sample index: configuration(s)}, "
                               f"got {type(self.seeds).__name__}")
         self.weights_per_sample()  # checked here, once
+
+    def check_for(self, robot) -> None:
+        """:meth:`PlanOptions.check_for` and the seeds: each at a sample of the plan, a configuration of the robot.
+
+        Raises:
+            OptionError: a seed at no sample; JointVectorError: a seed that is not a configuration of the robot.
+        """
+        super().check_for(robot)
+        for k, given in (self.seeds or {}).items():
+            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < self.samples:
+                raise OptionError(f"seeds must be keyed by a sample index in 0..{self.samples - 1}, got {k!r}")
+            for q in ([given] if np.ndim(given) == 1 else list(given)):
+                robot.check_q(q, f"seed of sample {k + 1}")
 
     def weights_per_sample(self) -> np.ndarray:
         """The (w1, w2) of each sample, shape (N, 2), each pair checked as the policy checks it.
@@ -294,4 +316,5 @@ class RoadmapOptions(ObstacleOptions):
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in ("slices", "grid"):
-            object.__setattr__(self, name, check_count(getattr(self, name), 4, name, OptionError))
+            object.__setattr__(self, name, check_size(getattr(self, name), name, "roadmap", minimum=4))
+        check_size(self.slices * self.grid, f"slices x grid ({self.slices} x {self.grid})", "roadmap")

@@ -127,7 +127,7 @@ def add_parser(sub) -> None:
                         "the path starts at the home pose)")
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
                    help="the performance index whose within-limits minima the plan follows (default: %(default)s)")
-    p.add_argument("--samples", type=at_least(4, "samples"), metavar="N",
+    p.add_argument("--samples", type=at_least(4, "plan_samples"), metavar="N",
                    help=f"sample points per loop, at least 4 for the cubic spline (default: {ROBOT_SAMPLES} for a "
                         f"robot, {CASE_SAMPLES} for 6.2; 6.3 plans on a roadmap instead)")
     p.add_argument("--starts", type=at_least(1, "starts"), default=8, metavar="N",
@@ -137,7 +137,7 @@ def add_parser(sub) -> None:
                    help="loops tracked; the check requires closure after each (default: %(default)s)")
     p.add_argument("--steps", type=at_least(4, "samples"), default=200, metavar="N",
                    help="tracking steps per loop (default: %(default)s)")
-    p.add_argument("--refine-samples", type=at_least(0, "samples"), default=24, metavar="N",
+    p.add_argument("--refine-samples", type=at_least(0, "plan_samples"), default=24, metavar="N",
                    help="sample times added where no closed walk exists at the sampling (default: %(default)s)")
     p.add_argument("--no-follow", action="store_true",
                    help="track the spline reference all along instead of z's own optimum wherever it is strongly "
