@@ -201,11 +201,16 @@ def test_planner_where_the_unconstrained_optimum_meets_a_limit():
 
 
 def test_planner_on_a_planar_arm():
-    """Any arm: the thesis's planar 3R (task ``planar``, m = 2) on a circle through its home point."""
+    """Any arm: the thesis's planar 3R (task ``planar``, m = 2) on a circle through its home point. Its progress
+    comes as progress(done, total, stage), the one signature of every planner."""
     r = robot("planar3r")
     path = Circle(r.fk(r.home)[:3, 3] - np.array([0.1, 0.0, 0.0]), 0.1, 0.2)
-    result = plan(r, path, JointDeviation(r.home), loops=1)
+    calls = []
+    result = plan(r, path, JointDeviation(r.home), loops=1, progress=lambda d, n, stage: calls.append((d, n, stage)))
     _assert_completed(r, path, result, loops=1)
+    stages = list(dict.fromkeys(c[2] for c in calls))
+    assert stages[:4] == ["samples", "closed walk", "tracking", "following z"] and stages[-1] == "clearance"
+    assert all(0 <= d <= n for d, n, _ in calls)
 
 
 @pytest.mark.parametrize("name", ["ur5", "ur10", "kinova", "z1", "talos_arm"])

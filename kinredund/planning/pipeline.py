@@ -30,7 +30,7 @@ Units: times [s], joints [rad or m].
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from time import perf_counter
 
 import numpy as np
@@ -111,7 +111,7 @@ class Stage:
     verify_clearance: object = None
     info: dict | None = None
     progress: object = None
-    timings: dict | None = None
+    timings: dict = field(default_factory=dict)
     t0: float = 0.0
     link_names: tuple = ()
 
