@@ -209,7 +209,7 @@ def test_planner_on_a_planar_arm():
     result = plan(r, path, JointDeviation(r.home), loops=1, progress=lambda d, n, stage: calls.append((d, n, stage)))
     _assert_completed(r, path, result, loops=1)
     stages = list(dict.fromkeys(c[2] for c in calls))
-    assert stages[:4] == ["samples", "closed walk", "tracking", "following z"] and stages[-1] == "clearance"
+    assert stages == ["samples", "closed walk", "tracking", "following z"]  # no clearance stage without a scene
     assert all(0 <= d <= n for d, n, _ in calls)
 
 

@@ -135,7 +135,7 @@ def verdict(check: MotionCheck) -> str:
     return "" if not bad else "the verified motion " + "; ".join(bad)
 
 
-def _track(st: Stage, walk: Walk, smp: PlanSamples):
+def _track(st: Stage, walk: Walk, smp: PlanSamples, notes: list):
     """Steps 3-4 once: (spline, reference, trajectory) of the knots, or the failed :class:`PlanResult`."""
     opt, period = st.options, float(st.path.period)
     spl = JointSpline(smp.t, smp.q, period, smp.turns, opt.spline)  # Section 6.2.2.2
@@ -151,20 +151,22 @@ def _track(st: Stage, walk: Walk, smp: PlanSamples):
         st.timings["tracking_s"] = st.timings.get("tracking_s", 0.0) + perf_counter() - t1
         cause = "collision" if getattr(err, "cause", "") == "collision" else "tracking_failed"
         return PlanResult(False, f"the tracking of the planned reference failed: {err}", None, smp,
-                          off_optimum=walk.off_optimum, notes=tuple(walk.notes or ()), timings=st.timings,
+                          off_optimum=walk.off_optimum, notes=tuple(notes), timings=st.timings,
                           partial=getattr(err, "partial", None), cycles=opt.cycles, cause=cause,
                           link_names=st.link_names)
     st.timings["tracking_s"] = st.timings.get("tracking_s", 0.0) + perf_counter() - t1
     return spl, ref, traj
 
 
-def _limit_knots(st: Stage, walk: Walk, traj) -> int:
-    """Knots inserted at the worst point of each excursion beyond the limits; how many."""
+def _limit_knots(st: Stage, walk: Walk, traj, turns) -> int:
+    """Knots inserted at the worst point of each excursion beyond the limits (taken back to the first period,
+    less its whole turns); how many."""
     period, added = float(st.path.period), 0
     for k in worst_per_excursion(st.robot, traj.q):
         tk = float(traj.t[k]) % period
-        ref_k = np.clip(traj.q[k], st.inner.lower, st.inner.upper)
-        qk = closest_within_limits(st.inner, target_at(st.robot, st.path, tk), ref_k, seed=traj.q[k],
+        qk = traj.q[k] - (float(traj.t[k]) // period) * turns
+        ref_k = np.clip(qk, st.inner.lower, st.inner.upper)
+        qk = closest_within_limits(st.inner, target_at(st.robot, st.path, tk), ref_k, seed=qk,
                                    max_iter=st.options.max_iter, fallback=True)
         if qk is not None and all(abs(tk - r[0]) > 1e-9 for r in walk.rows):
             walk.rows.append((tk, qk, "limit", -1))
@@ -183,13 +185,13 @@ def finish(st: Stage, walk: Walk) -> PlanResult:
     notes = list(walk.notes or ())
     for attempt in range(int(opt.rounds) + 1):
         smp = walk.samples(st.robot.nq)
-        tracked = _track(st, walk, smp)
+        tracked = _track(st, walk, smp, notes)
         if isinstance(tracked, PlanResult):
             return tracked
         spl, ref, traj = tracked
         check = _check(st, traj, smp.turns)
         if check.limit_violation > 0 and attempt < opt.rounds:
-            added = _limit_knots(st, walk, traj)
+            added = _limit_knots(st, walk, traj, smp.turns)
             if added:
                 notes.append(f"{added} knot(s) inserted where the motion left the limits by up to "
                              f"{check.limit_violation:.3g}")
@@ -198,15 +200,15 @@ def finish(st: Stage, walk: Walk) -> PlanResult:
     reason, off = verdict(check), walk.off_optimum
     if not reason and st.index is not None:  # step 6: z's own optimum wherever it is strongly stable
         traj, check, off = _follow(st, ref, traj, smp.turns, notes)
-    st.report(0, 1, "clearance")
     clear, cause = None, "verification" if reason else ""
     if st.verify_clearance is not None:
+        st.report(0, 1, "clearance")
         t1 = perf_counter()
         clear, why = st.verify_clearance(traj)
         st.timings["clearance_s"] = perf_counter() - t1
         if why:
             reason, cause = "; ".join(filter(None, [why, reason])), "collision"
-    st.report(1, 1, "clearance")
+        st.report(1, 1, "clearance")
     st.timings["total_s"] = perf_counter() - st.t0
     q_spline = spl.values(traj.t)
     return PlanResult(not reason, reason, traj, smp, check, off, tuple(notes), st.timings, None, opt.cycles, cause,
