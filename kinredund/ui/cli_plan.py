@@ -26,6 +26,16 @@ CASES = ("6.2", "6.3")
 CASE_SAMPLES, ROBOT_SAMPLES = 9, 24
 
 
+def print_plan_summary(summary: dict) -> None:
+    """A plan's summary (:meth:`kinredund.planning.result.PlanResult.summary`) as every plan prints it: its figures,
+    then its check's and its clearance's as ``check.NAME`` and ``clearance.NAME``; a failure's reason is printed
+    with the exit code (:func:`kinredund.ui.report.outcome`)."""
+    print_summary({k: v for k, v in summary.items() if k not in ("reason", "check", "clearance")})
+    for part in ("check", "clearance"):
+        if summary.get(part) is not None:
+            print_summary({f"{part}.{k}": v for k, v in summary[part].items()})
+
+
 def run_case(case: str, args, label: str) -> int:
     """Run a Chapter 6 case (``reproduce 6.x`` and ``plan 6.x``); EXIT_FAILED when the plan fails its check."""
     bar = progress_for(label, args)
@@ -40,7 +50,7 @@ def run_case(case: str, args, label: str) -> int:
         raise
     bar.close("done" if result.ok else "failed")
     print(f"Section {case}: off-line plan with collision avoidance")
-    print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
+    print_plan_summary(result.summary())
     wrote(args.json, args.plot)
     if args.plot is not None and result.trajectory is not None:
         wrote(snapshot_path(args.plot))
@@ -69,10 +79,7 @@ def _plan_robot(args) -> int:
     bar.close("done" if result.ok else "failed")
     summary = result.summary()
     print(f"{robot.name}: cyclic plan along a {args.path}, task {robot.task}, index {args.index}")
-    print_summary({k: v for k, v in summary.items() if k not in ("reason", "check", "clearance")})
-    for part in ("check", "clearance"):
-        if summary[part] is not None:
-            print_summary({f"{part}.{k}": v for k, v in summary[part].items()})
+    print_plan_summary(summary)
     if result.trajectory is not None and args.json is not None:
         result.trajectory.save_json(args.json, extra={"plan": summary})
         wrote(args.json)
