@@ -85,3 +85,21 @@ def test_obstacle_options_are_validated_once():
     assert ObstacleOptions(samples=[0.0, 1.0, 2.0, 3.0]).samples == 4
     with pytest.raises(kr.OptionError, match="scene"):
         ObstacleOptions(scene=object())
+
+
+def test_the_obstacle_planner_adds_samples_where_the_closed_walk_breaks(setup):
+    """Where no closed walk exists at the sampling (4 samples, transitions not bisected, joint jumps <= 0.1 rad),
+    the obstacle planner inserts samples in the intervals the walk cannot cross, within refine_samples, as kr.plan
+    does; before, it told the user to try more samples."""
+    robot, path, obstacle, _ = setup
+    kw = {"samples": 4, "budget": 0, "max_jump": 0.1, "steps_per_loop": 60, "substeps": 1, "starts": 4,
+          "check_doubling": False}
+    failed = plan(robot, path, obstacle, refine_samples=0, **kw)
+    assert not failed.ok and failed.cause == "no_closed_walk" and "refine_samples=0" in failed.reason
+    res = plan(robot, path, obstacle, refine_samples=4, **kw)
+    assert res.ok, res.reason
+    smp = res.samples
+    assert 4 < smp.sample_t.size <= 8 and any("sample(s) added" in note for note in res.notes)
+    assert len(smp.weights) == smp.sample_t.size == len(smp.candidates)
+    chain = np.vstack([smp.q, smp.q[:1] + smp.turns])  # the knots, closed by the first one a period later
+    assert np.abs(np.diff(chain, axis=0)).max() <= kw["max_jump"]

@@ -200,6 +200,8 @@ class ObstacleOptions(PlanOptions):
         check_doubling: repeat the clearance check at twice the resolution.
         check_reach: screen the samples with the wrist reach of the default policy (Eq. 6.44).
         refine: bisect the transitions between samples (``max_jump``, at most ``budget`` points each).
+        refine_samples: the most samples inserted where no closed walk exists (0 by default: the thesis's
+            sampling as given; each inserted sample costs its candidates and the transitions of two intervals).
 
     Raises:
         OptionError: as :class:`PlanOptions`, bad weights or sample times, a scene (the obstacle planner checks its

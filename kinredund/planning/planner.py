@@ -9,15 +9,21 @@
    candidate. The *branch* is the planner's choice (the thesis leaves it to the planner's expertise):
    among the candidates, a cyclic dynamic programme picks the sequence with the smallest sum of
    squared joint jumps between consecutive samples (closing the loop), so the arm changes branch only
-   where it has to. ``seeds`` forces candidates (e.g. a branch) at chosen samples.
+   where it has to. ``seeds`` forces candidates (e.g. a branch) at chosen samples. Where no closed walk
+   exists, samples are inserted in the intervals the walk cannot cross (at most ``refine_samples``).
 2. **Estimates** (Section 6.2.2.2): a cubic spline through the samples (:mod:`.spline`).
 3. **Tracking** (Section 6.2.2.3): the resolved-rate scheme of Chapter 4 with the time-varying index
    h = 1/2 ||theta - theta*(t)||^2 and the spline's rate as feed-forward (Eqs. 6.23-6.28), through
-   :func:`kinredund.tracking.track`: the tracked joints are the constrained optimum of h at each
-   time, so where the branch switch happens is found by the tracking itself.
-4. **Verification** (:mod:`.clearance`): every link against the obstacle along the whole tracked
-   motion, finer than the tracking steps. A plan with any penetration, or with a certified clearance
-   that is not positive, is returned with ``ok=False`` and the reason.
+   :func:`kinredund.tracking.track` with the joint limits held: the tracked joints are the constrained
+   optimum of h at each time, so where the branch switch happens is found by the tracking itself.
+4. **Verification**: the pipeline's (:func:`kinredund.planning.pipeline.finish`, as every plan's: the limits
+   at every recorded point, the path, closure after every loop modulo the walk's whole turns, no jump), then
+   the obstacle's (:mod:`.clearance`): every link against the obstacle along the whole tracked motion, finer
+   than the tracking steps. A plan that fails either, with any penetration or with a certified clearance that
+   is not positive, is returned with ``ok=False``, the reason and the cause.
+
+Steps 2-4 are the planning pipeline's (:mod:`kinredund.planning.pipeline`), configured here by the policy's
+candidates and transitions (:class:`~kinredund.planning.options.ObstacleOptions`).
 
 A fact about the planar case that the thesis does not mention: a planar arm whose end point goes once
 around a convex obstacle and whose joints come back to their start sweeps over *every* point of the
@@ -218,28 +224,74 @@ def _sample_candidates(st: Stage, obstacle, ts, tool_tip, counter) -> list | tup
     return pools
 
 
-def _walk(st: Stage, obstacle, ts, pools, tool_tip) -> Walk | str:
-    """Step 2: the transitions between the samples' candidates, the cheapest closed walk and its knots (whole
-    turns accumulated), or why there is none."""
+def _interval(st: Stage, obstacle, ts, pools, tool_tip, k: int) -> list:
+    """The transitions (:func:`~kinredund.planning.branches.transition`) from every candidate of sample k to every
+    candidate of the next (sample 0 after the last)."""
     robot, path, opt = st.robot, st.path, st.options
-    n, period, model = len(ts), float(path.period), link_model(robot)
-    trans = []
-    for k in range(n):
-        st.report(k, n, "transitions")
-        tb = ts[k + 1] if k + 1 < n else period
-        trans.append([[transition(robot, path, ts[k], a, tb, b, model=model, obstacle=obstacle,
-                                  radius=opt.link_radius, tool_tip=tool_tip,
-                                  max_jump=opt.max_jump if opt.refine else np.inf, budget=opt.budget,
-                                  max_iter=opt.max_iter) for b in entries(pools[(k + 1) % n])]
-                      for a in entries(pools[k])])
-    costs = [np.array([[tr.cost for tr in row] for row in mat]) for mat in trans]
-    choice, total = choose(costs)
-    if choice is None or not np.isfinite(total):
-        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
-        where = f" (none between S{bad[0] + 1} and S{(bad[0] + 1) % n + 1})" if bad else ""
-        return (f"no cyclic sequence of sample configurations with continuous transitions{where}: "
-                "try more samples or other sample times")
-    rows, notes, acc = [], [], np.zeros(robot.nq)
+    n, model = len(ts), link_model(robot)
+    tb = ts[k + 1] if k + 1 < n else float(path.period)
+    return [[transition(robot, path, ts[k], a, tb, b, model=model, obstacle=obstacle, radius=opt.link_radius,
+                        tool_tip=tool_tip, max_jump=opt.max_jump if opt.refine else np.inf, budget=opt.budget,
+                        max_iter=opt.max_iter) for b in entries(pools[(k + 1) % n])] for a in entries(pools[k])]
+
+
+def _insert_sample(st: Stage, obstacle, ts, pools, weights, trans, k: int, tool_tip, counter, rng) -> bool:
+    """A sample in the middle of interval k (its weights those of sample k), its candidates from both neighbours'
+    and from random seeds, and the transitions of its two intervals; False (nothing inserted) where it has none."""
+    robot, path, opt, n = st.robot, st.path, st.options, len(ts)
+    tm = 0.5 * (ts[k] + (ts[k + 1] if k + 1 < n else float(path.period)))
+    p = path(tm).p
+    index = (opt.policy or default_policy)(robot, obstacle, obstacle.normal_at(p), tuple(weights[k]))
+    seeds = list(pools[k].q) + list(pools[(k + 1) % n].q) + [rng.uniform(*robot.sample_box())
+                                                              for _ in range(opt.starts)]
+    found = candidates(robot, index, target_at(robot, path, tm), seeds, link_model(robot), obstacle,
+                       opt.link_radius, tool_tip, opt.max_iter, limit=opt.max_candidates, counter=counter)
+    if not len(found):
+        return False
+    ts.insert(k + 1, tm)
+    pools.insert(k + 1, found)
+    weights.insert(k + 1, weights[k])
+    trans[k] = _interval(st, obstacle, ts, pools, tool_tip, k)
+    trans.insert(k + 1, _interval(st, obstacle, ts, pools, tool_tip, k + 1))
+    return True
+
+
+def _closed_walk(st: Stage, obstacle, ts, pools, weights, tool_tip, counter) -> tuple:
+    """Step 2: (choice, transitions, samples added) of the cheapest closed walk, choice None where there is none;
+    where the walk breaks, samples are inserted in the middle of the intervals it cannot cross (those without a
+    continuous transition; else those where a candidate has none onward), within ``refine_samples``."""
+    trans, added, rng = [], 0, np.random.default_rng([st.options.seed, 1])
+    for k in range(len(ts)):
+        st.report(k, len(ts), "transitions")
+        trans.append(_interval(st, obstacle, ts, pools, tool_tip, k))
+    while True:
+        costs = [np.array([[tr.cost for tr in row] for row in mat]) for mat in trans]
+        choice, total = choose(costs)
+        if choice is not None and np.isfinite(total):
+            return choice, trans, added
+        n, room = len(ts), st.options.refine_samples - added
+        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()] or [
+            k for k in range(n) if not np.isfinite(costs[k]).any(axis=1).all()]
+        inserted = [k for k in sorted(bad, reverse=True)[:max(room, 0)]
+                    if _insert_sample(st, obstacle, ts, pools, weights, trans, k, tool_tip, counter, rng)]
+        if not inserted:
+            return None, bad, added
+        added += len(inserted)
+
+
+def _walk(st: Stage, obstacle, ts, pools, tool_tip, counter) -> Walk | str:
+    """Step 2 (:func:`_closed_walk`) and the knots of the chosen walk (whole turns accumulated), or why there is
+    no closed walk."""
+    robot, opt, period = st.robot, st.options, float(st.path.period)
+    ts, weights = list(ts), [tuple(w) for w in opt.weights_per_sample()]
+    choice, trans, added = _closed_walk(st, obstacle, ts, pools, weights, tool_tip, counter)
+    if choice is None:
+        where = f" (none from t = {ts[trans[0]]:.4g} s to the next sample)" if trans else ""
+        return (f"no cyclic sequence of sample configurations with continuous transitions{where} after {added} "
+                f"added sample(s) (refine_samples={opt.refine_samples}, {len(ts)} samples in all): raise "
+                "refine_samples or the transitions' budget, or give other sample times")
+    n = len(ts)
+    rows, notes, acc = [], [f"{added} sample(s) added where the closed walk broke"] if added else [], np.zeros(robot.nq)
     for k in range(n):
         i = choice[k]
         rows.append((ts[k], pools[k].q[i] + acc, "optimum", i, pools[k].data[i]))
@@ -249,8 +301,8 @@ def _walk(st: Stage, obstacle, ts, pools, tool_tip) -> Walk | str:
         if tr.min_clearance <= 0:
             notes.append(f"the transition between S{k + 1} and S{(k + 1) % n + 1} is not collision-free at its "
                          f"refined points (worst clearance {tr.min_clearance:.3g} m)")
-    return Walk(rows, ts, tuple(np.array(p.q) for p in pools), tuple(np.array(p.z) for p in pools), acc,
-                opt.weights_per_sample(), ((0.0, period),), notes)
+    return Walk(rows, np.array(ts), tuple(np.array(p.q) for p in pools), tuple(np.array(p.z) for p in pools), acc,
+                np.array(weights), ((0.0, period),), notes)
 
 
 def plan(robot, path: Path, obstacle: Obstacle, options: ObstacleOptions | None = None, *, progress=None,
@@ -288,11 +340,12 @@ def plan(robot, path: Path, obstacle: Obstacle, options: ObstacleOptions | None 
     ts = opt.times(float(path.period))
     st, tool_tip = obstacle_stage(robot, path, obstacle, opt, planner="chapter6", progress=progress, meta=meta,
                                   t0=t0, timings=timings)
-    pools = _sample_candidates(st, obstacle, ts, tool_tip, [0])
+    counter = [0]
+    pools = _sample_candidates(st, obstacle, ts, tool_tip, counter)
     if isinstance(pools, tuple):
         timings["samples_s"] = perf_counter() - t0
         return PlanResult(False, pools[1], timings=timings, cause=pools[0], link_names=st.link_names)
-    walk = _walk(st, obstacle, ts, pools, tool_tip)
+    walk = _walk(st, obstacle, ts, pools, tool_tip, counter)
     timings["samples_s"] = perf_counter() - t0
     if isinstance(walk, str):
         return PlanResult(False, walk, timings=timings, cause="no_closed_walk", link_names=st.link_names)
