@@ -1,4 +1,4 @@
-"""The issue's planning benchmark: on random reachable circles, does ``kr.plan`` complete what pink completes?
+"""Planning against pink: on random held-orientation circles, does ``kr.plan`` complete what pink completes?
 
 Usage::
 
@@ -29,7 +29,7 @@ Methods:
   after every loop to 1e-10 (CLOSURE_TOL), no jump. A failure is reported with the plan's cause and reason.
 
 The table prints per robot: tasks, pink's completions, kinredund's, kinredund's among pink's, the failure
-causes of each; then the ratio *kinredund completions among pink's* over all robots (the issue asks >= 99 %).
+causes of each; then the ratio *kinredund completions among pink's* over all robots (the target: >= 99 %).
 
 Units: lengths [m], angles [rad], times [s].
 """
