@@ -90,15 +90,15 @@ class CircleTask:
 
 
 def reachable(robot, task: CircleTask, points: int = 48, starts: int = 32, seed: int = 0) -> bool:
-    """Whether the circle's pose at each of ``points`` equally spaced times has a within-limits IK solution
-    (pose only, ``starts`` starts): the generator's screen (a task that fails it is drawn again)."""
+    """Whether the circle's target for the robot's own task (the pose for a pose task, the tool axis and point
+    for an axis task) at each of ``points`` equally spaced times has a within-limits IK solution (task only,
+    ``starts`` starts): the generator's screen (a task that fails it is drawn again)."""
     from kinredund.ik.solve import solve_ik
-    from kinredund.tasks import make_target
+    from kinredund.tasks import get_task
 
-    path = task.path()
+    path, kind = task.path(), get_task(robot.task)
     for t in np.arange(points) * float(path.period) / points:
-        s = path(float(t))
-        if not solve_ik(robot, make_target("pose", (s.Q, s.p)), None, bounds=True, starts=starts, seed=seed).converged:
+        if not solve_ik(robot, kind.target_at(path, float(t)), None, bounds=True, starts=starts, seed=seed).converged:
             return False
     return True
 
@@ -107,14 +107,15 @@ def _unit(v: np.ndarray) -> tuple:
     return tuple(float(x) for x in v / np.linalg.norm(v))
 
 
-def random_circle(robot, rng: np.random.Generator) -> CircleTask:
-    """One task of the generator (module docstring) for ``robot`` from ``rng``."""
+def random_circle(robot, rng: np.random.Generator, orientations: tuple[str, ...] = ORIENTATIONS) -> CircleTask:
+    """One task of the generator (module docstring) for ``robot`` from ``rng``; ``orientations``: the kinds
+    drawn from, with equal odds (``("held",)``: the orientation held all along)."""
     qc = robot.random_configuration(rng, CONFIGURATION_MARGIN)
     T = robot.fk(qc)
     Qc, pc = T[:3, :3], T[:3, 3]
     radius = float(rng.uniform(*RADIUS_RANGE))
     speed = float(rng.uniform(*SPEED_RANGE))
-    orientation = ORIENTATIONS[int(rng.integers(2))]
+    orientation = orientations[int(rng.integers(len(orientations)))]
     if orientation == "held":
         n = rng.normal(size=3)
         n /= np.linalg.norm(n)
@@ -129,15 +130,52 @@ def random_circle(robot, rng: np.random.Generator) -> CircleTask:
                       kind, ref)
 
 
+def draw(robot, rng: np.random.Generator, orientations: tuple[str, ...] = ORIENTATIONS,
+         max_draws: int = 50) -> tuple[CircleTask, int]:
+    """A :func:`reachable` task of :func:`random_circle` and the number of draws rejected before it.
+
+    Raises:
+        RuntimeError: none of ``max_draws`` draws is reachable.
+    """
+    for rejected in range(max_draws):
+        task = random_circle(robot, rng, orientations)
+        if reachable(robot, task):
+            return task, rejected
+    raise RuntimeError(f"no reachable circle in {max_draws} draws on {robot.name}")
+
+
+def drawn(robot, n: int, seed: int, orientations: tuple[str, ...] = ORIENTATIONS):
+    """The benchmarks' ``n`` tasks on ``robot`` from ``np.random.default_rng(seed)``: (i, task, rejected draws)."""
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        task, rejected = draw(robot, rng, orientations)
+        yield i, task, rejected
+
+
+def task_arguments(p, robots: tuple[str, ...], n: int, smoke_robot: str):
+    """The benchmarks' task options on the parser ``p`` (``--robot``, ``--n``, ``--seed``, ``--quiet``), parsed:
+    ``--smoke`` is one task on ``smoke_robot``, quietly."""
+    p.add_argument("--robot", choices=robots, default=None, help=f"one robot (default: {', '.join(robots)})")
+    p.add_argument("--n", type=int, default=n, help=f"tasks per robot (default {n})")
+    p.add_argument("--seed", type=int, default=0, help="seed of the task generator (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no line per task")
+    args = p.parse_args()
+    if args.smoke:
+        args.robot, args.n, args.quiet = smoke_robot, 1, True
+    if args.n < 1:
+        p.error(f"--n must be >= 1, got {args.n}")
+    return args
+
+
 def start_of(robot, task: CircleTask, seed: int):
     """The start every method of the benchmark shares: the within-limits optimum of the task's index at
-    t = 0 by ``solve_ik(..., bounds=True, starts=16, seed=seed)`` (an :class:`~kinredund.ik.solve.IKResult`)."""
+    t = 0 for the robot's own task by ``solve_ik(..., bounds=True, starts=16, seed=seed)`` (an
+    :class:`~kinredund.ik.solve.IKResult`)."""
     from kinredund.ik.solve import solve_ik
-    from kinredund.tasks import make_target
+    from kinredund.tasks import get_task
 
-    s = task.path()(0.0)
-    return solve_ik(robot, make_target("pose", (s.Q, s.p)), task.performance_index(robot), bounds=True, starts=16,
-                    seed=seed)
+    target = get_task(robot.task).target_at(task.path(), 0.0)
+    return solve_ik(robot, target, task.performance_index(robot), bounds=True, starts=16, seed=seed)
 
 
 def _held(robot, center, radius, speed, normal, axis_x, Q, index="mid_range", reference=None) -> CircleTask:

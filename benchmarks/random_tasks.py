@@ -51,7 +51,9 @@ from collections import Counter
 
 import numpy as np
 from _bench import optional, parser, print_table, write_json
-from _circles import CircleTask, random_circle, reachable, start_of
+from _circles import drawn, start_of, task_arguments
+from _pink import POSTURE_COST
+from _pink import run_pink as run_pink_path
 
 from kinredund.errors import KinredundError
 from kinredund.kinematics.angles import joint_drift
@@ -68,9 +70,7 @@ LIMIT_TOL = {"strict": 1e-12, "planner": 1e-12, "pink": 1e-6}  # [rad]: pink's o
 TRACK_TOL = 1e-3  # [m] and [rad]: a run that ends farther from the path than this has not tracked it
 CLOSURE_TOL = 1e-10  # [rad]
 ON_PATH_TOL = 1e-6  # [m]
-POSTURE_COST = 1e-3
 PINK_CLOSURE_TOL = 1e-2  # [rad]: pink tracks to ~1e-5 m without feed-forward; its joints drift by more
-MAX_DRAWS = 50  # draws per task before giving up on finding a reachable one
 
 
 def _figures(method, robot, path, t, q, completed: bool, cause: str = "", t_fail=None, q_fail=None) -> dict:
@@ -122,62 +122,18 @@ def run_planner(robot, path, index, seed: int) -> dict:
     return out
 
 
-class _Pink:
-    """pink's differential IK with its default limits and daqp (module docstring)."""
-
-    def __init__(self, robot, path, index, q0, dt):
-        import pink
-        import pinocchio as pin
-        from pink.tasks import FrameTask, PostureTask
-
-        model = pin.Model(robot.model)  # pink attaches its limits to the model: give it a copy
-        self.conf = pink.Configuration(model, model.createData(), np.asarray(q0, float))
-        self.frame = FrameTask(robot.ee_frame, position_cost=1.0, orientation_cost=1.0)
-        post = PostureTask(cost=POSTURE_COST)
-        post.set_target(np.array(index.reference, float))
-        self.tasks = [self.frame, post]
-        self.path, self.dt, self.t = path, dt, 0.0
-        self._se3, self._solve_ik = pin.SE3, pink.solve_ik
-
-    def step(self) -> None:
-        t1 = self.t + self.dt
-        s = self.path(t1)
-        self.frame.set_target(self._se3(s.Q, s.p))
-        v = self._solve_ik(self.conf, self.tasks, self.dt, solver="daqp")
-        self.conf.integrate_inplace(v, self.dt)
-        self.t = t1
-
-
 def run_pink(robot, path, index, q0) -> dict:
-    dt = float(path.period) / STEPS_PER_LOOP
-    runner = _Pink(robot, path, index, q0, dt)
-    ts, qs = [0.0], [np.asarray(q0, float)]
-    for _ in range(STEPS_PER_LOOP * LOOPS):
-        try:
-            runner.step()
-        except Exception as err:  # noqa: BLE001 - a peer failing is a result, not a crash
-            cause = f"{type(err).__name__}: {str(err)[:160]}"
-            return _figures("pink", robot, path, None, None, False, cause, ts[-1], qs[-1])
-        ts.append(runner.t)
-        qs.append(np.array(runner.conf.q))
-    return _figures("pink", robot, path, np.array(ts), np.array(qs), True)
-
-
-def draw(robot, rng) -> tuple[CircleTask, int]:
-    """A reachable task and the number of draws rejected before it."""
-    for rejected in range(MAX_DRAWS):
-        task = random_circle(robot, rng)
-        if reachable(robot, task):
-            return task, rejected
-    raise RuntimeError(f"no reachable circle in {MAX_DRAWS} draws on {robot.name}")
+    t, q, failure = run_pink_path(robot, path, index.reference, q0, STEPS_PER_LOOP * LOOPS,
+                                  float(path.period) / STEPS_PER_LOOP)
+    if failure:
+        return _figures("pink", robot, path, None, None, False, failure, t[-1], q[-1])
+    return _figures("pink", robot, path, t, q, True)
 
 
 def run_robot(name: str, n: int, seed: int, progress=True, methods=METHODS) -> dict:
     robot = load_robot(name)
-    rng = np.random.default_rng(seed)
     tasks, rejected = [], 0
-    for i in range(n):
-        task, rej = draw(robot, rng)
+    for i, task, rej in drawn(robot, n, seed):
         rejected += rej
         path, index = task.path(), task.performance_index(robot)
         start = start_of(robot, task, seed + i)
@@ -235,16 +191,7 @@ def summarise(result: dict) -> dict:
 
 
 def main() -> None:
-    p = parser(__doc__.splitlines()[0])
-    p.add_argument("--robot", choices=ROBOTS, default=None, help="one robot (default: panda and xarm7)")
-    p.add_argument("--n", type=int, default=300, help="tasks per robot (default 300)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the task generator (default 0)")
-    p.add_argument("--quiet", action="store_true", help="no line per task")
-    args = p.parse_args()
-    if args.smoke:
-        args.robot, args.n, args.quiet = "panda", 1, True
-    if args.n < 1:
-        p.error(f"--n must be >= 1, got {args.n}")
+    args = task_arguments(parser(__doc__.splitlines()[0]), ROBOTS, 300, "panda")
     t0 = time.perf_counter()
     methods = METHODS if optional("pink", "daqp", what="the pink column") else tuple(m for m in METHODS if m != "pink")
     results = {}

@@ -62,6 +62,8 @@ from kinredund.paths import (
     read_path_file,
 )
 from kinredund.planning.cyclic import CyclicPlan, plan
+from kinredund.planning.options import PlanOptions
+from kinredund.planning.result import PlanResult
 from kinredund.tasks import Task, get_task, task_names
 from kinredund.tracking import JointLimits, PlaneClearance, SceneClearance, SphereClearance, Tracker, track
 from kinredund.trajectory import Trajectory
@@ -96,6 +98,8 @@ __all__ = [
     "PathError",
     "PathSample",
     "PlaneClearance",
+    "PlanOptions",
+    "PlanResult",
     "SceneClearance",
     "Robot",
     "SampledPath",

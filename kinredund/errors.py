@@ -299,8 +299,18 @@ SIZES = {
     "placements": (100_000, "each placement is an IK solve and a tracking run, about 0.1-1 s"),
     "workers": (64, "each worker is a Python process of about 150 MB"),
     "joints": (100, "each step forms n x n matrices and the 6 x n x n Hessian; redundant arms have a few dozen"),
+    # the planners' sizes (kinredund.planning.options.PlanOptions): a plan's cost is about samples x starts local
+    # solves, each ~10 ms on a 7-axis arm (24 x 8 takes seconds), plus the walk's edges and the re-tracks
+    "plan_samples": (10_000, "each sample time is starts bounded local solves of ~10 ms and a candidate pool "
+                             "compared with its neighbours'"),
+    "candidates": (1_000, "the closed walk compares every candidate with every candidate of the next sample"),
+    "refinements": (10_000, "each inserted point is a closest-point solve of ~10 ms"),
+    "rounds": (100, "each round tracks and verifies the whole motion again"),
+    "iterations": (100_000, "each iteration of a local solve is a QP step, and every sample runs many solves"),
+    "roadmap": (1_000_000, "slices x grid nodes of the roadmap, each with its candidate edges held in memory"),
 }
-MAX_SAMPLES, MAX_STARTS, MAX_PLACEMENTS, MAX_WORKERS, MAX_JOINTS = (SIZES[k][0] for k in SIZES)
+MAX_SAMPLES, MAX_STARTS, MAX_PLACEMENTS, MAX_WORKERS, MAX_JOINTS = (
+    SIZES[k][0] for k in ("samples", "starts", "placements", "workers", "joints"))
 
 
 def check_size(value, what: str, size: str, error: type[KinredundError] = OptionError, minimum: int = 1) -> int:
@@ -309,7 +319,8 @@ def check_size(value, what: str, size: str, error: type[KinredundError] = Option
     Args:
         value: the size asked for (an integer, not a bool).
         what: its name in the message (e.g. ``"loops x samples per loop"``).
-        size: a key of :data:`SIZES` (``samples``, ``starts``, ``placements``, ``workers``, ``joints``).
+        size: a key of :data:`SIZES` (``samples``, ``starts``, ``placements``, ``workers``, ``joints``, and the
+            planners' ``plan_samples``, ``candidates``, ``refinements``, ``rounds``, ``iterations``, ``roadmap``).
     """
     n = check_count(value, minimum, what, error)
     limit, why = SIZES[size]

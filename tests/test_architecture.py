@@ -182,21 +182,20 @@ def test_the_task_and_shim_checks_see_what_they_look_for():
     assert _getattr_shims("class A:\n    def __getattr__(self, name):\n        return 1\n", "m") == []
 
 
-#: the longest function of planning/ (lines of code: its docstring left out), as the issue asks
+#: the longest function of planning/ (lines, its signature and docstring included), as the issue asks
 MAX_FUNCTION_LINES = 80
+#: the largest module of planning/ (lines), as the issue asks
+MAX_PLANNING_LINES = 400
 
 
 def _long_functions(source: str, module: str) -> list[str]:
     out = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-            lines = node.end_lineno - node.lineno + 1
-            first = node.body[0]
-            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value,
-                                                                                                    str):
-                lines -= first.end_lineno - first.lineno + 1
+            first = min([node.lineno] + [d.lineno for d in node.decorator_list])
+            lines = node.end_lineno - first + 1
             if lines > MAX_FUNCTION_LINES:
-                out.append(f"{module}:{node.lineno} {node.name} has {lines} lines of code")
+                out.append(f"{module}:{node.lineno} {node.name} has {lines} lines (docstring included)")
     return out
 
 
@@ -205,7 +204,14 @@ def test_planning_functions_stay_short(module):
     assert _long_functions(MODULES[module].read_text(), module) == []
 
 
-def test_the_function_length_check_counts_code_not_the_docstring():
-    doc = '"""' + "\n" * 100 + '"""'
-    assert _long_functions(f"def f():\n    {doc}\n    return 1\n", "m") == []
-    assert len(_long_functions("def f():\n" + "    x = 1\n" * 81, "m")) == 1
+@pytest.mark.parametrize("module", [m for m in MODULES if m.startswith("kinredund.planning")])
+def test_planning_modules_stay_under_400_lines(module):
+    lines = MODULES[module].read_text().count("\n")
+    assert lines <= MAX_PLANNING_LINES, f"{module} has {lines} lines (at most {MAX_PLANNING_LINES}: split it)"
+
+
+def test_the_function_length_check_counts_the_docstring_too():
+    doc = '"""' + "\n" * 80 + '"""'
+    assert len(_long_functions(f"def f():\n    {doc}\n    return 1\n", "m")) == 1
+    assert len(_long_functions("def f():\n" + "    x = 1\n" * 79, "m")) == 0
+    assert len(_long_functions("def f():\n" + "    x = 1\n" * 80, "m")) == 1

@@ -81,3 +81,20 @@ def test_plan_of_a_thesis_case_refuses_the_robot_plan_outputs(tmp_path, capsys):
         err = capsys.readouterr().err
         assert code == EXIT_USAGE and f"{option} apply to a robot's plan" in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_plan_summary_prints_its_intervals_and_its_check(capsys):
+    """`plan 6.3` crashed printing its summary (TypeError in format_value: off_optimum's [start, end] pairs and the
+    check's dict were not printable), and so did `plan ROBOT` on a plan with an interval off z's optimum."""
+    from kinredund.planning.result import PlanResult
+    from kinredund.planning.verify import MotionCheck
+    from kinredund.ui.cli_plan import print_plan_summary
+
+    check = MotionCheck(0.0, 1e-12, 2e-12, (3e-16, 4e-16), 0.01, 1.02, (), -1)
+    result = PlanResult(True, "", off_optimum=((0.5, 0.75), (1.0, 1.25)), check=check, link_names=("link 1",),
+                        notes=("a note",), timings={"total_s": 1.5})
+    print_plan_summary(result.summary())
+    out = capsys.readouterr().out
+    assert "off_optimum                [0.5, 0.75]; [1, 1.25] s" in out
+    assert "check.closure              [3e-16, 4e-16]" in out and "check.limit_violation      0" in out
+    assert "a note" in out and "total 1.5 s" in out

@@ -335,3 +335,27 @@ def test_a_sweep_file_nested_too_deeply_is_refused_not_an_internal_error(tmp_pat
     path.write_text(f"{head}\n{deep}\n" if suffix == ".jsonl" else deep)
     with pytest.raises(KinredundError, match="too deeply"):
         read_sweep_file(path)
+
+
+@pytest.mark.parametrize("name, value, size", [("samples", 10_001, "plan_samples"), ("refine_samples", 10_001,
+                                                                                      "plan_samples"),
+                                               ("max_candidates", 1_001, "candidates"), ("budget", 10_001,
+                                                                                          "refinements"),
+                                               ("rounds", 101, "rounds"), ("max_iter", 100_001, "iterations")])
+def test_plan_options_sizes_are_bounded_with_the_reason(name, value, size):
+    """Every size of a plan is bounded in errors.SIZES and refused when the options are made (before, samples=10**7
+    or max_iter=10**9 started a run that could not end)."""
+    from kinredund.planning.options import ObstacleOptions, PlanOptions, RoadmapOptions
+
+    limit, why = SIZES[size]
+    assert value == limit + 1
+    for cls in (PlanOptions, ObstacleOptions):
+        assert getattr(cls(**{name: limit}), name) == limit
+        with pytest.raises(OptionError, match=rf"{name} must be at most {limit} \({re.escape(why)}\), got {value}"):
+            cls(**{name: value})
+    with pytest.raises(OptionError, match="samples x cycles"):
+        PlanOptions(samples=5_001, cycles=2)
+    with pytest.raises(OptionError, match="slices x grid"):
+        RoadmapOptions(slices=2_000, grid=1_000)
+    with pytest.raises(OptionError, match="must be an integer >= 0"):
+        PlanOptions(budget=-1)

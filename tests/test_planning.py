@@ -14,11 +14,12 @@ from hypothesis import strategies as st
 from kinredund import ChoiceError, TaskError
 from kinredund.kinematics.angles import wrap_joints
 from kinredund.paths import Ellipse
-from kinredund.planning.branches import PENETRATION_PENALTY, candidates, choose, clearance_of, transition
+from kinredund.planning.branches import PENETRATION_PENALTY, candidates, clearance_of, entries, transition
 from kinredund.planning.clearance import link_model, verify_motion
 from kinredund.planning.obstacles import EllipseObstacle, EllipticCylinder
 from kinredund.planning.planner import default_policy
 from kinredund.planning.selfmotion import routes, trace
+from kinredund.planning.walk import choose
 from kinredund.thesis.chapter4 import load_example, run_example
 from kinredund.thesis.chapter6 import case_robot, planar_feasibility, planar_setup
 from kinredund.ui.cli import EXIT_FAILED, main
@@ -220,8 +221,8 @@ def test_transition_between_candidates_is_refined_on_the_path():
     for t in (0.0, 0.5):
         p = path(t).p
         index = default_policy(r, ob, ob.normal_at(p), (1e-3, 1.0))
-        found = candidates(r, index, p[:2], [rng.uniform(-np.pi, np.pi, 3) for _ in range(8)], model, ob, 0.0, tip,
-                           200)
+        found = entries(candidates(r, index, p[:2], [rng.uniform(-np.pi, np.pi, 3) for _ in range(8)], model, ob,
+                                   0.0, tip, 200))
         assert found and all(c.clearance.min() > 0 for c in found)
         cands.append(found)
     max_jump = 0.15
@@ -242,3 +243,31 @@ def test_transition_between_candidates_is_refined_on_the_path():
         assert tr.min_clearance == worst
         energy = float(np.sum(np.diff(chain, axis=0) ** 2))
         assert tr.cost == pytest.approx(energy + PENETRATION_PENALTY * max(0.0, -worst), rel=1e-12)
+
+
+def test_the_motion_bound_holds_on_an_arm_with_a_prismatic_joint():
+    """The clearance check's rigorous bound (no point of link k moves by more than sum_i |dq_i| R_ik) on an RPR arm
+    whose prismatic joint stretches link 1 far beyond its home length. Before, the reach was the chain length at
+    home and a prismatic joint moved only the links after its origin: the bound was exceeded 251-fold (the
+    stretched link's far end moves with the prismatic joint itself)."""
+    from kinredund.kinematics.hd import HDTable
+    from kinredund.model.robot import robot_from_hd
+    from kinredund.planning.clearance import link_segments, longest_segments, motion_bound
+
+    table = HDTable(alpha=[np.pi / 2, 0.0, 0.0], a=[0.0, 0.0, 0.5], b=[0.3, 0.1, 0.0], kinds="RPR",
+                    lower=[-np.pi, 0.0, -np.pi], upper=[np.pi, 1.5, np.pi], name="rpr")
+    r = robot_from_hd(table, task="position")
+    model = link_model(r)
+    rng = np.random.default_rng(3)
+    ratios = []
+    for _ in range(300):
+        qa = rng.uniform(r.lower, r.upper)
+        qb = np.clip(qa + rng.normal(0.0, 0.02, 3), r.lower, r.upper)
+        sa, sb = link_segments(r, [qa, qb], model)
+        moved = np.linalg.norm(sb - sa, axis=2).max(axis=1)  # a link's points move affinely: the most at an end
+        ratios.append((moved / motion_bound(model, np.array([qa, qb]))).max())
+        # the segment lengths stay within their bound over the joint box
+        seg = np.linalg.norm(np.diff(r.kinematics.joint_origins(qa), axis=0), axis=1)
+        assert np.all(seg <= longest_segments(r)[1] + 1e-12)
+    assert max(ratios) <= 1.0 + 1e-9
+    assert max(ratios) > 0.5  # the bound is not vacuous

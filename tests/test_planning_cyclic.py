@@ -201,11 +201,16 @@ def test_planner_where_the_unconstrained_optimum_meets_a_limit():
 
 
 def test_planner_on_a_planar_arm():
-    """Any arm: the thesis's planar 3R (task ``planar``, m = 2) on a circle through its home point."""
+    """Any arm: the thesis's planar 3R (task ``planar``, m = 2) on a circle through its home point. Its progress
+    comes as progress(done, total, stage), the one signature of every planner."""
     r = robot("planar3r")
     path = Circle(r.fk(r.home)[:3, 3] - np.array([0.1, 0.0, 0.0]), 0.1, 0.2)
-    result = plan(r, path, JointDeviation(r.home), loops=1)
+    calls = []
+    result = plan(r, path, JointDeviation(r.home), loops=1, progress=lambda d, n, stage: calls.append((d, n, stage)))
     _assert_completed(r, path, result, loops=1)
+    stages = list(dict.fromkeys(c[2] for c in calls))
+    assert stages == ["samples", "closed walk", "tracking", "following z"]  # no clearance stage without a scene
+    assert all(0 <= d <= n for d, n, _ in calls)
 
 
 @pytest.mark.parametrize("name", ["ur5", "ur10", "kinova", "z1", "talos_arm"])
@@ -371,17 +376,22 @@ def test_blended_index_derivatives_and_weight_against_central_differences():
     check_index(b, theta)  # t = 0.0: on the wrapped interval's plateau (w = 0)
 
 
-def test_both_planners_share_one_validated_cause_vocabulary():
-    """CyclicPlan and the Chapter 6 PlanResult take their cause from planning.stages.PLAN_CAUSES: an unknown
-    cause, a failure without a cause or an ok plan with one are refused."""
-    from kinredund.errors import ChoiceError
-    from kinredund.planning.cyclic import CyclicPlan
-    from kinredund.planning.stages import PLAN_CAUSES, failure
+def test_every_planner_returns_the_one_result_with_one_validated_cause_vocabulary():
+    """kr.plan, the Chapter 6 planner and the roadmap return the pipeline's one PlanResult, whose cause comes from
+    planning.result.PLAN_CAUSES: an unknown cause, a failure without a cause or an ok plan with one are refused."""
+    import inspect
 
-    assert CyclicPlan.CAUSES is PLAN_CAUSES
-    assert failure("no way", ("l1",), {}, cause="no_closed_walk").cause == "no_closed_walk"
+    from kinredund.errors import ChoiceError
+    from kinredund.planning import cyclic, planner, roadmap
+    from kinredund.planning.cyclic import CyclicPlan
+    from kinredund.planning.result import PLAN_CAUSES, PlanResult
+
+    assert CyclicPlan is PlanResult and CyclicPlan.CAUSES is PLAN_CAUSES
+    for fn in (cyclic.plan, planner.plan, roadmap.plan_roadmap):
+        assert inspect.signature(fn).return_annotation in (PlanResult, "PlanResult")
+    assert PlanResult(False, "no way", cause="no_closed_walk").cause == "no_closed_walk"
     with pytest.raises(ChoiceError, match="plan cause"):
-        failure("no way", ("l1",), {}, cause="bad_luck")
+        PlanResult(False, "no way", cause="bad_luck")
     with pytest.raises(KinredundError, match="exactly when"):
         CyclicPlan(False, "failed", None, None, None)
     with pytest.raises(KinredundError, match="exactly when"):

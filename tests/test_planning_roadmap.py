@@ -276,10 +276,10 @@ def test_an_obstacle_too_large_for_the_arm_is_reported_as_failed():
 
 @pytest.mark.parametrize("tool_tip", [-0.1, 1.2, "long"])
 def test_roadmap_plan_checks_the_tool_tip_like_plan(tool_tip):
-    from kinredund.errors import TaskError
+    from kinredund.errors import OptionError
     from kinredund.planning.planner import plan
 
     robot, path, cyl = scaled_p15(), section_path(), section_cylinder()  # the last link is 1.12 m long
     for planner in (plan, plan_roadmap):
-        with pytest.raises(TaskError, match="tool_tip"):
+        with pytest.raises(OptionError, match="tool_tip"):
             planner(robot, path, cyl, tool_tip=tool_tip)

@@ -134,7 +134,7 @@ def test_top_normal_policy_aims_the_last_link_along_the_cut_normal():
 
 @pytest.mark.parametrize("weights", [(0.0, 0.0), (1e-3, -1.0), (np.nan, 1.0), "ab", [(1e-3, 1.0)] * 5])
 def test_plan_rejects_bad_weights_before_solving(weights):
-    from kinredund.errors import TaskError
+    from kinredund.errors import OptionError
 
-    with pytest.raises(TaskError, match="weights"):
+    with pytest.raises(OptionError, match="weights"):
         plan(scaled_p15(8.0), section_path(), section_cylinder(), samples=6, weights=weights)

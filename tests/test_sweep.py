@@ -414,3 +414,24 @@ def test_speed_ratio_scales_with_the_path_speed_and_speed_limit_makes_it_infeasi
     assert fast_rec.speed_ratio > 1.0
     limited = evaluate_placement(robot, fast, index, pose, 0, SweepOptions(speed_limit=True))
     assert not limited.feasible and limited.cause == "speed" and "velocity limit" in limited.message
+
+
+@pytest.mark.parametrize("mode, scheme", [("thesis", "augmented"), ("default", "pseudoinverse"),
+                                          ("default", "liegeois")])
+def test_limits_a_run_cannot_hold_are_refused_once_before_any_placement(mode, scheme, monkeypatch):
+    """Before, SweepOptions took mode="thesis" with limits=True and every placement was recorded infeasible
+    (the tracker refused the same options once per placement); now the options are refused up front."""
+    from kinredund.errors import OptionError
+
+    with pytest.raises(OptionError, match="limits=False"):
+        SweepOptions(mode=mode, scheme=scheme, limits=True)
+    with pytest.raises(OptionError, match="limits must be None, True or False"):
+        SweepOptions(limits="yes")
+    assert SweepOptions(mode=mode, scheme=scheme, limits=False).limits is False
+    assert SweepOptions(mode=mode, scheme=scheme).limits is None  # the tracker's default: held where it can be
+    calls = []
+    monkeypatch.setattr(evaluate_mod, "track", lambda *a, **k: calls.append(1))
+    robot, path, index, pose = problem()[:4]
+    with pytest.raises(OptionError, match="limits=False"):
+        sweep(robot, path, index, [pose, pose], mode=mode, scheme=scheme, workers=0)  # limits default True
+    assert calls == []

@@ -5,16 +5,17 @@ plane on either side of the obstacle, ...). The thesis leaves the choice, and wh
 branch, to the planner's expertise. Here the planner decides by looking at the *transitions*:
 
 - :func:`candidates`: the distinct collision-free local minima of the policy at one sample, from many
-  seeds (:func:`kinredund.ik.solve_ik` with the policy index).
+  seeds (:func:`kinredund.ik.solve_ik` with the policy index), in the planners' one candidate pool.
 - :func:`transition`: how the arm gets from a candidate at one sample to a candidate at the next. The
-  interval is bisected (:func:`bisect`): at the middle time, the configuration on the path closest to
+  interval is bisected (:func:`kinredund.planning.walk.bisect_interval`, the planners' one bisection): at the
+  middle time, the configuration on the path closest to
   the mean of its neighbours (Eq. 6.25's index) is inserted, until no joint jumps by more than
   ``max_jump`` between consecutive points - which keeps the spline estimate near the self-motion
   manifold, where the closest-point tracking of Eq. (6.27) is regular. Revolute joints may go either
   way round: the far end is also tried shifted by whole turns. The transition's cost is its joint
   "energy" (sum of squared jumps) plus a penalty on the worst link clearance along it when negative;
   a transition that cannot be refined costs infinity.
-- :func:`choose`: a cyclic dynamic programme over the candidates with these costs.
+- :func:`kinredund.planning.walk.choose`: a cyclic dynamic programme over the candidates with these costs.
 
 Units: joints [rad or m], times [s], lengths [m].
 """
@@ -27,15 +28,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinredund.ik.solve import solve_ik
-from kinredund.indices import Index, JointDeviation
+from kinredund.indices import Index
 from kinredund.kinematics.angles import wrap_joints
 from kinredund.planning.clearance import PENETRATION_TOL, LinkModel, link_clearance, link_segments
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.selfmotion import routes
+from kinredund.planning.walk import CandidatePool, bisect_interval, closest_on_path
 from kinredund.tasks import get_task
 
-#: two candidate configurations closer than this (wrapped, max-abs) are the same [rad]
-SAME_CONFIGURATION = 1e-6
 #: cost of a metre of penetration along a transition, against squared joint jumps [rad^2]
 PENETRATION_PENALTY = 1e4
 
@@ -95,71 +95,31 @@ def clearance_of(robot, q, model: LinkModel, obstacle: Obstacle, radius: float, 
 
 
 def candidates(robot, index: Index, target, seeds, model: LinkModel, obstacle: Obstacle, radius: float,
-               tool_tip: float, max_iter: int, limit: int | None = None) -> list[Candidate]:
-    """The distinct collision-free local minima (Eq. D.33 holds) of ``index`` on g = x from the seeds.
+               tool_tip: float, max_iter: int, limit: int | None = None, counter: list | None = None) -> CandidatePool:
+    """The distinct collision-free local minima (Eq. D.33 holds) of ``index`` on g = x from the seeds, in the
+    planners' one :class:`~kinredund.planning.walk.CandidatePool` (modulo whole turns; each candidate's data is
+    its per-link clearance [m]).
 
-    Returns at most ``limit`` of them, lowest index value first.
+    Returns the pool with at most ``limit`` of them, lowest index value first (:func:`entries` lists them).
     """
-    found: list[Candidate] = []
+    pool, counter = CandidatePool(robot.revolute), [0] if counter is None else counter
     for s in seeds:
         res = solve_ik(robot, target, index, q0=s, max_iter=max_iter)
         if not (res.converged and res.reduced_hessian_pd):
             continue
         q = fit_limits(res.q, robot.lower, robot.upper, robot.revolute)
-        if q is None:
-            continue
-        if any(np.abs(wrap_joints(q - f.q, robot.revolute)).max() < SAME_CONFIGURATION for f in found):
+        if q is None or any(pool.same(f, q) for f in pool.q):
             continue
         c = clearance_of(robot, q, model, obstacle, radius, tool_tip)
-        if c.min() <= 0:
-            continue
-        found.append(Candidate(q, float(res.objective), c))
-    found.sort(key=lambda c: c.objective)
-    return found[:limit] if limit else found
+        if c.min() > 0:
+            pool.add((q, float(res.objective)), counter, c)
+    pool.sort(limit)
+    return pool
 
 
-def closest_on_path(robot, target, reference: np.ndarray, seed=None, max_iter: int = 200, bounds: bool = False):
-    """A configuration on g(theta) = x locally closest to ``reference``: min 1/2 ||theta - reference||^2
-    (the index of Eq. 6.25), from ``seed`` (default: the reference); with ``bounds`` inside the joint limits.
-    The one closest-point solve of the planners (the Chapter 6 planner, the roadmap, the cyclic planner).
-
-    The seed is first projected onto g = x by a pose-only solve: started exactly at the reference, the
-    index's gradient and the multipliers are zero, and the IK's exact-penalty line search (whose weight
-    is set from the multipliers) then cannot accept a step back onto g = x.
-
-    Returns:
-        The :class:`~kinredund.ik.solve.IKResult`.
-    """
-    seed = reference if seed is None else seed
-    first = solve_ik(robot, target, None, q0=seed, bounds=bounds, max_iter=max_iter)
-    start = first.q if first.converged else seed
-    return solve_ik(robot, target, JointDeviation(reference), q0=start, bounds=bounds, max_iter=max_iter)
-
-
-def bisect(robot, path, ta: float, qa, tb: float, qb, max_jump: float, budget: int, max_iter: int = 200):
-    """(t, q) points strictly inside (ta, tb) that bring every joint jump within ``max_jump``, or None.
-
-    Each inserted point is the configuration on the path, at the middle time of the worst interval,
-    closest to the mean of its neighbours, found from that mean. It fails when that does not shrink the
-    jump (a fold of the closest-point problem: the neighbours are not joined by a short self-motion) or
-    the budget of inserted points runs out.
-    """
-    pts = [(ta, np.asarray(qa, float)), (tb, np.asarray(qb, float))]
-    while True:
-        jumps = [float(np.abs(pts[k + 1][1] - pts[k][1]).max()) for k in range(len(pts) - 1)]
-        k = int(np.argmax(jumps))
-        if jumps[k] <= max_jump:
-            return pts[1:-1]
-        if len(pts) - 2 >= budget:
-            return None
-        tm = 0.5 * (pts[k][0] + pts[k + 1][0])
-        mean = 0.5 * (pts[k][1] + pts[k + 1][1])
-        res = closest_on_path(robot, get_task(robot.task).target_at(path, tm), mean, max_iter=max_iter)
-        qm = mean + wrap_joints(res.q - mean, robot.revolute)
-        worst = max(np.abs(qm - pts[k][1]).max(), np.abs(pts[k + 1][1] - qm).max())
-        if not res.converged or worst >= 0.95 * jumps[k]:
-            return None
-        pts.insert(k + 1, (tm, qm))
+def entries(pool: CandidatePool) -> list[Candidate]:
+    """The candidates of an obstacle planner's pool as :class:`Candidate` records (q, objective, clearance)."""
+    return [Candidate(q, z, c) for q, z, c in zip(pool.q, pool.z, pool.data, strict=True)]
 
 
 def turn_shifts(d: np.ndarray, revolute) -> list[np.ndarray]:
@@ -188,7 +148,7 @@ def _join(robot, path, points, max_jump, budget, max_iter):
     """Bisect every consecutive pair of (t, q) points; the full list of points, or None."""
     out = [points[0]]
     for (ta, qa), (tb, qb) in zip(points[:-1], points[1:], strict=True):
-        mid = bisect(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter)
+        mid = bisect_interval(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter, bounds=False, wrap=True)
         if mid is None:
             return None
         out.extend(mid)
@@ -249,7 +209,8 @@ def transition(robot, path, ta: float, a: Candidate, tb: float, b: Candidate, *,
                radius: float, tool_tip: float, max_jump: float, budget: int, max_iter: int = 200) -> Transition:
     """The cheapest continuous way from candidate ``a`` at time ta to candidate ``b`` at tb.
 
-    Tried in turn: direct bisection (:func:`bisect`) with the far end shifted by the whole turns of
+    Tried in turn: direct bisection (:func:`~kinredund.planning.walk.bisect_interval`) with the far end shifted
+    by the whole turns of
     :func:`turn_shifts`, then self-motions (:func:`_self_motion_ways`). The first collision-free one
     (at its points) is taken; otherwise the cheapest found. The candidates' clearances are not
     recomputed (a whole turn of a revolute joint does not move the links).
@@ -271,40 +232,10 @@ def transition(robot, path, ta: float, a: Candidate, tb: float, b: Candidate, *,
 
     for shift in turn_shifts(near - qa, robot.revolute):
         end = near + shift
-        pts = bisect(robot, path, ta, qa, tb, end, max_jump, budget, max_iter)
+        pts = bisect_interval(robot, path, ta, qa, tb, end, max_jump, budget, max_iter, bounds=False, wrap=True)
         if pts is not None and consider([(ta, qa)] + list(pts) + [(tb, end)], end - qb):
             return best
     for points, shift in _self_motion_ways(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter):
         if consider(points, shift):
             return best
     return best
-
-
-def choose(costs: list[np.ndarray]) -> tuple[list[int], float]:
-    """The cyclic sequence of candidates with the least total transition cost.
-
-    Args:
-        costs: costs[k][i, j] from candidate i at sample k to candidate j at sample k + 1 (the last
-            matrix closes the loop back to sample 0).
-
-    Returns:
-        (the chosen candidate index per sample, the total cost).
-    """
-    n = len(costs)
-    best_total, best_path = np.inf, None
-    for c0 in range(costs[0].shape[0]):
-        acc = np.full(costs[0].shape[0], np.inf)
-        acc[c0] = 0.0
-        back = []
-        for k in range(n - 1):
-            tot = acc[:, None] + costs[k]
-            back.append(np.argmin(tot, axis=0))
-            acc = tot.min(axis=0)
-        closing = acc + costs[n - 1][:, c0]
-        j = int(np.argmin(closing))
-        if closing[j] < best_total:
-            path = [j]
-            for k in range(n - 2, -1, -1):
-                path.append(int(back[k][path[-1]]))
-            best_total, best_path = float(closing[j]), path[::-1]
-    return best_path, best_total

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinredund.errors import TaskError
+from kinredund.errors import OptionError, TaskError
 from kinredund.planning.obstacles import Obstacle, segment_minimum
 
 #: a point of the last link deeper than the end point by more than this is a penetration [m]
@@ -45,10 +45,12 @@ class LinkModel:
     Attributes:
         pairs: (k, 2) indices into ``joint_origins`` of each link's two ends.
         lengths: link lengths [m], shape (k,).
-        names: ``link 1`` ... ``link k`` (zero-length segments skipped).
-        reach: reach[i, k] = chain length from joint origin i to the far end of link k [m] (0 when the
-            link comes before joint i), shape (n, k).
+        names: ``link 1`` ... ``link k`` (segments of zero length over the whole joint box skipped).
+        reach: reach[i, k] = an upper bound, over the joint limits, of the chain length from joint origin i to
+            the far end of link k [m] (0 when the link comes before joint i), shape (n, k).
         revolute: which joints are revolute (a prismatic joint moves points by |dq| instead).
+        moved: moved[i, k]: joint i moves link k (a revolute joint the links after its origin, a prismatic one
+            its own origin's link too), shape (n, k).
     """
 
     pairs: np.ndarray
@@ -56,24 +58,43 @@ class LinkModel:
     names: tuple[str, ...]
     reach: np.ndarray
     revolute: np.ndarray
+    moved: np.ndarray
+
+
+def longest_segments(robot) -> tuple[np.ndarray, np.ndarray]:
+    """(lengths at home, upper bounds over the joint limits) of the segments between consecutive joint origins [m].
+
+    A revolute joint turns the segments after its origin rigidly; a prismatic joint p moves the origins from
+    its own on by q_p along its axis, so a segment it stretches is at most its home length plus p's travel
+    from home (triangle inequality). Which segments a prismatic joint stretches is found at home by moving it.
+    """
+    home = np.asarray(robot.home, float)
+    pts = robot.kinematics.joint_origins(home)
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    longest = seg.copy()
+    for p in np.flatnonzero(~np.asarray(robot.revolute, bool)):
+        travel = float(max(robot.upper[p] - home[p], home[p] - robot.lower[p], 0.0))
+        step = np.zeros_like(home)
+        step[p] = 1e-3 * max(1.0, travel)
+        moved = np.linalg.norm(np.diff(robot.kinematics.joint_origins(home + step), axis=0), axis=1)
+        longest = longest + travel * (np.abs(moved - seg) > 1e-9 * step[p])  # Eq.: |c + dq u| <= |c| + |dq|
+    return seg, longest
 
 
 def link_model(robot) -> LinkModel:
-    """The links of ``robot`` (segments between consecutive joint origins, zero-length ones dropped)."""
-    pts = robot.kinematics.joint_origins(np.asarray(robot.home, float))
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    keep = np.flatnonzero(seg > ZERO_LENGTH)
+    """The links of ``robot`` (segments between consecutive joint origins; those of zero length over the whole
+    joint box dropped), with the reach bounds over the joint limits (a prismatic joint stretches its links)."""
+    seg, longest = longest_segments(robot)
+    keep = np.flatnonzero(longest > ZERO_LENGTH)
     pairs = np.stack([keep, keep + 1], axis=1)
-    lengths = seg[keep]
-    n = robot.nq
-    cum = np.concatenate([[0.0], np.cumsum(seg)])  # chain length from origin 0 to origin m
-    reach = np.zeros((n, keep.size))
+    n, revolute = robot.nq, np.asarray(robot.revolute, bool)
+    cum = np.concatenate([[0.0], np.cumsum(longest)])  # longest chain from origin 0 to origin m
+    reach, moved = np.zeros((n, keep.size)), np.zeros((n, keep.size), bool)
     for k, (_, j) in enumerate(pairs):
         for i in range(n):
-            if i < j:
-                reach[i, k] = cum[j] - cum[i]
-    return LinkModel(pairs, lengths, tuple(f"link {k + 1}" for k in range(keep.size)), reach,
-                     np.asarray(robot.revolute, bool))
+            moved[i, k] = i < j or (i == j and not revolute[i])  # a prismatic joint moves its own origin
+            reach[i, k] = cum[j] - cum[i] if i < j else 0.0
+    return LinkModel(pairs, seg[keep], tuple(f"link {k + 1}" for k in range(keep.size)), reach, revolute, moved)
 
 
 def link_segments(robot, q_all, model: LinkModel | None = None) -> np.ndarray:
@@ -134,7 +155,7 @@ def motion_bound(model: LinkModel, q_dense: np.ndarray) -> np.ndarray:
     maximum over the pairs, per link [m], shape (k,).
     """
     dq = np.abs(np.diff(q_dense, axis=0))  # (N-1, n)
-    lever = np.where(model.revolute[:, None], model.reach, np.where(model.reach > 0, 1.0, 0.0))
+    lever = np.where(model.revolute[:, None], model.reach, model.moved.astype(float))
     return (dq @ lever).max(axis=0) if len(dq) else np.zeros(model.pairs.shape[0])
 
 
@@ -248,3 +269,30 @@ def verify_motion(robot, obstacle: Obstacle, t, q, *, substeps: int = 8, radius:
     change = np.abs(minimum2 - minimum) if check_doubling else None
     return ClearanceReport(model.names, tt, clear, pen, minimum, tt[k], minimum - 0.5 * bound, bound, change,
                            float(tip.max()), int(substeps), float(radius), float(tool_tip))
+
+
+def tool_tip_length(model: LinkModel, tool_tip) -> float:
+    """The last link's tip left out of its clearance [m]: default 1/6 of its length, else checked in
+    [0, length).
+
+    Raises:
+        OptionError: a tip that is not a length in [0, length).
+    """
+    length = float(model.lengths[-1])
+    if tool_tip is None:
+        return length / 6.0
+    try:
+        tip = float(tool_tip)
+    except (TypeError, ValueError) as err:
+        raise OptionError(f"tool_tip must be a length [m], got {tool_tip!r}") from err
+    if not (0.0 <= tip < length):
+        raise OptionError(f"tool_tip must be in [0, {length:.4g}) m (the last link), got {tool_tip!r}")
+    return tip
+
+
+def winding(path, obstacle: Obstacle, period: float, count: int = 720) -> float:
+    """How many times the path goes around the obstacle's centre in the xy-plane over one period."""
+    ts = np.linspace(0.0, period, count + 1)
+    xy = np.array([path(t).p[:2] for t in ts]) - obstacle.center[:2]
+    ang = np.unwrap(np.arctan2(xy[:, 1], xy[:, 0]))
+    return float((ang[-1] - ang[0]) / (2 * np.pi))

@@ -70,10 +70,10 @@ class Obstacle:
         object.__setattr__(self, "b", check_positive(self.b, "obstacle semi-axis b [m]"))
         try:
             ang = float(self.angle)
-        except (TypeError, ValueError) as err:
-            raise TaskError(f"obstacle angle must be a number [rad], got {self.angle!r}") from err
+        except (TypeError, ValueError):
+            ang = math.nan
         if not math.isfinite(ang):
-            raise TaskError(f"obstacle angle must be finite, got {self.angle!r}")
+            raise TaskError(f"obstacle angle must be a finite number [rad], got {self.angle!r}")
         object.__setattr__(self, "angle", ang)
 
     # -- the ellipse ----------------------------------------------------------------------------
@@ -181,21 +181,17 @@ def segment_minimum(distance, p0, p1, radius: float = 0.0) -> np.ndarray:
     Returns:
         The minima (...,) [m].
     """
-    p0 = np.asarray(p0, float)
-    p1 = np.asarray(p1, float)
-    p0, p1 = np.broadcast_arrays(p0, p1)
+    p0, p1 = np.broadcast_arrays(np.asarray(p0, float), np.asarray(p1, float))
     d = p1 - p0
 
     def f(s):
         return distance(p0 + s[..., None] * d)
-
     shape = p0.shape[:-1]
     lo, hi = np.zeros(shape), np.ones(shape)
     x1 = hi - _GOLDEN * (hi - lo)
     x2 = lo + _GOLDEN * (hi - lo)
     f1, f2 = f(x1), f(x2)
-    iters = int(math.ceil(math.log(SEGMENT_TOL) / math.log(_GOLDEN)))
-    for _ in range(iters):
+    for _ in range(int(math.ceil(math.log(SEGMENT_TOL) / math.log(_GOLDEN)))):
         left = f1 <= f2  # the minimiser lies in [lo, x2], else in [x1, hi]
         hi = np.where(left, x2, hi)
         lo = np.where(left, lo, x1)

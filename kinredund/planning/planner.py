@@ -9,15 +9,21 @@
    candidate. The *branch* is the planner's choice (the thesis leaves it to the planner's expertise):
    among the candidates, a cyclic dynamic programme picks the sequence with the smallest sum of
    squared joint jumps between consecutive samples (closing the loop), so the arm changes branch only
-   where it has to. ``seeds`` forces candidates (e.g. a branch) at chosen samples.
+   where it has to. ``seeds`` forces candidates (e.g. a branch) at chosen samples. Where no closed walk
+   exists, samples are inserted in the intervals the walk cannot cross (at most ``refine_samples``).
 2. **Estimates** (Section 6.2.2.2): a cubic spline through the samples (:mod:`.spline`).
 3. **Tracking** (Section 6.2.2.3): the resolved-rate scheme of Chapter 4 with the time-varying index
    h = 1/2 ||theta - theta*(t)||^2 and the spline's rate as feed-forward (Eqs. 6.23-6.28), through
-   :func:`kinredund.tracking.track`: the tracked joints are the constrained optimum of h at each
-   time, so where the branch switch happens is found by the tracking itself.
-4. **Verification** (:mod:`.clearance`): every link against the obstacle along the whole tracked
-   motion, finer than the tracking steps. A plan with any penetration, or with a certified clearance
-   that is not positive, is returned with ``ok=False`` and the reason.
+   :func:`kinredund.tracking.track` with the joint limits held: the tracked joints are the constrained
+   optimum of h at each time, so where the branch switch happens is found by the tracking itself.
+4. **Verification**: the pipeline's (:func:`kinredund.planning.pipeline.finish`, as every plan's: the limits
+   at every recorded point, the path, closure after every loop modulo the walk's whole turns, no jump), then
+   the obstacle's (:mod:`.clearance`): every link against the obstacle along the whole tracked motion, finer
+   than the tracking steps. A plan that fails either, with any penetration or with a certified clearance that
+   is not positive, is returned with ``ok=False``, the reason and the cause.
+
+Steps 2-4 are the planning pipeline's (:mod:`kinredund.planning.pipeline`), configured here by the policy's
+candidates and transitions (:class:`~kinredund.planning.options.ObstacleOptions`).
 
 A fact about the planar case that the thesis does not mention: a planar arm whose end point goes once
 around a convex obstacle and whose joints come back to their start sweeps over *every* point of the
@@ -38,14 +44,17 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import TaskError
+from kinredund.errors import PathError, TaskError
 from kinredund.indices import Index
 from kinredund.paths import Path
-from kinredund.planning.branches import Candidate, Transition, candidates, choose, transition
-from kinredund.planning.clearance import link_model
+from kinredund.planning.branches import candidates, entries, transition
+from kinredund.planning.clearance import link_model, tool_tip_length, verify_motion, winding
 from kinredund.planning.obstacles import Obstacle
-from kinredund.planning.policy import PlanarPolicy, SpatialPolicy, check_weights
-from kinredund.planning.stages import PlanResult, Samples, failure, tool_tip_length, track_and_verify
+from kinredund.planning.options import ObstacleOptions
+from kinredund.planning.pipeline import Stage, Walk, finish
+from kinredund.planning.policy import PlanarPolicy, SpatialPolicy
+from kinredund.planning.result import PlanResult
+from kinredund.planning.walk import choose, shrunk_limits, target_at
 from kinredund.tasks import get_task
 
 #: (w1 [m^2], w2) of Eq. (6.21): the thesis's example values for sample point S5
@@ -145,207 +154,199 @@ def _reach_reason(wr: WristReach, ts, ps, names) -> str:
             "chooses the branch on the self-motion manifold (Section 6.3 plans that way at scale 8)")
 
 
-def _sample_times(samples, period: float) -> np.ndarray:
-    if isinstance(samples, (int, np.integer)) and not isinstance(samples, bool):
-        if samples < 4:
-            raise TaskError(f"at least 4 sample points are needed for a cubic spline, got {samples}")
-        return np.arange(int(samples)) * period / int(samples)
-    try:
-        t = np.asarray(samples, float)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"samples must be a count or sample times [s], got {samples!r}") from err
-    if t.ndim != 1 or t.size < 4 or not np.all(np.isfinite(t)):
-        raise TaskError(f"sample times must be at least 4 finite numbers, got {samples!r}")
-    if t[0] != 0.0 or np.any(np.diff(t) <= 0) or t[-1] >= period:
-        raise TaskError(f"sample times must start at 0, increase strictly and stay below the period {period:.6g} s")
-    return t
+def obstacle_stage(robot, path, obstacle: Obstacle, opt: ObstacleOptions, *, planner: str, progress, meta,
+                   t0: float, timings: dict, notes=()) -> tuple[Stage, float]:
+    """The pipeline's :class:`~kinredund.planning.pipeline.Stage` of an obstacle plan (this planner's and the
+    roadmap's) and the tool tip [m]: the obstacle's clearance verified along the motion (:mod:`.clearance`,
+    finer than the tracking steps), the obstacle and the links in the record's meta."""
+    model = link_model(robot)
+    names, tool_tip = model.names, tool_tip_length(model, opt.tool_tip)
+
+    def verify(traj):
+        rep = verify_motion(robot, obstacle, traj.t, traj.q, substeps=opt.substeps, radius=opt.link_radius,
+                            tool_tip=tool_tip, check_doubling=opt.check_doubling, path=path)
+        return rep, _contact_reason(robot, path, obstacle, rep, names)
+
+    info = {"planner": planner, "obstacle": obstacle.to_dict(), "spline": opt.spline, "links": list(names),
+            "link_lengths": model.lengths.tolist(), "link_radius": float(opt.link_radius),
+            "tool_tip": float(tool_tip), **(meta or {})}
+    st = Stage(robot, shrunk_limits(robot, opt.margin), path, path, opt, None, verify, info, progress, timings, t0,
+               names)
+    return st, tool_tip
 
 
-def _weights(weights, n: int) -> np.ndarray:
-    """The (w1, w2) of each of the n samples, shape (n, 2), each pair checked as the policy checks it."""
-    try:
-        w = np.asarray(weights, float)
-    except (TypeError, ValueError) as err:
-        raise TaskError(f"weights must be (w1, w2) or one pair per sample ({n}, 2), got {weights!r}") from err
-    if w.shape == (2,):
-        w = np.tile(w, (n, 1))
-    if w.shape != (n, 2):
-        raise TaskError(f"weights must be (w1, w2) or one pair per sample ({n}, 2), got shape {w.shape}")
-    for k, pair in enumerate(w):
-        check_weights(pair, f"the weights of sample S{k + 1}")
-    return w
+def _contact_reason(robot, path, obstacle, rep, names) -> str:
+    """'' when the verified motion clears the obstacle, else where it touches or penetrates it."""
+    if rep.collision_free:
+        return ""
+    parts = [f"{nm} for t in [{a:.4g}, {b:.4g}] s (depth {d:.3g} m)" for nm, a, b, d in rep.intervals()[:6]]
+    if not parts:
+        k = int(np.argmin(rep.lower_bound))
+        parts.append(f"{names[k]}: certified clearance {rep.lower_bound[k]:.3g} m is not positive")
+    reason = "the motion touches or penetrates the obstacle: " + "; ".join(parts)
+    if get_task(robot.task).planar and abs(winding(path, obstacle, float(path.period))) > 0.5:
+        reason += (" - unavoidable here: a planar arm whose end point goes around a convex obstacle and "
+                   "whose joints return to their start sweeps over every point of the obstacle "
+                   "(see kinredund.planning.planner)")
+    return reason
 
 
-def _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, starts, seed, link_radius, tool_tip,
-                       max_iter, max_candidates, check_reach, progress) -> list[list[Candidate]] | tuple[str, str]:
-    """Step 1 of :func:`plan`: the collision-free local minima of the policy at every sample, or (cause,
-    reason) where a sample has none (``check_reach``: the wrist-reach screen of the default policy)."""
-    rng = np.random.default_rng(seed)
+def _sample_candidates(st: Stage, obstacle, ts, tool_tip, counter) -> list | tuple[str, str]:
+    """Step 1: the pool of collision-free local minima of the policy at every sample, or (cause, reason) where
+    a sample has none (``check_reach``: the wrist-reach screen of the default policy)."""
+    robot, path, opt = st.robot, st.path, st.options
+    rng = np.random.default_rng(opt.seed)
     lo, hi = robot.sample_box()
-    cands: list[list[Candidate]] = []
+    model = link_model(robot)
     ps = np.array([path(t).p for t in ts])
     if not get_task(robot.task).planar and not get_task(robot.task).has_orientation:
         wr = wrist_reach(robot, ps, obstacle.normal_at(ps))
-        if wr is not None and (wr.end_margin.min() < 0 or (check_reach and wr.margin.min() < 0)):
+        screen = opt.check_reach and opt.policy is None
+        if wr is not None and (wr.end_margin.min() < 0 or (screen and wr.margin.min() < 0)):
             return "out_of_reach", _reach_reason(wr, ts, ps, model.names)
+    pools, seeds, weights = [], dict(opt.seeds or {}), opt.weights_per_sample()
     for k, (t, p) in enumerate(zip(ts, ps, strict=True)):
-        if progress is not None:
-            progress(k, len(ts), "samples")
-        index = factory(robot, obstacle, obstacle.normal_at(p), tuple(W[k]))
+        st.report(k, len(ts), "samples")
+        index = (opt.policy or default_policy)(robot, obstacle, obstacle.normal_at(p), tuple(weights[k]))
         user = seeds.get(k)
         user = [] if user is None else ([user] if np.ndim(user) == 1 else list(user))
-        pool = [robot.check_q(s, f"seed of sample {k + 1}") for s in user]
-        pool += [c.q for c in cands[-1]] if cands else []
-        pool += [rng.uniform(lo, hi) for _ in range(int(starts))]
-        target = get_task(robot.task).target_at(path, t)
-        found = candidates(robot, index, target, pool, model, obstacle, link_radius, tool_tip, max_iter,
-                           limit=max_candidates)
-        if not found:
+        seed_qs = [robot.check_q(s, f"seed of sample {k + 1}") for s in user]
+        seed_qs += list(pools[-1].q) if pools else []
+        seed_qs += [rng.uniform(lo, hi) for _ in range(int(opt.starts))]
+        found = candidates(robot, index, target_at(robot, path, t), seed_qs, model, obstacle, opt.link_radius,
+                           tool_tip, opt.max_iter, limit=opt.max_candidates, counter=counter)
+        if not len(found):
             return "no_minimum", (
                 f"sample S{k + 1} (t = {t:.4g} s, p = {np.round(p, 4).tolist()}) has no collision-free "
-                f"configuration at a local minimum of the policy ({len(pool)} seeds): the point may be out of "
+                f"configuration at a local minimum of the policy ({len(seed_qs)} seeds): the point may be out of "
                 "reach, or the obstacle too large for the arm")
-        cands.append(found)
-    return cands
+        pools.append(found)
+    return pools
 
 
-def _chosen_samples(robot, path, ts, W, cands, trans, choice, notes) -> Samples:
-    """The samples along the chosen branches with the refined points of their transitions (whole turns
-    accumulated); a transition that is not collision-free at its refined points goes into ``notes``."""
-    n = ts.size
-    rows = []  # (t, q, kind, candidate count, objective, clearance, weights)
-    acc = np.zeros(robot.nq)
+def _interval(st: Stage, obstacle, ts, pools, tool_tip, k: int) -> list:
+    """The transitions (:func:`~kinredund.planning.branches.transition`) from every candidate of sample k to every
+    candidate of the next (sample 0 after the last)."""
+    robot, path, opt = st.robot, st.path, st.options
+    n, model = len(ts), link_model(robot)
+    tb = ts[k + 1] if k + 1 < n else float(path.period)
+    return [[transition(robot, path, ts[k], a, tb, b, model=model, obstacle=obstacle, radius=opt.link_radius,
+                        tool_tip=tool_tip, max_jump=opt.max_jump if opt.refine else np.inf, budget=opt.budget,
+                        max_iter=opt.max_iter) for b in entries(pools[(k + 1) % n])] for a in entries(pools[k])]
+
+
+def _insert_sample(st: Stage, obstacle, ts, pools, weights, trans, k: int, tool_tip, counter, rng) -> bool:
+    """A sample in the middle of interval k (its weights those of sample k), its candidates from both neighbours'
+    and from random seeds, and the transitions of its two intervals; False (nothing inserted) where it has none."""
+    robot, path, opt, n = st.robot, st.path, st.options, len(ts)
+    tm = 0.5 * (ts[k] + (ts[k + 1] if k + 1 < n else float(path.period)))
+    p = path(tm).p
+    index = (opt.policy or default_policy)(robot, obstacle, obstacle.normal_at(p), tuple(weights[k]))
+    seeds = list(pools[k].q) + list(pools[(k + 1) % n].q) + [rng.uniform(*robot.sample_box())
+                                                              for _ in range(opt.starts)]
+    found = candidates(robot, index, target_at(robot, path, tm), seeds, link_model(robot), obstacle,
+                       opt.link_radius, tool_tip, opt.max_iter, limit=opt.max_candidates, counter=counter)
+    if not len(found):
+        return False
+    ts.insert(k + 1, tm)
+    pools.insert(k + 1, found)
+    weights.insert(k + 1, weights[k])
+    trans[k] = _interval(st, obstacle, ts, pools, tool_tip, k)
+    trans.insert(k + 1, _interval(st, obstacle, ts, pools, tool_tip, k + 1))
+    return True
+
+
+def _closed_walk(st: Stage, obstacle, ts, pools, weights, tool_tip, counter) -> tuple:
+    """Step 2: (choice, transitions, samples added) of the cheapest closed walk, choice None where there is none;
+    where the walk breaks, samples are inserted in the middle of the intervals it cannot cross (those without a
+    continuous transition; else those where a candidate has none onward), within ``refine_samples``."""
+    trans, added, rng = [], 0, np.random.default_rng([st.options.seed, 1])
+    for k in range(len(ts)):
+        st.report(k, len(ts), "transitions")
+        trans.append(_interval(st, obstacle, ts, pools, tool_tip, k))
+    while True:
+        costs = [np.array([[tr.cost for tr in row] for row in mat]) for mat in trans]
+        choice, total = choose(costs)
+        if choice is not None and np.isfinite(total):
+            return choice, trans, added
+        n, room = len(ts), st.options.refine_samples - added
+        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()] or [
+            k for k in range(n) if not np.isfinite(costs[k]).any(axis=1).all()]
+        inserted = [k for k in sorted(bad, reverse=True)[:max(room, 0)]
+                    if _insert_sample(st, obstacle, ts, pools, weights, trans, k, tool_tip, counter, rng)]
+        if not inserted:
+            return None, bad, added
+        added += len(inserted)
+
+
+def _walk(st: Stage, obstacle, ts, pools, tool_tip, counter) -> Walk | str:
+    """Step 2 (:func:`_closed_walk`) and the knots of the chosen walk (whole turns accumulated), or why there is
+    no closed walk."""
+    robot, opt, period = st.robot, st.options, float(st.path.period)
+    ts, weights = list(ts), [tuple(w) for w in opt.weights_per_sample()]
+    choice, trans, added = _closed_walk(st, obstacle, ts, pools, weights, tool_tip, counter)
+    if choice is None:
+        where = f" (none from t = {ts[trans[0]]:.4g} s to the next sample)" if trans else ""
+        return (f"no cyclic sequence of sample configurations with continuous transitions{where} after {added} "
+                f"added sample(s) (refine_samples={opt.refine_samples}, {len(ts)} samples in all): raise "
+                "refine_samples or the transitions' budget, or give other sample times")
+    n = len(ts)
+    rows, notes, acc = [], [f"{added} sample(s) added where the closed walk broke"] if added else [], np.zeros(robot.nq)
     for k in range(n):
-        c = cands[k][choice[k]]
-        rows.append((ts[k], c.q + acc, "policy", len(cands[k]), c.objective, c.clearance, W[k]))
-        tr = trans[k][choice[k]][choice[(k + 1) % n]]
-        for (tm, qm), cm in zip(tr.points, tr.clearance, strict=True):
-            rows.append((tm, qm + acc, "refined", 0, np.nan, cm, np.full(2, np.nan)))
+        i = choice[k]
+        rows.append((ts[k], pools[k].q[i] + acc, "optimum", i, pools[k].data[i]))
+        tr = trans[k][i][choice[(k + 1) % n]]
+        rows += [(tm, qm + acc, "refined", -1, cm) for (tm, qm), cm in zip(tr.points, tr.clearance, strict=True)]
         acc = acc + tr.shift
         if tr.min_clearance <= 0:
             notes.append(f"the transition between S{k + 1} and S{(k + 1) % n + 1} is not collision-free at its "
                          f"refined points (worst clearance {tr.min_clearance:.3g} m)")
-    smp = Samples(np.array([r[0] for r in rows]), np.array([path(r[0]).p for r in rows]),
-                  np.array([r[1] for r in rows]), acc, tuple(r[3] for r in rows), np.array([r[4] for r in rows]),
-                  np.array([r[5] for r in rows]), np.array([r[6] for r in rows]), tuple(r[2] for r in rows))
-    return smp
+    return Walk(rows, np.array(ts), tuple(np.array(p.q) for p in pools), tuple(np.array(p.z) for p in pools), acc,
+                np.array(weights), ((0.0, period),), notes)
 
 
-def plan(
-    robot,
-    path: Path,
-    obstacle: Obstacle,
-    samples=9,
-    weights=DEFAULT_WEIGHTS,
-    *,
-    policy: PolicyFactory | None = None,
-    seeds: dict | None = None,
-    starts: int = 12,
-    seed: int = 0,
-    spline: str = "periodic",
-    steps_per_loop: int = 400,
-    substeps: int = 8,
-    link_radius: float = 0.0,
-    tool_tip: float | None = None,
-    check_doubling: bool = True,
-    refine: bool = True,
-    max_jump: float = 0.3,
-    max_refine: int = 32,
-    max_candidates: int | None = 4,
-    max_iter: int = 200,
-    check_reach: bool = True,
-    progress=None,
-    meta: dict | None = None,
-) -> PlanResult:
-    """Plan a collision-free cyclic motion of the end point along a closed path on the obstacle.
+def plan(robot, path: Path, obstacle: Obstacle, options: ObstacleOptions | None = None, *, progress=None,
+         meta: dict | None = None, **overrides) -> PlanResult:
+    """Plan a collision-free cyclic motion of the end point along a closed path on the obstacle: the planning
+    pipeline (:mod:`kinredund.planning.pipeline`) configured with the thesis's policy (module docstring).
 
     Args:
         robot: a planar robot (task ``planar``) or a spatial arm with a ``position`` task.
         path: a closed path (with a ``period``) on the obstacle's boundary.
         obstacle: an :class:`~kinredund.planning.obstacles.Obstacle`.
-        samples: the number of equally spaced sample points (from t = 0), or their times [s]
-            (starting at 0, below the period).
-        weights: (w1 [m^2], w2) of Eq. (6.21)/(6.44), or one pair per sample, shape (N, 2).
-        policy: ``policy(robot, obstacle, normal, (w1, w2)) -> Index``; default :func:`default_policy`.
-        seeds: {sample index: configuration or list of configurations} added to the seeds there.
-        starts: random seeds per sample (uniform in the joint limits, ``np.random.default_rng(seed)``);
-            the candidates of the previous sample are seeds too.
-        seed: the random seed.
-        spline: ``periodic`` (default) or ``natural`` (the thesis's), see :mod:`.spline`.
-        steps_per_loop: resolved-rate steps over the loop.
-        substeps: clearance checks per tracking step.
-        link_radius: capsule radius of the links [m].
-        tool_tip: the last link's tip excluded from its clearance [m]; default 1/6 of its length.
-        check_doubling: repeat the clearance check at twice the resolution.
-        refine: refine every transition between consecutive samples until no joint jumps by more than
-            ``max_jump`` [rad] (at most ``max_refine`` inserted points per transition), see
-            :mod:`.branches`. This keeps the estimate theta*(t) near the self-motion manifold, where the
-            closest-point tracking of Eq. (6.27) is regular (the thesis: choose sample points close to
-            one another where the configuration changes fast). The refined points join the samples
-            (``kind`` ``refined``).
-        max_candidates: the local minima kept per sample (lowest index value first), None for all.
-        max_iter: iterations of each joint-level solve.
-        check_reach: for a spatial arm with the default policy, fail at once (before any solve) when
-            a sample's wrist point W = P + l n is beyond the reach of the links before the last one
-            (:func:`wrist_reach`): the policy's last link cannot lie along the normal there (Eq. 6.44),
-            and the branches found with it tilted do not join into a loop (Section 6.3 at scale 8).
-            A sample whose end point itself is out of reach fails whatever this flag.
-        progress: ``progress(done, total, stage)`` through the run; ``stage`` is ``samples``,
-            ``transitions``, ``tracking`` or ``clearance``.
+        options: the :class:`~kinredund.planning.options.ObstacleOptions` (samples or their times, weights,
+            policy, seeds, starts, seed, spline, steps_per_loop, substeps, link_radius, tool_tip, check_doubling,
+            refine, max_jump, budget, max_candidates, max_iter, check_reach, ...); ``overrides``: any of them by
+            name (``plan(..., samples=12)``), validated with them.
+        progress: ``progress(done, total, stage)``.
         meta: extra entries for ``Trajectory.meta``.
 
     Returns:
-        A :class:`PlanResult`; ``ok=False`` with a reason when a sample has no collision-free
-        solution, the tracking fails, or the verified motion touches or penetrates the obstacle.
+        A :class:`~kinredund.planning.result.PlanResult`; ``ok=False`` with the reason and cause when a sample has
+        no collision-free solution, no closed walk exists, the tracking fails, or the verified motion leaves the
+        limits or the path, does not close, or touches or penetrates the obstacle.
 
     Raises:
-        TaskError, PathError, ChoiceError: bad arguments (an open path, bad weights or sample times).
+        TaskError: not an obstacle; PathError: an open path; OptionError: an option out of range (bad weights or
+        sample times included).
     """
-    t_start = perf_counter()
-    timings: dict[str, float] = {}
+    t0, timings = perf_counter(), {}
+    opt = ObstacleOptions.of(options, **overrides)
     if not isinstance(obstacle, Obstacle):
         raise TaskError(f"obstacle must be a kinredund.planning Obstacle, got {type(obstacle).__name__}")
-    if path.period is None:
-        raise TaskError("plan() needs a closed path (one with a period)")
-    period = float(path.period)
-    ts = _sample_times(samples, period)
-    W = _weights(weights, ts.size)
-    factory = policy or default_policy
-    model = link_model(robot)
-    names = model.names
-    tool_tip = tool_tip_length(model, tool_tip)
-    if not (np.isfinite(link_radius) and link_radius >= 0):
-        raise TaskError(f"link_radius must be a number >= 0 [m], got {link_radius!r}")
-    seeds = dict(seeds or {})
-    notes: list[str] = []
-
-    # -- step 1: the sample points at joint level (Eqs. 6.21-6.22) and the branch choice ----------
-    cands = _sample_candidates(robot, path, obstacle, ts, W, factory, model, seeds, starts, seed, link_radius, tool_tip,
-                               max_iter, max_candidates, check_reach and policy is None, progress)
-    if isinstance(cands, tuple):
-        timings["samples_s"] = perf_counter() - t_start
-        return failure(cands[1], names, timings, cause=cands[0])
-    n = ts.size
-    trans: list[list[list[Transition]]] = []
-    for k in range(n):
-        if progress is not None:
-            progress(k, n, "transitions")
-        tb = ts[k + 1] if k + 1 < n else period
-        nxt = cands[k + 1] if k + 1 < n else cands[0]
-        trans.append([[transition(robot, path, ts[k], a, tb, b, model=model, obstacle=obstacle,
-                                  radius=link_radius, tool_tip=tool_tip, max_jump=max_jump if refine else np.inf,
-                                  budget=max_refine, max_iter=max_iter) for b in nxt] for a in cands[k]])
-    costs = [np.array([[tr.cost for tr in row] for row in mat]) for mat in trans]
-    choice, total = choose(costs)
-    if choice is None or not np.isfinite(total):
-        timings["samples_s"] = perf_counter() - t_start
-        bad = [k for k in range(n) if not np.isfinite(costs[k]).any()]
-        where = f" (none between S{bad[0] + 1} and S{(bad[0] + 1) % n + 1})" if bad else ""
-        return failure(f"no cyclic sequence of sample configurations with continuous transitions{where}: "
-                        "try more samples or other sample times", names, timings, cause="no_closed_walk")
-    smp = _chosen_samples(robot, path, ts, W, cands, trans, choice, notes)
-    timings["samples_s"] = perf_counter() - t_start
-    return track_and_verify(robot, path, obstacle, smp, model, planner="chapter6", spline=spline,
-                             steps_per_loop=steps_per_loop, substeps=substeps, link_radius=link_radius,
-                             tool_tip=tool_tip, check_doubling=check_doubling, progress=progress,
-                             meta=dict(meta or {}), timings=timings, t_start=t_start, notes=notes)
+    if not isinstance(path, Path) or path.period is None:
+        raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
+    opt.check_for(robot)
+    ts = opt.times(float(path.period))
+    st, tool_tip = obstacle_stage(robot, path, obstacle, opt, planner="chapter6", progress=progress, meta=meta,
+                                  t0=t0, timings=timings)
+    counter = [0]
+    pools = _sample_candidates(st, obstacle, ts, tool_tip, counter)
+    if isinstance(pools, tuple):
+        timings["samples_s"] = perf_counter() - t0
+        return PlanResult(False, pools[1], timings=timings, cause=pools[0], link_names=st.link_names)
+    walk = _walk(st, obstacle, ts, pools, tool_tip, counter)
+    timings["samples_s"] = perf_counter() - t0
+    if isinstance(walk, str):
+        return PlanResult(False, walk, timings=timings, cause="no_closed_walk", link_names=st.link_names)
+    return finish(st, walk)

@@ -39,14 +39,17 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from kinredund.errors import KinredundError, TaskError
+from kinredund.errors import KinredundError, PathError, TaskError
 from kinredund.kinematics.angles import wrap_joints
-from kinredund.planning.branches import closest_on_path
-from kinredund.planning.clearance import PENETRATION_TOL, link_clearance, link_model
+from kinredund.paths import Path
+from kinredund.planning.clearance import PENETRATION_TOL, link_clearance
 from kinredund.planning.obstacles import EllipticCylinder
+from kinredund.planning.options import RoadmapOptions
+from kinredund.planning.pipeline import Walk, finish
+from kinredund.planning.planner import obstacle_stage
+from kinredund.planning.result import PlanResult
 from kinredund.planning.spline import unwrap_samples
-from kinredund.planning.stages import PlanResult, Samples, failure, tool_tip_length, track_and_verify
-from kinredund.tasks import get_task
+from kinredund.planning.walk import closest_on_path, target_at
 
 #: cost of a move along the self-motion within one time slice, against squared joint steps [rad^2]: the
 #: search advances in time wherever it can (the closest-point tracking follows slow self-motions only)
@@ -289,57 +292,53 @@ def roadmap_cycle(robot, path, obstacle, *, tool_tip: float, slices: int = 90, g
     return Roadmap(times, q_arr, float(best_margin))
 
 
-def plan_roadmap(robot, path, obstacle, *, slices: int = 90, grid: int = 360, max_jump: float = 0.25,
-                 steps_per_loop: int = 720, substeps: int = 4, tool_tip: float | None = None,
-                 spline: str = "periodic", check_doubling: bool = True, progress=None,
-                 meta: dict | None = None) -> PlanResult:
-    """Section 6.3's plan with the branch from :func:`roadmap_cycle`, then the thesis's steps 2-4.
+def plan_roadmap(robot, path, obstacle, options: RoadmapOptions | None = None, *, progress=None,
+                 meta: dict | None = None, **overrides) -> PlanResult:
+    """Section 6.3's plan: the planning pipeline (:mod:`kinredund.planning.pipeline`) with the branch from
+    :func:`roadmap_cycle` as its closed walk, then the pipeline's spline, tracking and verification.
 
-    ``tool_tip`` is the last link's tip left out of its clearance [m], default 1/6 of its length, as in
-    :func:`~kinredund.planning.planner.plan`; the other settings are :func:`roadmap_cycle`'s and
-    :func:`~kinredund.planning.planner.plan`'s.
+    Args:
+        robot, path, obstacle: a Table 4.1 arm, a closed path on the obstacle, the obstacle.
+        options: the :class:`~kinredund.planning.options.RoadmapOptions` (slices, grid, max_jump,
+            steps_per_loop, substeps, tool_tip, spline, check_doubling, ...); ``overrides`` by name.
+        progress: ``progress(done, total, stage)``; meta: extra entries for ``Trajectory.meta``.
 
     Returns:
-        A :class:`~kinredund.planning.planner.PlanResult` (``samples.kind`` ``roadmap``); ``ok=False``
-        with the reason when no cycle exists, the tracking fails or the verification finds contact.
+        A :class:`~kinredund.planning.result.PlanResult` (``samples.kind`` ``roadmap``); ``ok=False``
+        with the reason when no cycle exists, the tracking fails or the verification fails or finds contact.
 
     Raises:
-        TaskError: the arm is not of Table 4.1's architecture, ``path`` is not closed, or a bad ``tool_tip``.
+        TaskError: the arm is not of Table 4.1's architecture; PathError: ``path`` is not closed;
+        OptionError: an option out of range (a bad ``tool_tip`` included).
     """
-    t_start = perf_counter()
-    if path.period is None:
-        raise TaskError("plan_roadmap() needs a closed path (one with a period)")
-    model = link_model(robot)
-    names = model.names
-    tool_tip = tool_tip_length(model, tool_tip)
-    timings: dict[str, float] = {}
+    t_start, timings = perf_counter(), {}
+    opt = RoadmapOptions.of(options, **overrides)
+    if not isinstance(path, Path) or path.period is None:
+        raise PathError("plan_roadmap() needs a closed path (a kinredund.paths.Path with a period)")
+    opt.check_for(robot)
+    extra = {"hd": {"alpha": robot.hd.alpha.tolist(), "a": robot.hd.a.tolist(), "b": robot.hd.b.tolist()}} \
+        if robot.hd is not None else {}
+    st, tool_tip = obstacle_stage(robot, path, obstacle, opt, planner="chapter6-roadmap", progress=progress,
+                                  meta={**extra, **(meta or {})}, t0=t_start, timings=timings)
     try:
-        rm = roadmap_cycle(robot, path, obstacle, slices=slices, grid=grid, tool_tip=tool_tip, max_jump=max_jump,
-                           progress=progress)
+        rm = roadmap_cycle(robot, path, obstacle, slices=opt.slices, grid=opt.grid, tool_tip=tool_tip,
+                           max_jump=opt.max_jump, progress=progress)
     except KinredundError as err:
         if isinstance(err, TaskError):
             raise
         timings["roadmap_s"] = perf_counter() - t_start
-        return failure(str(err), names, timings, cause="no_closed_walk")
+        return PlanResult(False, str(err), timings=timings, cause="no_closed_walk", link_names=st.link_names)
     timings["roadmap_s"] = perf_counter() - t_start
-    n_wrist = robot.nq - 4
-    qs = []
+    st.info["roadmap_margin"] = rm.margin
+    n_wrist, qs = robot.nq - 4, []
     for k, (t, q4) in enumerate(zip(rm.t, rm.q, strict=True)):  # put each configuration exactly on the path
-        if progress is not None:
-            progress(k, len(rm.t), "placing the roadmap on the path")
+        st.report(k, len(rm.t), "placing the roadmap on the path")
         ref = np.concatenate([q4, np.zeros(n_wrist)])
-        res = closest_on_path(robot, get_task(robot.task).target_at(path, t), ref)
+        res = closest_on_path(robot, target_at(robot, path, t), ref)
         qs.append(ref + wrap_joints(res.q - ref, robot.revolute) if res.converged else ref)
     q_u, turns = unwrap_samples(np.array(qs), robot.revolute)
-    ps = np.array([path(t).p for t in rm.t])
-    smp = Samples(rm.t, ps, q_u, turns, (0,) * len(rm.t), np.full(len(rm.t), np.nan),
-                  np.full((len(rm.t), len(names)), np.nan), np.full((len(rm.t), 2), np.nan),
-                  ("roadmap",) * len(rm.t))
-    extra = {"roadmap_margin": rm.margin,
-             "hd": {"alpha": robot.hd.alpha.tolist(), "a": robot.hd.a.tolist(), "b": robot.hd.b.tolist()}}
-    notes = (f"branch chosen on a roadmap of the self-motion manifold ({slices} times x {grid} azimuths x 4 "
-             f"branches), clearance margin >= {rm.margin:.3g} m at its nodes",)
-    return track_and_verify(robot, path, obstacle, smp, model, planner="chapter6-roadmap", spline=spline,
-                             steps_per_loop=steps_per_loop, substeps=substeps, link_radius=0.0, tool_tip=tool_tip,
-                             check_doubling=check_doubling, progress=progress, meta={**extra, **(meta or {})},
-                             timings=timings, t_start=t_start, notes=notes)
+    nan = np.full(len(st.link_names), np.nan)
+    rows = [(t, q, "roadmap", -1, nan) for t, q in zip(rm.t, q_u, strict=True)]
+    notes = [f"branch chosen on a roadmap of the self-motion manifold ({opt.slices} times x {opt.grid} azimuths x 4 "
+             f"branches), clearance margin >= {rm.margin:.3g} m at its nodes"]
+    return finish(st, Walk(rows, rm.t, turns=turns, off_optimum=((0.0, float(path.period)),), notes=notes))

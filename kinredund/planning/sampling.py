@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from kinredund.ik.solve import solve_ik
-from kinredund.planning.branches import choose
 from kinredund.planning.walk import (
     CandidatePool,
+    choose,
     continue_candidates,
     inside_limits,
     local_minimum,

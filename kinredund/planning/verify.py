@@ -42,8 +42,9 @@ class MotionCheck:
         position_error_max: max |p(q) - p_d(t)| with the robot's FK [m].
         orientation_error_max: max angle of Q_d^T Q(q) (pose tasks), of the tool axis (axis tasks) [rad];
             0.0 for tasks without orientation.
-        closure: max |q(kT) - q(0)| after each complete loop k = 1, 2, ... [rad or m], raw joint values
-            (no wrapping: a motion inside limits narrower than a turn cannot gain one).
+        closure: max |q(kT) - q(0) - k turns| after each complete loop k = 1, 2, ... [rad or m], raw joint
+            values (no wrapping: a motion inside limits narrower than a turn cannot gain one; ``turns`` are the
+            whole turns the motion is planned to make per loop, zero unless given).
         step_max: the largest joint change of one step, max_k ||q_{k+1} - q_k|| [rad].
         jump_ratio_max: max_k d_k / max(neighbours' d) (1 + O(dt) for a smooth motion).
         jumps: the steps k (from q_k to q_{k+1}) that are jumps (module docstring).
@@ -130,7 +131,7 @@ def joint_jumps(q) -> tuple[float, float, tuple[int, ...]]:
     return float(d.max()), float(ratios.max()), tuple(jumps)
 
 
-def verify_motion_on_path(robot, path: Path, t, q, steps_per_loop: int | None = None) -> MotionCheck:
+def verify_motion_on_path(robot, path: Path, t, q, steps_per_loop: int | None = None, turns=None) -> MotionCheck:
     """Check a recorded motion (t_k, q_k) on ``path`` independently of whoever produced it.
 
     Args:
@@ -139,6 +140,8 @@ def verify_motion_on_path(robot, path: Path, t, q, steps_per_loop: int | None = 
         t: times [s], shape (N,); q: joints, shape (N, n).
         steps_per_loop: recorded steps per loop (the closure compares q_0 with q_{k s}); default the
             closed path's period over the time step.
+        turns: the joint change the motion is meant to make per loop (whole turns of revolute joints) [rad],
+            shape (n,); default zeros. The closure after loop k is max |q(kT) - q(0) - k turns|.
 
     Raises:
         PathError: times and joints of different lengths or non-finite.
@@ -148,11 +151,12 @@ def verify_motion_on_path(robot, path: Path, t, q, steps_per_loop: int | None = 
     over = limit_excursion(robot, q)
     pos, ang = task_errors(robot, path, t, q)
     closure: list[float] = []
+    shift = np.zeros(robot.nq) if turns is None else check_array(turns, (robot.nq,), "turns per loop [rad]", PathError)
     if path.period is not None and len(t) > 1:
         if steps_per_loop is None:
             steps_per_loop = int(round(float(path.period) / float(t[1] - t[0])))
-        for k in range(steps_per_loop, len(t), steps_per_loop):
-            closure.append(float(np.abs(q[k] - q[0]).max()))
+        for loop, k in enumerate(range(steps_per_loop, len(t), steps_per_loop), start=1):
+            closure.append(float(np.abs(q[k] - q[0] - loop * shift).max()))
     step, ratio, jumps = joint_jumps(q)
     worst = int(np.argmax(over)) if over.max() > 0 else -1
     return MotionCheck(float(over.max()), float(pos.max()), float(ang.max()), tuple(closure), step, ratio,

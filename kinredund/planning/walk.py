@@ -7,7 +7,7 @@ at the sample points, their continuation from sample to sample, the layered grap
   labels one solve joined (the same branch).
 - :func:`walk_costs`: the edges of the layered graph, the joint distance ||q_b - q_a|| where no joint
   moves by more than ``max_jump`` (else infinite); :func:`restrict_start` forces the walk's start.
-- :func:`refine_walk` / :func:`bisect_within_limits`: an infinite edge made finite by inserting, at the
+- :func:`refine_walk` / :func:`bisect_interval`: an infinite edge made finite by inserting, at the
   middle time, the within-limits configuration on the path closest to the mean of its ends (the index
   of Eq. 6.25, :func:`closest_within_limits`), recursively, as the thesis asks of the sample points
   where the configuration changes fast (Section 6.2.2.1).
@@ -24,9 +24,9 @@ import copy
 import numpy as np
 
 from kinredund.ik.solve import solve_ik
-from kinredund.indices import Index
+from kinredund.indices import Index, JointDeviation
+from kinredund.kinematics.angles import wrap_joints
 from kinredund.paths import Path
-from kinredund.planning.branches import closest_on_path
 from kinredund.tasks import get_task
 
 #: two candidates closer than this (max-abs) are the same local minimum [rad or m]
@@ -81,9 +81,27 @@ def local_minimum(inner, target, index: Index, seed, max_iter: int, keep=None):
     return res.q, float(res.objective)
 
 
+def closest_on_path(robot, target, reference: np.ndarray, seed=None, max_iter: int = 200, bounds: bool = False):
+    """A configuration on g(theta) = x locally closest to ``reference``: min 1/2 ||theta - reference||^2
+    (the index of Eq. 6.25), from ``seed`` (default: the reference); with ``bounds`` inside the joint limits.
+    The one closest-point solve of the planners (the Chapter 6 planner, the roadmap, the cyclic planner).
+
+    The seed is first projected onto g = x by a pose-only solve: started exactly at the reference, the
+    index's gradient and the multipliers are zero, and the IK's exact-penalty line search (whose weight
+    is set from the multipliers) then cannot accept a step back onto g = x.
+
+    Returns:
+        The :class:`~kinredund.ik.solve.IKResult`.
+    """
+    seed = reference if seed is None else seed
+    first = solve_ik(robot, target, None, q0=seed, bounds=bounds, max_iter=max_iter)
+    start = first.q if first.converged else seed
+    return solve_ik(robot, target, JointDeviation(reference), q0=start, bounds=bounds, max_iter=max_iter)
+
+
 def closest_within_limits(inner, target, reference, seed=None, max_iter: int = 200, fallback: bool = False):
     """The within-limits configuration on g = x locally closest to ``reference`` (the index of Eq. 6.25,
-    :func:`~kinredund.planning.branches.closest_on_path` with the limits as bounds), from ``seed`` (default
+    :func:`closest_on_path` with the limits as bounds), from ``seed`` (default
     the reference, clipped into the limits), or None. With ``fallback``, where that solve does not
     converge, the within-limits point on g = x a pose-only solve reaches from the seed.
     """
@@ -98,24 +116,41 @@ def closest_within_limits(inner, target, reference, seed=None, max_iter: int = 2
 
 
 class CandidatePool:
-    """The candidates of one sample: distinct minima (q, z), each with a label unique over the plan."""
+    """The candidates of one sample: distinct minima (q, z), each with a label unique over the plan and the
+    configuration's data (an obstacle planner's link clearances, else None): the one pool of every planner.
 
-    def __init__(self):
+    Args:
+        revolute: with it, two candidates differing by whole turns of these joints are the same (the obstacle
+            planner's unbounded solves); default (None) raw values (a within-limits minimum is its own).
+    """
+
+    def __init__(self, revolute=None):
         self.q: list[np.ndarray] = []
         self.z: list[float] = []
         self.label: list[int] = []
+        self.data: list = []
+        self.revolute = revolute
 
-    def add(self, found, counter: list) -> int:
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def same(self, a, b) -> bool:
+        """Whether two configurations are one candidate (:data:`SAME_CANDIDATE`, modulo turns with ``revolute``)."""
+        d = a - b if self.revolute is None else wrap_joints(a - b, self.revolute)
+        return bool(np.abs(d).max() < SAME_CANDIDATE)
+
+    def add(self, found, counter: list, data=None) -> int:
         """Add (q, z) unless already there; its label (or -1 for None). ``counter``: [next label]."""
         if found is None:
             return -1
         q, z = found
         for i, c in enumerate(self.q):
-            if np.abs(c - q).max() < SAME_CANDIDATE:
+            if self.same(c, q):
                 return self.label[i]
         self.q.append(q)
         self.z.append(z)
         self.label.append(counter[0])
+        self.data.append(data)
         counter[0] += 1
         return self.label[-1]
 
@@ -123,7 +158,12 @@ class CandidatePool:
         """Keep the ``limit`` candidates of lowest z (in their order), and the one labelled ``keep``."""
         keep = sorted(set(np.argsort(self.z, kind="stable")[:limit].tolist())
                       | ({self.label.index(keep)} if keep is not None else set()))
-        self.q, self.z, self.label = ([v[i] for i in keep] for v in (self.q, self.z, self.label))
+        self.q, self.z, self.label, self.data = ([v[i] for i in keep] for v in (self.q, self.z, self.label, self.data))
+
+    def sort(self, limit: int | None = None) -> None:
+        """Lowest z first, at most ``limit`` kept (all with None)."""
+        order = np.argsort(self.z, kind="stable")[:limit]
+        self.q, self.z, self.label, self.data = ([v[i] for i in order] for v in (self.q, self.z, self.label, self.data))
 
 
 def continue_candidates(inner, targets, index, pools, a, b, links, counter, max_iter, keep=None) -> None:
@@ -135,15 +175,28 @@ def continue_candidates(inner, targets, index, pools, a, b, links, counter, max_
             links.add(frozenset((la, lb)))
 
 
-def bisect_within_limits(inner, path, ta, qa, tb, qb, max_jump, budget, max_iter):
-    """Points strictly inside (ta, tb) that bring every joint jump within ``max_jump``, or None
-    (Section 6.2.2.1: sample points close to one another where the configuration changes fast).
+def bisect_interval(robot, path, ta, qa, tb, qb, max_jump, budget, max_iter, *, bounds: bool = True,
+                    wrap: bool = False):
+    """Points strictly inside (ta, tb) that bring every joint jump within ``max_jump``, or None: the one
+    bisection of every planner (Section 6.2.2.1: sample points close to one another where the configuration
+    changes fast).
 
-    Recursive halving: the middle point is the within-limits configuration on the path closest to the
-    mean of the interval's ends; it fails where that does not shrink the jump by 5 % (the ends are not
-    joined by a short within-limits self-motion) or after ``budget`` inserted points.
+    Recursive halving: the middle point is the configuration on the path closest to the mean of the
+    interval's ends (the index of Eq. 6.25, :func:`closest_on_path`; with ``bounds`` the within-limits one,
+    :func:`closest_within_limits`; with ``wrap`` its revolute joints taken by whole turns nearest the mean); it
+    fails where that does not shrink the jump by 5 % (the ends are not joined by a short self-motion) or
+    after ``budget`` inserted points.
     """
     left = [int(budget)]
+
+    def middle(tm, mean):
+        target = target_at(robot, path, tm)
+        if bounds:
+            return closest_within_limits(robot, target, mean, max_iter=max_iter)
+        res = closest_on_path(robot, target, mean, max_iter=max_iter)
+        if not res.converged:
+            return None
+        return mean + wrap_joints(res.q - mean, robot.revolute) if wrap else res.q
 
     def halve(t0, q0, t1, q1):
         jump = float(np.abs(q1 - q0).max())
@@ -153,7 +206,7 @@ def bisect_within_limits(inner, path, ta, qa, tb, qb, max_jump, budget, max_iter
             return None
         left[0] -= 1
         tm = 0.5 * (t0 + t1)
-        qm = closest_within_limits(inner, target_at(inner, path, tm), 0.5 * (q0 + q1), max_iter=max_iter)
+        qm = middle(tm, 0.5 * (q0 + q1))
         if qm is None or max(float(np.abs(qm - q0).max()), float(np.abs(q1 - qm).max())) >= 0.95 * jump:
             return None
         first = halve(t0, q0, tm, qm)
@@ -191,7 +244,7 @@ def refine_walk(inner, path, ts, period, pools, costs, refined, max_jump, budget
             for j in np.argsort(dist)[:tries]:
                 if np.isfinite(costs[k][i, j]) or (k, i, int(j)) in refined:
                     continue
-                pts = bisect_within_limits(inner, path, ts[k], qa, tb, B[j], max_jump, budget, max_iter)
+                pts = bisect_interval(inner, path, ts[k], qa, tb, B[j], max_jump, budget, max_iter)
                 refined[(k, i, int(j))] = pts
                 if pts is not None:
                     chain = [qa] + [q for _, q in pts] + [B[j]]
@@ -233,3 +286,33 @@ def off_optimum_intervals(ts, period, pools, choice, links, refined) -> tuple:
         else:
             merged.append([a, b])
     return tuple((a, b) for a, b in merged)
+
+
+def choose(costs: list[np.ndarray]) -> tuple[list[int] | None, float]:
+    """The cyclic sequence of candidates with the least total cost (dynamic programming over the start).
+
+    Args:
+        costs: costs[k][i, j] from candidate i at sample k to candidate j at sample k + 1 (the last
+            matrix closes the loop back to sample 0).
+
+    Returns:
+        (the chosen candidate index per sample, the total cost); (None, inf) where no sequence is finite.
+    """
+    n = len(costs)
+    best_total, best_path = np.inf, None
+    for c0 in range(costs[0].shape[0]):
+        acc = np.full(costs[0].shape[0], np.inf)
+        acc[c0] = 0.0
+        back = []
+        for k in range(n - 1):
+            tot = acc[:, None] + costs[k]
+            back.append(np.argmin(tot, axis=0))
+            acc = tot.min(axis=0)
+        closing = acc + costs[n - 1][:, c0]
+        j = int(np.argmin(closing))
+        if closing[j] < best_total:
+            path = [j]
+            for k in range(n - 2, -1, -1):
+                path.append(int(back[k][path[-1]]))
+            best_total, best_path = float(closing[j]), path[::-1]
+    return best_path, best_total

@@ -22,6 +22,7 @@ import numpy as np
 
 from kinredund.errors import (
     KinredundError,
+    OptionError,
     PathError,
     SingularityError,
     check_choice,
@@ -40,6 +41,7 @@ from kinredund.sweep.record import PlacementRecord, clean_float
 from kinredund.tasks import get_task
 from kinredund.tracking import MODES, SCHEMES, track
 from kinredund.tracking.constraints.joint_limits import JointLimits
+from kinredund.tracking.tracker import check_limits_option
 from kinredund.trajectory import Trajectory, fastest_joint
 
 #: a joint counts as outside its limits beyond this [rad or m]: round-off of a tracker that holds them
@@ -56,7 +58,8 @@ class SweepOptions:
         duration, steps: the run of an open path [s], [-] (None for closed paths).
         scheme, mode: the tracker's scheme and mode.
         limits: the tracker's ``limits`` (None: held by the default mode's optimal schemes, the tracker's
-            default; False: the thesis's unconstrained scheme).
+            default; False: the thesis's unconstrained scheme; True: held, which only the default mode's augmented
+            and velocity schemes can: asked of another, the options are refused here, before any placement runs).
         speed_limit: a joint faster than its velocity limit makes the placement infeasible (cause
             ``speed``); by default the speed ratio is only reported (a slower path execution fixes it).
         starts, seed: multi-start of the start configuration's IK (:func:`kinredund.ik.solve_ik`).
@@ -84,29 +87,32 @@ class SweepOptions:
     clearance_resolution: float = 1e-3
 
     def __post_init__(self) -> None:  # sizes bounded here, before any placement runs (errors.SIZES)
-        spl = check_count(self.steps_per_loop, 1, "steps_per_loop", KinredundError)
-        loops = check_count(self.loops, 1, "loops", KinredundError)
-        check_size(spl * loops, f"loops x steps_per_loop ({loops} x {spl})", "samples", KinredundError)
-        check_size(self.starts, "starts", "starts", KinredundError)
-        check_count(self.seed, 0, "seed", KinredundError)
+        spl = check_count(self.steps_per_loop, 1, "steps_per_loop", OptionError)
+        loops = check_count(self.loops, 1, "loops", OptionError)
+        check_size(spl * loops, f"loops x steps_per_loop ({loops} x {spl})", "samples", OptionError)
+        check_size(self.starts, "starts", "starts", OptionError)
+        check_count(self.seed, 0, "seed", OptionError)
         check_choice("scheme", self.scheme, SCHEMES)
         check_choice("mode", self.mode, MODES)
+        if self.limits is not None and not isinstance(self.limits, (bool, np.bool_)):
+            raise OptionError(f"limits must be None, True or False, got {self.limits!r}")
+        check_limits_option(None if self.limits is None else bool(self.limits), self.mode, self.scheme)  # once
         if self.duration is not None:
-            check_positive(self.duration, "duration [s]", KinredundError)
-            check_size(self.steps, "steps", "samples", KinredundError)
+            check_positive(self.duration, "duration [s]", OptionError)
+            check_size(self.steps, "steps", "samples", OptionError)
         if self.scene is not None and not isinstance(self.scene, SweepScene):
-            raise KinredundError(f"SweepOptions.scene must be a SweepScene (sweep_scene(scene, robot)), got "
+            raise OptionError(f"SweepOptions.scene must be a SweepScene (sweep_scene(scene, robot)), got "
                                  f"{type(self.scene).__name__}")
         check_clearance(self.clearance, self.scene is not None)
-        check_positive(self.clearance_resolution, "clearance_resolution [m]", KinredundError)
+        check_positive(self.clearance_resolution, "clearance_resolution [m]", OptionError)
 
 
 def check_clearance(c, scene: bool) -> float:
-    """``c`` if it is a finite distance >= 0 [m] (> 0 only with a ``scene``), else KinredundError."""
+    """``c`` if it is a finite distance >= 0 [m] (> 0 only with a ``scene``), else OptionError."""
     if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c < 0:
-        raise KinredundError(f"clearance must be a finite distance >= 0 [m], got {c!r}")
+        raise OptionError(f"clearance must be a finite distance >= 0 [m], got {c!r}")
     if c > 0 and not scene:
-        raise KinredundError(f"clearance = {c:g} m needs a scene (scene=, --scene FILE): the distances are its")
+        raise OptionError(f"clearance = {c:g} m needs a scene (scene=, --scene FILE): the distances are its")
     return float(c)
 
 

@@ -200,11 +200,13 @@ def sweep(robot: Robot, path: Path, index: Index | None, placements, *, steps_pe
 
     Raises:
         PlacementError: a placement that is not a rigid transform.
-        KinredundError: bad options, an unreachable scheduler, ``out`` from another sweep on resume.
+        OptionError: bad options, refused before any placement runs (limits asked of a mode or scheme that cannot
+            hold them: pass ``limits=False`` with ``mode="thesis"`` or a baseline scheme).
+        KinredundError: an unreachable scheduler, ``out`` from another sweep on resume.
     """
     T = check_placements(placements)
     check_clearance(clearance, scene is not None)  # before the scene is rebuilt
-    options = SweepOptions(steps_per_loop, loops, duration, steps, scheme, mode, bool(limits), bool(speed_limit),
+    options = SweepOptions(steps_per_loop, loops, duration, steps, scheme, mode, limits, bool(speed_limit),
                            starts, seed, sweep_scene(scene, robot), clearance,
                            clearance_resolution)
     if sum(x is not None for x in (client, scheduler, workers)) > 1:

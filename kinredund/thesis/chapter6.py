@@ -38,8 +38,8 @@ from kinredund.planning import spatial
 from kinredund.planning.clearance import link_model
 from kinredund.planning.obstacles import EllipseObstacle, Obstacle
 from kinredund.planning.planner import plan, wrist_reach
+from kinredund.planning.result import PlanResult
 from kinredund.planning.roadmap import plan_roadmap
-from kinredund.planning.stages import PlanResult, failure
 
 CASES = ("6.2", "6.3")
 PLANAR_CENTER = (0.9, 0.0)
@@ -103,7 +103,8 @@ def _run(case: str, samples: int, progress) -> tuple[PlanResult, dict, Robot, Ob
         extra = {"links": [float(v) for v in np.abs(robot.hd.a)], "feasibility": check,
                  "obstacle": obstacle.to_dict()}
         if not check["reachable"]:
-            return failure(check["reason"], link_model(robot).names, {}, cause="out_of_reach"), extra, robot, obstacle
+            return (PlanResult(False, check["reason"], cause="out_of_reach", link_names=link_model(robot).names), extra,
+                    robot, obstacle)
         result = plan(robot, path, obstacle, samples=samples, progress=progress, meta={"example": "6.2"})
         return result, extra, robot, obstacle
     # the policy's optima at the samples do not join into a collision-free loop on this arm; the branch

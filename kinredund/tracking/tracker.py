@@ -78,6 +78,28 @@ def _from_stepper(name: str, doc: str) -> property:
     return property(lambda self: getattr(self.stepper, name), doc=doc)
 
 
+def check_limits_option(limits, mode: str, scheme: str) -> bool:
+    """Whether a run with ``limits`` (None, True, False or a JointLimits) holds joint limits in this mode and
+    scheme: the one rule of the tracker, and of every options object that asks for a run (the sweep's).
+
+    None (the default) holds them wherever the scheme can (the default mode's augmented and velocity schemes);
+    False never; True or a JointLimits there only.
+
+    Raises:
+        OptionError: limits of another type, or asked of a mode or scheme that cannot hold them.
+    """
+    holds = mode == "default" and scheme in ("augmented", "velocity")
+    if limits is None or limits is False:
+        return holds and limits is None
+    if limits is not True and not isinstance(limits, JointLimits):
+        raise OptionError(f"limits must be None, True, False or a JointLimits, got {limits!r}")
+    if not holds:
+        raise OptionError(f"joint limits are held by the default mode's augmented and velocity schemes only, "
+                          f"not by mode={mode!r}, scheme={scheme!r}: pass limits=False (thesis mode's explicit "
+                          "steps have no corrector to hold them)")
+    return True
+
+
 class Tracker:
     """Tracks ``path`` from ``q0`` step by step: :meth:`step` advances by ``dt``.
 
@@ -193,20 +215,9 @@ class Tracker:
 
     @staticmethod
     def _limits(robot: Robot, limits, mode: str, scheme: str) -> JointLimits | None:
-        holds = mode == "default" and scheme in ("augmented", "velocity")
-        if limits is None:  # the default: held wherever the scheme can hold them
-            return JointLimits(robot) if holds else None
-        if limits is False:
+        if not check_limits_option(limits, mode, scheme):
             return None
-        if limits is True:
-            limits = JointLimits(robot)
-        if not isinstance(limits, JointLimits):
-            raise OptionError(f"limits must be None, True, False or a JointLimits, got {limits!r}")
-        if not holds:
-            raise OptionError(f"joint limits are held by the default mode's augmented and velocity schemes only, "
-                              f"not by mode={mode!r}, scheme={scheme!r}: pass limits=False (thesis mode's explicit "
-                              "steps have no corrector to hold them)")
-        return limits
+        return JointLimits(robot) if limits is None or limits is True else limits
 
     def step(self) -> None:  # replaced by the stepper's own bound method in __init__ (no extra call)
         """One time step: from (q, lambda) at t to t + dt."""

@@ -26,6 +26,16 @@ CASES = ("6.2", "6.3")
 CASE_SAMPLES, ROBOT_SAMPLES = 9, 24
 
 
+def print_plan_summary(summary: dict) -> None:
+    """A plan's summary (:meth:`kinredund.planning.result.PlanResult.summary`) as every plan prints it: its figures,
+    then its check's and its clearance's as ``check.NAME`` and ``clearance.NAME``; a failure's reason is printed
+    with the exit code (:func:`kinredund.ui.report.outcome`)."""
+    print_summary({k: v for k, v in summary.items() if k not in ("reason", "check", "clearance")})
+    for part in ("check", "clearance"):
+        if summary.get(part) is not None:
+            print_summary({f"{part}.{k}": v for k, v in summary[part].items()})
+
+
 def run_case(case: str, args, label: str) -> int:
     """Run a Chapter 6 case (``reproduce 6.x`` and ``plan 6.x``); EXIT_FAILED when the plan fails its check."""
     bar = progress_for(label, args)
@@ -40,7 +50,7 @@ def run_case(case: str, args, label: str) -> int:
         raise
     bar.close("done" if result.ok else "failed")
     print(f"Section {case}: off-line plan with collision avoidance")
-    print_summary({k: v for k, v in result.summary().items() if k != "reason"})  # a failure's reason: below
+    print_plan_summary(result.summary())
     wrote(args.json, args.plot)
     if args.plot is not None and result.trajectory is not None:
         wrote(snapshot_path(args.plot))
@@ -61,7 +71,7 @@ def _plan_robot(args) -> int:
         result = plan(robot, path, index, samples=ROBOT_SAMPLES if args.samples is None else args.samples,
                       starts=args.starts, seed=args.seed, loops=args.loops, steps_per_loop=args.steps,
                       q0=args.q0, refine_samples=args.refine_samples, follow=not args.no_follow,
-                      progress=lambda d, n: bar(d, n, "tracking"),
+                      progress=bar,
                       meta={"path": args.path, "index": args.index}, **options.scene_options(args, robot))
     except BaseException:
         bar.close()  # failed or interrupted (Progress.close reads the exception in flight)
@@ -69,10 +79,7 @@ def _plan_robot(args) -> int:
     bar.close("done" if result.ok else "failed")
     summary = result.summary()
     print(f"{robot.name}: cyclic plan along a {args.path}, task {robot.task}, index {args.index}")
-    print_summary({k: v for k, v in summary.items() if k not in ("reason", "check", "clearance")})
-    for part in ("check", "clearance"):
-        if summary[part] is not None:
-            print_summary({f"{part}.{k}": v for k, v in summary[part].items()})
+    print_plan_summary(summary)
     if result.trajectory is not None and args.json is not None:
         result.trajectory.save_json(args.json, extra={"plan": summary})
         wrote(args.json)
@@ -127,7 +134,7 @@ def add_parser(sub) -> None:
                         "the path starts at the home pose)")
     p.add_argument("--index", choices=("home", "min-norm", "mid-range"), default="home",
                    help="the performance index whose within-limits minima the plan follows (default: %(default)s)")
-    p.add_argument("--samples", type=at_least(4, "samples"), metavar="N",
+    p.add_argument("--samples", type=at_least(4, "plan_samples"), metavar="N",
                    help=f"sample points per loop, at least 4 for the cubic spline (default: {ROBOT_SAMPLES} for a "
                         f"robot, {CASE_SAMPLES} for 6.2; 6.3 plans on a roadmap instead)")
     p.add_argument("--starts", type=at_least(1, "starts"), default=8, metavar="N",
@@ -137,7 +144,7 @@ def add_parser(sub) -> None:
                    help="loops tracked; the check requires closure after each (default: %(default)s)")
     p.add_argument("--steps", type=at_least(4, "samples"), default=200, metavar="N",
                    help="tracking steps per loop (default: %(default)s)")
-    p.add_argument("--refine-samples", type=at_least(0, "samples"), default=24, metavar="N",
+    p.add_argument("--refine-samples", type=at_least(0, "plan_samples"), default=24, metavar="N",
                    help="sample times added where no closed walk exists at the sampling (default: %(default)s)")
     p.add_argument("--no-follow", action="store_true",
                    help="track the spline reference all along instead of z's own optimum wherever it is strongly "

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure  # Agg canvas, no pyplot state
 
-from kinredund.planning.stages import PlanResult
+from kinredund.planning.result import PlanResult
 from kinredund.thesis import chapter4, chapter6, helix_3_2
 from kinredund.trajectory import Trajectory
 from kinredund.ui.plan_plots import plot_plan, snapshot_figure

@@ -12,7 +12,8 @@ import numpy as np
 UNITS = {"position_error_max": "m", "axis_error_max": "rad", "max_position_residual": "m", "clearance_min": "m",
          "clearance_lower_bound": "m", "clearance_doubling_change": "m", "penetration_max": "m",
          "spline_gap_max": "rad", "loop_drift": "rad", "theta3_ref_deg": "deg", "theta4_ref_deg": "deg",
-         "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m"}
+         "max_joint_step_deg": "deg", "timings_s": "s", "wrist_reach_needed": "m", "wrist_reach_available": "m",
+         "off_optimum": "s"}
 
 
 def _number(v) -> str:
@@ -39,6 +40,8 @@ def format_value(key: str, value) -> str:
     if isinstance(value, (list, tuple)):
         if all(isinstance(v, str) for v in value):
             return ", ".join(value)
+        if all(isinstance(v, (list, tuple)) for v in value):  # intervals: [a, b] pairs
+            return "; ".join(f"[{', '.join(_number(x) for x in v)}]" for v in value) + suffix
         items = [_number(v) for v in value]
         if len(items) <= 7:
             return f"[{', '.join(items)}]{suffix}"
