@@ -48,7 +48,12 @@ POSE_CASES = {
 def case(name):
     """(robot, path, index, q0): the circle and the bounded optimum at its start."""
     pose = name in POSE_CASES
-    rname, qs, n, ax, rad = (POSE_CASES if pose else CASES)[name]
+    return circle_case(*(POSE_CASES if pose else CASES)[name], pose=pose)
+
+
+def circle_case(rname, qs, n, ax, rad, pose=False):
+    """(robot, path, index, q0) of a circle of radius ``rad`` [m] at 0.1 m/s through the end point at ``qs``
+    (plane normal ``n``, start direction ``-ax``), z = 1/2 ||q - q_home||^2 and the bounded optimum at t = 0."""
     r = robot(rname, "pose" if pose else "position")
     qs, n, ax = np.array(qs), np.array(n, float), np.array(ax, float)
     n /= np.linalg.norm(n)

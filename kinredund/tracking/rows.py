@@ -246,6 +246,26 @@ class GeneralRows:
             err.watched["underlying_cause"] = err.cause
             err.cause = cause
         err.watched["constraints"] = self.row_names(sorted(involved))
+        notes = self._discontinuities(snap, involved, err.watched.get("substep_q"))
+        if notes:
+            err.watched["nonsmooth"] = notes
+            err.args = (f"{err.args[0]}; {'; '.join(notes)}",) + tuple(err.args[1:])
+
+    def _discontinuities(self, snap, involved, near=None) -> list[str]:
+        """What the involved rows' constraints say of gradient jumps (:meth:`Constraint.discontinuities`) on the
+        way the run went in its last step (from its start ``snap`` to the nearest good sub-step point ``near``),
+        along the step's motion from there (the rates at the start times dt) and 1e-3 [rad] along each joint."""
+        q = np.asarray(snap.q if near is None else near, float)
+        probes = [(np.asarray(snap.q, float), q - snap.q)] if near is not None else []
+        probes += [(q, np.asarray(snap.qdot, float) * self.dt)] if snap.qdot is not None else []
+        probes += [(q, s * 1e-3 * e) for e in np.eye(self.n) for s in (1.0, -1.0)]
+        notes: list[str] = []
+        for ci in sorted({self.row_pairs[f][0] for f in involved}):
+            rows = [self.row_pairs[f][1] for f in sorted(involved) if self.row_pairs[f][0] == ci]
+            for start, dq in probes:
+                notes += [m for m in self.general[ci].discontinuities(start, dq, rows)
+                          if m.split(" is not")[0] not in " ".join(notes)]
+        return notes
 
     def _rates_stale(self, y: np.ndarray) -> bool:
         """Did the corrector end far from the prediction ``y`` (farther than 1e-8 [rad or m])? Its rates,

@@ -21,7 +21,8 @@ Two kinds are held, told apart by :meth:`Constraint.bounds`:
 
 A new constraint is one subclass: ``size``, ``values``, ``gradients``, ``names`` and, for general rows,
 ``curvature`` (analytic; the default takes central differences of the gradients) and ``cause`` (the
-TrackingError cause a run that cannot hold it stops with).
+TrackingError cause a run that cannot hold it stops with). Optional: ``discontinuities`` (where a row's
+gradient jumps: asked only when a run stops with the row active, to say why in the stop's message).
 """
 
 from __future__ import annotations
@@ -83,3 +84,13 @@ class Constraint(abc.ABC):
             e[k] = eps
             H[:, k] = w @ (self.gradients(q + e)[rows] - self.gradients(q - e)[rows]) / (2 * eps)
         return 0.5 * (H + H.T)
+
+    def discontinuities(self, q: np.ndarray, dq: np.ndarray, rows) -> list[str]:
+        """Messages for those of the inequalities ``rows`` whose gradient jumps on the segment from q to q + dq.
+
+        The stepper holds a row by Newton's method on its value and gradient, so a row whose gradient is
+        discontinuous where the optimum presses on it cannot be held as one row; a run that stops with rows
+        active asks this to name that. The default (continuous gradients, as the joint limits and the frame
+        clearances have) finds none.
+        """
+        return []

@@ -40,7 +40,13 @@ went on; on the named test case both hold the clearance.
 Smoothness: a sphere (any strictly convex object) against a hull has a continuously differentiable distance
 while apart, so its row changes continuously as the witness feature changes (a face, an edge, a vertex).
 Between two polytopes (two hulls: the self pairs) it is not where faces or edges come parallel (the witness
-points are not unique); there the held optimum may jump, and the strict step control stops the run.
+points are not unique): there the distance is the least of two smooth pieces (one per end of the parallel
+features), its gradient jumps, and where the optimum presses the two faces together (a finger's pad laid
+flat on a link) it sits on that corner, which would need both pieces as rows. One row per pair cannot hold
+it: the corrector, switching between the pieces, does not converge and the strict step control stops the
+run (``collision``); :meth:`SceneClearance.discontinuities` finds the jump (bisection of the witness points)
+and the stop's message says so (measured on the Panda's hulls, panda_elbow_circle: the right finger's pad
+against panda_link2's hull, witness points jumping 1.5 cm across 5e-5 rad of joint 5).
 """
 
 from __future__ import annotations
@@ -59,6 +65,9 @@ CURVATURES = ("differences", "witness")
 SKIP_MARGIN = 0.005
 #: the default broadphase reach beyond the largest clearance [m]
 INFLUENCE_MARGIN = 0.05
+#: a pair's witness points that move by more than JUMP [m] across a joint move of at most JUMP_STEP [rad]
+#: (bisected down to it) have jumped: its distance is not differentiable there (:meth:`discontinuities`)
+JUMP, JUMP_STEP = 1e-6, 1e-10
 
 
 def _clearance(value, what: str) -> float:
@@ -203,3 +212,36 @@ class SceneClearance(Constraint):
         if not np.any(weight):
             return np.zeros((len(q), len(q)))
         return self.scene.distance_curvature(np.asarray(q, float), rec, weight)
+
+    def discontinuities(self, q: np.ndarray, dq: np.ndarray, rows) -> list[str]:
+        """The rows among ``rows`` whose witness points jump on the segment q -> q + dq (module docstring).
+
+        Per row: where the pair's witness points at the ends differ by more than :data:`JUMP`, the segment is
+        bisected towards the half where they move more, down to :data:`JUMP_STEP` [rad]; witness points that
+        still differ by more than :data:`JUMP` there have jumped (a continuous motion shrinks with the segment).
+        """
+        q, dq, out = np.asarray(q, float), np.asarray(dq, float), []
+        for i in rows:
+            pair = self.pairs[int(i)]
+            one = self.scene.only([pair])
+
+            def witness(x, one=one):
+                rec = one.distances(x)
+                return np.concatenate([rec.point_a[0], rec.point_b[0]])
+
+            a, b = q, q + dq
+            wa, wb = witness(a), witness(b)
+            if not np.linalg.norm(wb - wa) > JUMP:
+                continue
+            while np.abs(b - a).max() > JUMP_STEP:
+                m = 0.5 * (a + b)
+                wm = witness(m)
+                a, wa, b, wb = (a, wa, m, wm) if np.linalg.norm(wm - wa) >= np.linalg.norm(wb - wm) else (m, wm, b, wb)
+            jump = float(np.linalg.norm(wb - wa))
+            if jump > JUMP:
+                away = float(np.abs(a - q).max())
+                out.append(f"the distance of {pair[0]} and {pair[1]} is not differentiable {away:.2g} rad from a "
+                           f"last good point: its witness points jump by {jump:.3g} m there (faces or edges of the two "
+                           "convex shapes parallel), a corner one row per pair cannot hold")
+        return out
+
