@@ -155,10 +155,24 @@ class GeneralRows:
     def _row_values(self, q: np.ndarray) -> np.ndarray:
         """c of every general row at q [m] (kept for the same q array: the steppers never change one in place)."""
         if self._vals_key is not q:
-            vals = [c.values(q) for c in self.general]
-            self._vals = np.concatenate(vals) if vals else np.zeros(0)
-            self._vals_key = q
+            self._vals, self._vals_key = self._values_at(q), q
         return self._vals
+
+    def _values_at(self, q: np.ndarray) -> np.ndarray:
+        """c of every general row at q [m], afresh."""
+        vals = [c.values(q) for c in self.general]
+        return np.concatenate(vals) if vals else np.zeros(0)
+
+    def _segment_bounds(self, q0, q1, c0, c1, move) -> np.ndarray:
+        """Lower bounds on every general row along the step from q0 to q1 (-inf where a constraint knows none:
+        :meth:`Constraint.segment_lower_bounds`)."""
+        out, k = [], 0
+        for c in self.general:
+            part = slice(k, k + c.size)
+            bound = c.segment_lower_bounds(q0, q1, c0[part], c1[part], move)
+            out.append(np.full(c.size, -np.inf) if bound is None else bound)
+            k += c.size
+        return np.concatenate(out) if out else np.zeros(0)
 
     def row_names(self, rows) -> list[str]:
         names = [c.names() for c in self.general]

@@ -17,12 +17,25 @@ from scipy.optimize import brentq
 
 from kinredund.errors import KinredundError
 from kinredund.tracking.linalg import bound_rate_qp
+from kinredund.tracking.rows import ROW_TOL
 from kinredund.tracking.state import ConstrainedState
 
 #: the switching time is solved to this accuracy [s] (Brent's method): far below the 1e-9 s asked for
 SWITCH_XTOL = 1e-14
 #: the most switches resolved within one step (more means chattering: the optimum is not strongly stable)
 MAX_SWITCHES_PER_STEP = 8
+#: where inside a step (fractions of it) a row that may dip below zero is sampled (:meth:`_row_dips`)
+DIP_SAMPLES = (0.25, 0.5, 0.75)
+
+
+def _hermite(s: float) -> np.ndarray:
+    """The cubic Hermite basis at s in [0, 1]: weights of (y0, h y0', y1, h y1')."""
+    return np.array([2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2])
+
+
+_DIP_AT = np.linspace(0.0, 1.0, 65)
+#: the quartic through a row's values at s = 0, DIP_SAMPLES, 1, evaluated at _DIP_AT
+_DIP_FIT = np.vander(_DIP_AT, 5) @ np.linalg.inv(np.vander(np.array([0.0, *DIP_SAMPLES, 1.0]), 5))
 
 
 class SwitchLocation:
@@ -63,8 +76,14 @@ class SwitchLocation:
             return self._watch(joint, kind)
 
         t_start = snap.t
-        if phi(t_start) <= 0.0:
-            return t_start
+        f = phi(t_start)
+        if f <= 0.0:
+            # zero at the start to rounding (switched there: a row's multiplier from 0, a joint leaving its
+            # bound) and below zero at t_end: it went up and came back within the step (a short contact)
+            inside = self._positive_inside(phi, t_start, t_end) if f >= -self._zero_of(kind) else None
+            if inside is None:
+                return t_start
+            t_start = inside
         try:
             return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
         except (ValueError, RuntimeError, KinredundError) as err:
@@ -72,14 +91,71 @@ class SwitchLocation:
             raise self._failure("switch_not_resolved", f"the switch of {self._event_name(joint, kind)} "
                                 f"({kind}) within ({t_start:.6g}, {t_end:.6g}] s could not be located: {err}") from err
 
+    def _row_dips(self, snap: ConstrainedState) -> list[tuple[int, float]]:
+        """(row, tau) of each general row inactive at both ends of the step from ``snap`` to now, >= 0 at both,
+        that dips below zero inside it: c < -ROW_TOL at time tau on the corrected path.
+
+        A row is looked at where its constraint's lower bound along the step
+        (:meth:`~kinredund.tracking.constraints.base.Constraint.segment_lower_bounds`, for the joints' motion
+        max(|dq|, h max(|qdot_0|, |qdot_1|)) + h |qdot_1 - qdot_0| / 4) is below zero, or unknown: its values at
+        the points of :data:`DIP_SAMPLES` on the cubic Hermite of the joints through the ends and their rates,
+        with the ends', give a quartic in time; where its least value on the step is below -ROW_TOL, the path
+        is corrected at that time (an Euler prediction from the start and the corrector) and the row's value
+        there decides. A dip narrower than the samples resolve (a quartic through five points) is missed.
+        """
+        h = self.t - snap.t
+        if not self.row_pairs or snap.qdot is None or not h > 0.0:
+            return []
+        q0, q1, v0, v1 = snap.q, self.q, snap.qdot, self.qdot
+        c0, c1 = self._values_at(q0), self._row_values(q1)
+        move = np.maximum(np.abs(q1 - q0), h * np.maximum(np.abs(v0), np.abs(v1))) + 0.25 * h * np.abs(v1 - v0)
+        maybe = self._segment_bounds(q0, q1, c0, c1, move) < -ROW_TOL
+        maybe[list(set(self.rows) | set(snap.rows))] = False
+        maybe &= (c0 >= -ROW_TOL) & (c1 >= -ROW_TOL)
+        if not maybe.any():
+            return []
+        ends = np.array([q0, h * v0, q1, h * v1])
+        C = np.vstack([c0, *[self._values_at(_hermite(s) @ ends) for s in DIP_SAMPLES], c1])[:, maybe]
+        fit = _DIP_FIT @ C
+        low = fit.min(axis=0) < -ROW_TOL
+        if not low.any():
+            return []
+        state_end, out = self.state, []
+        for row, at in zip(np.flatnonzero(maybe)[low].tolist(), fit.argmin(axis=0)[low].tolist(), strict=True):
+            tau = snap.t + float(_DIP_AT[at]) * h
+            self.state = snap
+            self.euler_to(tau)
+            if self._values_at(self.q)[row] < -ROW_TOL:
+                out.append((row, tau))
+        self.state = state_end
+        return out
+
+    def _zero_of(self, kind: str) -> float:
+        """The rounding of a watched quantity that is zero by construction where it was switched: a
+        multiplier's (the corrector's tolerance on grad z), a row's (ROW_TOL), a joint's margin (exact)."""
+        if kind in ("release", "row_release"):
+            return 1e-12 * max(1.0, float(np.abs(self.pt.grad).max()))
+        return ROW_TOL if kind == "row_reach" else 0.0
+
+    @staticmethod
+    def _positive_inside(phi, t_start: float, t_end: float, samples: int = 8) -> float | None:
+        """The first of ``samples - 1`` evenly spaced times inside (t_start, t_end) where phi > 0, or None."""
+        for k in range(1, samples):
+            tau = t_start + (t_end - t_start) * k / samples
+            if phi(tau) > 0.0:
+                return tau
+        return None
+
     def _resolve_switches(self, snap: ConstrainedState) -> None:
         t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
         for _ in range(MAX_SWITCHES_PER_STEP):
             events = self._events()
-            if not events:
+            dips = self._row_dips(snap)  # a row below zero inside the step only
+            if not (events or dips):
                 return
             state_end = self.state
             times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
+            times += [(self._crossing(snap, tau, j, "row_reach"), j, "row_reach") for j, tau in dips]
             self.state = state_end
             tau, joint, kind = min(times)
             self.state = snap

@@ -185,6 +185,14 @@ class SceneClearance(Constraint):
     def values(self, q: np.ndarray) -> np.ndarray:
         return self._query(q, rows=False)[3].copy()
 
+    def segment_lower_bounds(self, q0, q1, c0, c1, move) -> np.ndarray | None:
+        """(c0 + c1 - B move) / 2 [m]: pair k's distance changes by at most B_k . |dq| along the way
+        (``Scene.motion_bound``), so at any point of it c_k >= c0_k - B_k . m0 and >= c1_k - B_k . m1 with
+        m0 + m1 <= move; None where q0 or q1 slid a prismatic joint beyond its limits' extent."""
+        if not (self._boxed(np.asarray(q0, float)) and self._boxed(np.asarray(q1, float))):
+            return None
+        return 0.5 * (np.asarray(c0) + np.asarray(c1) - self._bound @ np.asarray(move, float))
+
     def gradients(self, q: np.ndarray) -> np.ndarray:
         return self._query(q)[4].copy()
 
