@@ -88,6 +88,7 @@ class Scene:
                  collision_urdf=None, srdf=None):
         self.robot = robot
         self.geometry = geometry
+        self._options = {"capsule_radius": capsule_radius, "collision_urdf": collision_urdf, "srdf": srdf}
         self._robot_geom = robot_geometry(robot, geometry, capsule_radius=capsule_radius,
                                           collision_urdf=collision_urdf, srdf=srdf)
         if pairs is None:
@@ -104,6 +105,23 @@ class Scene:
         self._objects: dict[str, SceneObject] = {}
         self._ignored: set[frozenset] = set()
         self._local = threading.local()
+        self._build()
+
+    # -- pickling (a sweep's workers, Dask) ------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """What rebuilds the scene: the robot, the geometry's options, the pair matrix, the objects (coal's
+        shapes left out: made again from their shape and numbers; a mesh from its file, which must be there
+        where it is unpickled) and the ignored pairs. The per-thread workspaces are not part of it."""
+        return {"robot": self.robot, "geometry": self.geometry, "pairs": self.pair_matrix, "options": self._options,
+                "objects": [(o.name, o.shape, o.params, o.pose, o.attach_to) for o in self._objects.values()],
+                "ignored": [tuple(sorted(p)) for p in self._ignored]}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["robot"], geometry=state["geometry"], pairs=state["pairs"], **state["options"])
+        for name, shape, params, pose, attach_to in state["objects"]:
+            self._objects[name] = SceneObject(name, shape, params, np.asarray(pose, float), attach_to,
+                                              _make_shape(shape, params))
+        self._ignored = {frozenset(p) for p in state["ignored"]}
         self._build()
 
     # -- objects --------------------------------------------------------------------------------

@@ -137,6 +137,18 @@ class SceneClearance(Constraint):
         self._bound = scene.motion_bound(self._extent)[self.index]
         self._local = threading.local()
 
+    def __getstate__(self) -> dict:
+        """Everything but this thread's last query (the scene pickles as what rebuilds it)."""
+        return {k: v for k, v in self.__dict__.items() if k != "_local"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if tuple(self.scene.pairs) != tuple(self._scene_pairs):
+            raise OptionError("the unpickled scene checks other pairs than the pickled one (a robot or a pair "
+                              "matrix that changed in between): make the SceneClearance again")
+        self._scene_pairs = self.scene.pairs  # the rebuilt scene's own tuple (the guard compares identity)
+        self._local = threading.local()
+
     @property
     def size(self) -> int:
         return len(self.index)
