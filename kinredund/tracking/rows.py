@@ -130,6 +130,7 @@ class GeneralRows:
                                   f"bounds go in limits=; got {c!r}")
         self.row_pairs = [(ci, ri) for ci, c in enumerate(self.general) for ri in range(c.size)]
         self._vals_key, self._vals = None, None
+        self._prev_key, self._prev_vals = None, None  # and the values before them (:meth:`_row_values`)
         values = self._row_values(q0)
         bad = np.flatnonzero(values < -1e-10)
         if bad.size:
@@ -153,8 +154,12 @@ class GeneralRows:
         return row_point(pt, self.general, [self.row_pairs[f] for f in self.rows])
 
     def _row_values(self, q: np.ndarray) -> np.ndarray:
-        """c of every general row at q [m] (kept for the same q array: the steppers never change one in place)."""
+        """c of every general row at q [m] (the last two kept, by the q array: the steppers never change one in
+        place)."""
         if self._vals_key is not q:
+            if self._prev_key is q:  # the one before (a step's start, after its end was asked for)
+                return self._prev_vals
+            self._prev_key, self._prev_vals = self._vals_key, self._vals
             self._vals, self._vals_key = self._values_at(q), q
         return self._vals
 

@@ -135,6 +135,7 @@ class SceneClearance(Constraint):
         robot = scene.robot  # row k's distance changes by at most bound[k] @ |dq| between q in the box |q| <= extent
         self._extent = np.where(robot.revolute, np.inf, np.maximum(np.abs(robot.lower), np.abs(robot.upper)))
         self._bound = scene.motion_bound(self._extent)[self.index]
+        self._slides = np.flatnonzero(np.isfinite(self._extent))  # the prismatic joints (the box's only sides)
         self._local = threading.local()
 
     def __getstate__(self) -> dict:
@@ -192,7 +193,8 @@ class SceneClearance(Constraint):
 
     def _boxed(self, q: np.ndarray) -> bool:
         """Is q where the motion bound holds (no prismatic joint slid beyond its limits' extent)?"""
-        return bool(np.all(np.abs(q) <= self._extent))
+        k = self._slides
+        return True if not len(k) else bool(np.all(np.abs(q[k]) <= self._extent[k]))
 
     def values(self, q: np.ndarray) -> np.ndarray:
         return self._query(q, rows=False)[3].copy()
