@@ -111,7 +111,9 @@ class Optimality:
     active: np.ndarray
 
 
-def _target(robot, target) -> Target:
+def as_target(robot, target) -> Target:
+    """``target`` as a Target of the robot's task: a Target of that task, a path's sample, or what the task's
+    ``make_target`` takes; else TaskError."""
     if isinstance(target, Target):
         if target.task != robot.task:
             raise TaskError(f"the target is for a {target.task!r} task but {robot.name} has task {robot.task!r}")
@@ -170,7 +172,7 @@ def check_optimality(robot, target, q, index: Index | None = None, *, bounds: bo
     """
     q = robot.check_q(q, "q")
     bounds = check_flag(bounds, "bounds", TaskError)
-    res = task_residual(_target(robot, target))
+    res = task_residual(as_target(robot, target))
     return _optimality(robot, res, q, index, bounds, check_index_at(robot, index, q))
 
 
@@ -318,7 +320,7 @@ def solve_ik(
     """
     t0 = perf_counter()
     _check_options(robot, starts, tol, max_iter, timeout, seed, bounds)
-    tgt = _target(robot, target)
+    tgt = as_target(robot, target)
     q0 = robot.home.copy() if q0 is None else robot.check_q(q0, "q0").copy()
     check_index_at(robot, index, q0)
     notes = ""
