@@ -113,3 +113,19 @@ def test_a_jump_of_the_witness_points_is_found():
     assert c.discontinuities(q, 1e-4 * e[6], [flat]) == []
     assert c.discontinuities(q, 1e-4 * e[4], [c.pairs.index(("panda_link1_0", "panda_leftfinger_3"))]) == []
     assert kr.SphereClearance(r, "panda_link7", [0, 0, 0], 0.1).discontinuities(q, e[4], [0]) == []  # the default
+
+
+@pytest.mark.slow
+def test_a_plan_holds_the_hand_off_the_upper_arm_on_the_optimum():
+    """``plan(..., scene=, self_clearance=)`` on the named case: the candidates where the free minimum is under
+    the self clearance are the minima that keep it (the bounded IK with the distance rows), the motion holds the
+    pair at the clearance over part of each loop, and that stretch is not off the optimum (off_optimum is
+    empty; measured without the rows it was ((1.21, 2.00),))."""
+    r, path, index, q0, sc = setup()
+    res = kr.plan(r, path, index, scene=sc, self_clearance=SELF_CLEARANCE, samples=12, starts=4, loops=2)
+    assert res.ok, res.reason
+    tr = res.trajectory
+    active = np.array([bool(a) for a in tr.meta["constraints"]["active"]])
+    assert active.sum() > 20 and least_distance(sc, tr.q).min() >= SELF_CLEARANCE - 1e-9
+    assert min(least_distance(sc, c).min() for c in res.samples.candidates) >= SELF_CLEARANCE - 1e-9
+    assert res.off_optimum == ()
