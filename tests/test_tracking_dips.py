@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from test_tracking_limits import case
+from test_tracking_limits import bisected, case
 
 import kinredund as kr
 
@@ -67,10 +67,4 @@ def test_the_graze_is_met_and_left_inside_the_step():
         def margin(t, seed=seed):
             return float(sphere.values(optimum_at(t, seed))[0])
 
-        f_lo = margin(lo)
-        assert f_lo * margin(hi) < 0  # one crossing on each side of the middle
-        while hi - lo > 1e-11:  # bisection on the within-limits optimum's clearance, independent of Brent
-            mid = 0.5 * (lo + hi)
-            f = margin(mid)
-            lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
-        assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
+        assert abs(bisected(margin, lo, hi) - w["t"]) <= 1e-9  # one crossing on each side of the middle

@@ -76,6 +76,18 @@ def run(name, loops=10, limits=True, scheme="augmented"):
     return track(r, path, index, q0, loops=loops, limits=limits, scheme=scheme)
 
 
+def bisected(f, lo: float, hi: float) -> float:
+    """The time [s] in (lo, hi) where f changes sign, by bisection to 1e-11 s (f must change sign there):
+    an independent check of the tracker's switching times (Brent's method to 1e-14 s)."""
+    f_lo = f(lo)
+    assert f_lo * f(hi) < 0  # a crossing in the bracket
+    while hi - lo > 1e-11:
+        mid = 0.5 * (lo + hi)
+        f_mid = f(mid)
+        lo, hi, f_lo = (mid, hi, f_mid) if f_mid * f_lo > 0 else (lo, mid, f_lo)
+    return 0.5 * (lo + hi)
+
+
 def excess(r, q):
     """The largest excursion beyond the limits [rad] (<= 0 inside)."""
     q = np.atleast_2d(q)
@@ -147,15 +159,11 @@ def test_switching_times_agree_with_bisection_on_the_free_optimum():
     for w in switches[:2]:
         j, bound = w["joint"], (r.lower if w["bound"] == "lower" else r.upper)[w["joint"]]
         seed = np.array(w["q"])
-        lo, hi = w["t"] - 0.5 * dt, w["t"] + 0.5 * dt
-        f_lo = _free_optimum(r, index, path, lo, seed)[j] - bound
-        f_hi = _free_optimum(r, index, path, hi, seed)[j] - bound
-        assert f_lo * f_hi < 0  # the free optimum crosses the bound within the bracket
-        while hi - lo > 1e-11:
-            mid = 0.5 * (lo + hi)
-            f = _free_optimum(r, index, path, mid, seed)[j] - bound
-            lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
-        assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
+
+        def margin(t, j=j, bound=bound, seed=seed):  # the free optimum crosses the bound within the bracket
+            return _free_optimum(r, index, path, t, seed)[j] - bound
+
+        assert abs(bisected(margin, w["t"] - 0.5 * dt, w["t"] + 0.5 * dt) - w["t"]) <= 1e-9
 
 
 def test_rates_match_central_differences_between_switches():

@@ -24,7 +24,7 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
-from test_tracking_limits import case, circle_case
+from test_tracking_limits import bisected, case, circle_case
 
 import kinredund as kr
 from kinredund.errors import OptionError, TrackingError
@@ -310,22 +310,14 @@ def test_switching_times_agree_with_bisection(name):
     lone = lone_switches(tr.meta["switches"])
     assert [w["kind"] for w in lone] == ["reach", "release"]
     for w in lone:
-        pair = tuple(w["name"].split(" kept")[0].split(" and "))
+        pair, seed = tuple(w["name"].split(" kept")[0].split(" and ")), np.array(w["q"])
 
-        def margin(t, seed, pair=pair):
+        def margin(t, seed=seed, pair=pair):
             res = kr.solve_ik(r, path(t).p, index, q0=seed, bounds=True, tol=1e-12)
             assert res.converged
             return float(sc.distances(res.q).as_dict()[pair]) - CLEARANCE
 
-        seed = np.array(w["q"])
-        lo, hi = w["t"] - 0.5 * dt, w["t"] + 0.5 * dt
-        f_lo = margin(lo, seed)
-        assert f_lo * margin(hi, seed) < 0  # a crossing in the bracket
-        while hi - lo > 1e-11:
-            mid = 0.5 * (lo + hi)
-            f = margin(mid, seed)
-            lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
-        assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
+        assert abs(bisected(margin, w["t"] - 0.5 * dt, w["t"] + 0.5 * dt) - w["t"]) <= 1e-9
 
 
 def test_a_scene_of_another_robot_with_the_same_joint_names_is_refused():

@@ -21,8 +21,8 @@ import functools
 import numpy as np
 import pytest
 from test_tracking_clearance import kkt_check
-from test_tracking_limits import circle_case
-from test_tracking_scene import _Row
+from test_tracking_limits import bisected, circle_case
+from test_tracking_scene import _Row, lone_switches
 
 import kinredund as kr
 
@@ -83,6 +83,27 @@ def test_first_order_conditions_with_the_self_row_hold_independently():
     c = kr.SceneClearance(sc, self_clearance=SELF_CLEARANCE)
     worst, seen = kkt_check(r, index, run(), [_Row(c, i) for i in range(c.size)])
     assert seen > 10 and worst <= 1e-9
+
+
+def test_switching_times_agree_with_bisection():
+    """The pair is met where the within-limits optimum's distance crosses the self clearance and left where
+    the held one's multiplier reaches zero, which is the same crossing: bisection on the bounded joint-level
+    IK's optimum (to 1e-12) and coal's distance of the pair, independent of the tracker's Brent search, to
+    1e-9 s."""
+    r, path, index, _, sc = setup()
+    tr = run()
+    dt = tr.meta["dt"]
+    lone = lone_switches(tr.meta["switches"])
+    assert [w["kind"] for w in lone] == ["reach", "release"]
+    for w in lone:
+        seed = np.array(w["q"])
+
+        def margin(t, seed=seed):
+            res = kr.solve_ik(r, path(t).p, index, q0=seed, bounds=True, tol=1e-12)
+            assert res.converged
+            return float(sc.distances(res.q).as_dict()[PAIR]) - SELF_CLEARANCE
+
+        assert abs(bisected(margin, w["t"] - 0.5 * dt, w["t"] + 0.5 * dt) - w["t"]) <= 1e-9
 
 
 @pytest.mark.slow
