@@ -245,7 +245,8 @@ class SceneClearance(Constraint):
         q, dq, out = np.asarray(q, float), np.asarray(dq, float), []
         for i in rows:
             pair = self.pairs[int(i)]
-            one = self.scene.only([pair])
+            cache = self._local.__dict__.setdefault("only", {})  # this thread's one-pair scenes
+            one = cache.get(pair) or cache.setdefault(pair, self.scene.only([pair]))
 
             def witness(x, one=one):
                 rec = one.distances(x)
