@@ -68,3 +68,24 @@ def test_the_graze_is_met_and_left_inside_the_step():
             return float(sphere.values(optimum_at(t, seed))[0])
 
         assert abs(bisected(margin, lo, hi) - w["t"]) <= 1e-9  # one crossing on each side of the middle
+
+
+def test_segment_lower_bounds_hold_along_the_segment():
+    """The bounds that spare the sampling (Constraint.segment_lower_bounds) are lower bounds: on random short
+    straight joint moves, every one of 11 points along the segment keeps each row above its bound."""
+    from test_tracking_scene import setup as scene_setup
+
+    r, sc = scene_setup()[0], scene_setup()[4]
+    cs = [kr.SphereClearance(r, "panda_link7", [0.3, 0.1, 0.5], 0.05),
+          kr.PlaneClearance(r, "panda_link4", [0, 0, 0.2], [0, 0, 1]),
+          kr.SceneClearance(sc, self_clearance=0.01)]
+    rng = np.random.default_rng(5)
+    for _ in range(10):
+        q0 = rng.uniform(r.lower + 0.2, r.upper - 0.2)
+        q1 = q0 + rng.uniform(-0.05, 0.05, 7)
+        for c in cs:
+            c0, c1 = (sc.distances(x).distance - c.clearances if c is cs[2] else c.values(x) for x in (q0, q1))
+            bound = c.segment_lower_bounds(q0, q1, c0, c1, np.abs(q1 - q0))
+            along = np.array([sc.distances(q0 + s * (q1 - q0)).distance - c.clearances if c is cs[2] else
+                              c.values(q0 + s * (q1 - q0)) for s in np.linspace(0.0, 1.0, 11)])
+            assert np.all(along >= bound - 1e-12)

@@ -299,28 +299,14 @@ class Scene:
 
     def object_reach(self, extent=None) -> np.ndarray:
         """L (objects, n) [m/rad or m/m]: along a straight joint path, joint j moves every point of object o
-        (in the geometry model's order: the robot's objects, then the scene's) by at most L[o, j] |dq_j|.
-
-        An object's points lie within its bounding spheres' farthest reach of its joint's origin; up the chain
-        each joint offset adds its length and a prismatic joint p its slide |q_p| (the triangle inequality), so
-        a revolute joint j moves them by at most that distance from its origin times |dq_j| (a prismatic one
-        by |dq_j|). ``extent`` (n,) [rad or m] bounds |q_j| over the motion (only the prismatic joints' count);
-        the default, max(|lower|, |upper|), holds within the robot's joint box.
+        (in the geometry model's order: the robot's objects, then the scene's) by at most L[o, j] |dq_j|: an
+        object's points lie within its bounding spheres' farthest reach of its joint's origin
+        (:meth:`~kinredund.model.robot.Robot.reach`; ``extent`` as there).
         """
-        model, robot = self.robot.model, self.robot
-        ext = np.maximum(np.abs(robot.lower), np.abs(robot.upper)) if extent is None else np.abs(extent)
         joints, centres, radii = self._spheres
         far = (np.linalg.norm(centres, axis=2) + radii).max(axis=1, initial=0.0)
-        L = np.zeros((len(joints), model.nv))
-        for o, k in enumerate(joints.tolist()):
-            reach, j = float(far[o]), k
-            while j > 0:  # joint j moves object o: its origin is within `reach` of every point of it
-                revolute = bool(robot.revolute[j - 1])
-                L[o, model.idx_vs[j]] = reach if revolute else 1.0
-                reach += float(np.linalg.norm(model.jointPlacements[j].translation))
-                reach += 0.0 if revolute else float(ext[model.idx_qs[j]])  # the slide moves the origin
-                j = model.parents[j]
-        return L
+        return np.array([self.robot.reach(k, float(f), extent) for k, f in zip(joints.tolist(), far, strict=True)]
+                        ).reshape(len(joints), self.robot.model.nv)
 
     def motion_bound(self, extent=None) -> np.ndarray:
         """B (pairs, n) [m/rad or m/m]: along a straight joint path from q to q', the distance of checked pair k
