@@ -15,7 +15,8 @@ same minimiser), solved through qpsolvers (proxqp to 1e-12), its multipliers the
 minimum with strict complementarity this is Newton's method on the first-order conditions (quadratic). The
 answer is checked independently of the QP: the task residual, c >= -tol, and the first-order conditions on the
 null space of [G; a_A; e_fixed] (rows within :data:`ACTIVE_TOL` of zero, joints on their limits) with
-least-squares multipliers of the right sign, and the reduced Hessian of the Lagrangian on that null space
+least-squares multipliers of the right sign (the rows push out, the limits hold their joints in), and the
+reduced Hessian of the Lagrangian on that null space
 positive definite (Eq. D.33 with the rows).
 """
 
@@ -118,9 +119,10 @@ def _convexified(M, C):
     return (V * np.maximum(np.abs(w), 1e-8 * max(1.0, float(np.abs(w).max())))) @ V.T
 
 
-def check_rows_optimality(robot, res, index, constraints, q, tol: float) -> tuple:
-    """(normality residual, active rows, their nu, the reduced Hessian's least eigenvalue, least row, terms) at
-    q: the module docstring's independent check (least-squares multipliers on [G; a_A; e_fixed])."""
+def check_rows_optimality(robot, res, index, constraints, q) -> tuple:
+    """(normality residual, active rows, their nu, the held limits' multipliers' least push outward (<= 0 where
+    each holds its joint in), the reduced Hessian's least eigenvalue, least row) at q: the module docstring's
+    independent check (least-squares multipliers on [G; a_A; e_fixed])."""
     t = _Terms(robot, res, index, q)
     c, A = _rows(constraints, q)
     act = np.flatnonzero(c <= ACTIVE_TOL)
@@ -132,12 +134,14 @@ def check_rows_optimality(robot, res, index, constraints, q, tol: float) -> tupl
     y = -(U[:, :rank] / s[:rank]) @ (Vt[:rank] @ t.grad)  # C^T y = -grad z in least squares
     Z = Vt[rank:].T
     normality = float(np.linalg.norm(Z.T @ t.grad))
-    lam, nu = y[:m], -y[m:m + len(act)]  # grad z + G^T lambda - a_A^T nu + e_fixed^T mu = 0
+    lam, nu = y[:m], -y[m:m + len(act)]  # grad z + G^T lambda - a_A^T nu + e_fixed^T y_f = 0
+    side = np.where(q[fixed] <= robot.lower[fixed] + ACTIVE_TOL, 1.0, -1.0)  # +1 on a lower limit
+    outward = float(np.max(side * y[m + len(act):], initial=-np.inf))  # y_f <= 0 on a lower limit, >= 0 upper
     w = np.zeros(len(c))
     w[act] = -nu
     M = t.lagrangian_hessian(res, lam) + _curvature(constraints, q, w)
     eig = float(np.linalg.eigvalsh(Z.T @ (0.5 * (M + M.T)) @ Z).min()) if Z.shape[1] else np.inf
-    return normality, tuple(int(i) for i in act), nu, eig, float(c.min()), t
+    return normality, tuple(int(i) for i in act), nu, outward, eig, float(c.min())
 
 
 def solve_ik_rows(robot, target, index, constraints, q0, tol: float = 1e-10, max_iter: int = 60) -> RowsIKResult:
@@ -169,16 +173,17 @@ def solve_ik_rows(robot, target, index, constraints, q0, tol: float = 1e-10, max
         c, A = _rows(constraints, q)
         near = np.flatnonzero((c < ROW_WINDOW) & np.any(A != 0.0, axis=1))
         if t.r <= tol and c.min() >= -tol:
-            normality, act, nu, eig, least, _ = check_rows_optimality(robot, res, index, constraints, q, tol)
+            normality, act, nu, outward, eig, least = check_rows_optimality(robot, res, index, constraints, q)
             ntol = max(tol, 1e-13 * (1.0 + float(np.abs(t.grad).max())))
-            if normality <= ntol and (nu >= -ntol).all():
+            if normality <= ntol and (nu >= -ntol).all() and outward <= ntol:
                 ok = eig > 0.0
                 why = "" if ok else f"a stationary point, not a minimum (reduced Hessian {eig:.3g})"
                 return RowsIKResult(q, ok, it, t.r, normality, t.z, ok, eig, why, min_row=least, active=act,
                                     multipliers=nu)
         if it == max_iter:
             break
-        lam = np.zeros(t.G.shape[0]) if w is None else w[0]
+        # the multipliers of the last QP (at the first iterate: the task's least-squares ones, Eq. 4.12)
+        lam = np.linalg.lstsq(t.G.T, -t.grad, rcond=None)[0] if w is None else w[0]
         curv = np.zeros(len(c)) if w is None else w[1]
         M = t.lagrangian_hessian(res, lam) + _curvature(constraints, q, curv)
         B = _convexified(M, np.vstack([t.G, A[near[curv[near] != 0.0]]]))
