@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_tracking_limits import case, excess
+from test_tracking_limits import bisected, case, excess
 
 import kinredund
 from kinredund.errors import ChoiceError, OptionError, TrackingError
@@ -152,14 +152,11 @@ def test_switching_times_agree_with_bisection(name):
     assert [w["kind"] for w in rows] == ["reach", "release"]
     for w in rows:
         seed = np.array(w["q"])
-        lo, hi = w["t"] - 0.5 * dt, w["t"] + 0.5 * dt
-        f_lo = _bounded_optimum_clearance(r, index, path, c, lo, seed)
-        assert f_lo * _bounded_optimum_clearance(r, index, path, c, hi, seed) < 0  # a crossing in the bracket
-        while hi - lo > 1e-11:
-            mid = 0.5 * (lo + hi)
-            f = _bounded_optimum_clearance(r, index, path, c, mid, seed)
-            lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
-        assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
+
+        def margin(t, seed=seed):
+            return _bounded_optimum_clearance(r, index, path, c, t, seed)
+
+        assert abs(bisected(margin, w["t"] - 0.5 * dt, w["t"] + 0.5 * dt) - w["t"]) <= 1e-9
 
 
 @pytest.mark.parametrize("name", CASES)

@@ -48,7 +48,12 @@ POSE_CASES = {
 def case(name):
     """(robot, path, index, q0): the circle and the bounded optimum at its start."""
     pose = name in POSE_CASES
-    rname, qs, n, ax, rad = (POSE_CASES if pose else CASES)[name]
+    return circle_case(*(POSE_CASES if pose else CASES)[name], pose=pose)
+
+
+def circle_case(rname, qs, n, ax, rad, pose=False):
+    """(robot, path, index, q0) of a circle of radius ``rad`` [m] at 0.1 m/s through the end point at ``qs``
+    (plane normal ``n``, start direction ``-ax``), z = 1/2 ||q - q_home||^2 and the bounded optimum at t = 0."""
     r = robot(rname, "pose" if pose else "position")
     qs, n, ax = np.array(qs), np.array(n, float), np.array(ax, float)
     n /= np.linalg.norm(n)
@@ -69,6 +74,18 @@ def case(name):
 def run(name, loops=10, limits=True, scheme="augmented"):
     r, path, index, q0 = case(name)
     return track(r, path, index, q0, loops=loops, limits=limits, scheme=scheme)
+
+
+def bisected(f, lo: float, hi: float) -> float:
+    """The time [s] in (lo, hi) where f changes sign, by bisection to 1e-11 s (f must change sign there):
+    an independent check of the tracker's switching times (Brent's method to 1e-14 s)."""
+    f_lo = f(lo)
+    assert f_lo * f(hi) < 0  # a crossing in the bracket
+    while hi - lo > 1e-11:
+        mid = 0.5 * (lo + hi)
+        f_mid = f(mid)
+        lo, hi, f_lo = (mid, hi, f_mid) if f_mid * f_lo > 0 else (lo, mid, f_lo)
+    return 0.5 * (lo + hi)
 
 
 def excess(r, q):
@@ -142,15 +159,11 @@ def test_switching_times_agree_with_bisection_on_the_free_optimum():
     for w in switches[:2]:
         j, bound = w["joint"], (r.lower if w["bound"] == "lower" else r.upper)[w["joint"]]
         seed = np.array(w["q"])
-        lo, hi = w["t"] - 0.5 * dt, w["t"] + 0.5 * dt
-        f_lo = _free_optimum(r, index, path, lo, seed)[j] - bound
-        f_hi = _free_optimum(r, index, path, hi, seed)[j] - bound
-        assert f_lo * f_hi < 0  # the free optimum crosses the bound within the bracket
-        while hi - lo > 1e-11:
-            mid = 0.5 * (lo + hi)
-            f = _free_optimum(r, index, path, mid, seed)[j] - bound
-            lo, hi, f_lo = (mid, hi, f) if f * f_lo > 0 else (lo, mid, f_lo)
-        assert abs(0.5 * (lo + hi) - w["t"]) <= 1e-9
+
+        def margin(t, j=j, bound=bound, seed=seed):  # the free optimum crosses the bound within the bracket
+            return _free_optimum(r, index, path, t, seed)[j] - bound
+
+        assert abs(bisected(margin, w["t"] - 0.5 * dt, w["t"] + 0.5 * dt) - w["t"]) <= 1e-9
 
 
 def test_rates_match_central_differences_between_switches():

@@ -88,6 +88,7 @@ class Scene:
                  collision_urdf=None, srdf=None):
         self.robot = robot
         self.geometry = geometry
+        self._options = {"capsule_radius": capsule_radius, "collision_urdf": collision_urdf, "srdf": srdf}
         self._robot_geom = robot_geometry(robot, geometry, capsule_radius=capsule_radius,
                                           collision_urdf=collision_urdf, srdf=srdf)
         if pairs is None:
@@ -104,6 +105,23 @@ class Scene:
         self._objects: dict[str, SceneObject] = {}
         self._ignored: set[frozenset] = set()
         self._local = threading.local()
+        self._build()
+
+    # -- pickling (a sweep's workers, Dask) ------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """What rebuilds the scene: the robot, the geometry's options, the pair matrix, the objects (coal's
+        shapes left out: made again from their shape and numbers; a mesh from its file, which must be there
+        where it is unpickled) and the ignored pairs. The per-thread workspaces are not part of it."""
+        return {"robot": self.robot, "geometry": self.geometry, "pairs": self.pair_matrix, "options": self._options,
+                "objects": [(o.name, o.shape, o.params, o.pose, o.attach_to) for o in self._objects.values()],
+                "ignored": [tuple(sorted(p)) for p in self._ignored]}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["robot"], geometry=state["geometry"], pairs=state["pairs"], **state["options"])
+        for name, shape, params, pose, attach_to in state["objects"]:
+            self._objects[name] = SceneObject(name, shape, params, np.asarray(pose, float), attach_to,
+                                              _make_shape(shape, params))
+        self._ignored = {frozenset(p) for p in state["ignored"]}
         self._build()
 
     # -- objects --------------------------------------------------------------------------------
@@ -281,28 +299,14 @@ class Scene:
 
     def object_reach(self, extent=None) -> np.ndarray:
         """L (objects, n) [m/rad or m/m]: along a straight joint path, joint j moves every point of object o
-        (in the geometry model's order: the robot's objects, then the scene's) by at most L[o, j] |dq_j|.
-
-        An object's points lie within its bounding spheres' farthest reach of its joint's origin; up the chain
-        each joint offset adds its length and a prismatic joint p its slide |q_p| (the triangle inequality), so
-        a revolute joint j moves them by at most that distance from its origin times |dq_j| (a prismatic one
-        by |dq_j|). ``extent`` (n,) [rad or m] bounds |q_j| over the motion (only the prismatic joints' count);
-        the default, max(|lower|, |upper|), holds within the robot's joint box.
+        (in the geometry model's order: the robot's objects, then the scene's) by at most L[o, j] |dq_j|: an
+        object's points lie within its bounding spheres' farthest reach of its joint's origin
+        (:meth:`~kinredund.model.robot.Robot.reach`; ``extent`` as there).
         """
-        model, robot = self.robot.model, self.robot
-        ext = np.maximum(np.abs(robot.lower), np.abs(robot.upper)) if extent is None else np.abs(extent)
         joints, centres, radii = self._spheres
         far = (np.linalg.norm(centres, axis=2) + radii).max(axis=1, initial=0.0)
-        L = np.zeros((len(joints), model.nv))
-        for o, k in enumerate(joints.tolist()):
-            reach, j = float(far[o]), k
-            while j > 0:  # joint j moves object o: its origin is within `reach` of every point of it
-                revolute = bool(robot.revolute[j - 1])
-                L[o, model.idx_vs[j]] = reach if revolute else 1.0
-                reach += float(np.linalg.norm(model.jointPlacements[j].translation))
-                reach += 0.0 if revolute else float(ext[model.idx_qs[j]])  # the slide moves the origin
-                j = model.parents[j]
-        return L
+        return np.array([self.robot.reach(k, float(f), extent) for k, f in zip(joints.tolist(), far, strict=True)]
+                        ).reshape(len(joints), self.robot.model.nv)
 
     def motion_bound(self, extent=None) -> np.ndarray:
         """B (pairs, n) [m/rad or m/m]: along a straight joint path from q to q', the distance of checked pair k

@@ -189,6 +189,26 @@ class Robot:
         """dK/dtheta, shape (6, n, n): dK[a, i, k] = dK[a, i]/dtheta_k (Eqs. 4.38-4.41)."""
         return self.kinematics.jacobian_derivative(self.check_q(q))[3]
 
+    def reach(self, joint: int, radius: float, extent=None) -> np.ndarray:
+        """L (n,) [m/rad or m/m]: along a straight joint path, joint j moves every point within ``radius`` [m] of
+        the origin of Pinocchio joint ``joint`` by at most L[j] |dq_j|.
+
+        Up the chain each joint offset adds its length and a prismatic joint p its slide |q_p| (the triangle
+        inequality), so a revolute joint j moves the points by at most their distance from its origin times
+        |dq_j| (a prismatic one by |dq_j|). ``extent`` (n,) [rad or m] bounds |q_j| over the motion (only the
+        prismatic joints' count); the default, max(|lower|, |upper|), holds within the robot's joint box.
+        """
+        model = self.model
+        ext = np.maximum(np.abs(self.lower), np.abs(self.upper)) if extent is None else np.abs(extent)
+        L, reach, j = np.zeros(model.nv), float(radius), int(joint)
+        while j > 0:  # joint j moves the points: its origin is within `reach` of every one of them
+            revolute = bool(self.revolute[j - 1])
+            L[model.idx_vs[j]] = reach if revolute else 1.0
+            reach += float(np.linalg.norm(model.jointPlacements[j].translation))
+            reach += 0.0 if revolute else float(ext[model.idx_qs[j]])  # the slide moves the origin
+            j = model.parents[j]
+        return L
+
     def sample_box(self, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi): the box random configurations are drawn from. The joint limits, with unbounded
         ones (beyond :data:`NO_LIMIT`) cut to [-pi, pi] (revolute) or [-1, 1] m (prismatic), shrunk by ``margin``

@@ -15,7 +15,9 @@ through the chosen optima (Eqs. 6.23-6.28), which between its knots is not the o
    reported. Where w = 1 the tracker follows z's own bounded optimum exactly.
 3. **Track and check.** The blended index is tracked (with the joint limits), verified like the reference
    motion, and measured again: the intervals where w < 1, and any recorded point whose independent solve
-   moves by more than :data:`FOLLOW_TOL`, are ``off_optimum``. Where the blended motion fails (a tracking
+   moves by more than :data:`FOLLOW_TOL`, are ``off_optimum``. With a scene, a point held at a clearance is
+   measured against z's optimum with the clearances as constraints (:func:`measure`), so a stretch where a
+   clearance is active is not off the optimum. Where the blended motion fails (a tracking
    stop or a failed check), the reference motion is kept and its measured intervals are reported.
 
 Units: times [s], joints [rad or m].
@@ -26,10 +28,13 @@ from __future__ import annotations
 import numpy as np
 
 from kinredund.errors import KinredundError
+from kinredund.ik.rows import solve_ik_rows
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import Index
 from kinredund.planning.walk import inside_limits, target_at
 from kinredund.tracking import track
+from kinredund.tracking.rows import ROW_TOL
+from kinredund.tracking.tracker import scene_constraints
 
 #: a point is z's optimum where an independent bounded solve moves it by at most this [rad or m]
 FOLLOW_TOL = 1e-7
@@ -93,16 +98,23 @@ class BlendedIndex(Index):
         return out
 
 
-def measure(robot, path, index: Index, t, q, max_jump: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def measure(robot, path, index: Index, t, q, max_jump: float, rows=()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(moved, stable, eig) per recorded point: how far an independent bounded solve of z from it moves
     it [rad or m] (inf where it fails or leaves ``max_jump``), whether it converged inside the limits, and
-    the reduced Hessian's smallest eigenvalue there."""
+    the reduced Hessian's smallest eigenvalue there. With ``rows`` (a plan's clearances: general-row
+    constraints), where that solve's minimum violates a row the solve is the bounded IK with the rows
+    (:func:`~kinredund.ik.rows.solve_ik_rows`): a point held at a clearance is at z's constrained optimum."""
     moved, ok, eig = np.full(len(t), np.inf), np.zeros(len(t), bool), np.zeros(len(t))
     for k, (tk, qk) in enumerate(zip(t, q, strict=True)):
-        res = solve_ik(robot, target_at(robot, path, float(tk)), index, q0=qk, bounds=True)
-        d = float(np.abs(res.q - qk).max())
-        if res.converged and res.reduced_hessian_pd and inside_limits(robot, res.q) and d <= max_jump:
-            moved[k], ok[k], eig[k] = d, True, float(res.reduced_hessian_min_eig)
+        target = target_at(robot, path, float(tk))
+        res = solve_ik(robot, target, index, q0=qk, bounds=True)
+        good, qr, e = res.converged and res.reduced_hessian_pd, res.q, float(res.reduced_hessian_min_eig)
+        if rows and min(float(c.values(res.q).min()) for c in rows) < -ROW_TOL:
+            held = solve_ik_rows(robot, target, index, rows, qk)
+            good, qr, e = held.converged, held.q, float(held.reduced_hessian_min_eig)
+        d = float(np.abs(qr - qk).max())
+        if good and inside_limits(robot, qr) and d <= max_jump:
+            moved[k], ok[k], eig[k] = d, True, e
     return moved, ok, eig
 
 
@@ -147,9 +159,9 @@ def _reported(intervals, period: float) -> tuple[tuple[float, float], ...]:
     return tuple(sorted(out))
 
 
-def _off(robot, path, index, traj, per: int, max_jump: float, stable_min: float | None):
+def _off(robot, path, index, traj, per: int, max_jump: float, stable_min: float | None, rows=()):
     """(bad points of one period, eig) of a motion: the points off z's optimum (or not strongly stable)."""
-    moved, ok, eig = measure(robot, path, index, traj.t[:per], traj.q[:per], max_jump)
+    moved, ok, eig = measure(robot, path, index, traj.t[:per], traj.q[:per], max_jump, rows)
     if stable_min is None:
         stable_min = STABLE_FRACTION * float(np.median(eig[ok])) if ok.any() else np.inf
     return ~ok | (eig < stable_min), moved, stable_min
@@ -165,7 +177,10 @@ def follow_optimum(robot, path, index: Index, reference: Index, traj, per: int, 
     period = float(path.period)
     ramp = max(RAMP_FRACTION * period, 2.0 * period / per)
     t = traj.t[:per]
-    bad, moved, stable_min = _off(robot, path, index, traj, per, max_jump, None)
+    kw = track_kw or {}
+    rows = scene_constraints(robot, kw["scene"], kw.get("clearance"), kw.get("self_clearance")) \
+        if kw.get("scene") is not None else []
+    bad, moved, stable_min = _off(robot, path, index, traj, per, max_jump, None, rows)
     if not enabled:
         return traj, _measured(t, moved, bad, period, ramp), ""
     intervals = bad_intervals(t, bad, period, ramp)
@@ -186,7 +201,7 @@ def follow_optimum(robot, path, index: Index, reference: Index, traj, per: int, 
     if not accept(out):
         return traj, _measured(t, moved, bad, period, ramp), "following z's optimum did not pass the check: the " \
                                                              "motion follows its reference"
-    _, moved2, _ = _off(robot, path, index, out, per, max_jump, stable_min)
+    _, moved2, _ = _off(robot, path, index, out, per, max_jump, stable_min, rows)
     w_one = np.array([weight(tk)[0] == 1.0 for tk in out.t[:per]])
     strays = w_one & (moved2 > FOLLOW_TOL)
     off = _reported(bad_intervals(out.t[:per], ~w_one | strays, period, 0.0), period) if strays.any() or \

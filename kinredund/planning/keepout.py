@@ -5,8 +5,13 @@ between the robot (and what it carries) and a world obstacle, ``self_clearance``
 robot's own objects (None: those pairs unchecked). The per-pair clearances are the tracker's own
 (:class:`~kinredund.tracking.constraints.scene.SceneClearance`), so the three places a plan holds them agree:
 
-1. **Candidates** (:meth:`Keepout.margins`): a within-limits minimum of z whose distance to some pair is under
-   that pair's clearance is not a candidate (rejected at the candidate, from the scene's own distances).
+1. **Candidates** (:meth:`Keepout.margins`, :meth:`Keepout.minimum`): a within-limits minimum of z whose
+   distance to some pair is under that pair's clearance is not a candidate (from the scene's own distances);
+   from it the bounded joint-level IK with the distance rows as constraints
+   (:func:`~kinredund.ik.rows.solve_ik_rows`) finds the minimum of z that keeps the clearances, the constrained
+   optimum the tracker holds, which is (where it converges to a strict minimum and keeps every clearance). The
+   walk's continuation then joins these as one branch, so a stretch where a clearance is active is no
+   ``off_optimum`` stretch.
 2. **Tracking**: the planned motion is tracked with the scene's distances as exact inequality constraints
    (``track(..., scene=, clearance=, self_clearance=)``).
 3. **Verification** (:func:`verify_clearance`): independently of the tracker, each recorded point's distances
@@ -100,6 +105,17 @@ class Keepout:
             if c is not None and d - c < best:
                 best, pair = d - c, p
         return float(best), pair
+
+    def minimum(self, robot, target, index, q) -> tuple[np.ndarray, float] | None:
+        """(q, z) of the within-limits minimum of z on ``target`` that keeps every clearance, from ``q``
+        (:func:`~kinredund.ik.rows.solve_ik_rows` with the scene's rows), or None where it does not converge to
+        a strict minimum or some pair stays under its clearance (every pair checked exactly)."""
+        from kinredund.ik.rows import solve_ik_rows
+
+        res = solve_ik_rows(robot, target, index, [self.constraint], q)
+        if not res.converged or self.margins(res.q)[0] < -POINT_TOL:
+            return None
+        return res.q, float(res.objective)
 
     def groups(self) -> list[tuple[set, float]]:
         """(pairs, clearance) per distinct clearance: the pairs check_motion checks together."""

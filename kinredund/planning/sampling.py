@@ -42,7 +42,8 @@ class CandidateSet:
         start: the label of the start candidate at sample 0 (from ``q0``) or None.
         added: the samples inserted where the walk broke.
         keepout: the plan's scene and clearances (:class:`~kinredund.planning.keepout.Keepout`) or None: a
-            minimum under a clearance is not a candidate.
+            minimum under a clearance is not a candidate; the minimum that keeps them, found from it by the
+            bounded IK with the distance rows (:meth:`Keepout.minimum`), is.
         rejected: (pair, distance - clearance [m]) of the last minimum rejected so, or None.
         rejections: how many minima were rejected so.
         collided: a sample had no candidate while minima were rejected there for their clearance.
@@ -62,6 +63,7 @@ class CandidateSet:
         self.box = inner.sample_box()
         self.keepout, self.rejected, self.rejections, self.collided = keepout, None, 0, False
         self._keep = None if keepout is None else self._clear
+        self._hold = None if keepout is None else self._held
 
     def _clear(self, q) -> bool:
         """The keepout's verdict on a minimum, the last rejection remembered for the failure's message."""
@@ -70,12 +72,16 @@ class CandidateSet:
             self.rejected, self.rejections = (pair, margin), self.rejections + 1
         return margin >= 0.0
 
+    def _held(self, target, q) -> tuple | None:
+        """The minimum that keeps the clearances from a minimum under them (:meth:`Keepout.minimum`), or None."""
+        return self.keepout.minimum(self.inner, target, self.index, q)
+
     def _minimum(self, k: int, seed) -> tuple | None:
-        return local_minimum(self.inner, self.targets[k], self.index, seed, self.opt.max_iter, self._keep)
+        return local_minimum(self.inner, self.targets[k], self.index, seed, self.opt.max_iter, self._keep, self._hold)
 
     def _continue(self, a: int, b: int) -> None:
         continue_candidates(self.inner, self.targets, self.index, self.pools, a, b, self.links, self.counter,
-                            self.opt.max_iter, self._keep)
+                            self.opt.max_iter, self._keep, self._hold)
 
     def _seed_pool(self, k: int, tries: int, seed: int) -> None:
         """Random starts at sample k; where none reaches a minimum, a within-limits point on the path from a

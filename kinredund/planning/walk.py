@@ -69,15 +69,18 @@ def on_target(robot, target, q, tol: float = ON_TARGET) -> bool:
     return max(errors.values()) <= tol
 
 
-def local_minimum(inner, target, index: Index, seed, max_iter: int, keep=None):
+def local_minimum(inner, target, index: Index, seed, max_iter: int, keep=None, hold=None):
     """A within-limits local minimum of z from ``seed`` (q, z) on the target, or None; with ``keep`` (a
-    predicate of q: the plan's clearances, :class:`kinredund.planning.keepout.Keepout`) None too where it says no."""
+    predicate of q: the plan's clearances, :class:`kinredund.planning.keepout.Keepout`) None too where it says no,
+    unless ``hold`` (q -> (q, z) or None: the minimum that keeps the clearances, from q) finds one from there."""
     res = solve_ik(inner, target, index, q0=seed, bounds=True, max_iter=max_iter)
     if not (res.converged and res.reduced_hessian_pd and inside_limits(inner, res.q)
             and on_target(inner, target, res.q)):
         return None
     if keep is not None and not keep(res.q):
-        return None
+        held = None if hold is None else hold(target, res.q)
+        return None if held is None or not (inside_limits(inner, held[0]) and on_target(inner, target, held[0])) \
+            else held
     return res.q, float(res.objective)
 
 
@@ -166,11 +169,11 @@ class CandidatePool:
         self.q, self.z, self.label, self.data = ([v[i] for i in order] for v in (self.q, self.z, self.label, self.data))
 
 
-def continue_candidates(inner, targets, index, pools, a, b, links, counter, max_iter, keep=None) -> None:
+def continue_candidates(inner, targets, index, pools, a, b, links, counter, max_iter, keep=None, hold=None) -> None:
     """Continue every candidate of sample a to sample b; the pairs of labels joined go into ``links``
-    (``keep``: as for :func:`local_minimum`)."""
+    (``keep``, ``hold``: as for :func:`local_minimum`)."""
     for la, q in zip(list(pools[a].label), list(pools[a].q), strict=True):
-        lb = pools[b].add(local_minimum(inner, targets[b], index, q, max_iter, keep), counter)
+        lb = pools[b].add(local_minimum(inner, targets[b], index, q, max_iter, keep, hold), counter)
         if lb >= 0:
             links.add(frozenset((la, lb)))
 

@@ -130,6 +130,7 @@ class GeneralRows:
                                   f"bounds go in limits=; got {c!r}")
         self.row_pairs = [(ci, ri) for ci, c in enumerate(self.general) for ri in range(c.size)]
         self._vals_key, self._vals = None, None
+        self._prev_key, self._prev_vals = None, None  # and the values before them (:meth:`_row_values`)
         values = self._row_values(q0)
         bad = np.flatnonzero(values < -1e-10)
         if bad.size:
@@ -153,12 +154,30 @@ class GeneralRows:
         return row_point(pt, self.general, [self.row_pairs[f] for f in self.rows])
 
     def _row_values(self, q: np.ndarray) -> np.ndarray:
-        """c of every general row at q [m] (kept for the same q array: the steppers never change one in place)."""
+        """c of every general row at q [m] (the last two kept, by the q array: the steppers never change one in
+        place)."""
         if self._vals_key is not q:
-            vals = [c.values(q) for c in self.general]
-            self._vals = np.concatenate(vals) if vals else np.zeros(0)
-            self._vals_key = q
+            if self._prev_key is q:  # the one before (a step's start, after its end was asked for)
+                return self._prev_vals
+            self._prev_key, self._prev_vals = self._vals_key, self._vals
+            self._vals, self._vals_key = self._values_at(q), q
         return self._vals
+
+    def _values_at(self, q: np.ndarray) -> np.ndarray:
+        """c of every general row at q [m], afresh."""
+        vals = [c.values(q) for c in self.general]
+        return np.concatenate(vals) if vals else np.zeros(0)
+
+    def _segment_bounds(self, q0, q1, c0, c1, move) -> np.ndarray:
+        """Lower bounds on every general row along the step from q0 to q1 (-inf where a constraint knows none:
+        :meth:`Constraint.segment_lower_bounds`)."""
+        out, k = [], 0
+        for c in self.general:
+            part = slice(k, k + c.size)
+            bound = c.segment_lower_bounds(q0, q1, c0[part], c1[part], move)
+            out.append(np.full(c.size, -np.inf) if bound is None else bound)
+            k += c.size
+        return np.concatenate(out) if out else np.zeros(0)
 
     def row_names(self, rows) -> list[str]:
         names = [c.names() for c in self.general]
@@ -246,6 +265,26 @@ class GeneralRows:
             err.watched["underlying_cause"] = err.cause
             err.cause = cause
         err.watched["constraints"] = self.row_names(sorted(involved))
+        notes = self._discontinuities(snap, involved, err.watched.get("substep_q"))
+        if notes:
+            err.watched["nonsmooth"] = notes
+            err.args = (f"{err.args[0]}; {'; '.join(notes)}",) + tuple(err.args[1:])
+
+    def _discontinuities(self, snap, involved, near=None) -> list[str]:
+        """What the involved rows' constraints say of gradient jumps (:meth:`Constraint.discontinuities`) on the
+        way the run went in its last step (from its start ``snap`` to the nearest good sub-step point ``near``),
+        along the step's motion from there (the rates at the start times dt) and 1e-3 [rad] along each joint."""
+        q = np.asarray(snap.q if near is None else near, float)
+        probes = [(np.asarray(snap.q, float), q - snap.q)] if near is not None else []
+        probes += [(q, np.asarray(snap.qdot, float) * self.dt)] if snap.qdot is not None else []
+        probes += [(q, s * 1e-3 * e) for e in np.eye(self.n) for s in (1.0, -1.0)]
+        notes: list[str] = []
+        for ci in sorted({self.row_pairs[f][0] for f in involved}):
+            rows = [self.row_pairs[f][1] for f in sorted(involved) if self.row_pairs[f][0] == ci]
+            for start, dq in probes:
+                notes += [m for m in self.general[ci].discontinuities(start, dq, rows)
+                          if m.split(" is not")[0] not in " ".join(notes)]
+        return notes
 
     def _rates_stale(self, y: np.ndarray) -> bool:
         """Did the corrector end far from the prediction ``y`` (farther than 1e-8 [rad or m])? Its rates,

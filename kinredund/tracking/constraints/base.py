@@ -21,7 +21,10 @@ Two kinds are held, told apart by :meth:`Constraint.bounds`:
 
 A new constraint is one subclass: ``size``, ``values``, ``gradients``, ``names`` and, for general rows,
 ``curvature`` (analytic; the default takes central differences of the gradients) and ``cause`` (the
-TrackingError cause a run that cannot hold it stops with).
+TrackingError cause a run that cannot hold it stops with). Optional: ``segment_lower_bounds`` (lower bounds
+along a step, which spare the stepper sampling the values inside it to find a row that dips below zero
+and comes back) and ``discontinuities`` (where a row's gradient jumps: asked only when a run stops with
+the row active, to say why in the stop's message).
 """
 
 from __future__ import annotations
@@ -83,3 +86,25 @@ class Constraint(abc.ABC):
             e[k] = eps
             H[:, k] = w @ (self.gradients(q + e)[rows] - self.gradients(q - e)[rows]) / (2 * eps)
         return 0.5 * (H + H.T)
+
+    def segment_lower_bounds(self, q0: np.ndarray, q1: np.ndarray, c0: np.ndarray, c1: np.ndarray,
+                             move: np.ndarray) -> np.ndarray | None:
+        """Lower bounds (size,) on c along a joint path from q0 to q1 on which joint j moves by at most
+        ``move[j]`` [rad or m], given c at the ends (``c0``, ``c1``: values, or lower bounds of them); None
+        (the default) where the constraint knows none.
+
+        The stepper checks the rows only at the ends of a step; a row that could dip below zero inside it
+        (its bound < 0, or None) is sampled inside the step (:mod:`kinredund.tracking.switches`). A bound
+        spares that sampling where it shows no dip is possible.
+        """
+        return None
+
+    def discontinuities(self, q: np.ndarray, dq: np.ndarray, rows) -> list[str]:
+        """Messages for those of the inequalities ``rows`` whose gradient jumps on the segment from q to q + dq.
+
+        The stepper holds a row by Newton's method on its value and gradient, so a row whose gradient is
+        discontinuous where the optimum presses on it cannot be held as one row; a run that stops with rows
+        active asks this to name that. The default (continuous gradients, as the joint limits and the frame
+        clearances have) finds none.
+        """
+        return []

@@ -51,6 +51,9 @@ class _FrameClearance(Constraint):
         self.frame_id, _ = resolve_frame(robot.model, frame)
         self.frame, self.clearance = frame, _length(clearance, "the clearance")
         self._kinematics = PerThread(robot.model, self.frame_id)
+        f = robot.model.frames[self.frame_id]  # joint j moves the frame's origin by at most reach[j] |dq_j|
+        self._reach = robot.reach(f.parentJoint, float(np.linalg.norm(f.placement.translation)))
+        self._extent = np.where(robot.revolute, np.inf, np.maximum(np.abs(robot.lower), np.abs(robot.upper)))
 
     @property
     def _kin(self) -> Kinematics:
@@ -67,6 +70,14 @@ class _FrameClearance(Constraint):
     def _normal(self, p: np.ndarray) -> tuple[np.ndarray, float]:
         """(the unit normal n of the row at p, the curvature factor 1/||p - c|| or 0)."""
         raise NotImplementedError
+
+    def segment_lower_bounds(self, q0, q1, c0, c1, move) -> np.ndarray | None:
+        """(c0 + c1 - L move) / 2 [m]: c changes at most as fast as the frame's origin moves, by at most
+        L . |dq| (:meth:`~kinredund.model.robot.Robot.reach`); None where a prismatic joint slid beyond its
+        limits' extent at an end."""
+        if not all(np.all(np.abs(np.asarray(x, float)) <= self._extent) for x in (q0, q1)):
+            return None
+        return 0.5 * (np.asarray(c0) + np.asarray(c1) - float(self._reach @ np.asarray(move, float)))
 
     def gradients(self, q: np.ndarray) -> np.ndarray:
         return self.rows_at(q)[1]

@@ -40,7 +40,13 @@ went on; on the named test case both hold the clearance.
 Smoothness: a sphere (any strictly convex object) against a hull has a continuously differentiable distance
 while apart, so its row changes continuously as the witness feature changes (a face, an edge, a vertex).
 Between two polytopes (two hulls: the self pairs) it is not where faces or edges come parallel (the witness
-points are not unique); there the held optimum may jump, and the strict step control stops the run.
+points are not unique): there the distance is the least of two smooth pieces (one per end of the parallel
+features), its gradient jumps, and where the optimum presses the two faces together (a finger's pad laid
+flat on a link) it sits on that corner, which would need both pieces as rows. One row per pair cannot hold
+it: the corrector, switching between the pieces, does not converge and the strict step control stops the
+run (``collision``); :meth:`SceneClearance.discontinuities` finds the jump (bisection of the witness points)
+and the stop's message says so (measured on the Panda's hulls, panda_elbow_circle: the right finger's pad
+against panda_link2's hull, witness points jumping 1.5 cm across 5e-5 rad of joint 5).
 """
 
 from __future__ import annotations
@@ -59,6 +65,9 @@ CURVATURES = ("differences", "witness")
 SKIP_MARGIN = 0.005
 #: the default broadphase reach beyond the largest clearance [m]
 INFLUENCE_MARGIN = 0.05
+#: a pair's witness points that move by more than JUMP [m] across a joint move of at most JUMP_STEP [rad]
+#: (bisected down to it) have jumped: its distance is not differentiable there (:meth:`discontinuities`)
+JUMP, JUMP_STEP = 1e-6, 1e-10
 
 
 def _clearance(value, what: str) -> float:
@@ -126,6 +135,19 @@ class SceneClearance(Constraint):
         robot = scene.robot  # row k's distance changes by at most bound[k] @ |dq| between q in the box |q| <= extent
         self._extent = np.where(robot.revolute, np.inf, np.maximum(np.abs(robot.lower), np.abs(robot.upper)))
         self._bound = scene.motion_bound(self._extent)[self.index]
+        self._slides = np.flatnonzero(np.isfinite(self._extent))  # the prismatic joints (the box's only sides)
+        self._local = threading.local()
+
+    def __getstate__(self) -> dict:
+        """Everything but this thread's last query (the scene pickles as what rebuilds it)."""
+        return {k: v for k, v in self.__dict__.items() if k != "_local"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if tuple(self.scene.pairs) != tuple(self._scene_pairs):
+            raise OptionError("the unpickled scene checks other pairs than the pickled one (a robot or a pair "
+                              "matrix that changed in between): make the SceneClearance again")
+        self._scene_pairs = self.scene.pairs  # the rebuilt scene's own tuple (the guard compares identity)
         self._local = threading.local()
 
     @property
@@ -171,10 +193,19 @@ class SceneClearance(Constraint):
 
     def _boxed(self, q: np.ndarray) -> bool:
         """Is q where the motion bound holds (no prismatic joint slid beyond its limits' extent)?"""
-        return bool(np.all(np.abs(q) <= self._extent))
+        k = self._slides
+        return True if not len(k) else bool(np.all(np.abs(q[k]) <= self._extent[k]))
 
     def values(self, q: np.ndarray) -> np.ndarray:
         return self._query(q, rows=False)[3].copy()
+
+    def segment_lower_bounds(self, q0, q1, c0, c1, move) -> np.ndarray | None:
+        """(c0 + c1 - B move) / 2 [m]: pair k's distance changes by at most B_k . |dq| along the way
+        (``Scene.motion_bound``), so at any point of it c_k >= c0_k - B_k . m0 and >= c1_k - B_k . m1 with
+        m0 + m1 <= move; None where q0 or q1 slid a prismatic joint beyond its limits' extent."""
+        if not (self._boxed(np.asarray(q0, float)) and self._boxed(np.asarray(q1, float))):
+            return None
+        return 0.5 * (np.asarray(c0) + np.asarray(c1) - self._bound @ np.asarray(move, float))
 
     def gradients(self, q: np.ndarray) -> np.ndarray:
         return self._query(q)[4].copy()
@@ -203,3 +234,37 @@ class SceneClearance(Constraint):
         if not np.any(weight):
             return np.zeros((len(q), len(q)))
         return self.scene.distance_curvature(np.asarray(q, float), rec, weight)
+
+    def discontinuities(self, q: np.ndarray, dq: np.ndarray, rows) -> list[str]:
+        """The rows among ``rows`` whose witness points jump on the segment q -> q + dq (module docstring).
+
+        Per row: where the pair's witness points at the ends differ by more than :data:`JUMP`, the segment is
+        bisected towards the half where they move more, down to :data:`JUMP_STEP` [rad]; witness points that
+        still differ by more than :data:`JUMP` there have jumped (a continuous motion shrinks with the segment).
+        """
+        q, dq, out = np.asarray(q, float), np.asarray(dq, float), []
+        for i in rows:
+            pair = self.pairs[int(i)]
+            cache = self._local.__dict__.setdefault("only", {})  # this thread's one-pair scenes
+            one = cache.get(pair) or cache.setdefault(pair, self.scene.only([pair]))
+
+            def witness(x, one=one):
+                rec = one.distances(x)
+                return np.concatenate([rec.point_a[0], rec.point_b[0]])
+
+            a, b = q, q + dq
+            wa, wb = witness(a), witness(b)
+            if not np.linalg.norm(wb - wa) > JUMP:
+                continue
+            while np.abs(b - a).max() > JUMP_STEP:
+                m = 0.5 * (a + b)
+                wm = witness(m)
+                a, wa, b, wb = (a, wa, m, wm) if np.linalg.norm(wm - wa) >= np.linalg.norm(wb - wm) else (m, wm, b, wb)
+            jump = float(np.linalg.norm(wb - wa))
+            if jump > JUMP:
+                away = float(np.abs(a - q).max())
+                out.append(f"the distance of {pair[0]} and {pair[1]} is not differentiable {away:.2g} rad from a "
+                           f"last good point: its witness points jump by {jump:.3g} m there (faces or edges of the two "
+                           "convex shapes parallel), a corner one row per pair cannot hold")
+        return out
+

@@ -1,0 +1,242 @@
+"""Switches of the active set within a step, located and stepped to exactly (a part of the constrained stepper).
+
+After each step the stepper (:class:`~kinredund.tracking.limited.LimitedPredictorCorrector`) looks for a switch
+within it: a free joint beyond its bound or a multiplier below zero (:mod:`kinredund.tracking.limited`), an
+inactive general row below zero or an active row's multiplier below zero (:mod:`kinredund.tracking.rows`), or a
+row that dips below zero inside the step and comes back (:meth:`GeneralRows._row_dips`). It solves for the
+switching time on the corrected path (Brent's method on the joint's margin, the row's value or the multiplier,
+each evaluation a corrector solve at that time), steps to it, changes the active set there and steps on to the
+end of the step. After a switch strict complementarity is checked: a reached bound's multiplier grows, a
+released joint moves inward; where the LU route cannot tell (a rate ~0) the rate QP decides which set continues.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import brentq
+
+from kinredund.errors import KinredundError
+from kinredund.tracking.linalg import bound_rate_qp
+from kinredund.tracking.rows import ROW_TOL
+from kinredund.tracking.state import ConstrainedState
+
+#: the switching time is solved to this accuracy [s] (Brent's method): far below the 1e-9 s asked for
+SWITCH_XTOL = 1e-14
+#: the most switches resolved within one step (more means chattering: the optimum is not strongly stable)
+MAX_SWITCHES_PER_STEP = 8
+#: where inside a step (fractions of it) a row that may dip below zero is sampled (:meth:`_row_dips`)
+DIP_SAMPLES = (0.25, 0.5, 0.75)
+
+
+def _hermite(s: float) -> np.ndarray:
+    """The cubic Hermite basis at s in [0, 1]: weights of (y0, h y0', y1, h y1')."""
+    return np.array([2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2])
+
+
+_DIP_AT = np.linspace(0.0, 1.0, 65)
+#: the quartic through a row's values at s = 0, DIP_SAMPLES, 1, evaluated at _DIP_AT
+_DIP_FIT = np.vander(_DIP_AT, 5) @ np.linalg.inv(np.vander(np.array([0.0, *DIP_SAMPLES, 1.0]), 5))
+
+
+class SwitchLocation:
+    """The switch location of :class:`~kinredund.tracking.limited.LimitedPredictorCorrector` (a mixin: it uses the
+    stepper's state, ``euler_to``, ``_newton``, ``_rates`` and the rows' hooks of
+    :class:`~kinredund.tracking.rows.GeneralRows`)."""
+
+    def _events(self) -> list[tuple[int, str]]:
+        """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``);
+        (row, ``row_reach``/``row_release``) of the general rows."""
+        q = self.q
+        if self._sel is None:  # no joint on a bound: one comparison per side (the common case)
+            if not ((q < self._lo_tol).any() or (q > self._hi_tol).any()):
+                return self._row_events()
+        free = ~self.fixed
+        scale = max(1.0, float(np.abs(self.pt.grad).max()))
+        out = [(int(i), "lower") for i in np.flatnonzero(free & (q < self._lo_tol))]
+        out += [(int(i), "upper") for i in np.flatnonzero(free & (q > self._hi_tol))]
+        out += [(int(i), "release") for i in np.flatnonzero(self.fixed & (self.mu < -1e-12 * scale))]
+        return out + self._row_events()
+
+    def _watch(self, joint: int, kind: str) -> float:
+        """The quantity whose zero is the switch: the margin to the bound, or the multiplier (>= 0 before)."""
+        if kind == "lower":
+            return float(self.q[joint] - self.lo[joint])
+        if kind == "upper":
+            return float(self.hi[joint] - self.q[joint])
+        if kind == "release":
+            return float(self.mu[joint])
+        return self._row_watch(joint, kind)
+
+    def _crossing(self, snap: ConstrainedState, t_end: float, joint: int, kind: str) -> float:
+        """The time in (snap t, t_end] where the watched quantity of (joint, kind) reaches zero (Brent)."""
+        def phi(tau):
+            self.state = snap
+            if tau > snap.t:
+                self.euler_to(tau)
+            return self._watch(joint, kind)
+
+        t_start = snap.t
+        f = phi(t_start)
+        if f <= 0.0:
+            # zero at the start to rounding (switched there: a row's multiplier from 0, a joint leaving its
+            # bound) and below zero at t_end: it went up and came back within the step (a short contact)
+            inside = self._positive_inside(phi, t_start, t_end) if f >= -self._zero_of(kind) else None
+            if inside is None:
+                return t_start
+            t_start = inside
+        try:
+            return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
+        except (ValueError, RuntimeError, KinredundError) as err:
+            self.state = snap
+            raise self._failure("switch_not_resolved", f"the switch of {self._event_name(joint, kind)} "
+                                f"({kind}) within ({t_start:.6g}, {t_end:.6g}] s could not be located: {err}") from err
+
+    def _row_dips(self, snap: ConstrainedState) -> list[tuple[int, float]]:
+        """(row, tau) of each general row inactive at both ends of the step from ``snap`` to now, >= 0 at both,
+        that dips below zero inside it: c < -ROW_TOL at time tau on the corrected path.
+
+        A row is looked at where its constraint's lower bound along the step
+        (:meth:`~kinredund.tracking.constraints.base.Constraint.segment_lower_bounds`, for the joints' motion
+        max(|dq|, h max(|qdot_0|, |qdot_1|)) + h |qdot_1 - qdot_0| / 4) is below zero, or unknown: its values at
+        the points of :data:`DIP_SAMPLES` on the cubic Hermite of the joints through the ends and their rates,
+        with the ends', give a quartic in time; where its least value on the step is below -ROW_TOL, the path
+        is corrected at that time (an Euler prediction from the start and the corrector) and the row's value
+        there decides. A dip narrower than the samples resolve (a quartic through five points) is missed.
+        """
+        h = self.t - snap.t
+        if not self.row_pairs or snap.qdot is None or not h > 0.0:
+            return []
+        q0, q1, v0, v1 = snap.q, self.q, snap.qdot, self.qdot
+        c1, c0 = self._row_values(q1), self._row_values(q0)  # c0: the last step's end, kept
+        move = np.maximum(np.abs(q1 - q0), h * np.maximum(np.abs(v0), np.abs(v1))) + 0.25 * h * np.abs(v1 - v0)
+        maybe = self._segment_bounds(q0, q1, c0, c1, move) < -ROW_TOL
+        if not maybe.any():  # the common case: no row can dip
+            return []
+        maybe[list(set(self.rows) | set(snap.rows))] = False
+        maybe &= (c0 >= -ROW_TOL) & (c1 >= -ROW_TOL)
+        if not maybe.any():
+            return []
+        ends = np.array([q0, h * v0, q1, h * v1])
+        C = np.vstack([c0, *[self._values_at(_hermite(s) @ ends) for s in DIP_SAMPLES], c1])[:, maybe]
+        fit = _DIP_FIT @ C
+        low = fit.min(axis=0) < -ROW_TOL
+        if not low.any():
+            return []
+        state_end, out = self.state, []
+        for row, at in zip(np.flatnonzero(maybe)[low].tolist(), fit.argmin(axis=0)[low].tolist(), strict=True):
+            tau = snap.t + float(_DIP_AT[at]) * h
+            self.state = snap
+            self.euler_to(tau)
+            if self._values_at(self.q)[row] < -ROW_TOL:
+                out.append((row, tau))
+        self.state = state_end
+        return out
+
+    def _zero_of(self, kind: str) -> float:
+        """The rounding of a watched quantity that is zero by construction where it was switched: a
+        multiplier's (the corrector's tolerance on grad z), a row's (ROW_TOL), a joint's margin (exact)."""
+        if kind in ("release", "row_release"):
+            return 1e-12 * max(1.0, float(np.abs(self.pt.grad).max()))
+        return ROW_TOL if kind == "row_reach" else 0.0
+
+    @staticmethod
+    def _positive_inside(phi, t_start: float, t_end: float, samples: int = 8) -> float | None:
+        """The first of ``samples - 1`` evenly spaced times inside (t_start, t_end) where phi > 0, or None."""
+        for k in range(1, samples):
+            tau = t_start + (t_end - t_start) * k / samples
+            if phi(tau) > 0.0:
+                return tau
+        return None
+
+    def _resolve_switches(self, snap: ConstrainedState) -> None:
+        t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
+        for _ in range(MAX_SWITCHES_PER_STEP):
+            events = self._events()
+            dips = self._row_dips(snap)  # a row below zero inside the step only
+            if not (events or dips):
+                return
+            state_end = self.state
+            times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
+            times += [(self._crossing(snap, tau, j, "row_reach"), j, "row_reach") for j, tau in dips]
+            self.state = state_end
+            tau, joint, kind = min(times)
+            self.state = snap
+            if tau > snap.t:
+                self.euler_to(tau)
+            self._switch(joint, kind)
+            snap = self.state
+            if t_end > tau:
+                self.euler_to(t_end)
+            self.t, self.k = t_end, k_end
+        raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
+                            f"within one step before t = {t_end:.6g} s (chattering)")
+
+    def _apply_switch(self, joint: int, kind: str) -> float:
+        """Change the active set: fix a joint on its bound, free it, or a row (:meth:`_apply_row_switch`)."""
+        if kind in ("row_reach", "row_release"):
+            return self._apply_row_switch(joint, kind)
+        if kind == "release":
+            side = self.side[joint]
+            self._free(joint)
+        else:
+            side = 1.0 if kind == "lower" else -1.0
+            self.q = self.q.copy()
+            self.q[joint] = self.lo[joint] if side > 0 else self.hi[joint]
+            self._fix(joint, side)
+        return side
+
+    def _switch(self, joint: int, kind: str) -> None:
+        """Change the active set at the current time (a switching time) and correct onto it."""
+        side = self._apply_switch(joint, kind)
+        what = "release" if kind in ("release", "row_release") else "reach"
+        if kind.startswith("row"):
+            entry = {"row": joint, "name": self.row_names((joint,))[0], "constraint": True}
+        else:
+            entry = {"joint": joint, "name": self.joint_names[joint], "bound": "lower" if side > 0 else "upper"}
+        self.switches += ({"t": float(self.t), **entry, "kind": what, "q": self.q.tolist()},)
+        self.prev.clear()  # the optimal path has a kink here: the predictor starts afresh
+        self._newton()
+        self._rates()
+        self._check_direction(joint, kind, side)
+
+    def _check_direction(self, joint: int, kind: str, side: float) -> None:
+        """Strict complementarity after the switch: a reached bound's multiplier grows, a released joint
+        moves inward. Where the LU route cannot tell (a rate ~0), the rate QP decides."""
+        if kind.startswith("row"):
+            self._check_row_direction(joint, kind)
+            return
+        if kind == "release":
+            rate = side * float(self.qdot[joint])  # inward: > 0
+        else:
+            rate = float(self._mu_rates()[joint])  # the multiplier grows: > 0
+        if rate > 0.0:
+            return
+        stay = self._qp_keeps_bound(joint, side)
+        if stay == bool(self.fixed[joint]):
+            return
+        if stay:
+            self.q = self.q.copy()
+            self.q[joint] = self.lo[joint] if side > 0 else self.hi[joint]
+            self._fix(joint, side)
+        else:
+            self._free(joint)
+        self._newton()
+        self._rates()
+
+    def _qp_keeps_bound(self, joint: int, side: float) -> bool:
+        """The rate QP at a weakly active bound (:func:`~kinredund.tracking.linalg.bound_rate_qp`) over the
+        free joints and ``joint``: True where the bound stays active (its rate 0, its multiplier > 0)."""
+        pt = self.evaluate(self.q, self.t)
+        M, top = pt.system(self.lam)
+        keep = np.flatnonzero(~self.fixed | (np.arange(self.n) == joint))
+        out = bound_rate_qp(M[np.ix_(keep, keep)], top[keep], pt.J[:, keep], pt.xdot,
+                            int(np.flatnonzero(keep == joint)[0]), side)
+        name = self.joint_names[joint]
+        if out is None:
+            raise self._failure("not_strongly_stable", f"the rate QP at the switch of joint {name} "
+                                f"(t = {self.t:.6g} s) has no solution")
+        rate, mult = out
+        if abs(rate) <= 1e-12 and abs(mult) <= 1e-12:
+            raise self._failure("not_strongly_stable", f"joint {name} is weakly active at t = {self.t:.6g} s "
+                                "(rate and multiplier both zero): the active set is not determined")
+        return rate <= 1e-12
