@@ -20,9 +20,10 @@ $(DEPS_STAMP): pyproject.toml | $(BIN)/python
 
 # The pytest script (not python -m pytest) keeps the checkout off sys.path: tests import the installed wheel.
 # Always reinstall the package itself as a built wheel (not editable), so the tests see what users get.
+# The compiled core (CMakeLists.txt, src/core/) builds against the venv's own pin (its build requirements are in
+# the dev extra, so no isolated build environment is downloaded again); CMake keeps its objects in build/.
 install: $(DEPS_STAMP)
-	rm -rf build  # setuptools' build/lib keeps modules deleted since: never ship them
-	$(BIN)/python -m pip install --quiet --no-deps --force-reinstall .
+	$(BIN)/python -m pip install --quiet --no-deps --force-reinstall --no-build-isolation .
 
 demo: install
 	$(BIN)/kinredund demo --out $(OUT)
