@@ -14,6 +14,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "step.hpp"
+
 namespace nb = nanobind;
 namespace bp = boost::python;
 
@@ -84,4 +86,5 @@ NB_MODULE(_core, m) {
       .def_prop_ro("nq", &kinredund::Kinematics::nq)
       .def_prop_ro("nv", &kinredund::Kinematics::nv)
       .def("jacobian_hessian", &kinredund::Kinematics::jacobian_hessian, nb::arg("q"));
+  kinredund::bind_step(m);
 }
