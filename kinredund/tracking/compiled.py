@@ -5,8 +5,7 @@ subclass, :mod:`kinredund.tracking.limited`) whose common step is done by the co
 (``src/core/step.cpp``): the Hermite predictor, the evaluation (Pinocchio's kinematics and kinematic Hessian,
 the task terms of every task kind in both forms, the index terms of
 :class:`~kinredund.indices.JointDeviation` and :class:`~kinredund.indices.TimeVaryingReference`), R of
-Eq. (4.24) with its LU factors and condition estimate (scipy's own LAPACK, so the factors are the Python
-stepper's), the rates, the Newton update and the chord iterations, then the checks that make the step
+Eq. (4.24) with its LU factors (LAPACK's algorithm and layout) and LAPACK's condition estimate, the rates, the Newton update and the chord iterations, then the checks that make the step
 ordinary: no joint beyond a bound (with the limits held and none active), no jump (the step control's
 check, :mod:`kinredund.tracking.step_control`). Python samples the path (and a time-varying reference)
 once per step and passes them in.
@@ -30,7 +29,6 @@ import os
 import warnings
 
 import numpy as np
-import scipy.linalg.cython_lapack as _cython_lapack
 
 from kinredund.errors import OptionError, check_choice
 from kinredund.indices import JointDeviation, TimeVaryingReference
@@ -128,10 +126,6 @@ def _warn_once() -> None:
                       "stepper (same results, slower)", BackendWarning, stacklevel=4)
 
 
-def _lapack(name: str):
-    return _cython_lapack.__pyx_capi__[name]
-
-
 class CompiledPoint(Point):
     """The step's evaluation as the core left it: q, t, J and the path sample; the rest (pose, task and index
     terms, :meth:`~kinredund.tracking.point.Point.system`) is evaluated in Python at (q, t) on first use."""
@@ -177,11 +171,15 @@ class CompiledStep:
         self.core = core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
                                   ev.formulation == "velocity", np.asarray(weights, float),
                                   np.asarray(reference, float), self._tv, stepper.tol, stepper.dt, hermite,
-                                  lo_tol, hi_tol, _lapack("dgetrf"), _lapack("dgetrs"), _lapack("dgecon"),
-                                  _lapack("dlange"))
+                                  lo_tol, hi_tol)
         self._limited = limited
         self._basis = stepper.pt.basis
         self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
+        m = len(stepper.lam)
+        N = n + m
+        ends = np.cumsum([N, N, n * n, m * n, n, N * N, N])  # the core's output layout (src/core/step.cpp)
+        self._slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
+        self._shapes = (n, m, N)
         self.steps = 0
         self.handed_back: dict[str, int] = {}
 
@@ -211,7 +209,10 @@ class CompiledStep:
                              0.0 if ctl is None else ctl._speed2, ctl is not None)
         if type(out) is int:
             return self._hand_back(out)
-        y, sol, M, J, lu, rcond, q_pred, speed2 = out
+        sy, ssol, sM, sJ, sq, slu, spiv = self._slices
+        n, m, N = self._shapes
+        y, sol, q_pred = out[sy], out[ssol], out[sq]
+        rcond, speed2 = float(out[-2]), float(out[-1])
         if ctl is not None:
             if ctl.watch.due_next(rcond):  # a measured step: the Python stepper's (the watch measures there)
                 return self._hand_back(9)
@@ -221,12 +222,11 @@ class CompiledStep:
         prev += (s.y, s.yd)
         if len(prev) == 2 * PREDICTOR_POINTS:
             del prev[:2]
-        n = self.n
         s.k += 1
         s.t = t_to
         s._q_pred = q_pred
         s.q, s.lam, s.y, s.yd = y[:n], y[n:], y, sol
-        s.qdot, s.lamdot, s.label, s.M = sol[:n], sol[n:], None, M
-        s.pt = CompiledPoint(s.ev, q_pred, t_to, sample, J, self._basis)
-        s.lu, s.rcond = lu, rcond
+        s.qdot, s.lamdot, s.label, s.M = sol[:n], sol[n:], None, out[sM].reshape(n, n)
+        s.pt = CompiledPoint(s.ev, q_pred, t_to, sample, out[sJ].reshape(m, n), self._basis)
+        s.lu, s.rcond = (out[slu].reshape(N, N).T, out[spiv]), rcond  # LAPACK's (lu, piv), the pivots as floats
         self.steps += 1
