@@ -5,10 +5,11 @@ subclass, :mod:`kinredund.tracking.limited`) whose common step is done by the co
 (``src/core/step.cpp``): the Hermite predictor, the evaluation (Pinocchio's kinematics and kinematic Hessian,
 the task terms of every task kind in both forms, the index terms of
 :class:`~kinredund.indices.JointDeviation` and :class:`~kinredund.indices.TimeVaryingReference`), R of
-Eq. (4.24) with its LU factors (LAPACK's algorithm and layout) and LAPACK's condition estimate, the rates, the Newton update and the chord iterations, then the checks that make the step
-ordinary: no joint beyond a bound (with the limits held and none active), no jump (the step control's
-check, :mod:`kinredund.tracking.step_control`). Python samples the path (and a time-varying reference)
-once per step and passes them in.
+Eq. (4.24) with its LU factors (LAPACK's algorithm and layout) and LAPACK's condition estimate, the rates,
+the Newton update and the chord iterations, then the checks that make the step ordinary: no joint beyond a
+bound (with the limits held and none active), no jump (the step control's check,
+:mod:`kinredund.tracking.step_control`). Python samples the path (and a time-varying reference) once per step
+and passes them in.
 
 Anything else is handed to the Python reference from the same state (the stepper's, untouched until the
 compiled step is accepted): a step the watch predicts trouble within or must measure (every
