@@ -11,10 +11,12 @@ bound (with the limits held and none active), no jump (the step control's check,
 :mod:`kinredund.tracking.step_control`). Python samples the path (and a time-varying reference) once per step
 and passes them in.
 
-Anything else is handed to the Python reference from the same state (the stepper's, untouched until the
-compiled step is accepted): a step the watch predicts trouble within or must measure (every
-:data:`~kinredund.tracking.watch.EXACT_EVERY` steps or where R's condition drops), a joint on a bound, a
-switch, a jump, a corrector that needs fresh factorisations, a singular R, a failure. Those steps are the
+Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
+R's condition drops) it does so in Python on the compiled step's results. Anything else is handed to the
+Python reference from the same state (the stepper's, untouched until the compiled step is accepted, or put
+back with the watch's where the watch rejects the step): a step the watch predicts trouble within or
+rejects, a joint on a bound, a switch, a jump, a corrector that needs fresh factorisations, a singular R,
+a failure. Those steps are the
 Python stepper's own, so events happen at the same times with the same causes.
 
 :func:`attach` picks the backend of a :class:`~kinredund.tracking.tracker.Tracker`: ``compiled`` where the
@@ -41,7 +43,7 @@ BACKENDS = ("auto", "compiled", "python")
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
 STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
-          7: "log_near_pi", 8: "watch_ahead", 9: "watch_due", 10: "bound_active"}
+          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 10: "bound_active"}
 
 
 class BackendWarning(UserWarning):
@@ -210,15 +212,27 @@ class CompiledStep:
                              0.0 if ctl is None else ctl._speed2, ctl is not None)
         if type(out) is int:
             return self._hand_back(out)
+        rcond, speed2 = float(out[-2]), float(out[-1])
+        measured = ctl is not None and ctl.watch.due_next(rcond)
+        if measured:  # the watch measures the new point (in Python): the step may still be rejected
+            saved, watch = ctl._snapshot(), ctl.watch.save()
+        elif ctl is not None:
+            ctl.watch.due(rcond)
+            ctl._speed2 = speed2
+        self._apply(out, sample, t_to)
+        if measured and ctl._watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
+            ctl._restore(saved)
+            ctl.watch.load(watch)
+            self.steps -= 1
+            return self._hand_back(9)
+        return None
+
+    def _apply(self, out: np.ndarray, sample, t_to: float) -> None:
+        """The core's step as the stepper's new state (:meth:`PredictorCorrector.plain_step`'s)."""
+        s = self.stepper
         sy, ssol, sM, sJ, sq, slu, spiv = self._slices
         n, m, N = self._shapes
         y, sol, q_pred = out[sy], out[ssol], out[sq]
-        rcond, speed2 = float(out[-2]), float(out[-1])
-        if ctl is not None:
-            if ctl.watch.due_next(rcond):  # a measured step: the Python stepper's (the watch measures there)
-                return self._hand_back(9)
-            ctl.watch.due(rcond)
-            ctl._speed2 = speed2
         prev = s.prev  # PredictorCorrector.plain_step's bookkeeping
         prev += (s.y, s.yd)
         if len(prev) == 2 * PREDICTOR_POINTS:
@@ -229,5 +243,5 @@ class CompiledStep:
         s.q, s.lam, s.y, s.yd = y[:n], y[n:], y, sol
         s.qdot, s.lamdot, s.label, s.M = sol[:n], sol[n:], None, out[sM].reshape(n, n)
         s.pt = CompiledPoint(s.ev, q_pred, t_to, sample, out[sJ].reshape(m, n), self._basis)
-        s.lu, s.rcond = (out[slu].reshape(N, N).T, out[spiv]), rcond  # LAPACK's (lu, piv), the pivots as floats
+        s.lu, s.rcond = (out[slu].reshape(N, N).T, out[spiv]), float(out[-2])  # LAPACK's (lu, piv), piv as floats
         self.steps += 1

@@ -106,6 +106,15 @@ class Watch:
         """What :meth:`due` would say of a step with ``rcond``, without counting the step."""
         return not rcond > RCOND_NEAR or rcond < RCOND_DROP * self._rcond or (self._count + 1) % EXACT_EVERY == 0
 
+    def save(self) -> dict:
+        """The watch's state (its attributes; the histories are changed only by :meth:`push` and :meth:`reset`,
+        which a step that is undone has not reached)."""
+        return dict(vars(self))
+
+    def load(self, saved: dict) -> None:
+        """Back to a state of :meth:`save` (a measured step that was rejected after all)."""
+        vars(self).update(saved)
+
     def reset(self) -> None:
         """Forget the history (after a restart: the next prediction starts afresh)."""
         for hist in (self.times, self.eig, self.sigma_times, self.sigma):
