@@ -19,7 +19,6 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
-#include <chrono>
 #include <cmath>
 #include <stdexcept>
 #include <vector>
@@ -101,7 +100,6 @@ class StepCore {
   }
 
   int n() const { return n_; }
-  std::vector<double> timings() const { return std::vector<double>(tim_, tim_ + 4); }
   int m() const { return m_; }
 
   // One ordinary step to time t (see the file's comment). ``prev``: the predictor's history (y, ydot, ...),
@@ -114,7 +112,6 @@ class StepCore {
     if (np_ > 2 * hermite_.size() - 2 || np_ % 2) throw nb::value_error("prev: (y, ydot) pairs, at most two");
     Vec1 prev[4];
     for (size_t j = 0; j < np_; ++j) prev[j] = nb::cast<Vec1>(prev_list[j]);
-    auto T0 = std::chrono::steady_clock::now();
     const int n = n_, N = n_ + m_;
     if (y.size() != N || yd.size() != N) throw nb::value_error("y and ydot must have n + m entries");
     set_sample(sp, sv, sQ, somega);
@@ -136,22 +133,14 @@ class StepCore {
       yp += w[np_] * y + w[np_ + 1] * yd;
     }
     VectorXd q_pred = yp.head(n);
-    auto T1 = std::chrono::steady_clock::now();
     // _correct: one evaluation at the predicted point gives R, the rates and the Newton update
     evaluate(yp.head(n), true);
     if (task_ == POSE && velocity_ && !log_ok_) return nb::int_(LOG_NEAR_PI);
     VectorXd lam = yp.tail(m_);
-    auto T2 = std::chrono::steady_clock::now();
     RowMatrixXd M;
     VectorXd top;
     system(lam, M, top);
-    auto T3 = std::chrono::steady_clock::now();
     int st = factor(M);
-    auto T4 = std::chrono::steady_clock::now();
-    tim_[0] = std::chrono::duration<double, std::micro>(T1 - T0).count();
-    tim_[1] = std::chrono::duration<double, std::micro>(T2 - T1).count();
-    tim_[2] = std::chrono::duration<double, std::micro>(T3 - T2).count();
-    tim_[3] = std::chrono::duration<double, std::micro>(T4 - T3).count();
     if (st != OK) return nb::int_(st);
     VectorXd sol(N);
     sol << top, xdot_;
@@ -558,7 +547,6 @@ class StepCore {
   MatrixXd R_, lu_;
   VectorXi ipiv_;
   double rcond_ = 0.0;
-  double tim_[4] = {0, 0, 0, 0};
 };
 
 void bind_step(nb::module_& m) {
@@ -570,7 +558,6 @@ void bind_step(nb::module_& m) {
            nb::arg("lo_tol"), nb::arg("hi_tol"))
       .def_prop_ro("n", &StepCore::n)
       .def_prop_ro("m", &StepCore::m)
-      .def_prop_ro("timings", &StepCore::timings)
       .def("step", &StepCore::step, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
            nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"), nb::arg("qdot0"),
            nb::arg("speed2"), nb::arg("check_jump"))
