@@ -57,11 +57,11 @@ def load_core():
     """The compiled module ``kinredund._core``, or None where it cannot be loaded (:func:`core_error` says why)."""
     if not _CORE:
         try:
-            from kinredund import _core
+            import kinredund._core as core
         except ImportError as err:
             _CORE.extend([None, f"{type(err).__name__}: {err}"])
         else:
-            _CORE.extend([_core if hasattr(_core, "StepCore") else None, "kinredund._core has no StepCore"])
+            _CORE.extend([core if hasattr(core, "StepCore") else None, "kinredund._core has no StepCore"])
     return _CORE[0]
 
 
