@@ -129,14 +129,25 @@ def _warn_once() -> None:
                       "stepper (same results, slower)", BackendWarning, stacklevel=4)
 
 
+class RecordedPose:
+    """What the record keeps of a compiled step: the path sample and the pose (Q, p) at the corrected joints
+    (:class:`~kinredund.tracking.recorder.Recorder` then needs no forward kinematics of its own)."""
+
+    __slots__ = ("sample", "pose")
+
+    def __init__(self, sample, pose):
+        self.sample, self.pose = sample, pose
+
+
 class CompiledPoint(Point):
-    """The step's evaluation as the core left it: q, t, J and the path sample; the rest (pose, task and index
-    terms, :meth:`~kinredund.tracking.point.Point.system`) is evaluated in Python at (q, t) on first use."""
+    """The step's evaluation as the core left it: q, t, J and the path sample (and ``recorded``, the
+    :class:`RecordedPose` at the corrected joints); the rest (pose, task and index terms,
+    :meth:`~kinredund.tracking.point.Point.system`) is evaluated in Python at (q, t) on first use."""
 
-    __slots__ = ("_ev",)
+    __slots__ = ("_ev", "recorded")
 
-    def __init__(self, ev, q, t, sample, J, basis):
-        self.q, self.t, self.sample, self.J, self.basis, self._ev = q, t, sample, J, basis, ev
+    def __init__(self, ev, q, t, sample, J, basis, recorded):
+        self.q, self.t, self.sample, self.J, self.basis, self._ev, self.recorded = q, t, sample, J, basis, ev, recorded
 
     def __getattr__(self, name):  # an unset slot of Point: the full evaluation fills them all
         if name not in Point.__slots__:
@@ -180,7 +191,7 @@ class CompiledStep:
         self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
         m = len(stepper.lam)
         N = n + m
-        ends = np.cumsum([N, N, n * n, m * n, n, N * N, N])  # the core's output layout (src/core/step.cpp)
+        ends = np.cumsum([N, N, n * n, m * n, n, 9, 3])  # the core's output layout (src/core/step.cpp)
         self._slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
         self._shapes = (n, m, N)
         self.steps = 0
@@ -219,19 +230,22 @@ class CompiledStep:
         elif ctl is not None:
             ctl.watch.due(rcond)
             ctl._speed2 = speed2
-        self._apply(out, sample, t_to)
-        if measured and ctl._watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
-            ctl._restore(saved)
-            ctl.watch.load(watch)
-            self.steps -= 1
-            return self._hand_back(9)
+        self._apply(out, sample, t_to, rcond)
+        if measured:
+            s.lu = self.core.factors()  # the watch's inverse iteration solves with them
+            if ctl._watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
+                ctl._restore(saved)
+                ctl.watch.load(watch)
+                self.steps -= 1
+                return self._hand_back(9)
         return None
 
-    def _apply(self, out: np.ndarray, sample, t_to: float) -> None:
-        """The core's step as the stepper's new state (:meth:`PredictorCorrector.plain_step`'s)."""
+    def _apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
+        """The core's step as the stepper's new state (:meth:`PredictorCorrector.plain_step`'s). R's factors stay
+        in the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
         s = self.stepper
-        sy, ssol, sM, sJ, sq, slu, spiv = self._slices
-        n, m, N = self._shapes
+        sy, ssol, sM, sJ, sq, sQ, sp = self._slices
+        n, m, _ = self._shapes
         y, sol, q_pred = out[sy], out[ssol], out[sq]
         prev = s.prev  # PredictorCorrector.plain_step's bookkeeping
         prev += (s.y, s.yd)
@@ -242,6 +256,7 @@ class CompiledStep:
         s._q_pred = q_pred
         s.q, s.lam, s.y, s.yd = y[:n], y[n:], y, sol
         s.qdot, s.lamdot, s.label, s.M = sol[:n], sol[n:], None, out[sM].reshape(n, n)
-        s.pt = CompiledPoint(s.ev, q_pred, t_to, sample, out[sJ].reshape(m, n), self._basis)
-        s.lu, s.rcond = (out[slu].reshape(N, N).T, out[spiv]), float(out[-2])  # LAPACK's (lu, piv), piv as floats
+        s.pt = CompiledPoint(s.ev, q_pred, t_to, sample, out[sJ].reshape(m, n), self._basis,
+                             RecordedPose(sample, (out[sQ].reshape(3, 3), out[sp])))
+        s.lu, s.rcond = None, rcond
         self.steps += 1

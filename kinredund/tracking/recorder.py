@@ -53,7 +53,9 @@ class Recorder:
         self.solver.append(None if pending else s.solver)
         self.M.append(s.M)
         self.J_step.append(pt.J if pending else None)
-        self.points.append(pt if pt.q is s.q and pt.t == s.t else pt.sample)
+        # the step's own evaluation where it was made at the recorded point, else the path sample (with the pose
+        # at the recorded joints where the step has it: a compiled step's RecordedPose)
+        self.points.append(pt if pt.q is s.q and pt.t == s.t else getattr(pt, "recorded", pt.sample))
         if self.limited:
             self.active.append(s.active_bounds() if s.any_active else None)
             self.mu.append(s.mu)
@@ -95,6 +97,8 @@ class Recorder:
         for k, (q, item) in enumerate(zip(self.q, self.points, strict=True)):
             if hasattr(item, "terms"):
                 (Q, p), own[k], sample = (item.Q, item.p), item.J, item.sample
+            elif hasattr(item, "pose"):
+                (Q, p), sample = item.pose, item.sample
             else:
                 (Q, p), sample = kin.pose(q), item
             Qs.append(Q)

@@ -171,10 +171,13 @@ class StepCore {
         if (!(miss2 <= 0.25 * 0.25 * scale2 + 1e-24)) return nb::int_(JUMP);
       }
     }
+    // the pose at the corrected joints (the record's: Recorder)
+    pinocchio::forwardKinematics(model_, data_, q);
+    const auto& oMf = pinocchio::updateFramePlacement(model_, data_, fid_);
     // one buffer (one array for Python to slice: small arrays would each be copied through numpy):
-    // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), R's LU (N*N, column-major),
-    //  its pivots (N, 0-based as scipy's dgetrf gives them), rcond, speed2]
-    auto* buf = new VectorXd(2 * N + n * n + m_ * n + n + N * N + N + 2);
+    // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), Q (9, row-major) and p (3) at the
+    //  corrected joints, rcond, speed2]; R's factors stay here (factors())
+    auto* buf = new VectorXd(2 * N + n * n + m_ * n + n + 12 + 2);
     double* o = buf->data();
     Eigen::Map<VectorXd>(o, N) = yc;
     Eigen::Map<VectorXd>(o + N, N) = sol;
@@ -185,15 +188,23 @@ class StepCore {
     o += m_ * n;
     Eigen::Map<VectorXd>(o, n) = q_pred;
     o += n;
-    Eigen::Map<MatrixXd>(o, N, N) = lu_;
-    o += N * N;
-    for (int i = 0; i < N; ++i) o[i] = ipiv_[i];
-    o[N] = rcond_;
-    o[N + 1] = speed2;
+    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Qc(o);
+    Qc = oMf.rotation();
+    Eigen::Map<Vector3d> pc(o + 9);
+    pc = oMf.translation();
+    o[12] = rcond_;
+    o[13] = speed2;
     nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<VectorXd*>(p); });
     size_t shape[1] = {static_cast<size_t>(buf->size())};
     return nb::cast(nb::ndarray<nb::numpy, double, nb::ndim<1>>(buf->data(), 1, shape, owner),
                     nb::rv_policy::reference);
+  }
+
+  // R's LU factors of the last step in LAPACK's layout: (lu column-major N x N, 0-based pivots as doubles)
+  nb::tuple factors() const {
+    MatrixXd lu = lu_;
+    Eigen::VectorXd piv = ipiv_.cast<double>();
+    return nb::make_tuple(lu, piv);
   }
 
   // The evaluation at q (t of the last step's sample): (r, J, xdot, grad, Lambda+Hess (M) for lam, top) - for tests.
@@ -561,6 +572,7 @@ void bind_step(nb::module_& m) {
       .def("step", &StepCore::step, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
            nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"), nb::arg("qdot0"),
            nb::arg("speed2"), nb::arg("check_jump"))
+      .def("factors", &StepCore::factors)
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
            nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"));
 }
