@@ -33,11 +33,19 @@ demo: install
 browser:
 	@command -v chromium >/dev/null 2>&1 || (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || echo "chromium could not be installed: the browser tests will be skipped"
 
+# The tracker's tests once more on the Python stepper alone (the default backend is the compiled core, issue 28:
+# both must pass; tests/test_tracking_compiled.py compares them step by step).
+PYTHON_BACKEND_TESTS := tests/test_tracking_api.py tests/test_tracking_state.py tests/test_tracking_limits.py \
+	tests/test_tracking_limits_property.py tests/test_tracking_axis.py tests/test_tracking_failures.py \
+	tests/test_tracking_compiled.py tests/test_resolved_rate.py tests/test_record_checks.py
+
 test: install
 	$(BIN)/pytest $(PYTEST_SELECT) $(PYTEST_ARGS)
+	KINREDUND_BACKEND=python $(BIN)/pytest $(PYTEST_SELECT) $(PYTEST_ARGS) $(PYTHON_BACKEND_TESTS)
 
 test-all: install
 	$(BIN)/pytest $(PYTEST_ARGS)
+	KINREDUND_BACKEND=python $(BIN)/pytest $(PYTEST_ARGS) $(PYTHON_BACKEND_TESTS)
 
 lint: $(DEPS_STAMP)
 	$(BIN)/ruff check kinredund tests benchmarks examples

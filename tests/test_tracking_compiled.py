@@ -291,6 +291,7 @@ def test_compiled_where_it_cannot_run_says_why():
 
 
 def test_a_core_that_cannot_load_warns_once_and_runs_python(monkeypatch):
+    monkeypatch.delenv("KINREDUND_BACKEND", raising=False)
     monkeypatch.setattr(compiled, "_CORE", [None, "ImportError: no module named kinredund._core"])
     monkeypatch.setattr(compiled, "_WARNED", [])
     r, path, index, q0 = problem("panda_wrist15")
