@@ -296,7 +296,8 @@ def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
         else:
             scene.add_sphere(name, size, pos)
     with_scene = Tracker(robot, path, index, q0, dt, scene=scene)
-    plain = Tracker(robot, path, index, q0, dt, limits=True)
+    # the Python stepper for both: a scene's rows are held by it (the compiled core takes the limits-only step)
+    plain = Tracker(robot, path, index, q0, dt, limits=True, backend="python")
     constraint = with_scene.stepper.general[0]
     spent, query = [0.0], SceneClearance._query
 
