@@ -149,7 +149,8 @@ class Diagnostics:
     the eigenvalues of M and of Z^T M Z (Theorem 2), and the solver labels the steps left pending
     (:func:`labels_many`, which the eigenvalues make cheap). Until then it holds the run's arrays
     (about 1 KiB per point on a 7-axis arm; M and the step's J per point, stacked when first read) and the
-    robot for its kinematics; it drops them once computed. Safe to read from several threads (one computes, the others wait).
+    robot for its kinematics; it drops them once computed. Safe to read from several threads (one computes,
+    the others wait).
     """
 
     def __init__(self, rec: Recorder, t: np.ndarray, q: np.ndarray, grad: np.ndarray, own: dict,
