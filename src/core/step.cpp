@@ -20,6 +20,7 @@
 #include <pinocchio/multibody/model.hpp>
 
 #include <cmath>
+#include <memory>
 #include <stdexcept>
 #include <vector>
 
@@ -119,6 +120,31 @@ class StepCore {
       tv_ref_ = ref_t;
       tv_rate_ = rate_t;
     }
+    std::vector<const double*> prevp(np_);
+    for (size_t j = 0; j < np_; ++j) {
+      if (prev[j].shape(0) != static_cast<size_t>(N)) throw nb::value_error("prev entries must have n + m entries");
+      prevp[j] = prev[j].data();
+    }
+    if (qdot0.size() != n) throw nb::value_error("qdot0 must have n entries");
+    std::unique_ptr<VectorXd> out(new VectorXd(2 * N + n * n + m_ * n + n + 12 + 2));
+    int st;
+    {
+      nb::gil_scoped_release release;  // the step touches no Python object: trackers in threads step in parallel
+      st = advance(y, yd, prevp, qdot0, speed2_prev, check_jump, *out);
+    }
+    if (st != OK) return nb::int_(st);
+    VectorXd* buf = out.release();
+    nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<VectorXd*>(p); });
+    size_t shape[1] = {static_cast<size_t>(buf->size())};
+    return nb::cast(nb::ndarray<nb::numpy, double, nb::ndim<1>>(buf->data(), 1, shape, owner),
+                    nb::rv_policy::reference);
+  }
+
+  // The step itself (no Python object touched: called with the GIL released); fills ``out`` (see step()).
+  int advance(CRef y, CRef yd, const std::vector<const double*>& prev, CRef qdot0, double speed2_prev,
+              bool check_jump, VectorXd& out) {
+    const int n = n_, N = n_ + m_;
+    const size_t np_ = prev.size();
     // the Hermite predictor (Euler at the first step): predictor_corrector.plain_step
     VectorXd yp(N);
     if (np_ == 0) {
@@ -126,26 +152,23 @@ class StepCore {
     } else {
       const VectorXd& w = hermite_[np_ / 2];
       yp.setZero();
-      for (size_t j = 0; j < np_; ++j) {
-        if (prev[j].shape(0) != static_cast<size_t>(N)) throw nb::value_error("prev entries must have n + m entries");
-        yp += w[j] * Eigen::Map<const VectorXd>(prev[j].data(), N);
-      }
+      for (size_t j = 0; j < np_; ++j) yp += w[j] * Eigen::Map<const VectorXd>(prev[j], N);
       yp += w[np_] * y + w[np_ + 1] * yd;
     }
     VectorXd q_pred = yp.head(n);
     // _correct: one evaluation at the predicted point gives R, the rates and the Newton update
     evaluate(yp.head(n), true);
-    if (task_ == POSE && velocity_ && !log_ok_) return nb::int_(LOG_NEAR_PI);
+    if (task_ == POSE && velocity_ && !log_ok_) return (LOG_NEAR_PI);
     VectorXd lam = yp.tail(m_);
     RowMatrixXd M;
     VectorXd top;
     system(lam, M, top);
     int st = factor(M);
-    if (st != OK) return nb::int_(st);
+    if (st != OK) return (st);
     VectorXd sol(N);
     sol << top, xdot_;
     solve(sol);
-    if (!std::isfinite(sol.dot(sol))) return nb::int_(NOT_FINITE);
+    if (!std::isfinite(sol.dot(sol))) return (NOT_FINITE);
     VectorXd F = residual(lam);
     const double tol = tol_ * std::max(1.0, std::sqrt(grad_.dot(grad_)));
     VectorXd yc = yp;
@@ -154,11 +177,11 @@ class StepCore {
       solve(d);
       yc = yp - d;
       if (!(d.dot(d) <= tol)) {
-        if (!chord(yc, tol)) return nb::int_(CHORD_FAILED);
+        if (!chord(yc, tol)) return (CHORD_FAILED);
       }
     }
     const auto q = yc.head(n);
-    if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return nb::int_(LIMIT);
+    if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return (LIMIT);
     const auto qd1 = sol.head(n);
     const double speed2 = qd1.dot(qd1);
     if (check_jump) {  // step_control.StepControl._attempt on a whole step
@@ -168,7 +191,7 @@ class StepCore {
         VectorXd e = dq - (0.5 * dt_) * (qdot0 + qd1);
         double move2 = dq.dot(dq), miss2 = e.dot(e);
         double scale2 = std::max(move2, dt_ * dt_ * std::max(speed2_prev, speed2));
-        if (!(miss2 <= 0.25 * 0.25 * scale2 + 1e-24)) return nb::int_(JUMP);
+        if (!(miss2 <= 0.25 * 0.25 * scale2 + 1e-24)) return (JUMP);
       }
     }
     // the pose at the corrected joints (the record's: Recorder)
@@ -177,8 +200,7 @@ class StepCore {
     // one buffer (one array for Python to slice: small arrays would each be copied through numpy):
     // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), Q (9, row-major) and p (3) at the
     //  corrected joints, rcond, speed2]; R's factors stay here (factors())
-    auto* buf = new VectorXd(2 * N + n * n + m_ * n + n + 12 + 2);
-    double* o = buf->data();
+    double* o = out.data();
     Eigen::Map<VectorXd>(o, N) = yc;
     Eigen::Map<VectorXd>(o + N, N) = sol;
     o += 2 * N;
@@ -194,10 +216,7 @@ class StepCore {
     pc = oMf.translation();
     o[12] = rcond_;
     o[13] = speed2;
-    nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<VectorXd*>(p); });
-    size_t shape[1] = {static_cast<size_t>(buf->size())};
-    return nb::cast(nb::ndarray<nb::numpy, double, nb::ndim<1>>(buf->data(), 1, shape, owner),
-                    nb::rv_policy::reference);
+    return OK;
   }
 
   // R's LU factors of the last step in LAPACK's layout: (lu column-major N x N, 0-based pivots as doubles)
