@@ -28,7 +28,7 @@ from kinredund.problems import panda_circle
 from kinredund.tasks import make_target
 from kinredund.tasks.axis import frame_with_axis
 from kinredund.thesis.chapter4 import load_example
-from kinredund.tracking import Tracker, compiled, track
+from kinredund.tracking import Tracker, compiled, track, track_many
 from kinredund.tracking.point import Evaluator
 
 pytestmark = pytest.mark.skipif(compiled.load_core() is None and not os.environ.get("CI"),
@@ -311,3 +311,26 @@ def test_in_ci_the_compiled_backend_never_falls_back_silently():
     r, path, index, q0 = problem("panda_wrist15")
     tr = track(r, path, index, q0, loops=1, steps_per_loop=50)
     assert tr.meta["backend"] == (os.environ.get("KINREDUND_BACKEND") or "compiled").replace("auto", "compiled")
+
+
+# -- many runs in one call ---------------------------------------------------------------------------------------
+
+def test_track_many_equals_the_runs_one_by_one():
+    problems = [problem("panda_wrist15"), problem("ur5_axis"), problem("panda_elbow_circle"),
+                problem("panda_pose_infeasible")]
+    options = {"loops": 2, "steps_per_loop": 100}
+    many = track_many(problems, threads=2, **options)
+    for got, p in zip(many, problems, strict=True):
+        try:
+            alone = track(*p, **options)
+        except TrackingError as err:
+            assert isinstance(got, TrackingError) and got.cause == err.cause and got.t == err.t
+            np.testing.assert_allclose(got.q, err.q, rtol=0, atol=Q_BAR)
+            continue
+        # the same computation in another thread (threads sharing a workspace would be off by far more)
+        np.testing.assert_allclose(got.q, alone.q, rtol=0, atol=Q_BAR)
+        np.testing.assert_allclose(got.lam, alone.lam, rtol=0, atol=FIELD_BAR)
+    with pytest.raises(OptionError, match="threads"):
+        track_many(problems, threads=0)
+    with pytest.raises(OptionError, match="problem 0"):
+        track_many([problems[0][:3]])

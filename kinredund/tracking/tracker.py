@@ -120,7 +120,7 @@ class Tracker:
         backend: ``compiled`` (the default mode's ordinary step in the compiled core, the other steps in
             Python: :mod:`kinredund.tracking.compiled`), ``python`` (every step in Python) or ``auto`` (compiled
             where the core loads and supports the problem). Default: ``$KINREDUND_BACKEND``, else ``auto``.
-            Both give the same results (to ~1e-12); :attr:`backend` says which one runs.
+            Both give the same results (to ~1e-12); the attribute ``backend`` says which one runs.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
     ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label),
