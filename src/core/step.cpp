@@ -116,10 +116,7 @@ class StepCore {
     const int n = n_, N = n_ + m_;
     if (y.size() != N || yd.size() != N) throw nb::value_error("y and ydot must have n + m entries");
     set_sample(sp, sv, sQ, somega);
-    if (time_varying_) {
-      tv_ref_ = ref_t;
-      tv_rate_ = rate_t;
-    }
+    set_reference(ref_t, rate_t);
     std::vector<const double*> prevp(np_);
     for (size_t j = 0; j < np_; ++j) {
       if (prev[j].shape(0) != static_cast<size_t>(N)) throw nb::value_error("prev entries must have n + m entries");
@@ -229,10 +226,8 @@ class StepCore {
   // The evaluation at q (t of the last step's sample): (r, J, xdot, grad, Lambda+Hess (M) for lam, top) - for tests.
   nb::tuple evaluate_at(CRef q, CRef lam, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t) {
     set_sample(sp, sv, sQ, somega);
-    if (time_varying_) {
-      tv_ref_ = ref_t;
-      tv_rate_ = rate_t;
-    }
+    set_reference(ref_t, rate_t);
+    if (q.size() != n_ || lam.size() != m_) throw nb::value_error("q and lam must have n and m entries");
     evaluate(q, true);
     RowMatrixXd M;
     VectorXd top;
@@ -242,6 +237,14 @@ class StepCore {
   }
 
  private:
+  void set_reference(CRef ref_t, CRef rate_t) {  // a time-varying index's theta*(t) and its rate
+    if (!time_varying_) return;
+    if (ref_t.size() != n_ || rate_t.size() != n_)
+      throw nb::value_error("the time-varying reference and its rate must have n entries");
+    tv_ref_ = ref_t;
+    tv_rate_ = rate_t;
+  }
+
   void set_sample(CRef sp, CRef sv, Mat3 sQ, CRef somega) {
     if (sp.size() != 3 || sv.size() != 3) throw nb::value_error("the sample's p and v must have 3 entries");
     s_.p = sp;
