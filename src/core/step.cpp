@@ -94,6 +94,10 @@ class StepCore {
     m_ = task == PLANAR ? 2 : task == POSITION ? 3 : task == POSE ? 6 : 5;
     if (w_.size() != n_ || ref_.size() != n_) throw nb::value_error("weights and reference must have n entries");
     limited_ = lo_.size() == n_;
+    for (size_t k = 1; k < hermite_.size(); ++k)  // the predictor's weights through k + 1 points (linalg.py)
+      if (hermite_[k].size() != static_cast<Eigen::Index>(2 * k + 2))
+        throw nb::value_error("hermite[k] must hold the 2 k + 2 weights of the predictor through k + 1 points");
+    if (hermite_.size() < 2) throw nb::value_error("hermite: the weights of at least two points");
     J6_.setZero(6, n_);
     K_.setZero(6, n_);
     const int N = n_ + m_;
