@@ -14,7 +14,9 @@ step, T / 200, for N loops (default 20). Methods:
   ``liegeois`` (Liegeois 1977, gain 1/s) in the default mode (Euler step + Newton projection on the task);
 - ours with limits: ``augmented_limits`` and ``velocity_limits`` (the default mode holding the URDF
   joint limits, :mod:`kinredund.tracking.limited`; on this circle no bound is met, so they follow the
-  same joints as ``augmented`` and ``velocity`` and the figure is the cost of watching the limits);
+  same joints as ``augmented`` and ``velocity`` and the figure is the cost of watching the limits); these run on
+  the default backend (the compiled core where it is built: :mod:`kinredund.tracking.compiled`), and
+  ``augmented_limits_python`` is ``augmented_limits`` on the Python stepper alone;
 - ``pink`` (pin-pink): a plain differential-IK loop, ``FrameTask`` on the hand frame (position cost
   1 /m, orientation cost 1 /rad, gain 1), ``solve_ik(..., solver="daqp")`` (the solver pink's own
   examples pick when it is installed) with pink's default configuration and velocity limits,
@@ -57,12 +59,15 @@ VARIANTS = {"constant": 0.0, "wrist15": float(np.radians(15.0))}
 OURS = {"augmented": ("augmented", "default", False), "augmented_thesis": ("augmented", "thesis", False),
         "velocity": ("velocity", "default", False), "pseudoinverse": ("pseudoinverse", "default", False),
         "liegeois": ("liegeois", "default", False), "augmented_limits": ("augmented", "default", True),
-        "velocity_limits": ("velocity", "default", True)}
+        "velocity_limits": ("velocity", "default", True),
+        # the default mode's steps by the Python stepper alone (the others run on the default backend: the
+        # compiled core where it is built, kinredund.tracking.compiled)
+        "augmented_limits_python": ("augmented", "default", True, "python")}
 #: pink's variants: (posture task, pink's default limits, QP solver); daqp is what pink's examples pick
 PINK = {"pink": (False, True, "daqp"), "pink_proxqp": (False, True, "proxqp"), "pink_posture": (True, True, "daqp"),
         "pink_nolimits": (False, False, "daqp")}
 METHODS = (*OURS, *PINK, "rtb_whitney")
-OPTIMAL = ("augmented", "velocity", "augmented_limits", "velocity_limits")  # ours, on the constrained optimum
+OPTIMAL = ("augmented", "velocity", "augmented_limits", "velocity_limits", "augmented_limits_python")  # ours, optimal
 POSTURE_COST = 1e-3  # [cost] / [rad], pink's README value; the frame task costs 1 /m and 1 /rad
 #: [rad] a drift at or below this is rounding: the joints reach ~3 rad, where doubles are 4.4e-16 apart, and a
 #: loop's last step lands within a few such spacings of the start; no ratio is taken against it
@@ -72,8 +77,8 @@ DRIFT_RESOLUTION = 8 * float(np.finfo(float).eps)
 class _Ours:
     """One of our schemes through :class:`~kinredund.tracking.Tracker`."""
 
-    def __init__(self, robot, path, index, q0, dt, scheme, mode, limits):
-        self.rr = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, limits=limits)
+    def __init__(self, robot, path, index, q0, dt, scheme, mode, limits, backend=None):
+        self.rr = Tracker(robot, path, index, q0, dt, scheme=scheme, mode=mode, limits=limits, backend=backend)
         self.step = self.rr.step
 
     def state(self):
@@ -243,10 +248,11 @@ def verdict(results: dict) -> dict:
             for p in ("pink", "pink_proxqp", "pink_nolimits"):
                 if p in ok:
                     v[f"step_vs_{p}"] = a["step_us_median"] / ok[p]["step_us_median"]
-        for ours in ("augmented_limits", "velocity_limits"):  # the limits held, against pink with and without its
+        names = {"augmented_limits": "limits_step", "velocity_limits": "velocity_limits_step",
+                 "augmented_limits_python": "limits_step_python"}
+        for ours, name in names.items():  # the limits held, against pink with and without its
             for p, key in (("pink", "vs_pink"), ("pink_nolimits", "vs_pink_nolimits")):
                 if ours in ok and p in ok:
-                    name = "limits_step" if ours == "augmented_limits" else "velocity_limits_step"
                     v[f"{name}_{key}"] = ok[ours]["step_us_median"] / ok[p]["step_us_median"]
         out[variant] = v
     return out

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "kinredund"
 #: the layers in data-flow order; a module may import only from its own layer or earlier ones
 LAYERS = [
     ("errors", "inputs", "outputs", "io"),
-    ("kinematics",),
+    ("kinematics", "_core"),  # _core: the compiled core (C++ on Pinocchio, src/core/), no Python imports
     ("indices", "paths"),
     ("tasks",),
     ("model",),

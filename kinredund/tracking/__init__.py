@@ -2,6 +2,8 @@
 
 - :class:`Tracker` (:mod:`.tracker`): the public stepper for control loops (``step()``, ``q``, ``t``);
 - :func:`track` (:mod:`.run`): a whole run, recorded as a :class:`~kinredund.trajectory.Trajectory`;
+  :func:`track_many` (:mod:`.many`): many runs in one call, in threads;
+- :mod:`.compiled`: the default mode's ordinary step in the compiled core (``Tracker(..., backend=)``);
 - the schemes, one class each: :mod:`.predictor_corrector` (default mode), :mod:`.explicit` (thesis
   mode, Eq. 4.29), :mod:`.baselines` (pseudoinverse, Liegeois); their shared state in :mod:`.stepper`
   and their evaluation at a point in :mod:`.point`;
@@ -15,8 +17,9 @@
 """
 
 from kinredund.tracking.constraints import Constraint, JointLimits, PlaneClearance, SceneClearance, SphereClearance
+from kinredund.tracking.many import track_many
 from kinredund.tracking.run import MAX_STEPS, track
 from kinredund.tracking.tracker import LINEAR_SOLVERS, MODES, QP_BACKENDS, SCHEMES, Tracker
 
 __all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Constraint", "JointLimits",
-           "PlaneClearance", "SceneClearance", "SphereClearance", "Tracker", "track"]
+           "PlaneClearance", "SceneClearance", "SphereClearance", "Tracker", "track", "track_many"]

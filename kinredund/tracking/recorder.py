@@ -53,7 +53,9 @@ class Recorder:
         self.solver.append(None if pending else s.solver)
         self.M.append(s.M)
         self.J_step.append(pt.J if pending else None)
-        self.points.append(pt if pt.q is s.q and pt.t == s.t else pt.sample)
+        # the step's own evaluation where it was made at the recorded point, else the path sample (with the pose
+        # at the recorded joints where the step has it: a compiled step's RecordedPose)
+        self.points.append(pt if pt.q is s.q and pt.t == s.t else getattr(pt, "recorded", pt.sample))
         if self.limited:
             self.active.append(s.active_bounds() if s.any_active else None)
             self.mu.append(s.mu)
@@ -95,6 +97,8 @@ class Recorder:
         for k, (q, item) in enumerate(zip(self.q, self.points, strict=True)):
             if hasattr(item, "terms"):
                 (Q, p), own[k], sample = (item.Q, item.p), item.J, item.sample
+            elif hasattr(item, "pose"):
+                (Q, p), sample = item.pose, item.sample
             else:
                 (Q, p), sample = kin.pose(q), item
             Qs.append(Q)
@@ -144,8 +148,9 @@ class Diagnostics:
     corrected point the step did not evaluate, grad z as the recorder computed it), with ``diagnostics``
     the eigenvalues of M and of Z^T M Z (Theorem 2), and the solver labels the steps left pending
     (:func:`labels_many`, which the eigenvalues make cheap). Until then it holds the run's arrays
-    stacked (about 1 KiB per point on a 7-axis arm) and the robot for its kinematics; it drops them once
-    computed. Safe to read from several threads (one computes, the others wait).
+    (about 1 KiB per point on a 7-axis arm; M and the step's J per point, stacked when first read) and the
+    robot for its kinematics; it drops them once computed. Safe to read from several threads (one computes,
+    the others wait).
     """
 
     def __init__(self, rec: Recorder, t: np.ndarray, q: np.ndarray, grad: np.ndarray, own: dict,
@@ -153,11 +158,9 @@ class Diagnostics:
         s = rec.stepper
         self.pending = [k for k, v in enumerate(rec.solver) if v is None]
         self.eigenvalues = rec.diagnostics and all(M is not None for M in rec.M)
-        M = np.array(rec.M) if self.eigenvalues else None
-        M_pending = None if M is not None or not self.pending else np.array([rec.M[k] for k in self.pending])
-        J_pending = np.array([rec.J_step[k] for k in self.pending]) if self.pending else None
-        # copies (the record's t and q are the caller's to change) and stacked arrays, not per-point objects
-        self._inputs = (t.copy(), q.copy(), grad, own, Q_d, s.ev.robot, s.ev.task, M, M_pending, J_pending,
+        # copies (the record's t and q are the caller's to change); M and J per step are stacked when first read
+        # (the steppers never change them in place)
+        self._inputs = (t.copy(), q.copy(), grad, own, Q_d, s.ev.robot, s.ev.task, list(rec.M), list(rec.J_step),
                         list(rec.solver), s.linear_solver, s.symmetric)
         self._out = None
         self._lock = threading.Lock()
@@ -169,8 +172,11 @@ class Diagnostics:
                 self._inputs = None
             return self._out
 
-    def _run(self, t, q, grad, own, Q_d, robot, task_name, M, M_pending, J_pending, solver, rule, symmetric) -> dict:
+    def _run(self, t, q, grad, own, Q_d, robot, task_name, Ms, Js_step, solver, rule, symmetric) -> dict:
         kin, task = robot.kinematics, get_task(task_name)
+        M = np.array(Ms) if self.eigenvalues else None
+        M_pending = None if M is not None or not self.pending else np.array([Ms[k] for k in self.pending])
+        J_pending = np.array([Js_step[k] for k in self.pending]) if self.pending else None
         Js = []
         for k in range(len(t)):
             if k in own:

@@ -64,12 +64,12 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
           linear_solver: str | None = None, qp_backend: str | None = None, tol: float = 1e-12,
           diagnostics: bool = True, liegeois_gain: float = 1.0, limits=None, project_start: bool = False,
           strict: bool = True, constraints=None, qp_solver: str = "proxqp", scene=None, clearance=None,
-          self_clearance=None, progress=None, meta: dict | None = None) -> Trajectory:
+          self_clearance=None, progress=None, meta: dict | None = None, backend: str | None = None) -> Trajectory:
     """Track ``path`` from ``q0`` and return the :class:`~kinredund.trajectory.Trajectory`.
 
     Args:
         robot, path, index, q0, scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, limits,
-            project_start, strict, constraints, qp_solver, scene, clearance, self_clearance: as for
+            project_start, strict, constraints, qp_solver, scene, clearance, self_clearance, backend: as for
             :class:`~kinredund.tracking.tracker.Tracker` (by default the default mode's optimal schemes
             keep the joints within the robot's limits; ``limits=False`` is
             the thesis's unconstrained scheme; ``strict`` the step control and the fold and singularity
@@ -97,7 +97,7 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
     options = {"scheme": scheme, "mode": mode, "linear_solver": linear_solver, "qp_backend": qp_backend, "tol": tol,
                "liegeois_gain": liegeois_gain, "limits": limits, "project_start": project_start, "strict": strict,
                "constraints": constraints, "qp_solver": qp_solver,
-               "scene": scene, "clearance": clearance, "self_clearance": self_clearance}
+               "scene": scene, "clearance": clearance, "self_clearance": self_clearance, "backend": backend}
     span = {"steps_per_loop": steps_per_loop, "loops": loops, "duration": duration, "steps": steps}
     traj = _run(robot, path, index, q0, span, options, diagnostics, progress, meta)
     say_open_loop(traj, scheme, mode)
@@ -120,7 +120,7 @@ def _run(robot: Robot, path: Path, index: Index | None, q0, span: dict, options:
     rec.add()
     step = tracker.step
     info = {"robot_name": loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
-            "meta": dict(meta or {}, dt=dt, steps=total,
+            "meta": dict(meta or {}, dt=dt, steps=total, backend=tracker.backend,
                          velocity_limit=[float(v) for v in robot.model.velocityLimit])}  # Trajectory.speed_over_limits
     try:
         for k in range(total):

@@ -36,6 +36,7 @@ from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.tasks import get_task
 from kinredund.tracking.baselines import Liegeois, Pseudoinverse
+from kinredund.tracking.compiled import attach
 from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.tracking.constraints.scene import SceneClearance
 from kinredund.tracking.explicit import ExplicitEuler
@@ -138,14 +139,18 @@ class Tracker:
             (:mod:`kinredund.tracking.step_control`; on by default): a step the corrector fails is retried in
             sub-steps, and the run stops before a fold or a singularity with a
             :class:`~kinredund.errors.TrackingError`; ``strict=False`` is the plain predictor-corrector step.
+        backend: ``compiled`` (the default mode's ordinary step in the compiled core, the other steps in
+            Python: :mod:`kinredund.tracking.compiled`), ``python`` (every step in Python) or ``auto`` (compiled
+            where the core loads and supports the problem). Default: ``$KINREDUND_BACKEND``, else ``auto``.
+            Both give the same results (to ~1e-12); the attribute ``backend`` says which one runs.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),
-    ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label) and
-    ``stepper`` (the scheme's own object).
+    ``qdot`` [rad/s] (the rates at t), ``lamdot``, ``solver`` (the step's linear-solver label),
+    ``stepper`` (the scheme's own object) and ``backend`` (``compiled`` or ``python``).
 
     Raises:
         ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range (also:
-            limits asked of thesis mode or a baseline).
+            limits asked of thesis mode or a baseline; ``backend="compiled"`` where it cannot run, saying why).
         TrackingError: with constraints, ``q0`` violates one (``cause="collision"``, naming it and by how much).
         TaskError: an index that cannot be evaluated on the robot's joints (the wrong length, a custom
             index whose callables fail or return the wrong shapes: :func:`kinredund.ik.solve.check_index_at`).
@@ -163,7 +168,7 @@ class Tracker:
                  tol: float = 1e-12, liegeois_gain: float = 1.0, t0: float = 0.0,
                  limits: bool | JointLimits | None = None, project_start: bool = False, strict: bool = True,
                  constraints=None, qp_solver: str = "proxqp", scene=None, clearance: float | None = None,
-                 self_clearance: float | bool | None = None):
+                 self_clearance: float | bool | None = None, backend: str | None = None):
         check_choice("scheme", scheme, SCHEMES)
         check_choice("mode", mode, MODES)
         linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
@@ -203,6 +208,7 @@ class Tracker:
             self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, constraints=constraints,
                                                               qp_solver=qp_solver, strict=strict, **kwargs)
             self.step = self.stepper.step
+            self.backend = attach(self, backend)
             return
         if scheme in ("pseudoinverse", "liegeois"):
             kwargs["project"] = mode == "default"
@@ -212,6 +218,7 @@ class Tracker:
             kwargs["strict"] = strict
         self.stepper: Stepper = STEPPERS[mode, scheme](ev, q, dt, **kwargs)
         self.step = self.stepper.step
+        self.backend = attach(self, backend)
 
     @staticmethod
     def _limits(robot: Robot, limits, mode: str, scheme: str) -> JointLimits | None:

@@ -97,9 +97,23 @@ class Watch:
 
     def due(self, rcond: float) -> bool:
         """Should this step be measured? (The cheap gate: R's condition estimate, see :data:`RCOND_NEAR`.)"""
-        prev, self._rcond = self._rcond, rcond
+        out = self.due_next(rcond)
+        self._rcond = rcond
         self._count += 1
-        return not rcond > RCOND_NEAR or rcond < RCOND_DROP * prev or self._count % EXACT_EVERY == 0
+        return out
+
+    def due_next(self, rcond: float) -> bool:
+        """What :meth:`due` would say of a step with ``rcond``, without counting the step."""
+        return not rcond > RCOND_NEAR or rcond < RCOND_DROP * self._rcond or (self._count + 1) % EXACT_EVERY == 0
+
+    def save(self) -> dict:
+        """The watch's state (its attributes; the histories are changed only by :meth:`push` and :meth:`reset`,
+        which a step that is undone has not reached)."""
+        return dict(vars(self))
+
+    def load(self, saved: dict) -> None:
+        """Back to a state of :meth:`save` (a measured step that was rejected after all)."""
+        vars(self).update(saved)
 
     def reset(self) -> None:
         """Forget the history (after a restart: the next prediction starts afresh)."""

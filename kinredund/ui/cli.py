@@ -128,7 +128,7 @@ def _cmd_track(args) -> int:
             with warnings.catch_warnings():  # said below, once, with the exit code
                 warnings.simplefilter("ignore", RecordWarning)
                 traj = track(robot, path, index, res.q, scheme=args.scheme, mode=args.mode,
-                             steps_per_loop=args.steps, loops=args.loops,
+                             steps_per_loop=args.steps, loops=args.loops, backend=args.backend,
                              progress=lambda d, n: bar(d, n, "tracking"), **span)
         except TrackingError as err:  # a run that stopped: a result that failed (exit 1), not bad input
             bar.close("failed")  # returned, not raised: the finally below would say done

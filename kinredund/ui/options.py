@@ -289,6 +289,10 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                         "from mid-range (Chapter 2); the baselines' normality residual is measured against it "
                         "(default: %(default)s)")
     _add_tracking(p)
+    p.add_argument("--backend", choices=("auto", "compiled", "python"), default=None,
+                   help="compiled: the default mode's ordinary steps in the compiled core (same results, faster); "
+                        "python: every step in Python; auto: compiled where it can run (default: "
+                        "$KINREDUND_BACKEND, else auto)")
     p.add_argument("--steps", type=_SAMPLES, default=200, metavar="N",
                    help="steps per loop of a closed path, steps in all of an open one (default: %(default)s)")
     p.add_argument("--starts", type=_STARTS, default=8, metavar="N",

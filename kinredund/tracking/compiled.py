@@ -1,0 +1,262 @@
+"""The compiled backend of the default mode's step (issue 28): the ordinary step in C++, the rest in Python.
+
+:class:`CompiledStep` runs a :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` (or its limited
+subclass, :mod:`kinredund.tracking.limited`) whose common step is done by the compiled core ``kinredund._core``
+(``src/core/step.cpp``): the Hermite predictor, the evaluation (Pinocchio's kinematics and kinematic Hessian,
+the task terms of every task kind in both forms, the index terms of
+:class:`~kinredund.indices.JointDeviation` and :class:`~kinredund.indices.TimeVaryingReference`), R of
+Eq. (4.24) with its LU factors (LAPACK's algorithm and layout) and LAPACK's condition estimate, the rates,
+the Newton update and the chord iterations, then the checks that make the step ordinary: no joint beyond a
+bound (with the limits held and none active), no jump (the step control's check,
+:mod:`kinredund.tracking.step_control`). Python samples the path (and a time-varying reference) once per step
+and passes them in.
+
+Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
+R's condition drops) it does so in Python on the compiled step's results. Anything else is handed to the
+Python reference from the same state (the stepper's, untouched until the compiled step is accepted, or put
+back with the watch's where the watch rejects the step): a step the watch predicts trouble within or
+rejects, a joint on a bound, a switch, a jump, a corrector that needs fresh factorisations, a singular R,
+a failure. Those steps are the
+Python stepper's own, so events happen at the same times with the same causes.
+
+:func:`attach` picks the backend of a :class:`~kinredund.tracking.tracker.Tracker`: ``compiled`` where the
+core loads and supports the problem, else ``python`` (``backend="compiled"`` then raises an
+:class:`~kinredund.errors.OptionError` saying why; a core that cannot be loaded at all warns once). The
+environment variable ``KINREDUND_BACKEND`` (``python``, ``compiled`` or ``auto``) is read where the caller
+gives no backend.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from kinredund.errors import OptionError, check_choice
+from kinredund.indices import JointDeviation, TimeVaryingReference
+from kinredund.tracking.point import Point
+from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS, PredictorCorrector
+
+BACKENDS = ("auto", "compiled", "python")
+#: the task kinds' codes in the core (src/core/step.cpp)
+TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
+#: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
+STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
+          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 10: "bound_active"}
+
+
+class BackendWarning(UserWarning):
+    """The compiled core cannot be loaded: the (slower) Python stepper runs, with the same results."""
+
+
+_CORE: list = []  # [module or None, the import error's text]
+
+
+def load_core():
+    """The compiled module ``kinredund._core``, or None where it cannot be loaded (:func:`core_error` says why)."""
+    if not _CORE:
+        try:
+            import kinredund._core as core
+        except ImportError as err:
+            _CORE.extend([None, f"{type(err).__name__}: {err}"])
+        else:
+            _CORE.extend([core if hasattr(core, "StepCore") else None, "kinredund._core has no StepCore"])
+    return _CORE[0]
+
+
+def core_error() -> str:
+    """Why :func:`load_core` returned None ("" where it loads)."""
+    return "" if load_core() is not None else _CORE[1]
+
+
+def unsupported(tracker) -> str:
+    """Why the compiled step cannot run ``tracker``'s problem ("" where it can)."""
+    s = tracker.stepper
+    if not isinstance(s, PredictorCorrector):
+        return f"it compiles the default mode's augmented and velocity schemes, not mode={tracker.mode!r}, " \
+               f"scheme={tracker.scheme!r}"
+    if getattr(s, "row_pairs", None):
+        return "general inequality constraints (constraints=, scene=) are held by the Python stepper only"
+    index = s.ev.index
+    if type(index) not in (JointDeviation, TimeVaryingReference):
+        return f"it knows the indices JointDeviation (minimum_norm, mid_range) and TimeVaryingReference, not " \
+               f"{type(index).__name__}"
+    model = s.ev.robot.model
+    if model.nq != model.nv:
+        return f"the robot's configuration has nq = {model.nq} != nv = {model.nv} entries"
+    if s.ev.task not in TASK_CODES:
+        return f"unknown task kind {s.ev.task!r}"
+    return ""
+
+
+def attach(tracker, backend: str | None) -> str:
+    """Pick ``tracker``'s backend (see the module docstring) and set ``tracker.step``; returns its name.
+
+    Raises:
+        OptionError: ``backend="compiled"`` where the core cannot run the problem or cannot be loaded.
+        ChoiceError: an unknown backend.
+    """
+    if backend is None:
+        backend = os.environ.get("KINREDUND_BACKEND") or "auto"
+    check_choice("backend", backend, BACKENDS)
+    if backend == "python":
+        return "python"
+    why = unsupported(tracker)
+    if why:
+        if backend == "compiled":
+            raise OptionError(f"backend='compiled' cannot run this problem: {why}; use backend='python' or 'auto'")
+        return "python"
+    core = load_core()
+    if core is None:
+        if backend == "compiled":
+            raise OptionError(f"backend='compiled': the compiled core cannot be loaded ({core_error()}); reinstall "
+                              "kinredund with pin[build] and nanobind beside pin, or use backend='python'")
+        _warn_once()
+        return "python"
+    tracker.compiled = CompiledStep(tracker.stepper, core)
+    tracker.step = tracker.compiled.step
+    return "compiled"
+
+
+_WARNED: list = []
+
+
+def _warn_once() -> None:
+    if not _WARNED:
+        _WARNED.append(True)
+        warnings.warn(f"kinredund's compiled core cannot be loaded ({core_error()}): tracking runs on the Python "
+                      "stepper (same results, slower)", BackendWarning, stacklevel=4)
+
+
+class RecordedPose:
+    """What the record keeps of a compiled step: the path sample and the pose (Q, p) at the corrected joints
+    (:class:`~kinredund.tracking.recorder.Recorder` then needs no forward kinematics of its own)."""
+
+    __slots__ = ("sample", "pose")
+
+    def __init__(self, sample, pose):
+        self.sample, self.pose = sample, pose
+
+
+class CompiledPoint(Point):
+    """The step's evaluation as the core left it: q, t, J and the path sample (and ``recorded``, the
+    :class:`RecordedPose` at the corrected joints); the rest (pose, task and index terms,
+    :meth:`~kinredund.tracking.point.Point.system`) is evaluated in Python at (q, t) on first use."""
+
+    __slots__ = ("_ev", "recorded")
+
+    def __init__(self, ev, q, t, sample, J, basis, recorded):
+        self.q, self.t, self.sample, self.J, self.basis, self._ev, self.recorded = q, t, sample, J, basis, ev, recorded
+
+    def __getattr__(self, name):  # an unset slot of Point: the full evaluation fills them all
+        if name not in Point.__slots__:
+            raise AttributeError(name)
+        full = self._ev.point(self.q, self.t)
+        for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
+            setattr(self, key, getattr(full, key))
+        return getattr(self, name)
+
+
+class CompiledStep:
+    """The ordinary step of ``stepper`` in the compiled core; other steps are the stepper's own.
+
+    Attributes:
+        stepper: the Python stepper (its state is the run's state, as with the Python backend).
+        steps, handed_back: steps taken in C++, and the steps handed back by reason (:data:`STATUS`).
+    """
+
+    def __init__(self, stepper: PredictorCorrector, core):
+        ev = stepper.ev
+        index = ev.index
+        n = stepper.n
+        self.stepper, self.n = stepper, n
+        self._python_step = stepper.step
+        self._tv = isinstance(index, TimeVaryingReference)
+        if self._tv:
+            weights = np.ones(n) if index.weights is None else np.asarray(index.weights, float)
+            reference = np.zeros(n)
+        else:
+            weights, reference = index.weights, index.reference
+        limited = getattr(stepper, "lo", None) is not None
+        lo_tol = stepper._lo_tol if limited else np.zeros(0)
+        hi_tol = stepper._hi_tol if limited else np.zeros(0)
+        hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper._hermite]
+        self.core = core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
+                                  ev.formulation == "velocity", np.asarray(weights, float),
+                                  np.asarray(reference, float), self._tv, stepper.tol, stepper.dt, hermite,
+                                  lo_tol, hi_tol)
+        self._limited = limited
+        self._basis = stepper.pt.basis
+        self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
+        m = len(stepper.lam)
+        N = n + m
+        ends = np.cumsum([N, N, n * n, m * n, n, 9, 3])  # the core's output layout (src/core/step.cpp)
+        self._slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
+        self._shapes = (n, m, N)
+        self.steps = 0
+        self.handed_back: dict[str, int] = {}
+
+    def _hand_back(self, status: int) -> None:
+        why = STATUS[status]
+        self.handed_back[why] = self.handed_back.get(why, 0) + 1
+        self._python_step()
+
+    def step(self) -> None:
+        """One step from t to t0 + (k + 1) dt: in C++ where it is ordinary, else the Python stepper's."""
+        s = self.stepper
+        ctl = s.control
+        t_to = s.t0 + (s.k + 1) * s.dt
+        if ctl is not None and ctl.watch.ahead(t_to) is not None:
+            return self._hand_back(8)
+        if self._limited and s._sel is not None:
+            return self._hand_back(10)
+        sample = s.ev.sample(t_to)
+        if self._tv:
+            index = s.ev.index
+            ref, rate = np.asarray(index.reference(t_to), float), np.asarray(index.rate(t_to), float)
+        else:
+            ref = rate = self._empty
+        Q = self._none33 if sample.Q is None else sample.Q
+        omega = self._none3 if sample.omega is None else sample.omega
+        out = self.core.step(t_to, sample.p, sample.v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
+                             0.0 if ctl is None else ctl._speed2, ctl is not None)
+        if type(out) is int:
+            return self._hand_back(out)
+        rcond, speed2 = float(out[-2]), float(out[-1])
+        measured = ctl is not None and ctl.watch.due_next(rcond)
+        if measured:  # the watch measures the new point (in Python): the step may still be rejected
+            saved, watch = ctl._snapshot(), ctl.watch.save()
+        elif ctl is not None:
+            ctl.watch.due(rcond)
+            ctl._speed2 = speed2
+        self._apply(out, sample, t_to, rcond)
+        if measured:
+            s.lu = self.core.factors()  # the watch's inverse iteration solves with them
+            if ctl._watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
+                ctl._restore(saved)
+                ctl.watch.load(watch)
+                self.steps -= 1
+                return self._hand_back(9)
+        return None
+
+    def _apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
+        """The core's step as the stepper's new state (:meth:`PredictorCorrector.plain_step`'s). R's factors stay
+        in the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
+        s = self.stepper
+        sy, ssol, sM, sJ, sq, sQ, sp = self._slices
+        n, m, _ = self._shapes
+        y, sol, q_pred = out[sy], out[ssol], out[sq]
+        prev = s.prev  # PredictorCorrector.plain_step's bookkeeping
+        prev += (s.y, s.yd)
+        if len(prev) == 2 * PREDICTOR_POINTS:
+            del prev[:2]
+        s.k += 1
+        s.t = t_to
+        s._q_pred = q_pred
+        s.q, s.lam, s.y, s.yd = y[:n], y[n:], y, sol
+        s.qdot, s.lamdot, s.label, s.M = sol[:n], sol[n:], None, out[sM].reshape(n, n)
+        s.pt = CompiledPoint(s.ev, q_pred, t_to, sample, out[sJ].reshape(m, n), self._basis,
+                             RecordedPose(sample, (out[sQ].reshape(3, 3), out[sp])))
+        s.lu, s.rcond = None, rcond
+        self.steps += 1

@@ -1,0 +1,53 @@
+"""Many tracking runs in one call (issue 28): :func:`track_many`, one :func:`~kinredund.tracking.run.track` per
+problem, in threads.
+
+Each run is independent and deterministic (its own stepper, its own compiled core and, per thread, its own
+kinematics workspace: ``Robot.kinematics``), so the results equal the runs made one by one. The compiled
+step (:mod:`kinredund.tracking.compiled`) releases the GIL while it computes, so threads overlap that part;
+the rest of each step (the path sample, the Python around the core, the record) holds the GIL.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+from kinredund.errors import OptionError, TrackingError, check_count
+from kinredund.tracking.compiled import load_core
+from kinredund.tracking.run import track
+
+
+def track_many(problems, *, threads: int | None = None, **options) -> list:
+    """Track each problem with the same :func:`~kinredund.tracking.run.track` options, in ``threads`` threads.
+
+    Args:
+        problems: (robot, path, index, q0) per run (robots, paths and indices may be shared between them).
+        threads: worker threads (an integer >= 1; default: the machine's CPU count, at most the problems').
+        **options: :func:`~kinredund.tracking.run.track`'s keyword arguments, the same for every run.
+
+    Returns:
+        Per problem, in order: its :class:`~kinredund.trajectory.Trajectory`, or the
+        :class:`~kinredund.errors.TrackingError` where its run stopped (with its ``partial`` record).
+
+    Raises:
+        OptionError: a problem that is not a (robot, path, index, q0) tuple, or a bad ``threads``; any error of
+            bad input that :func:`~kinredund.tracking.run.track` raises for a run.
+    """
+    jobs = list(problems)
+    for k, job in enumerate(jobs):
+        if not isinstance(job, tuple | list) or len(job) != 4:
+            raise OptionError(f"problem {k} must be a (robot, path, index, q0) tuple, got {type(job).__name__}")
+    workers = min(len(jobs), os.cpu_count() or 1) if threads is None else check_count(threads, 1, "threads",
+                                                                                        OptionError)
+    load_core()  # once, before the threads (it warns once where the core cannot be loaded)
+
+    def one(job):
+        try:
+            return track(*job, **options)
+        except TrackingError as err:
+            return err
+
+    if workers <= 1 or len(jobs) <= 1:
+        return [one(job) for job in jobs]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(one, jobs))

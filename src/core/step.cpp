@@ -1,0 +1,606 @@
+// The default mode's ordinary step in C++ (issue 28): the Hermite predictor, one evaluation (Pinocchio's
+// kinematics and Hessian, the task terms of every task kind in both forms, the index terms of JointDeviation and
+// TimeVaryingReference), R of Eq. (4.24), its LU and condition estimate, the rates, the Newton update and the chord
+// iterations, then the checks that make a step ordinary (no limit crossed, no jump). It mirrors the Python
+// reference (kinredund/tracking/predictor_corrector.py, point.py, tasks/*, step_control.py) operation by operation;
+// R's LU is LAPACK's unblocked algorithm in LAPACK's layout (the watch solves with it through scipy).
+// Anything not ordinary returns a status code and the Python reference takes the step from the same state.
+#include "step.hpp"
+
+#include <nanobind/eigen/dense.h>
+#include <nanobind/stl/tuple.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/vector.h>
+
+#include <pinocchio/algorithm/frames.hpp>
+#include <pinocchio/algorithm/jacobian.hpp>
+#include <pinocchio/algorithm/kinematics-derivatives.hpp>
+#include <pinocchio/algorithm/kinematics.hpp>
+#include <pinocchio/multibody/data.hpp>
+#include <pinocchio/multibody/model.hpp>
+
+#include <cmath>
+#include <memory>
+#include <stdexcept>
+#include <vector>
+
+namespace nb = nanobind;
+
+namespace kinredund {
+
+pinocchio::Model model_from_python(nb::handle obj);  // module.cpp
+
+namespace {
+
+using MatrixXd = Eigen::MatrixXd;  // column-major: LAPACK's layout
+using VectorXd = Eigen::VectorXd;
+using VectorXi = Eigen::VectorXi;
+using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using Matrix3d = Eigen::Matrix3d;
+using Vector3d = Eigen::Vector3d;
+using CRef = Eigen::Ref<const VectorXd>;
+using Vec1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Mat3 = nb::ndarray<const double, nb::ndim<2>, nb::device::cpu>;  // any strides (a 3x3 rotation, or 0x0)
+
+// Task kinds (kinredund/tasks/*): the codes compiled.py passes.
+enum Task { PLANAR = 0, POSITION = 1, POSE = 2, AXIS = 3 };
+// Why a step is handed back to the Python reference.
+constexpr int OK = 0, FACTOR_SINGULAR = 1, RCOND_LOW = 2, NOT_FINITE = 3, CHORD_FAILED = 4, JUMP = 5, LIMIT = 6,
+              LOG_NEAR_PI = 7;
+
+constexpr double SMALL_ANGLE = 1e-4;  // kinredund.kinematics.closure
+constexpr double NEAR_PI_SIN = 1e-6;
+
+Vector3d cross(const Vector3d& a, const Vector3d& b) {
+  return Vector3d(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]);
+}
+
+// log of a rotation (closure.log_scalars); false near phi = pi (the Python reference's symmetric-part branch)
+bool rotation_log(const Matrix3d& R, Vector3d& w) {
+  double vx = 0.5 * (R(2, 1) - R(1, 2)), vy = 0.5 * (R(0, 2) - R(2, 0)), vz = 0.5 * (R(1, 0) - R(0, 1));
+  double c = 0.5 * (R(0, 0) + R(1, 1) + R(2, 2) - 1.0);
+  double s = std::sqrt(vx * vx + vy * vy + vz * vz);
+  double phi = std::atan2(s, c);
+  double f;
+  if (phi < SMALL_ANGLE) {
+    f = 1.0 + phi * phi / 6.0;
+  } else if (s > NEAR_PI_SIN) {
+    f = phi / s;
+  } else {
+    return false;
+  }
+  w = Vector3d(f * vx, f * vy, f * vz);
+  return true;
+}
+
+struct Sample {
+  Vector3d p, v, omega;
+  Matrix3d Q;
+};
+
+}  // namespace
+
+class StepCore {
+ public:
+  StepCore(nb::handle model, int frame_id, int task, bool velocity, CRef weights, CRef reference, bool time_varying,
+           double tol, double dt, std::vector<VectorXd> hermite, CRef lo_tol, CRef hi_tol)
+      : model_(model_from_python(model)), data_(model_), fid_(frame_id), task_(task), velocity_(velocity),
+        w_(weights), ref_(reference), time_varying_(time_varying), tol_(tol), dt_(dt), hermite_(std::move(hermite)),
+        lo_(lo_tol), hi_(hi_tol) {
+    n_ = model_.nv;
+    if (model_.nq != n_) throw nb::value_error("the compiled step needs nq == nv (revolute and prismatic joints)");
+    if (frame_id < 0 || frame_id >= static_cast<int>(model_.nframes)) throw nb::value_error("frame id out of range");
+    if (task < PLANAR || task > AXIS) throw nb::value_error("unknown task code");
+    m_ = task == PLANAR ? 2 : task == POSITION ? 3 : task == POSE ? 6 : 5;
+    if (w_.size() != n_ || ref_.size() != n_) throw nb::value_error("weights and reference must have n entries");
+    limited_ = lo_.size() == n_;
+    for (size_t k = 1; k < hermite_.size(); ++k)  // the predictor's weights through k + 1 points (linalg.py)
+      if (hermite_[k].size() != static_cast<Eigen::Index>(2 * k + 2))
+        throw nb::value_error("hermite[k] must hold the 2 k + 2 weights of the predictor through k + 1 points");
+    if (hermite_.size() < 2) throw nb::value_error("hermite: the weights of at least two points");
+    J6_.setZero(6, n_);
+    K_.setZero(6, n_);
+    const int N = n_ + m_;
+    R_.setZero(N, N);
+  }
+
+  int n() const { return n_; }
+  int m() const { return m_; }
+
+  // One ordinary step to time t (see the file's comment). ``prev``: the predictor's history (y, ydot, ...),
+  // oldest first; ``qdot0``, ``speed2``: the rates at the step's start and the step control's last speed^2
+  // (``check_jump``: the strict step control's jump check). Returns one array (its layout at the end) or the
+  // status code that hands the step back to Python.
+  nb::object step(double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t, CRef y, CRef yd,
+                  nb::list prev_list, CRef qdot0, double speed2_prev, bool check_jump) {
+    const size_t np_ = nb::len(prev_list);
+    if (np_ > 2 * hermite_.size() - 2 || np_ % 2) throw nb::value_error("prev: (y, ydot) pairs, at most two");
+    Vec1 prev[4];
+    for (size_t j = 0; j < np_; ++j) prev[j] = nb::cast<Vec1>(prev_list[j]);
+    const int n = n_, N = n_ + m_;
+    if (y.size() != N || yd.size() != N) throw nb::value_error("y and ydot must have n + m entries");
+    set_sample(sp, sv, sQ, somega);
+    set_reference(ref_t, rate_t);
+    std::vector<const double*> prevp(np_);
+    for (size_t j = 0; j < np_; ++j) {
+      if (prev[j].shape(0) != static_cast<size_t>(N)) throw nb::value_error("prev entries must have n + m entries");
+      prevp[j] = prev[j].data();
+    }
+    if (qdot0.size() != n) throw nb::value_error("qdot0 must have n entries");
+    std::unique_ptr<VectorXd> out(new VectorXd(2 * N + n * n + m_ * n + n + 12 + 2));
+    int st;
+    {
+      nb::gil_scoped_release release;  // the step touches no Python object: trackers in threads step in parallel
+      st = advance(y, yd, prevp, qdot0, speed2_prev, check_jump, *out);
+    }
+    if (st != OK) return nb::int_(st);
+    VectorXd* buf = out.release();
+    nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<VectorXd*>(p); });
+    size_t shape[1] = {static_cast<size_t>(buf->size())};
+    return nb::cast(nb::ndarray<nb::numpy, double, nb::ndim<1>>(buf->data(), 1, shape, owner),
+                    nb::rv_policy::reference);
+  }
+
+  // The step itself (no Python object touched: called with the GIL released); fills ``out`` (see step()).
+  int advance(CRef y, CRef yd, const std::vector<const double*>& prev, CRef qdot0, double speed2_prev,
+              bool check_jump, VectorXd& out) {
+    const int n = n_, N = n_ + m_;
+    const size_t np_ = prev.size();
+    // the Hermite predictor (Euler at the first step): predictor_corrector.plain_step
+    VectorXd yp(N);
+    if (np_ == 0) {
+      yp = y + dt_ * yd;
+    } else {
+      const VectorXd& w = hermite_[np_ / 2];
+      yp.setZero();
+      for (size_t j = 0; j < np_; ++j) yp += w[j] * Eigen::Map<const VectorXd>(prev[j], N);
+      yp += w[np_] * y + w[np_ + 1] * yd;
+    }
+    VectorXd q_pred = yp.head(n);
+    // _correct: one evaluation at the predicted point gives R, the rates and the Newton update
+    evaluate(yp.head(n), true);
+    if (task_ == POSE && velocity_ && !log_ok_) return (LOG_NEAR_PI);
+    VectorXd lam = yp.tail(m_);
+    RowMatrixXd M;
+    VectorXd top;
+    system(lam, M, top);
+    int st = factor(M);
+    if (st != OK) return (st);
+    VectorXd sol(N);
+    sol << top, xdot_;
+    solve(sol);
+    if (!std::isfinite(sol.dot(sol))) return (NOT_FINITE);
+    VectorXd F = residual(lam);
+    const double tol = tol_ * std::max(1.0, std::sqrt(grad_.dot(grad_)));
+    VectorXd yc = yp;
+    if (!(F.dot(F) <= tol * tol)) {
+      VectorXd d = F;
+      solve(d);
+      yc = yp - d;
+      if (!(d.dot(d) <= tol)) {
+        if (!chord(yc, tol)) return (CHORD_FAILED);
+      }
+    }
+    const auto q = yc.head(n);
+    if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return (LIMIT);
+    const auto qd1 = sol.head(n);
+    const double speed2 = qd1.dot(qd1);
+    if (check_jump) {  // step_control.StepControl._attempt on a whole step
+      VectorXd mv = q - q_pred;
+      if (!(mv.dot(mv) <= (0.01 * dt_) * (0.01 * dt_) * std::max(speed2_prev, speed2))) {
+        VectorXd dq = q - y.head(n);
+        VectorXd e = dq - (0.5 * dt_) * (qdot0 + qd1);
+        double move2 = dq.dot(dq), miss2 = e.dot(e);
+        double scale2 = std::max(move2, dt_ * dt_ * std::max(speed2_prev, speed2));
+        if (!(miss2 <= 0.25 * 0.25 * scale2 + 1e-24)) return (JUMP);
+      }
+    }
+    // the pose at the corrected joints (the record's: Recorder)
+    pinocchio::forwardKinematics(model_, data_, q);
+    const auto& oMf = pinocchio::updateFramePlacement(model_, data_, fid_);
+    // one buffer (one array for Python to slice: small arrays would each be copied through numpy):
+    // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), Q (9, row-major) and p (3) at the
+    //  corrected joints, rcond, speed2]; R's factors stay here (factors())
+    double* o = out.data();
+    Eigen::Map<VectorXd>(o, N) = yc;
+    Eigen::Map<VectorXd>(o + N, N) = sol;
+    o += 2 * N;
+    Eigen::Map<RowMatrixXd>(o, n, n) = M;
+    o += n * n;
+    Eigen::Map<RowMatrixXd>(o, m_, n) = J_;
+    o += m_ * n;
+    Eigen::Map<VectorXd>(o, n) = q_pred;
+    o += n;
+    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Qc(o);
+    Qc = oMf.rotation();
+    Eigen::Map<Vector3d> pc(o + 9);
+    pc = oMf.translation();
+    o[12] = rcond_;
+    o[13] = speed2;
+    return OK;
+  }
+
+  // R's LU factors of the last step in LAPACK's layout: (lu column-major N x N, 0-based pivots as doubles)
+  nb::tuple factors() const {
+    MatrixXd lu = lu_;
+    Eigen::VectorXd piv = ipiv_.cast<double>();
+    return nb::make_tuple(lu, piv);
+  }
+
+  // The evaluation at q (t of the last step's sample): (r, J, xdot, grad, Lambda+Hess (M) for lam, top) - for tests.
+  nb::tuple evaluate_at(CRef q, CRef lam, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t) {
+    set_sample(sp, sv, sQ, somega);
+    set_reference(ref_t, rate_t);
+    if (q.size() != n_ || lam.size() != m_) throw nb::value_error("q and lam must have n and m entries");
+    evaluate(q, true);
+    RowMatrixXd M;
+    VectorXd top;
+    system(lam, M, top);
+    RowMatrixXd J = J_;
+    return nb::make_tuple(r_, J, xdot_, grad_, M, top);
+  }
+
+ private:
+  void set_reference(CRef ref_t, CRef rate_t) {  // a time-varying index's theta*(t) and its rate
+    if (!time_varying_) return;
+    if (ref_t.size() != n_ || rate_t.size() != n_)
+      throw nb::value_error("the time-varying reference and its rate must have n entries");
+    tv_ref_ = ref_t;
+    tv_rate_ = rate_t;
+  }
+
+  void set_sample(CRef sp, CRef sv, Mat3 sQ, CRef somega) {
+    if (sp.size() != 3 || sv.size() != 3) throw nb::value_error("the sample's p and v must have 3 entries");
+    s_.p = sp;
+    s_.v = sv;
+    if (task_ == POSE || task_ == AXIS) {
+      if (sQ.shape(0) != 3 || sQ.shape(1) != 3 || somega.size() != 3)
+        throw nb::value_error("a task with orientation needs the sample's Q (3x3) and omega (3)");
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) s_.Q(i, j) = sQ(i, j);
+      s_.omega = somega;
+    }
+  }
+
+  // Point.__init__ / Evaluator.point: kinematics, task terms, index terms at q (with the Hessian: need_dJ)
+  void evaluate(const Eigen::Ref<const VectorXd>& q, bool need_dJ) {
+    if (need_dJ) {
+      pinocchio::computeJointJacobians(model_, data_, q);
+      pinocchio::updateFramePlacement(model_, data_, fid_);
+      J6_.setZero();
+      pinocchio::getFrameJacobian(model_, data_, fid_, pinocchio::LOCAL_WORLD_ALIGNED, J6_);
+      pinocchio::computeJointKinematicHessians(model_, data_);
+      H_ = pinocchio::getFrameKinematicHessian(model_, data_, fid_, pinocchio::LOCAL_WORLD_ALIGNED);
+    } else {
+      J6_.setZero();
+      pinocchio::computeFrameJacobian(model_, data_, q, fid_, pinocchio::LOCAL_WORLD_ALIGNED, J6_);
+      pinocchio::updateFramePlacement(model_, data_, fid_);
+    }
+    const auto& oMf = data_.oMf[fid_];
+    Q_ = oMf.rotation();
+    p_ = oMf.translation();
+    K_.topRows(3) = J6_.bottomRows(3);  // thesis rows [omega; v] (Eq. 2.16)
+    K_.bottomRows(3) = J6_.topRows(3);
+    task_terms();
+    if (time_varying_) {
+      grad_ = w_.cwiseProduct(q - tv_ref_);  // Eq. (6.25)
+    } else {
+      grad_ = w_.cwiseProduct(q - ref_);  // Eq. (4.45)
+    }
+  }
+
+  // TaskTerms of each kind (r, J, xdot and what system() needs)
+  void task_terms() {
+    const int n = n_;
+    if (task_ == PLANAR || task_ == POSITION) {  // tasks/position.py PointTerms
+      const int k = m_;
+      r_ = p_.head(k) - s_.p.head(k);
+      J_ = K_.block(3, 0, k, n);
+      xdot_ = s_.v.head(k);
+      return;
+    }
+    if (task_ == POSE && velocity_) {  // tasks/pose.py TwistTerms
+      Vector3d w;
+      log_ok_ = rotation_log(Q_ * s_.Q.transpose(), w);
+      r_.resize(6);
+      r_ << w, p_ - s_.p;
+      J_ = K_;
+      xdot_.resize(6);
+      xdot_ << s_.omega, s_.v;
+      return;
+    }
+    const Matrix3d QdT = s_.Q.transpose();
+    W_ = QdT * K_.topRows(3);  // angular columns in the target frame
+    if (task_ == POSE) {  // tasks/pose.py ClosureTerms, Eqs. (2.13)-(2.15)
+      rel_ = QdT * Q_;
+      const double tr = rel_.trace();
+      A_ = tr * Matrix3d::Identity() - rel_;
+      v_ = Vector3d(0.5 * (rel_(2, 1) - rel_(1, 2)), 0.5 * (rel_(0, 2) - rel_(2, 0)), 0.5 * (rel_(1, 0) - rel_(0, 1)));
+      wd_ = QdT * s_.omega;
+      r_.resize(6);
+      r_ << 2.0 * v_, p_ - s_.p;
+      J_.resize(6, n);
+      J_.topRows(3) = A_ * W_;
+      J_.bottomRows(3) = K_.bottomRows(3);
+      xdot_.resize(6);
+      xdot_ << A_ * wd_, s_.v;
+      return;
+    }
+    // tasks/axis.py AxisTerms
+    a_ = Q_.col(2);
+    ah_ = QdT * a_;
+    const Vector3d wd = QdT * s_.omega;
+    Eigen::Matrix<double, 2, 3> rows;
+    if (velocity_) {
+      rows << 0.0, 1.0, 0.0, -1.0, 0.0, 0.0;
+    } else {
+      rows << 0.0, ah_[2], -ah_[1], -ah_[2], 0.0, ah_[0];  // -[a^]x, x and y rows
+    }
+    r_.resize(5);
+    r_ << ah_[0], ah_[1], p_ - s_.p;
+    J_.resize(5, n);
+    J_.topRows(2) = rows * W_;
+    J_.bottomRows(3) = K_.bottomRows(3);
+    const Vector3d c = cross(wd, ah_);
+    xdot_.resize(5);
+    xdot_ << c[0], c[1], s_.v;
+  }
+
+  // sum_a mu_a dK[a, i, k] with mu in Pinocchio's [v; omega] order (HessianContraction.contract_pinocchio)
+  void contract(const Eigen::Matrix<double, 6, 1>& mu, RowMatrixXd& out) const {
+    const int n = n_;
+    out.resize(n, n);
+    const double* h = H_.data();  // column-major (6, n, n): (a, i, k) at a + 6 (i + n k)
+    for (int i = 0; i < n; ++i)
+      for (int k = 0; k < n; ++k) {
+        const double* e = h + 6 * (i + n * k);
+        out(i, k) = e[0] * mu[0] + e[1] * mu[1] + e[2] * mu[2] + e[3] * mu[3] + e[4] * mu[4] + e[5] * mu[5];
+      }
+  }
+
+  // Point.system: (M, top) of Eq. (4.24) for lam
+  void system(const VectorXd& lam, RowMatrixXd& M, VectorXd& top) {
+    const int n = n_;
+    Eigen::Matrix<double, 6, 1> mu = Eigen::Matrix<double, 6, 1>::Zero();
+    RowMatrixXd Lam;
+    VectorXd extra;  // (dJ/dt)^T lam where J depends on time
+    bool has_extra = false;
+    if (task_ == PLANAR || task_ == POSITION) {
+      for (int j = 0; j < m_; ++j) mu[j] = lam[j];  // rows 3.. of K are Pinocchio's 0..
+      contract(mu, Lam);  // Eq. (4.20)
+    } else if (task_ == POSE && velocity_) {
+      mu << lam.tail(3), lam.head(3);
+      contract(mu, Lam);  // Eq. (4.42)
+    } else if (task_ == POSE) {
+      const double l0 = lam[0], l1 = lam[1], l2 = lam[2];
+      const Matrix3d& q = rel_;
+      const Vector3d l(l0, l1, l2);
+      const Vector3d m3 = A_.transpose() * l;  // closure.lambda_parts_floats with l4 = 0
+      Matrix3d G;
+      G << q(1, 0) * l2 - q(2, 0) * l1 + 2.0 * l0 * v_[0], q(2, 0) * l0 - q(0, 0) * l2 + 2.0 * l0 * v_[1],
+          q(0, 0) * l1 - q(1, 0) * l0 + 2.0 * l0 * v_[2],
+          q(1, 1) * l2 - q(2, 1) * l1 + 2.0 * l1 * v_[0], q(2, 1) * l0 - q(0, 1) * l2 + 2.0 * l1 * v_[1],
+          q(0, 1) * l1 - q(1, 1) * l0 + 2.0 * l1 * v_[2],
+          q(1, 2) * l2 - q(2, 2) * l1 + 2.0 * l2 * v_[0], q(2, 2) * l0 - q(0, 2) * l2 + 2.0 * l2 * v_[1],
+          q(0, 2) * l1 - q(1, 2) * l0 + 2.0 * l2 * v_[2];
+      mu << lam.segment(3, 3), s_.Q * m3;
+      contract(mu, Lam);
+      Lam -= W_.transpose() * (G * W_);  // Eq. (4.20)
+      const Vector3d& w = wd_;
+      const double s = 2.0 * v_.dot(w);
+      const Vector3d x = cross(l, w);
+      const Vector3d c = s * l + q.transpose() * x - cross(m3, w);
+      extra = W_.transpose() * c;
+      has_extra = true;
+    } else {  // AXIS
+      Vector3d mu3(lam[0], lam[1], 0.0);
+      Vector3d m3 = velocity_ ? Vector3d(s_.Q * Vector3d(-mu3[1], mu3[0], 0.0)) : Vector3d(s_.Q * mu3);
+      const auto Ko = K_.topRows(3);
+      Vector3d w;
+      if (velocity_) {
+        w = m3;  // Eq. (4.42)
+        extra = Ko.transpose() * cross(s_.omega, m3);
+      } else {
+        w = cross(a_, m3);
+        extra = Ko.transpose() * cross(a_, cross(s_.omega, m3));
+      }
+      has_extra = true;
+      mu << lam.segment(2, 3), w;
+      contract(mu, Lam);
+      if (!velocity_) {
+        Matrix3d C = a_ * m3.transpose() - a_.dot(m3) * Matrix3d::Identity();
+        Lam += Ko.transpose() * C * Ko;  // d a / d theta_j = omega_j x a
+      }
+    }
+    M = Lam;
+    M.diagonal() += w_;  // Hess z = diag(w) (Eqs. 4.45, 6.25) + Lambda (Eq. 4.23)
+    if (time_varying_) {
+      VectorXd dgdt = -w_.cwiseProduct(tv_rate_);  // Eq. (6.27)
+      top = has_extra ? VectorXd(-dgdt - extra) : VectorXd(-dgdt);
+    } else {
+      top = has_extra ? VectorXd(-extra) : VectorXd(VectorXd::Zero(n));
+    }
+  }
+
+  // Stepper._factor: R = [[M, J^T], [J, 0]], its LU factors with partial pivoting in LAPACK's layout (dgetf2's
+  // unblocked algorithm: at these sizes scipy's dgetrf + dgecon cost ~3.6 us, this ~0.5 us; the factors agree to
+  // rounding and the pivots are the same) and the 1-norm condition estimate of LAPACK's dgecon (Hager-Higham).
+  int factor(const RowMatrixXd& M) {
+    const int n = n_, N = n_ + m_;
+    R_.topLeftCorner(n, n) = M;
+    R_.topRightCorner(n, m_) = J_.transpose();
+    R_.bottomLeftCorner(m_, n) = J_;
+    R_.bottomRightCorner(m_, m_).setZero();
+    const double anorm = R_.cwiseAbs().colwise().sum().maxCoeff();  // dlange('1')
+    lu_ = R_;
+    ipiv_.resize(N);
+    double* a = lu_.data();
+    for (int j = 0; j < N; ++j) {
+      int p = j;
+      double big = std::abs(a[j + N * j]);
+      for (int i = j + 1; i < N; ++i)
+        if (std::abs(a[i + N * j]) > big) big = std::abs(a[i + N * j]), p = i;
+      ipiv_[j] = p;
+      if (a[p + N * j] == 0.0 || !std::isfinite(a[p + N * j])) return FACTOR_SINGULAR;
+      if (p != j)
+        for (int k = 0; k < N; ++k) std::swap(a[j + N * k], a[p + N * k]);
+      const double inv = 1.0 / a[j + N * j];
+      for (int i = j + 1; i < N; ++i) a[i + N * j] *= inv;
+      for (int k = j + 1; k < N; ++k) {
+        const double ajk = a[j + N * k];
+        if (ajk != 0.0)
+          for (int i = j + 1; i < N; ++i) a[i + N * k] -= a[i + N * j] * ajk;
+      }
+    }
+    rcond_ = rcond(anorm);
+    if (!(rcond_ > 1e-12)) return RCOND_LOW;
+    return OK;
+  }
+
+  // x := inv(LU) x (trans false) or inv(LU)^T x, without the row interchanges (dgecon's two solves)
+  void lu_apply(double* x, bool trans) const {
+    const int N = n_ + m_;
+    const double* a = lu_.data();
+    if (!trans) {
+      for (int j = 0; j < N; ++j)  // unit lower
+        for (int i = j + 1; i < N; ++i) x[i] -= a[i + N * j] * x[j];
+      for (int j = N - 1; j >= 0; --j) {  // upper
+        x[j] /= a[j + N * j];
+        for (int i = 0; i < j; ++i) x[i] -= a[i + N * j] * x[j];
+      }
+    } else {
+      for (int j = 0; j < N; ++j) {  // U^T: lower
+        double v = x[j];
+        for (int i = 0; i < j; ++i) v -= a[i + N * j] * x[i];
+        x[j] = v / a[j + N * j];
+      }
+      for (int j = N - 1; j >= 0; --j) {  // L^T: unit upper
+        double v = x[j];
+        for (int i = j + 1; i < N; ++i) v -= a[i + N * j] * x[i];
+        x[j] = v;
+      }
+    }
+  }
+
+  // LAPACK's dgecon (norm '1') with dlacn2: the reciprocal 1-norm condition estimate of R from its factors
+  double rcond(double anorm) const {
+    const int N = n_ + m_;
+    if (N == 0) return 1.0;
+    if (!(anorm > 0.0)) return 0.0;
+    std::vector<double> x(N, 1.0 / N), v(N);
+    std::vector<int> isgn(N);
+    auto dasum = [&](const std::vector<double>& z) { double t = 0.0; for (double e : z) t += std::abs(e); return t; };
+    auto idamax = [&]() { int k = 0; for (int i = 1; i < N; ++i) if (std::abs(x[i]) > std::abs(x[k])) k = i; return k; };
+    auto sgn = [](double e) { return e >= 0.0 ? 1.0 : -1.0; };
+    double est = 0.0;
+    lu_apply(x.data(), false);  // kase 1
+    if (N == 1) {
+      est = std::abs(x[0]);
+    } else {
+      est = dasum(x);
+      for (int i = 0; i < N; ++i) x[i] = sgn(x[i]), isgn[i] = static_cast<int>(x[i]);
+      lu_apply(x.data(), true);  // kase 2
+      int j = idamax(), iter = 2;
+      bool alt = false;
+      while (true) {  // L50
+        std::fill(x.begin(), x.end(), 0.0);
+        x[j] = 1.0;
+        lu_apply(x.data(), false);
+        v = x;
+        const double estold = est;
+        est = dasum(v);
+        bool same = true;
+        for (int i = 0; i < N; ++i)
+          if (static_cast<int>(sgn(x[i])) != isgn[i]) { same = false; break; }
+        if (same || est <= estold) { alt = true; break; }  // converged, or cycling
+        for (int i = 0; i < N; ++i) x[i] = sgn(x[i]), isgn[i] = static_cast<int>(x[i]);
+        lu_apply(x.data(), true);
+        const int jlast = j;
+        j = idamax();
+        if (x[jlast] != std::abs(x[j]) && iter < 5) { ++iter; continue; }
+        alt = true;
+        break;
+      }
+      if (alt) {  // L120: the alternating-sign vector
+        double altsgn = 1.0;
+        for (int i = 0; i < N; ++i) x[i] = altsgn * (1.0 + static_cast<double>(i) / (N - 1)), altsgn = -altsgn;
+        lu_apply(x.data(), false);
+        const double temp = 2.0 * (dasum(x) / (3.0 * N));
+        if (temp > est) est = temp;
+      }
+    }
+    return est != 0.0 ? (1.0 / est) / anorm : 0.0;
+  }
+
+  void solve(VectorXd& b) const {  // dgetrs: the interchanges, then L and U
+    const int N = n_ + m_;
+    for (int i = 0; i < N; ++i)
+      if (ipiv_[i] != i) std::swap(b[i], b[ipiv_[i]]);
+    lu_apply(b.data(), false);
+  }
+
+  VectorXd residual(const VectorXd& lam) const {  // Point.residual: [grad z + J^T lambda; r]
+    VectorXd F(n_ + m_);
+    F << grad_ + J_.transpose() * lam, r_;
+    return F;
+  }
+
+  // PredictorCorrector._chord with fresh residuals (need_dJ=False), R's factors kept
+  bool chord(VectorXd& y, double tol) {
+    for (int it = 0; it < 8; ++it) {
+      evaluate(y.head(n_), false);
+      if (task_ == POSE && velocity_ && !log_ok_) return false;
+      VectorXd F = residual(y.tail(m_));
+      if (F.dot(F) <= tol * tol) return true;
+      solve(F);
+      y -= F;
+    }
+    return false;
+  }
+
+  pinocchio::Model model_;
+  pinocchio::Data data_;
+  pinocchio::FrameIndex fid_;
+  int task_;
+  bool velocity_;
+  VectorXd w_, ref_, tv_ref_, tv_rate_;
+  bool time_varying_;
+  double tol_, dt_;
+  std::vector<VectorXd> hermite_;
+  VectorXd lo_, hi_;
+  bool limited_ = false;
+  int n_ = 0, m_ = 0;
+  // the evaluation
+  Sample s_;
+  MatrixXd J6_;
+  RowMatrixXd K_;
+  pinocchio::Data::Tensor3x H_;
+  Matrix3d Q_, rel_, A_;
+  Vector3d p_, v_, wd_, a_, ah_;
+  RowMatrixXd W_, J_;
+  VectorXd r_, xdot_, grad_;
+  bool log_ok_ = true;
+  // R and its factors
+  MatrixXd R_, lu_;
+  VectorXi ipiv_;
+  double rcond_ = 0.0;
+};
+
+void bind_step(nb::module_& m) {
+  nb::class_<StepCore>(m, "StepCore")
+      .def(nb::init<nb::handle, int, int, bool, CRef, CRef, bool, double, double, std::vector<VectorXd>, CRef,
+                    CRef>(),
+           nb::arg("model"), nb::arg("frame_id"), nb::arg("task"), nb::arg("velocity"), nb::arg("weights"),
+           nb::arg("reference"), nb::arg("time_varying"), nb::arg("tol"), nb::arg("dt"), nb::arg("hermite"),
+           nb::arg("lo_tol"), nb::arg("hi_tol"))
+      .def_prop_ro("n", &StepCore::n)
+      .def_prop_ro("m", &StepCore::m)
+      .def("step", &StepCore::step, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
+           nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"), nb::arg("qdot0"),
+           nb::arg("speed2"), nb::arg("check_jump"))
+      .def("factors", &StepCore::factors)
+      .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
+           nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"));
+}
+
+}  // namespace kinredund

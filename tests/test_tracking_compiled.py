@@ -1,0 +1,336 @@
+"""The compiled backend (issue 28): the same runs as the Python stepper, step by step and field by field.
+
+The compiled core (``src/core/step.cpp``, driven by :mod:`kinredund.tracking.compiled`) does the default
+mode's ordinary step; every other step (switches, rejected steps, the watch's measured steps, failures) is
+the Python stepper's own, from the same state. Both backends compute the same quantities in a different
+order, so they agree to rounding at each evaluation (checked directly below), and the corrector puts both
+on the same optimum at every step: the joints agree to :data:`Q_BAR` (the issue's 1e-12 rad) over ten loops,
+switches and stops happen at the same times with the same causes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import warnings
+
+import numpy as np
+import pytest
+from conftest import robot
+from test_tracking_limits import case as limits_case
+
+import kinredund
+from kinredund.errors import ChoiceError, OptionError, TrackingError
+from kinredund.indices import CustomIndex, JointDeviation, TimeVaryingReference, minimum_norm
+from kinredund.paths import Circle, FunctionPath
+from kinredund.problems import panda_circle
+from kinredund.tasks import make_target
+from kinredund.tasks.axis import frame_with_axis
+from kinredund.thesis.chapter4 import load_example
+from kinredund.tracking import Tracker, compiled, track, track_many
+from kinredund.tracking.point import Evaluator
+
+pytestmark = pytest.mark.skipif(compiled.load_core() is None and not os.environ.get("CI"),
+                                reason="the compiled core is not built (CI requires it: test_core_build.py)")
+
+#: joints [rad or m] of the two backends at every recorded step: the issue's bar. Both corrected points lie
+#: within the corrector's tolerance (1e-12 max(1, |grad z|) on ||F||) of the same optimum, and agree far closer
+Q_BAR = 1e-12
+#: any other recorded number, relative to max(1, its size): the same optimum, evaluated by either backend
+FIELD_BAR = 1e-9
+#: the rates and what depends on them, relative: the rates carry cond(R) times the rounding of either backend's
+#: LU, and M is the step's, at its predicted point, extrapolated with the rates; near a kinematic singularity
+#: (1/rcond ~ 1e3 to 1e4 on the planar 3R's stretched arm) they agree to ~1e-8 relative while q agrees to 1e-14
+RATE_BAR = 1e-6
+#: the record's fields (and meta entries) of :data:`RATE_BAR`
+RATE_FIELDS = ("m_eigs", "m_null_eigs", "qdot", "qddot", "joint_speed_max", "speed_over_velocity_limit_max")
+
+
+def _close(a, b, path: str, bar: float = FIELD_BAR) -> None:
+    """a and b agree: arrays and numbers to ``bar`` (relative), everything else exactly; ``path`` names it."""
+    if isinstance(a, dict):
+        assert set(a) == set(b), path
+        for k in a:
+            _close(a[k], b[k], f"{path}.{k}", bar)
+    elif isinstance(a, (list, tuple)) and not (a and isinstance(a[0], (int, float)) and not isinstance(a[0], bool)):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _close(x, y, f"{path}[{i}]", bar)
+    elif isinstance(a, (np.ndarray, list, tuple, float)) and not isinstance(a, bool):
+        x, y = np.asarray(a, float), np.asarray(b, float)
+        assert x.shape == y.shape, path
+        scale = np.maximum(1.0, np.abs(x))
+        with np.errstate(invalid="ignore"):  # inf - inf
+            same = (x == y) | (np.abs(x - y) <= bar * scale) | (np.isnan(x) & np.isnan(y))
+        assert np.all(same), \
+            f"{path}: differs by {np.nanmax(np.abs(x - y)):.3g}"
+    else:
+        assert a == b, f"{path}: {a!r} != {b!r}"
+
+
+def assert_same_record(a, b) -> None:
+    """Two records of the same run by the two backends: q to Q_BAR, every other field to FIELD_BAR."""
+    assert a.meta["backend"] == "python" and b.meta["backend"] == "compiled"
+    np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
+    for f in dataclasses.fields(a):
+        if f.name == "meta":
+            assert set(a.meta) == set(b.meta)
+            for k in set(a.meta) - {"backend"}:
+                _close(a.meta[k], b.meta[k], f"meta.{k}", RATE_BAR if k in RATE_FIELDS else FIELD_BAR)
+        else:
+            _close(getattr(a, f.name), getattr(b, f.name), f.name, RATE_BAR if f.name in RATE_FIELDS else FIELD_BAR)
+
+
+def assert_same_watched(a: dict, b: dict) -> None:
+    """A stop's watched quantities agree; where the path's reach was checked at several times and the residual
+    is rounding at all of them (< 1e-12 m), which time had the largest is the rounding's, not the run's."""
+    if a.get("reach_residual", 1.0) < 1e-12 and b.get("reach_residual", 1.0) < 1e-12:
+        a, b = ({k: v for k, v in w.items() if k != "reach_checked_at"} for w in (a, b))
+    _close(a, b, "watched")
+
+
+def both(r, path, index, q0, **kw):
+    """The run by each backend (python, compiled)."""
+    return (track(r, path, index, q0, backend="python", **kw), track(r, path, index, q0, backend="compiled", **kw))
+
+
+@functools.cache
+def axis_case():
+    r = robot("ur5")
+    seed = np.array([0.3, -1.2, 1.5, -1.9, -1.57, 0.3])
+    T = r.fk(seed)
+    path = Circle(T[:3, 3] - np.array([0.06, 0.0, 0.0]), 0.06, 0.12, normal=(0.0, 0.0, 1.0),
+                  orientation=frame_with_axis((0.0, 0.0, -1.0)))
+    index = JointDeviation(seed + 0.2)
+    s0 = path(0.0)
+    start = kinredund.solve_ik(r, make_target("axis", (s0.Q, s0.p)), index, q0=seed)
+    assert start.converged
+    return r, path, index, start.q
+
+
+@functools.cache
+def time_varying_case():
+    r = robot("planar3r")
+    qa, w = np.array([0.4, 0.7, 0.5]), 2 * np.pi / 5.0
+
+    def q_star(t):
+        return qa + 0.1 * np.array([np.sin(w * t), np.cos(w * t) - 1, 0.5 * np.sin(2 * w * t)])
+
+    def q_star_rate(t):
+        return 0.1 * w * np.array([np.cos(w * t), -np.sin(w * t), np.cos(2 * w * t)])
+
+    def fn(t):
+        q, qd = q_star(t), q_star_rate(t)
+        return r.fk(q)[:2, 3], r.position_jacobian(q)[:2] @ qd
+
+    return r, FunctionPath(fn, period=5.0), TimeVaryingReference(q_star, q_star_rate), q_star(0.0)
+
+
+@functools.cache
+def problem(name):
+    """(robot, path, index, q0) of the named problem (each task kind, index kind and a switch)."""
+    if name.startswith("example_"):
+        ex = load_example(name.split("_")[1])
+        return ex.robot, ex.path, ex.index, ex.q0
+    if name == "panda_wrist15":
+        return panda_circle(wrist_amplitude=float(np.radians(15.0)))
+    if name == "ur5_axis":
+        return axis_case()
+    if name == "planar_time_varying":
+        return time_varying_case()
+    return limits_case(name)
+
+
+# -- the evaluation: the core's terms against the Python evaluator's, at random points --------------------------
+
+@pytest.mark.parametrize("name", ["example_4.1", "panda_wrist15", "ur5_axis", "panda_elbow_circle",
+                                  "planar_time_varying"])
+@pytest.mark.parametrize("form", ["augmented", "velocity"])
+def test_the_core_evaluates_the_python_terms(name, form):
+    r, path, index, q0 = problem(name)
+    tracker = Tracker(r, path, index, q0, path.period / 100, scheme=form, backend="compiled", limits=False)
+    core, ev = tracker.compiled.core, Evaluator(r, path, index, form)
+    rng = np.random.default_rng(0)
+    empty = np.zeros(0)
+    for _ in range(3):
+        t = float(rng.uniform(0, path.period))
+        q = q0 + rng.normal(0.0, 0.05, r.nq)
+        lam = rng.normal(0.0, 1.0, core.m)
+        s = path.sample(t)
+        ref, rate = ((np.asarray(index.reference(t)), np.asarray(index.rate(t))) if index.time_varying
+                     else (empty, empty))
+        got = core.evaluate(q, lam, s.p, s.v, np.zeros((0, 0)) if s.Q is None else s.Q,
+                            np.zeros(3) if s.omega is None else s.omega, ref, rate)
+        pt = ev.point(q, t)
+        M, top = pt.system(lam)
+        for x, y in zip(got, (pt.r, pt.J, pt.xdot, pt.grad, M, top), strict=True):
+            # one chain of ~100 operations on numbers of size |y| (kind 1 of the tolerance policy)
+            np.testing.assert_allclose(x, y, rtol=0, atol=64 * np.finfo(float).eps * max(1.0, np.abs(y).max()))
+
+
+# -- whole runs: step by step and the records ------------------------------------------------------------------
+
+@pytest.mark.parametrize(("name", "scheme", "limits"), [
+    ("example_4.1", "augmented", False), ("example_4.3", "velocity", False), ("panda_wrist15", "augmented", None),
+    ("panda_wrist15", "velocity", None), ("panda_wrist15", "augmented", False), ("ur5_axis", "augmented", None),
+    ("ur5_axis", "velocity", False), ("planar_time_varying", "augmented", False),
+    ("panda_elbow_circle", "augmented", None), ("xarm7_circle", "velocity", None)])
+def test_both_backends_give_the_same_record_over_ten_loops(name, scheme, limits):
+    r, path, index, q0 = problem(name)
+    a, b = both(r, path, index, q0, loops=10, steps_per_loop=100, scheme=scheme, limits=limits)
+    assert_same_record(a, b)
+    if limits is None and name.endswith("circle"):  # the named limit cases meet a bound and leave it again
+        assert len(a.meta["switches"]) >= 2
+
+
+def test_steps_agree_one_by_one_and_the_core_takes_the_ordinary_ones():
+    r, path, index, q0 = problem("panda_elbow_circle")
+    dt = path.period / 200
+    a = Tracker(r, path, index, q0, dt, backend="python")
+    b = Tracker(r, path, index, q0, dt, backend="compiled")
+    assert (a.backend, b.backend) == ("python", "compiled")
+    for _ in range(400):
+        a.step()
+        b.step()
+        assert b.t == a.t and b.solver == a.solver
+        np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
+        np.testing.assert_allclose(b.qdot, a.qdot, rtol=0, atol=FIELD_BAR)
+    c = b.compiled
+    assert c.steps > 200 and c.handed_back.get("bound_active", 0) > 0  # both routes ran
+    assert c.steps + sum(c.handed_back.values()) == 400
+
+
+@pytest.mark.parametrize(("name", "cause"), [("panda_pose_infeasible", "limits_infeasible"),
+                                           ("panda_pose_fold", "not_strongly_stable")])
+def test_a_stop_has_the_same_cause_time_and_last_good_state(name, cause):
+    r, path, index, q0 = problem(name)
+    errors = []
+    for backend in ("python", "compiled"):
+        with pytest.raises(TrackingError) as info:
+            track(r, path, index, q0, loops=2, backend=backend)
+        errors.append(info.value)
+    a, b = errors
+    assert a.cause == b.cause == cause and b.t == a.t
+    np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
+    assert_same_watched(a.watched, b.watched)
+    assert_same_record(a.partial, b.partial)
+
+
+def _planar_failure(kind):
+    """(robot, path, index, q0, track options) of the planar 3R's failures (tests/test_tracking_failures.py)."""
+    arm, index = robot("planar3r"), minimum_norm(3)
+    q0 = np.array([0.2, 0.6, 0.6])
+    p0 = arm.fk(q0)[:2, 3]
+    d = p0 / np.linalg.norm(p0)
+    if kind == "kinematic_singularity":  # a circle touching the 6 m reach at T/2
+        path = Circle(np.array([5.0, 0.0, 0.0]), 1.0, 1.0, start_angle=np.pi)
+        return arm, path, index, kinredund.solve_ik(arm, path(0.0).p[:2], index, starts=12, seed=0).q, {}
+    if kind == "out_of_reach":
+        path = Circle(np.append(p0 + 1.5 * d, 0.0), 1.5, 1.0, axis_x=(-d[0], -d[1], 0.0))
+        return arm, path, index, kinredund.solve_ik(arm, p0, index, q0=q0).q, {}
+    if kind == "path_discontinuity":
+        def fn(t):
+            return p0 + np.array([0.1 * t, 0.0]) + (np.array([0.0, 0.3]) if t >= 0.5 else 0.0), np.array([0.1, 0.0])
+
+        return arm, FunctionPath(fn), index, kinredund.solve_ik(arm, p0, index, q0=q0).q, {"duration": 1.0,
+                                                                                            "steps": 40}
+    raise AssertionError(kind)
+
+
+@pytest.mark.parametrize("scheme", ["augmented", "velocity"])
+@pytest.mark.parametrize("cause", ["kinematic_singularity", "out_of_reach", "path_discontinuity"])
+def test_a_failure_is_the_same_failure(cause, scheme):
+    """The core hands the troubled steps back: the stop is the Python stepper's, at the same time and point."""
+    r, path, index, q0, span = _planar_failure(cause)
+    errors = []
+    for backend in ("python", "compiled"):
+        with pytest.raises(TrackingError) as info:
+            track(r, path, index, q0, scheme=scheme, backend=backend, **span)
+        errors.append(info.value)
+    a, b = errors
+    assert a.cause == b.cause == cause and b.t == a.t
+    np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
+    assert_same_watched(a.watched, b.watched)
+    assert_same_record(a.partial, b.partial)
+
+
+def test_sub_steps_of_a_coarse_run_are_the_same():
+    """4 steps per loop: the corrector fails whole steps, the step control's sub-steps finish (tests/
+    test_tracking_failures.py): the core hands those steps back."""
+    arm, path, index, q0, _ = _planar_failure("out_of_reach")
+    path = Circle(np.append(arm.fk(q0)[:2, 3] - np.array([1.0, 0.0]), 0.0), 1.0, 1.0)
+    assert_same_record(*both(arm, path, index, q0, steps_per_loop=4, loops=10))
+
+
+# -- the choice of backend ---------------------------------------------------------------------------------------
+
+def test_the_default_is_compiled_where_the_core_runs_and_python_elsewhere(monkeypatch):
+    monkeypatch.delenv("KINREDUND_BACKEND", raising=False)
+    r, path, index, q0 = problem("panda_wrist15")
+    dt = path.period / 100
+    assert Tracker(r, path, index, q0, dt).backend == "compiled"
+    assert Tracker(r, path, index, q0, dt, mode="thesis").backend == "python"
+    custom = CustomIndex(lambda q: 0.5 * q @ q, lambda q: q, lambda q: np.eye(len(q)))
+    assert Tracker(r, path, custom, q0, dt).backend == "python"
+    monkeypatch.setenv("KINREDUND_BACKEND", "python")
+    assert Tracker(r, path, index, q0, dt).backend == "python"
+    assert Tracker(r, path, index, q0, dt, backend="compiled").backend == "compiled"  # the argument wins
+
+
+def test_compiled_where_it_cannot_run_says_why():
+    r, path, index, q0 = problem("panda_wrist15")
+    dt = path.period / 100
+    custom = CustomIndex(lambda q: 0.5 * q @ q, lambda q: q, lambda q: np.eye(len(q)))
+    with pytest.raises(OptionError, match="CustomIndex"):
+        Tracker(r, path, custom, q0, dt, backend="compiled")
+    with pytest.raises(OptionError, match="mode='thesis'"):
+        Tracker(r, path, index, q0, dt, mode="thesis", limits=False, backend="compiled")
+    with pytest.raises(ChoiceError, match="backend"):
+        Tracker(r, path, index, q0, dt, backend="fast")
+
+
+def test_a_core_that_cannot_load_warns_once_and_runs_python(monkeypatch):
+    monkeypatch.delenv("KINREDUND_BACKEND", raising=False)
+    monkeypatch.setattr(compiled, "_CORE", [None, "ImportError: no module named kinredund._core"])
+    monkeypatch.setattr(compiled, "_WARNED", [])
+    r, path, index, q0 = problem("panda_wrist15")
+    dt = path.period / 100
+    with pytest.warns(compiled.BackendWarning, match="cannot be loaded"):
+        assert Tracker(r, path, index, q0, dt).backend == "python"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once: not again
+        assert Tracker(r, path, index, q0, dt).backend == "python"
+    with pytest.raises(OptionError, match="cannot be loaded"):
+        Tracker(r, path, index, q0, dt, backend="compiled")
+
+
+def test_in_ci_the_compiled_backend_never_falls_back_silently():
+    if os.environ.get("CI"):
+        assert compiled.load_core() is not None, compiled.core_error()
+    r, path, index, q0 = problem("panda_wrist15")
+    tr = track(r, path, index, q0, loops=1, steps_per_loop=50)
+    assert tr.meta["backend"] == (os.environ.get("KINREDUND_BACKEND") or "compiled").replace("auto", "compiled")
+
+
+# -- many runs in one call ---------------------------------------------------------------------------------------
+
+def test_track_many_equals_the_runs_one_by_one():
+    problems = [problem("panda_wrist15"), problem("ur5_axis"), problem("panda_elbow_circle"),
+                problem("panda_pose_infeasible")]
+    options = {"loops": 2, "steps_per_loop": 100}
+    many = track_many(problems, threads=2, **options)
+    for got, p in zip(many, problems, strict=True):
+        try:
+            alone = track(*p, **options)
+        except TrackingError as err:
+            assert isinstance(got, TrackingError) and got.cause == err.cause and got.t == err.t
+            np.testing.assert_allclose(got.q, err.q, rtol=0, atol=Q_BAR)
+            continue
+        # the same computation in another thread (threads sharing a workspace would be off by far more)
+        np.testing.assert_allclose(got.q, alone.q, rtol=0, atol=Q_BAR)
+        np.testing.assert_allclose(got.lam, alone.lam, rtol=0, atol=FIELD_BAR)
+    with pytest.raises(OptionError, match="threads"):
+        track_many(problems, threads=0)
+    with pytest.raises(OptionError, match="problem 0"):
+        track_many([problems[0][:3]])
