@@ -1,0 +1,278 @@
+// The compiled distance query of kinredund.geometry (issue 24). It computes what the Python path of
+// kinredund/geometry/engine.py computes, with the same Pinocchio and coal calls on the same objects:
+// - placements: pinocchio::updateGeometryPlacements (forward kinematics and every object's world pose);
+// - the broadphase: each object's bounding spheres (centres in its joint's frame) placed by its joint, and a pair
+//   kept when one of its sphere pairs is within the influence distance (compared squared, as engine.py does);
+// - exact signed distances: pinocchio::computeDistance per kept pair, with the GeometryData's own requests (the
+//   Python Workspace sets them: signed distances, GJK tolerance, no warm start);
+// - unit normals by the rules of engine.unit_normals;
+// - the distance rows G[k] = n^T (J_b(p_b) - J_a(p_a)) from the world-frame joint Jacobians data.J, each body's
+//   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega.
+// The model, data, geometry model and geometry data are the Python Workspace's own objects (Boost.Python),
+// referenced, not copied: after a query they hold what the Python path would leave in them.
+#include "distances.hpp"
+
+#include <boost/python.hpp>
+#include <nanobind/eigen/dense.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/tuple.h>
+
+#include <pinocchio/algorithm/geometry.hpp>
+#include <pinocchio/algorithm/jacobian.hpp>
+#include <pinocchio/collision/distance.hpp>
+#include <pinocchio/multibody/data.hpp>
+#include <pinocchio/multibody/model.hpp>
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <optional>
+#include <string>
+#include <tuple>
+#include <vector>
+
+namespace nb = nanobind;
+namespace bp = boost::python;
+
+namespace kinredund {
+namespace {
+
+using Model = pinocchio::Model;
+using Data = pinocchio::Data;
+using GeometryModel = pinocchio::GeometryModel;
+using GeometryData = pinocchio::GeometryData;
+using VectorXd = Eigen::VectorXd;
+using VectorXl = Eigen::Matrix<std::int64_t, Eigen::Dynamic, 1>;
+using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using RowMatrixX3 = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+using Vector3 = Eigen::Vector3d;
+
+// engine.NEAR_CONTACT: below this distance [m] a pair's normal is coal's own, not (p_b - p_a) / d
+constexpr double kNearContact = 1e-6;
+// engine.Workspace.lower_bounds: the sphere gap less this for rounding [m]
+constexpr double kBoundSlack = 1e-9;
+
+// A reference to the C++ object held by a Boost.Python instance (pin.Model, pin.Data, ...).
+template <typename T>
+T& extract_ref(nb::handle obj, const char* what) {
+  bp::object o{bp::handle<>(bp::borrowed(obj.ptr()))};
+  bp::extract<T&> ex(o);
+  if (!ex.check()) throw nb::type_error((std::string("expected ") + what).c_str());
+  return ex();
+}
+
+std::string str(std::size_t v) { return std::to_string(v); }
+
+// engine.unit_normals for one pair: (p_b - p_a) / d apart; nearer, coal's normal where it is a unit vector, else
+// (p_b - p_a) / |p_b - p_a| while apart, else zeros.
+Vector3 unit_normal(double d, const Vector3& coal_normal, const Vector3& pa, const Vector3& pb) {
+  const Vector3 diff = pb - pa;
+  if (d > kNearContact) return diff / d;
+  if (std::abs(coal_normal.squaredNorm() - 1.0) < 1e-6) return coal_normal;
+  const double length = diff.norm();
+  if (d > 0 && length > 0) return diff / length;
+  return Vector3::Zero();
+}
+
+class DistanceQuery {
+ public:
+  using Result = std::tuple<VectorXl, VectorXd, RowMatrixX3, RowMatrixX3, RowMatrixX3, std::optional<RowMatrixXd>>;
+
+  DistanceQuery(nb::object model, nb::object data, nb::object geometry, nb::object gdata,
+                const Eigen::Ref<const VectorXl>& joints, const Eigen::Ref<const RowMatrixX3>& centres,
+                const Eigen::Ref<const VectorXd>& radii, const Eigen::Ref<const VectorXl>& first,
+                const Eigen::Ref<const VectorXl>& second)
+      : py_{model, data, geometry, gdata},
+        model_(extract_ref<Model>(model, "a pinocchio.Model")),
+        data_(extract_ref<Data>(data, "a pinocchio.Data")),
+        gm_(extract_ref<GeometryModel>(geometry, "a pinocchio.GeometryModel")),
+        gd_(extract_ref<GeometryData>(gdata, "a pinocchio.GeometryData")) {
+    const std::size_t n = gm_.ngeoms, npairs = gm_.collisionPairs.size();
+    const auto spheres = static_cast<std::size_t>(centres.rows());
+    const bool per_object = n == 0 ? spheres == 0 : spheres > 0 && spheres % n == 0;
+    if (static_cast<std::size_t>(joints.size()) != n || !per_object || radii.size() != centres.rows())
+      throw nb::value_error(("one joint per object (" + str(n) + ") and as many bounding spheres per object (" +
+                             "centres (n*m, 3), radii (n*m,)) expected; got " + str(joints.size()) + " joints, " +
+                             str(centres.rows()) + " centres, " + str(radii.size()) + " radii").c_str());
+    if (static_cast<std::size_t>(first.size()) != npairs || static_cast<std::size_t>(second.size()) != npairs)
+      throw nb::value_error(("first and second must name the " + str(npairs) + " collision pairs").c_str());
+    if (gd_.distanceRequests.size() != npairs || gd_.oMg.size() != n)
+      throw nb::value_error("the geometry data was not made for this geometry model");
+    for (std::size_t k = 0; k < npairs; ++k) {
+      const auto& cp = gm_.collisionPairs[k];
+      if (static_cast<std::size_t>(first[k]) != cp.first || static_cast<std::size_t>(second[k]) != cp.second)
+        throw nb::value_error(("pair " + str(k) + " is not the geometry model's collision pair " + str(k)).c_str());
+    }
+    slabs_ = n ? static_cast<Eigen::Index>(centres.rows() / n) : 0;
+    centres_ = centres;
+    radii_ = radii;
+    world_.resize(centres.rows(), 3);
+    joints_.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (joints[i] < 0 || joints[i] >= model_.njoints)
+        throw nb::value_error(("object " + str(i) + "'s joint " + std::to_string(joints[i]) + " is not a joint of the model").c_str());
+      joints_[i] = static_cast<std::size_t>(joints[i]);
+    }
+    first_.assign(first.data(), first.data() + npairs);
+    second_.assign(second.data(), second.data() + npairs);
+    // the velocity columns of the joints that move each joint's body (none for the world)
+    columns_.resize(model_.njoints);
+    for (int j = 1; j < model_.njoints; ++j)
+      for (std::size_t s = 1; s < model_.supports[j].size(); ++s) {
+        const auto t = model_.supports[j][s];
+        for (int c = 0; c < model_.nvs[t]; ++c) columns_[j].push_back(model_.idx_vs[t] + c);
+      }
+  }
+
+  // (pair indices, signed distances [m], unit normals (k, 3), p_first (k, 3), p_second (k, 3), rows G (k, nv) or
+  // None) at q for the pairs within `limit` [m] (all pairs when None).
+  Result query(const Eigen::Ref<const VectorXd>& q, std::optional<double> limit, bool rows) {
+    check_q(q);
+    std::vector<std::int64_t> ks;
+    Result out;
+    {
+      nb::gil_scoped_release release;
+      pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+      if (limit)
+        near_pairs(*limit, ks);
+      else
+        for (std::size_t k = 0; k < first_.size(); ++k) ks.push_back(static_cast<std::int64_t>(k));
+      exact(ks, out);
+      if (rows) std::get<5>(out) = distance_rows(ks, std::get<2>(out), std::get<3>(out), std::get<4>(out));
+    }
+    return out;
+  }
+
+  // (pair index, signed distance [m]) of the closest pair at q: engine.Workspace.closest, computed the same way
+  // (the pair of the least sphere bound first, then every pair whose bound does not rule it out, in one
+  // pinocchio::computeDistances over the active pairs, which it leaves set in the geometry data).
+  std::tuple<std::int64_t, double> closest(const Eigen::Ref<const VectorXd>& q) {
+    check_q(q);
+    nb::gil_scoped_release release;
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    const std::size_t npairs = first_.size();
+    if (npairs == 0) return {0, std::numeric_limits<double>::infinity()};
+    place_spheres();
+    std::vector<double> lb(npairs);
+    std::size_t k0 = 0;
+    for (std::size_t k = 0; k < npairs; ++k) {
+      lb[k] = lower_bound(k);
+      if (lb[k] < lb[k0]) k0 = k;
+    }
+    const double bound = std::max(pinocchio::computeDistance(gm_, gd_, k0).min_distance, 0.0);
+    for (std::size_t k = 0; k < npairs; ++k) gd_.activeCollisionPairs[k] = lb[k] <= bound;
+    const std::size_t k = pinocchio::computeDistances(gm_, gd_);
+    return {static_cast<std::int64_t>(k), gd_.distanceResults[k].min_distance};
+  }
+
+ private:
+  void check_q(const Eigen::Ref<const VectorXd>& q) const {
+    if (q.size() != model_.nq)
+      throw nb::value_error(("q has " + str(q.size()) + " entries, the model " + str(model_.nq)).c_str());
+  }
+
+  // every bounding sphere's centre in the world, from its joint's placement (after the placements)
+  void place_spheres() {
+    const Eigen::Index m = slabs_;
+    for (std::size_t i = 0; i < joints_.size(); ++i) {
+      const auto& M = data_.oMi[joints_[i]];
+      for (Eigen::Index s = 0; s < m; ++s) {
+        const Eigen::Index r = static_cast<Eigen::Index>(i) * m + s;
+        world_.row(r) = (M.rotation() * centres_.row(r).transpose() + M.translation()).transpose();
+      }
+    }
+  }
+
+  // the pairs with a sphere pair whose gap is within `limit` [m] (engine.Workspace.near_pairs)
+  void near_pairs(double limit, std::vector<std::int64_t>& ks) {
+    place_spheres();
+    const Eigen::Index m = slabs_;
+    for (std::size_t k = 0; k < first_.size(); ++k) {
+      const Eigen::Index a = first_[k] * m, b = second_[k] * m;
+      bool close = false;
+      for (Eigen::Index i = 0; i < m && !close; ++i)
+        for (Eigen::Index j = 0; j < m && !close; ++j) {
+          const Vector3 diff = (world_.row(a + i) - world_.row(b + j)).transpose();
+          const double reach = radii_[a + i] + radii_[b + j] + limit;
+          close = diff.squaredNorm() <= reach * reach;
+        }
+      if (close) ks.push_back(static_cast<std::int64_t>(k));
+    }
+  }
+
+  // the least gap between pair k's bounding spheres less the slack (engine.Workspace.lower_bounds)
+  double lower_bound(std::size_t k) const {
+    const Eigen::Index m = slabs_, a = first_[k] * m, b = second_[k] * m;
+    double least = std::numeric_limits<double>::infinity();
+    for (Eigen::Index i = 0; i < m; ++i)
+      for (Eigen::Index j = 0; j < m; ++j) {
+        const double gap = (world_.row(a + i) - world_.row(b + j)).norm() - (radii_[a + i] + radii_[b + j]);
+        least = std::min(least, gap);
+      }
+    return least - kBoundSlack;
+  }
+
+  void exact(const std::vector<std::int64_t>& ks, Result& out) {
+    const Eigen::Index k = static_cast<Eigen::Index>(ks.size());
+    auto& [index, d, normal, pa, pb, G] = out;
+    index.resize(k);
+    d.resize(k);
+    normal.resize(k, 3);
+    pa.resize(k, 3);
+    pb.resize(k, 3);
+    for (Eigen::Index r = 0; r < k; ++r) {
+      index[r] = ks[r];
+      const auto& res = pinocchio::computeDistance(gm_, gd_, static_cast<std::size_t>(ks[r]));
+      d[r] = res.min_distance;
+      pa.row(r) = res.nearest_points[0].transpose();
+      pb.row(r) = res.nearest_points[1].transpose();
+      normal.row(r) = unit_normal(d[r], res.normal, pa.row(r).transpose(), pb.row(r).transpose()).transpose();
+    }
+  }
+
+  // G[k] = n^T (J_b(p_b) - J_a(p_a)) [m/rad], from data.J after the placements' forward kinematics
+  RowMatrixXd distance_rows(const std::vector<std::int64_t>& ks, const RowMatrixX3& normal, const RowMatrixX3& pa,
+                            const RowMatrixX3& pb) {
+    pinocchio::computeJointJacobians(model_, data_);
+    const auto& J = data_.J;  // 6 x nv, [v; omega] in world axes
+    RowMatrixXd G = RowMatrixXd::Zero(static_cast<Eigen::Index>(ks.size()), model_.nv);
+    for (std::size_t r = 0; r < ks.size(); ++r) {
+      const Vector3 n = normal.row(r).transpose();
+      const std::size_t k = static_cast<std::size_t>(ks[r]);
+      const Vector3 ma = pa.row(r).transpose().cross(n), mb = pb.row(r).transpose().cross(n);
+      for (int c : columns_[joints_[first_[k]]])
+        G(r, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
+      for (int c : columns_[joints_[second_[k]]])
+        G(r, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
+    }
+    return G;
+  }
+
+  nb::object py_[4];  // keeps the Python objects (and so the references below) alive
+  Model& model_;
+  Data& data_;
+  GeometryModel& gm_;
+  GeometryData& gd_;
+  Eigen::Index slabs_ = 0;
+  RowMatrixX3 centres_, world_;
+  VectorXd radii_;
+  std::vector<std::size_t> joints_;
+  std::vector<std::int64_t> first_, second_;
+  std::vector<std::vector<int>> columns_;
+};
+
+}  // namespace
+
+void bind_distances(nb::module_& m) {
+  nb::class_<DistanceQuery>(m, "DistanceQuery",
+                            "One query of kinredund.geometry.engine.Workspace in one call (issue 24).")
+      .def(nb::init<nb::object, nb::object, nb::object, nb::object, const Eigen::Ref<const VectorXl>&,
+                    const Eigen::Ref<const RowMatrixX3>&, const Eigen::Ref<const VectorXd>&,
+                    const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXl>&>(),
+           nb::arg("model"), nb::arg("data"), nb::arg("geometry"), nb::arg("gdata"), nb::arg("joints"),
+           nb::arg("centres"), nb::arg("radii"), nb::arg("first"), nb::arg("second"))
+      .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows") = false)
+      .def("closest", &DistanceQuery::closest, nb::arg("q"));
+}
+
+}  // namespace kinredund
