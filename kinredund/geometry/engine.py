@@ -148,6 +148,7 @@ class Workspace:
         self._ones = np.ones((2 * len(first), 1))
         self._all = np.arange(len(first))
         self._core = None
+        self._width = (10, 10 + model.nv)  # the compiled query's output row without and with the distance row
         if compiled or (compiled is None and _CORE is not None):
             if _CORE is None:
                 raise GeometryError("compiled=True, but kinredund was installed without its compiled core "
@@ -171,8 +172,11 @@ class Workspace:
         One call of the compiled core where it is used, else :meth:`place`, :meth:`near_pairs`, :meth:`distances`
         and :meth:`rows` in turn.
         """
-        if self._core is not None:
-            return self._core.query(q, limit, rows)
+        if self._core is not None:  # the arrays made here, filled there: row r = [d, n, p_a, p_b, G row]
+            index, out = np.empty(len(self.first), dtype=np.int64), np.empty((len(self.first), self._width[rows]))
+            k = self._core.query(q, limit, rows, index, out)
+            P = out[:k]
+            return index[:k], P[:, 0], P[:, 1:4], P[:, 4:7], P[:, 7:10], (P[:, 10:] if rows else None)
         self.place(q)
         ks = self._all if limit is None else self.near_pairs(limit)
         d, n, pa, pb = self.distances(ks)

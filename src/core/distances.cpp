@@ -14,6 +14,7 @@
 
 #include <boost/python.hpp>
 #include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/tuple.h>
 
@@ -23,6 +24,7 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -51,6 +53,14 @@ using Vector3 = Eigen::Vector3d;
 constexpr double kNearContact = 1e-6;
 // engine.Workspace.lower_bounds: the sphere gap less this for rounding [m]
 constexpr double kBoundSlack = 1e-9;
+// the rounding allowance [m] of the coarse broadphase test (one sphere around each object's bounding spheres)
+constexpr double kSphereSlack = 1e-9;
+// the columns of a query's output row before G's: d, unit normal (3), p_first (3), p_second (3)
+constexpr Eigen::Index kColumns = 10;
+
+using IndexArray = nb::ndarray<std::int64_t, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using OutArray = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using OutMap = Eigen::Map<RowMatrixXd>;
 
 // A reference to the C++ object held by a Boost.Python instance (pin.Model, pin.Data, ...).
 template <typename T>
@@ -76,7 +86,6 @@ Vector3 unit_normal(double d, const Vector3& coal_normal, const Vector3& pa, con
 
 class DistanceQuery {
  public:
-  using Result = std::tuple<VectorXl, VectorXd, RowMatrixX3, RowMatrixX3, RowMatrixX3, std::optional<RowMatrixXd>>;
 
   DistanceQuery(nb::object model, nb::object data, nb::object geometry, nb::object gdata,
                 const Eigen::Ref<const VectorXl>& joints, const Eigen::Ref<const RowMatrixX3>& centres,
@@ -113,6 +122,17 @@ class DistanceQuery {
         throw nb::value_error(("object " + str(i) + "'s joint " + std::to_string(joints[i]) + " is not a joint of the model").c_str());
       joints_[i] = static_cast<std::size_t>(joints[i]);
     }
+    hull_centres_.resize(n, 3);
+    hull_world_.resize(n, 3);
+    hull_radii_.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto block = centres_.middleRows(static_cast<Eigen::Index>(i) * slabs_, slabs_);
+      hull_centres_.row(i) = block.colwise().mean();
+      hull_radii_[i] = 0.0;
+      for (Eigen::Index s = 0; s < slabs_; ++s)
+        hull_radii_[i] = std::max(hull_radii_[i], (block.row(s) - hull_centres_.row(i)).norm() +
+                                                      radii_[static_cast<Eigen::Index>(i) * slabs_ + s]);
+    }
     first_.assign(first.data(), first.data() + npairs);
     second_.assign(second.data(), second.data() + npairs);
     // the velocity columns of the joints that move each joint's body (none for the world)
@@ -124,23 +144,31 @@ class DistanceQuery {
       }
   }
 
-  // (pair indices, signed distances [m], unit normals (k, 3), p_first (k, 3), p_second (k, 3), rows G (k, nv) or
-  // None) at q for the pairs within `limit` [m] (all pairs when None).
-  Result query(const Eigen::Ref<const VectorXd>& q, std::optional<double> limit, bool rows) {
+  // The pairs within `limit` [m] at q (all pairs when None) into `index` (their indices) and row by row into
+  // `out`: [d [m], unit normal (3), p_first (3), p_second (3) [m]] and, with `rows`, G's row (nv) [m/rad];
+  // returns how many. The caller's arrays (at least one row per pair): numpy arrays made in Python cost a
+  // fraction of those returned from here.
+  std::size_t query(const Eigen::Ref<const VectorXd>& q, std::optional<double> limit, bool rows, IndexArray index,
+                    OutArray out) {
     check_q(q);
-    std::vector<std::int64_t> ks;
-    Result out;
-    {
-      nb::gil_scoped_release release;
-      pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
-      if (limit)
-        near_pairs(*limit, ks);
-      else
-        for (std::size_t k = 0; k < first_.size(); ++k) ks.push_back(static_cast<std::int64_t>(k));
-      exact(ks, out);
-      if (rows) std::get<5>(out) = distance_rows(ks, std::get<2>(out), std::get<3>(out), std::get<4>(out));
-    }
-    return out;
+    const std::size_t npairs = first_.size(), width = kColumns + (rows ? static_cast<std::size_t>(model_.nv) : 0);
+    if (index.shape(0) < npairs || out.shape(0) < npairs || out.shape(1) != width)
+      throw nb::value_error(("index (>= " + str(npairs) + ",) and out (>= " + str(npairs) + ", " + str(width) +
+                             ") expected, got (" + str(index.shape(0)) + ",) and (" + str(out.shape(0)) + ", " +
+                             str(out.shape(1)) + ")").c_str());
+    nb::gil_scoped_release release;
+    std::vector<std::int64_t>& ks = ks_;
+    ks.clear();
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    if (limit)
+      near_pairs(*limit, ks);
+    else
+      for (std::size_t k = 0; k < npairs; ++k) ks.push_back(static_cast<std::int64_t>(k));
+    OutMap o(out.data(), static_cast<Eigen::Index>(npairs), static_cast<Eigen::Index>(width));
+    exact(ks, o);
+    if (rows) distance_rows(ks, o);
+    std::copy(ks.begin(), ks.end(), index.data());
+    return ks.size();
   }
 
   // (pair index, signed distance [m]) of the closest pair at q: engine.Workspace.closest, computed the same way
@@ -180,7 +208,16 @@ class DistanceQuery {
         const Eigen::Index r = static_cast<Eigen::Index>(i) * m + s;
         world_.row(r) = (M.rotation() * centres_.row(r).transpose() + M.translation()).transpose();
       }
+      hull_world_.row(i) = (M.rotation() * hull_centres_.row(i).transpose() + M.translation()).transpose();
     }
+  }
+
+  // whether the spheres around pair k's objects are farther apart than `limit` [m]: then so are all their
+  // bounding spheres (each lies within its object's), with kSphereSlack [m] for rounding
+  bool surely_apart(std::size_t k, double limit) const {
+    const Eigen::Index a = first_[k], b = second_[k];
+    const double reach = hull_radii_[a] + hull_radii_[b] + limit + kSphereSlack;
+    return (hull_world_.row(a) - hull_world_.row(b)).squaredNorm() > reach * reach;
   }
 
   // the pairs with a sphere pair whose gap is within `limit` [m] (engine.Workspace.near_pairs)
@@ -188,6 +225,7 @@ class DistanceQuery {
     place_spheres();
     const Eigen::Index m = slabs_;
     for (std::size_t k = 0; k < first_.size(); ++k) {
+      if (surely_apart(k, limit)) continue;
       const Eigen::Index a = first_[k] * m, b = second_[k] * m;
       bool close = false;
       for (Eigen::Index i = 0; i < m && !close; ++i)
@@ -212,40 +250,37 @@ class DistanceQuery {
     return least - kBoundSlack;
   }
 
-  void exact(const std::vector<std::int64_t>& ks, Result& out) {
-    const Eigen::Index k = static_cast<Eigen::Index>(ks.size());
-    auto& [index, d, normal, pa, pb, G] = out;
-    index.resize(k);
-    d.resize(k);
-    normal.resize(k, 3);
-    pa.resize(k, 3);
-    pb.resize(k, 3);
-    for (Eigen::Index r = 0; r < k; ++r) {
-      index[r] = ks[r];
+  // d, unit normal, p_first, p_second of pairs ks into the first columns of rows 0..k-1 of o
+  void exact(const std::vector<std::int64_t>& ks, OutMap& o) {
+    for (std::size_t r = 0; r < ks.size(); ++r) {
       const auto& res = pinocchio::computeDistance(gm_, gd_, static_cast<std::size_t>(ks[r]));
-      d[r] = res.min_distance;
-      pa.row(r) = res.nearest_points[0].transpose();
-      pb.row(r) = res.nearest_points[1].transpose();
-      normal.row(r) = unit_normal(d[r], res.normal, pa.row(r).transpose(), pb.row(r).transpose()).transpose();
+      const Vector3 &pa = res.nearest_points[0], &pb = res.nearest_points[1];
+      const auto i = static_cast<Eigen::Index>(r);
+      o(i, 0) = res.min_distance;
+      o.block<1, 3>(i, 1) = unit_normal(res.min_distance, res.normal, pa, pb).transpose();
+      o.block<1, 3>(i, 4) = pa.transpose();
+      o.block<1, 3>(i, 7) = pb.transpose();
     }
   }
 
-  // G[k] = n^T (J_b(p_b) - J_a(p_a)) [m/rad], from data.J after the placements' forward kinematics
-  RowMatrixXd distance_rows(const std::vector<std::int64_t>& ks, const RowMatrixX3& normal, const RowMatrixX3& pa,
-                            const RowMatrixX3& pb) {
+  // G[k] = n^T (J_b(p_b) - J_a(p_a)) [m/rad] into the columns after the first kColumns of rows 0..k-1 of o, from
+  // data.J after the placements' forward kinematics
+  void distance_rows(const std::vector<std::int64_t>& ks, OutMap& o) {
     pinocchio::computeJointJacobians(model_, data_);
     const auto& J = data_.J;  // 6 x nv, [v; omega] in world axes
-    RowMatrixXd G = RowMatrixXd::Zero(static_cast<Eigen::Index>(ks.size()), model_.nv);
+    const Eigen::Index nv = model_.nv;
     for (std::size_t r = 0; r < ks.size(); ++r) {
-      const Vector3 n = normal.row(r).transpose();
+      const auto i = static_cast<Eigen::Index>(r);
+      auto G = o.block(i, kColumns, 1, nv);
+      G.setZero();
+      const Vector3 n = o.block<1, 3>(i, 1).transpose();
+      const Vector3 ma = o.block<1, 3>(i, 4).transpose().cross(n), mb = o.block<1, 3>(i, 7).transpose().cross(n);
       const std::size_t k = static_cast<std::size_t>(ks[r]);
-      const Vector3 ma = pa.row(r).transpose().cross(n), mb = pb.row(r).transpose().cross(n);
       for (int c : columns_[joints_[first_[k]]])
-        G(r, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
+        G(0, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
       for (int c : columns_[joints_[second_[k]]])
-        G(r, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
+        G(0, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
     }
-    return G;
   }
 
   nb::object py_[4];  // keeps the Python objects (and so the references below) alive
@@ -256,9 +291,13 @@ class DistanceQuery {
   Eigen::Index slabs_ = 0;
   RowMatrixX3 centres_, world_;
   VectorXd radii_;
+  // one sphere around each object's bounding spheres (centre in its joint's frame, then in the world; radius)
+  RowMatrixX3 hull_centres_, hull_world_;
+  VectorXd hull_radii_;
   std::vector<std::size_t> joints_;
   std::vector<std::int64_t> first_, second_;
   std::vector<std::vector<int>> columns_;
+  std::vector<std::int64_t> ks_;  // the pairs of the current query
 };
 
 }  // namespace
@@ -271,7 +310,8 @@ void bind_distances(nb::module_& m) {
                     const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXl>&>(),
            nb::arg("model"), nb::arg("data"), nb::arg("geometry"), nb::arg("gdata"), nb::arg("joints"),
            nb::arg("centres"), nb::arg("radii"), nb::arg("first"), nb::arg("second"))
-      .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows") = false)
+      .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"), nb::arg("index"),
+           nb::arg("out"))
       .def("closest", &DistanceQuery::closest, nb::arg("q"));
 }
 
