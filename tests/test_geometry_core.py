@@ -77,9 +77,9 @@ def test_compiled_query_is_the_python_query(name):
             assert da.pairs == db.pairs and np.abs(da.distance - db.distance).max(initial=0.0) <= rounding()
         (pa, d_a), (pb, d_b) = core.closest(q), py.closest(q)
         assert pa == pb and abs(d_a - d_b) <= rounding()
-        # closest leaves the pairs it computed active, on both paths
-        active = [list(x.workspace().gdata.activeCollisionPairs) for x in (core, py)]
-        assert active[0] == active[1]
+        # closest leaves the pairs it computed active: the compiled path's bound tightens as it goes, so fewer
+        active = [np.array(x.workspace().gdata.activeCollisionPairs, dtype=bool) for x in (core, py)]
+        assert active[0][core.pairs.index(pa)] and np.all(active[1] | ~active[0])
         contacts += d_b <= 0
     assert contacts > 0  # the near-contact normal rules (coal's own normal) were compared too
 

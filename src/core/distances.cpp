@@ -171,26 +171,42 @@ class DistanceQuery {
     return ks.size();
   }
 
-  // (pair index, signed distance [m]) of the closest pair at q: engine.Workspace.closest, computed the same way
-  // (the pair of the least sphere bound first, then every pair whose bound does not rule it out, in one
-  // pinocchio::computeDistances over the active pairs, which it leaves set in the geometry data).
+  // (pair index, signed distance [m]) of the closest pair at q, the first of equals in pair order: the answer of
+  // engine.Workspace.closest's Python path, from fewer exact distances. The pairs go in the order of their sphere
+  // bounds lb (a lower bound on a pair's distance); once lb exceeds max(least distance so far, 0), so does every
+  // later pair's distance (below 0 a bound says nothing about how deep two objects penetrate), which ends the
+  // search. A pair tied with the least has lb <= the least, so it is computed before the end. The pairs computed
+  // are left active in the geometry data (gdata.activeCollisionPairs), the others not; pairs whose objects have
+  // disableCollision set are skipped, as pinocchio::computeDistances skips them.
   std::tuple<std::int64_t, double> closest(const Eigen::Ref<const VectorXd>& q) {
     check_q(q);
     nb::gil_scoped_release release;
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
     const std::size_t npairs = first_.size();
-    if (npairs == 0) return {0, std::numeric_limits<double>::infinity()};
     place_spheres();
-    std::vector<double> lb(npairs);
-    std::size_t k0 = 0;
+    lb_.resize(npairs);
+    order_.resize(npairs);
     for (std::size_t k = 0; k < npairs; ++k) {
-      lb[k] = lower_bound(k);
-      if (lb[k] < lb[k0]) k0 = k;
+      lb_[k] = lower_bound(k);
+      order_[k] = k;
+      gd_.activeCollisionPairs[k] = false;
     }
-    const double bound = std::max(pinocchio::computeDistance(gm_, gd_, k0).min_distance, 0.0);
-    for (std::size_t k = 0; k < npairs; ++k) gd_.activeCollisionPairs[k] = lb[k] <= bound;
-    const std::size_t k = pinocchio::computeDistances(gm_, gd_);
-    return {static_cast<std::int64_t>(k), gd_.distanceResults[k].min_distance};
+    std::sort(order_.begin(), order_.end(),
+              [this](std::size_t a, std::size_t b) { return lb_[a] < lb_[b] || (lb_[a] == lb_[b] && a < b); });
+    std::size_t best_k = npairs;
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t k : order_) {
+      if (lb_[k] > std::max(best, 0.0)) break;
+      const auto& cp = gm_.collisionPairs[k];
+      if (gm_.geometryObjects[cp.first].disableCollision || gm_.geometryObjects[cp.second].disableCollision) continue;
+      gd_.activeCollisionPairs[k] = true;
+      const double d = pinocchio::computeDistance(gm_, gd_, k).min_distance;
+      if (d < best || (d == best && k < best_k)) {
+        best = d;
+        best_k = k;
+      }
+    }
+    return {static_cast<std::int64_t>(best_k), best};
   }
 
  private:
@@ -298,6 +314,8 @@ class DistanceQuery {
   std::vector<std::int64_t> first_, second_;
   std::vector<std::vector<int>> columns_;
   std::vector<std::int64_t> ks_;  // the pairs of the current query
+  std::vector<double> lb_;        // closest: each pair's sphere bound
+  std::vector<std::size_t> order_;
 };
 
 }  // namespace
