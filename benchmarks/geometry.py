@@ -31,9 +31,11 @@ and the ratios without / with the broadphase, of each model to the hulls and of 
 one; the same medians in this thread's CPU time (``cpu``: on a loaded machine the wall time also counts what the
 scheduler gives other processes). ``coal_bp_free`` [us] is coal's share of ``distances_bp_free``: one
 ``pin.computeDistances`` over just the pairs the broadphase keeps (placed beforehand), the exact distances
-alone. The issue's target for the default (hulls) is at most 30 us per query from Python; the script prints
-what it measures, and how many pairs each query computed exactly (median over the configurations:
-``exact (bp)`` for the broadphase at INFLUENCE, ``exact (min)`` for ``min_distance``).
+alone. ``check_hulls`` and ``check_meshes``: ``check_motion`` (what ``kinredund check`` runs) of one seeded Panda
+motion on both paths (:func:`bench_check`). The issue's target for the default (hulls) is at most 30 us per
+query from Python; the script prints what it measures, and how many pairs each query computed exactly (median
+over the configurations, on the Python path: ``exact (bp)`` for the broadphase at INFLUENCE, ``exact (min)`` for
+``min_distance``; the compiled ``min_distance`` computes a subset of those).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from _bench import parser, print_table, time_in_turn, write_json
 
 import kinredund
 from kinredund.geometry.engine import compiled_core
+from kinredund.geometry.motion import check_motion
 from kinredund.model.erd import erd_share_dir
 
 #: the broadphase distance [m]: pairs whose bounding spheres are farther apart are not computed
@@ -134,6 +137,31 @@ def bench_model(model: str, repeat: int) -> dict:
 QUERIES = ("distances", "distances_bp", "distances_bp_free", "rows_bp", "min_distance")
 
 
+def bench_check(model: str, samples: int, repeat: int) -> dict:
+    """``check_motion`` (``kinredund check``) of a seeded back-and-forth joint motion about the Panda's home
+    (``samples`` samples over 2 s) on both paths: the least clearance, configurations evaluated (samples and
+    midpoints) and the median CPU time [ms] of ``repeat`` runs."""
+    r = kinredund.load_robot("panda")
+    direction = np.random.default_rng(1).uniform(-1.0, 1.0, r.nq)
+    t = np.linspace(0.0, 2.0, samples)
+    q = r.home + 0.5 * np.sin(np.pi * t)[:, None] * direction
+    out = {"samples": samples}
+    for path, compiled in (("compiled", True), ("python", False)):
+        if compiled and compiled_core() is None:
+            continue
+        s = panda_scene(model, compiled)
+        times = []
+        for _ in range(repeat):
+            t0 = time.thread_time()
+            c = check_motion(s, t, q)
+            times.append(time.thread_time() - t0)
+        out[path] = {"ms": float(np.median(times) * 1e3), "min_distance": c.min_distance,
+                     "min_pair": list(c.min_pair) if c.min_pair else None, "evaluations": c.evaluations}
+    if "compiled" in out:
+        out["python_over_compiled"] = out["python"]["ms"] / out["compiled"]["ms"]
+    return out
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=400, help="timed calls per query (meshes: a tenth)")
@@ -165,6 +193,12 @@ def main() -> None:
                         for k in queries)
     print(f"target for the default (hulls, {paths[0]}): <= {TARGET_US:g} us per query: {verdict}")
     print(f"hulls, {paths[0]}, this thread's CPU time only (median us; what the scheduler does not add): {cpu}")
+    for model in ("hulls", "meshes"):
+        out[f"check_{model}"] = c = bench_check(model, 11 if args.smoke else 101, 1 if args.smoke else 3)
+        line = ", ".join(f"{p} {c[p]['ms']:.1f} ms ({c[p]['evaluations']} configurations, least clearance "
+                         f"{c[p]['min_distance']:.6f} m)" for p in paths)
+        ratio = f"; python / compiled {c['python_over_compiled']:.2f}" if "compiled" in c else ""
+        print(f"check_motion, {model}, {c['samples']} samples (CPU time): {line}{ratio}")
     coal, free = out["hulls"]["coal_bp_free_us"], h["distances_bp_free"]["median_us"]
     print(f"hulls: coal's exact distances alone (one pin.computeDistances over the broadphase's pairs, contact-free): "
           f"{coal:.1f} us of {free:.1f} us ({coal / free:.0%})")
