@@ -26,6 +26,8 @@ under background load) of
 - ``distances_bp_free``: ``distances_bp`` on the contact-free configurations only (a tracker's steps: about
   half of the seeded configurations put the arm into itself or the table, with more near pairs and coal's
   normals to read);
+- ``query_bp_free`` (``ws (bp free)``): the workspace's own query behind ``distances_bp_free``
+  (``Workspace.query``: the arrays without the scene's checks of q and its record);
 
 and the ratios without / with the broadphase, of each model to the hulls and of the Python path to the compiled
 one; the same medians in this thread's CPU time (``cpu``: on a loaded machine the wall time also counts what the
@@ -34,8 +36,8 @@ scheduler gives other processes). ``coal_bp_free`` [us] is coal's share of ``dis
 alone. ``check_hulls`` and ``check_meshes``: ``check_motion`` (what ``kinredund check`` runs) of one seeded Panda
 motion on both paths (:func:`bench_check`). The issue's target for the default (hulls) is at most 30 us per
 query from Python; the script prints what it measures, and how many pairs each query computed exactly (median
-over the configurations, on the Python path: ``exact (bp)`` for the broadphase at INFLUENCE, ``exact (min)`` for
-``min_distance``; the compiled ``min_distance`` computes a subset of those).
+over the configurations: ``exact (bp)`` for the broadphase at INFLUENCE, ``exact (min)`` for ``min_distance``, whose
+compiled search computes a subset of the Python path's pairs).
 """
 
 from __future__ import annotations
@@ -74,13 +76,15 @@ def panda_scene(model: str, compiled: bool | None = None) -> kinredund.Scene:
 def _calls(s: kinredund.Scene, qs: list, free: list) -> dict:
     """The five queries on scene ``s``, each cycling through the configurations on its own (one shared counter
     would give each query every fifth configuration, so different configurations and numbers of near pairs)."""
-    q = [itertools.cycle(qs).__next__ for _ in range(4)] + [itertools.cycle(free).__next__]
+    q = [itertools.cycle(qs).__next__ for _ in range(4)] + [itertools.cycle(free).__next__ for _ in range(2)]
+    ws = s.workspace()
     return {
         "distances": lambda: s.distances(q[0]()),
         "distances_bp": lambda: s.distances(q[1](), influence=INFLUENCE),
         "rows_bp": lambda: s.distance_rows(q[2](), influence=INFLUENCE),
         "min_distance": lambda: s.min_distance(q[3]()),
         "distances_bp_free": lambda: s.distances(q[4](), influence=INFLUENCE),
+        "query_bp_free": lambda: ws.query(q[5](), INFLUENCE),
     }
 
 
@@ -116,12 +120,13 @@ def bench_model(model: str, repeat: int) -> dict:
     wall = time_in_turn(calls, repeat=repeat, warmup=5)
     cpu = time_in_turn(calls, repeat=repeat, warmup=5, clock=time.thread_time)
     exact = [len(s.distances(x, influence=INFLUENCE)) for x in qs]
-    exact_min = []
-    for x in qs:  # min_distance leaves the pairs it computed active (besides the first, recomputed among them)
-        s.min_distance(x)
-        exact_min.append(sum(s.workspace().gdata.activeCollisionPairs))
+    exact_min = {p: [] for p in paths}
+    for x, (p, sc) in itertools.product(qs, scenes.items()):  # min_distance leaves the pairs it computed active
+        sc.min_distance(x)
+        exact_min[p].append(sum(sc.workspace().gdata.activeCollisionPairs))
     out = {"pairs": len(s.pairs), "self_pairs": len(s.pair_matrix.enabled), "free_configurations": n_free,
-           "exact_pairs_bp_median": float(np.median(exact)), "exact_pairs_min_median": float(np.median(exact_min)),
+           "exact_pairs_bp_median": float(np.median(exact)),
+           "exact_pairs_min_median": {p: float(np.median(e)) for p, e in exact_min.items()},
            "exact_pairs_bp_free_median": float(np.median([len(s.distances(x, influence=INFLUENCE)) for x in free])),
            "coal_bp_free_us": coal_share(s, free, max(1, repeat // 10))}
     for p in paths:
@@ -134,7 +139,7 @@ def bench_model(model: str, repeat: int) -> dict:
     return out
 
 
-QUERIES = ("distances", "distances_bp", "distances_bp_free", "rows_bp", "min_distance")
+QUERIES = ("distances", "distances_bp", "distances_bp_free", "rows_bp", "min_distance", "query_bp_free")
 
 
 def bench_check(model: str, samples: int, repeat: int) -> dict:
@@ -174,12 +179,12 @@ def main() -> None:
     rows = []
     for model, path in itertools.product(("hulls", "primitives", "meshes"), paths):
         m, t = out[model], out[model][path]
-        rows.append([model, path, m["pairs"], m["exact_pairs_bp_median"], m["exact_pairs_min_median"]]
+        rows.append([model, path, m["pairs"], m["exact_pairs_bp_median"], m["exact_pairs_min_median"][path]]
                     + [t[k]["median_us"] for k in QUERIES]
                     + [t["ratio_bp"], t["distances"]["median_us"] / out["hulls"][path]["distances"]["median_us"]])
     print(f"Panda, self pairs + 5 objects; broadphase influence {INFLUENCE} m; median us per call")
     print_table(rows, ["model", "path", "pairs", "exact (bp)", "exact (min)", "distances", "dist. (bp)",
-                       "free (bp)", "rows (bp)", "min_distance", "no bp / bp", "vs hulls"])
+                       "free (bp)", "rows (bp)", "min_distance", "ws (bp free)", "no bp / bp", "vs hulls"])
     if "compiled" in paths:
         print("python / compiled (median ratios):")
         print_table([[model] + [out[model]["python_over_compiled"][k] for k in QUERIES]
