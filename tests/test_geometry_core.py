@@ -116,6 +116,8 @@ def test_compiled_query_refuses_what_does_not_fit():
     ws = s.workspace()
     with pytest.raises(ValueError, match="q has 6 entries"):
         ws.query(np.zeros(6), None)
+    with pytest.raises(TypeError):  # the outputs are written in place: a copy made to convert them is refused
+        ws._core.query(np.zeros(7), None, False, np.empty(len(s.pairs)), np.empty((len(s.pairs), 10)))
     n, m = ws.centres.shape[:2]
     args = (ws.model, ws.data, ws.geometry, ws.gdata, ws.joints.astype(np.int64),
             ws.centres.reshape(n * m, 3), ws.radii.reshape(-1))

@@ -175,8 +175,8 @@ class Workspace:
         if self._core is not None:  # the arrays made here, filled there: row r = [d, n, p_a, p_b, G row]
             index, out = np.empty(len(self.first), dtype=np.int64), np.empty((len(self.first), self._width[rows]))
             k = self._core.query(q, limit, rows, index, out)
-            P = out[:k]
-            return index[:k], P[:, 0], P[:, 1:4], P[:, 4:7], P[:, 7:10], (P[:, 10:] if rows else None)
+            P = out[:k].copy()  # (a record kept from each query then holds k rows, not one per pair)
+            return index[:k].copy(), P[:, 0], P[:, 1:4], P[:, 4:7], P[:, 7:10], (P[:, 10:] if rows else None)
         self.place(q)
         ks = self._all if limit is None else self.near_pairs(limit)
         d, n, pa, pb = self.distances(ks)

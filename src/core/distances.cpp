@@ -328,8 +328,8 @@ void bind_distances(nb::module_& m) {
                     const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXl>&>(),
            nb::arg("model"), nb::arg("data"), nb::arg("geometry"), nb::arg("gdata"), nb::arg("joints"),
            nb::arg("centres"), nb::arg("radii"), nb::arg("first"), nb::arg("second"))
-      .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"), nb::arg("index"),
-           nb::arg("out"))
+      .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"),
+           nb::arg("index").noconvert(), nb::arg("out").noconvert())  // written in place: never a converted copy
       .def("closest", &DistanceQuery::closest, nb::arg("q"));
 }
 
