@@ -20,6 +20,7 @@ from conftest import rounding
 import kinredund as kr
 from kinredund.errors import GeometryError
 from kinredund.geometry import engine
+from kinredund.geometry.motion import check_motion
 
 if not os.environ.get("CI"):  # outside CI a machine without the core runs the Python path
     pytest.importorskip("kinredund._core")
@@ -136,3 +137,16 @@ def test_compiled_true_without_the_core_is_refused(monkeypatch):
     with pytest.raises(GeometryError, match="without its compiled core"):
         cell("panda", True).workspace()
     assert not cell("panda", None).workspace().compiled  # the Python path, quietly
+
+
+def test_motion_check_is_the_same_on_both_paths():
+    """check_motion (``kinredund check``) on the compiled closest pair: the same least clearance, pair, time and
+    configurations evaluated as on the Python path, for a Panda motion past the cell's objects."""
+    core, py = cell("panda", True), cell("panda", False)
+    r = core.robot
+    t = np.linspace(0.0, 1.0, 6)
+    q = r.home + np.outer(np.sin(np.pi * t), np.random.default_rng(2).uniform(-0.6, 0.6, r.nq))
+    a, b = check_motion(core, t, q), check_motion(py, t, q)
+    assert a.min_pair == b.min_pair and a.evaluations == b.evaluations and a.pairs == b.pairs
+    assert abs(a.min_distance - b.min_distance) <= rounding() and abs(a.min_time - b.min_time) <= rounding()
+    assert np.abs(a.distance - b.distance).max() <= rounding()
