@@ -136,7 +136,11 @@ def test_compiled_true_without_the_core_is_refused(monkeypatch):
     monkeypatch.setattr(engine, "_CORE", None)
     with pytest.raises(GeometryError, match="without its compiled core"):
         cell("panda", True).workspace()
-    assert not cell("panda", None).workspace().compiled  # the Python path, quietly
+    s = cell("panda", None)
+    assert not s.workspace().compiled  # the Python path, quietly
+    monkeypatch.setattr(engine, "_CORE", engine.compiled_core())
+    s.compiled = True  # the next query's workspace
+    assert s.workspace().compiled and s.compiled
 
 
 def test_motion_check_is_the_same_on_both_paths():

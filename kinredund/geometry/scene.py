@@ -89,7 +89,7 @@ class Scene:
     def __init__(self, robot: Robot, *, geometry: str = "convex", pairs=None, capsule_radius: float = CAPSULE_RADIUS,
                  collision_urdf=None, srdf=None, compiled: bool | None = None):
         self.robot = robot
-        self.compiled = compiled
+        self._compiled = compiled
         self.geometry = geometry
         self._robot_geom = robot_geometry(robot, geometry, capsule_radius=capsule_radius,
                                           collision_urdf=collision_urdf, srdf=srdf)
@@ -249,13 +249,24 @@ class Scene:
         self._spheres = (joints, np.array([c for c, _ in spheres]), np.array([r for _, r in spheres]))
         self._local = threading.local()
 
+    @property
+    def compiled(self) -> bool | None:
+        """Where the queries run: the compiled core (True), Python (False) or the core where it is installed
+        (None); setting it takes effect at the next query of every thread."""
+        return self._compiled
+
+    @compiled.setter
+    def compiled(self, value: bool | None) -> None:
+        self._compiled = value
+        self._local = threading.local()
+
     def workspace(self) -> Workspace:
         """This thread's workspace (:class:`~kinredund.geometry.engine.Workspace`), made on first use."""
         try:
             return self._local.workspace
         except AttributeError:
             ws = self._local.workspace = Workspace(self.robot.model, self._gm, *self._spheres, self._first,
-                                                   self._second, compiled=self.compiled)
+                                                   self._second, compiled=self._compiled)
             return ws
 
     @property
