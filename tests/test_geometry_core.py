@@ -117,6 +117,8 @@ def test_compiled_query_refuses_what_does_not_fit():
     ws = s.workspace()
     with pytest.raises(ValueError, match="q has 6 entries"):
         ws.query(np.zeros(6), None)
+    with pytest.raises(ValueError, match="limit must be a distance >= 0"):
+        ws.query(np.zeros(7), float("nan"))
     with pytest.raises(TypeError):  # the outputs are written in place: a copy made to convert them is refused
         ws._core.query(np.zeros(7), None, False, np.empty(len(s.pairs)), np.empty((len(s.pairs), 10)))
     n, m = ws.centres.shape[:2]

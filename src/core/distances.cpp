@@ -86,7 +86,6 @@ Vector3 unit_normal(double d, const Vector3& coal_normal, const Vector3& pa, con
 
 class DistanceQuery {
  public:
-
   DistanceQuery(nb::object model, nb::object data, nb::object geometry, nb::object gdata,
                 const Eigen::Ref<const VectorXl>& joints, const Eigen::Ref<const RowMatrixX3>& centres,
                 const Eigen::Ref<const VectorXd>& radii, const Eigen::Ref<const VectorXl>& first,
@@ -107,6 +106,8 @@ class DistanceQuery {
       throw nb::value_error(("first and second must name the " + str(npairs) + " collision pairs").c_str());
     if (gd_.distanceRequests.size() != npairs || gd_.oMg.size() != n)
       throw nb::value_error("the geometry data was not made for this geometry model");
+    if (data_.oMi.size() != static_cast<std::size_t>(model_.njoints))
+      throw nb::value_error("the data was not made for this model");
     for (std::size_t k = 0; k < npairs; ++k) {
       const auto& cp = gm_.collisionPairs[k];
       if (static_cast<std::size_t>(first[k]) != cp.first || static_cast<std::size_t>(second[k]) != cp.second)
@@ -119,18 +120,19 @@ class DistanceQuery {
     joints_.resize(n);
     for (std::size_t i = 0; i < n; ++i) {
       if (joints[i] < 0 || joints[i] >= model_.njoints)
-        throw nb::value_error(("object " + str(i) + "'s joint " + std::to_string(joints[i]) + " is not a joint of the model").c_str());
+        throw nb::value_error(("object " + str(i) + "'s joint " + std::to_string(joints[i]) +
+                               " is not a joint of the model").c_str());
       joints_[i] = static_cast<std::size_t>(joints[i]);
     }
-    hull_centres_.resize(n, 3);
-    hull_world_.resize(n, 3);
-    hull_radii_.resize(n);
+    outer_centres_.resize(n, 3);
+    outer_world_.resize(n, 3);
+    outer_radii_.resize(n);
     for (std::size_t i = 0; i < n; ++i) {
       const auto block = centres_.middleRows(static_cast<Eigen::Index>(i) * slabs_, slabs_);
-      hull_centres_.row(i) = block.colwise().mean();
-      hull_radii_[i] = 0.0;
+      outer_centres_.row(i) = block.colwise().mean();
+      outer_radii_[i] = 0.0;
       for (Eigen::Index s = 0; s < slabs_; ++s)
-        hull_radii_[i] = std::max(hull_radii_[i], (block.row(s) - hull_centres_.row(i)).norm() +
+        outer_radii_[i] = std::max(outer_radii_[i], (block.row(s) - outer_centres_.row(i)).norm() +
                                                       radii_[static_cast<Eigen::Index>(i) * slabs_ + s]);
     }
     first_.assign(first.data(), first.data() + npairs);
@@ -151,6 +153,8 @@ class DistanceQuery {
   std::size_t query(const Eigen::Ref<const VectorXd>& q, std::optional<double> limit, bool rows, IndexArray index,
                     OutArray out) {
     check_q(q);
+    if (limit && !(*limit >= 0.0))
+      throw nb::value_error(("limit must be a distance >= 0 [m] or None, got " + std::to_string(*limit)).c_str());
     const std::size_t npairs = first_.size(), width = kColumns + (rows ? static_cast<std::size_t>(model_.nv) : 0);
     if (index.shape(0) < npairs || out.shape(0) < npairs || out.shape(1) != width)
       throw nb::value_error(("index (>= " + str(npairs) + ",) and out (>= " + str(npairs) + ", " + str(width) +
@@ -224,7 +228,7 @@ class DistanceQuery {
         const Eigen::Index r = static_cast<Eigen::Index>(i) * m + s;
         world_.row(r) = (M.rotation() * centres_.row(r).transpose() + M.translation()).transpose();
       }
-      hull_world_.row(i) = (M.rotation() * hull_centres_.row(i).transpose() + M.translation()).transpose();
+      outer_world_.row(i) = (M.rotation() * outer_centres_.row(i).transpose() + M.translation()).transpose();
     }
   }
 
@@ -232,8 +236,8 @@ class DistanceQuery {
   // bounding spheres (each lies within its object's), with kSphereSlack [m] for rounding
   bool surely_apart(std::size_t k, double limit) const {
     const Eigen::Index a = first_[k], b = second_[k];
-    const double reach = hull_radii_[a] + hull_radii_[b] + limit + kSphereSlack;
-    return (hull_world_.row(a) - hull_world_.row(b)).squaredNorm() > reach * reach;
+    const double reach = outer_radii_[a] + outer_radii_[b] + limit + kSphereSlack;
+    return (outer_world_.row(a) - outer_world_.row(b)).squaredNorm() > reach * reach;
   }
 
   // the pairs with a sphere pair whose gap is within `limit` [m] (engine.Workspace.near_pairs)
@@ -308,8 +312,8 @@ class DistanceQuery {
   RowMatrixX3 centres_, world_;
   VectorXd radii_;
   // one sphere around each object's bounding spheres (centre in its joint's frame, then in the world; radius)
-  RowMatrixX3 hull_centres_, hull_world_;
-  VectorXd hull_radii_;
+  RowMatrixX3 outer_centres_, outer_world_;
+  VectorXd outer_radii_;
   std::vector<std::size_t> joints_;
   std::vector<std::int64_t> first_, second_;
   std::vector<std::vector<int>> columns_;
