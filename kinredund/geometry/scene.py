@@ -90,6 +90,7 @@ class Scene:
                  collision_urdf=None, srdf=None, compiled: bool | None = None):
         self.robot = robot
         self._compiled = compiled
+        self._q_shape = (robot.nq,)
         self.geometry = geometry
         self._robot_geom = robot_geometry(robot, geometry, capsule_radius=capsule_radius,
                                           collision_urdf=collision_urdf, srdf=srdf)
@@ -341,8 +342,8 @@ class Scene:
 
     def _q(self, q) -> np.ndarray:
         """q validated: a finite float array of the robot's length as is (the hot path), else ``robot.check_q``."""
-        if type(q) is np.ndarray and q.dtype is _F64 and q.shape == (self.robot.nq,) and isfinite(q @ q):
-            return q  # (q @ q is inf or nan when an entry is; an overflow of huge values goes to check_q)
+        if type(q) is np.ndarray and q.dtype is _F64 and q.shape == self._q_shape and isfinite(q.dot(q)):
+            return q  # (q.q is inf or nan when an entry is; an overflow of huge values goes to check_q)
         return self.robot.check_q(q)
 
     def distances(self, q, influence: float | None = None) -> Distances:
