@@ -146,7 +146,6 @@ class Workspace:
         self._map_shape, self._map_size = (n_obj, n_obj), n_obj * n_obj
         self._cell_ab, self._cell_ba = first * n_obj + second, second * n_obj + first
         self._ones = np.ones((2 * len(first), 1))
-        self._all = np.arange(len(first))
         self._core = None
         self._width = (10, 10 + model.nv)  # the compiled query's output row without and with the distance row
         if compiled or (compiled is None and _CORE is not None):
@@ -178,7 +177,7 @@ class Workspace:
             P = out[:k].copy()  # (a record kept from each query then holds k rows, not one per pair)
             return index[:k].copy(), P[:, 0], P[:, 1:4], P[:, 4:7], P[:, 7:10], (P[:, 10:] if rows else None)
         self.place(q)
-        ks = self._all if limit is None else self.near_pairs(limit)
+        ks = np.arange(len(self.first)) if limit is None else self.near_pairs(limit)
         d, n, pa, pb = self.distances(ks)
         return ks, d, n, pa, pb, (self.rows(ks, n) if rows else None)
 
