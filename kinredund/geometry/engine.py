@@ -146,17 +146,22 @@ class Workspace:
         self._map_shape, self._map_size = (n_obj, n_obj), n_obj * n_obj
         self._cell_ab, self._cell_ba = first * n_obj + second, second * n_obj + first
         self._ones = np.ones((2 * len(first), 1))
-        self._core = None
         self._width = (10, 10 + model.nv)  # the compiled query's output row without and with the distance row
-        if compiled or (compiled is None and _CORE is not None):
-            if _CORE is None:
-                raise GeometryError("compiled=True, but kinredund was installed without its compiled core "
-                                    "(kinredund._core): reinstall with pin[build] and nanobind, or pass compiled=None")
-            i64 = np.int64
-            self._core = _CORE.DistanceQuery(model, self.data, geometry, self.gdata, joints.astype(i64),
-                                             np.ascontiguousarray(centres.reshape(n * m, 3), dtype=float),
-                                             np.ascontiguousarray(radii.reshape(-1), dtype=float),
-                                             first.astype(i64), second.astype(i64))
+        self._core = self._compiled_query(compiled)
+
+    def _compiled_query(self, compiled: bool | None):
+        """The compiled core's query on this workspace's objects, or None for the Python path."""
+        if not (compiled or (compiled is None and _CORE is not None)):
+            return None
+        if _CORE is None:
+            raise GeometryError("compiled=True, but kinredund was installed without its compiled core "
+                                "(kinredund._core): reinstall with pin[build] and nanobind, or pass compiled=None")
+        n, m = self.centres.shape[:2]
+        i64 = np.int64
+        return _CORE.DistanceQuery(self.model, self.data, self.geometry, self.gdata, self.joints.astype(i64),
+                                   np.ascontiguousarray(self.centres.reshape(n * m, 3), dtype=float),
+                                   np.ascontiguousarray(self.radii.reshape(-1), dtype=float),
+                                   self.first.astype(i64), self.second.astype(i64))
 
     @property
     def compiled(self) -> bool:
