@@ -248,9 +248,9 @@ class Workspace:
         bound exceeds max(d_0, 0) is farther than d_0 (below 0 a bound says nothing about how deep two objects
         penetrate), and coal computes the others in one Pinocchio call (``gdata.activeCollisionPairs`` is left
         set to them). The same answer as computing every pair (``pin.computeDistances`` over all of them).
-        The compiled core, where it is used, gives the same answer from fewer exact distances: it takes the
-        pairs in the order of their bounds and stops at the first bound above max(least distance so far, 0),
-        leaving active only the pairs it computed.
+        The compiled core, where it is used, gives the same answer from fewer exact distances: after ruling
+        pairs out by one sphere around each object, it takes the others in the order of their bounds and stops
+        at the first bound above max(least distance so far, 0), leaving active only the pairs it computed.
         """
         if self._core is not None:
             return self._core.closest(q)

@@ -176,39 +176,52 @@ class DistanceQuery {
   }
 
   // (pair index, signed distance [m]) of the closest pair at q, the first of equals in pair order: the answer of
-  // engine.Workspace.closest's Python path, from fewer exact distances. The pairs go in the order of their sphere
-  // bounds lb (a lower bound on a pair's distance); once lb exceeds max(least distance so far, 0), so does every
-  // later pair's distance (below 0 a bound says nothing about how deep two objects penetrate), which ends the
-  // search. A pair tied with the least has lb <= the least, so it is computed before the end. The pairs computed
-  // are left active in the geometry data (gdata.activeCollisionPairs), the others not; pairs whose objects have
-  // disableCollision set are skipped, as pinocchio::computeDistances skips them.
+  // engine.Workspace.closest's Python path, from fewer exact distances. Two lower bounds on a pair's distance: the
+  // gap between the spheres around its objects (outer_bound, one root per pair) and the least gap between their
+  // bounding spheres (lower_bound, tighter). The pair of the least outer bound is computed first; only the pairs
+  // whose outer bound does not exceed max(its distance, 0) remain (below 0 a bound says nothing about how deep two
+  // objects penetrate), and they go in the order of their lower_bound until one exceeds max(least distance so
+  // far, 0), which ends the search: every later pair is farther. A pair tied with the least has bounds <= the
+  // least, so it is computed. The pairs computed are left active in the geometry data (gdata.activeCollisionPairs),
+  // the others not; pairs whose objects have disableCollision set are skipped, as pinocchio::computeDistances
+  // skips them.
   std::tuple<std::int64_t, double> closest(const Eigen::Ref<const VectorXd>& q) {
     check_q(q);
     nb::gil_scoped_release release;
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
     const std::size_t npairs = first_.size();
     place_spheres();
-    lb_.resize(npairs);
-    order_.resize(npairs);
-    for (std::size_t k = 0; k < npairs; ++k) {
-      lb_[k] = lower_bound(k);
-      order_[k] = k;
-      gd_.activeCollisionPairs[k] = false;
-    }
-    std::sort(order_.begin(), order_.end(),
-              [this](std::size_t a, std::size_t b) { return lb_[a] < lb_[b] || (lb_[a] == lb_[b] && a < b); });
+    for (std::size_t k = 0; k < npairs; ++k) gd_.activeCollisionPairs[k] = false;
     std::size_t best_k = npairs;
     double best = std::numeric_limits<double>::infinity();
-    for (std::size_t k : order_) {
-      if (lb_[k] > std::max(best, 0.0)) break;
+    auto compute = [&](std::size_t k) {
       const auto& cp = gm_.collisionPairs[k];
-      if (gm_.geometryObjects[cp.first].disableCollision || gm_.geometryObjects[cp.second].disableCollision) continue;
+      if (gm_.geometryObjects[cp.first].disableCollision || gm_.geometryObjects[cp.second].disableCollision) return;
       gd_.activeCollisionPairs[k] = true;
       const double d = pinocchio::computeDistance(gm_, gd_, k).min_distance;
       if (d < best || (d == best && k < best_k)) {
         best = d;
         best_k = k;
       }
+    };
+    // the pair of the least outer bound first: its distance rules out every pair whose outer bound exceeds it
+    lb_.resize(npairs);
+    std::size_t k0 = 0;
+    for (std::size_t k = 0; k < npairs; ++k) {
+      lb_[k] = outer_bound(k);
+      if (lb_[k] < lb_[k0]) k0 = k;
+    }
+    if (npairs) compute(k0);
+    // the others that remain, in the order of their bounding spheres' bound, until one exceeds the least distance
+    order_.clear();
+    for (std::size_t k = 0; k < npairs; ++k)
+      if (k != k0 && lb_[k] <= std::max(best, 0.0)) order_.push_back(k);
+    for (std::size_t k : order_) lb_[k] = lower_bound(k);
+    std::sort(order_.begin(), order_.end(),
+              [this](std::size_t a, std::size_t b) { return lb_[a] < lb_[b] || (lb_[a] == lb_[b] && a < b); });
+    for (std::size_t k : order_) {
+      if (lb_[k] > std::max(best, 0.0)) break;
+      compute(k);
     }
     return {static_cast<std::int64_t>(best_k), best};
   }
@@ -259,6 +272,13 @@ class DistanceQuery {
   }
 
   // the least gap between pair k's bounding spheres less the slack (engine.Workspace.lower_bounds)
+  // the gap between the spheres around pair k's objects less the slack: a lower bound on its distance too, below
+  // lower_bound(k) (each object's bounding spheres lie within its outer sphere)
+  double outer_bound(std::size_t k) const {
+    const Eigen::Index a = first_[k], b = second_[k];
+    return (outer_world_.row(a) - outer_world_.row(b)).norm() - (outer_radii_[a] + outer_radii_[b]) - kSphereSlack;
+  }
+
   double lower_bound(std::size_t k) const {
     const Eigen::Index m = slabs_, a = first_[k] * m, b = second_[k] * m;
     double least = std::numeric_limits<double>::infinity();
