@@ -15,16 +15,23 @@ J(p) = J_v - [p]_x J_omega over the joints that move the body, from Pinocchio's 
 (J_v the velocity of the body point passing through the world origin). A world object has J = 0. This holds
 where the witness points are unique (smooth shapes, or polytopes away from parallel faces); the rates are
 checked against central differences in the tests.
+
+Compiled: where the compiled core (``kinredund._core``) is importable, :meth:`Workspace.query` and
+:meth:`Workspace.closest` run in one C++ call (``_core.DistanceQuery``, src/core/distances.cpp) on this
+workspace's own Pinocchio objects: the same Pinocchio and coal calls with the same requests, so the same
+distances, witness points, normals and rows (to rounding); without the core, the Python path below.
 """
 
 from __future__ import annotations
 
+import importlib
 from operator import attrgetter
 
 import coal
 import numpy as np
 import pinocchio as pin
 
+from kinredund.errors import GeometryError
 from kinredund.kinematics.state import point_curvature
 
 #: GJK's stopping tolerance (coal's default is 1e-6): separated distances to ~1e-9 m, at no measurable cost on
@@ -72,6 +79,17 @@ def unit_normals(d: np.ndarray, n: np.ndarray, pa: np.ndarray, pb: np.ndarray) -
     return out
 
 
+def compiled_core():
+    """The compiled core ``kinredund._core``, or None where the package was installed without it."""
+    try:
+        return importlib.import_module("kinredund._core")
+    except ImportError:
+        return None
+
+
+_CORE = compiled_core()
+
+
 class Workspace:
     """Pinocchio and coal data for one geometry model (not shared between threads).
 
@@ -82,10 +100,12 @@ class Workspace:
         centres, radii: each object's bounding spheres in its joint's frame [m], shapes (n_objects, slabs, 3) and
             (n_objects, slabs) (``shapes.bounding_spheres``).
         first, second: the objects of each collision pair, in the order of ``geometry.collisionPairs``.
+        compiled: run :meth:`query` and :meth:`closest` in the compiled core (True: it must be there), in
+            Python (False), or in the core where it is importable (None).
     """
 
     def __init__(self, model: pin.Model, geometry: pin.GeometryModel, joints: np.ndarray, centres: np.ndarray,
-                 radii: np.ndarray, first: np.ndarray, second: np.ndarray):
+                 radii: np.ndarray, first: np.ndarray, second: np.ndarray, compiled: bool | None = None):
         self.model, self.geometry = model, geometry
         self.data = model.createData()
         self.gdata = pin.GeometryData(geometry)
@@ -126,6 +146,45 @@ class Workspace:
         self._map_shape, self._map_size = (n_obj, n_obj), n_obj * n_obj
         self._cell_ab, self._cell_ba = first * n_obj + second, second * n_obj + first
         self._ones = np.ones((2 * len(first), 1))
+        self._width = (10, 10 + model.nv)  # the compiled query's output row without and with the distance row
+        self._core = self._compiled_query(compiled)
+
+    def _compiled_query(self, compiled: bool | None):
+        """The compiled core's query on this workspace's objects, or None for the Python path."""
+        if not (compiled or (compiled is None and _CORE is not None)):
+            return None
+        if _CORE is None:
+            raise GeometryError("compiled=True, but kinredund was installed without its compiled core "
+                                "(kinredund._core): reinstall with pin[build] and nanobind, or pass compiled=None")
+        n, m = self.centres.shape[:2]
+        i64 = np.int64
+        return _CORE.DistanceQuery(self.model, self.data, self.geometry, self.gdata, self.joints.astype(i64),
+                                   np.ascontiguousarray(self.centres.reshape(n * m, 3), dtype=float),
+                                   np.ascontiguousarray(self.radii.reshape(-1), dtype=float),
+                                   self.first.astype(i64), self.second.astype(i64))
+
+    @property
+    def compiled(self) -> bool:
+        """Whether :meth:`query` and :meth:`closest` run in the compiled core."""
+        return self._core is not None
+
+    def query(self, q: np.ndarray, limit: float | None, rows: bool = False):
+        """(pairs, signed distances [m], unit normals, p_first, p_second [m], rows G [m/rad] or None) at q: the
+        pairs (indices, shape (k,)) within ``limit`` [m] by the broadphase (:meth:`near_pairs`; every pair when
+        None), their :meth:`distances` and, with ``rows``, their :meth:`rows` (shape (k, nv)).
+
+        One call of the compiled core where it is used, else :meth:`place`, :meth:`near_pairs`, :meth:`distances`
+        and :meth:`rows` in turn.
+        """
+        if self._core is not None:  # the arrays made here, filled there: row r = [d, n, p_a, p_b, G row]
+            index, out = np.empty(len(self.first), dtype=np.int64), np.empty((len(self.first), self._width[rows]))
+            k = self._core.query(q, limit, rows, index, out)
+            P = out[:k].copy()  # (a record kept from each query then holds k rows, not one per pair)
+            return index[:k].copy(), P[:, 0], P[:, 1:4], P[:, 4:7], P[:, 7:10], (P[:, 10:] if rows else None)
+        self.place(q)
+        ks = np.arange(len(self.first)) if limit is None else self.near_pairs(limit)
+        d, n, pa, pb = self.distances(ks)
+        return ks, d, n, pa, pb, (self.rows(ks, n) if rows else None)
 
     def place(self, q: np.ndarray) -> None:
         """Forward kinematics and every object's world pose at q."""
@@ -189,7 +248,12 @@ class Workspace:
         bound exceeds max(d_0, 0) is farther than d_0 (below 0 a bound says nothing about how deep two objects
         penetrate), and coal computes the others in one Pinocchio call (``gdata.activeCollisionPairs`` is left
         set to them). The same answer as computing every pair (``pin.computeDistances`` over all of them).
+        The compiled core, where it is used, gives the same answer from fewer exact distances: after ruling
+        pairs out by one sphere around each object, it takes the others in the order of their bounds and stops
+        at the first bound above max(least distance so far, 0), leaving active only the pairs it computed.
         """
+        if self._core is not None:
+            return self._core.closest(q)
         self.place(q)
         lb = self.lower_bounds()
         gm, gd = self.geometry, self.gdata

@@ -174,9 +174,8 @@ def self_pairs(robot: Robot, geom: RobotGeometry, *, samples: int = SAMPLES, see
     contacts = np.zeros(len(todo), dtype=int)
     at_home = np.zeros(len(todo), dtype=bool)
     for s, q in enumerate(qs):
-        ws.place(q)
-        near = ws.near_pairs(never_closer) if len(todo) else np.zeros(0, dtype=int)
-        for k, d in zip(near, ws.distances(near)[0], strict=True):
+        near, dist = ws.query(q, never_closer)[:2] if len(todo) else ((), ())  # the broadphase, then coal
+        for k, d in zip(near, dist, strict=True):
             closest[k] = min(closest[k], d)
             if d <= 0.0:
                 if s == 0:

@@ -82,11 +82,15 @@ class Scene:
             with ``PairMatrix.save``, or None to compute it (seeded, :func:`~kinredund.geometry.pairs.self_pairs`).
         capsule_radius: capsule radius [m] for a robot without collision elements (HD-table robots).
         collision_urdf, srdf: see :func:`~kinredund.geometry.collision_model.robot_geometry`.
+        compiled: queries in the compiled core (True: it must be installed), in Python (False), or in the core
+            where it is installed (None); the same results either way (:mod:`kinredund.geometry.engine`).
     """
 
     def __init__(self, robot: Robot, *, geometry: str = "convex", pairs=None, capsule_radius: float = CAPSULE_RADIUS,
-                 collision_urdf=None, srdf=None):
+                 collision_urdf=None, srdf=None, compiled: bool | None = None):
         self.robot = robot
+        self._compiled = compiled
+        self._q_shape = (robot.nq,)
         self.geometry = geometry
         self._options = {"capsule_radius": capsule_radius, "collision_urdf": collision_urdf, "srdf": srdf}
         self._robot_geom = robot_geometry(robot, geometry, capsule_radius=capsule_radius,
@@ -264,13 +268,24 @@ class Scene:
         self._spheres = (joints, np.array([c for c, _ in spheres]), np.array([r for _, r in spheres]))
         self._local = threading.local()
 
+    @property
+    def compiled(self) -> bool | None:
+        """Where the queries run: the compiled core (True), Python (False) or the core where it is installed
+        (None); setting it takes effect at the next query of every thread."""
+        return self._compiled
+
+    @compiled.setter
+    def compiled(self, value: bool | None) -> None:
+        self._compiled = value
+        self._local = threading.local()
+
     def workspace(self) -> Workspace:
         """This thread's workspace (:class:`~kinredund.geometry.engine.Workspace`), made on first use."""
         try:
             return self._local.workspace
         except AttributeError:
             ws = self._local.workspace = Workspace(self.robot.model, self._gm, *self._spheres, self._first,
-                                                   self._second)
+                                                   self._second, compiled=self._compiled)
             return ws
 
     @property
@@ -320,26 +335,20 @@ class Scene:
         return np.where((a > 0) & (b > 0), 0.0, a + b)
 
     # -- queries --------------------------------------------------------------------------------
-    def _candidates(self, ws: Workspace, influence) -> np.ndarray:
+    @staticmethod
+    def _influence(influence) -> float | None:
         if influence is None:
-            return np.arange(len(self._first))
+            return None
         influence = float(influence)
         if not isfinite(influence) or influence < 0:
             raise GeometryError(f"influence must be a finite distance >= 0 [m] or None, got {influence!r}")
-        return ws.near_pairs(influence)
+        return influence
 
     def _q(self, q) -> np.ndarray:
         """q validated: a finite float array of the robot's length as is (the hot path), else ``robot.check_q``."""
-        if type(q) is np.ndarray and q.dtype is _F64 and q.shape == (self.robot.nq,) and isfinite(q @ q):
-            return q  # (q @ q is inf or nan when an entry is; an overflow of huge values goes to check_q)
+        if type(q) is np.ndarray and q.dtype is _F64 and q.shape == self._q_shape and isfinite(q.dot(q)):
+            return q  # (q.q is inf or nan when an entry is; an overflow of huge values goes to check_q)
         return self.robot.check_q(q)
-
-    def _exact(self, q, influence):
-        q = self._q(q)
-        ws = self.workspace()
-        ws.place(q)
-        ks = self._candidates(ws, influence)
-        return (q, ws, ks, *ws.distances(ks))
 
     def distances(self, q, influence: float | None = None) -> Distances:
         """Signed distances [m] of the checked pairs at q, with witness points and normals.
@@ -349,9 +358,9 @@ class Scene:
             influence: compute exactly only pairs whose bounding spheres are within this distance [m] (the
                 others are surely farther); None computes every checked pair.
         """
-        q, _, ks, d, n, pa, pb = self._exact(q, influence)
-        return Distances(q.copy(), self._names_of(ks), d, pa, pb, n,
-                         None if influence is None else float(influence), len(self._pair_names))
+        q, influence = self._q(q), self._influence(influence)
+        ks, d, n, pa, pb, _ = self.workspace().query(q, influence)
+        return Distances(q.copy(), self._names_of(ks), d, pa, pb, n, influence, len(self._pair_names))
 
     def min_distance(self, q) -> float:
         """The smallest signed distance [m] over every checked pair at q (inf when the scene checks none)."""
@@ -371,11 +380,10 @@ class Scene:
 
         ``G[k] = n_k^T (J_b(p_b) - J_a(p_a))`` at the witness points (``kinredund.geometry.engine``).
         """
-        q, ws, ks, d, n, pa, pb = self._exact(q, influence)
-        influence = None if influence is None else float(influence)
+        q, influence = self._q(q), self._influence(influence)
+        ks, d, n, pa, pb, G = self.workspace().query(q, influence, rows=True)
         if not len(ks):
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), influence, np.zeros(0, int), n, pa, pb)
-        G = ws.rows(ks, n)
         return DistanceRows(self._names_of(ks), d, G, influence, np.asarray(ks), n, pa, pb)
 
     def distance_curvature(self, q, rows: DistanceRows, weights) -> np.ndarray:

@@ -1,4 +1,6 @@
 // kinredund._core: the compiled core (issue 28). The Python package works without it (Python stepper).
+#include "distances.hpp"
+
 #include <boost/python.hpp>
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
@@ -87,4 +89,5 @@ NB_MODULE(_core, m) {
       .def_prop_ro("nv", &kinredund::Kinematics::nv)
       .def("jacobian_hessian", &kinredund::Kinematics::jacobian_hessian, nb::arg("q"));
   kinredund::bind_step(m);
+  kinredund::bind_distances(m);
 }

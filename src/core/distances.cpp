@@ -1,0 +1,360 @@
+// The compiled distance query of kinredund.geometry (issue 24). It computes what the Python path of
+// kinredund/geometry/engine.py computes, with the same Pinocchio and coal calls on the same objects:
+// - placements: pinocchio::updateGeometryPlacements (forward kinematics and every object's world pose);
+// - the broadphase: each object's bounding spheres (centres in its joint's frame) placed by its joint, and a pair
+//   kept when one of its sphere pairs is within the influence distance (compared squared, as engine.py does);
+// - exact signed distances: pinocchio::computeDistance per kept pair, with the GeometryData's own requests (the
+//   Python Workspace sets them: signed distances, GJK tolerance, no warm start);
+// - unit normals by the rules of engine.unit_normals;
+// - the distance rows G[k] = n^T (J_b(p_b) - J_a(p_a)) from the world-frame joint Jacobians data.J, each body's
+//   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega.
+// The model, data, geometry model and geometry data are the Python Workspace's own objects (Boost.Python),
+// referenced, not copied: after a query they hold what the Python path would leave in them.
+#include "distances.hpp"
+
+#include <boost/python.hpp>
+#include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/tuple.h>
+
+#include <pinocchio/algorithm/geometry.hpp>
+#include <pinocchio/algorithm/jacobian.hpp>
+#include <pinocchio/collision/distance.hpp>
+#include <pinocchio/multibody/data.hpp>
+#include <pinocchio/multibody/model.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <optional>
+#include <string>
+#include <tuple>
+#include <vector>
+
+namespace nb = nanobind;
+namespace bp = boost::python;
+
+namespace kinredund {
+namespace {
+
+using Model = pinocchio::Model;
+using Data = pinocchio::Data;
+using GeometryModel = pinocchio::GeometryModel;
+using GeometryData = pinocchio::GeometryData;
+using VectorXd = Eigen::VectorXd;
+using VectorXl = Eigen::Matrix<std::int64_t, Eigen::Dynamic, 1>;
+using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using RowMatrixX3 = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+using Vector3 = Eigen::Vector3d;
+
+// engine.NEAR_CONTACT: below this distance [m] a pair's normal is coal's own, not (p_b - p_a) / d
+constexpr double kNearContact = 1e-6;
+// engine.Workspace.lower_bounds: the sphere gap less this for rounding [m]
+constexpr double kBoundSlack = 1e-9;
+// the rounding allowance [m] of the coarse broadphase test (one sphere around each object's bounding spheres)
+constexpr double kSphereSlack = 1e-9;
+// the columns of a query's output row before G's: d, unit normal (3), p_first (3), p_second (3)
+constexpr Eigen::Index kColumns = 10;
+
+using IndexArray = nb::ndarray<std::int64_t, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using OutArray = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using OutMap = Eigen::Map<RowMatrixXd>;
+
+// A reference to the C++ object held by a Boost.Python instance (pin.Model, pin.Data, ...).
+template <typename T>
+T& extract_ref(nb::handle obj, const char* what) {
+  bp::object o{bp::handle<>(bp::borrowed(obj.ptr()))};
+  bp::extract<T&> ex(o);
+  if (!ex.check()) throw nb::type_error((std::string("expected ") + what).c_str());
+  return ex();
+}
+
+std::string str(std::size_t v) { return std::to_string(v); }
+
+// engine.unit_normals for one pair: (p_b - p_a) / d apart; nearer, coal's normal where it is a unit vector, else
+// (p_b - p_a) / |p_b - p_a| while apart, else zeros.
+Vector3 unit_normal(double d, const Vector3& coal_normal, const Vector3& pa, const Vector3& pb) {
+  const Vector3 diff = pb - pa;
+  if (d > kNearContact) return diff / d;
+  if (std::abs(coal_normal.squaredNorm() - 1.0) < 1e-6) return coal_normal;
+  const double length = diff.norm();
+  if (d > 0 && length > 0) return diff / length;
+  return Vector3::Zero();
+}
+
+class DistanceQuery {
+ public:
+  DistanceQuery(nb::object model, nb::object data, nb::object geometry, nb::object gdata,
+                const Eigen::Ref<const VectorXl>& joints, const Eigen::Ref<const RowMatrixX3>& centres,
+                const Eigen::Ref<const VectorXd>& radii, const Eigen::Ref<const VectorXl>& first,
+                const Eigen::Ref<const VectorXl>& second)
+      : py_{model, data, geometry, gdata},
+        model_(extract_ref<Model>(model, "a pinocchio.Model")),
+        data_(extract_ref<Data>(data, "a pinocchio.Data")),
+        gm_(extract_ref<GeometryModel>(geometry, "a pinocchio.GeometryModel")),
+        gd_(extract_ref<GeometryData>(gdata, "a pinocchio.GeometryData")) {
+    const std::size_t n = gm_.ngeoms, npairs = gm_.collisionPairs.size();
+    const auto spheres = static_cast<std::size_t>(centres.rows());
+    const bool per_object = n == 0 ? spheres == 0 : spheres > 0 && spheres % n == 0;
+    if (static_cast<std::size_t>(joints.size()) != n || !per_object || radii.size() != centres.rows())
+      throw nb::value_error(("one joint per object (" + str(n) + ") and as many bounding spheres per object (" +
+                             "centres (n*m, 3), radii (n*m,)) expected; got " + str(joints.size()) + " joints, " +
+                             str(centres.rows()) + " centres, " + str(radii.size()) + " radii").c_str());
+    if (static_cast<std::size_t>(first.size()) != npairs || static_cast<std::size_t>(second.size()) != npairs)
+      throw nb::value_error(("first and second must name the " + str(npairs) + " collision pairs").c_str());
+    if (gd_.distanceRequests.size() != npairs || gd_.oMg.size() != n)
+      throw nb::value_error("the geometry data was not made for this geometry model");
+    if (data_.oMi.size() != static_cast<std::size_t>(model_.njoints))
+      throw nb::value_error("the data was not made for this model");
+    for (std::size_t k = 0; k < npairs; ++k) {
+      const auto& cp = gm_.collisionPairs[k];
+      if (static_cast<std::size_t>(first[k]) != cp.first || static_cast<std::size_t>(second[k]) != cp.second)
+        throw nb::value_error(("pair " + str(k) + " is not the geometry model's collision pair " + str(k)).c_str());
+    }
+    slabs_ = n ? static_cast<Eigen::Index>(centres.rows() / n) : 0;
+    centres_ = centres;
+    radii_ = radii;
+    world_.resize(centres.rows(), 3);
+    joints_.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (joints[i] < 0 || joints[i] >= model_.njoints)
+        throw nb::value_error(("object " + str(i) + "'s joint " + std::to_string(joints[i]) +
+                               " is not a joint of the model").c_str());
+      joints_[i] = static_cast<std::size_t>(joints[i]);
+    }
+    outer_centres_.resize(n, 3);
+    outer_world_.resize(n, 3);
+    outer_radii_.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto block = centres_.middleRows(static_cast<Eigen::Index>(i) * slabs_, slabs_);
+      outer_centres_.row(i) = block.colwise().mean();
+      outer_radii_[i] = 0.0;
+      for (Eigen::Index s = 0; s < slabs_; ++s)
+        outer_radii_[i] = std::max(outer_radii_[i], (block.row(s) - outer_centres_.row(i)).norm() +
+                                                      radii_[static_cast<Eigen::Index>(i) * slabs_ + s]);
+    }
+    first_.assign(first.data(), first.data() + npairs);
+    second_.assign(second.data(), second.data() + npairs);
+    // the velocity columns of the joints that move each joint's body (none for the world)
+    columns_.resize(model_.njoints);
+    for (int j = 1; j < model_.njoints; ++j)
+      for (std::size_t s = 1; s < model_.supports[j].size(); ++s) {
+        const auto t = model_.supports[j][s];
+        for (int c = 0; c < model_.nvs[t]; ++c) columns_[j].push_back(model_.idx_vs[t] + c);
+      }
+  }
+
+  // The pairs within `limit` [m] at q (all pairs when None) into `index` (their indices) and row by row into
+  // `out`: [d [m], unit normal (3), p_first (3), p_second (3) [m]] and, with `rows`, G's row (nv) [m/rad];
+  // returns how many. The caller's arrays (at least one row per pair): numpy arrays made in Python cost a
+  // fraction of those returned from here.
+  std::size_t query(const Eigen::Ref<const VectorXd>& q, std::optional<double> limit, bool rows, IndexArray index,
+                    OutArray out) {
+    check_q(q);
+    if (limit && !(*limit >= 0.0))
+      throw nb::value_error(("limit must be a distance >= 0 [m] or None, got " + std::to_string(*limit)).c_str());
+    const std::size_t npairs = first_.size(), width = kColumns + (rows ? static_cast<std::size_t>(model_.nv) : 0);
+    if (index.shape(0) < npairs || out.shape(0) < npairs || out.shape(1) != width)
+      throw nb::value_error(("index (>= " + str(npairs) + ",) and out (>= " + str(npairs) + ", " + str(width) +
+                             ") expected, got (" + str(index.shape(0)) + ",) and (" + str(out.shape(0)) + ", " +
+                             str(out.shape(1)) + ")").c_str());
+    nb::gil_scoped_release release;
+    std::vector<std::int64_t>& ks = ks_;
+    ks.clear();
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    if (limit)
+      near_pairs(*limit, ks);
+    else
+      for (std::size_t k = 0; k < npairs; ++k) ks.push_back(static_cast<std::int64_t>(k));
+    OutMap o(out.data(), static_cast<Eigen::Index>(npairs), static_cast<Eigen::Index>(width));
+    exact(ks, o);
+    if (rows) distance_rows(ks, o);
+    std::copy(ks.begin(), ks.end(), index.data());
+    return ks.size();
+  }
+
+  // (pair index, signed distance [m]) of the closest pair at q, the first of equals in pair order: the answer of
+  // engine.Workspace.closest's Python path, from fewer exact distances. Two lower bounds on a pair's distance: the
+  // gap between the spheres around its objects (outer_bound, one root per pair) and the least gap between their
+  // bounding spheres (lower_bound, tighter). The pair of the least outer bound is computed first; only the pairs
+  // whose outer bound does not exceed max(its distance, 0) remain (below 0 a bound says nothing about how deep two
+  // objects penetrate), and they go in the order of their lower_bound until one exceeds max(least distance so
+  // far, 0), which ends the search: every later pair is farther. A pair tied with the least has bounds <= the
+  // least, so it is computed. The pairs computed are left active in the geometry data (gdata.activeCollisionPairs),
+  // the others not; pairs whose objects have disableCollision set are skipped, as pinocchio::computeDistances
+  // skips them.
+  std::tuple<std::int64_t, double> closest(const Eigen::Ref<const VectorXd>& q) {
+    check_q(q);
+    nb::gil_scoped_release release;
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    const std::size_t npairs = first_.size();
+    place_spheres();
+    for (std::size_t k = 0; k < npairs; ++k) gd_.activeCollisionPairs[k] = false;
+    std::size_t best_k = npairs;
+    double best = std::numeric_limits<double>::infinity();
+    auto compute = [&](std::size_t k) {
+      const auto& cp = gm_.collisionPairs[k];
+      if (gm_.geometryObjects[cp.first].disableCollision || gm_.geometryObjects[cp.second].disableCollision) return;
+      gd_.activeCollisionPairs[k] = true;
+      const double d = pinocchio::computeDistance(gm_, gd_, k).min_distance;
+      if (d < best || (d == best && k < best_k)) {
+        best = d;
+        best_k = k;
+      }
+    };
+    // the pair of the least outer bound first: its distance rules out every pair whose outer bound exceeds it
+    lb_.resize(npairs);
+    std::size_t k0 = 0;
+    for (std::size_t k = 0; k < npairs; ++k) {
+      lb_[k] = outer_bound(k);
+      if (lb_[k] < lb_[k0]) k0 = k;
+    }
+    if (npairs) compute(k0);
+    // the others that remain, in the order of their bounding spheres' bound, until one exceeds the least distance
+    order_.clear();
+    for (std::size_t k = 0; k < npairs; ++k)
+      if (k != k0 && lb_[k] <= std::max(best, 0.0)) order_.push_back(k);
+    for (std::size_t k : order_) lb_[k] = lower_bound(k);
+    std::sort(order_.begin(), order_.end(),
+              [this](std::size_t a, std::size_t b) { return lb_[a] < lb_[b] || (lb_[a] == lb_[b] && a < b); });
+    for (std::size_t k : order_) {
+      if (lb_[k] > std::max(best, 0.0)) break;
+      compute(k);
+    }
+    return {static_cast<std::int64_t>(best_k), best};
+  }
+
+ private:
+  void check_q(const Eigen::Ref<const VectorXd>& q) const {
+    if (q.size() != model_.nq)
+      throw nb::value_error(("q has " + str(q.size()) + " entries, the model " + str(model_.nq)).c_str());
+  }
+
+  // every bounding sphere's centre in the world, from its joint's placement (after the placements)
+  void place_spheres() {
+    const Eigen::Index m = slabs_;
+    for (std::size_t i = 0; i < joints_.size(); ++i) {
+      const auto& M = data_.oMi[joints_[i]];
+      for (Eigen::Index s = 0; s < m; ++s) {
+        const Eigen::Index r = static_cast<Eigen::Index>(i) * m + s;
+        world_.row(r) = (M.rotation() * centres_.row(r).transpose() + M.translation()).transpose();
+      }
+      outer_world_.row(i) = (M.rotation() * outer_centres_.row(i).transpose() + M.translation()).transpose();
+    }
+  }
+
+  // whether the spheres around pair k's objects are farther apart than `limit` [m]: then so are all their
+  // bounding spheres (each lies within its object's), with kSphereSlack [m] for rounding
+  bool surely_apart(std::size_t k, double limit) const {
+    const Eigen::Index a = first_[k], b = second_[k];
+    const double reach = outer_radii_[a] + outer_radii_[b] + limit + kSphereSlack;
+    return (outer_world_.row(a) - outer_world_.row(b)).squaredNorm() > reach * reach;
+  }
+
+  // the pairs with a sphere pair whose gap is within `limit` [m] (engine.Workspace.near_pairs)
+  void near_pairs(double limit, std::vector<std::int64_t>& ks) {
+    place_spheres();
+    const Eigen::Index m = slabs_;
+    for (std::size_t k = 0; k < first_.size(); ++k) {
+      if (surely_apart(k, limit)) continue;
+      const Eigen::Index a = first_[k] * m, b = second_[k] * m;
+      bool close = false;
+      for (Eigen::Index i = 0; i < m && !close; ++i)
+        for (Eigen::Index j = 0; j < m && !close; ++j) {
+          const Vector3 diff = (world_.row(a + i) - world_.row(b + j)).transpose();
+          const double reach = radii_[a + i] + radii_[b + j] + limit;
+          close = diff.squaredNorm() <= reach * reach;
+        }
+      if (close) ks.push_back(static_cast<std::int64_t>(k));
+    }
+  }
+
+  // the least gap between pair k's bounding spheres less the slack (engine.Workspace.lower_bounds)
+  // the gap between the spheres around pair k's objects less the slack: a lower bound on its distance too, below
+  // lower_bound(k) (each object's bounding spheres lie within its outer sphere)
+  double outer_bound(std::size_t k) const {
+    const Eigen::Index a = first_[k], b = second_[k];
+    return (outer_world_.row(a) - outer_world_.row(b)).norm() - (outer_radii_[a] + outer_radii_[b]) - kSphereSlack;
+  }
+
+  double lower_bound(std::size_t k) const {
+    const Eigen::Index m = slabs_, a = first_[k] * m, b = second_[k] * m;
+    double least = std::numeric_limits<double>::infinity();
+    for (Eigen::Index i = 0; i < m; ++i)
+      for (Eigen::Index j = 0; j < m; ++j) {
+        const double gap = (world_.row(a + i) - world_.row(b + j)).norm() - (radii_[a + i] + radii_[b + j]);
+        least = std::min(least, gap);
+      }
+    return least - kBoundSlack;
+  }
+
+  // d, unit normal, p_first, p_second of pairs ks into the first columns of rows 0..k-1 of o
+  void exact(const std::vector<std::int64_t>& ks, OutMap& o) {
+    for (std::size_t r = 0; r < ks.size(); ++r) {
+      const auto& res = pinocchio::computeDistance(gm_, gd_, static_cast<std::size_t>(ks[r]));
+      const Vector3 &pa = res.nearest_points[0], &pb = res.nearest_points[1];
+      const auto i = static_cast<Eigen::Index>(r);
+      o(i, 0) = res.min_distance;
+      o.block<1, 3>(i, 1) = unit_normal(res.min_distance, res.normal, pa, pb).transpose();
+      o.block<1, 3>(i, 4) = pa.transpose();
+      o.block<1, 3>(i, 7) = pb.transpose();
+    }
+  }
+
+  // G[k] = n^T (J_b(p_b) - J_a(p_a)) [m/rad] into the columns after the first kColumns of rows 0..k-1 of o, from
+  // data.J after the placements' forward kinematics
+  void distance_rows(const std::vector<std::int64_t>& ks, OutMap& o) {
+    pinocchio::computeJointJacobians(model_, data_);
+    const auto& J = data_.J;  // 6 x nv, [v; omega] in world axes
+    const Eigen::Index nv = model_.nv;
+    for (std::size_t r = 0; r < ks.size(); ++r) {
+      const auto i = static_cast<Eigen::Index>(r);
+      auto G = o.block(i, kColumns, 1, nv);
+      G.setZero();
+      const Vector3 n = o.block<1, 3>(i, 1).transpose();
+      const Vector3 ma = o.block<1, 3>(i, 4).transpose().cross(n), mb = o.block<1, 3>(i, 7).transpose().cross(n);
+      const std::size_t k = static_cast<std::size_t>(ks[r]);
+      for (int c : columns_[joints_[first_[k]]])
+        G(0, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
+      for (int c : columns_[joints_[second_[k]]])
+        G(0, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
+    }
+  }
+
+  nb::object py_[4];  // keeps the Python objects (and so the references below) alive
+  Model& model_;
+  Data& data_;
+  GeometryModel& gm_;
+  GeometryData& gd_;
+  Eigen::Index slabs_ = 0;
+  RowMatrixX3 centres_, world_;
+  VectorXd radii_;
+  // one sphere around each object's bounding spheres (centre in its joint's frame, then in the world; radius)
+  RowMatrixX3 outer_centres_, outer_world_;
+  VectorXd outer_radii_;
+  std::vector<std::size_t> joints_;
+  std::vector<std::int64_t> first_, second_;
+  std::vector<std::vector<int>> columns_;
+  std::vector<std::int64_t> ks_;  // the pairs of the current query
+  std::vector<double> lb_;        // closest: each pair's sphere bound
+  std::vector<std::size_t> order_;
+};
+
+}  // namespace
+
+void bind_distances(nb::module_& m) {
+  nb::class_<DistanceQuery>(m, "DistanceQuery",
+                            "One query of kinredund.geometry.engine.Workspace in one call (issue 24).")
+      .def(nb::init<nb::object, nb::object, nb::object, nb::object, const Eigen::Ref<const VectorXl>&,
+                    const Eigen::Ref<const RowMatrixX3>&, const Eigen::Ref<const VectorXd>&,
+                    const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXl>&>(),
+           nb::arg("model"), nb::arg("data"), nb::arg("geometry"), nb::arg("gdata"), nb::arg("joints"),
+           nb::arg("centres"), nb::arg("radii"), nb::arg("first"), nb::arg("second"))
+      .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"),
+           nb::arg("index").noconvert(), nb::arg("out").noconvert())  // written in place: never a converted copy
+      .def("closest", &DistanceQuery::closest, nb::arg("q"));
+}
+
+}  // namespace kinredund
