@@ -12,7 +12,7 @@ of the obstacle policy, and the joint limits as hard bounds:
    sequence closes: the shortest closed walk through the layered candidate graph, with the joint
    distance ||q_b - q_a|| as the edge cost and an edge only where no joint moves by more than
    ``max_jump`` (dynamic programming over the start candidate,
-   :func:`kinredund.planning.branches.choose`). Where no such walk exists (a fold of z: the local
+   :func:`kinredund.planning.walk.choose`). Where no such walk exists (a fold of z: the local
    minimum followed ceases to exist and the remaining one is far away) the interval is *refined*: at
    its middle time the within-limits configuration on the path closest to the mean of its ends
    (the index of Eq. 6.25) is inserted, recursively, until every jump is below ``max_jump``.

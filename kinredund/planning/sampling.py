@@ -43,7 +43,7 @@ class CandidateSet:
         added: the samples inserted where the walk broke.
         keepout: the plan's scene and clearances (:class:`~kinredund.planning.keepout.Keepout`) or None: a
             minimum under a clearance is not a candidate; the minimum that keeps them, found from it by the
-            bounded IK with the distance rows (:meth:`Keepout.minimum`), is.
+            bounded IK with the distance rows (:meth:`kinredund.planning.keepout.Keepout.minimum`), is.
         rejected: (pair, distance - clearance [m]) of the last minimum rejected so, or None.
         rejections: how many minima were rejected so.
         collided: a sample had no candidate while minima were rejected there for their clearance.
@@ -73,7 +73,8 @@ class CandidateSet:
         return margin >= 0.0
 
     def _held(self, target, q) -> tuple | None:
-        """The minimum that keeps the clearances from a minimum under them (:meth:`Keepout.minimum`), or None."""
+        """The minimum that keeps the clearances from a minimum under them, or None
+        (:meth:`kinredund.planning.keepout.Keepout.minimum`)."""
         return self.keepout.minimum(self.inner, target, self.index, q)
 
     def _minimum(self, k: int, seed) -> tuple | None:

@@ -3,7 +3,7 @@
 After each step the stepper (:class:`~kinredund.tracking.limited.LimitedPredictorCorrector`) looks for a switch
 within it: a free joint beyond its bound or a multiplier below zero (:mod:`kinredund.tracking.limited`), an
 inactive general row below zero or an active row's multiplier below zero (:mod:`kinredund.tracking.rows`), or a
-row that dips below zero inside the step and comes back (:meth:`GeneralRows._row_dips`). It solves for the
+row that dips below zero inside the step and comes back (``GeneralRows._row_dips``). It solves for the
 switching time on the corrected path (Brent's method on the joint's margin, the row's value or the multiplier,
 each evaluation a corrector solve at that time), steps to it, changes the active set there and steps on to the
 end of the step. After a switch strict complementarity is checked: a reached bound's multiplier grows, a
@@ -24,7 +24,7 @@ from kinredund.tracking.state import ConstrainedState
 SWITCH_XTOL = 1e-14
 #: the most switches resolved within one step (more means chattering: the optimum is not strongly stable)
 MAX_SWITCHES_PER_STEP = 8
-#: where inside a step (fractions of it) a row that may dip below zero is sampled (:meth:`_row_dips`)
+#: where inside a step (fractions of it) a row that may dip below zero is sampled (``_row_dips``)
 DIP_SAMPLES = (0.25, 0.5, 0.75)
 
 
@@ -172,7 +172,7 @@ class SwitchLocation:
                             f"within one step before t = {t_end:.6g} s (chattering)")
 
     def _apply_switch(self, joint: int, kind: str) -> float:
-        """Change the active set: fix a joint on its bound, free it, or a row (:meth:`_apply_row_switch`)."""
+        """Change the active set: fix a joint on its bound, free it, or a row (``GeneralRows._apply_row_switch``)."""
         if kind in ("row_reach", "row_release"):
             return self._apply_row_switch(joint, kind)
         if kind == "release":
