@@ -9,7 +9,7 @@ import pytest
 from conftest import configurations, robot
 
 import kinredund
-from kinredund.indices import CustomIndex, JointDeviation, minimum_norm
+from kinredund.indices import CustomIndex, JointDeviation, TimeVaryingReference, minimum_norm
 from kinredund.kinematics.finite_diff import central_difference
 from kinredund.paths import Circle, FunctionPath
 from kinredund.tasks import task_terms
@@ -288,8 +288,9 @@ def test_liegeois_baseline_tracks_but_is_not_cyclic_with_optimum():
     assert tr.loop_drift.max() > 1e4 * max(ours.loop_drift.max(), 1e-15)
 
 
-def test_time_varying_index_feed_forward():
-    """Eq. (6.27): with h = 1/2||q - q*(t)||^2 and q*(t) on a feasible joint path, the scheme follows q*(t)."""
+@functools.cache
+def time_varying_case():
+    """The planar 3R following a feasible joint path q*(t) (Eq. 6.27): (robot, path, index, q*, fn, qa)."""
     r = robot("planar3r")
     qa = np.array([0.4, 0.7, 0.5])
     w = 2 * np.pi / 5.0
@@ -304,10 +305,13 @@ def test_time_varying_index_feed_forward():
         q, qd = q_star(t), q_star_rate(t)
         return r.fk(q)[:2, 3], r.position_jacobian(q)[:2] @ qd
 
-    from kinredund.indices import TimeVaryingReference
+    return r, FunctionPath(fn, period=5.0), TimeVaryingReference(q_star, q_star_rate), q_star, fn, qa
 
-    index = TimeVaryingReference(q_star, q_star_rate)
-    tr = track(r, FunctionPath(fn, period=5.0), index, q_star(0.0), loops=2)
+
+def test_time_varying_index_feed_forward():
+    """Eq. (6.27): with h = 1/2||q - q*(t)||^2 and q*(t) on a feasible joint path, the scheme follows q*(t)."""
+    r, path, index, q_star, fn, qa = time_varying_case()
+    tr = track(r, path, index, q_star(0.0), loops=2)
     err = max(np.abs(tr.q[i] - q_star(t)).max() for i, t in enumerate(tr.t))
     assert err < 1e-9
     assert tr.loop_drift.max() < 1e-9
