@@ -199,6 +199,7 @@ def test_the_hand_into_the_upper_arm_is_held_then_stops_named():
     assert e.cause == "collision" and 0 < e.t < path.period
     assert any("finger" in n and "panda_link" in n for n in e.watched["constraints"])
     assert "panda_link2_0 and panda_rightfinger_3 is not differentiable" in str(e) and e.watched["nonsmooth"]
+    assert "panda_rightfinger_3's vertices" in str(e)  # the corner named: the ends of the finger box's edge
     assert ball_distance_self(sc, e.q)[0] >= 0.01 - 1e-9
     part = e.partial
     assert len(part.t) > 100 and ball_distance_self(sc, part.q).min() >= 0.01 - 1e-9

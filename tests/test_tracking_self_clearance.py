@@ -121,8 +121,10 @@ FLAT = [-0.01994029663574623, -1.2783499392666005, -0.008817396621063784, -2.750
 
 def test_a_jump_of_the_witness_points_is_found():
     """Two hulls' faces come parallel: the pair's witness points jump (1.5 cm across joint 5's next 1e-4 rad),
-    the distance is not differentiable there, and ``discontinuities`` says so; along joint 7 (smooth there) and
-    for the other finger's pair (a vertex on a face) it says nothing."""
+    the distance is not differentiable there, and ``discontinuities`` says so, naming the corner: the two ends of
+    the finger box's edge (vertices 5 and 7) whose distances to the link's hull are the distance's two pieces there
+    (tests/test_geometry_polytopes.py checks them); along joint 7 (smooth there) and for the other finger's pair
+    (a vertex on a face) it says nothing."""
     r = kr.load_robot("panda", task="position")
     c = kr.SceneClearance(kr.Scene(r), self_clearance=0.01)
     q, e = np.array(FLAT), np.eye(7)
@@ -131,6 +133,7 @@ def test_a_jump_of_the_witness_points_is_found():
     assert len(notes) == 1 and "panda_link2_0 and panda_rightfinger_3 is not differentiable" in notes[0]
     jump = float(notes[0].split("jump by ")[1].split(" m")[0])
     assert 0.01 < jump < 0.02
+    assert "the least there of the distances of panda_rightfinger_3's vertices 5 and 7 to panda_link2_0" in notes[0]
     assert c.discontinuities(q, 1e-4 * e[6], [flat]) == []
     assert c.discontinuities(q, 1e-4 * e[4], [c.pairs.index(("panda_link1_0", "panda_leftfinger_3"))]) == []
     assert kr.SphereClearance(r, "panda_link7", [0, 0, 0], 0.1).discontinuities(q, e[4], [0]) == []  # the default

@@ -147,6 +147,7 @@ class Workspace:
         self._cell_ab, self._cell_ba = first * n_obj + second, second * n_obj + first
         self._ones = np.ones((2 * len(first), 1))
         self._width = (10, 10 + model.nv)  # the compiled query's output row without and with the distance row
+        self.polytopes: dict = {}  # object index -> its kinredund.geometry.polytopes.Polytope or None, on first use
         self._core = self._compiled_query(compiled)
 
     def _compiled_query(self, compiled: bool | None):
@@ -266,9 +267,10 @@ class Workspace:
         k = pin.computeDistances(gm, gd)
         return k, gd.distanceResults[k].min_distance
 
-    def rows(self, ks: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    def rows(self, ks: np.ndarray, normal: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
         """Rows n^T (J_b(p_b) - J_a(p_a)) [m/rad] of pairs ``ks``, shape (k, nv) (module docstring), after
-        :meth:`distances` of the same pairs (its witness points) at the placed configuration.
+        :meth:`distances` of the same pairs (its witness points) at the placed configuration, or at ``points``
+        ((2k, 3): the k points p_a, then the k points p_b [m], world frame) at the placed configuration.
 
         From Pinocchio's world-frame joint Jacobians ``data.J`` ([v; omega], v the velocity of the body point at
         the world origin, every joint's column), kept to the joints that move each body:
@@ -278,8 +280,10 @@ class Workspace:
         """
         pin.computeJointJacobians(self.model, self.data)  # from the placement's forward kinematics
         k = len(ks)
+        if not k:  # (the reshape below cannot infer the width of no rows)
+            return np.zeros((0, self.model.nv))
         n2 = np.concatenate([normal, normal])
-        P = np.concatenate([self._ones[:2 * k], self._points], axis=1)  # (1, p) per row
+        P = np.concatenate([self._ones[:2 * k], self._points if points is None else points], axis=1)  # (1, p) per row
         outer = (P[:, :, None] * n2[:, None, :]).reshape(2 * k, 12)
         both = (outer @ (_LIFT @ self.data.J)).reshape(2, k, -1)
         return np.einsum("skc,ksc->kc", both, self._signed.take(ks, axis=0))

@@ -46,7 +46,15 @@ flat on a link) it sits on that corner, which would need both pieces as rows. On
 it: the corrector, switching between the pieces, does not converge and the strict step control stops the
 run (``collision``); :meth:`SceneClearance.discontinuities` finds the jump (bisection of the witness points)
 and the stop's message says so (measured on the Panda's hulls, panda_elbow_circle: the right finger's pad
-against panda_link2's hull, witness points jumping 1.5 cm across 5e-5 rad of joint 5).
+against panda_link2's hull, witness points jumping 1.5 cm across 5e-5 rad of joint 5), naming the corner where
+the witness points are polytope vertices either side: the two vertices whose distances to the other object are
+the two pieces (:mod:`kinredund.geometry.polytopes`; there the finger box's edge, vertices 5 and 7).
+
+Holding such a corner needs one row per piece (the vertex pieces dist(v, B) of the parallel feature's ends, and
+edge-edge pieces), and a pair's pieces that change as the contact moves over the hulls' facets (a vertex piece
+hands over smoothly to an edge-edge one where the witness point leaves the vertex): a row's function may change
+only where the stepper does not hold it or where the two agree to second order, which a constraint alone, asked
+for values and gradients at points, cannot see.
 """
 
 from __future__ import annotations
@@ -56,6 +64,7 @@ import threading
 import numpy as np
 
 from kinredund.errors import OptionError, check_choice
+from kinredund.geometry.polytopes import vertex_corner, vertex_piece
 from kinredund.geometry.scene import Scene
 from kinredund.tracking.constraints.base import Constraint
 
@@ -263,8 +272,24 @@ class SceneClearance(Constraint):
             jump = float(np.linalg.norm(wb - wa))
             if jump > JUMP:
                 away = float(np.abs(a - q).max())
+                note = _corner_note(one, pair, a, b)
                 out.append(f"the distance of {pair[0]} and {pair[1]} is not differentiable {away:.2g} rad from a "
                            f"last good point: its witness points jump by {jump:.3g} m there (faces or edges of the two "
-                           "convex shapes parallel), a corner one row per pair cannot hold")
+                           f"convex shapes parallel{note}), a corner one row per pair cannot hold")
         return out
+
+
+def _corner_note(one: Scene, pair: tuple[str, str], a: np.ndarray, b: np.ndarray) -> str:
+    """What the corner between a and b is, where the witness points are polytope vertices either side (the two ends
+    of a parallel edge or face: :func:`~kinredund.geometry.polytopes.vertex_corner`), with the two vertex pieces'
+    distances and how far apart their rates are at the midpoint; '' otherwise."""
+    step = 1e-6 * (b - a) / np.abs(b - a).max()  # 1e-6 rad either side: clear of the parallel point itself
+    corner = vertex_corner(one, 0, a - step, b + step)
+    if corner is None:
+        return ""
+    side, i, j = corner
+    m = 0.5 * (a + b)
+    (di, gi), (dj, gj) = vertex_piece(one, 0, side, i, m), vertex_piece(one, 0, side, j, m)
+    return (f": the least there of the distances of {pair[side]}'s vertices {i} and {j} to {pair[1 - side]}, "
+            f"{di:.6g} and {dj:.6g} m, whose rates differ by {np.linalg.norm(gi - gj):.3g} m/rad")
 

@@ -1,0 +1,123 @@
+"""Convex polytopes of a scene's objects: vertices and outward face planes in the object's frame (issue 27).
+
+The distance of two convex polytopes A and B is the least of finitely many pieces: the distances of A's vertices
+to B, of B's vertices to A, and of A's edges to B's edges,
+
+    d = min( min_v psi_v, min_w psi'_w, min_(e, f) chi_ef ),   psi_v = dist(v, B)  (:func:`vertex_piece`),
+
+each piece >= d (a part of A against B). A vertex piece is continuously differentiable while apart (a point
+against a convex set), its rate n^T (J_b(y) - J_a(v)) with y the point of B nearest v and n the unit vector from
+v to y. Where an edge or a face of A comes parallel to a face of B (a finger's flat pad against a link's hull
+face), the lowest vertex of the parallel feature changes: coal's witness points jump, and d is there the least
+of two vertex pieces with different rates, a corner of d (:func:`vertex_corner` names it). Along the outward
+normal m of a face plane of B (m . x <= o on B) the least height min_v (m . v - o) of A's vertices is a lower
+bound of d (the separating axis theorem), equal to it where d is realised on that face.
+
+Boxes and convex hulls are polytopes (a hull's planes from its vertices by qhull: coal's own stored normals and
+offsets of a ``Convex`` are not outward planes in this convention); spheres, capsules and cylinders are not
+taken (None).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import coal
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Polytope:
+    """A convex polytope in its object's frame.
+
+    Attributes:
+        vertices: (V, 3) [m].
+        normals: (F, 3) outward unit normals of its face planes.
+        offsets: (F,) [m]: every point x of the polytope has normals @ x <= offsets.
+    """
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    offsets: np.ndarray
+
+    def placed(self, rotation: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(vertices, normals, offsets) in the world for the object at pose (rotation, translation)."""
+        N = self.normals @ rotation.T
+        return self.vertices @ rotation.T + translation, N, self.offsets + N @ translation
+
+
+def polytope(geometry) -> Polytope | None:
+    """The :class:`Polytope` of a coal shape (a Box or a Convex), or None for any other shape."""
+    if isinstance(geometry, coal.Box) and geometry.getSweptSphereRadius() == 0.0:
+        h = np.asarray(geometry.halfSide, float)
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        return Polytope(signs * h, np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([h, h]))
+    if isinstance(geometry, coal.ConvexBase) and geometry.getSweptSphereRadius() == 0.0:
+        from scipy.spatial import ConvexHull
+
+        V = np.array([geometry.point(i) for i in range(geometry.num_points)], float)
+        eq = ConvexHull(V).equations  # n . x + e <= 0 on the hull, n outward unit
+        return Polytope(V, eq[:, :3].copy(), -eq[:, 3])
+    return None
+
+
+def placed_pair(scene, k: int) -> tuple:
+    """Pair k's objects (``scene.pairs[k]``) where this thread's last query of ``scene`` placed them: per object its
+    polytope's (vertices, normals, offsets) in the world [m] (None: not a polytope), its coal shape and world pose."""
+    ws = scene.workspace()
+    out = []
+    for i in (int(ws.first[k]), int(ws.second[k])):
+        shape, M = ws.geometry.geometryObjects[i].geometry, ws.gdata.oMg[i]
+        if i not in ws.polytopes:
+            ws.polytopes[i] = polytope(shape)
+        p = ws.polytopes[i]
+        out.append((None if p is None else p.placed(M.rotation, M.translation), shape,
+                    coal.Transform3s(M.rotation, M.translation)))
+    return tuple(out)
+
+
+def vertex_piece(scene, k: int, side: int, i: int, q) -> tuple[float, np.ndarray]:
+    """(psi [m], its row (n,) [m/rad]): the distance of vertex i of pair k's object ``side`` (0 its first, 1 its
+    second: ``scene.pairs[k]``) to the pair's other object at q, and its rate n^T (J_b(p_b) - J_a(p_a)) with the
+    nearest points (coal, the vertex as a sphere of radius 0). The vertex must be outside the other object."""
+    q = scene.distances(q).q  # (validated) places this thread's workspace at q
+    objects = placed_pair(scene, k)
+    v = objects[side][0][0][i]
+    _, shape, pose = objects[1 - side]
+    req, res = coal.DistanceRequest(), coal.DistanceResult()
+    req.enable_signed_distance, req.gjk_tolerance = True, 1e-9
+    psi = coal.distance(shape, pose, _POINT, coal.Transform3s(np.eye(3), v), req, res)
+    y = np.array(res.getNearestPoint1())
+    pa, pb = (v, y) if side == 0 else (y, v)
+    n = (pb - pa) / np.linalg.norm(pb - pa)
+    ws = scene.workspace()
+    ws.place(q)
+    return float(psi), ws.rows(np.array([k]), n[None], np.vstack([pa, pb]))[0]
+
+
+def vertex_corner(scene, k: int, before, after) -> tuple[int, int, int] | None:
+    """(side, i, j) where pair k's witness point on its object ``side`` is vertex i at configuration ``before`` and
+    vertex j != i at ``after`` (to 1e-7 m): the two ends of an edge or face of that polytope lying parallel to the
+    other object between the two (its distance the least of the two vertex pieces there); None otherwise (not two
+    polytopes, or a witness point not at a vertex)."""
+    ends = []
+    for q in (before, after):
+        rec = scene.distances(q)
+        objects = placed_pair(scene, k)
+        if objects[0][0] is None or objects[1][0] is None:
+            return None
+        pair = scene.pairs[k]
+        r = rec.index(*pair)
+        at = []
+        for side, w in ((0, rec.point_a[r]), (1, rec.point_b[r])):
+            gap = np.linalg.norm(objects[side][0][0] - w, axis=1)
+            at.append(int(np.argmin(gap)) if gap.min() < 1e-7 else None)
+        ends.append(at)
+    for side in (0, 1):
+        i, j = ends[0][side], ends[1][side]
+        if i is not None and j is not None and i != j:
+            return side, i, j
+    return None
+
+
+_POINT = coal.Sphere(0.0)
