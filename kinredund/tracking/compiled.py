@@ -259,13 +259,13 @@ class CompiledStep:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
         the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
         s = self.stepper
-        sy, ssol, sM, sJ, sq, sQ, sp, s_eval, s_mu, s_pd = self._slices
+        sy, ssol, sM, sJ, sq, sQ, sp, s_eval, s_mu, s_label = self._slices
         n, m, _ = self._shapes
         M, J = out[sM].reshape(n, n), out[sJ].reshape(m, n)
         pt = CompiledPoint(s.ev, out[s_eval], t_to, sample, J, self._basis,
                            RecordedPose(sample, (out[sQ].reshape(3, 3), out[sp])))
         held = self._limited and s.any_active
-        label = s.reduced_label(M, J, positive_definite=out[s_pd][0] > 0.5) if held else None
+        label = s.reduced_label(M, J, int(out[s_label][0])) if held else None
         s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu] if held else None)
         self.steps += 1
         self.held_steps += held

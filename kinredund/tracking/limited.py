@@ -160,15 +160,17 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         limits widened by 1e-13, the rounding that is not one)."""
         return self._lo_tol, self._hi_tol
 
-    def reduced_label(self, M: np.ndarray, J: np.ndarray, positive_definite: bool = False) -> str:
+    def reduced_label(self, M: np.ndarray, J: np.ndarray, verdict: int = 0) -> str:
         """The solver label (:func:`~kinredund.tracking.linalg.classify`) of the system with the joints on their
-        bounds removed, from the full M (n, n) and J (m, n); ``positive_definite``: the caller knows the free
-        joints' block of M is positive definite by a clear margin (the label is then ``qp`` where the rule
-        classifies at all)."""
+        bounds removed, from the full M (n, n) and J (m, n). ``verdict``: what the caller knows of the free
+        joints' block M_FF where it is clear (the compiled core's): 1 positive definite, 2 not positive definite
+        but positive definite on the null space of J_F; 0 nothing (classify decides)."""
         if not self.symmetric or self.linear_solver == "lu":
             return "lu"  # classify's first rule, without the reduction
-        if positive_definite:
+        if verdict == 1:
             return "qp"
+        if verdict == 2:
+            return "lu" if self.linear_solver == "thesis" else "qp_aug"
         F = self._free_idx
         return classify(M[np.ix_(F, F)], J[:, F], self.linear_solver, symmetric=self.symmetric)
 

@@ -22,6 +22,8 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
+#include <Eigen/Eigenvalues>
+
 #include <cmath>
 #include <memory>
 #include <stdexcept>
@@ -256,7 +258,7 @@ class StepCore {
     o += 12;
     Eigen::Map<VectorXd>(o, n) = yp.head(n);  // the evaluation's point (the predicted one, held joints on bounds)
     Eigen::Map<VectorXd>(o + n, n) = mu;
-    o[2 * n] = any_held_ && velocity_ == false ? positive_definite_clearly(M) : 0.0;
+    o[2 * n] = any_held_ && !velocity_ ? label_code(M) : 0.0;
     o[2 * n + 1] = rcond_;
     o[2 * n + 2] = speed2;
     return OK;
@@ -614,29 +616,41 @@ class StepCore {
     return F;
   }
 
-  // 1.0 where the free joints' block of M is positive definite by a clear margin (linalg.classify's ``qp``
-  // without asking LAPACK: an unblocked Cholesky whose pivots all exceed 1e-8 of M's largest diagonal entry,
-  // far beyond the rounding by which dpotrf's verdict could differ), else 0.0 (Python's classify decides)
-  double positive_definite_clearly(const RowMatrixXd& M) const {
+  // linalg.classify's verdict on the free joints' system where it is clear, without asking LAPACK (0.0: not clear,
+  // Python's classify decides): 1.0 M_FF positive definite (dpotrf succeeds: ``qp``); 2.0 M_FF not positive
+  // definite (dpotrf fails) but M_FF + rho J_F^T J_F - shift is for one of _projected_pd's rho (Finsler: ``qp_aug``,
+  // or ``lu`` under the rule ``thesis``). Clear: the smallest eigenvalue beyond 1e-8 n max|A_ij| from zero, far
+  // beyond what Cholesky's backward error (~n eps ||A||) or the rounding of the matrices' entries could change.
+  double label_code(const RowMatrixXd& M) const {
     const int nf = static_cast<int>(free_.size());
-    MatrixXd L(nf, nf);
-    double big = 0.0;
+    MatrixXd A(nf, nf);
     for (int b = 0; b < nf; ++b)
-      for (int a = 0; a < nf; ++a) L(a, b) = M(free_[a], free_[b]);
-    for (int a = 0; a < nf; ++a) big = std::max(big, std::abs(L(a, a)));
-    for (int j = 0; j < nf; ++j) {
-      double d = L(j, j);
-      for (int k = 0; k < j; ++k) d -= L(j, k) * L(j, k);
-      if (!(d > 1e-8 * big)) return 0.0;
-      d = std::sqrt(d);
-      L(j, j) = d;
-      for (int i = j + 1; i < nf; ++i) {
-        double v = L(i, j);
-        for (int k = 0; k < j; ++k) v -= L(i, k) * L(j, k);
-        L(i, j) = v / d;
-      }
+      for (int a = b; a < nf; ++a) A(a, b) = A(b, a) = M(free_[a], free_[b]);  // dpotrf reads the lower triangle
+    if (definite_side(A) > 0) return 1.0;
+    if (definite_side(A) >= 0) return 0.0;
+    MatrixXd Ms(nf, nf), JF(m_, nf);
+    for (int b = 0; b < nf; ++b) {
+      for (int a = 0; a < nf; ++a) Ms(a, b) = 0.5 * (M(free_[a], free_[b]) + M(free_[b], free_[a]));
+      JF.col(b) = J_.col(free_[b]).transpose();
     }
-    return 1.0;
+    const double scale = std::max(1.0, Ms.cwiseAbs().maxCoeff());
+    const MatrixXd JtJ = JF.transpose() * JF;
+    const MatrixXd JJt = JF * JF.transpose();
+    Eigen::SelfAdjointEigenSolver<MatrixXd> es(JJt, Eigen::EigenvaluesOnly);
+    const double s2 = std::max(es.eigenvalues()(0), 1e-300);
+    for (double f : {1.0, 1e2, 1e4}) {
+      MatrixXd B = Ms + (f * scale / s2) * JtJ;
+      B.diagonal().array() -= 1e-10 * scale;
+      if (definite_side(B) > 0) return 2.0;
+    }
+    return 0.0;
+  }
+
+  // +1 where the symmetric A is clearly positive definite, -1 where clearly not, 0 in between (label_code)
+  static int definite_side(const MatrixXd& A) {
+    Eigen::SelfAdjointEigenSolver<MatrixXd> es(A, Eigen::EigenvaluesOnly);
+    const double lo = es.eigenvalues()(0), margin = 1e-8 * A.rows() * A.cwiseAbs().maxCoeff();
+    return lo > margin ? 1 : lo < -margin ? -1 : 0;
   }
 
   // PredictorCorrector._chord with fresh residuals (need_dJ=False), R's factors kept
