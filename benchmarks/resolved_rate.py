@@ -35,7 +35,8 @@ from a second pass where our default steps and pink's take their steps in turn, 
 that drift and background load hit them alike (``in_turn_us``). With the joint limits held
 (``limits=True``): the step on the same path (``step_limits_us``, no bound is met there) in turn with
 pink's limited step (``limits_over_pink``), and the step over one loop of :data:`SWITCHING_CIRCLE`,
-where joint 4 meets its limit and leaves it (median, mean, the rate QP's share). With a Scene (issue 27):
+where joint 4 meets its limit and leaves it (median, mean, the median of the steps with joint 4 held and no
+switch, the rate QP's share; the medians again on the Python stepper). With a Scene (issue 27):
 the step with five obstacles and the robot's own pairs held apart against the step with the limits only, in
 turn (``scene_over_limits``), and the share of it in the distance queries (``scene_query_share``). Run:
 ``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
@@ -419,7 +420,9 @@ def main() -> None:
                  f"the Python stepper {panda['limits_python_over_pink']:.2f})" if "limits_over_pink" in panda else "")
               + f"; on a circle with switches: median {panda['switching_step_us']:.3g} us, mean "
               f"{panda['switching_step_mean_us']:.3g} us ({panda['switching_steps_with_switch']} steps with a switch), "
-              f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP")
+              f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP; with joint 4 held "
+              f"{panda['switching_held_step_us']:.3g} us (the Python stepper "
+              f"{panda['switching_held_step_python_us']:.3g} us)")
     if "scene_over_limits" in panda:
         turn = panda["scene_in_turn_us"]
         print(f"Panda, five-object scene and self pairs held: step {turn['step_scene_us']:.3g} us against "
