@@ -191,17 +191,20 @@ def test_steps_agree_one_by_one_and_the_core_takes_the_ordinary_ones():
 
 # -- joints held on their bounds: the reduced system in the core -------------------------------------------------
 
-@pytest.mark.parametrize(("name", "scheme"), [
-    ("panda_pose_circle", "augmented"), ("panda_pose_circle", "velocity"), ("panda_wrist_circle", "augmented"),
-    ("panda_wrist_circle", "velocity"), ("xarm7_circle", "augmented"), ("xarm7_circle", "velocity")])
-def test_steps_on_a_bound_are_the_core_s_and_the_same_as_python_s(name, scheme):
+@pytest.mark.parametrize(("name", "scheme", "rule"), [
+    ("panda_pose_circle", "augmented", "auto"), ("panda_pose_circle", "velocity", "auto"),
+    ("panda_wrist_circle", "augmented", "auto"), ("panda_wrist_circle", "augmented", "thesis"),
+    ("panda_wrist_circle", "velocity", "auto"), ("xarm7_circle", "augmented", "auto"),
+    ("xarm7_circle", "velocity", "auto")])
+def test_steps_on_a_bound_are_the_core_s_and_the_same_as_python_s(name, scheme, rule):
     """Circles on which a joint meets its limit, stays on it for a stretch and leaves it (switches in both
-    directions): the core takes the steps with the joint held (the reduced system, the bound multipliers), the
-    Python stepper the steps with a switch in them, both runs give the same record and the same switches."""
+    directions): the core takes the steps with the joint held (the reduced system, the bound multipliers, the
+    solver label: the wrist circle's held steps are ``qp`` and ``qp_aug``, or ``lu`` under the rule ``thesis``),
+    the Python stepper the steps with a switch in them; both runs give the same record and the same switches."""
     r, path, index, q0 = problem(name)
-    options = {"loops": 3, "steps_per_loop": 200, "scheme": scheme}
+    options = {"loops": 3, "steps_per_loop": 200, "scheme": scheme, "linear_solver": rule}
     a = track(r, path, index, q0, backend="python", **options)
-    tracker = Tracker(r, path, index, q0, path.period / 200, scheme=scheme, backend="compiled")
+    tracker = Tracker(r, path, index, q0, path.period / 200, scheme=scheme, backend="compiled", linear_solver=rule)
     b = track(r, path, index, q0, backend="compiled", **options)
     assert_same_record(a, b)
     switches = a.meta["switches"]
