@@ -221,6 +221,30 @@ def test_steps_on_a_bound_are_the_core_s_and_the_same_as_python_s(name, scheme, 
     assert c.handed_back.get("limit", 0) + c.handed_back.get("release", 0) >= len(switches) // 2
 
 
+@pytest.mark.parametrize(("name", "pushed", "scheme"), [
+    ("panda_elbow_circle", (2, 6), "augmented"), ("panda_elbow_circle", (2, 6), "velocity"),
+    ("xarm7_circle", (6,), "augmented")])
+def test_several_joints_held_at_once(name, pushed, scheme):
+    """z pulls the ``pushed`` joints beyond their upper limits: two or three joints sit on bounds at once (the
+    reduced system without several columns), joining and leaving the active set one by one."""
+    r, path, _, q0 = problem(name)
+    reference = np.array(r.home, float)
+    reference[list(pushed)] = np.asarray(r.upper)[list(pushed)] + 0.5
+    index = JointDeviation(reference)
+    a, b = both(r, path, index, q0, loops=2, steps_per_loop=200, scheme=scheme)
+    assert_same_record(a, b)
+    held = np.sum(a.active_bounds != 0, axis=1)
+    assert held.max() >= 2 and (held >= 2).sum() >= 20
+    np.testing.assert_allclose(b.switch_times, a.switch_times, rtol=0, atol=1e-12)
+    tracker = Tracker(r, path, index, q0, path.period / 200, scheme=scheme, backend="compiled")
+    several = 0
+    for _ in range(len(a.t) - 1):  # the core took the steps with several joints held (but those with a switch)
+        before = tracker.compiled.steps
+        tracker.step()
+        several += tracker.compiled.steps > before and int(tracker.stepper.fixed.sum()) >= 2
+    assert several >= (held >= 2).sum() - 4 * len(a.switch_times)
+
+
 @pytest.mark.parametrize(("name", "cause"), [("panda_pose_infeasible", "limits_infeasible"),
                                            ("panda_pose_fold", "not_strongly_stable")])
 def test_a_stop_has_the_same_cause_time_and_last_good_state(name, cause):

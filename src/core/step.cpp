@@ -112,6 +112,11 @@ class StepCore {
 
   int n() const { return n_; }
   int m() const { return m_; }
+  // The size of advance()'s output (its layout at its end).
+  Eigen::Index output_size() const {
+    const Eigen::Index n = n_, N = n_ + m_;
+    return 2 * N + n * n + m_ * n + n + 12 + 2 * n + 1 + 2;
+  }
 
   // The active set of the simple bounds (LimitedPredictorCorrector.active_set): the free joints (ascending), the
   // bound values (n, read at the held joints) and the sides (n: +1 at a lower bound, -1 at an upper one, 0 free).
@@ -150,7 +155,7 @@ class StepCore {
       prevp[j] = prev[j].data();
     }
     if (qdot0.size() != n) throw nb::value_error("qdot0 must have n entries");
-    std::unique_ptr<VectorXd> out(new VectorXd(2 * N + n * n + m_ * n + n + 12 + 2 * n + 1 + 2));
+    std::unique_ptr<VectorXd> out(new VectorXd(output_size()));
     int st;
     {
       nb::gil_scoped_release release;  // the step touches no Python object: trackers in threads step in parallel
@@ -169,6 +174,7 @@ class StepCore {
               bool check_jump, VectorXd& out) {
     const int n = n_, N = n_ + m_;
     const size_t np_ = prev.size();
+    if (out.size() != output_size()) out.resize(output_size());
     // the Hermite predictor (Euler at the first step): predictor_corrector.plain_step
     VectorXd yp(N);
     if (np_ == 0) {
@@ -241,7 +247,9 @@ class StepCore {
     const auto& oMf = pinocchio::updateFramePlacement(model_, data_, fid_);
     // one buffer (one array for Python to slice: small arrays would each be copied through numpy):
     // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), Q (9, row-major) and p (3) at the
-    //  corrected joints, rcond, speed2]; R's factors stay here (factors())
+    //  corrected joints, the evaluation's point (n: q_pred with the held joints on their bounds), the bound
+    //  multipliers mu (n, 0 where free), the label verdict (1: label_code), rcond, speed2] (output_size());
+    //  R's factors stay here (factors())
     double* o = out.data();
     Eigen::Map<VectorXd>(o, N) = yc;
     Eigen::Map<VectorXd>(o + N, N) = sol;
