@@ -35,7 +35,8 @@ from a second pass where our default steps and pink's take their steps in turn, 
 that drift and background load hit them alike (``in_turn_us``). With the joint limits held
 (``limits=True``): the step on the same path (``step_limits_us``, no bound is met there) in turn with
 pink's limited step (``limits_over_pink``), and the step over one loop of :data:`SWITCHING_CIRCLE`,
-where joint 4 meets its limit and leaves it (median, mean, the rate QP's share). With a Scene (issue 27):
+where joint 4 meets its limit and leaves it (median, mean, the median of the steps with joint 4 held and no
+switch, the rate QP's share; the medians again on the Python stepper). With a Scene (issue 27):
 the step with five obstacles and the robot's own pairs held apart against the step with the limits only, in
 turn (``scene_over_limits``), and the share of it in the distance queries (``scene_query_share``). Run:
 ``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
@@ -85,6 +86,10 @@ KEYS = {
     "switching_step_us": "median Tracker.step() with limits over one loop of SWITCHING_CIRCLE (a Panda pose "
                          "circle on which joint 4 meets its lower limit and leaves it again)",
     "switching_step_mean_us": "the mean of the same (the steps with a switch solve for its time: Brent's method)",
+    "switching_held_step_us": "median of the same over the steps with joint 4 held on its limit and no switch (the "
+                              "compiled core's reduced system where it is built)",
+    "switching_step_python_us": "switching_step_us on the Python stepper (backend='python')",
+    "switching_held_step_python_us": "switching_held_step_us on the Python stepper",
     "switching_steps_with_switch": "steps of that loop with a switch in them",
     "switching_qp_share": "share of that loop's step time spent in the rate QP (proxsuite, only at a switch "
                           "the LU route cannot decide)",
@@ -216,6 +221,8 @@ def bench(name: str, steps: int) -> dict:
             out["limits_python_over_pink"] = turn["step_limits_python_us"] / turn["pink_limits_step_us"]
             out["limits_compiled_over_python"] = turn["step_limits_us"] / turn["step_limits_python_us"]
         out.update(switching_figures())
+        out.update({f"{k[:-3]}_python_us": v for k, v in switching_figures("python").items()
+                    if k in ("switching_step_us", "switching_held_step_us")})
         out.update(scene_figures(robot, path, index, q0, dt, steps))
     out.update(predictor_figures(robot, path, index, q0, dt))
     # with their defaults (limits held) where the start is inside the limits; Example 4.3's is not
@@ -230,8 +237,9 @@ SWITCHING_CIRCLE = ([-0.0777, -1.1391, 0.2501, -2.9447, -0.306, 2.1239, 1.2622],
                     [0.9464, -0.289, 0.1442], 0.0626)
 
 
-def switching_figures() -> dict:
-    """The limited step over one loop of :data:`SWITCHING_CIRCLE`: median, mean, and the QP's share."""
+def switching_figures(backend: str | None = None) -> dict:
+    """The limited step over one loop of :data:`SWITCHING_CIRCLE`: median, mean, the median with a joint held
+    (no switch), and the QP's share; ``backend``: the Tracker's (its default where None)."""
     import time
 
     import kinredund
@@ -249,7 +257,7 @@ def switching_figures() -> dict:
     index = JointDeviation(robot.home.copy())
     free = kinredund.solve_ik(robot, (T[:3, :3], T[:3, 3]), index, q0=qs)
     start = kinredund.solve_ik(robot, (T[:3, :3], T[:3, 3]), index, q0=free.q, bounds=True)
-    tracker = Tracker(robot, path, index, start.q, path.period / 200)
+    tracker = Tracker(robot, path, index, start.q, path.period / 200, backend=backend)
     stepper, qp_time = tracker.stepper, [0.0]
     qp = LimitedPredictorCorrector._qp_keeps_bound
 
@@ -261,14 +269,16 @@ def switching_figures() -> dict:
             qp_time[0] += time.perf_counter() - t0
 
     stepper._qp_keeps_bound = timed_qp
-    times, with_switch = np.empty(200), 0
+    times, with_switch, held = np.empty(200), 0, np.zeros(200, bool)
     for k in range(200):
-        before = len(stepper.switches)
+        before, was_held = len(stepper.switches), stepper.any_active
         t0 = time.perf_counter()
         tracker.step()
         times[k] = time.perf_counter() - t0
         with_switch += len(stepper.switches) > before
+        held[k] = was_held and len(stepper.switches) == before
     return {"switching_step_us": float(np.median(times) * 1e6), "switching_step_mean_us": float(times.mean() * 1e6),
+            "switching_held_step_us": float(np.median(times[held]) * 1e6) if held.any() else float("nan"),
             "switching_steps_with_switch": with_switch, "switching_qp_share": qp_time[0] / float(times.sum())}
 
 
@@ -410,7 +420,9 @@ def main() -> None:
                  f"the Python stepper {panda['limits_python_over_pink']:.2f})" if "limits_over_pink" in panda else "")
               + f"; on a circle with switches: median {panda['switching_step_us']:.3g} us, mean "
               f"{panda['switching_step_mean_us']:.3g} us ({panda['switching_steps_with_switch']} steps with a switch), "
-              f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP")
+              f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP; with joint 4 held "
+              f"{panda['switching_held_step_us']:.3g} us (the Python stepper "
+              f"{panda['switching_held_step_python_us']:.3g} us)")
     if "scene_over_limits" in panda:
         turn = panda["scene_in_turn_us"]
         print(f"Panda, five-object scene and self pairs held: step {turn['step_scene_us']:.3g} us against "

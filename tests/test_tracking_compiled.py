@@ -185,8 +185,64 @@ def test_steps_agree_one_by_one_and_the_core_takes_the_ordinary_ones():
         np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
         np.testing.assert_allclose(b.qdot, a.qdot, rtol=0, atol=FIELD_BAR)
     c = b.compiled
-    assert c.steps > 200 and c.handed_back.get("bound_active", 0) > 0  # both routes ran
+    assert c.steps > 200 and c.held_steps > 20 and c.handed_back.get("limit", 0) > 0  # every route ran
     assert c.steps + sum(c.handed_back.values()) == 400
+
+
+# -- joints held on their bounds: the reduced system in the core -------------------------------------------------
+
+@pytest.mark.parametrize(("name", "scheme", "rule"), [
+    ("panda_pose_circle", "augmented", "auto"), ("panda_pose_circle", "velocity", "auto"),
+    ("panda_wrist_circle", "augmented", "auto"), ("panda_wrist_circle", "augmented", "thesis"),
+    ("panda_wrist_circle", "velocity", "auto"), ("xarm7_circle", "augmented", "auto"),
+    ("xarm7_circle", "velocity", "auto")])
+def test_steps_on_a_bound_are_the_core_s_and_the_same_as_python_s(name, scheme, rule):
+    """Circles on which a joint meets its limit, stays on it for a stretch and leaves it (switches in both
+    directions): the core takes the steps with the joint held (the reduced system, the bound multipliers, the
+    solver label: the wrist circle's held steps are ``qp`` and ``qp_aug``, or ``lu`` under the rule ``thesis``),
+    the Python stepper the steps with a switch in them; both runs give the same record and the same switches."""
+    r, path, index, q0 = problem(name)
+    options = {"loops": 3, "steps_per_loop": 200, "scheme": scheme, "linear_solver": rule}
+    a = track(r, path, index, q0, backend="python", **options)
+    tracker = Tracker(r, path, index, q0, path.period / 200, scheme=scheme, backend="compiled", linear_solver=rule)
+    b = track(r, path, index, q0, backend="compiled", **options)
+    assert_same_record(a, b)
+    switches = a.meta["switches"]
+    assert len(switches) >= 2 and {w["kind"] for w in switches} == {"reach", "release"}
+    assert [(w["joint"], w["kind"]) for w in b.meta["switches"]] == [(w["joint"], w["kind"]) for w in switches]
+    # the switching times: Brent's method in both runs from states that agree to rounding (its xtol 1e-14 s)
+    np.testing.assert_allclose(b.switch_times, a.switch_times, rtol=0, atol=1e-12)
+    held = np.any(a.active_bounds != 0, axis=1)
+    assert held.sum() >= 20  # long stretches on a bound
+    for _ in range(len(a.t) - 1):  # the same run stepped: which route took the steps
+        tracker.step()
+    c = tracker.compiled
+    assert c.held_steps >= held.sum() - 4 * len(switches)  # all but the steps with (or right after) a switch
+    assert c.handed_back.get("limit", 0) + c.handed_back.get("release", 0) >= len(switches) // 2
+
+
+@pytest.mark.parametrize(("name", "pushed", "scheme"), [
+    ("panda_elbow_circle", (2, 6), "augmented"), ("panda_elbow_circle", (2, 6), "velocity"),
+    ("xarm7_circle", (6,), "augmented")])
+def test_several_joints_held_at_once(name, pushed, scheme):
+    """z pulls the ``pushed`` joints beyond their upper limits: two or three joints sit on bounds at once (the
+    reduced system without several columns), joining and leaving the active set one by one."""
+    r, path, _, q0 = problem(name)
+    reference = np.array(r.home, float)
+    reference[list(pushed)] = np.asarray(r.upper)[list(pushed)] + 0.5
+    index = JointDeviation(reference)
+    a, b = both(r, path, index, q0, loops=2, steps_per_loop=200, scheme=scheme)
+    assert_same_record(a, b)
+    held = np.sum(a.active_bounds != 0, axis=1)
+    assert held.max() >= 2 and (held >= 2).sum() >= 20
+    np.testing.assert_allclose(b.switch_times, a.switch_times, rtol=0, atol=1e-12)
+    tracker = Tracker(r, path, index, q0, path.period / 200, scheme=scheme, backend="compiled")
+    several = 0
+    for _ in range(len(a.t) - 1):  # the core took the steps with several joints held (but those with a switch)
+        before = tracker.compiled.steps
+        tracker.step()
+        several += tracker.compiled.steps > before and int(tracker.stepper.fixed.sum()) >= 2
+    assert several >= (held >= 2).sum() - 4 * len(a.switch_times)
 
 
 @pytest.mark.parametrize(("name", "cause"), [("panda_pose_infeasible", "limits_infeasible"),

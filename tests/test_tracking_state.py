@@ -18,7 +18,7 @@ from kinredund.tracking.state import ConstrainedState, StepState
 
 #: attributes a step sets that are not state: derived from the state (the free rows of R, rebuilt when a
 #: state is assigned) or scratch of the step in progress (the predictor's point, set before it is read)
-DERIVED = {"_free_idx", "_sel", "_q_pred"}
+DERIVED = {"_free_idx", "_sel", "q_pred"}
 
 
 @pytest.mark.parametrize("limits", [True, False])

@@ -6,18 +6,24 @@ subclass, :mod:`kinredund.tracking.limited`) whose common step is done by the co
 the task terms of every task kind in both forms, the index terms of
 :class:`~kinredund.indices.JointDeviation` and :class:`~kinredund.indices.TimeVaryingReference`), R of
 Eq. (4.24) with its LU factors (LAPACK's algorithm and layout) and LAPACK's condition estimate, the rates,
-the Newton update and the chord iterations, then the checks that make the step ordinary: no joint beyond a
-bound (with the limits held and none active), no jump (the step control's check,
-:mod:`kinredund.tracking.step_control`). Python samples the path (and a time-varying reference) once per step
-and passes them in.
+the Newton update and the chord iterations, then the checks that make the step ordinary: no free joint beyond a
+bound, no multiplier of a joint held on its bound below zero, no jump (the step control's check,
+:mod:`kinredund.tracking.step_control`). With joints on their bounds it runs on the reduced system of
+:mod:`kinredund.tracking.limited` (the held joints' columns removed from R, their residual rows the bound
+multipliers') and returns the bound multipliers at the corrected point. Python samples the path (and a
+time-varying reference) once per step and passes them in; the active set goes to the core when it changes.
 
 Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
 R's condition drops) it does so in Python on the compiled step's results. Anything else is handed to the
 Python reference from the same state (the stepper's, untouched until the compiled step is accepted, or put
 back with the watch's where the watch rejects the step): a step the watch predicts trouble within or
-rejects, a joint on a bound, a switch, a jump, a corrector that needs fresh factorisations, a singular R,
-a failure. Those steps are the
-Python stepper's own, so events happen at the same times with the same causes.
+rejects, a switch (a bound reached or released: located by the Python stepper's Brent search), a jump, a
+corrector that needs fresh factorisations, a singular R, a failure. Those steps are the Python stepper's own, so
+events happen at the same times with the same causes.
+
+The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
+own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits`` and
+``reduced_label``, and the step control's ``snapshot``, ``restore``, ``watch_point`` and ``speed2``.
 
 :func:`attach` picks the backend of a :class:`~kinredund.tracking.tracker.Tracker`: ``compiled`` where the
 core loads and supports the problem, else ``python`` (``backend="compiled"`` then raises an
@@ -36,14 +42,14 @@ import numpy as np
 from kinredund.errors import OptionError, check_choice
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.point import Point
-from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS, PredictorCorrector
+from kinredund.tracking.predictor_corrector import PredictorCorrector
 
 BACKENDS = ("auto", "compiled", "python")
 #: the task kinds' codes in the core (src/core/step.cpp)
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
 STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
-          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 10: "bound_active"}
+          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 11: "release"}
 
 
 class BackendWarning(UserWarning):
@@ -164,6 +170,7 @@ class CompiledStep:
     Attributes:
         stepper: the Python stepper (its state is the run's state, as with the Python backend).
         steps, handed_back: steps taken in C++, and the steps handed back by reason (:data:`STATUS`).
+        held_steps: of the steps taken in C++, those with a joint held on its bound.
     """
 
     def __init__(self, stepper: PredictorCorrector, core):
@@ -179,22 +186,22 @@ class CompiledStep:
         else:
             weights, reference = index.weights, index.reference
         limited = getattr(stepper, "lo", None) is not None
-        lo_tol = stepper._lo_tol if limited else np.zeros(0)
-        hi_tol = stepper._hi_tol if limited else np.zeros(0)
-        hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper._hermite]
+        lo_tol, hi_tol = stepper.switch_limits if limited else (np.zeros(0), np.zeros(0))
+        hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper.hermite]
         self.core = core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
                                   ev.formulation == "velocity", np.asarray(weights, float),
                                   np.asarray(reference, float), self._tv, stepper.tol, stepper.dt, hermite,
                                   lo_tol, hi_tol)
         self._limited = limited
+        self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
         m = len(stepper.lam)
         N = n + m
-        ends = np.cumsum([N, N, n * n, m * n, n, 9, 3])  # the core's output layout (src/core/step.cpp)
+        ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1])  # the core's output layout (src/core/step.cpp)
         self._slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
         self._shapes = (n, m, N)
-        self.steps = 0
+        self.steps = self.held_steps = 0
         self.handed_back: dict[str, int] = {}
 
     def _hand_back(self, status: int) -> None:
@@ -209,8 +216,8 @@ class CompiledStep:
         t_to = s.t0 + (s.k + 1) * s.dt
         if ctl is not None and ctl.watch.ahead(t_to) is not None:
             return self._hand_back(8)
-        if self._limited and s._sel is not None:
-            return self._hand_back(10)
+        if self._limited:
+            self._sync_active()
         sample = s.ev.sample(t_to)
         if self._tv:
             index = s.ev.index
@@ -220,43 +227,45 @@ class CompiledStep:
         Q = self._none33 if sample.Q is None else sample.Q
         omega = self._none3 if sample.omega is None else sample.omega
         out = self.core.step(t_to, sample.p, sample.v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
-                             0.0 if ctl is None else ctl._speed2, ctl is not None)
+                             0.0 if ctl is None else ctl.speed2, ctl is not None)
         if type(out) is int:
             return self._hand_back(out)
         rcond, speed2 = float(out[-2]), float(out[-1])
         measured = ctl is not None and ctl.watch.due_next(rcond)
         if measured:  # the watch measures the new point (in Python): the step may still be rejected
-            saved, watch = ctl._snapshot(), ctl.watch.save()
+            saved, watch = ctl.snapshot(), ctl.watch.save()
         elif ctl is not None:
             ctl.watch.due(rcond)
-            ctl._speed2 = speed2
+            ctl.speed2 = speed2
         self._apply(out, sample, t_to, rcond)
         if measured:
             s.lu = self.core.factors()  # the watch's inverse iteration solves with them
-            if ctl._watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
-                ctl._restore(saved)
+            if ctl.watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
+                ctl.restore(saved)
                 ctl.watch.load(watch)
                 self.steps -= 1
+                self.held_steps -= self._limited and self.stepper.any_active
                 return self._hand_back(9)
         return None
 
+    def _sync_active(self) -> None:
+        """Give the core the stepper's active set where it changed (a switch replaces the ``fixed`` array)."""
+        fixed, side, bound = self.stepper.active_set()
+        if fixed is not self._fixed:
+            self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
+            self._fixed = fixed
+
     def _apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
-        """The core's step as the stepper's new state (:meth:`PredictorCorrector.plain_step`'s). R's factors stay
-        in the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
+        """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
+        the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
         s = self.stepper
-        sy, ssol, sM, sJ, sq, sQ, sp = self._slices
+        sy, ssol, sM, sJ, sq, sQ, sp, s_eval, s_mu, s_label = self._slices
         n, m, _ = self._shapes
-        y, sol, q_pred = out[sy], out[ssol], out[sq]
-        prev = s.prev  # PredictorCorrector.plain_step's bookkeeping
-        prev += (s.y, s.yd)
-        if len(prev) == 2 * PREDICTOR_POINTS:
-            del prev[:2]
-        s.k += 1
-        s.t = t_to
-        s._q_pred = q_pred
-        s.q, s.lam, s.y, s.yd = y[:n], y[n:], y, sol
-        s.qdot, s.lamdot, s.label, s.M = sol[:n], sol[n:], None, out[sM].reshape(n, n)
-        s.pt = CompiledPoint(s.ev, q_pred, t_to, sample, out[sJ].reshape(m, n), self._basis,
-                             RecordedPose(sample, (out[sQ].reshape(3, 3), out[sp])))
-        s.lu, s.rcond = None, rcond
+        M, J = out[sM].reshape(n, n), out[sJ].reshape(m, n)
+        pt = CompiledPoint(s.ev, out[s_eval], t_to, sample, J, self._basis,
+                           RecordedPose(sample, (out[sQ].reshape(3, 3), out[sp])))
+        held = self._limited and s.any_active
+        label = s.reduced_label(M, J, int(out[s_label][0])) if held else None
+        s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu] if held else None)
         self.steps += 1
+        self.held_steps += held

@@ -148,6 +148,38 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
     def _bound_values(self) -> np.ndarray:
         return np.where(self.side > 0, self.lo, self.hi)
 
+    def active_set(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(fixed, side, bound): the joints on a bound ((n,) bool), their sides ((n,): +1 lower, -1 upper, 0 free)
+        and the bound values there ((n,) [rad or m], the lower limit where free). The arrays are replaced at a
+        switch, never changed in place: ``fixed`` staying the same object means the same active set."""
+        return self.fixed, self.side, self._bound_values()
+
+    @property
+    def switch_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) [rad or m]: a free joint below or above these is beyond its bound (a switch; the
+        limits widened by 1e-13, the rounding that is not one)."""
+        return self._lo_tol, self._hi_tol
+
+    def reduced_label(self, M: np.ndarray, J: np.ndarray, verdict: int = 0) -> str:
+        """The solver label (:func:`~kinredund.tracking.linalg.classify`) of the system with the joints on their
+        bounds removed, from the full M (n, n) and J (m, n). ``verdict``: what the caller knows of the free
+        joints' block M_FF where it is clear (the compiled core's): 1 positive definite, 2 not positive definite
+        but positive definite on the null space of J_F; 0 nothing (classify decides)."""
+        if not self.symmetric or self.linear_solver == "lu":
+            return "lu"  # classify's first rule, without the reduction
+        if verdict == 1:
+            return "qp"
+        if verdict == 2:
+            return "lu" if self.linear_solver == "thesis" else "qp_aug"
+        F = self._free_idx
+        return classify(M[np.ix_(F, F)], J[:, F], self.linear_solver, symmetric=self.symmetric)
+
+    def accept(self, y, yd, pt, M, q_pred, rcond, label=None, mu=None, **_) -> None:
+        """:meth:`PredictorCorrector.accept`, and the bound multipliers ``mu`` (n,) at the new point where a
+        joint is on a bound (else none)."""
+        super().accept(y, yd, pt, M, q_pred, rcond, label)
+        self.mu = self._no_mu if self._sel is None else mu
+
     @property
     def any_active(self) -> bool:
         """Is any joint on a bound now?"""
@@ -200,9 +232,7 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         if self.rows and self.q is not y[: self.n] and self._rates_stale(y):
             self._rates()  # the rates afresh at the corrected point (see GeneralRows._rates_stale)
         if self._sel is not None and self.label is None:  # the label of the reduced system, now
-            F = self._free_idx
-            self.label = classify(self.M[np.ix_(F, F)], self.pt.J[:, F], self.linear_solver,
-                                    symmetric=self.symmetric)
+            self.label = self.reduced_label(self.M, self.pt.J)
         self._update_mu()
 
     def _rates(self) -> None:
@@ -215,8 +245,7 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
             lu = self._factor(pt, M)
             sol = self._solve(lu, np.concatenate([top, pt.xdot]))
             self.qdot, self.lamdot, self.M = sol[: self.n], sol[self.n:], M
-            F = self._free_idx
-            self.label = classify(M[np.ix_(F, F)], pt.J[:, F], self.linear_solver, symmetric=self.symmetric)
+            self.label = self.reduced_label(M, pt.J)
             self.y, self.yd = np.concatenate([self.q, self.lam]), sol
         self._update_mu()
 

@@ -75,12 +75,38 @@ class PredictorCorrector(Stepper):
         y, yd = self.y, self.yd
         prev = self.prev  # [y, ydot, y, ydot, ...], oldest first
         y_p = self._hermite[len(prev) // 2] @ np.array(prev + [y, yd]) if prev else y + h * yd
-        prev += (y, yd)
+        self._push_history()
+        self.t = self._next_time()
+        self.q_pred = y_p[: self.n]  # the step control compares the corrected joints with it
+        self._correct(y_p)  # checks its results for non-finite values
+
+    def _push_history(self) -> None:
+        """The current point and its rates join the predictor's history (the oldest pair leaves when full)."""
+        prev = self.prev
+        prev += (self.y, self.yd)
         if len(prev) == 2 * PREDICTOR_POINTS:
             del prev[:2]
+
+    @property
+    def hermite(self) -> list:
+        """The predictor's weights: entry k (k >= 1) those of the Hermite extrapolation through k + 1 points (of
+        (y, ydot) pairs, oldest first; :func:`~kinredund.tracking.linalg.hermite_weights`), entry 0 None (Euler)."""
+        return self._hermite
+
+    def accept(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, q_pred: np.ndarray, rcond: float,
+               label: str | None = None, **_) -> None:
+        """Take a whole step computed elsewhere (the compiled core, :mod:`kinredund.tracking.compiled`) as this
+        stepper's own, leaving the state as :meth:`plain_step` leaves it: the predictor's history, the clock
+        (t0 + (k + 1) dt), the corrected ``y`` = [q; lambda] and its rates ``yd``, the step's evaluation ``pt``
+        and M there, the predicted joints ``q_pred`` and R's condition estimate ``rcond`` (its factors ``lu``
+        are None: the caller sets them where they are needed). ``label``: the step's solver label, if known."""
+        self._push_history()
         self.t = self._next_time()
-        self._q_pred = y_p[: self.n]  # the step control compares the corrected joints with it
-        self._correct(y_p)  # checks its results for non-finite values
+        n = self.n
+        self.q_pred = q_pred
+        self.q, self.lam, self.y, self.yd = y[:n], y[n:], y, yd
+        self.qdot, self.lamdot, self.label, self.M, self.pt = yd[:n], yd[n:], label, M, pt
+        self.lu, self.rcond = None, rcond
 
     def euler_to(self, t_next: float) -> None:
         """From the current point to t_next: Euler prediction y + (t_next - t) ydot, then the corrector (a

@@ -63,6 +63,10 @@ class StepControl:
     Attributes:
         watch: the :class:`~kinredund.tracking.watch.Watch`.
         floor: the smallest sub-step [s].
+        speed2: |qdot|^2 [1/s^2] at the last accepted point (the jump check's scale).
+
+    A step taken elsewhere (the compiled core, :mod:`kinredund.tracking.compiled`) goes through the same
+    checks with :meth:`snapshot`, :meth:`restore` and :meth:`watch_point`.
     """
 
     def __init__(self, stepper):
@@ -72,34 +76,34 @@ class StepControl:
         s = stepper
         sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
         self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
-        self._speed2 = float(s.qdot @ s.qdot)
+        self.speed2 = float(s.qdot @ s.qdot)
 
     def start_verdict(self) -> str | None:
         """``kinematic`` or ``fold`` where the corrected start is not a regular constrained minimum."""
         return self.watch.crossed(self.watch.sigma[-1], self.watch.eig[-1])
 
     # -- the state ------------------------------------------------------------------------------------
-    def _snapshot(self) -> tuple:
+    def snapshot(self) -> tuple:
         """The stepper's whole state (:mod:`kinredund.tracking.state`) and the control's last speed."""
-        return self.s.state, self._speed2
+        return self.s.state, self.speed2
 
-    def _restore(self, snap: tuple) -> None:
-        self.s.state, self._speed2 = snap
+    def restore(self, snap: tuple) -> None:
+        self.s.state, self.speed2 = snap
 
     # -- one step --------------------------------------------------------------------------------------
     def step(self) -> None:
         """One requested step from t to t0 + (k + 1) dt (see the module docstring)."""
         s = self.s
         t_to = s.t0 + (s.k + 1) * s.dt
-        snap = self._snapshot()
+        snap = self.snapshot()
         if self.watch.ahead(t_to) is None or self._refreshed_ahead(t_to) is None:
             reason = self._attempt(s.plain_step, snap, s.dt)
             if reason is None:
                 return
-            self._restore(snap)
+            self.restore(snap)
         else:
             reason = (self.watch.ahead(t_to), "predicted within the step")
-            self._restore(snap)
+            self.restore(snap)
         self._substeps(snap, t_to, reason)
 
     def _attempt(self, advance, snap: tuple, h: float):
@@ -116,23 +120,23 @@ class StepControl:
         qd0, qd1 = snap[0].qdot, s.qdot
         speed2 = float(qd1 @ qd1)
         if h == s.dt:  # a whole step: where the corrector ended next to the predictor's point, no jump
-            m = s.q - s._q_pred
-            if float(m @ m) <= (PREDICTED_TOL * h) ** 2 * max(self._speed2, speed2):
-                return self._watch_point(h, speed2)
+            m = s.q - s.q_pred
+            if float(m @ m) <= (PREDICTED_TOL * h) ** 2 * max(self.speed2, speed2):
+                return self.watch_point(h, speed2)
         dq = s.q - snap[0].q
         e = dq - (0.5 * h) * (qd0 + qd1)  # the trapezoidal rule's miss: h^3 |q'''| / 12 on a smooth step
         move2, miss2 = float(dq @ dq), float(e @ e)
-        scale2 = max(move2, h * h * max(self._speed2, speed2))
+        scale2 = max(move2, h * h * max(self.speed2, speed2))
         if not miss2 <= TRAPEZOID_TOL**2 * scale2 + 1e-24:
             return "jump", (f"the joints moved {math.sqrt(move2):.3g} in {h:.3g} s, {math.sqrt(miss2):.3g} away from "
                             "what the rates at both ends give (trapezoidal rule)")
-        return self._watch_point(h, speed2)
+        return self.watch_point(h, speed2)
 
-    def _watch_point(self, h: float, speed2: float):
+    def watch_point(self, h: float, speed2: float):
         """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why)."""
         s = self.s
         if not (self.watch.due(s.rcond) or h < s.dt):
-            self._speed2 = speed2
+            self.speed2 = speed2
             return None
         if h < s.dt:  # sub-steps (near trouble): exactly, at the corrected point (not the Euler prediction's)
             pt = s.evaluate(s.q, s.t)
@@ -143,7 +147,7 @@ class StepControl:
         if kind is not None:
             return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"
         self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None), exact=h < s.dt)
-        self._speed2 = speed2
+        self.speed2 = speed2
         return None
 
     def _refreshed_ahead(self, t_next: float) -> str | None:
@@ -166,10 +170,10 @@ class StepControl:
             if kind is not None:
                 reason, h = (kind, f"predicted before t = {t_next:.6g} s"), 0.5 * h
                 continue
-            snap = self._snapshot()
+            snap = self.snapshot()
             why = self._attempt(lambda tn=t_next: s.euler_to(tn), snap, t_next - t)
             if why is not None:
-                self._restore(snap)
+                self.restore(snap)
                 reason, h = why, 0.5 * h
                 continue
             t, h = t_next, min(2.0 * h, s.dt)
@@ -213,7 +217,7 @@ class StepControl:
                     cause = "step_control_exhausted"
         if cause == "kinematic_singularity" and _bounds_dependent(s, q_near, t_near):
             cause = "not_strongly_stable"  # J of the free joints loses rank, J itself does not (LICQ fails)
-        self._restore(snap_step)
+        self.restore(snap_step)
         s.prev.clear()
         watched = watched_at(s)
         own = getattr(s, "_watched", None)  # a subclass's own quantities (the limits': active set, multipliers)

@@ -4,6 +4,9 @@
 // iterations, then the checks that make a step ordinary (no limit crossed, no jump). It mirrors the Python
 // reference (kinredund/tracking/predictor_corrector.py, point.py, tasks/*, step_control.py) operation by operation;
 // R's LU is LAPACK's unblocked algorithm in LAPACK's layout (the watch solves with it through scipy).
+// With joints held on their bounds (kinredund/tracking/limited.py: set_active) the step runs on the reduced system:
+// the held joints' columns leave R, their rows of the residual are the bound multipliers', and the multipliers
+// mu_i = s_i (grad z + J^T lambda)_i come out at the corrected point; a multiplier below zero (a release) is a switch.
 // Anything not ordinary returns a status code and the Python reference takes the step from the same state.
 #include "step.hpp"
 
@@ -18,6 +21,8 @@
 #include <pinocchio/algorithm/kinematics.hpp>
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
+
+#include <Eigen/Eigenvalues>
 
 #include <cmath>
 #include <memory>
@@ -46,7 +51,7 @@ using Mat3 = nb::ndarray<const double, nb::ndim<2>, nb::device::cpu>;  // any st
 enum Task { PLANAR = 0, POSITION = 1, POSE = 2, AXIS = 3 };
 // Why a step is handed back to the Python reference.
 constexpr int OK = 0, FACTOR_SINGULAR = 1, RCOND_LOW = 2, NOT_FINITE = 3, CHORD_FAILED = 4, JUMP = 5, LIMIT = 6,
-              LOG_NEAR_PI = 7;
+              LOG_NEAR_PI = 7, RELEASE = 11;
 
 constexpr double SMALL_ANGLE = 1e-4;  // kinredund.kinematics.closure
 constexpr double NEAR_PI_SIN = 1e-6;
@@ -100,12 +105,35 @@ class StepCore {
     if (hermite_.size() < 2) throw nb::value_error("hermite: the weights of at least two points");
     J6_.setZero(6, n_);
     K_.setZero(6, n_);
-    const int N = n_ + m_;
-    R_.setZero(N, N);
+    free_.setLinSpaced(n_, 0, n_ - 1);
+    bound_.setZero(n_);
+    side_.setZero(n_);
   }
 
   int n() const { return n_; }
   int m() const { return m_; }
+  // The size of advance()'s output (its layout at its end).
+  Eigen::Index output_size() const {
+    const Eigen::Index n = n_, N = n_ + m_;
+    return 2 * N + n * n + m_ * n + n + 12 + 2 * n + 1 + 2;
+  }
+
+  // The active set of the simple bounds (LimitedPredictorCorrector.active_set): the free joints (ascending), the
+  // bound values (n, read at the held joints) and the sides (n: +1 at a lower bound, -1 at an upper one, 0 free).
+  void set_active(const Eigen::Ref<const VectorXi>& free, CRef bound, CRef side) {
+    if (bound.size() != n_ || side.size() != n_) throw nb::value_error("bound and side must have n entries");
+    if (free.size() < m_ || free.size() > n_) throw nb::value_error("free: between m and n joint numbers");
+    for (Eigen::Index k = 0; k < free.size(); ++k)
+      if (free[k] < 0 || free[k] >= n_ || (k > 0 && free[k] <= free[k - 1]))
+        throw nb::value_error("free: ascending joint numbers in [0, n)");
+    free_ = free;
+    bound_ = bound;
+    side_ = side;
+    held_.assign(n_, 0);
+    for (int i = 0; i < n_; ++i) held_[i] = 1;
+    for (Eigen::Index k = 0; k < free.size(); ++k) held_[free[k]] = 0;
+    any_held_ = free.size() < n_;
+  }
 
   // One ordinary step to time t (see the file's comment). ``prev``: the predictor's history (y, ydot, ...),
   // oldest first; ``qdot0``, ``speed2``: the rates at the step's start and the step control's last speed^2
@@ -127,7 +155,7 @@ class StepCore {
       prevp[j] = prev[j].data();
     }
     if (qdot0.size() != n) throw nb::value_error("qdot0 must have n entries");
-    std::unique_ptr<VectorXd> out(new VectorXd(2 * N + n * n + m_ * n + n + 12 + 2));
+    std::unique_ptr<VectorXd> out(new VectorXd(output_size()));
     int st;
     {
       nb::gil_scoped_release release;  // the step touches no Python object: trackers in threads step in parallel
@@ -146,6 +174,7 @@ class StepCore {
               bool check_jump, VectorXd& out) {
     const int n = n_, N = n_ + m_;
     const size_t np_ = prev.size();
+    if (out.size() != output_size()) out.resize(output_size());
     // the Hermite predictor (Euler at the first step): predictor_corrector.plain_step
     VectorXd yp(N);
     if (np_ == 0) {
@@ -157,6 +186,9 @@ class StepCore {
       yp += w[np_] * y + w[np_ + 1] * yd;
     }
     VectorXd q_pred = yp.head(n);
+    if (any_held_)  // LimitedPredictorCorrector._correct: the held joints on their bounds
+      for (int i = 0; i < n; ++i)
+        if (held_[i]) yp[i] = bound_[i];
     // _correct: one evaluation at the predicted point gives R, the rates and the Newton update
     evaluate(yp.head(n), true);
     if (task_ == POSE && velocity_ && !log_ok_) return (LOG_NEAR_PI);
@@ -164,6 +196,9 @@ class StepCore {
     RowMatrixXd M;
     VectorXd top;
     system(lam, M, top);
+    // the step's J (at the predicted point: the chord iterations evaluate afresh) goes to the output now
+    Eigen::Map<RowMatrixXd>(out.data() + 2 * N + n * n, m_, n) = J_;
+    const double grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());  // switches._events' scale
     int st = factor(M);
     if (st != OK) return (st);
     VectorXd sol(N);
@@ -182,7 +217,19 @@ class StepCore {
       }
     }
     const auto q = yc.head(n);
+    // a free joint beyond its bound (a held one is on it exactly)
     if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return (LIMIT);
+    VectorXd mu = VectorXd::Zero(n);
+    if (any_held_) {  // LimitedPredictorCorrector._update_mu: at the corrected point, without dK
+      evaluate(q, false);
+      if (task_ == POSE && velocity_ && !log_ok_) return (LOG_NEAR_PI);
+      const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
+      for (int i = 0; i < n; ++i)
+        if (held_[i]) {
+          mu[i] = side_[i] * g[i];
+          if (mu[i] < -1e-12 * grad_scale) return (RELEASE);  // switches._events: a bound to release
+        }
+    }
     const auto qd1 = sol.head(n);
     const double speed2 = qd1.dot(qd1);
     if (check_jump) {  // step_control.StepControl._attempt on a whole step
@@ -200,23 +247,28 @@ class StepCore {
     const auto& oMf = pinocchio::updateFramePlacement(model_, data_, fid_);
     // one buffer (one array for Python to slice: small arrays would each be copied through numpy):
     // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), Q (9, row-major) and p (3) at the
-    //  corrected joints, rcond, speed2]; R's factors stay here (factors())
+    //  corrected joints, the evaluation's point (n: q_pred with the held joints on their bounds), the bound
+    //  multipliers mu (n, 0 where free), the label verdict (1: label_code), rcond, speed2] (output_size());
+    //  R's factors stay here (factors())
     double* o = out.data();
     Eigen::Map<VectorXd>(o, N) = yc;
     Eigen::Map<VectorXd>(o + N, N) = sol;
     o += 2 * N;
     Eigen::Map<RowMatrixXd>(o, n, n) = M;
     o += n * n;
-    Eigen::Map<RowMatrixXd>(o, m_, n) = J_;
-    o += m_ * n;
+    o += m_ * n;  // J: written above
     Eigen::Map<VectorXd>(o, n) = q_pred;
     o += n;
     Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Qc(o);
     Qc = oMf.rotation();
     Eigen::Map<Vector3d> pc(o + 9);
     pc = oMf.translation();
-    o[12] = rcond_;
-    o[13] = speed2;
+    o += 12;
+    Eigen::Map<VectorXd>(o, n) = yp.head(n);  // the evaluation's point (the predicted one, held joints on bounds)
+    Eigen::Map<VectorXd>(o + n, n) = mu;
+    o[2 * n] = any_held_ && !velocity_ ? label_code(M) : 0.0;
+    o[2 * n + 1] = rcond_;
+    o[2 * n + 2] = speed2;
     return OK;
   }
 
@@ -426,10 +478,18 @@ class StepCore {
   // unblocked algorithm: at these sizes scipy's dgetrf + dgecon cost ~3.6 us, this ~0.5 us; the factors agree to
   // rounding and the pivots are the same) and the 1-norm condition estimate of LAPACK's dgecon (Hager-Higham).
   int factor(const RowMatrixXd& M) {
-    const int n = n_, N = n_ + m_;
-    R_.topLeftCorner(n, n) = M;
-    R_.topRightCorner(n, m_) = J_.transpose();
-    R_.bottomLeftCorner(m_, n) = J_;
+    const int nf = static_cast<int>(free_.size()), N = nf + m_;
+    if (R_.rows() != N) R_.setZero(N, N);
+    if (any_held_) {  // LimitedPredictorCorrector._factor: Eq. (4.24) with the held joints' columns removed
+      for (int b = 0; b < nf; ++b) {
+        for (int a = 0; a < nf; ++a) R_(a, b) = M(free_[a], free_[b]);
+        for (int r = 0; r < m_; ++r) R_(nf + r, b) = R_(b, nf + r) = J_(r, free_[b]);
+      }
+    } else {
+      R_.topLeftCorner(nf, nf) = M;
+      R_.topRightCorner(nf, m_) = J_.transpose();
+      R_.bottomLeftCorner(m_, nf) = J_;
+    }
     R_.bottomRightCorner(m_, m_).setZero();
     const double anorm = R_.cwiseAbs().colwise().sum().maxCoeff();  // dlange('1')
     lu_ = R_;
@@ -459,7 +519,7 @@ class StepCore {
 
   // x := inv(LU) x (trans false) or inv(LU)^T x, without the row interchanges (dgecon's two solves)
   void lu_apply(double* x, bool trans) const {
-    const int N = n_ + m_;
+    const int N = static_cast<int>(lu_.rows());
     const double* a = lu_.data();
     if (!trans) {
       for (int j = 0; j < N; ++j)  // unit lower
@@ -484,7 +544,7 @@ class StepCore {
 
   // LAPACK's dgecon (norm '1') with dlacn2: the reciprocal 1-norm condition estimate of R from its factors
   double rcond(double anorm) const {
-    const int N = n_ + m_;
+    const int N = static_cast<int>(lu_.rows());
     if (N == 0) return 1.0;
     if (!(anorm > 0.0)) return 0.0;
     std::vector<double> x(N, 1.0 / N), v(N);
@@ -532,17 +592,73 @@ class StepCore {
     return est != 0.0 ? (1.0 / est) / anorm : 0.0;
   }
 
-  void solve(VectorXd& b) const {  // dgetrs: the interchanges, then L and U
-    const int N = n_ + m_;
+  // dgetrs: the interchanges, then L and U; with joints held, on the free rows (LimitedPredictorCorrector._solve:
+  // the held joints' entries of the solution are zero)
+  void solve(VectorXd& b) const {
+    const int N = static_cast<int>(lu_.rows()), nf = static_cast<int>(free_.size());
+    double* x = b.data();
+    VectorXd sub;
+    if (any_held_) {
+      sub.resize(N);
+      for (int a = 0; a < nf; ++a) sub[a] = b[free_[a]];
+      sub.tail(m_) = b.tail(m_);
+      x = sub.data();
+    }
     for (int i = 0; i < N; ++i)
-      if (ipiv_[i] != i) std::swap(b[i], b[ipiv_[i]]);
-    lu_apply(b.data(), false);
+      if (ipiv_[i] != i) std::swap(x[i], x[ipiv_[i]]);
+    lu_apply(x, false);
+    if (any_held_) {
+      b.head(n_).setZero();
+      for (int a = 0; a < nf; ++a) b[free_[a]] = sub[a];
+      b.tail(m_) = sub.tail(m_);
+    }
   }
 
-  VectorXd residual(const VectorXd& lam) const {  // Point.residual: [grad z + J^T lambda; r]
+  // Point.residual: [grad z + J^T lambda; r]; with joints held their rows are zero (the bound multipliers')
+  VectorXd residual(const VectorXd& lam) const {
     VectorXd F(n_ + m_);
     F << grad_ + J_.transpose() * lam, r_;
+    if (any_held_)
+      for (int i = 0; i < n_; ++i)
+        if (held_[i]) F[i] = 0.0;
     return F;
+  }
+
+  // linalg.classify's verdict on the free joints' system where it is clear, without asking LAPACK (0.0: not clear,
+  // Python's classify decides): 1.0 M_FF positive definite (dpotrf succeeds: ``qp``); 2.0 M_FF not positive
+  // definite (dpotrf fails) but M_FF + rho J_F^T J_F - shift is for one of _projected_pd's rho (Finsler: ``qp_aug``,
+  // or ``lu`` under the rule ``thesis``). Clear: the smallest eigenvalue beyond 1e-8 n max|A_ij| from zero, far
+  // beyond what Cholesky's backward error (~n eps ||A||) or the rounding of the matrices' entries could change.
+  double label_code(const RowMatrixXd& M) const {
+    const int nf = static_cast<int>(free_.size());
+    MatrixXd A(nf, nf);
+    for (int b = 0; b < nf; ++b)
+      for (int a = b; a < nf; ++a) A(a, b) = A(b, a) = M(free_[a], free_[b]);  // dpotrf reads the lower triangle
+    if (definite_side(A) > 0) return 1.0;
+    if (definite_side(A) >= 0) return 0.0;
+    MatrixXd Ms(nf, nf), JF(m_, nf);
+    for (int b = 0; b < nf; ++b) {
+      for (int a = 0; a < nf; ++a) Ms(a, b) = 0.5 * (M(free_[a], free_[b]) + M(free_[b], free_[a]));
+      JF.col(b) = J_.col(free_[b]).transpose();
+    }
+    const double scale = std::max(1.0, Ms.cwiseAbs().maxCoeff());
+    const MatrixXd JtJ = JF.transpose() * JF;
+    const MatrixXd JJt = JF * JF.transpose();
+    Eigen::SelfAdjointEigenSolver<MatrixXd> es(JJt, Eigen::EigenvaluesOnly);
+    const double s2 = std::max(es.eigenvalues()(0), 1e-300);
+    for (double f : {1.0, 1e2, 1e4}) {
+      MatrixXd B = Ms + (f * scale / s2) * JtJ;
+      B.diagonal().array() -= 1e-10 * scale;
+      if (definite_side(B) > 0) return 2.0;
+    }
+    return 0.0;
+  }
+
+  // +1 where the symmetric A is clearly positive definite, -1 where clearly not, 0 in between (label_code)
+  static int definite_side(const MatrixXd& A) {
+    Eigen::SelfAdjointEigenSolver<MatrixXd> es(A, Eigen::EigenvaluesOnly);
+    const double lo = es.eigenvalues()(0), margin = 1e-8 * A.rows() * A.cwiseAbs().maxCoeff();
+    return lo > margin ? 1 : lo < -margin ? -1 : 0;
   }
 
   // PredictorCorrector._chord with fresh residuals (need_dJ=False), R's factors kept
@@ -569,6 +685,11 @@ class StepCore {
   std::vector<VectorXd> hermite_;
   VectorXd lo_, hi_;
   bool limited_ = false;
+  // the active set (set_active): free joints, bound values and sides, which joints are held
+  VectorXi free_;
+  VectorXd bound_, side_;
+  std::vector<char> held_;
+  bool any_held_ = false;
   int n_ = 0, m_ = 0;
   // the evaluation
   Sample s_;
@@ -598,6 +719,7 @@ void bind_step(nb::module_& m) {
       .def("step", &StepCore::step, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
            nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"), nb::arg("qdot0"),
            nb::arg("speed2"), nb::arg("check_jump"))
+      .def("set_active", &StepCore::set_active, nb::arg("free"), nb::arg("bound"), nb::arg("side"))
       .def("factors", &StepCore::factors)
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
            nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"));
