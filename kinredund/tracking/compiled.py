@@ -192,12 +192,13 @@ class CompiledStep:
         m = len(stepper.lam)
         N = n + m
         ends = np.cumsum([N, N, n * n, m * n, n, 9, 3])  # the core's output layout (src/core/step.cpp)
-        self._slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
-        self._shapes = (n, m, N)
+        self.slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
+        self.shapes = (n, m, N)
         self.steps = 0
         self.handed_back: dict[str, int] = {}
 
-    def _hand_back(self, status: int) -> None:
+    def hand_back(self, status: int) -> None:
+        """The step as the Python stepper's, counted under ``status``'s reason (:data:`STATUS`)."""
         why = STATUS[status]
         self.handed_back[why] = self.handed_back.get(why, 0) + 1
         self._python_step()
@@ -208,9 +209,9 @@ class CompiledStep:
         ctl = s.control
         t_to = s.t0 + (s.k + 1) * s.dt
         if ctl is not None and ctl.watch.ahead(t_to) is not None:
-            return self._hand_back(8)
+            return self.hand_back(8)
         if self._limited and s._sel is not None:
-            return self._hand_back(10)
+            return self.hand_back(10)
         sample = s.ev.sample(t_to)
         if self._tv:
             index = s.ev.index
@@ -222,7 +223,14 @@ class CompiledStep:
         out = self.core.step(t_to, sample.p, sample.v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
                              0.0 if ctl is None else ctl._speed2, ctl is not None)
         if type(out) is int:
-            return self._hand_back(out)
+            return self.hand_back(out)
+        return self.accept(out, sample, t_to)
+
+    def accept(self, out: np.ndarray, sample, t_to: float) -> None:
+        """The core's ordinary step to ``t_to`` (its output row ``out``, R's factors still in the core) as the
+        stepper's new state, the watch's measurement first where due (it may reject the step: handed back)."""
+        s = self.stepper
+        ctl = s.control
         rcond, speed2 = float(out[-2]), float(out[-1])
         measured = ctl is not None and ctl.watch.due_next(rcond)
         if measured:  # the watch measures the new point (in Python): the step may still be rejected
@@ -230,22 +238,22 @@ class CompiledStep:
         elif ctl is not None:
             ctl.watch.due(rcond)
             ctl._speed2 = speed2
-        self._apply(out, sample, t_to, rcond)
+        self.apply(out, sample, t_to, rcond)
         if measured:
             s.lu = self.core.factors()  # the watch's inverse iteration solves with them
             if ctl._watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
                 ctl._restore(saved)
                 ctl.watch.load(watch)
                 self.steps -= 1
-                return self._hand_back(9)
+                return self.hand_back(9)
         return None
 
-    def _apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
+    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.plain_step`'s). R's factors stay
         in the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
         s = self.stepper
-        sy, ssol, sM, sJ, sq, sQ, sp = self._slices
-        n, m, _ = self._shapes
+        sy, ssol, sM, sJ, sq, sQ, sp = self.slices
+        n, m, _ = self.shapes
         y, sol, q_pred = out[sy], out[ssol], out[sq]
         prev = s.prev  # PredictorCorrector.plain_step's bookkeeping
         prev += (s.y, s.yd)

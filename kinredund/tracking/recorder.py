@@ -63,6 +63,24 @@ class Recorder:
         if self.rows is not None:
             self.rows.append(s.row_record())
 
+    def add_rows(self, t: list[float], q, lam, M, J, points: list, qdot) -> None:
+        """Record several steps at once (:mod:`kinredund.tracking.runs`): per step its time [s], joints,
+        multipliers, M, the step's J (rows of arrays, the solver labels pending), its
+        :class:`~kinredund.tracking.compiled.RecordedPose` and rates; no joint on a bound, no general rows (the
+        stepper's own multipliers of the bounds, zero, as :meth:`add` records them)."""
+        k = len(t)
+        self.t += t
+        self.q += list(q)
+        self.lam += list(lam)
+        self.solver += [None] * k
+        self.M += list(M)
+        self.J_step += list(J)
+        self.points += points
+        if self.limited:
+            self.active += [None] * k
+            self.mu += [self.stepper.mu] * k
+            self.qdot += list(qdot)
+
     def _lam_full(self) -> np.ndarray:
         """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""
         lam = np.array(self.lam)
