@@ -27,6 +27,9 @@ from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 
 #: the most steps of one C++ call (the watch measures every EXACT_EVERY steps anyway)
 MAX_RUN = EXACT_EVERY
+#: the steps sampled for the first call; each call then samples twice the steps the last one took (at least 2,
+#: at most MAX_RUN): where the watch measures often (R's condition moving), few samples go unused
+FIRST_RUN = 8
 
 
 def stepping(tracker, rec):
@@ -67,6 +70,7 @@ class Runs:
         self.s, self.ctl = s, s.control
         self.oriented = get_task(s.ev.task).has_orientation  # the core reads Q and omega
         self.none = np.zeros((0, 3)), np.zeros((0, 9)), np.zeros((0, s.n))
+        self.size = FIRST_RUN
 
     def _ordinary(self, count: int) -> list[float]:
         """The times of the next steps (at most ``count``) that are ordinary as far as Python can tell."""
@@ -74,7 +78,7 @@ class Runs:
         if getattr(s, "_sel", None) is not None:  # a joint on a bound: the Python stepper's
             return []
         t0, k, dt = s.t0, s.k, s.dt
-        times = [t0 + (k + j) * dt for j in range(1, min(count, MAX_RUN) + 1)]
+        times = [t0 + (k + j) * dt for j in range(1, min(count, self.size) + 1)]
         if ctl is not None:
             safe = ctl.watch.safe_before
             times = [t for t in times if t < safe]
@@ -102,6 +106,7 @@ class Runs:
             watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY), ctl._speed2
         done, status = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev, s.qdot, speed2,
                                            ctl is not None, watch, out)
+        self.size = min(MAX_RUN, max(2, 2 * (done + 1)))
         if done:
             self._commit(out[:done], samples[:done], times[:done])
         if status == self.core.WATCH_DUE:
