@@ -4,9 +4,8 @@ Usage::
 
     python benchmarks/many.py [--runs 8] [--loops 1] [--repeat 3] [--json FILE]
 
-Problem: the Panda benchmark circle (``kinredund.problems.panda_circle``, 200 steps per loop, limits held) from
-``--runs`` starts: the benchmark's start moved along the self-motion by the corrector (the start joints
-perturbed by a few hundredths of a radian each, corrected onto the path by the tracker itself). Each round
+Problem: ``--runs`` variants of the Panda benchmark circle (``kinredund.problems.panda_circle``, 200 steps per
+loop, limits held), the k-th turning the tool about its axis by up to 2 k degrees along the loop. Each round
 times ``track_many(problems, threads=1)`` and ``threads=2`` in turn; the figures are the medians over the
 rounds of runs per second, and the speed-up (2 threads over 1: at most 2 on 2 cores, less where others load
 the machine). The compiled core runs the ordinary steps in runs, each one C++ call with the GIL released
@@ -27,15 +26,13 @@ from kinredund.tracking import track, track_many
 
 
 def problems(count: int) -> list:
-    """``count`` Panda circle problems with different starts (see the module docstring)."""
-    robot, path, index, q0 = panda_circle()
-    rng = np.random.default_rng(0)
-    return [(robot, path, index, q0 if k == 0 else q0 + rng.uniform(-0.03, 0.03, len(q0))) for k in range(count)]
+    """``count`` Panda circle problems (see the module docstring)."""
+    return [panda_circle(wrist_amplitude=float(np.radians(2.0 * k))) for k in range(count)]
 
 
 def bench(runs: int = 8, loops: int = 1, repeat: int = 3) -> dict:
     jobs = problems(runs)
-    options = {"loops": loops, "project_start": True}
+    options = {"loops": loops}
     alone = []
     for job in jobs:
         try:

@@ -18,6 +18,7 @@ import pytest
 from test_tracking_compiled import problem
 
 from kinredund.errors import TrackingError
+from kinredund.paths import Circle
 from kinredund.tracking import Tracker, compiled, run, runs
 from kinredund.tracking.recorder import Recorder
 from kinredund.trajectory import Deferred
@@ -115,3 +116,16 @@ def test_the_core_refuses_arrays_of_the_wrong_shape():
     with pytest.raises(ValueError, match=r"v must have shape \(2, 3\)"):
         core.run_steps(tr.compiled.core, t, p, p[:1], *none, s.y, s.yd, s.prev, s.qdot, 0.0, True, watch,
                        np.zeros((2, 5)))
+
+
+@pytest.mark.parametrize("kw", [{}, {"frenet": True}, {"orientation": np.eye(3)},
+                                {"orientation": np.diag([1.0, -1.0, -1.0]), "roll_amplitude": 0.3}])
+def test_a_circle_samples_many_times_as_it_samples_each(kw):
+    path = Circle(np.array([0.4, -0.1, 0.5]), 0.12, 0.3, start_angle=0.7, normal=(0.2, 0.3, 0.9), **kw)
+    times = (0.013 * np.arange(40) - 0.1).tolist()
+    for got, want in zip(path.sample_many(times), [path.sample(t) for t in times], strict=True):
+        for name in ("p", "v", "Q", "omega"):  # the same operations: the same numbers
+            a, b = getattr(got, name), getattr(want, name)
+            assert (a is None) == (b is None), name
+            if a is not None:
+                np.testing.assert_array_equal(a, b, err_msg=name)

@@ -30,6 +30,10 @@ class Path:
         """Desired pose and twist at time t [s]."""
         raise NotImplementedError
 
+    def sample_many(self, times: list[float]) -> list[PathSample]:
+        """:meth:`sample` at each of ``times`` [s]; a path may compute them together (the same numbers)."""
+        return [self.sample(t) for t in times]
+
     def __call__(self, t: float) -> PathSample:
         s = self.sample(t)
         # one dot product per array: finite iff every entry is finite and below ~1e154 (its square overflows)

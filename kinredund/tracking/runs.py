@@ -121,8 +121,7 @@ class Runs:
     def _inputs(self, times: list[float]):
         """(samples, (p, v, Q, omega, ref, rate) as the core's arrays) at ``times``, or None."""
         s = self.s
-        sample = s.ev.sample
-        samples = [sample(t) for t in times]
+        samples = s.ev.path.sample_many(times)  # Evaluator.sample's, computed together where the path can
         p = np.array([x.p for x in samples], float)
         v = np.array([x.v for x in samples], float)
         no3, no9, non = self.none
