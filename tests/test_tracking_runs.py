@@ -123,9 +123,11 @@ def test_the_core_refuses_arrays_of_the_wrong_shape():
 def test_a_circle_samples_many_times_as_it_samples_each(kw):
     path = Circle(np.array([0.4, -0.1, 0.5]), 0.12, 0.3, start_angle=0.7, normal=(0.2, 0.3, 0.9), **kw)
     times = (0.013 * np.arange(40) - 0.1).tolist()
-    for got, want in zip(path.sample_many(times), [path.sample(t) for t in times], strict=True):
+    many = path.sample_many(times)
+    for k, (got, want) in enumerate(zip(many.samples, [path.sample(t) for t in times], strict=True)):
         for name in ("p", "v", "Q", "omega"):  # the same operations: the same numbers
             a, b = getattr(got, name), getattr(want, name)
             assert (a is None) == (b is None), name
             if a is not None:
                 np.testing.assert_array_equal(a, b, err_msg=name)
+                np.testing.assert_array_equal(getattr(many, name)[k], b, err_msg=f"stacked {name}")

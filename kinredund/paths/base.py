@@ -20,6 +20,18 @@ class PathSample:
     omega: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class Samples:
+    """The path at several times: the :class:`PathSample` of each, and their fields stacked, one row per time
+    (p, v (k, 3) [m], [m/s]; Q (k, 3, 3) and omega (k, 3) [rad/s], or None for a path without orientation)."""
+
+    samples: list
+    p: np.ndarray
+    v: np.ndarray
+    Q: np.ndarray | None = None
+    omega: np.ndarray | None = None
+
+
 class Path:
     """Base class of paths: :meth:`sample` gives the pose and twist at time t."""
 
@@ -30,9 +42,19 @@ class Path:
         """Desired pose and twist at time t [s]."""
         raise NotImplementedError
 
-    def sample_many(self, times: list[float]) -> list[PathSample]:
-        """:meth:`sample` at each of ``times`` [s]; a path may compute them together (the same numbers)."""
-        return [self.sample(t) for t in times]
+    def sample_many(self, times: list[float]) -> Samples:
+        """:meth:`sample` at each of ``times`` [s], and the fields stacked; a path may compute them together (the
+        same numbers). Raises PathError where the samples do not stack (no orientation at some of the times)."""
+        samples = [self.sample(t) for t in times]
+        try:
+            p, v = np.array([x.p for x in samples], float), np.array([x.v for x in samples], float)
+            if samples[0].Q is None:
+                return Samples(samples, p, v)
+            return Samples(samples, p, v, np.array([x.Q for x in samples], float),
+                           np.array([x.omega for x in samples], float))
+        except (TypeError, ValueError) as err:
+            raise PathError(f"the path's samples at t = {times[0]:.6g} to {times[-1]:.6g} s do not stack "
+                            f"(p, v of 3 entries, Q 3x3 and omega 3 at every time or at none): {err}") from err
 
     def __call__(self, t: float) -> PathSample:
         s = self.sample(t)

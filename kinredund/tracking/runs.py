@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinredund.errors import PathError
 from kinredund.tasks import get_task
 from kinredund.tracking.compiled import RecordedPose
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
@@ -119,26 +120,27 @@ class Runs:
         return done + 1
 
     def _inputs(self, times: list[float]):
-        """(samples, (p, v, Q, omega, ref, rate) as the core's arrays) at ``times``, or None."""
+        """(samples, (p, v, Q, omega, ref, rate) as the core's arrays) at ``times``, or None where the samples do
+        not stack or a task with orientation has none (the single step then says what is wrong)."""
         s = self.s
-        samples = s.ev.path.sample_many(times)  # Evaluator.sample's, computed together where the path can
-        p = np.array([x.p for x in samples], float)
-        v = np.array([x.v for x in samples], float)
+        try:
+            at = s.ev.path.sample_many(times)  # Evaluator.sample's samples, computed together where the path can
+        except PathError:
+            return None
         no3, no9, non = self.none
         Q, omega = no9, no3
         if self.oriented:
-            if any(x.Q is None or x.omega is None for x in samples):
+            if at.Q is None:
                 return None
-            Q = np.array([x.Q for x in samples], float).reshape(len(times), 9)
-            omega = np.array([x.omega for x in samples], float)
+            Q, omega = at.Q.reshape(len(times), 9), at.omega
         ref = rate = non
         if self.c._tv:
             index = s.ev.index
             ref = np.array([index.reference(t) for t in times], float)
             rate = np.array([index.rate(t) for t in times], float)
-        if p.shape != (len(times), 3) or v.shape != p.shape:
+        if at.p.shape != (len(times), 3) or at.v.shape != at.p.shape:
             return None
-        return samples, (p, v, Q, omega, ref, rate)
+        return at.samples, (at.p, at.v, Q, omega, ref, rate)
 
     def _commit(self, out: np.ndarray, samples: list, times: list[float]) -> None:
         """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it)."""
