@@ -139,7 +139,8 @@ class Circle(Path):
 
     def sample_many(self, times: list[float]) -> Samples:
         """:meth:`sample` at each of ``times`` [s], computed together: the same operations on numpy arrays (the
-        sines and cosines by ``math``, as :meth:`sample` takes them), so the same numbers at a fraction of the cost."""
+        sines and cosines by ``math``, as :meth:`sample` takes them), so the same numbers at a fraction of the cost
+        (``Samples.sample(k)`` makes the k-th :class:`PathSample` from the rows where it is asked for)."""
         t = np.asarray(times, float)
         w = self.speed / self.radius
         c, s = _cos_sin(self.start_angle + w * t)
@@ -154,8 +155,7 @@ class Circle(Path):
         if self.orientation is not None:
             if self.roll_amplitude == 0.0:
                 Q[:] = self.orientation
-                return Samples([PathSample(p, v, self.orientation, np.zeros(3)) for p, v in zip(P, V, strict=True)],
-                               P, V, Q, np.zeros((len(t), 3)))
+                return Samples(P, V, Q, np.zeros((len(t), 3)))
             cw, sw = _cos_sin(w * t)
             ca, sa = _cos_sin(self.roll_amplitude * sw)
             (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = self._orientation_floats
@@ -164,14 +164,14 @@ class Circle(Path):
             Q[:, 2, 0], Q[:, 2, 1], Q[:, 2, 2] = ca * x2 + sa * y2, ca * y2 - sa * x2, z2
             rate = self.roll_amplitude * w * cw
             omega = np.stack([rate * z0, rate * z1, rate * z2], axis=1)
-            return Samples([PathSample(*x) for x in zip(P, V, Q, omega, strict=True)], P, V, Q, omega)
+            return Samples(P, V, Q, omega)
         if not self.frenet:
-            return Samples([PathSample(p, v) for p, v in zip(P, V, strict=True)], P, V)
+            return Samples(P, V)
         n0, n1, n2 = self._plane_floats[2]
         Q[:, :, 0], Q[:, :, 1] = np.stack(en, axis=1), np.stack(et, axis=1)
         Q[:, 0, 2], Q[:, 1, 2], Q[:, 2, 2] = n0, n1, n2
         omega = np.tile(np.array([w * n0, w * n1, w * n2]), (len(t), 1))
-        return Samples([PathSample(*x) for x in zip(P, V, Q, omega, strict=True)], P, V, Q, omega)
+        return Samples(P, V, Q, omega)
 
 
 def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,14 +22,23 @@ class PathSample:
 
 @dataclass(frozen=True)
 class Samples:
-    """The path at several times: the :class:`PathSample` of each, and their fields stacked, one row per time
-    (p, v (k, 3) [m], [m/s]; Q (k, 3, 3) and omega (k, 3) [rad/s], or None for a path without orientation)."""
+    """The path at several times, one row per time: p, v (k, 3) [m], [m/s]; Q (k, 3, 3) and omega (k, 3) [rad/s],
+    or None for a path without orientation; ``listed``: the :class:`PathSample` of each time where the path made
+    them (else :meth:`sample` makes one from the rows)."""
 
-    samples: list
     p: np.ndarray
     v: np.ndarray
     Q: np.ndarray | None = None
     omega: np.ndarray | None = None
+    listed: list | None = None
+
+    def sample(self, k: int) -> PathSample:
+        """The :class:`PathSample` of the k-th time."""
+        if self.listed is not None:
+            return self.listed[k]
+        if self.Q is None:
+            return PathSample(self.p[k], self.v[k])
+        return PathSample(self.p[k], self.v[k], self.Q[k], self.omega[k])
 
 
 class Path:
@@ -49,9 +58,9 @@ class Path:
         try:
             p, v = np.array([x.p for x in samples], float), np.array([x.v for x in samples], float)
             if samples[0].Q is None:
-                return Samples(samples, p, v)
-            return Samples(samples, p, v, np.array([x.Q for x in samples], float),
-                           np.array([x.omega for x in samples], float))
+                return Samples(p, v, listed=samples)
+            return Samples(p, v, np.array([x.Q for x in samples], float), np.array([x.omega for x in samples], float),
+                           samples)
         except (TypeError, ValueError) as err:
             raise PathError(f"the path's samples at t = {times[0]:.6g} to {times[-1]:.6g} s do not stack "
                             f"(p, v of 3 entries, Q 3x3 and omega 3 at every time or at none): {err}") from err

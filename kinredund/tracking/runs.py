@@ -22,7 +22,6 @@ import numpy as np
 
 from kinredund.errors import PathError
 from kinredund.tasks import get_task
-from kinredund.tracking.compiled import RecordedPose
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
 from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 
@@ -89,16 +88,12 @@ class Runs:
         """Up to ``count`` steps, recorded; the number taken (>= 1)."""
         c, rec = self.c, self.rec
         times = self._ordinary(count)
-        if len(times) < 2:
+        at = self._inputs(times) if len(times) >= 2 else None
+        if at is None:  # a single step (a sample the core cannot take: the step says what is wrong)
             c.step()
             rec.add()
             return 1
-        inputs = self._inputs(times)
-        if inputs is None:  # a sample the core cannot take (no orientation where the task needs one)
-            c.step()
-            rec.add()
-            return 1
-        samples, arrays = inputs
+        at, arrays = at
         s, ctl = self.s, self.ctl
         out = np.empty((len(times), int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
         if ctl is None:
@@ -109,9 +104,9 @@ class Runs:
                                            ctl is not None, watch, out)
         self.size = min(MAX_RUN, max(2, 2 * (done + 1)))
         if done:
-            self._commit(out[:done], samples[:done], times[:done])
+            self._commit(out[:done], at, times[:done])
         if status == self.core.WATCH_DUE:
-            c.accept(out[done], samples[done], times[done])
+            c.accept(out[done], at.sample(done), times[done])
         elif status:
             c.hand_back(status)
         else:
@@ -120,8 +115,8 @@ class Runs:
         return done + 1
 
     def _inputs(self, times: list[float]):
-        """(samples, (p, v, Q, omega, ref, rate) as the core's arrays) at ``times``, or None where the samples do
-        not stack or a task with orientation has none (the single step then says what is wrong)."""
+        """(the path's :class:`~kinredund.paths.base.Samples`, (p, v, Q, omega, ref, rate) as the core's arrays) at
+        ``times``, or None where the samples do not stack or a task with orientation has none."""
         s = self.s
         try:
             at = s.ev.path.sample_many(times)  # Evaluator.sample's samples, computed together where the path can
@@ -140,18 +135,18 @@ class Runs:
             rate = np.array([index.rate(t) for t in times], float)
         if at.p.shape != (len(times), 3) or at.v.shape != at.p.shape:
             return None
-        return at.samples, (at.p, at.v, Q, omega, ref, rate)
+        return at, (at.p, at.v, Q, omega, ref, rate)
 
-    def _commit(self, out: np.ndarray, samples: list, times: list[float]) -> None:
+    def _commit(self, out: np.ndarray, at, times: list[float]) -> None:
         """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it)."""
         c, s, ctl = self.c, self.s, self.ctl
         sy, ssol, sM, sJ, _, sQ, sp = c.slices
         n, m, _ = c.shapes
         K = len(times)
         Y, SOL = out[:, sy], out[:, ssol]
-        poses = zip(samples, out[:, sQ].reshape(K, 3, 3), out[:, sp], strict=True)
         self.rec.add_rows(times, Y[:, :n], Y[:, n:], out[:, sM].reshape(K, n, n), out[:, sJ].reshape(K, m, n),
-                          [RecordedPose(x, (Q, p)) for x, Q, p in poses], SOL[:, :n])
+                          (out[:, sQ].reshape(K, 3, 3), out[:, sp]), (at.p[:K], None if at.Q is None else at.Q[:K]),
+                          SOL[:, :n])
         if K > 1:  # the state before the last row: the predictor's history as the steps between carried it
             hist = [*s.prev, s.y, s.yd]
             for j in range(K - 2):
@@ -162,7 +157,7 @@ class Runs:
             c.steps += K - 1
         last = out[K - 1]
         rcond = float(last[-2])
-        c.apply(last, samples[-1], times[-1], rcond)
+        c.apply(last, at.sample(K - 1), times[-1], rcond)
         if ctl is not None:
             ctl.watch.passed(K, rcond)
             ctl._speed2 = float(last[-1])
