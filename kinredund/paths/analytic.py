@@ -142,35 +142,32 @@ class Circle(Path):
         sines and cosines by ``math``, as :meth:`sample` takes them), so the same numbers at a fraction of the cost
         (``Samples.sample(k)`` makes the k-th :class:`PathSample` from the rows where it is asked for)."""
         t = np.asarray(times, float)
+        k = len(t)
         w = self.speed / self.radius
         c, s = _cos_sin(self.start_angle + w * t)
-        (e1x, e1y, e1z), (e2x, e2y, e2z), _ = self._plane_floats
+        (e1x, e1y, e1z), (e2x, e2y, e2z), (n0, n1, n2) = self._plane_floats
         en = (c * e1x + s * e2x, c * e1y + s * e2y, c * e1z + s * e2z)
         et = (c * e2x - s * e1x, c * e2y - s * e1y, c * e2z - s * e1z)
-        cx, cy, cz = self._center_floats
         rad, sp = self.radius, self.speed
-        P = np.stack([cx + rad * en[0], cy + rad * en[1], cz + rad * en[2]], axis=1)
-        V = np.stack([sp * et[0], sp * et[1], sp * et[2]], axis=1)
-        Q = np.empty((len(t), 3, 3))
+        P, V = np.empty((k, 3)), np.empty((k, 3))
+        for i, ci in enumerate(self._center_floats):
+            P[:, i], V[:, i] = ci + rad * en[i], sp * et[i]
+        Q, omega = np.empty((k, 3, 3)), np.empty((k, 3))
         if self.orientation is not None:
             if self.roll_amplitude == 0.0:
-                Q[:] = self.orientation
-                return Samples(P, V, Q, np.zeros((len(t), 3)))
+                Q[:], omega[:] = self.orientation, 0.0
+                return Samples(P, V, Q, omega)
             cw, sw = _cos_sin(w * t)
             ca, sa = _cos_sin(self.roll_amplitude * sw)
-            (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = self._orientation_floats
-            Q[:, 0, 0], Q[:, 0, 1], Q[:, 0, 2] = ca * x0 + sa * y0, ca * y0 - sa * x0, z0
-            Q[:, 1, 0], Q[:, 1, 1], Q[:, 1, 2] = ca * x1 + sa * y1, ca * y1 - sa * x1, z1
-            Q[:, 2, 0], Q[:, 2, 1], Q[:, 2, 2] = ca * x2 + sa * y2, ca * y2 - sa * x2, z2
             rate = self.roll_amplitude * w * cw
-            omega = np.stack([rate * z0, rate * z1, rate * z2], axis=1)
+            for i, (x, y, z) in enumerate(self._orientation_floats):
+                Q[:, i, 0], Q[:, i, 1], Q[:, i, 2] = ca * x + sa * y, ca * y - sa * x, z
+                omega[:, i] = rate * z
             return Samples(P, V, Q, omega)
         if not self.frenet:
             return Samples(P, V)
-        n0, n1, n2 = self._plane_floats[2]
-        Q[:, :, 0], Q[:, :, 1] = np.stack(en, axis=1), np.stack(et, axis=1)
-        Q[:, 0, 2], Q[:, 1, 2], Q[:, 2, 2] = n0, n1, n2
-        omega = np.tile(np.array([w * n0, w * n1, w * n2]), (len(t), 1))
+        for i, ni in enumerate((n0, n1, n2)):
+            Q[:, i, 0], Q[:, i, 1], Q[:, i, 2], omega[:, i] = en[i], et[i], ni, w * ni
         return Samples(P, V, Q, omega)
 
 
