@@ -4,16 +4,20 @@
 steps, each recorded. On the compiled backend (:mod:`kinredund.tracking.compiled`) the steps that are ordinary by
 what Python knows before them - no joint on a bound, no crossing the watch could predict before
 :attr:`~kinredund.tracking.watch.Watch.safe_before` - are taken by the core's ``run_steps``
-(``src/core/loop.cpp``): Python samples the path (and a time-varying reference) at all their times first, then
+(``src/core/loop.cpp``): Python samples the path at all their times first (:meth:`~kinredund.paths.Path.sample_many`,
+which a circle computes together), and a time-varying reference, then
 one C++ call steps through them with the GIL released (threads running other tasks compute meanwhile:
 :func:`~kinredund.tracking.many.track_many`) and writes each step's output row (the layout of ``StepCore.step``)
-into one array. The rows go to the record in one call
+into one array; the run samples twice the steps the last run took (the watch's measured steps end runs). The rows
+go to the record in one call
 (:meth:`~kinredund.tracking.recorder.Recorder.add_rows`) and the last becomes the stepper's state. The run stops
 at the first step the core hands back (a bound reached, a jump, a failure: the Python stepper takes that step
 from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures
 (its row is finished in Python: :meth:`~kinredund.tracking.compiled.CompiledStep.accept`). Every step is the
 one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
-and the state equal those of one-by-one steps.
+and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Like
+:mod:`~kinredund.tracking.compiled`, it reads the stepper's and the step control's private state (``_sel``,
+``_speed2``).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import numpy as np
 
 from kinredund.errors import PathError
 from kinredund.tasks import get_task
+from kinredund.tracking.compiled import load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
 from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 
@@ -36,7 +41,7 @@ def stepping(tracker, rec):
     """``advance(count)``: up to ``count`` >= 1 steps of ``tracker``, each recorded in ``rec``; returns the
     steps taken (>= 1). Raises what the tracker's step raises (the record holds the steps before it)."""
     compiled = getattr(tracker, "compiled", None)
-    if compiled is None or not hasattr(_module(), "run_steps"):  # the Python stepper (or an older core)
+    if compiled is None or not hasattr(load_core(), "run_steps"):  # the Python stepper (or an older core)
         return one_by_one(tracker, rec)
     return Runs(compiled, rec).advance
 
@@ -53,19 +58,12 @@ def one_by_one(tracker, rec):
     return one
 
 
-def _module():
-    """The compiled core (loaded: a compiled tracker exists)."""
-    import kinredund._core as core
-
-    return core
-
-
 class Runs:
     """Advances one compiled run in runs of ordinary steps (see the module docstring)."""
 
     def __init__(self, compiled, rec):
         self.c, self.rec = compiled, rec
-        self.core = _module()
+        self.core = load_core()
         s = compiled.stepper
         self.s, self.ctl = s, s.control
         self.oriented = get_task(s.ev.task).has_orientation  # the core reads Q and omega
