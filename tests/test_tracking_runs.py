@@ -18,7 +18,7 @@ import pytest
 from test_tracking_compiled import problem
 
 from kinredund.errors import TrackingError
-from kinredund.paths import Circle
+from kinredund.paths import Circle, FunctionPath
 from kinredund.tracking import Tracker, compiled, run, runs
 from kinredund.tracking.recorder import Recorder
 from kinredund.trajectory import Deferred
@@ -42,14 +42,23 @@ def assert_identical(a, b, where: str = "") -> None:
             assert x == y, f"{where}{f.name}: {x!r} != {y!r}"
 
 
+def user_path_case():
+    """The Panda wrist circle as a user's function (the path's samples one by one: Path.sample_many's default)."""
+    r, path, index, q0 = problem("panda_wrist15")
+
+    def fn(t):
+        s = path.sample(t)
+        return s.Q, s.p, s.omega, s.v
+
+    return r, FunctionPath(fn, period=path.period, has_orientation=True), index, q0
+
+
 def tracked(monkeypatch, name: str, batched: bool, **options):
     """track() of the named problem with the runs (``batched``) or one step at a time (the runs' reference)."""
-    if not batched:
-        monkeypatch.setattr(run, "stepping", runs.one_by_one)
-    else:
-        monkeypatch.setattr(run, "stepping", runs.stepping)
+    monkeypatch.setattr(run, "stepping", runs.stepping if batched else runs.one_by_one)
     try:
-        return run.track(*problem(name), backend="compiled", **options)
+        return run.track(*(user_path_case() if name == "user_path" else problem(name)), backend="compiled",
+                         **options)
     except TrackingError as err:
         return err
 
@@ -60,6 +69,7 @@ def tracked(monkeypatch, name: str, batched: bool, **options):
     ("planar_time_varying", {"loops": 1, "limits": False}),  # the reference sampled per step with the path
     ("example_4.1", {"loops": 2, "limits": False, "strict": False}),  # no step control, no watch
     ("panda_wrist15", {"loops": 1, "steps_per_loop": 37}),  # runs cut at the watch's measured steps
+    ("user_path", {"loops": 1}),  # a path sampled one time at a time
 ])
 def test_runs_record_the_same_numbers_as_single_steps(monkeypatch, name, options):
     a = tracked(monkeypatch, name, False, **options)
