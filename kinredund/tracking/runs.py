@@ -32,9 +32,8 @@ from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 
 #: the most steps of one C++ call (the watch measures every EXACT_EVERY steps anyway)
 MAX_RUN = EXACT_EVERY
-#: the steps sampled for the first call; each call then samples twice the steps the last one took (at least 2,
-#: at most MAX_RUN): where the watch measures often (R's condition moving), few samples go unused
-FIRST_RUN = 8
+#: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
+GRID = 256
 
 
 def stepping(tracker, rec):
@@ -68,43 +67,40 @@ class Runs:
         self.s, self.ctl = s, s.control
         self.oriented = get_task(s.ev.task).has_orientation  # the core reads Q and omega
         self.none = np.zeros((0, 3)), np.zeros((0, 9)), np.zeros((0, s.n))
-        self.size = FIRST_RUN
+        self.grid = None  # (the first step's number, the Samples, the core's arrays) of the steps sampled ahead
 
-    def _ordinary(self, count: int) -> list[float]:
-        """The times of the next steps (at most ``count``) that are ordinary as far as Python can tell."""
+    def _ordinary(self, count: int) -> int:
+        """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
         s, ctl = self.s, self.ctl
         if getattr(s, "_sel", None) is not None:  # a joint on a bound: the Python stepper's
-            return []
-        t0, k, dt = s.t0, s.k, s.dt
-        times = [t0 + (k + j) * dt for j in range(1, min(count, self.size) + 1)]
+            return 0
+        K = min(count, MAX_RUN)
         if ctl is not None:
-            safe = ctl.watch.safe_before
-            times = [t for t in times if t < safe]
-        return times
+            t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before
+            K = sum(1 for j in range(1, K + 1) if t0 + (k + j) * dt < safe)  # Watch.ahead is None before safe
+        return K
 
     def advance(self, count: int) -> int:
         """Up to ``count`` steps, recorded; the number taken (>= 1)."""
-        c, rec = self.c, self.rec
-        times = self._ordinary(count)
-        at = self._inputs(times) if len(times) >= 2 else None
-        if at is None:  # a single step (a sample the core cannot take: the step says what is wrong)
+        c, rec, s, ctl = self.c, self.rec, self.s, self.ctl
+        K = self._ordinary(count)
+        window = self._window(K, count) if K >= 2 else None
+        if window is None:  # a single step (or a sample the core cannot take: the step says what is wrong)
             c.step()
             rec.add()
             return 1
-        at, arrays = at
-        s, ctl = self.s, self.ctl
-        out = np.empty((len(times), int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
+        times, at, i, arrays = window
+        out = np.empty((K, int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
         if ctl is None:
             watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY), 0.0
         else:
             watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY), ctl._speed2
         done, status = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev, s.qdot, speed2,
                                            ctl is not None, watch, out)
-        self.size = min(MAX_RUN, max(2, 2 * (done + 1)))
         if done:
-            self._commit(out[:done], at, times[:done])
+            self._commit(out[:done], at, i, times[:done])
         if status == self.core.WATCH_DUE:
-            c.accept(out[done], at.sample(done), times[done])
+            c.accept(out[done], at.sample(i + done), times[done])
         elif status:
             c.hand_back(status)
         else:
@@ -112,39 +108,54 @@ class Runs:
         rec.add()
         return done + 1
 
-    def _inputs(self, times: list[float]):
-        """(the path's :class:`~kinredund.paths.base.Samples`, (p, v, Q, omega, ref, rate) as the core's arrays) at
-        ``times``, or None where the samples do not stack or a task with orientation has none."""
+    def _window(self, K: int, count: int):
+        """(times, the Samples, the offset of the next step in them, (p, v, Q, omega, ref, rate) of the next K steps
+        as the core's arrays), sampled ahead (:data:`GRID` steps or the ``count`` left) where the last grid ends; or
+        None where the samples do not stack or a task with orientation has none."""
+        j0 = self.s.k + 1
+        if self.grid is None or not self.grid[0] <= j0 <= j0 + K <= self.grid[0] + len(self.grid[2]):
+            self.grid = self._sample(j0, max(K, min(count, GRID)))
+        first, at, times, arrays = self.grid
+        if at is None:
+            return None
+        i = j0 - first
+        return times[i:i + K], at, i, tuple(a if len(a) == 0 else a[i:i + K] for a in arrays)
+
+    def _sample(self, j0: int, count: int) -> tuple:
+        """(j0, Samples, times, the core's arrays) of steps j0 .. j0 + count - 1 (Samples None where unusable)."""
         s = self.s
+        t0, dt = s.t0, s.dt
+        times = [t0 + (j0 - 1 + j) * dt for j in range(1, count + 1)]  # the clock of Stepper: t0 + k dt
         try:
             at = s.ev.path.sample_many(times)  # Evaluator.sample's samples, computed together where the path can
         except PathError:
-            return None
+            return j0, None, times, ()
         no3, no9, non = self.none
         Q, omega = no9, no3
         if self.oriented:
             if at.Q is None:
-                return None
-            Q, omega = at.Q.reshape(len(times), 9), at.omega
+                return j0, None, times, ()
+            Q, omega = at.Q.reshape(count, 9), at.omega
         ref = rate = non
         if self.c._tv:
             index = s.ev.index
             ref = np.array([index.reference(t) for t in times], float)
             rate = np.array([index.rate(t) for t in times], float)
-        if at.p.shape != (len(times), 3) or at.v.shape != at.p.shape:
-            return None
-        return at, (at.p, at.v, Q, omega, ref, rate)
+        if at.p.shape != (count, 3) or at.v.shape != at.p.shape:
+            return j0, None, times, ()
+        return j0, at, times, (at.p, at.v, Q, omega, ref, rate)
 
-    def _commit(self, out: np.ndarray, at, times: list[float]) -> None:
-        """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it)."""
+    def _commit(self, out: np.ndarray, at, i: int, times: list[float]) -> None:
+        """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it);
+        ``at``: the path's samples, the run's first at ``i``."""
         c, s, ctl = self.c, self.s, self.ctl
         sy, ssol, sM, sJ, _, sQ, sp = c.slices
         n, m, _ = c.shapes
         K = len(times)
         Y, SOL = out[:, sy], out[:, ssol]
         self.rec.add_rows(times, Y[:, :n], Y[:, n:], out[:, sM].reshape(K, n, n), out[:, sJ].reshape(K, m, n),
-                          (out[:, sQ].reshape(K, 3, 3), out[:, sp]), (at.p[:K], None if at.Q is None else at.Q[:K]),
-                          SOL[:, :n])
+                          (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
+                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n])
         if K > 1:  # the state before the last row: the predictor's history as the steps between carried it
             hist = [*s.prev, s.y, s.yd]
             for j in range(K - 2):
@@ -155,7 +166,7 @@ class Runs:
             c.steps += K - 1
         last = out[K - 1]
         rcond = float(last[-2])
-        c.apply(last, at.sample(K - 1), times[-1], rcond)
+        c.apply(last, at.sample(i + K - 1), times[-1], rcond)
         if ctl is not None:
             ctl.watch.passed(K, rcond)
             ctl._speed2 = float(last[-1])
