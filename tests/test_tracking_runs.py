@@ -142,3 +142,11 @@ def test_a_circle_samples_many_times_as_it_samples_each(kw):
             if a is not None:
                 np.testing.assert_array_equal(a, b, err_msg=name)
                 np.testing.assert_array_equal(getattr(many, name)[k], b, err_msg=f"stacked {name}")
+
+
+def test_progress_is_told_of_every_step_in_order():
+    r, path, index, q0 = problem("panda_wrist15")
+    seen = []
+    tr = run.track(r, path, index, q0, loops=1, steps_per_loop=60, backend="compiled",
+                   progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(k, 60) for k in range(1, 61)] and len(tr.t) == 61
