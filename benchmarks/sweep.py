@@ -22,6 +22,11 @@ each timed cluster sweep's worker busy fraction (compute time per worker over th
 Dask's task stream: 1 means no worker ever waited for work), and the CPU share this process (client
 and in-process scheduler) took meanwhile, which the workers do not get on a 2-core machine.
 
+Per grid also the sweep's tracking runs alone (from the sweep's own starts): one by one as the sweep tracks
+them, and in one ``kinredund.tracking.track_many`` call on ``max(2, --workers)`` threads, with the records
+compared (joints bit for bit), their share of the serial sweep's time, and the serial sweep's placements per
+second with its tracking done by ``track_many`` (:func:`tracking_figures`).
+
 The figures are wall times: on a shared machine they move with the load (run it on a quiet one). The
 default run (sides 3, 5, 8: 18, 50 and 128 placements) takes about 30 s on an unloaded 2-core machine.
 """
@@ -97,6 +102,47 @@ def _busy(stream: list, wall: float) -> float:
     return float(np.mean(list(per.values())) / wall) if per else float("nan")
 
 
+def tracking_figures(robot, path, index, P: np.ndarray, threads: int = 2) -> dict:
+    """The sweep's tracking runs of the placements ``P`` (from the sweep's own starts) one by one, as the sweep
+    tracks them, and in one ``track_many`` call on ``threads`` threads (issue 28); both timed, the results compared.
+
+    The starts (the bounded IK, the larger part of a placement's cost) are computed first and not timed; the
+    placements per second of the whole serial sweep with its tracking done by ``track_many`` follow as
+    N / (serial sweep time - tracking one by one + tracking by ``track_many``).
+    """
+    from kinredund.errors import KinredundError
+    from kinredund.sweep.evaluate import SweepOptions, start_configuration
+    from kinredund.sweep.placement import PartPath
+    from kinredund.tracking import track, track_many
+
+    options = SweepOptions()
+    kw = {"steps_per_loop": options.steps_per_loop, "loops": options.loops, "diagnostics": False}
+    jobs = []
+    for T in P:
+        part = PartPath(path, T)
+        try:
+            ik = start_configuration(robot, part, index, options)
+        except KinredundError:
+            continue
+        if ik.converged:
+            jobs.append((robot, part, index, ik.q))
+    t0 = time.perf_counter()
+    alone = []
+    for job in jobs:
+        try:
+            alone.append(track(*job, **kw))
+        except KinredundError as err:
+            alone.append(err)
+    t_alone = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    many = track_many(jobs, threads=threads, **kw)
+    t_many = time.perf_counter() - t0
+    same = all(type(a) is type(b) and np.array_equal(np.asarray(a.q), np.asarray(b.q)) for a, b in zip(alone, many,
+                                                                                                      strict=True))
+    return {"tracked": len(jobs), "track_alone_s": t_alone, "track_many_s": t_many, "track_threads": threads,
+            "track_many_speedup": t_alone / t_many if t_many > 0 else float("nan"), "track_many_same": bool(same)}
+
+
 def bench(sides, workers: int = 2, batch_size: int | None = None) -> dict:
     """The figures of every grid (see the module docstring)."""
     from distributed import get_task_stream
@@ -119,7 +165,11 @@ def bench(sides, workers: int = 2, batch_size: int | None = None) -> dict:
                 parallel = sweep(robot, path, index, P, client=client, batch_size=batch_size)
                 t_cluster, c_client = time.perf_counter() - t0, time.process_time() - c0
             agree = all(a.feasible == b.feasible and a.cause == b.cause for a, b in zip(serial, parallel, strict=True))
-            rows.append({"side": side, "placements": len(P), "serial_s": t_serial, "cluster_s": t_cluster,
+            tracking = tracking_figures(robot, path, index, P, threads=max(2, workers))
+            t_with_many = t_serial - tracking["track_alone_s"] + tracking["track_many_s"]
+            rows.append({**tracking, "serial_track_many_per_s": len(P) / t_with_many,
+                         "track_share": tracking["track_alone_s"] / t_serial, "side": side, "placements": len(P),
+                         "serial_s": t_serial, "cluster_s": t_cluster,
                          "serial_per_s": len(P) / t_serial, "cluster_per_s": len(P) / t_cluster,
                          "speedup": t_serial / t_cluster, "serial_ms_per_placement": 1e3 * t_serial / len(P),
                          "feasible": sum(r.feasible for r in serial), "records_agree": agree,
@@ -156,6 +206,13 @@ def main() -> None:
                   r["records_agree"]] for r in res["grids"]],
                 ["placements", "serial s", "cluster s", "serial /s", "cluster /s", "speed-up", "ms each", "busy",
                  "client cpu", "feasible", "agree"])
+    print("the sweep's tracking runs (from its starts) one by one and in one track_many call; the serial sweep's "
+          "placements/s with its tracking by track_many:")
+    print_table([[r["placements"], r["tracked"], r["track_share"], r["track_alone_s"], r["track_many_s"],
+                  r["track_threads"], r["track_many_speedup"], r["serial_per_s"], r["serial_track_many_per_s"],
+                  r["track_many_same"]] for r in res["grids"]],
+                ["placements", "tracked", "track share", "one by one s", "track_many s", "threads", "speed-up",
+                 "serial /s", "with track_many /s", "same"])
     for key, fit in res["fits"].items():
         print(f"{key}: {fit['intercept_s']:.3f} s + {fit['per_placement_ms']:.2f} ms x N")
     write_json(args.json, res)

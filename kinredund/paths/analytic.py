@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinredund.errors import PathError, check_array, check_positive
-from kinredund.paths.base import Path, PathSample
+from kinredund.paths.base import Path, PathSample, Samples
 
 
 def _center3(center, what: str) -> np.ndarray:
@@ -135,6 +135,46 @@ class Circle(Path):
         # Eq. (4.47): [e_n, e_t, e_n x e_t], and e_n x e_t = e1 x e2 = n
         Q = np.array([[en[0], et[0], n0], [en[1], et[1], n1], [en[2], et[2], n2]])
         return PathSample(p, v, Q, np.array([w * n0, w * n1, w * n2]))  # Eq. (4.48): turns about n at beta-dot
+
+
+    def sample_many(self, times: list[float]) -> Samples:
+        """:meth:`sample` at each of ``times`` [s], computed together: the same operations on numpy arrays (the
+        sines and cosines by ``math``, as :meth:`sample` takes them), so the same numbers at a fraction of the cost
+        (``Samples.sample(k)`` makes the k-th :class:`PathSample` from the rows where it is asked for)."""
+        t = np.asarray(times, float)
+        k = len(t)
+        w = self.speed / self.radius
+        c, s = _cos_sin(self.start_angle + w * t)
+        (e1x, e1y, e1z), (e2x, e2y, e2z), (n0, n1, n2) = self._plane_floats
+        en = (c * e1x + s * e2x, c * e1y + s * e2y, c * e1z + s * e2z)
+        et = (c * e2x - s * e1x, c * e2y - s * e1y, c * e2z - s * e1z)
+        rad, sp = self.radius, self.speed
+        P, V = np.empty((k, 3)), np.empty((k, 3))
+        for i, ci in enumerate(self._center_floats):
+            P[:, i], V[:, i] = ci + rad * en[i], sp * et[i]
+        Q, omega = np.empty((k, 3, 3)), np.empty((k, 3))
+        if self.orientation is not None:
+            if self.roll_amplitude == 0.0:
+                Q[:], omega[:] = self.orientation, 0.0
+                return Samples(P, V, Q, omega)
+            cw, sw = _cos_sin(w * t)
+            ca, sa = _cos_sin(self.roll_amplitude * sw)
+            rate = self.roll_amplitude * w * cw
+            for i, (x, y, z) in enumerate(self._orientation_floats):
+                Q[:, i, 0], Q[:, i, 1], Q[:, i, 2] = ca * x + sa * y, ca * y - sa * x, z
+                omega[:, i] = rate * z
+            return Samples(P, V, Q, omega)
+        if not self.frenet:
+            return Samples(P, V)
+        for i, ni in enumerate((n0, n1, n2)):
+            Q[:, i, 0], Q[:, i, 1], Q[:, i, 2], omega[:, i] = en[i], et[i], ni, w * ni
+        return Samples(P, V, Q, omega)
+
+
+def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cos, sin) of each angle [rad] by ``math`` (numpy's vectorised ones may round differently)."""
+    a = angles.tolist()
+    return np.array([math.cos(x) for x in a]), np.array([math.sin(x) for x in a])
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,27 @@ class PathSample:
     omega: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class Samples:
+    """The path at several times, one row per time: p, v (k, 3) [m], [m/s]; Q (k, 3, 3) and omega (k, 3) [rad/s],
+    or None for a path without orientation; ``listed``: the :class:`PathSample` of each time where the path made
+    them (else :meth:`sample` makes one from the rows)."""
+
+    p: np.ndarray
+    v: np.ndarray
+    Q: np.ndarray | None = None
+    omega: np.ndarray | None = None
+    listed: list | None = None
+
+    def sample(self, k: int) -> PathSample:
+        """The :class:`PathSample` of the k-th time."""
+        if self.listed is not None:
+            return self.listed[k]
+        if self.Q is None:
+            return PathSample(self.p[k], self.v[k])
+        return PathSample(self.p[k], self.v[k], self.Q[k], self.omega[k])
+
+
 class Path:
     """Base class of paths: :meth:`sample` gives the pose and twist at time t."""
 
@@ -29,6 +50,20 @@ class Path:
     def sample(self, t: float) -> PathSample:
         """Desired pose and twist at time t [s]."""
         raise NotImplementedError
+
+    def sample_many(self, times: list[float]) -> Samples:
+        """:meth:`sample` at each of ``times`` [s], and the fields stacked; a path may compute them together (the
+        same numbers). Raises PathError where the samples do not stack (no orientation at some of the times)."""
+        samples = [self.sample(t) for t in times]
+        try:
+            p, v = np.array([x.p for x in samples], float), np.array([x.v for x in samples], float)
+            if samples[0].Q is None:
+                return Samples(p, v, listed=samples)
+            return Samples(p, v, np.array([x.Q for x in samples], float), np.array([x.omega for x in samples], float),
+                           samples)
+        except (TypeError, ValueError) as err:
+            raise PathError(f"the path's samples at t = {times[0]:.6g} to {times[-1]:.6g} s do not stack "
+                            f"(p, v of 3 entries, Q 3x3 and omega 3 at every time or at none): {err}") from err
 
     def __call__(self, t: float) -> PathSample:
         s = self.sample(t)

@@ -179,8 +179,8 @@ class CompiledStep:
         n = stepper.n
         self.stepper, self.n = stepper, n
         self._python_step = stepper.step
-        self._tv = isinstance(index, TimeVaryingReference)
-        if self._tv:
+        self.time_varying = isinstance(index, TimeVaryingReference)
+        if self.time_varying:
             weights = np.ones(n) if index.weights is None else np.asarray(index.weights, float)
             reference = np.zeros(n)
         else:
@@ -190,21 +190,22 @@ class CompiledStep:
         hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper.hermite]
         self.core = core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
                                   ev.formulation == "velocity", np.asarray(weights, float),
-                                  np.asarray(reference, float), self._tv, stepper.tol, stepper.dt, hermite,
+                                  np.asarray(reference, float), self.time_varying, stepper.tol, stepper.dt, hermite,
                                   lo_tol, hi_tol)
-        self._limited = limited
+        self.limited = limited
         self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
         m = len(stepper.lam)
         N = n + m
         ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1])  # the core's output layout (src/core/step.cpp)
-        self._slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
-        self._shapes = (n, m, N)
+        self.slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
+        self.shapes = (n, m, N)
         self.steps = self.held_steps = 0
         self.handed_back: dict[str, int] = {}
 
-    def _hand_back(self, status: int) -> None:
+    def hand_back(self, status: int) -> None:
+        """The step as the Python stepper's, counted under ``status``'s reason (:data:`STATUS`)."""
         why = STATUS[status]
         self.handed_back[why] = self.handed_back.get(why, 0) + 1
         self._python_step()
@@ -215,11 +216,11 @@ class CompiledStep:
         ctl = s.control
         t_to = s.t0 + (s.k + 1) * s.dt
         if ctl is not None and ctl.watch.ahead(t_to) is not None:
-            return self._hand_back(8)
-        if self._limited:
-            self._sync_active()
+            return self.hand_back(8)
+        if self.limited:
+            self.sync_active()
         sample = s.ev.sample(t_to)
-        if self._tv:
+        if self.time_varying:
             index = s.ev.index
             ref, rate = np.asarray(index.reference(t_to), float), np.asarray(index.rate(t_to), float)
         else:
@@ -229,7 +230,14 @@ class CompiledStep:
         out = self.core.step(t_to, sample.p, sample.v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
                              0.0 if ctl is None else ctl.speed2, ctl is not None)
         if type(out) is int:
-            return self._hand_back(out)
+            return self.hand_back(out)
+        return self.accept(out, sample, t_to)
+
+    def accept(self, out: np.ndarray, sample, t_to: float) -> None:
+        """The core's ordinary step to ``t_to`` (its output row ``out``, R's factors still in the core) as the
+        stepper's new state, the watch's measurement first where due (it may reject the step: handed back)."""
+        s = self.stepper
+        ctl = s.control
         rcond, speed2 = float(out[-2]), float(out[-1])
         measured = ctl is not None and ctl.watch.due_next(rcond)
         if measured:  # the watch measures the new point (in Python): the step may still be rejected
@@ -237,34 +245,34 @@ class CompiledStep:
         elif ctl is not None:
             ctl.watch.due(rcond)
             ctl.speed2 = speed2
-        self._apply(out, sample, t_to, rcond)
+        self.apply(out, sample, t_to, rcond)
         if measured:
             s.lu = self.core.factors()  # the watch's inverse iteration solves with them
             if ctl.watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
                 ctl.restore(saved)
                 ctl.watch.load(watch)
                 self.steps -= 1
-                self.held_steps -= self._limited and self.stepper.any_active
-                return self._hand_back(9)
+                self.held_steps -= self.limited and self.stepper.any_active
+                return self.hand_back(9)
         return None
 
-    def _sync_active(self) -> None:
+    def sync_active(self) -> None:
         """Give the core the stepper's active set where it changed (a switch replaces the ``fixed`` array)."""
         fixed, side, bound = self.stepper.active_set()
         if fixed is not self._fixed:
             self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
             self._fixed = fixed
 
-    def _apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
+    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
         the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
         s = self.stepper
-        sy, ssol, sM, sJ, sq, sQ, sp, s_eval, s_mu, s_label = self._slices
-        n, m, _ = self._shapes
+        sy, ssol, sM, sJ, sq, sQ, sp, s_eval, s_mu, s_label = self.slices
+        n, m, _ = self.shapes
         M, J = out[sM].reshape(n, n), out[sJ].reshape(m, n)
         pt = CompiledPoint(s.ev, out[s_eval], t_to, sample, J, self._basis,
                            RecordedPose(sample, (out[sQ].reshape(3, 3), out[sp])))
-        held = self._limited and s.any_active
+        held = self.limited and s.any_active
         label = s.reduced_label(M, J, int(out[s_label][0])) if held else None
         s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu] if held else None)
         self.steps += 1

@@ -63,6 +63,24 @@ class Recorder:
         if self.rows is not None:
             self.rows.append(s.row_record())
 
+    def add_rows(self, t: list[float], q, lam, M, J, pose, desired, qdot) -> None:
+        """Record several steps at once (:mod:`kinredund.tracking.runs`): per step its time [s], joints,
+        multipliers, M, the step's J (rows of arrays, the solver labels pending) and rates, ``pose`` (Q (k, 3, 3),
+        p (k, 3)) at the corrected joints and ``desired``, the path's (p_d (k, 3), Q_d (k, 3, 3) or None); no joint
+        on a bound, no general rows (the stepper's own multipliers of the bounds, zero, as :meth:`add` records)."""
+        k = len(t)
+        self.t += t
+        self.q += list(q)
+        self.lam += list(lam)
+        self.solver += [None] * k
+        self.M += list(M)
+        self.J_step += list(J)
+        self.points.append(PoseRows(*pose, *desired))
+        if self.limited:
+            self.active += [None] * k
+            self.mu += [self.stepper.mu] * k
+            self.qdot += list(qdot)
+
     def _lam_full(self) -> np.ndarray:
         """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""
         lam = np.array(self.lam)
@@ -90,30 +108,40 @@ class Recorder:
                 "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
     def _evaluate(self):
-        """(Q, p, {k: J} where the step's own evaluation was made at recorded point k, path samples): the
+        """(Q, p, {k: J} where the step's own evaluation was made at recorded point k, p_d, Q_d per point): the
         pose afresh at the other recorded joints (K there is left to :class:`Diagnostics`)."""
         kin = self.stepper.ev.robot.kinematics
-        Qs, ps, own, samples = [], [], {}, []
-        for k, (q, item) in enumerate(zip(self.q, self.points, strict=True)):
+        Qs, ps, own, p_d, Q_d = [], [], {}, [], []
+        k = 0
+        for item in self.points:
+            if isinstance(item, PoseRows):  # the rows of a run (add_rows)
+                Qs += list(item.Q)
+                ps += list(item.p)
+                p_d += list(item.p_d)
+                Q_d += [None] * len(item.p) if item.Q_d is None else list(item.Q_d)
+                k += len(item.p)
+                continue
             if hasattr(item, "terms"):
                 (Q, p), own[k], sample = (item.Q, item.p), item.J, item.sample
             elif hasattr(item, "pose"):
                 (Q, p), sample = item.pose, item.sample
             else:
-                (Q, p), sample = kin.pose(q), item
+                (Q, p), sample = kin.pose(self.q[k]), item
             Qs.append(Q)
             ps.append(p)
-            samples.append(sample)
-        return np.array(Qs), np.array(ps), own, samples
+            p_d.append(sample.p)
+            Q_d.append(sample.Q)
+            k += 1
+        return np.array(Qs), np.array(ps), own, p_d, Q_d
 
     def trajectory(self, *, robot_name: str, scheme: str, mode: str, loops: int | None, steps_per_loop: int | None,
                    period: float | None, meta: dict) -> Trajectory:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
         task = get_task(s.ev.task)
-        Q, p, own, samples = self._evaluate()
-        p_d = np.array([x.p for x in samples])
-        Q_d = np.array([x.Q for x in samples]) if task.has_orientation else None
+        Q, p, own, p_d, Q_d = self._evaluate()
+        p_d = np.array(p_d)
+        Q_d = np.array(Q_d) if task.has_orientation else None
         errors = task.errors_many(Q, p, Q_d, p_d)
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
         t, q = np.array(self.t), np.array(self.q)
@@ -139,6 +167,16 @@ class Recorder:
             position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
             vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
             normality_residual=Deferred(diag.normality_residual), loop_drift=drift, loop_period=period, meta=meta)
+
+
+class PoseRows:
+    """The points of a run of steps (:meth:`Recorder.add_rows`), stacked: the pose (Q, p) at the corrected joints and
+    the path's p_d and Q_d (None without orientation), one row per step."""
+
+    __slots__ = ("Q", "p", "p_d", "Q_d")
+
+    def __init__(self, Q, p, p_d, Q_d):
+        self.Q, self.p, self.p_d, self.Q_d = Q, p, p_d, Q_d
 
 
 class Diagnostics:

@@ -23,6 +23,7 @@ from kinredund.paths import Path
 from kinredund.tracking.failure import loadable_name
 from kinredund.tracking.record_checks import say_open_loop, say_rate_burst
 from kinredund.tracking.recorder import Recorder
+from kinredund.tracking.runs import stepping
 from kinredund.tracking.tracker import Tracker
 from kinredund.trajectory import Trajectory
 
@@ -118,16 +119,17 @@ def _run(robot: Robot, path: Path, index: Index | None, q0, span: dict, options:
     tracker = Tracker(robot, path, index, q0, dt, **options)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()
-    step = tracker.step
+    advance = stepping(tracker, rec)  # runs of compiled steps in one call where it can (tracking/runs.py)
     info = {"robot_name": loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
             "meta": dict(meta or {}, dt=dt, steps=total, backend=tracker.backend,
                          velocity_limit=[float(v) for v in robot.model.velocityLimit])}  # Trajectory.speed_over_limits
     try:
-        for k in range(total):
-            step()
-            rec.add()
+        done = 0
+        while done < total:
+            before, done = done, done + advance(total - done)
             if progress is not None:
-                progress(k + 1, total)
+                for k in range(before, done):
+                    progress(k + 1, total)
     except TrackingError as err:
         if err.partial is None:  # the record up to the last requested time (a Trajectory that plays)
             info["meta"].update(steps=len(rec) - 1, partial=True)

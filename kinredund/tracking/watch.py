@@ -106,6 +106,22 @@ class Watch:
         """What :meth:`due` would say of a step with ``rcond``, without counting the step."""
         return not rcond > RCOND_NEAR or rcond < RCOND_DROP * self._rcond or (self._count + 1) % EXACT_EVERY == 0
 
+    @property
+    def gate(self) -> tuple[float, int]:
+        """(the last step's rcond, steps counted): what :meth:`due_next` reads besides the step's own rcond."""
+        return self._rcond, self._count
+
+    @property
+    def safe_before(self) -> float:
+        """Steps ending before this time [s] have no crossing ahead (:meth:`ahead` is None there; -inf before
+        the first measurement, when :meth:`ahead` checks the history itself)."""
+        return self._safe
+
+    def passed(self, count: int, rcond: float) -> None:
+        """``count`` steps were taken unmeasured (:meth:`due` was False for each), the last with ``rcond``."""
+        self._count += count
+        self._rcond = rcond
+
     def save(self) -> dict:
         """The watch's state (its attributes; the histories are changed only by :meth:`push` and :meth:`reset`,
         which a step that is undone has not reached)."""

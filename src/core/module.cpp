@@ -1,5 +1,6 @@
 // kinredund._core: the compiled core (issue 28). The Python package works without it (Python stepper).
 #include "distances.hpp"
+#include "loop.hpp"
 
 #include <boost/python.hpp>
 #include <nanobind/nanobind.h>
@@ -90,4 +91,5 @@ NB_MODULE(_core, m) {
       .def("jacobian_hessian", &kinredund::Kinematics::jacobian_hessian, nb::arg("q"));
   kinredund::bind_step(m);
   kinredund::bind_distances(m);
+  kinredund::bind_loop(m);
 }

@@ -86,6 +86,9 @@ struct Sample {
 }  // namespace
 
 class StepCore {
+  friend int step_core_advance(StepCore&, const StepInput&, const double*, const double*,
+                               const std::vector<const double*>&, const double*, double, bool, double*);
+
  public:
   StepCore(nb::handle model, int frame_id, int task, bool velocity, CRef weights, CRef reference, bool time_varying,
            double tol, double dt, std::vector<VectorXd> hermite, CRef lo_tol, CRef hi_tol)
@@ -706,6 +709,39 @@ class StepCore {
   VectorXi ipiv_;
   double rcond_ = 0.0;
 };
+
+StepCore& step_core(nb::handle obj) {
+  if (!nb::isinstance<StepCore>(obj)) throw nb::type_error("expected a kinredund._core.StepCore");
+  return *nb::inst_ptr<StepCore>(obj);
+}
+
+void step_core_sizes(const StepCore& c, int& n, int& m, int& row) {
+  n = c.n(), m = c.m();
+  row = static_cast<int>(c.output_size());  // StepCore::step's layout
+}
+
+int step_core_advance(StepCore& c, const StepInput& in, const double* y, const double* yd,
+                      const std::vector<const double*>& prev, const double* qdot0, double speed2, bool check_jump,
+                      double* out) {
+  const int n = c.n_, N = c.n_ + c.m_;
+  c.s_.p = Eigen::Map<const Vector3d>(in.p);
+  c.s_.v = Eigen::Map<const Vector3d>(in.v);
+  if (in.Q != nullptr) {
+    c.s_.Q = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(in.Q);
+    c.s_.omega = Eigen::Map<const Vector3d>(in.omega);
+  }
+  if (c.time_varying_) {
+    c.tv_ref_ = Eigen::Map<const VectorXd>(in.ref, n);
+    c.tv_rate_ = Eigen::Map<const VectorXd>(in.rate, n);
+  }
+  int row, mm, nn;
+  step_core_sizes(c, nn, mm, row);
+  VectorXd buf(row);
+  const int st = c.advance(Eigen::Map<const VectorXd>(y, N), Eigen::Map<const VectorXd>(yd, N), prev,
+                           Eigen::Map<const VectorXd>(qdot0, n), speed2, check_jump, buf);
+  if (st == 0) std::copy(buf.data(), buf.data() + row, out);
+  return st;
+}
 
 void bind_step(nb::module_& m) {
   nb::class_<StepCore>(m, "StepCore")

@@ -1,0 +1,106 @@
+"""Many tracking runs in one call: ``track_many`` on 1 and 2 threads.
+
+Usage::
+
+    python benchmarks/many.py [--runs 8] [--loops 1] [--repeat 3] [--json FILE]
+
+Problem: ``--runs`` variants of the Panda benchmark circle (``kinredund.problems.panda_circle``, 200 steps per
+loop, limits held), the k-th turning the tool about its axis by up to 2 k degrees along the loop. Each round
+times ``track_many(problems, threads=1)`` and ``threads=2`` in turn; the figures are the medians over the
+rounds of runs per second, and the speed-up (2 threads over 1: at most 2 on 2 cores, less where others load
+the machine). The compiled core runs the ordinary steps in runs, each one C++ call with the GIL released
+(:mod:`kinredund.tracking.runs`); the rest (the path samples, the record, the steps it hands back) holds it.
+The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
+a run's time spent in the core's runs of steps (C++, the GIL released; numpy's LAPACK calls release it as well).
+On a shared machine the speed-up moves with the others' load (``parallel capacity`` in ``benchmarks/sweep.py``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from _bench import machine, parser, print_table, write_json
+
+from kinredund.errors import TrackingError
+from kinredund.problems import panda_circle
+from kinredund.tracking import track, track_many
+
+
+def problems(count: int) -> list:
+    """``count`` Panda circle problems (see the module docstring)."""
+    return [panda_circle(wrist_amplitude=float(np.radians(2.0 * k))) for k in range(count)]
+
+
+def gil_free_share(jobs: list, options: dict) -> float:
+    """The share of the runs' time (one by one, one thread) spent in the core's runs of steps, where the GIL is
+    released (numpy's LAPACK calls, the watch's, release it too: the share of the whole run is larger)."""
+    import kinredund._core as core
+
+    inner, spent = core.run_steps, [0.0]
+
+    def timed(*args):
+        t0 = time.perf_counter()
+        try:
+            return inner(*args)
+        finally:
+            spent[0] += time.perf_counter() - t0
+
+    core.run_steps = timed
+    try:
+        t0 = time.perf_counter()
+        for job in jobs:
+            try:
+                track(*job, **options)
+            except TrackingError:
+                pass
+        total = time.perf_counter() - t0
+    finally:
+        core.run_steps = inner
+    return spent[0] / total
+
+
+def bench(runs: int = 8, loops: int = 1, repeat: int = 3) -> dict:
+    jobs = problems(runs)
+    options = {"loops": loops}
+    alone = []
+    for job in jobs:
+        try:
+            alone.append(track(*job, **options))
+        except TrackingError as err:
+            alone.append(err)
+    rates = {1: [], 2: []}
+    same = True
+    for _ in range(repeat):
+        for threads in (1, 2):
+            t0 = time.perf_counter()
+            got = track_many(jobs, threads=threads, **options)
+            rates[threads].append(len(jobs) / (time.perf_counter() - t0))
+            same &= all(type(a) is type(b) and np.array_equal(np.asarray(a.q), np.asarray(b.q))
+                        for a, b in zip(alone, got, strict=True))
+    one, two = (float(np.median(rates[k])) for k in (1, 2))
+    share = gil_free_share(jobs, options)
+    return {"runs": runs, "steps_per_run": 200 * loops, "runs_per_s_1_thread": one, "runs_per_s_2_threads": two,
+            "speedup_2_over_1": two / one, "same_as_one_by_one": bool(same), "core_runs_share": share,
+            "stopped": sum(isinstance(a, TrackingError) for a in alone), "machine": machine()}
+
+
+def main() -> None:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=8, help="tracking runs per call (default 8)")
+    p.add_argument("--loops", type=int, default=1, help="loops of each run (default 1)")
+    p.add_argument("--repeat", type=int, default=3, help="rounds (default 3)")
+    args = p.parse_args()
+    if args.smoke:
+        args.runs, args.loops, args.repeat = 2, 1, 1
+    res = bench(args.runs, args.loops, args.repeat)
+    print_table([[res["runs"], res["steps_per_run"], res["runs_per_s_1_thread"], res["runs_per_s_2_threads"],
+                  res["speedup_2_over_1"], res["core_runs_share"], res["stopped"], res["same_as_one_by_one"]]],
+                ["runs", "steps each", "runs/s 1 thread", "runs/s 2 threads", "speed-up", "in core runs", "stopped",
+                 "same"])
+    print("in core runs: the share of a run's time (1 thread) in the core's runs of steps, C++ with the GIL released")
+    write_json(args.json, res)
+
+
+if __name__ == "__main__":
+    main()

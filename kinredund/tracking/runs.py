@@ -1,0 +1,174 @@
+"""Runs of ordinary compiled steps in one call of the core (issue 28): the record written from C++ arrays.
+
+:func:`stepping` gives :func:`~kinredund.tracking.run.track` its way to advance a run by up to ``count`` requested
+steps, each recorded. On the compiled backend (:mod:`kinredund.tracking.compiled`) the steps that are ordinary by
+what Python knows before them - no joint on a bound, no crossing the watch could predict before
+:attr:`~kinredund.tracking.watch.Watch.safe_before` - are taken by the core's ``run_steps``
+(``src/core/loop.cpp``): Python samples the path at all their times first (:meth:`~kinredund.paths.Path.sample_many`,
+which a circle computes together), and a time-varying reference, then
+one C++ call steps through them with the GIL released (threads running other tasks compute meanwhile:
+:func:`~kinredund.tracking.many.track_many`) and writes each step's output row (the layout of ``StepCore.step``)
+into one array; the run samples twice the steps the last run took (the watch's measured steps end runs). The rows
+go to the record in one call
+(:meth:`~kinredund.tracking.recorder.Recorder.add_rows`) and the last becomes the stepper's state. The run stops
+at the first step the core hands back (a bound reached, a jump, a failure: the Python stepper takes that step
+from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures
+(its row is finished in Python: :meth:`~kinredund.tracking.compiled.CompiledStep.accept`). Every step is the
+one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
+and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Steps with a joint held on its
+bound are the core's too, one call each (:meth:`~kinredund.tracking.compiled.CompiledStep.step`). Like
+:mod:`~kinredund.tracking.compiled`, it reads only the stepper's and the step control's public interface.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinredund.errors import PathError
+from kinredund.tasks import get_task
+from kinredund.tracking.compiled import load_core
+from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
+from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
+
+#: the most steps of one C++ call (the watch measures every EXACT_EVERY steps anyway)
+MAX_RUN = EXACT_EVERY
+#: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
+GRID = 256
+
+
+def stepping(tracker, rec):
+    """``advance(count)``: up to ``count`` >= 1 steps of ``tracker``, each recorded in ``rec``; returns the
+    steps taken (>= 1). Raises what the tracker's step raises (the record holds the steps before it)."""
+    compiled = getattr(tracker, "compiled", None)
+    if compiled is None or not hasattr(load_core(), "run_steps"):  # the Python stepper (or an older core)
+        return one_by_one(tracker, rec)
+    return Runs(compiled, rec).advance
+
+
+def one_by_one(tracker, rec):
+    """``advance(count)`` of :func:`stepping` that takes one step (``tracker.step()``, then ``rec.add()``)."""
+    step, add = tracker.step, rec.add
+
+    def one(count: int) -> int:
+        step()
+        add()
+        return 1
+
+    return one
+
+
+class Runs:
+    """Advances one compiled run in runs of ordinary steps (see the module docstring)."""
+
+    def __init__(self, compiled, rec):
+        self.c, self.rec = compiled, rec
+        self.core = load_core()
+        s = compiled.stepper
+        self.s, self.ctl = s, s.control
+        self.oriented = get_task(s.ev.task).has_orientation  # the core reads Q and omega
+        self.none = np.zeros((0, 3)), np.zeros((0, 9)), np.zeros((0, s.n))
+        self.grid = None  # (the first step's number, the Samples, the core's arrays) of the steps sampled ahead
+
+    def _ordinary(self, count: int) -> int:
+        """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
+        s, ctl = self.s, self.ctl
+        if getattr(s, "any_active", False):  # a joint on a bound: the core's held steps, one at a time
+            return 0
+        K = min(count, MAX_RUN)
+        if ctl is not None:
+            t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before
+            K = sum(1 for j in range(1, K + 1) if t0 + (k + j) * dt < safe)  # Watch.ahead is None before safe
+        return K
+
+    def advance(self, count: int) -> int:
+        """Up to ``count`` steps, recorded; the number taken (>= 1)."""
+        c, rec, s, ctl = self.c, self.rec, self.s, self.ctl
+        K = self._ordinary(count)
+        window = self._window(K, count) if K >= 2 else None
+        if window is None:  # a single step (or a sample the core cannot take: the step says what is wrong)
+            c.step()
+            rec.add()
+            return 1
+        times, at, i, arrays = window
+        out = np.empty((K, int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
+        if ctl is None:
+            watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY), 0.0
+        else:
+            watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY), ctl.speed2
+        if c.limited:
+            c.sync_active()  # a release taken by the Python stepper: the core holds none now
+        done, status = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev, s.qdot, speed2,
+                                           ctl is not None, watch, out)
+        if done:
+            self._commit(out[:done], at, i, times[:done])
+        if status == self.core.WATCH_DUE:
+            c.accept(out[done], at.sample(i + done), times[done])
+        elif status:
+            c.hand_back(status)
+        else:
+            return done
+        rec.add()
+        return done + 1
+
+    def _window(self, K: int, count: int):
+        """(times, the Samples, the offset of the next step in them, (p, v, Q, omega, ref, rate) of the next K steps
+        as the core's arrays), sampled ahead (:data:`GRID` steps or the ``count`` left) where the last grid ends; or
+        None where the samples do not stack or a task with orientation has none."""
+        j0 = self.s.k + 1
+        if self.grid is None or not self.grid[0] <= j0 <= j0 + K <= self.grid[0] + len(self.grid[2]):
+            self.grid = self._sample(j0, max(K, min(count, GRID)))
+        first, at, times, arrays = self.grid
+        if at is None:
+            return None
+        i = j0 - first
+        return times[i:i + K], at, i, tuple(a if len(a) == 0 else a[i:i + K] for a in arrays)
+
+    def _sample(self, j0: int, count: int) -> tuple:
+        """(j0, Samples, times, the core's arrays) of steps j0 .. j0 + count - 1 (Samples None where unusable)."""
+        s = self.s
+        t0, dt = s.t0, s.dt
+        times = [t0 + (j0 - 1 + j) * dt for j in range(1, count + 1)]  # the clock of Stepper: t0 + k dt
+        try:
+            at = s.ev.path.sample_many(times)  # Evaluator.sample's samples, computed together where the path can
+        except PathError:
+            return j0, None, times, ()
+        no3, no9, non = self.none
+        Q, omega = no9, no3
+        if self.oriented:
+            if at.Q is None:
+                return j0, None, times, ()
+            Q, omega = at.Q.reshape(count, 9), at.omega
+        ref = rate = non
+        if self.c.time_varying:
+            index = s.ev.index
+            ref = np.array([index.reference(t) for t in times], float)
+            rate = np.array([index.rate(t) for t in times], float)
+        if at.p.shape != (count, 3) or at.v.shape != at.p.shape:
+            return j0, None, times, ()
+        return j0, at, times, (at.p, at.v, Q, omega, ref, rate)
+
+    def _commit(self, out: np.ndarray, at, i: int, times: list[float]) -> None:
+        """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it);
+        ``at``: the path's samples, the run's first at ``i``."""
+        c, s, ctl = self.c, self.s, self.ctl
+        sy, ssol, sM, sJ, _, sQ, sp = c.slices[:7]
+        n, m, _ = c.shapes
+        K = len(times)
+        Y, SOL = out[:, sy], out[:, ssol]
+        self.rec.add_rows(times, Y[:, :n], Y[:, n:], out[:, sM].reshape(K, n, n), out[:, sJ].reshape(K, m, n),
+                          (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
+                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n])
+        if K > 1:  # the state before the last row: the predictor's history as the steps between carried it
+            hist = [*s.prev, s.y, s.yd]
+            for j in range(K - 2):
+                hist += (Y[j], SOL[j])
+            s.prev[:] = hist[-2 * (PREDICTOR_POINTS - 1):]
+            s.y, s.yd = Y[K - 2], SOL[K - 2]
+            s.k += K - 1
+            c.steps += K - 1
+        last = out[K - 1]
+        rcond = float(last[-2])
+        c.apply(last, at.sample(i + K - 1), times[-1], rcond)
+        if ctl is not None:
+            ctl.watch.passed(K, rcond)
+            ctl.speed2 = float(last[-1])

@@ -1,0 +1,135 @@
+// Runs of ordinary steps in one C++ call (issue 28; kinredund/tracking/runs.py drives it): the StepCore's step
+// (step.cpp) repeated over presampled times with the GIL released, each step's output row written into a numpy
+// array that the caller made, the predictor's history carried from step to step as the Python driver carries it
+// (kinredund/tracking/compiled.py, CompiledStep._apply). The run ends at the first step that is not ordinary (its
+// status, nothing written) or that the fold and singularity watch must measure (its row written: the caller
+// finishes that step in Python), or after the last time given.
+#include "loop.hpp"
+
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/tuple.h>
+
+#include <string>
+#include <vector>
+
+#include "step.hpp"
+
+namespace nb = nanobind;
+
+namespace kinredund {
+
+namespace {
+
+using Rows = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Vec = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Sink = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+
+// The status of a step the watch measures (after step.cpp's codes and the driver's 8-10).
+constexpr int WATCH_DUE = 11;
+
+void check_rows(const Rows& a, size_t k, size_t width, const char* name) {
+  if (a.shape(0) != k || a.shape(1) != width)
+    throw nb::value_error((std::string(name) + " must have shape (" + std::to_string(k) + ", " +
+                           std::to_string(width) + ")").c_str());
+}
+
+const double* vector_of(const Vec& a, size_t size, const char* name) {
+  if (a.shape(0) != size)
+    throw nb::value_error((std::string(name) + " must have " + std::to_string(size) + " entries").c_str());
+  return a.data();
+}
+
+// The watch's gate (kinredund.tracking.watch.Watch.due_next): is a step with rcond measured?
+struct Gate {
+  bool on;
+  double near, drop, last;
+  long count, every;
+  bool due(double rcond) const {
+    return !(rcond > near) || rcond < drop * last || (count + 1) % every == 0;
+  }
+};
+
+}  // namespace
+
+// run(core, t (K), p, v (K x 3), Q (K x 9 or 0 x 9), omega (K x 3 or 0 x 3), ref, rate (K x n or 0 x n), y, yd,
+//     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every), out)
+// -> (steps done, status): status 0 after all K steps, else that of step ``done`` (WATCH_DUE: its row is written).
+nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows omega, Rows ref, Rows rate, Vec y0,
+                    Vec yd0, nb::list prev_list, Vec qdot0, double speed2, bool check_jump, nb::tuple watch,
+                    Sink out) {
+  StepCore& core = step_core(core_obj);
+  int n, m, row;
+  step_core_sizes(core, n, m, row);
+  const size_t N = static_cast<size_t>(n + m), K = t.shape(0);
+  check_rows(p, K, 3, "p");
+  check_rows(v, K, 3, "v");
+  const bool oriented = Q.shape(0) != 0;
+  if (oriented) {
+    check_rows(Q, K, 9, "Q");
+    check_rows(omega, K, 3, "omega");
+  }
+  const bool varying = ref.shape(0) != 0;
+  if (varying) {
+    check_rows(ref, K, n, "ref");
+    check_rows(rate, K, n, "rate");
+  }
+  if (out.shape(0) < K || out.shape(1) != static_cast<size_t>(row))
+    throw nb::value_error(("out must have at least " + std::to_string(K) + " rows of " + std::to_string(row) +
+                           " entries").c_str());
+  const size_t np_ = nb::len(prev_list);
+  if (np_ % 2 || np_ > 4) throw nb::value_error("prev: (y, ydot) pairs, at most two");
+  std::vector<Vec> keep(np_);  // the arrays stay alive while their pointers are used
+  std::vector<const double*> prev(np_);
+  for (size_t j = 0; j < np_; ++j) {
+    keep[j] = nb::cast<Vec>(prev_list[j]);
+    prev[j] = vector_of(keep[j], N, "prev entries");
+  }
+  const double* y = vector_of(y0, N, "y");
+  const double* yd = vector_of(yd0, N, "yd");
+  const double* qd = vector_of(qdot0, n, "qdot0");
+  Gate gate{nb::cast<bool>(watch[0]), nb::cast<double>(watch[1]), nb::cast<double>(watch[2]),
+            nb::cast<double>(watch[3]), nb::cast<long>(watch[4]), nb::cast<long>(watch[5])};
+  if (gate.every < 1) throw nb::value_error("the watch's exact interval must be >= 1");
+  size_t done = 0;
+  int status = 0;
+  {
+    nb::gil_scoped_release release;  // no Python object below: runs in threads compute in parallel
+    for (; done < K; ++done) {
+      const size_t k = done;
+      StepInput in{p.data() + 3 * k, v.data() + 3 * k, oriented ? Q.data() + 9 * k : nullptr,
+                   oriented ? omega.data() + 3 * k : nullptr, varying ? ref.data() + n * k : nullptr,
+                   varying ? rate.data() + n * k : nullptr};
+      double* o = out.data() + row * k;
+      status = step_core_advance(core, in, y, yd, prev, qd, speed2, check_jump, o);
+      if (status != 0) break;
+      const double rcond = o[row - 2];
+      if (gate.on && gate.due(rcond)) {
+        status = WATCH_DUE;
+        break;
+      }
+      // the driver's bookkeeping (CompiledStep._apply): (y, ydot) joins the history, which keeps two pairs
+      prev.push_back(y);
+      prev.push_back(yd);
+      if (prev.size() == 6) prev.erase(prev.begin(), prev.begin() + 2);
+      y = o;
+      yd = o + N;
+      qd = o + N;
+      if (gate.on) {
+        speed2 = o[row - 1];
+        gate.last = rcond;
+        ++gate.count;
+      }
+    }
+  }
+  return nb::make_tuple(done, status);
+}
+
+void bind_loop(nb::module_& m) {
+  m.attr("WATCH_DUE") = WATCH_DUE;
+  m.def("run_steps", &run_steps, nb::arg("core"), nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"),
+        nb::arg("omega"), nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"),
+        nb::arg("qdot0"), nb::arg("speed2"), nb::arg("check_jump"), nb::arg("watch"), nb::arg("out"),
+        "Ordinary steps of a StepCore over presampled times, the GIL released (see src/core/loop.cpp).");
+}
+
+}  // namespace kinredund

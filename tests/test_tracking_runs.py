@@ -1,0 +1,152 @@
+"""Runs of compiled steps in one C++ call (issue 28: :mod:`kinredund.tracking.runs`, ``src/core/loop.cpp``).
+
+``track()`` on the compiled backend advances in runs of ordinary steps, each one C++ call with the GIL released,
+the record written from the core's output rows. Each step of a run is the step
+:meth:`~kinredund.tracking.compiled.CompiledStep.step` takes alone: the same core function on the same inputs
+(the same path samples, the same predictor history, the same watch gate), so the record and the stepper's state
+are the same numbers, not merely close ones, and so are stops. The backends' agreement is
+``test_tracking_compiled.py``'s, which runs through these runs too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+from test_tracking_compiled import problem
+
+from kinredund.errors import TrackingError
+from kinredund.paths import Circle, FunctionPath
+from kinredund.tracking import Tracker, compiled, run, runs
+from kinredund.tracking.recorder import Recorder
+from kinredund.trajectory import Deferred
+
+pytestmark = pytest.mark.skipif(compiled.load_core() is None and not os.environ.get("CI"),
+                                reason="the compiled core is not built (CI requires it: test_core_build.py)")
+
+
+def _value(x):
+    return x() if isinstance(x, Deferred) else x
+
+
+def assert_identical(a, b, where: str = "") -> None:
+    """Every field of two records is the same (arrays bit for bit, NaN where NaN): the same operations on the same
+    inputs in the same order give the same floating-point results."""
+    for f in dataclasses.fields(a):
+        x, y = _value(getattr(a, f.name)), _value(getattr(b, f.name))
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y), err_msg=f"{where}{f.name}")
+        else:
+            assert x == y, f"{where}{f.name}: {x!r} != {y!r}"
+
+
+def user_path_case():
+    """The Panda wrist circle as a user's function (the path's samples one by one: Path.sample_many's default)."""
+    r, path, index, q0 = problem("panda_wrist15")
+
+    def fn(t):
+        s = path.sample(t)
+        return s.Q, s.p, s.omega, s.v
+
+    return r, FunctionPath(fn, period=path.period, has_orientation=True), index, q0
+
+
+def tracked(monkeypatch, name: str, batched: bool, **options):
+    """track() of the named problem with the runs (``batched``) or one step at a time (the runs' reference)."""
+    monkeypatch.setattr(run, "stepping", runs.stepping if batched else runs.one_by_one)
+    try:
+        return run.track(*(user_path_case() if name == "user_path" else problem(name)), backend="compiled",
+                         **options)
+    except TrackingError as err:
+        return err
+
+
+@pytest.mark.parametrize(("name", "options"), [
+    ("panda_elbow_circle", {"loops": 2}),  # a joint reaches its bound and leaves it (handed back, then runs again)
+    ("ur5_axis", {"loops": 2, "scheme": "velocity"}),  # the path's orientation, the velocity form
+    ("planar_time_varying", {"loops": 1, "limits": False}),  # the reference sampled per step with the path
+    ("example_4.1", {"loops": 2, "limits": False, "strict": False}),  # no step control, no watch
+    ("panda_wrist15", {"loops": 1, "steps_per_loop": 37}),  # runs cut at the watch's measured steps
+    ("user_path", {"loops": 1}),  # a path sampled one time at a time
+])
+def test_runs_record_the_same_numbers_as_single_steps(monkeypatch, name, options):
+    a = tracked(monkeypatch, name, False, **options)
+    b = tracked(monkeypatch, name, True, **options)
+    assert_identical(a, b)
+    assert a.meta == b.meta
+
+
+def test_a_stop_in_a_run_is_the_same_stop(monkeypatch):
+    a = tracked(monkeypatch, "panda_pose_infeasible", False, loops=2)
+    b = tracked(monkeypatch, "panda_pose_infeasible", True, loops=2)
+    assert isinstance(a, TrackingError) and isinstance(b, TrackingError)
+    assert (b.cause, b.t) == (a.cause, a.t)
+    np.testing.assert_array_equal(b.q, a.q)
+    assert_identical(a.partial, b.partial, "partial.")
+
+
+def test_runs_take_many_steps_per_call_and_leave_the_state_of_single_steps():
+    r, path, index, q0 = problem("panda_elbow_circle")
+    dt = path.period / 200
+    single = Tracker(r, path, index, q0, dt, backend="compiled")
+    batched = Tracker(r, path, index, q0, dt, backend="compiled")
+    rec = Recorder(batched.stepper)
+    advance = runs.stepping(batched, rec)
+    taken = []
+    while sum(taken) < 300:
+        taken.append(advance(300 - sum(taken)))
+    for _ in range(300):
+        single.step()
+    assert sum(taken) == 300 and len(rec) == 300
+    assert max(taken) >= 20  # whole runs between the watch's measured steps (every 32nd)
+    a, b = single.stepper, batched.stepper
+    assert (b.t, b.k) == (a.t, a.k)
+    for key in ("q", "lam", "qdot", "lamdot", "y", "yd", "M"):
+        np.testing.assert_array_equal(getattr(b, key), getattr(a, key), err_msg=key)
+    assert len(b.prev) == len(a.prev)
+    for u, v in zip(b.prev, a.prev, strict=True):
+        np.testing.assert_array_equal(u, v)
+    assert b.control.watch.gate == a.control.watch.gate and b.control.speed2 == a.control.speed2
+    assert batched.compiled.steps == single.compiled.steps
+    assert batched.compiled.handed_back == single.compiled.handed_back
+
+
+def test_the_core_refuses_arrays_of_the_wrong_shape():
+    r, path, index, q0 = problem("example_4.1")
+    tr = Tracker(r, path, index, q0, path.period / 100, backend="compiled", limits=False)
+    s, core = tr.stepper, compiled.load_core()
+    t = np.array([s.dt, 2 * s.dt])
+    p = np.zeros((2, 3))
+    none = np.zeros((0, 9)), np.zeros((0, 3)), np.zeros((0, s.n)), np.zeros((0, s.n))
+    watch = (True, 1e-4, 0.8, 1.0, 0, 32)
+    with pytest.raises(ValueError, match=r"out must have at least 2 rows"):
+        core.run_steps(tr.compiled.core, t, p, p, *none, s.y, s.yd, s.prev, s.qdot, 0.0, True, watch, np.zeros((1, 5)))
+    with pytest.raises(ValueError, match=r"v must have shape \(2, 3\)"):
+        core.run_steps(tr.compiled.core, t, p, p[:1], *none, s.y, s.yd, s.prev, s.qdot, 0.0, True, watch,
+                       np.zeros((2, 5)))
+
+
+@pytest.mark.parametrize("kw", [{}, {"frenet": True}, {"orientation": np.eye(3)},
+                                {"orientation": np.diag([1.0, -1.0, -1.0]), "roll_amplitude": 0.3}])
+def test_a_circle_samples_many_times_as_it_samples_each(kw):
+    path = Circle(np.array([0.4, -0.1, 0.5]), 0.12, 0.3, start_angle=0.7, normal=(0.2, 0.3, 0.9), **kw)
+    times = (0.013 * np.arange(40) - 0.1).tolist()
+    many = path.sample_many(times)
+    for k, want in enumerate(path.sample(t) for t in times):
+        got = many.sample(k)
+        for name in ("p", "v", "Q", "omega"):  # the same operations: the same numbers
+            a, b = getattr(got, name), getattr(want, name)
+            assert (a is None) == (b is None), name
+            if a is not None:
+                np.testing.assert_array_equal(a, b, err_msg=name)
+                np.testing.assert_array_equal(getattr(many, name)[k], b, err_msg=f"stacked {name}")
+
+
+def test_progress_is_told_of_every_step_in_order():
+    r, path, index, q0 = problem("panda_wrist15")
+    seen = []
+    tr = run.track(r, path, index, q0, loops=1, steps_per_loop=60, backend="compiled",
+                   progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(k, 60) for k in range(1, 61)] and len(tr.t) == 61
