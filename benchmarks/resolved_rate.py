@@ -115,8 +115,8 @@ KEYS = {
     "limits_backend": "the backend the limits-only run takes by default",
     "scene_breakdown_us": "the scene step's exclusive times per step [us] over 200 steps (means less the slowest "
                           "tenth): core (the compiled distance query: broadphase and coal), query (the Python around "
-                          "it: SceneClearance._query, Workspace.query), rows (the stepper's row events, dip test, "
-                          "row part of an evaluation), qp (the rate QP at a weakly active row), rest (the step as "
+                          "it: SceneClearance._query, Workspace.query), rows (the stepper's row events and dip test), "
+                          "qp (the rate QP at a weakly active row), rest (the step as "
                           "without a scene), total (their sum, with ~1 us per timed call)",
     "scene_query_share": "scene_breakdown_us: (core + query) / total, the distance queries' share of the scene step",
     "scene_pairs": "pairs the scene checks (rows of the constraint)",
@@ -336,19 +336,18 @@ def scene_breakdown(tracker, steps: int = 200) -> dict:
     interrupted): ``core``, the compiled distance query itself (broadphase and coal, ``DistanceQuery.query``);
     ``query``, the Python around it (``SceneClearance._query`` and ``Workspace.query``: the kept last query, the
     values' lower bounds, the arrays); ``rows``, the stepper's handling of the rows (events, the dip test and
-    its samples, the rows' part of an evaluation); ``qp``, the rate QP at a weakly active row; ``rest``, the
-    step as without a scene (task, predictor, corrector, limits, watch); ``total``, their sum (the step with
-    these timers in: about 1 us per timed call more). Without the compiled core, ``core`` is 0 and the Python
-    query is all in ``query``."""
+    its samples); ``qp``, the rate QP at a weakly active row; ``rest``, the step as without a scene (task,
+    predictor, corrector, limits, watch; with a row active, also the rows' share of the system); ``total``,
+    their sum (the step with these timers in: about 1 us per timed call more). Without the compiled core,
+    ``core`` is 0 and the Python query is all in ``query``."""
     stepper = tracker.stepper
     constraint = stepper.general[0]
     ws = constraint.scene.workspace()
     sections, saved = _Sections(), ws._core
     if saved is not None:
         ws._core = _TimedCore(saved, sections)
-    patched = [(constraint, "_query", "query"), (ws, "query", "query"), (stepper.ev, "point", "rest"),
-               (stepper, "_row_events", "rows"), (stepper, "_row_dips", "rows"), (stepper, "evaluate", "rows"),
-               (stepper, "_qp_keeps_row", "qp")]
+    patched = [(constraint, "_query", "query"), (ws, "query", "query"), (stepper, "_row_events", "rows"),
+               (stepper, "_row_dips", "rows"), (stepper, "_qp_keeps_row", "qp")]
     for obj, attr, part in patched:
         setattr(obj, attr, sections.wrap(part, getattr(obj, attr)))
     step = sections.wrap("rest", tracker.step)
