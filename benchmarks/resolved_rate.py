@@ -37,8 +37,12 @@ that drift and background load hit them alike (``in_turn_us``). With the joint l
 pink's limited step (``limits_over_pink``), and the step over one loop of :data:`SWITCHING_CIRCLE`,
 where joint 4 meets its limit and leaves it (median, mean, the median of the steps with joint 4 held and no
 switch, the rate QP's share; the medians again on the Python stepper). With a Scene (issue 27):
-the step with five obstacles and the robot's own pairs held apart against the step with the limits only, in
-turn (``scene_over_limits``), and the share of it in the distance queries (``scene_query_share``). Run:
+the step with five obstacles and the robot's own pairs held apart (on the Python stepper: a scene's rows are
+held there only) against the step with the limits only, in turn: on the same stepper (``scene_over_limits``,
+the issue's <= 1.5) and against the default backend's limits-only step (``scene_over_default``, the compiled
+core where it is built); where the scene step's time goes (``scene_breakdown_us``: the compiled distance
+query, the Python around it, the stepper's rows, the rate QP, the rest) and the queries' share
+(``scene_query_share``). Run:
 ``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
 ``pip install .[bench]``; without it the pink columns are left out). The JSON holds ``robots`` (the
 figures per robot) and ``keys`` (what each figure times).
@@ -46,6 +50,7 @@ figures per robot) and ``keys`` (what each figure times).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -104,9 +109,21 @@ KEYS = {
     "predictor_miss_median": "median |q_predicted - q_corrected| [rad] of the default mode's predictor, second loop",
     "predictor_miss_max": "largest |q_predicted - q_corrected| [rad], second loop",
     "scene_in_turn_us": "Tracker.step() with a five-object scene and the self pairs held apart (scene=, 2 cm and "
-                        "1 cm; SCENE_OBJECTS, none active on the path) and with the limits only, in turn (Panda)",
-    "scene_over_limits": "scene_in_turn_us: step_scene_us / step_limits_us (issue 27's target <= 1.5)",
-    "scene_query_share": "share of the scene step's time in SceneClearance's distance queries (coal, broadphase, rows)",
+                        "1 cm; SCENE_OBJECTS, none active on the path; the Python stepper: a scene's rows are held "
+                        "there only) in turn with the limits-only step on the same Python stepper (Panda)",
+    "scene_over_limits": "scene_in_turn_us: step_scene_us / step_limits_us, the same backend (issue 27's target "
+                         "<= 1.5)",
+    "scene_default_in_turn_us": "the scene step in turn with the limits-only step on the default backend (the "
+                                "compiled core where it is built)",
+    "scene_over_default": "scene_default_in_turn_us: step_scene_us / step_limits_us, default against default",
+    "scene_backend": "the backend the scene run takes (python: compiled.unsupported names why)",
+    "limits_backend": "the backend the limits-only run takes by default",
+    "scene_breakdown_us": "the scene step's exclusive times per step [us] over 200 steps (means less the slowest "
+                          "tenth): core (the compiled distance query: broadphase and coal), query (the Python around "
+                          "it: SceneClearance._query, Workspace.query), rows (the stepper's row events and dip test), "
+                          "qp (the rate QP at a weakly active row), rest (the step as "
+                          "without a scene), total (their sum, with ~1 us per timed call)",
+    "scene_query_share": "scene_breakdown_us: (core + query) / total, the distance queries' share of the scene step",
     "scene_pairs": "pairs the scene checks (rows of the constraint)",
     "scene_pairs_near": "of those, the pairs within the influence distance (computed by coal) at the end",
     "default_over_pink": "in_turn_us: step_default_us / pink_step_us",
@@ -291,13 +308,82 @@ SCENE_OBJECTS = (("table", "box", [0.8, 0.8, 0.04], [0.45, 0.0, -0.05]),
                  ("lamp", "sphere", 0.05, [0.0, 0.0, 1.25]))
 
 
+class _Sections:
+    """Exclusive times [s] of named parts of a call tree: a part's time leaves out the parts it calls."""
+
+    def __init__(self):
+        self.spent, self._stack = {}, []
+
+    def wrap(self, name: str, fn):
+        self.spent.setdefault(name, 0.0)
+
+        def timed(*args, **kwargs):
+            now = time.perf_counter()
+            if self._stack:  # pause the caller's part
+                outer, since = self._stack[-1]
+                self.spent[outer] += now - since
+            self._stack.append((name, now))
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                end = time.perf_counter()
+                self.spent[name] += end - self._stack.pop()[1]
+                if self._stack:
+                    self._stack[-1] = (self._stack[-1][0], end)
+        return timed
+
+
+class _TimedCore:
+    """The compiled distance query (``kinredund._core.DistanceQuery``) with its ``query`` timed."""
+
+    def __init__(self, core, sections: _Sections):
+        self.query, self.closest = sections.wrap("core", core.query), core.closest
+
+
+def scene_breakdown(tracker, steps: int = 200) -> dict:
+    """Where the scene step's time goes: the exclusive times per step [us] (a part leaves out the parts it
+    calls), means over ``steps`` steps of ``tracker`` less the slowest tenth (steps the machine's load
+    interrupted): ``core``, the compiled distance query itself (broadphase and coal, ``DistanceQuery.query``);
+    ``query``, the Python around it (``SceneClearance._query`` and ``Workspace.query``: the kept last query, the
+    values' lower bounds, the arrays); ``rows``, the stepper's handling of the rows (events, the dip test and
+    its samples); ``qp``, the rate QP at a weakly active row; ``rest``, the step as without a scene (task,
+    predictor, corrector, limits, watch; with a row active, also the rows' share of the system); ``total``,
+    their sum (the step with these timers in: about 1 us per timed call more). Without the compiled core,
+    ``core`` is 0 and the Python query is all in ``query``."""
+    stepper = tracker.stepper
+    constraint = stepper.general[0]
+    ws = constraint.scene.workspace()
+    sections, saved = _Sections(), ws._core
+    if saved is not None:
+        ws._core = _TimedCore(saved, sections)
+    patched = [(constraint, "_query", "query"), (ws, "query", "query"), (stepper, "_row_events", "rows"),
+               (stepper, "_row_dips", "rows"), (stepper, "_qp_keeps_row", "qp")]
+    for obj, attr, part in patched:
+        setattr(obj, attr, sections.wrap(part, getattr(obj, attr)))
+    step = sections.wrap("rest", tracker.step)
+    per = {name: np.empty(steps) for name in ("core", "query", "rows", "qp", "rest", "total")}
+    try:
+        for k in range(steps):
+            for name in sections.spent:
+                sections.spent[name] = 0.0
+            step()
+            for name in per:
+                per[name][k] = sections.spent.get(name, 0.0) if name != "total" else sum(sections.spent.values())
+    finally:
+        for obj, attr, _ in patched:
+            del obj.__dict__[attr]
+        ws._core = saved
+    calm = per["total"] <= np.percentile(per["total"], 90)  # the steps the machine's load did not interrupt
+    mean = {k: float(v[calm].mean() * 1e6) for k, v in per.items()}
+    return {"scene_breakdown_us": mean, "scene_query_share": (mean["core"] + mean["query"]) / mean["total"]}
+
+
 def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
     """The step with :data:`SCENE_OBJECTS` and the robot's own pairs held apart (2 cm, 1 cm) against the step
-    with the limits only, in turn; the share of the scene step spent in the distance queries."""
-    import time
-
+    with the limits only, in turn: on the same (Python) stepper, and against the default backend's limits-only
+    step (the compiled core where it is built; a scene's rows are held by the Python stepper only). Then where
+    the scene step's time goes (:func:`scene_breakdown`)."""
     import kinredund
-    from kinredund.tracking.constraints.scene import SceneClearance
 
     scene = kinredund.Scene(robot)
     for name, shape, size, pos in SCENE_OBJECTS:
@@ -306,28 +392,19 @@ def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
         else:
             scene.add_sphere(name, size, pos)
     with_scene = Tracker(robot, path, index, q0, dt, scene=scene)
-    # the Python stepper for both: a scene's rows are held by it (the compiled core takes the limits-only step)
-    plain = Tracker(robot, path, index, q0, dt, limits=True, backend="python")
+    python = Tracker(robot, path, index, q0, dt, limits=True, backend="python")
+    default = Tracker(robot, path, index, q0, dt, limits=True)
+    # two pairs in turn (one step of each per round, each step after the other's: their cache misses alike)
+    same = {k: v["median_us"] for k, v in time_in_turn({"step_scene_us": with_scene.step,
+                                                        "step_limits_us": python.step}, steps, 5).items()}
+    other = {k: v["median_us"] for k, v in time_in_turn({"step_scene_us": with_scene.step,
+                                                         "step_limits_us": default.step}, steps, 5).items()}
     constraint = with_scene.stepper.general[0]
-    spent, query = [0.0], SceneClearance._query
-
-    def timed_query(q, rows=True):
-        t0 = time.perf_counter()
-        try:
-            return query(constraint, q, rows)
-        finally:
-            spent[0] += time.perf_counter() - t0
-
-    constraint._query = timed_query
-    turn = {k: v["median_us"] for k, v in time_in_turn({"step_scene_us": with_scene.step,
-                                                        "step_limits_us": plain.step}, steps, 5).items()}
-    spent[0] = 0.0
-    t0 = time.perf_counter()
-    for _ in range(200):
-        with_scene.step()
-    total = time.perf_counter() - t0
-    return {"scene_in_turn_us": turn, "scene_over_limits": turn["step_scene_us"] / turn["step_limits_us"],
-            "scene_query_share": spent[0] / total, "scene_pairs": constraint.size,
+    return {"scene_in_turn_us": same, "scene_default_in_turn_us": other,
+            "scene_over_limits": same["step_scene_us"] / same["step_limits_us"],
+            "scene_over_default": other["step_scene_us"] / other["step_limits_us"],
+            "scene_backend": with_scene.backend, "limits_backend": default.backend,
+            **scene_breakdown(with_scene), "scene_pairs": constraint.size,
             "scene_pairs_near": len(scene.distance_rows(with_scene.q, constraint.influence).pairs)}
 
 
@@ -424,11 +501,14 @@ def main() -> None:
               f"{panda['switching_held_step_us']:.3g} us (the Python stepper "
               f"{panda['switching_held_step_python_us']:.3g} us)")
     if "scene_over_limits" in panda:
-        turn = panda["scene_in_turn_us"]
-        print(f"Panda, five-object scene and self pairs held: step {turn['step_scene_us']:.3g} us against "
-              f"{turn['step_limits_us']:.3g} us with the limits only: {panda['scene_over_limits']:.2f} (target <= "
-              f"1.5); {100 * panda['scene_query_share']:.2g} % of it in the distance queries "
-              f"({panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
+        same, other, part = panda["scene_in_turn_us"], panda["scene_default_in_turn_us"], panda["scene_breakdown_us"]
+        print(f"Panda, five-object scene and self pairs held ({panda['scene_backend']} stepper): step "
+              f"{same['step_scene_us']:.3g} us against {same['step_limits_us']:.3g} us with the limits only on the "
+              f"same stepper: {panda['scene_over_limits']:.2f} (target <= 1.5); against the default limits-only "
+              f"step ({panda['limits_backend']}, {other['step_limits_us']:.3g} us): {panda['scene_over_default']:.2f}")
+        print("  per scene step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in part.items())
+              + f"; {100 * panda['scene_query_share']:.2g} % in the distance queries (core + query; "
+              f"{panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
     for name, r in results.items():
         print(f"{name}: track() {r['track_step_us']:.3g} us per step against Tracker.step() {r['tracker_step_us']:.3g} "
               f"us: ratio {r['track_over_step']:.2f} (target <= 1.3); {r['track_read_over_step']:.2f} with its "

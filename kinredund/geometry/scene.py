@@ -362,6 +362,12 @@ class Scene:
         ks, d, n, pa, pb, _ = self.workspace().query(q, influence)
         return Distances(q.copy(), self._names_of(ks), d, pa, pb, n, influence, len(self._pair_names))
 
+    def pair_distances(self, q, influence: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(the pairs' positions in :attr:`pairs`, their signed distances [m]): :meth:`distances` without the
+        record (names, witness points), for a caller that takes values at every step (a constraint's)."""
+        ks, d, *_ = self.workspace().query(self._q(q), self._influence(influence))
+        return ks, d
+
     def min_distance(self, q) -> float:
         """The smallest signed distance [m] over every checked pair at q (inf when the scene checks none)."""
         if not self._pair_names:

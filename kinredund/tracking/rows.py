@@ -171,6 +171,9 @@ class GeneralRows:
     def _segment_bounds(self, q0, q1, c0, c1, move) -> np.ndarray:
         """Lower bounds on every general row along the step from q0 to q1 (-inf where a constraint knows none:
         :meth:`Constraint.segment_lower_bounds`)."""
+        if len(self.general) == 1:  # the common case (one Scene), without the slices and the concatenation
+            bound = self.general[0].segment_lower_bounds(q0, q1, c0, c1, move)
+            return np.full(len(c0), -np.inf) if bound is None else bound
         out, k = [], 0
         for c in self.general:
             part = slice(k, k + c.size)
@@ -195,6 +198,8 @@ class GeneralRows:
         if not self.row_pairs:
             return []
         values = self._row_values(self.q)
+        if not values.min() < -ROW_TOL and not self.rows:  # the common case: one reduction
+            return []
         out = [(int(f), "row_reach") for f in np.flatnonzero(values < -ROW_TOL) if int(f) not in self.rows]
         if self.rows:
             scale = max(1.0, float(np.abs(self.pt.grad).max()))

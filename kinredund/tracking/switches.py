@@ -109,9 +109,10 @@ class SwitchLocation:
         q0, q1, v0, v1 = snap.q, self.q, snap.qdot, self.qdot
         c1, c0 = self._row_values(q1), self._row_values(q0)  # c0: the last step's end, kept
         move = np.maximum(np.abs(q1 - q0), h * np.maximum(np.abs(v0), np.abs(v1))) + 0.25 * h * np.abs(v1 - v0)
-        maybe = self._segment_bounds(q0, q1, c0, c1, move) < -ROW_TOL
-        if not maybe.any():  # the common case: no row can dip
+        bound = self._segment_bounds(q0, q1, c0, c1, move)
+        if not bound.min() < -ROW_TOL:  # the common case: no row can dip (one reduction)
             return []
+        maybe = bound < -ROW_TOL
         maybe[list(set(self.rows) | set(snap.rows))] = False
         maybe &= (c0 >= -ROW_TOL) & (c1 >= -ROW_TOL)
         if not maybe.any():

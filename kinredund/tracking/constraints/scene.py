@@ -145,6 +145,7 @@ class SceneClearance(Constraint):
         self._extent = np.where(robot.revolute, np.inf, np.maximum(np.abs(robot.lower), np.abs(robot.upper)))
         self._bound = scene.motion_bound(self._extent)[self.index]
         self._slides = np.flatnonzero(np.isfinite(self._extent))  # the prismatic joints (the box's only sides)
+        self._revolute = not len(self._slides)  # no side: every q is in the box
         self._local = threading.local()
 
     def __getstate__(self) -> dict:
@@ -167,37 +168,41 @@ class SceneClearance(Constraint):
         return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
 
     def _query(self, q: np.ndarray, rows: bool = True) -> tuple:
-        """(the scene's record within the influence, its entries that are rows here, their rows, c (size,),
-        G (size, n) or None) at q; G only where ``rows`` (a values-only query skips the Jacobians). Kept for
-        the last q of this thread (the stepper asks for values, rows and curvature at one q)."""
+        """(the scene's record within the influence (None for values only), its entries that are rows here, their
+        rows, c (size,), G (size, n) or None) at q; G only where ``rows`` (a values-only query skips the
+        Jacobians and the record). Kept for the last q of this thread, by the bytes of q (the stepper asks for
+        values, rows and curvature at one q; equal bytes are equal values, so a kept answer is never stale)."""
         if self.scene.pairs is not self._scene_pairs:
             raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
         q = np.asarray(q, float)
-        last = getattr(self._local, "last", None)
-        if last is not None and (last[1][4] is not None or not rows) and np.array_equal(last[0], q):
-            return last[1]
-        if not rows and last is not None and self._boxed(q) and self._boxed(last[0]):
-            # far from every clearance: the last exact values, lowered
-            lower = last[1][3] - self._bound @ np.abs(q - last[0])
-            if float(lower.min()) > SKIP_MARGIN:
-                return (None, None, None, lower, None)
+        key = q.tobytes()
+        last = self._local.__dict__.get("last")
+        if last is not None:
+            if key == last[0] and (last[2][4] is not None or not rows):
+                return last[2]
+            if not rows and (self._revolute or (self._boxed(q) and self._boxed(last[1]))):
+                # far from every clearance: the last exact values, lowered
+                lower = last[2][3] - self._bound @ np.abs(q - last[1])
+                if lower.min() > SKIP_MARGIN:
+                    return (None, None, None, lower, None)
+        c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
         if rows:
             rec = self.scene.distance_rows(q, self.influence)
-            d, index = rec.d, rec.index
-        else:
-            rec = self.scene.distances(q, self.influence)
-            d, index = rec.distance, np.array([self._pair_index[p] for p in rec.pairs], dtype=int)
-        keep = self._row[index]
-        mine = np.flatnonzero(keep >= 0)
-        here = keep[mine]
-        c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
-        c[here] = d[mine] - self.clearances[here]
-        G = None
-        if rows:
+            keep = self._row[rec.index]
+            mine = np.flatnonzero(keep >= 0)
+            here = keep[mine]
+            c[here] = rec.d[mine] - self.clearances[here]
             G = np.zeros((self.size, len(q)))
             G[here] = rec.G[mine]
-        out = (rec, mine, here, c, G)
-        self._local.last = (q.copy(), out)
+            out = (rec, mine, here, c, G)
+        else:  # the values alone: the pairs' positions and distances (no record, no names)
+            index, d = self.scene.pair_distances(q, self.influence)
+            keep = self._row[index]
+            mine = keep >= 0
+            here = keep[mine]
+            c[here] = d[mine] - self.clearances[here]
+            out = (None, None, None, c, None)
+        self._local.last = (key, q.copy(), out)
         return out
 
     def _boxed(self, q: np.ndarray) -> bool:
@@ -212,7 +217,7 @@ class SceneClearance(Constraint):
         """(c0 + c1 - B move) / 2 [m]: pair k's distance changes by at most B_k . |dq| along the way
         (``Scene.motion_bound``), so at any point of it c_k >= c0_k - B_k . m0 and >= c1_k - B_k . m1 with
         m0 + m1 <= move; None where q0 or q1 slid a prismatic joint beyond its limits' extent."""
-        if not (self._boxed(np.asarray(q0, float)) and self._boxed(np.asarray(q1, float))):
+        if not (self._revolute or (self._boxed(np.asarray(q0, float)) and self._boxed(np.asarray(q1, float)))):
             return None
         return 0.5 * (np.asarray(c0) + np.asarray(c1) - self._bound @ np.asarray(move, float))
 
