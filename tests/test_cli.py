@@ -370,6 +370,21 @@ def test_path_options_that_the_path_does_not_take_are_refused(tmp_path, capsys):
         assert words in err, (argv, err)
 
 
+def test_a_path_file_moving_in_z_is_refused_for_a_planar_task(tmp_path, capsys):
+    """The planar task follows x and y: a file whose z moves was tracked as its shadow on the plane, silently."""
+    ts = np.linspace(0.0, 4.0, 41)
+    xy = np.column_stack([3.0 + 0.5 * np.cos(np.pi * ts / 2), 3.0 + 0.5 * np.sin(np.pi * ts / 2)])
+    f = tmp_path / "helix.json"
+    f.write_text(json.dumps({"t": ts.tolist(), "p": np.column_stack([xy, 0.05 * np.sin(np.pi * ts / 2)]).tolist()}))
+    assert main(["track", "planar3r", "--path", "file", "--path-file", str(f), "--quiet"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "moves in z (from -0.05 to 0.05 m)" in err and "'planar' task follows x and y only" in err, err
+    assert "Allowed: one z for every sample" in err and "--task position" in err
+    f.write_text(json.dumps({"t": ts.tolist(), "p": np.column_stack([xy, np.full(len(ts), 0.2)]).tolist()}))
+    assert main(["track", "planar3r", "--path", "file", "--path-file", str(f), "--index", "min-norm", "--quiet",
+                 "--steps", "40"]) == 0  # one plane z: the file's plane, nothing dropped but the constant
+
+
 def test_reproduce_refuses_tracking_options_where_they_do_not_apply(capsys):
     """--loops, --steps, --mode and --scheme apply to 4.1-4.3: given to 3.2 or 6.x (which fix their own) they are
     refused naming them, before any work (they were ignored: exit 0 with the reproduction's own settings)."""
