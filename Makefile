@@ -22,12 +22,13 @@ $(DEPS_STAMP): pyproject.toml | $(BIN)/python
 # Always reinstall the package itself as a built wheel (not editable), so the tests see what users get.
 # The compiled core (CMakeLists.txt, src/core/) builds against the venv's own pin (its build requirements are in
 # the dev extra, so no isolated build environment is downloaded again); CMake keeps its objects in build/.
-# The built core is also copied into the checkout's kinredund/ (git ignores *.so), so that what runs the checkout
-# first (the benchmarks: benchmarks/_bench.py; PYTHONPATH=$$PWD pytest) runs the compiled core as installed too.
+# The built core goes into site-packages only: the tests and the benchmarks (benchmarks/_bench.py) import the
+# installed package. A checkout on PYTHONPATH has no core (its runs take the Python stepper; a full benchmark
+# run refuses it). The rm clears the copy that older Makefiles put into the checkout, which would shadow a
+# newer build under PYTHONPATH=$$PWD (.gitignore keeps such a file out of commits).
 install: $(DEPS_STAMP)
 	$(BIN)/python -m pip install --quiet --no-deps --force-reinstall --no-build-isolation .
-	rm -f kinredund/_core.*.so
-	cp $(VENV)/lib/python*/site-packages/kinredund/_core.*.so kinredund/ 2>/dev/null || true
+	rm -f kinredund/_core*.so
 
 demo: install
 	$(BIN)/kinredund demo --out $(OUT)
@@ -67,4 +68,4 @@ bench: install
 	for b in benchmarks/[!_]*.py; do $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info $(OUT) docs/api kinredund/_core.*.so
+	rm -rf $(VENV) build *.egg-info $(OUT) docs/api kinredund/_core*.so

@@ -13,6 +13,12 @@ Every script takes ``--smoke``: its smallest setting (every stage once, on the l
 suite runs (tests/test_benchmarks_smoke.py) so that no script rots; its figures mean nothing. A peer
 package that is not installed (pink, daqp, roboticstoolbox-python: ``pip install .[bench]``) is skipped
 with a printed line (:func:`optional`), never a crash.
+
+The scripts time the installed package (``make install`` builds its compiled core into site-packages), not the
+checkout: nothing here puts the checkout on ``sys.path``. A kinredund imported from a source checkout (through
+``PYTHONPATH``) has no compiled core, so it would time the Python paths only: a full run refuses it (a
+``--smoke`` run says so on stderr and goes on); the JSON's ``machine`` says which kinredund ran and whether
+its compiled core was loaded (:func:`installed`).
 """
 
 from __future__ import annotations
@@ -29,7 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+try:  # the installed package, never the checkout: its compiled core is built into site-packages only (make install)
+    import kinredund
+except ImportError as err:  # pragma: no cover - depends on the environment
+    raise SystemExit(f"the benchmarks time the installed kinredund, which this Python ({sys.executable}) cannot "
+                     f"import ({err}): run `make install` and then `make bench` (or .venv/bin/python "
+                     "benchmarks/NAME.py)") from err
 
 
 def time_calls(fn, repeat: int = 2000, warmup: int = 50) -> dict:
@@ -118,7 +129,36 @@ def machine() -> dict:
     import os
 
     return {"date": date.today().isoformat(), "python": platform.python_version(),
-            "machine": platform.machine(), "cpus": os.cpu_count(), "processor": platform.processor()}
+            "machine": platform.machine(), "cpus": os.cpu_count(), "processor": platform.processor(),
+            "kinredund": installed()}
+
+
+def installed() -> dict:
+    """Which kinredund runs: its folder, whether that is a source checkout (a folder with pyproject.toml above
+    the package, as ``PYTHONPATH=$PWD`` gives) and whether its compiled core loaded (else the import error)."""
+    from kinredund.tracking.compiled import core_error, load_core
+
+    folder = Path(kinredund.__file__).resolve().parent
+    return {"path": str(folder), "checkout": (folder.parent / "pyproject.toml").is_file(),
+            "compiled_core": load_core() is not None, "core_error": core_error()}
+
+
+def check_installed(smoke: bool) -> dict:
+    """Refuse (SystemExit) to time a checkout's kinredund without the compiled core, which would time the Python
+    paths only; on ``smoke`` (no figure means anything) print why on stderr and go on. An installed kinredund
+    without the core (where it could not be built: the Python fallback) is timed, with a line on stderr."""
+    where = installed()
+    if where["compiled_core"]:
+        return where
+    why = f"kinredund ({where['path']}) runs without its compiled core ({where['core_error']})"
+    if where["checkout"]:
+        why = (f"{why}: it is imported from a source checkout (PYTHONPATH?), which has no compiled core; the "
+               "benchmarks time the installed package: run `make install`, then `make bench` or .venv/bin/python "
+               "benchmarks/NAME.py without the checkout on PYTHONPATH")
+        if not smoke:
+            raise SystemExit(why)
+    print(f"note: {why}; the figures time the Python paths", file=sys.stderr)
+    return where
 
 
 def print_table(rows: list[list], header: list[str]) -> None:
@@ -133,11 +173,20 @@ def print_table(rows: list[list], header: list[str]) -> None:
 
 def parser(description: str) -> argparse.ArgumentParser:
     """The common command line: ``--json FILE`` and ``--smoke``."""
-    p = argparse.ArgumentParser(description=description)
+    p = _Parser(description=description)
     p.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
     p.add_argument("--smoke", action="store_true",
                    help="the smallest setting: check that the script runs (its figures mean nothing)")
     return p
+
+
+class _Parser(argparse.ArgumentParser):
+    """Parses as argparse does, then :func:`check_installed` (every script parses its command line first)."""
+
+    def parse_args(self, args=None, namespace=None):
+        parsed = super().parse_args(args, namespace)
+        check_installed(getattr(parsed, "smoke", False))
+        return parsed
 
 
 def optional(*modules: str, what: str) -> bool:

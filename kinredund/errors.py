@@ -313,7 +313,8 @@ MAX_SAMPLES, MAX_STARTS, MAX_PLACEMENTS, MAX_WORKERS, MAX_JOINTS = (
     SIZES[k][0] for k in ("samples", "starts", "placements", "workers", "joints"))
 
 
-def check_size(value, what: str, size: str, error: type[KinredundError] = OptionError, minimum: int = 1) -> int:
+def check_size(value, what: str, size: str, error: type[KinredundError] = OptionError, minimum: int = 1,
+               per: tuple[int, str] = (1, "")) -> int:
     """``value`` as an int in ``minimum`` .. ``SIZES[size]``, else ``error`` naming ``what``, the limit and why.
 
     Args:
@@ -321,11 +322,14 @@ def check_size(value, what: str, size: str, error: type[KinredundError] = Option
         what: its name in the message (e.g. ``"loops x samples per loop"``).
         size: a key of :data:`SIZES` (``samples``, ``starts``, ``placements``, ``workers``, ``joints``, and the
             planners' ``plan_samples``, ``candidates``, ``refinements``, ``rounds``, ``iterations``, ``roadmap``).
+        per: (k, why) where each unit of ``value`` is k of ``size`` later (e.g. a planner's start count seeds one
+            solve of 4 x as many starts): the limit is ``SIZES[size] // k``, and the message says why.
     """
     n = check_count(value, minimum, what, error)
-    limit, why = SIZES[size]
-    if n > limit:
-        raise error(f"{what} must be at most {limit} ({why}), got {n}")
+    (full, why), (k, share) = SIZES[size], per
+    if n > full // k:
+        why = f"{share}, which takes at most {full}: {why}" if k > 1 else why
+        raise error(f"{what} must be at most {full // k} ({why}), got {n}")
     return n
 
 

@@ -32,9 +32,7 @@ def test_every_script_is_smoke_run():
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in SCRIPTS])
 def test_benchmark_runs_at_its_smallest_setting(name, tmp_path):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(BENCHMARKS.parent),
-                                                                     os.environ.get("PYTHONPATH")])),
-           "MPLBACKEND": "Agg"}
+    env = {**os.environ, "MPLBACKEND": "Agg"}  # the installed kinredund, as `make bench` runs them (_bench.py)
     out = tmp_path / "figures.json"
     run = subprocess.run([sys.executable, str(BENCHMARKS / f"{name}.py"), "--smoke", "--json", str(out)],
                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=HANG)
@@ -64,3 +62,35 @@ def test_peers_verdict_takes_no_ratio_against_a_drift_at_rounding():
     assert v["drift_at_rounding"] and v["smallest_peer_drift"] == 3.85e-3
     res["variants"]["constant"]["augmented"] = {**ok, "drift": [1e-12]}
     assert peers.verdict(res)["constant"]["smallest_peer_drift_ratio"] == pytest.approx(3.85e9, rel=1e-12)
+
+
+def _kinredund_file(*setup: str) -> str:
+    """Where a fresh Python (no PYTHONPATH, in a scratch folder) imports kinredund from, after ``setup``."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    code = "; ".join(["import sys", *setup, "import kinredund", "print(kinredund.__file__)"])
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=BENCHMARKS,
+                         timeout=HANG)
+    assert run.returncode == 0, run.stderr
+    return run.stdout.strip().splitlines()[-1]
+
+
+def test_the_benchmarks_import_the_installed_package_not_the_checkout():
+    """_bench.py put the checkout first on sys.path, so the scripts timed the checkout's kinredund, which has no
+    compiled core unless `make install` copied it there (the copy this replaces)."""
+    installed = _kinredund_file()
+    assert not installed.startswith(str(BENCHMARKS.parent / "kinredund"))
+    assert _kinredund_file(f"sys.path.insert(0, {str(BENCHMARKS)!r})", "import _bench") == installed
+
+
+def test_a_full_run_refuses_a_checkout_without_the_core_and_a_smoke_run_says_so(monkeypatch, capsys):
+    bench = load_benchmark("ik").parser.__globals__  # _bench's namespace, as the scripts import it
+    from kinredund.tracking import compiled
+
+    monkeypatch.setattr(compiled, "_CORE", [None, "ImportError: no module named kinredund._core"])
+    monkeypatch.setattr(bench["kinredund"], "__file__", str(BENCHMARKS.parent / "kinredund" / "__init__.py"))
+    assert bench["installed"]() == {"path": str(BENCHMARKS.parent / "kinredund"), "checkout": True,
+                                    "compiled_core": False, "core_error": compiled.core_error()}
+    with pytest.raises(SystemExit, match="source checkout.*make install"):
+        bench["parser"]("x").parse_args([])
+    assert bench["parser"]("x").parse_args(["--smoke"]).smoke
+    assert "the figures time the Python paths" in capsys.readouterr().err

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import TRACK_HOLD
+from conftest import robot as cached_robot
 from test_viz import scene_commands
 from test_viz import track as animation_track
 
@@ -368,6 +369,47 @@ def test_path_options_that_the_path_does_not_take_are_refused(tmp_path, capsys):
         assert main(["track", "planar3r", "--steps", "20", "--quiet", *argv]) == EXIT_USAGE, argv
         err = capsys.readouterr().err
         assert words in err, (argv, err)
+
+
+def test_a_path_file_fixes_the_radius_and_speed_so_they_are_refused_with_it(tmp_path, capsys):
+    """--radius and --speed with --path file were ignored (their defaults 0.1 were not None: nothing said so);
+    given with a file they are refused naming them, and the circle still takes its defaults without them."""
+    path_file = tmp_path / "p.json"
+    path_file.write_text(json.dumps({"t": [0.0, 1.0, 2.0, 3.0], "p": [[3.0, 3.0], [3.1, 3.0], [3.1, 3.1], [3.0, 3.0]]}))
+    for extra, words in ((["--radius", "0.1"], "--radius"), (["--speed", "0.3"], "--speed"),
+                         (["--radius", "0.2", "--speed", "0.3"], "--radius and --speed")):
+        argv = ["track", "planar3r", "--path", "file", "--path-file", str(path_file), "--quiet", *extra]
+        assert main(argv) == EXIT_USAGE, extra
+        err = capsys.readouterr().err
+        assert f"{words} do(es) not apply to --path file" in err and "the file's samples fix" in err, err
+    js = tmp_path / "c.json"
+    assert main(["track", "planar3r", "--steps", "20", "--quiet", "--json", str(js)]) == 0
+    p = np.array(json.loads(js.read_text())["p_desired"])[:, :2]
+    centre = p[0] - [0.1, 0.0]  # the default: --radius 0.1 along -x from the start point
+    np.testing.assert_allclose(np.linalg.norm(p - centre, axis=1), 0.1, atol=1e-12)
+    from types import SimpleNamespace
+
+    from kinredund.ui.cli_track import say_speed
+
+    fast = SimpleNamespace(speed_over_limits=(2.0, 0, 0.5))  # a joint at twice its limit: the hint for a file path
+    say_speed(fast, cached_robot("planar3r"), SimpleNamespace(path="file", speed=None, json=None))
+    err = capsys.readouterr().err
+    assert "a path file whose times are 2 times as long" in err and "--speed" not in err, err
+
+
+def test_a_path_file_moving_in_z_is_refused_for_a_planar_task(tmp_path, capsys):
+    """The planar task follows x and y: a file whose z moves was tracked as its shadow on the plane, silently."""
+    ts = np.linspace(0.0, 4.0, 41)
+    xy = np.column_stack([3.0 + 0.5 * np.cos(np.pi * ts / 2), 3.0 + 0.5 * np.sin(np.pi * ts / 2)])
+    f = tmp_path / "helix.json"
+    f.write_text(json.dumps({"t": ts.tolist(), "p": np.column_stack([xy, 0.05 * np.sin(np.pi * ts / 2)]).tolist()}))
+    assert main(["track", "planar3r", "--path", "file", "--path-file", str(f), "--quiet"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "moves in z (from -0.05 to 0.05 m)" in err and "'planar' task follows x and y only" in err, err
+    assert "Allowed: one z for every sample" in err and "--task position" in err
+    f.write_text(json.dumps({"t": ts.tolist(), "p": np.column_stack([xy, np.full(len(ts), 0.2)]).tolist()}))
+    assert main(["track", "planar3r", "--path", "file", "--path-file", str(f), "--index", "min-norm", "--quiet",
+                 "--steps", "40"]) == 0  # one plane z: the file's plane, nothing dropped but the constant
 
 
 def test_reproduce_refuses_tracking_options_where_they_do_not_apply(capsys):

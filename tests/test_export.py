@@ -225,6 +225,36 @@ def test_cli_export(tmp_path):
     assert out.returncode == 2 and "--csv FILE and/or --bag FOLDER" in out.stderr
 
 
+def test_cli_export_of_a_partial_record_is_refused_unless_allowed_and_says_where_it_stopped(tmp_path, capsys):
+    """A stopped run's partial record (track --partial) was exported as if complete: nothing in the CSV or the
+    bag, nor on the terminal, said that its samples end where the run stopped."""
+    from kinredund.ui.cli import main
+
+    part = tmp_path / "part.json"
+    assert main(["track", "planar3r", "--radius", "2.5", "--index", "min-norm", "--quiet", "--steps", "40",
+                 "--partial", str(part)]) == 1  # out of reach: a run that stopped
+    stop = json.loads(part.read_text())["failure"]
+    said = f"{part} is a partial record: its run stopped at t = {stop['t']:.6g} s ({stop['cause']})"
+    capsys.readouterr()
+    for argv in (["export", str(part), "--csv", str(tmp_path / "p.csv")],
+                 ["retime", str(part), "--amax", "5", "--json", str(tmp_path / "r.json")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert said in err and "--allow-partial" in err, err
+        assert not Path(argv[-1]).exists()
+    assert main(["export", str(part), "--csv", str(tmp_path / "p.csv"), "--allow-partial"]) == 0
+    assert said in capsys.readouterr().err
+    back = Trajectory.load_json(part)
+    assert np.array_equal(read_csv(tmp_path / "p.csv").q, back.q) and back.t[-1] <= stop["t"]
+    back.save_json(tmp_path / "lib.json")  # a library run's err.partial.save_json(): marked partial in its meta
+    assert main(["export", str(tmp_path / "lib.json"), "--bag", str(tmp_path / "bag")]) == 2
+    assert "lib.json is a partial record: its run stopped at a time it did not record" in capsys.readouterr().err
+    data = json.loads(part.read_text())
+    (tmp_path / "bad.json").write_text(json.dumps({**data, "failure": 3}))  # a malformed stop is no stop to drop
+    assert main(["export", str(tmp_path / "bad.json"), "--csv", str(tmp_path / "b.csv"), "--allow-partial"]) == 2
+    assert "'failure' (a partial record's stop) must be an object with its 'cause', got 3" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("amax", ["0", "-1", "nan", "1,2"])
 def test_cli_bad_limits_write_nothing(tmp_path, amax):
     records()[0].save_json(tmp_path / "tr.json")

@@ -148,6 +148,27 @@ def test_sizes_are_bounded_in_one_place_with_the_reason():
         check_size(True, "starts", "starts", TaskError)
 
 
+def test_the_ik_and_the_planner_bound_their_sizes_through_check_size(monkeypatch):
+    """solve_ik and PlanOptions restated check_size's messages against limits they had copied at import: a limit
+    changed in SIZES (the one place) did not reach them. Lowered here, every check follows it."""
+    import kinredund as kr
+    from kinredund.planning.options import PlanOptions
+
+    monkeypatch.setitem(SIZES, "starts", (8, "each start is a whole local solve"))
+    monkeypatch.setitem(SIZES, "samples", (1000, "a record holds every sample"))
+    robot = kr.load_robot("planar3r")
+    with pytest.raises(TaskError, match=r"^starts must be at most 8 \(each start is a whole local solve\), got 9$"):
+        kr.solve_ik(robot, [1.0, 1.0], starts=9)
+    with pytest.raises(OptionError, match=r"^starts must be at most 2 \(four times as many seed one pose-only solve, "
+                                          r"which takes at most 8: each start is a whole local solve\), got 3$"):
+        PlanOptions(starts=3)
+    assert PlanOptions(starts=2).starts == 2
+    with pytest.raises(OptionError, match=r"^loops x steps_per_loop \(3 x 400, whole cycles of 1: the record holds "
+                                          r"every step\) must be at most 1000 \(a record holds every sample\), "
+                                          r"got 1200$"):
+        PlanOptions(starts=2, loops=3, steps_per_loop=400)
+
+
 def test_track_bounds_its_steps_with_check_size_words():
     """track()'s closed and open runs refuse a record longer than SIZES["samples"] in errors.check_size's words
     (its own copy of the message said "the record holds every step"), before any step."""

@@ -12,10 +12,10 @@ import functools
 
 import numpy as np
 import pytest
-from conftest import robot
+from conftest import load_benchmark, robot, rounding
 
 import kinredund
-from kinredund.errors import OptionError, TrackingError
+from kinredund.errors import OptionError, SingularityError, TrackingError
 from kinredund.indices import JointDeviation
 from kinredund.paths import Circle
 from kinredund.problems import panda_circle
@@ -293,6 +293,54 @@ def test_a_path_that_cannot_be_followed_inside_stops_with_the_last_good_state(na
             tracker.step()
     s = tracker.stepper
     assert s.t == s.t0 + s.k * s.dt and abs(s.t - err.t) <= 1e-12 and np.array_equal(tracker.q, q)
+
+
+def test_a_stop_inside_a_bounded_step_is_diagnosed_on_the_free_joints_at_the_last_good_point(monkeypatch):
+    """A reduced R found singular at a corrector iterate (which may have diverged: q ~ 300 rad in the z1 case
+    below) stopped with that iterate's words, "algorithmic (R singular while J has full rank)", and no watched
+    quantity of the free joints. The stop is said at the last good point on the Jacobian of the free joints:
+    here a stand-in makes the reduced R singular a few steps after a joint reached its limit."""
+    from kinredund.tracking.limited import LimitedPredictorCorrector
+    from kinredund.tracking.point import Evaluator
+
+    real = LimitedPredictorCorrector._factor_matrix
+
+    def singular(self, pt, R, J):
+        if pt.t < 5.8:  # panda_joint4 reaches its lower limit at 5.49 s (and stays there up to the stop at 6.14 s)
+            return real(self, pt, R, J)
+        raise SingularityError("algorithmic (R singular while J has full rank) singularity: stand-in", t=pt.t,
+                               q=pt.q + 300.0, sigma_min=1e-17)
+
+    monkeypatch.setattr(LimitedPredictorCorrector, "_factor_matrix", singular)
+    r, path, index, q0 = case("panda_pose_fold")
+    with pytest.raises(TrackingError) as info:
+        track(r, path, index, q0, loops=1, backend="python")
+    err, q = info.value, np.asarray(info.value.q)
+    fixed = np.asarray(err.watched["active"]) != 0
+    assert err.cause == "not_strongly_stable" and fixed.sum() == 1 and excess(r, q) <= 1e-10
+    J = Evaluator(r, path, index, "augmented").point(q, err.t, need_dJ=False).J  # afresh, at the last good point
+    s_free, s_all = np.linalg.svd(J[:, ~fixed], compute_uv=False), np.linalg.svd(J, compute_uv=False)
+    assert abs(err.watched["sigma_min_J"] - s_free[-1]) <= rounding(s_free[0])
+    assert abs(err.watched["sigma_min_J_all_joints"] - s_all[-1]) <= rounding(s_all[0])
+    text = str(err)
+    assert "while J has full rank" not in text and "turned singular at a corrector iterate" in text
+    assert f"the Jacobian of the 6 free joints has smallest singular value {s_free[-1]:.3g} (J of all 7: " \
+           f"{s_all[-1]:.3g}), as many as the rows they must meet" in text
+
+
+@pytest.mark.slow
+def test_the_z1_stop_with_joint4_on_its_limit_names_the_free_joints():
+    """benchmarks/plan_peers.py --n 15 --seed 1, task 10 on z1: the plan's re-tracking stopped with joint4 on its
+    lower limit, said as "algorithmic (R singular while J has full rank)" of a corrector iterate at q ~ 300 rad;
+    at the last good point the 5 free joints' Jacobian (square: LICQ) has sigma_min 0.0058, J's own 0.0198."""
+    from kinredund.planning.cyclic import plan
+
+    z1 = robot("z1")
+    circles = load_benchmark("_circles")
+    task = next(task for i, task, _ in circles.drawn(z1, 15, 1, orientations=("held",)) if i == 10)
+    res = plan(z1, task.path(), task.performance_index(z1), seed=11, loops=2, steps_per_loop=200)
+    assert res.ok or ("while J has full rank" not in res.reason and "free joints has smallest" in res.reason), \
+        res.reason
 
 
 def test_the_limits_record_survives_json(tmp_path):

@@ -9,6 +9,8 @@ from kinredund.paths.base import Path, PathSample
 
 #: largest |Q Q^T - 1| entry accepted for a sampled rotation (6 significant digits in a file give ~1e-6)
 ROTATION_TOL = 1e-5
+#: [m] how far a closed path's last sample may lie from its first (and a planar task's file path from one plane z)
+POINT_TOL = 1e-9
 
 
 class SampledPath(Path):
@@ -19,7 +21,7 @@ class SampledPath(Path):
 
     Args:
         t: sample times [s], strictly increasing.
-        p: positions, shape (N, 2) or (N, 3) [m].
+        p: positions, shape (N, 2) or (N, 3) [m] (z = 0 where only x, y are given); kept as ``points`` (N, 3).
         Q: rotations, shape (N, 3, 3), or None.
         closed: the path is periodic with period t[-1] - t[0]; the last sample must equal the first.
     """
@@ -37,8 +39,9 @@ class SampledPath(Path):
             raise PathError(f"sampled positions must be finite, of shape ({t.shape[0]}, 2 or 3), got {p.shape}")
         if p.shape[1] == 2:
             p = np.column_stack([p, np.zeros(len(p))])
-        if closed and np.abs(p[0] - p[-1]).max() > 1e-9:
+        if closed and np.abs(p[0] - p[-1]).max() > POINT_TOL:
             raise PathError("a closed sampled path must end where it starts (last sample = first sample)")
+        self.points = p  # the samples [m], (N, 3): z = 0 where they were given in x, y only
         self._t0, self._t1 = t[0], t[-1]
         self.period = float(t[-1] - t[0]) if closed else None
         self._spline = CubicSpline(t, p, bc_type="periodic" if closed else "not-a-knot")

@@ -16,7 +16,6 @@ import numpy as np
 from kinredund.errors import MAX_STARTS, OptionError, check_choice, check_count, check_size
 from kinredund.planning.keepout import Keepout
 from kinredund.planning.spline import SPLINE_KINDS
-from kinredund.tracking import MAX_STEPS
 from kinredund.tracking.tracker import scene_constraints
 
 
@@ -107,9 +106,8 @@ class PlanOptions:
         for name, minimum, size in SIZED:  # bounded (errors.SIZES), before any work
             object.__setattr__(self, name, check_size(getattr(self, name), name, size, minimum=minimum))
         check_size(self.samples * self.cycles, f"samples x cycles ({self.samples} x {self.cycles})", "plan_samples")
-        if self.starts > MAX_PLAN_STARTS:  # else solve_ik refuses 4 x starts deep in the run, after the solves before
-            raise OptionError(f"starts must be at most {MAX_PLAN_STARTS} (four times as many seed one pose-only "
-                              f"solve, which takes at most {MAX_STARTS}), got {self.starts}")
+        # else solve_ik refuses 4 x starts deep in the run, after the solves before
+        check_size(self.starts, "starts", "starts", per=(4, "four times as many seed one pose-only solve"))
         if not isinstance(self.follow, (bool, np.bool_)):
             raise OptionError(f"follow must be True or False, got {self.follow!r}")
         object.__setattr__(self, "follow", bool(self.follow))
@@ -120,9 +118,8 @@ class PlanOptions:
                                                                  "clearance_resolution [m]", positive=True))
         self.keepout_for(getattr(self.scene, "robot", None))  # the scene's own checks (the robot's in check_for)
         total = -(-self.loops // self.cycles) * self.cycles * self.steps_per_loop  # what the tracker records
-        if total > MAX_STEPS:
-            raise OptionError(f"loops x steps_per_loop must be at most {MAX_STEPS} (the record holds every step), "
-                              f"got {self.loops} x {self.steps_per_loop}")
+        check_size(total, f"loops x steps_per_loop ({self.loops} x {self.steps_per_loop}, whole cycles of "
+                          f"{self.cycles}: the record holds every step)", "samples")
 
     @classmethod
     def of(cls, options: PlanOptions | None = None, **overrides) -> PlanOptions:

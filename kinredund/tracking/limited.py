@@ -29,6 +29,7 @@ import numpy as np
 
 from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.failure import watched_at
 from kinredund.tracking.linalg import classify, lu_solve
 from kinredund.tracking.point import Evaluator, Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
@@ -205,11 +206,12 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         except SingularityError as err:
             if self.rows:  # a corrector iterate's: the step control retries in sub-steps, then names the stop
                 raise
-            # the singular R is at a corrector iterate, which may have diverged far out of the limits: the
-            # message names the last good point instead (filled in by step), not that iterate's q
-            what = str(err).rsplit("; q = ", 1)[0]
+            # the singular R is at a corrector iterate, which may have diverged far out of the limits (its M and
+            # J say nothing of the path there): step names the last good point and says what is singular there
             raise self._failure("not_strongly_stable", f"the constrained optimum is not strongly stable at t = "
-                                f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: {what}") from err
+                                f"{pt.t:.6g} s with joints {self._names_fixed()} on their limits: R of Eq. (4.24) "
+                                f"on the free joints turned singular at a corrector iterate (its smallest singular "
+                                f"value {err.sigma_min:.3g})") from err
 
     def _solve(self, lu, b: np.ndarray) -> np.ndarray:
         if self._sel is None:
@@ -278,13 +280,16 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
             super().step()
             self._resolve_switches(snap)
         except TrackingError as err:
-            if err.q is None:  # the last good state: the step's start
+            inside = err.q is None  # raised within the step (a corrector iterate's): said at the step's start
+            if inside:
                 err.t, err.q = snap.t, [float(v) for v in snap.q]
                 err.watched = self._watched(snap)
                 err.args = (f"{err.args[0]}; last good point t = {err.t:.6g} s, q = "
                             f"{np.round(np.asarray(err.q), 6).tolist()}",)
             self._name_row_failure(err, snap)
             self.state = snap  # back at the last requested time: t = t0 + k dt
+            if inside:
+                self._diagnose(err)
             raise
         except (PathError, SingularityError) as err:
             rows = self._rows_involved(snap)  # before the state goes back (the step's switches with it)
@@ -306,6 +311,26 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
                "bound_multipliers": np.asarray(state.mu).tolist(),
                "limit_margins": np.minimum(np.minimum(q - self.lo, self.hi - q), 1e10).tolist()}
         return out | self._rows_watched(state)
+
+    def _diagnose(self, err: TrackingError) -> None:
+        """What is singular at the last good point (the stepper's state) of a stop raised within a step: the
+        watched quantities on the free joints (:func:`~kinredund.tracking.failure.watched_at`: ``sigma_min_J`` of
+        the Jacobian of the free joints, the reduced Hessian on its null space), and J's own smallest singular
+        value (``sigma_min_J_all_joints``), which stays away from zero where only the free joints lose rank."""
+        w = watched_at(self)
+        J = self.evaluate(self.q, self.t, need_dJ=False).J
+        s_all = float(np.linalg.svd(J, compute_uv=False)[-1])
+        err.watched.update(w, sigma_min_J_all_joints=s_all)
+        if "sigma_min_J" not in w:  # no index: no R to diagnose
+            return
+        free, m = int(np.count_nonzero(~self.fixed)), J.shape[0]
+        said = (f"; there the Jacobian of the {free} free joints has smallest singular value {w['sigma_min_J']:.3g} "
+                f"(J of all {self.n}: {s_all:.3g})")
+        if free == m:  # R = [[M_F, J_F^T], [J_F, 0]] with J_F square: det R = +-det(J_F)^2
+            said += ", as many as the rows they must meet: R is singular exactly where this Jacobian is (LICQ fails)"
+        elif np.isfinite(w["reduced_hessian_min"]):
+            said += f", the reduced Hessian on its null space smallest eigenvalue {w['reduced_hessian_min']:.3g}"
+        err.args = (err.args[0] + said,) + tuple(err.args[1:])
 
     def _failure(self, cause: str, message: str) -> TrackingError:
         """A TrackingError; its last good state is filled in by :meth:`step` (the step's start)."""

@@ -10,6 +10,7 @@ run leaves no file or folder.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -51,11 +52,27 @@ def _check_topic(args) -> None:
         raise KinredundError("--topic names the bag's topic: give --bag FOLDER too, or leave --topic out")
 
 
-def _write_outputs(traj, names, args) -> None:
+def check_partial(rec, args) -> None:
+    """Refuse a partial record (a stopped run's, ``track --partial``) unless --allow-partial says it is wanted: its
+    samples end where the run stopped, short of the path, and a CSV or a bag has no place to say so. Allowed, the
+    stop is said on stderr (and kept in a JSON written)."""
+    f = rec.failure
+    if f is None:
+        return
+    t = f.get("t")
+    when = f"t = {t:.6g} s" if isinstance(t, (int, float)) else "a time it did not record, after its last sample"
+    what = (f"{args.result} is a partial record: its run stopped at {when} ({f['cause']}), so its samples end there, "
+            "short of the path")
+    if not args.allow_partial:
+        raise KinredundError(f"{what}. Give --allow-partial to write it anyway, or a record of a run that completed")
+    print(f"kinredund: note: {what}", file=sys.stderr)
+
+
+def _write_outputs(traj, names, args, failure: dict | None = None) -> None:
     from kinredund.export import DEFAULT_TOPIC, write_bag, write_csv
 
     if getattr(args, "json", None) is not None:
-        traj.save_json(args.json)
+        traj.save_json(args.json, extra=None if failure is None else {"failure": failure})
         print(f"wrote {args.json}")
     if args.csv is not None:
         print(f"wrote {write_csv(traj, args.csv, names)}")
@@ -70,6 +87,7 @@ def _cmd_retime(args) -> int:
 
     _check_topic(args)
     rec = replay_record(args.result)  # a trajectory (track, plan ROBOT) or a plan of Chapter 6 (plan 6.x)
+    check_partial(rec, args)
     traj, robot = rec.trajectory, rec.robot
     limits = limits_for(robot, args.amax, velocity=args.vmax, jerk=args.jmax, tool_speed=args.tool_speed)
     res = retime(traj, limits, robot=robot, loops=args.loops, closed=False if args.open else None,
@@ -94,7 +112,7 @@ def _cmd_retime(args) -> int:
     print(f"  {'samples with a limit':24s} {100 * res.active_fraction:.1f} % (within 1 % of it)")
     for note in res.notes:
         print(f"  note: {note}")
-    _write_outputs(out, robot.joint_names, args)
+    _write_outputs(out, robot.joint_names, args, rec.failure)
     if args.plot is not None:
         from kinredund.ui.plots_retime import plot_retimed
 
@@ -109,6 +127,7 @@ def _cmd_export(args) -> int:
         raise KinredundError("say what to write: --csv FILE and/or --bag FOLDER")
     _check_topic(args)
     rec = replay_record(args.result)
+    check_partial(rec, args)
     _write_outputs(rec.trajectory, rec.robot.joint_names, args)
     return 0
 
@@ -149,6 +168,7 @@ def add_parsers(sub) -> None:
                    help=f"with --bag: the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")
     p.add_argument("--plot", type=output_file,
                    help="plot q, qdot, qddot with the limits (.png, .pdf, .svg) (default: not drawn)")
+    _add_allow_partial(p, "retime")
 
     p = subcommand(sub, "export", "write a trajectory record as CSV or a ROS 2 bag",
                    "Write a trajectory JSON as CSV (one row per sample, a header naming the joints) and/or a ROS 2 "
@@ -161,3 +181,10 @@ def add_parsers(sub) -> None:
                    help="the ROS 2 bag folder to write, which must not exist (default: not written)")
     p.add_argument("--topic", type=_topic,
                    help=f"with --bag: the bag's topic, a fully qualified ROS 2 name (default {DEFAULT_TOPIC})")
+    _add_allow_partial(p, "export")
+
+
+def _add_allow_partial(p, command: str) -> None:
+    p.add_argument("--allow-partial", action="store_true",
+                   help=f"{command} a partial record (a stopped run's, track --partial) too: its samples end where the "
+                        "run stopped, which is said on stderr (default: refused, naming the stop)")

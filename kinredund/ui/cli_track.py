@@ -11,12 +11,13 @@ def say_speed(traj, robot, args) -> None:
     if fastest is None or not fastest[0] > 1.0:
         return
     ratio, j, t = fastest
+    slower = f"--speed {args.speed / ratio:.3g} or less" if args.path != "file" else \
+        f"a path file whose times are {ratio:.3g} times as long"
     retime = f"`kinredund retime {args.json} --amax A`" if args.json else \
         "track again with --json RUN.json, then `kinredund retime RUN.json --amax A`"
     print(f"kinredund: note: joint {robot.joint_names[j]} runs at {ratio:.3g} times its URDF velocity limit "
           f"(at t = {t:.4g} s): the arm cannot run this motion at these times. Next step: {retime} (a time law "
-          f"within the limits along the same joint path), or --speed {args.speed / ratio:.3g} or less",
-          file=sys.stderr)
+          f"within the limits along the same joint path), or {slower}", file=sys.stderr)
 
 
 def stop_hint(err, args) -> str:

@@ -14,7 +14,7 @@ import numpy as np
 
 from kinredund.errors import OptionError, check_size
 from kinredund.tasks import task_names
-from kinredund.ui.path_options import path_for
+from kinredund.ui.path_options import RADIUS, SPEED, path_for
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL = 0, 1, 2, 3
 REPRODUCIBLE = ("3.2", "4.1", "4.2", "4.3", "6.2", "6.3")
@@ -175,10 +175,11 @@ def add_path(p) -> None:
                         "absent); times count from the first sample (default: none)")
     p.add_argument("--center", type=vector, metavar="X,Y[,Z]",
                    help="centre of the circle or ellipse [m] (default: --radius along -x from the start point)")
-    p.add_argument("--radius", type=float, default=0.1, metavar="R",
-                   help="radius of the circle, semi-major axis of the ellipse [m] (default: %(default)s)")
-    p.add_argument("--speed", type=float, default=0.1, metavar="V",
-                   help="speed along the path [m/s] (default: %(default)s)")
+    # None when not given, so that --path file (whose samples fix both) can refuse them (path_options.py)
+    p.add_argument("--radius", type=float, metavar="R",
+                   help=f"radius of the circle, semi-major axis of the ellipse [m] (default: {RADIUS})")
+    p.add_argument("--speed", type=float, metavar="V",
+                   help=f"speed along the circle or ellipse [m/s] (default: {SPEED})")
     p.add_argument("--normal", type=vector, metavar="X,Y,Z",
                    help="normal of the circle's plane (default: 0,0,1, a horizontal circle)")
 

@@ -8,6 +8,9 @@ import numpy as np
 from kinredund.errors import KinredundError
 from kinredund.tasks import get_task
 
+#: the circle's and ellipse's radius [m] and speed [m/s] where --radius and --speed are not given
+RADIUS, SPEED = 0.1, 0.1
+
 
 def path_for(args, robot, q_start: np.ndarray):
     """The path named by --path (argparse restricts it) and, for an open path, its duration [s] (else None).
@@ -21,6 +24,7 @@ def path_for(args, robot, q_start: np.ndarray):
         if args.path_file is None:
             raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
         path, duration = paths.read_path_file(args.path_file)
+        _check_planar_file(args.path_file, path, robot)
         return path, (duration if path.period is None else None)
     T0 = robot.fk(q_start)
     p0 = T0[:3, 3]
@@ -40,13 +44,31 @@ def path_for(args, robot, q_start: np.ndarray):
 
 
 def _check_path_options(args) -> None:
-    """Refuse an option the chosen --path does not take (it would be ignored: another path than described)."""
-    unused = {"file": ("--center", "--normal"), "ellipse": ("--normal",)}.get(args.path, ())
+    """Refuse an option the chosen --path does not take (it would be ignored: another path than described); then
+    give --radius and --speed their defaults where the path takes them (the hints quote them)."""
+    unused = {"file": ("--center", "--radius", "--speed", "--normal"), "ellipse": ("--normal",)}.get(args.path, ())
     given = [o for o in unused if getattr(args, o[2:]) is not None]
     if given:
-        raise KinredundError(f"{' and '.join(given)} do(es) not apply to --path {args.path}: leave it out")
+        why = ": the file's samples fix the path's size and its times" if args.path == "file" else ""
+        raise KinredundError(f"{' and '.join(given)} do(es) not apply to --path {args.path}{why}: leave it out")
     if args.path != "file" and args.path_file is not None:
         raise KinredundError(f"--path-file is read with --path file: give --path file too (--path is {args.path})")
+    if args.path != "file":
+        args.radius = RADIUS if args.radius is None else args.radius
+        args.speed = SPEED if args.speed is None else args.speed
+
+
+def _check_planar_file(file, path, robot) -> None:
+    """Refuse a path file that moves in z for a planar task, which follows x and y only: it would be tracked as its
+    shadow on the plane (as a tilted --normal would)."""
+    from kinredund.paths.sampled import POINT_TOL
+
+    z = path.points[:, 2]
+    if get_task(robot.task).planar and np.ptp(z) > POINT_TOL:
+        raise KinredundError(f"{file} moves in z (from {z.min():.6g} to {z.max():.6g} m), and {robot.name}'s "
+                             f"{robot.task!r} task follows x and y only: the path would be tracked as its shadow on "
+                             f"the plane. Allowed: one z for every sample (within {POINT_TOL:g} m), 'p' in x, y only "
+                             "(N x 2), or --task position to follow z too")
 
 
 def _holding(path, Q0: np.ndarray):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import KinredundError, check_array
+from kinredund.errors import KinredundError, check_array, shown
 from kinredund.io import read_json_object
 from kinredund.model.loader import load_robot
 from kinredund.model.robot import Robot
@@ -35,6 +35,9 @@ class Replayable:
     robot: Robot
     title: str
     kind: str
+    #: a partial record's stop (``track --partial``: cause, t [s], q, watched, message; only the cause, "not
+    #: recorded", for a record marked ``meta.partial`` without it), else None
+    failure: dict | None = None
 
 
 def record_kind(data: dict) -> str:
@@ -118,4 +121,10 @@ def replay_record(path: str | Path) -> Replayable:
     from kinredund.ui.viz.page import replay_title
 
     traj = Trajectory.from_json_dict(data)
-    return Replayable(traj, load_robot(traj.robot, task=traj.task), replay_title(traj), kind)
+    failure = data.get("failure")
+    if failure is not None and not (isinstance(failure, dict) and isinstance(failure.get("cause"), str)):
+        raise KinredundError(f"{path}: 'failure' (a partial record's stop) must be an object with its 'cause', got "
+                             f"{shown(failure)}")
+    if failure is None and traj.meta.get("partial") is True:  # a library run's err.partial.save_json()
+        failure = {"cause": "cause not recorded"}
+    return Replayable(traj, load_robot(traj.robot, task=traj.task), replay_title(traj), kind, failure)
