@@ -4,7 +4,7 @@ stops with a named cause whose configuration is on the path, inside the limits a
 Tasks: random reachable circles of ``benchmarks/random_obstacles.py`` (:func:`reachable_circle`: a circle
 through a random within-limits configuration's end point, 3-10 cm at 0.1 m/s, z = 1/2 ||q - q_home||^2, the
 start the within-limits optimum, screened by that optimum completing a loop) on the Panda and the xArm7.
-Objects, through the Scene API: one to three spheres and boxes (sides, radii 3-8 cm), each where the free
+Objects, through the Scene API: one or two spheres and boxes (sides, radii 3-8 cm), each where the free
 optimum passes: at a point of the trajectory of a robot object's origin (one of the arm's links, drawn), off it
 normal to its velocity (the benchmark's :func:`beside`) so that its surface comes ``CLEARANCE - depth`` from
 that point (depth 1-3 cm); an object under the clearance at q0 is drawn again. The robot's own pairs are
@@ -45,9 +45,9 @@ HOLD_TOL, CLOSURE_TOL, PATH_TOL, LIMIT_TOL = 1e-9, 1e-10, 1e-10, 1e-10
 #: contradicts itself, a start off the optimum)
 CAUSES = ("collision", "limits_infeasible", "not_strongly_stable", "switch_not_resolved", "kinematic_singularity",
           "fold", "out_of_reach", "step_control_exhausted")
-#: per robot: the links whose objects' origins the obstacles are put beside (the arm beyond the shoulder)
-LINKS = {"panda": ("panda_link3", "panda_link4", "panda_link5", "panda_link6", "panda_link7"),
-         "xarm7": ("link3", "link4", "link5", "link6", "link7")}
+#: per robot: the links whose objects' origins the obstacles are put beside (the upper arm, the elbow and the
+#: forearm: an object at the wrist or the hand is mostly one the path itself runs into)
+LINKS = {"panda": ("panda_link3", "panda_link4", "panda_link5"), "xarm7": ("link3", "link4", "link5")}
 OBJECT_RANGE = (0.03, 0.08)  # [m] a sphere's radius, a box's half side
 DEPTH_RANGE = (0.01, 0.03)  # [m] how far the object reaches under the clearance at the drawn point
 OBJECT_DRAWS, TASK_DRAWS = 20, 10
@@ -93,7 +93,7 @@ def task(name: str, seed: int):
             continue
         objs = [o for o in sc.robot_objects if o.rsplit("_", 1)[0] in LINKS[name]]
         origins = {o: np.array([sc.object_pose(o, q)[:3, 3] for q in free.q]) for o in objs}
-        placed = [_place(sc, f"obstacle{i}", origins, q0, rng) for i in range(int(rng.integers(1, 4)))]
+        placed = [_place(sc, f"obstacle{i}", origins, q0, rng) for i in range(int(rng.integers(1, 3)))]
         if any(placed):
             return r, path, index, q0, sc
     raise RuntimeError(f"no task with an object in {TASK_DRAWS} draws ({name}, seed {seed})")
@@ -125,6 +125,8 @@ def outcome(name: str, seed: int) -> tuple[str, bool]:
                       self_clearance=SELF_CLEARANCE, diagnostics=False)
     except TrackingError as err:
         assert err.cause in CAUSES, (err.cause, str(err))
+        if err.watched.get("constraints"):  # a stop with a pair involved is the clearance's, the pair named
+            assert err.cause == "collision", str(err)
         assert err.q is not None and err.t is not None, str(err)
         assert margin(sc, err.q) >= -HOLD_TOL, str(err)  # clear
         assert _outside(r, err.q) <= LIMIT_TOL, str(err)  # inside the limits
@@ -132,8 +134,7 @@ def outcome(name: str, seed: int) -> tuple[str, bool]:
         seen = err.partial is not None and any(err.partial.meta["constraints"]["active"])
         return err.cause, bool(seen or err.watched.get("constraints") or err.watched.get("active_rows"))
     assert min(margin(sc, q) for q in tr.q) >= -HOLD_TOL  # every recorded point
-    switches = [w for w in tr.meta["switches"] if w.get("constraint")]
-    assert all(margin(sc, w["q"]) >= -HOLD_TOL for w in switches)  # every switching time
+    assert all(margin(sc, w["q"]) >= -HOLD_TOL for w in tr.meta["switches"])  # every switching time (rows, bounds)
     assert _outside(r, tr.q) <= LIMIT_TOL
     assert max(_off_path(r, path, t, q) for t, q in zip(tr.t, tr.q, strict=True)) <= PATH_TOL
     ends = tr.q[::STEPS]  # t = 0, T, 2T: the joints close after each loop
@@ -141,14 +142,15 @@ def outcome(name: str, seed: int) -> tuple[str, bool]:
     return "held", any(tr.meta["constraints"]["active"])
 
 
-def check_property(runs: list[tuple[str, int]], min_active: float) -> dict:
-    """Every run checked (:func:`outcome`); a share ``min_active`` of them with a row active. The tally."""
+def check_property(runs: list[tuple[str, int]], min_active: float, min_held: float) -> dict:
+    """Every run checked (:func:`outcome`); shares ``min_active`` of them with a row active and ``min_held``
+    held and closed (a property met by stops alone would say nothing of holding). The tally of outcomes."""
     results = [outcome(name, seed) for name, seed in runs]
-    active = sum(a for _, a in results)
-    assert active >= min_active * len(runs), results
     tally: dict = {}
     for cause, _ in results:
         tally[cause] = tally.get(cause, 0) + 1
+    assert sum(a for _, a in results) >= min_active * len(runs), results
+    assert tally.get("held", 0) >= min_held * len(runs), tally
     return tally
 
 
@@ -162,10 +164,10 @@ def test_clearance_held_and_closed_or_a_named_clear_stop(name, seed):
 
 
 def test_most_fast_draws_meet_a_clearance():
-    check_property(FAST, 0.5)
+    check_property(FAST, 0.5, 0.25)
 
 
 @pytest.mark.slow
 def test_clearance_property_on_many_draws():
     runs = [(name, seed) for name in ("panda", "xarm7") for seed in range(2, 14)]
-    check_property(runs, 0.5)
+    check_property(runs, 0.5, 0.25)

@@ -68,11 +68,12 @@ class SwitchLocation:
             return float(self.mu[joint])
         return self._row_watch(joint, kind)
 
-    def _corrected_to(self, tau: float, reach: float = np.inf) -> float:
+    def _corrected_to(self, tau: float, reach: float = np.inf, anchors: list | None = None) -> float:
         """From the current state to the corrected path at ``tau`` (within the step): one Euler prediction and
         the corrector, or where the corrector fails from that prediction, the same in 2, 4, ... equal pieces
         down to the step control's floor (dt / 2**MAX_HALVINGS). Pieces start no longer than ``reach`` [s];
-        returns the longest that worked (for the next call of the same search).
+        returns the longest that worked, and appends the states between the pieces to ``anchors`` (for the
+        next call of the same search, which starts from the latest anchor before its time).
 
         One prediction from the step's start reaches any time within a smooth step; where the optimum moves
         fast (rates of tens of rad/s just before a bound, the joints 0.4 rad apart across the step) a
@@ -84,23 +85,29 @@ class SwitchLocation:
         if not span > 0.0:
             return reach
         pieces = 1 if span <= reach else 2 ** int(np.ceil(np.log2(span / reach)))
+        kept = None if anchors is None else len(anchors)
         while True:
             try:
-                for k in range(1, pieces + 1):
-                    self.euler_to(start.t + span * k / pieces if k < pieces else tau)
+                for k in range(1, pieces):
+                    self.euler_to(start.t + span * k / pieces)
+                    if anchors is not None:
+                        anchors.append(self.state)
+                self.euler_to(tau)
                 return span / pieces if pieces > 1 else reach
             except (PathError, SingularityError):
+                if anchors is not None:
+                    del anchors[kept:]
                 if span / pieces <= self.dt / 2**MAX_HALVINGS:
                     raise
                 self.state, pieces = start, 2 * pieces
 
     def _crossing(self, snap: ConstrainedState, t_end: float, joint: int, kind: str) -> float:
         """The time in (snap t, t_end] where the watched quantity of (joint, kind) reaches zero (Brent)."""
-        reach = [np.inf]  # the longest piece that reached the path in this search (_corrected_to)
+        reach, anchors = [np.inf], [snap]  # what this search learnt of the path within the step (_corrected_to)
 
         def phi(tau):
-            self.state = snap
-            reach[0] = self._corrected_to(tau, reach[0])
+            self.state = max((a for a in anchors if a.t <= tau), key=lambda a: a.t)
+            reach[0] = self._corrected_to(tau, reach[0], anchors)
             return self._watch(joint, kind)
 
         t_start = snap.t
