@@ -49,7 +49,6 @@ CAUSES = ("collision", "limits_infeasible", "not_strongly_stable", "switch_not_r
 #: forearm: an object at the wrist or the hand is mostly one the path itself runs into)
 LINKS = {"panda": ("panda_link3", "panda_link4", "panda_link5"), "xarm7": ("link3", "link4", "link5")}
 OBJECT_RANGE = (0.03, 0.08)  # [m] a sphere's radius, a box's half side
-DEPTH_RANGE = (0.01, 0.03)  # [m] how far the object reaches under the clearance at the drawn point
 OBJECT_DRAWS, TASK_DRAWS = 20, 10
 STEPS, LOOPS = 100, 2  # steps per loop, loops
 
@@ -67,7 +66,7 @@ def _place(sc, name: str, origins: dict, q0, rng) -> bool:
     for _ in range(OBJECT_DRAWS):
         P = origins[list(origins)[int(rng.integers(len(origins)))]]
         k, u = bench.beside(P, rng)
-        half, depth = float(rng.uniform(*OBJECT_RANGE)), float(rng.uniform(*DEPTH_RANGE))
+        half, depth = float(rng.uniform(*OBJECT_RANGE)), float(rng.uniform(*bench.DEPTH_RANGE))
         at = P[k] + (half + CLEARANCE - depth) * u  # the surface CLEARANCE - depth from P[k], facing it
         if rng.random() < 0.5:
             sc.add_sphere(name, half, at)
@@ -83,7 +82,7 @@ def _place(sc, name: str, origins: dict, q0, rng) -> bool:
 
 @functools.cache
 def task(name: str, seed: int):
-    """(robot, path, index, q0, scene) of one draw: a reachable circle and 1-3 objects where its optimum passes."""
+    """(robot, path, index, q0, scene) of one draw: a reachable circle, one or two objects where its optimum passes."""
     r = robot(name, "position")
     rng = np.random.default_rng(seed)
     for _ in range(TASK_DRAWS):
