@@ -83,27 +83,41 @@ def _circle(robot, rng):
     return (path, start.q) if start.converged else None
 
 
+def beside(P: np.ndarray, rng: np.random.Generator) -> tuple[int, np.ndarray]:
+    """(k, u): a point P[k] of the trajectory ``P`` (m, 3) [m], k uniform in its middle 80 %, and a unit
+    direction u uniform among those normal to the trajectory's velocity there: where an object put at P[k] +
+    (its reach - depth) u is run into (module docstring; also tests/test_clearance_property.py)."""
+    k = int(rng.integers(len(P) // 10, len(P) - len(P) // 10))
+    vel = P[k + 1] - P[k - 1]
+    u = rng.normal(size=3)
+    if np.linalg.norm(vel) > 0:
+        u -= (u @ vel) / (vel @ vel) * vel
+    return k, _unit(u)
+
+
 def _sphere(robot, frame, free, q0, rng):
     """A sphere the free run's ``frame`` origin runs into and q0 is clear of, or None."""
     probe = SphereClearance(robot, frame, [0.0, 0.0, 0.0], 1.0)
     P = np.array([probe.point(q) for q in free.q])
     for _ in range(SPHERE_DRAWS):
-        k = int(rng.integers(len(P) // 10, len(P) - len(P) // 10))
-        vel = P[k + 1] - P[k - 1]
-        u = rng.normal(size=3)
-        if np.linalg.norm(vel) > 0:
-            u -= (u @ vel) / (vel @ vel) * vel
+        k, u = beside(P, rng)
         radius, depth = float(rng.uniform(*SPHERE_RANGE)), float(rng.uniform(*DEPTH_RANGE))
-        c = SphereClearance(robot, frame, P[k] + (radius - depth) * _unit(u), radius)
+        c = SphereClearance(robot, frame, P[k] + (radius - depth) * u, radius)
         if c.values(q0)[0] > 0.0:
             return c, -float(min(c.values(q)[0] for q in free.q))
     return None
 
 
-def draw(robot, frame, rng, steps: int):
-    """(path, index, q0, sphere, penetration [m], rejected draws) of one task (module docstring)."""
+def reachable_circle(robot, rng: np.random.Generator, steps: int, max_draws: int = MAX_DRAWS):
+    """(path, index, q0, free, rejected draws): a random circle (:func:`_circle`) whose within-limits optimum
+    ``free`` (``track(..., limits=True)``, no obstacle, ``steps`` steps) completes one loop from q0, drawn
+    again until one does (module docstring; also tests/test_clearance_property.py).
+
+    Raises:
+        RuntimeError: none of ``max_draws`` draws passes.
+    """
     index = JointDeviation(robot.home.copy())
-    for rejected in range(MAX_DRAWS):
+    for rejected in range(max_draws):
         case = _circle(robot, rng)
         if case is None:
             continue
@@ -112,9 +126,20 @@ def draw(robot, frame, rng, steps: int):
             free = track(robot, path, index, q0, loops=1, steps_per_loop=steps, diagnostics=False)
         except KinredundError:
             continue
+        return path, index, q0, free, rejected
+    raise RuntimeError(f"no task in {max_draws} draws on {robot.name}")
+
+
+def draw(robot, frame, rng, steps: int):
+    """(path, index, q0, sphere, penetration [m], rejected draws) of one task (module docstring)."""
+    rejected = 0
+    while rejected < MAX_DRAWS:
+        path, index, q0, free, skipped = reachable_circle(robot, rng, steps, MAX_DRAWS - rejected)
+        rejected += skipped
         found = _sphere(robot, frame, free, q0, rng)
         if found is not None:
             return path, index, q0, *found, rejected
+        rejected += 1
     raise RuntimeError(f"no task in {MAX_DRAWS} draws on {robot.name}")
 
 

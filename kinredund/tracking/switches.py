@@ -15,10 +15,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, PathError, SingularityError
 from kinredund.tracking.linalg import bound_rate_qp
 from kinredund.tracking.rows import ROW_TOL
 from kinredund.tracking.state import ConstrainedState
+from kinredund.tracking.step_control import MAX_HALVINGS
 
 #: the switching time is solved to this accuracy [s] (Brent's method): far below the 1e-9 s asked for
 SWITCH_XTOL = 1e-14
@@ -67,12 +68,46 @@ class SwitchLocation:
             return float(self.mu[joint])
         return self._row_watch(joint, kind)
 
+    def _corrected_to(self, tau: float, reach: float = np.inf, anchors: list | None = None) -> float:
+        """From the current state to the corrected path at ``tau`` (within the step): one Euler prediction and
+        the corrector, or where the corrector fails from that prediction, the same in 2, 4, ... equal pieces
+        down to the step control's floor (dt / 2**MAX_HALVINGS). Pieces start no longer than ``reach`` [s];
+        returns the longest that worked, and appends the states between the pieces to ``anchors`` (for the
+        next call of the same search, which starts from the latest anchor before its time).
+
+        One prediction from the step's start reaches any time within a smooth step; where the optimum moves
+        fast (rates of tens of rad/s just before a bound, the joints 0.4 rad apart across the step) a
+        prediction far into the step diverges while the step itself was accepted (its Hermite predictor, or
+        its sub-steps): the pieces follow the path as the sub-steps do.
+        """
+        start = self.state
+        span = tau - start.t
+        if not span > 0.0:
+            return reach
+        pieces = 1 if span <= reach else 2 ** int(np.ceil(np.log2(span / reach)))
+        kept = None if anchors is None else len(anchors)
+        while True:
+            try:
+                for k in range(1, pieces):
+                    self.euler_to(start.t + span * k / pieces)
+                    if anchors is not None:
+                        anchors.append(self.state)
+                self.euler_to(tau)
+                return span / pieces if pieces > 1 else reach
+            except (PathError, SingularityError):
+                if anchors is not None:
+                    del anchors[kept:]
+                if span / pieces <= self.dt / 2**MAX_HALVINGS:
+                    raise
+                self.state, pieces = start, 2 * pieces
+
     def _crossing(self, snap: ConstrainedState, t_end: float, joint: int, kind: str) -> float:
         """The time in (snap t, t_end] where the watched quantity of (joint, kind) reaches zero (Brent)."""
+        reach, anchors = [np.inf], [snap]  # what this search learnt of the path within the step (_corrected_to)
+
         def phi(tau):
-            self.state = snap
-            if tau > snap.t:
-                self.euler_to(tau)
+            self.state = max((a for a in anchors if a.t <= tau), key=lambda a: a.t)
+            reach[0] = self._corrected_to(tau, reach[0], anchors)
             return self._watch(joint, kind)
 
         t_start = snap.t
@@ -127,7 +162,7 @@ class SwitchLocation:
         for row, at in zip(np.flatnonzero(maybe)[low].tolist(), fit.argmin(axis=0)[low].tolist(), strict=True):
             tau = snap.t + float(_DIP_AT[at]) * h
             self.state = snap
-            self.euler_to(tau)
+            self._corrected_to(tau)
             if self._values_at(self.q)[row] < -ROW_TOL:
                 out.append((row, tau))
         self.state = state_end
@@ -162,12 +197,10 @@ class SwitchLocation:
             self.state = state_end
             tau, joint, kind = min(times)
             self.state = snap
-            if tau > snap.t:
-                self.euler_to(tau)
+            self._corrected_to(tau)
             self._switch(joint, kind)
             snap = self.state
-            if t_end > tau:
-                self.euler_to(t_end)
+            self._corrected_to(t_end)
             self.t, self.k = t_end, k_end
         raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
                             f"within one step before t = {t_end:.6g} s (chattering)")
