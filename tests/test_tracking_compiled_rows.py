@@ -13,6 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_clearance_property import CLEARANCE as SCENE_CLEARANCE
+from test_clearance_property import LOOPS, STEPS, task
+from test_clearance_property import SELF_CLEARANCE as OWN
 from test_tracking_clearance import CASES, STOP_CASES
 from test_tracking_compiled import Q_BAR, assert_same_record, assert_same_stop, both
 from test_tracking_limits import case
@@ -21,6 +24,7 @@ from test_tracking_scene import setup as scene_setup
 from test_tracking_self_clearance import SELF_CLEARANCE
 from test_tracking_self_clearance import setup as self_setup
 
+from kinredund.errors import TrackingError
 from kinredund.geometry import Scene
 from kinredund.tracking import SphereClearance, Tracker, compiled, track
 
@@ -141,3 +145,22 @@ def test_the_python_backend_runs_every_step_in_python(monkeypatch):
     assert tr.step == tr.stepper.step  # the Python stepper's own step
     monkeypatch.delenv("KINREDUND_BACKEND")
     assert Tracker(r, path, index, q0, path.period / 200, constraints=[c]).backend == "compiled"
+
+
+@pytest.mark.parametrize(("name", "seed"), [("panda", 1), ("xarm7", 0), ("panda", 0), ("xarm7", 2)])
+def test_random_circles_among_random_objects_are_the_python_runs(name, seed):
+    """Draws of test_clearance_property (random reachable circles, one or two objects where the optimum passes,
+    the self pairs too): held with switches (panda 1, xarm7 0) or stopped (panda 0, xarm7 2), the same either way."""
+    r, path, index, q0, sc = task(name, seed)
+    options = {"loops": LOOPS, "steps_per_loop": STEPS, "scene": sc, "clearance": SCENE_CLEARANCE,
+               "self_clearance": OWN}
+    try:
+        a = track(r, path, index, q0, backend="python", **options)
+    except TrackingError as err:
+        assert_same_stop(err.cause, r, path, index, q0, **options)  # the partial records with their row fields
+        return
+    b = track(r, path, index, q0, backend="compiled", **options)
+    assert a.meta["switches"]
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
