@@ -81,6 +81,29 @@ def test_a_held_sphere_with_switches_is_the_python_run(name):
     assert_same_rows(a, b)
 
 
+@pytest.mark.parametrize("options", [{"scheme": "velocity"}, {"strict": False}])
+def test_the_velocity_form_and_the_plain_step_too(options):
+    r, path, index, q0, c = sphere("panda_elbow_sphere")
+    a, b = both(r, path, index, q0, loops=1, constraints=[c], **options)
+    assert a.meta["switches"]
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
+
+def test_a_row_active_at_the_start():
+    """test_tracking_clearance's elbow starting on a sphere it moves into (the row active from the start, so the
+    stepper's lam holds its multiplier then): released and met again, the same on both backends."""
+    r, path, index, q0, _ = sphere("panda_elbow_sphere")
+    probe = SphereClearance(r, "panda_link4", [0.0, 0.0, 0.0], 1.0)
+    free = track(r, path, index, q0, loops=1, steps_per_loop=100)
+    p0, ahead = probe.point(q0), probe.point(free.q[1]) - probe.point(q0)
+    c = SphereClearance(r, "panda_link4", p0 + 0.05 * ahead / np.linalg.norm(ahead), 0.05)
+    a, b = both(r, path, index, q0, loops=2, steps_per_loop=100, constraints=[c])
+    assert a.meta["constraints"]["active"][0] == [0] and len(a.meta["switches"]) >= 2
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
+
 def test_a_scene_ball_held_is_the_python_run():
     r, path, index, q0, sc = scene_setup("panda_elbow_ball")
     a, b = both(r, path, index, q0, loops=1, scene=sc, clearance=CLEARANCE, self_clearance=False)
