@@ -42,7 +42,8 @@ browser:
 # both must pass; tests/test_tracking_compiled.py compares them step by step).
 PYTHON_BACKEND_TESTS := tests/test_tracking_api.py tests/test_tracking_state.py tests/test_tracking_limits.py \
 	tests/test_tracking_limits_property.py tests/test_tracking_axis.py tests/test_tracking_failures.py \
-	tests/test_tracking_compiled.py tests/test_resolved_rate.py tests/test_record_checks.py
+	tests/test_tracking_compiled.py tests/test_resolved_rate.py tests/test_record_checks.py \
+	tests/test_tracking_clearance.py tests/test_tracking_scene.py tests/test_tracking_self_clearance.py
 
 test: install
 	$(BIN)/pytest $(PYTEST_SELECT) $(PYTEST_ARGS)

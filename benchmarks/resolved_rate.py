@@ -37,10 +37,11 @@ that drift and background load hit them alike (``in_turn_us``). With the joint l
 pink's limited step (``limits_over_pink``), and the step over one loop of :data:`SWITCHING_CIRCLE`,
 where joint 4 meets its limit and leaves it (median, mean, the median of the steps with joint 4 held and no
 switch, the rate QP's share; the medians again on the Python stepper). With a Scene (issue 27):
-the step with five obstacles and the robot's own pairs held apart (on the Python stepper: a scene's rows are
-held there only) against the step with the limits only, in turn: on the same stepper (``scene_over_limits``,
-the issue's <= 1.5) and against the default backend's limits-only step (``scene_over_default``, the compiled
-core where it is built); where the scene step's time goes (``scene_breakdown_us``: the compiled distance
+the step with five obstacles and the robot's own pairs held apart against the step with the limits only, in
+turn: both on the Python stepper (``scene_over_limits``, the issue's <= 1.5), and both on the default backend
+(``scene_over_default``: where the core is built, the compiled steps with no row active, each checked for a
+switch in Python; ``scene_python_over_default`` the scene step on the Python stepper against it); where the
+scene step's time goes (``scene_breakdown_us``: the compiled distance
 query, the Python around it, the stepper's rows, the rate QP, the rest) and the queries' share
 (``scene_query_share``). Run:
 ``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
@@ -109,13 +110,17 @@ KEYS = {
     "predictor_miss_median": "median |q_predicted - q_corrected| [rad] of the default mode's predictor, second loop",
     "predictor_miss_max": "largest |q_predicted - q_corrected| [rad], second loop",
     "scene_in_turn_us": "Tracker.step() with a five-object scene and the self pairs held apart (scene=, 2 cm and "
-                        "1 cm; SCENE_OBJECTS, none active on the path; the Python stepper: a scene's rows are held "
-                        "there only) in turn with the limits-only step on the same Python stepper (Panda)",
+                        "1 cm; SCENE_OBJECTS, none active on the path) in turn with the limits-only step, both on the "
+                        "Python stepper (Panda)",
     "scene_over_limits": "scene_in_turn_us: step_scene_us / step_limits_us, the same backend (issue 27's target "
                          "<= 1.5)",
-    "scene_default_in_turn_us": "the scene step in turn with the limits-only step on the default backend (the "
-                                "compiled core where it is built)",
+    "scene_default_in_turn_us": "the scene step in turn with the limits-only step, both on the default backend "
+                                "(the compiled core where it is built: the scene's steps with no row active are "
+                                "the core's, each checked for a switch in Python), and the scene step on the Python "
+                                "stepper (step_scene_python_us) in the same rounds",
     "scene_over_default": "scene_default_in_turn_us: step_scene_us / step_limits_us, default against default",
+    "scene_python_over_default": "scene_default_in_turn_us: step_scene_python_us / step_limits_us (the scene on "
+                                 "the Python stepper against the default limits-only step)",
     "scene_backend": "the backend the scene run takes (python: compiled.unsupported names why)",
     "limits_backend": "the backend the limits-only run takes by default",
     "scene_breakdown_us": "the scene step's exclusive times per step [us] over 200 steps (means less the slowest "
@@ -380,9 +385,9 @@ def scene_breakdown(tracker, steps: int = 200) -> dict:
 
 def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
     """The step with :data:`SCENE_OBJECTS` and the robot's own pairs held apart (2 cm, 1 cm) against the step
-    with the limits only, in turn: on the same (Python) stepper, and against the default backend's limits-only
-    step (the compiled core where it is built; a scene's rows are held by the Python stepper only). Then where
-    the scene step's time goes (:func:`scene_breakdown`)."""
+    with the limits only, in turn: both on the Python stepper, and both on the default backend (the compiled core
+    where it is built), with the scene step on the Python stepper in the same rounds. Then where the default
+    backend's scene step's time goes (:func:`scene_breakdown`)."""
     import kinredund
 
     scene = kinredund.Scene(robot)
@@ -392,17 +397,22 @@ def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
         else:
             scene.add_sphere(name, size, pos)
     with_scene = Tracker(robot, path, index, q0, dt, scene=scene)
+    scene_python = Tracker(robot, path, index, q0, dt, scene=scene, backend="python")
     python = Tracker(robot, path, index, q0, dt, limits=True, backend="python")
     default = Tracker(robot, path, index, q0, dt, limits=True)
-    # two pairs in turn (one step of each per round, each step after the other's: their cache misses alike)
-    same = {k: v["median_us"] for k, v in time_in_turn({"step_scene_us": with_scene.step,
+    # in turn (one step of each per round, each step after the other's: their cache misses alike)
+    same = {k: v["median_us"] for k, v in time_in_turn({"step_scene_us": scene_python.step,
                                                         "step_limits_us": python.step}, steps, 5).items()}
     other = {k: v["median_us"] for k, v in time_in_turn({"step_scene_us": with_scene.step,
+                                                         "step_scene_python_us": Tracker(
+                                                             robot, path, index, q0, dt, scene=scene,
+                                                             backend="python").step,
                                                          "step_limits_us": default.step}, steps, 5).items()}
     constraint = with_scene.stepper.general[0]
     return {"scene_in_turn_us": same, "scene_default_in_turn_us": other,
             "scene_over_limits": same["step_scene_us"] / same["step_limits_us"],
             "scene_over_default": other["step_scene_us"] / other["step_limits_us"],
+            "scene_python_over_default": other["step_scene_python_us"] / other["step_limits_us"],
             "scene_backend": with_scene.backend, "limits_backend": default.backend,
             **scene_breakdown(with_scene), "scene_pairs": constraint.size,
             "scene_pairs_near": len(scene.distance_rows(with_scene.q, constraint.influence).pairs)}
@@ -502,10 +512,12 @@ def main() -> None:
               f"{panda['switching_held_step_python_us']:.3g} us)")
     if "scene_over_limits" in panda:
         same, other, part = panda["scene_in_turn_us"], panda["scene_default_in_turn_us"], panda["scene_breakdown_us"]
-        print(f"Panda, five-object scene and self pairs held ({panda['scene_backend']} stepper): step "
-              f"{same['step_scene_us']:.3g} us against {same['step_limits_us']:.3g} us with the limits only on the "
-              f"same stepper: {panda['scene_over_limits']:.2f} (target <= 1.5); against the default limits-only "
-              f"step ({panda['limits_backend']}, {other['step_limits_us']:.3g} us): {panda['scene_over_default']:.2f}")
+        print(f"Panda, five-object scene and self pairs held: on the Python stepper, step {same['step_scene_us']:.3g} "
+              f"us against {same['step_limits_us']:.3g} us with the limits only: {panda['scene_over_limits']:.2f} "
+              f"(target <= 1.5); on the default backend ({panda['scene_backend']}), {other['step_scene_us']:.3g} us "
+              f"against the limits-only step ({panda['limits_backend']}, {other['step_limits_us']:.3g} us): "
+              f"{panda['scene_over_default']:.2f} (the Python stepper's scene step {other['step_scene_python_us']:.3g} "
+              f"us: {panda['scene_python_over_default']:.2f})")
         print("  per scene step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in part.items())
               + f"; {100 * panda['scene_query_share']:.2g} % in the distance queries (core + query; "
               f"{panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")

@@ -21,9 +21,17 @@ rejects, a switch (a bound reached or released: located by the Python stepper's 
 corrector that needs fresh factorisations, a singular R, a failure. Those steps are the Python stepper's own, so
 events happen at the same times with the same causes.
 
+With general inequality rows (``constraints=``, ``scene=``: :mod:`kinredund.tracking.rows`) the run is a hybrid:
+a step with a row active is the Python stepper's (the extended system of :class:`~kinredund.tracking.rows.RowPoint`
+is not compiled); a step with none active is taken in C++ and then checked by the stepper's own search for a
+switch within it (``pending_switches``: an event at its end, a row below zero there, a row dipping below zero
+inside it), the call the Python step makes after its own step. Where it finds one, the step is dropped (the
+state put back) and handed to the Python stepper (reason ``rows``), which locates the switch itself.
+
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
-own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits`` and
-``reduced_label``, and the step control's ``snapshot``, ``restore``, ``watch_point`` and ``speed2``.
+own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
+``reduced_label``, ``rows``, ``row_pairs`` and ``pending_switches``, and the step control's ``snapshot``,
+``restore``, ``watch_point`` and ``speed2``.
 
 :func:`attach` picks the backend of a :class:`~kinredund.tracking.tracker.Tracker`: ``compiled`` where the
 core loads and supports the problem, else ``python`` (``backend="compiled"`` then raises an
@@ -39,7 +47,7 @@ import warnings
 
 import numpy as np
 
-from kinredund.errors import OptionError, check_choice
+from kinredund.errors import KinredundError, OptionError, check_choice
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.point import Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
@@ -49,7 +57,10 @@ BACKENDS = ("auto", "compiled", "python")
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
 STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
-          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 11: "release"}
+          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 11: "release", 12: "row_active", 13: "rows"}
+#: the driver's own reasons (codes the core does not return): a general row is active (its steps stay Python's);
+#: the stepper's row checks find a switch within the compiled step (a row reached or dipping below zero)
+ROW_ACTIVE, ROWS = 12, 13
 
 
 class BackendWarning(UserWarning):
@@ -82,8 +93,6 @@ def unsupported(tracker) -> str:
     if not isinstance(s, PredictorCorrector):
         return f"it compiles the default mode's augmented and velocity schemes, not mode={tracker.mode!r}, " \
                f"scheme={tracker.scheme!r}"
-    if getattr(s, "row_pairs", None):
-        return "general inequality constraints (constraints=, scene=) are held by the Python stepper only"
     index = s.ev.index
     if type(index) not in (JointDeviation, TimeVaryingReference):
         return f"it knows the indices JointDeviation (minimum_norm, mid_range) and TimeVaryingReference, not " \
@@ -193,10 +202,11 @@ class CompiledStep:
                                   np.asarray(reference, float), self.time_varying, stepper.tol, stepper.dt, hermite,
                                   lo_tol, hi_tol)
         self.limited = limited
+        self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
         self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
-        m = len(stepper.lam)
+        m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)
         N = n + m
         ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1])  # the core's output layout (src/core/step.cpp)
         self.slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
@@ -215,6 +225,8 @@ class CompiledStep:
         s = self.stepper
         ctl = s.control
         t_to = s.t0 + (s.k + 1) * s.dt
+        if self.rows and s.rows:  # a general row active: the extended system is the Python stepper's
+            return self.hand_back(ROW_ACTIVE)
         if ctl is not None and ctl.watch.ahead(t_to) is not None:
             return self.hand_back(8)
         if self.limited:
@@ -235,26 +247,52 @@ class CompiledStep:
 
     def accept(self, out: np.ndarray, sample, t_to: float) -> None:
         """The core's ordinary step to ``t_to`` (its output row ``out``, R's factors still in the core) as the
-        stepper's new state, the watch's measurement first where due (it may reject the step: handed back)."""
+        stepper's new state, then the checks that may still hand it back to the Python stepper (from the state
+        before it): with general rows, the stepper's own search for a switch within the step
+        (``pending_switches``: a row reached, a row dipping below zero inside the step); the watch's
+        measurement where due. Either rejection gives the Python stepper's step, which runs both itself."""
         s = self.stepper
         ctl = s.control
         rcond, speed2 = float(out[-2]), float(out[-1])
         measured = ctl is not None and ctl.watch.due_next(rcond)
-        if measured:  # the watch measures the new point (in Python): the step may still be rejected
-            saved, watch = ctl.snapshot(), ctl.watch.save()
-        elif ctl is not None:
-            ctl.watch.due(rcond)
-            ctl.speed2 = speed2
+        saved = None
+        if measured or self.rows:  # what a rejected step goes back to (the state, the control's speed)
+            saved = ctl.snapshot() if ctl is not None else (s.state,)
         self.apply(out, sample, t_to, rcond)
-        if measured:
-            s.lu = self.core.factors()  # the watch's inverse iteration solves with them
-            if ctl.watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
-                ctl.restore(saved)
-                ctl.watch.load(watch)
-                self.steps -= 1
-                self.held_steps -= self.limited and self.stepper.any_active
-                return self.hand_back(9)
+        if self.rows and self._switch_within(saved[0]):
+            return self._undo(saved, ROWS)
+        if not measured:
+            if ctl is not None:
+                ctl.watch.due(rcond)
+                ctl.speed2 = speed2
+            return None
+        watch = ctl.watch.save()  # the watch measures the new point (in Python): the step may still be rejected
+        s.lu = self.core.factors()  # the watch's inverse iteration solves with them
+        if ctl.watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
+            ctl.watch.load(watch)
+            return self._undo(saved, 9)
         return None
+
+    def _switch_within(self, start) -> bool:
+        """Does the stepper find a switch within the step from ``start`` to now? (A failure of its search, a
+        corrector within the step that does not converge, is the Python step's to meet and name: True.)"""
+        try:
+            events, dips = self.stepper.pending_switches(start)
+        except KinredundError:
+            return True
+        return bool(events or dips)
+
+    def _undo(self, saved: tuple, status: int) -> None:
+        """Drop the step just applied (back to ``saved``: the step control's snapshot, or the stepper's state in
+        a 1-tuple without one) and hand it to the Python stepper."""
+        ctl = self.stepper.control
+        if ctl is not None:
+            ctl.restore(saved)
+        else:
+            self.stepper.state = saved[0]
+        self.steps -= 1
+        self.held_steps -= self.limited and self.stepper.any_active
+        return self.hand_back(status)
 
     def sync_active(self) -> None:
         """Give the core the stepper's active set where it changed (a switch replaces the ``fixed`` array)."""

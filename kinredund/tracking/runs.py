@@ -42,6 +42,8 @@ def stepping(tracker, rec):
     compiled = getattr(tracker, "compiled", None)
     if compiled is None or not hasattr(load_core(), "run_steps"):  # the Python stepper (or an older core)
         return one_by_one(tracker, rec)
+    if compiled.rows:  # general rows: each compiled step is checked for a switch in Python, one call each
+        return one_by_one(tracker, rec)
     return Runs(compiled, rec).advance
 
 

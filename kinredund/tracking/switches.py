@@ -184,11 +184,17 @@ class SwitchLocation:
                 return tau
         return None
 
+    def pending_switches(self, snap: ConstrainedState) -> tuple[list, list]:
+        """(events, dips): the switches the step from ``snap`` to now holds, as the step looks for them after it
+        is taken: the events at its end (:meth:`_events`), then the general rows that dip below zero inside it
+        only (:meth:`_row_dips`). Both empty: the step holds no switch. The compiled driver asks this of a step
+        taken in C++ (:mod:`kinredund.tracking.compiled`), so its check is this stepper's own."""
+        return self._events(), self._row_dips(snap)
+
     def _resolve_switches(self, snap: ConstrainedState) -> None:
         t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
         for _ in range(MAX_SWITCHES_PER_STEP):
-            events = self._events()
-            dips = self._row_dips(snap)  # a row below zero inside the step only
+            events, dips = self.pending_switches(snap)
             if not (events or dips):
                 return
             state_end = self.state

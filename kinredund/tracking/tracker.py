@@ -140,8 +140,10 @@ class Tracker:
             sub-steps, and the run stops before a fold or a singularity with a
             :class:`~kinredund.errors.TrackingError`; ``strict=False`` is the plain predictor-corrector step.
         backend: ``compiled`` (the default mode's ordinary step in the compiled core, the other steps in
-            Python: :mod:`kinredund.tracking.compiled`), ``python`` (every step in Python) or ``auto`` (compiled
-            where the core loads and supports the problem). Default: ``$KINREDUND_BACKEND``, else ``auto``.
+            Python: :mod:`kinredund.tracking.compiled`; with constraints or a scene, the steps with no row
+            active, each checked by the Python stepper's own search for a row switch), ``python`` (every step
+            in Python) or ``auto`` (compiled where the core loads and supports the problem). Default:
+            ``$KINREDUND_BACKEND``, else ``auto``.
             Both give the same results (to ~1e-12); the attribute ``backend`` says which one runs.
 
     Attributes (read them after each step): ``q`` [rad or m], ``t`` [s], ``lam`` (the multipliers),

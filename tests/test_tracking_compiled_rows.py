@@ -1,0 +1,189 @@
+"""The compiled backend with general inequality rows (issues 27, 28): the hybrid run equals the Python run.
+
+With ``constraints=`` or ``scene=`` a step with no row active is taken by the compiled core and then checked by the
+Python stepper's own search for a switch within it (``pending_switches``: a row reached at its end, a row dipping
+below zero inside it); a step with a row active, or one the search finds a switch in, is the Python stepper's
+(:mod:`kinredund.tracking.compiled`). So the record, the row fields (smallest distance, active rows, their
+multipliers, the switches and their times) and the stops are those of ``backend="python"``: the joints to the
+issue's 1e-12 rad at every point, the rest to test_tracking_compiled's bars (the same optimum, evaluated by
+either backend). The cases are the named ones of test_tracking_clearance and test_tracking_scene.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_clearance_property import CLEARANCE as SCENE_CLEARANCE
+from test_clearance_property import LOOPS, STEPS, task
+from test_clearance_property import SELF_CLEARANCE as OWN
+from test_tracking_clearance import CASES, STOP_CASES
+from test_tracking_compiled import Q_BAR, assert_same_record, assert_same_stop, both
+from test_tracking_limits import case
+from test_tracking_scene import CLEARANCE
+from test_tracking_scene import setup as scene_setup
+from test_tracking_self_clearance import SELF_CLEARANCE
+from test_tracking_self_clearance import setup as self_setup
+
+from kinredund.errors import TrackingError
+from kinredund.geometry import Scene
+from kinredund.tracking import SphereClearance, Tracker, compiled, track
+
+pytestmark = pytest.mark.skipif(compiled.load_core() is None, reason="the compiled core is not built")
+
+#: switching times [s] of the two backends: each located by the Python stepper's Brent search (to 1e-14 s) from
+#: states that agree to rounding
+SWITCH_BAR = 1e-10
+
+
+def sphere(name, shift=(0.0, 0.0, 0.0)):
+    circle, frame, center, radius = CASES[name]
+    r, path, index, q0 = case(circle)
+    return r, path, index, q0, SphereClearance(r, frame, np.add(center, shift), radius)
+
+
+def assert_same_rows(a, b) -> None:
+    """The row fields of two records: the active rows and the switches (kinds, rows) exactly, the switching times
+    to SWITCH_BAR, the smallest values and multipliers to 1e-9 (assert_same_record has them relatively)."""
+    ra, rb = a.meta["constraints"], b.meta["constraints"]
+    assert ra["active"] == rb["active"] and ra["names"] == rb["names"]
+    np.testing.assert_allclose(rb["min_value"], ra["min_value"], rtol=0, atol=1e-9)
+    for x, y in zip(ra["multipliers"], rb["multipliers"], strict=True):
+        np.testing.assert_allclose(y, x, rtol=0, atol=1e-9)
+    sa, sb = a.meta["switches"], b.meta["switches"]
+    assert [(w["kind"], w["name"]) for w in sa] == [(w["kind"], w["name"]) for w in sb]
+    np.testing.assert_allclose([w["t"] for w in sb], [w["t"] for w in sa], rtol=0, atol=SWITCH_BAR)
+    for x, y in zip(sa, sb, strict=True):
+        np.testing.assert_allclose(y["q"], x["q"], rtol=0, atol=Q_BAR)
+
+
+def stepped(r, path, index, q0, steps, **kw):
+    """Two Trackers (python, compiled) stepped in turn ``steps`` times; the joints and rates compared at each step.
+    Returns the compiled one."""
+    dt = path.period / 200
+    a = Tracker(r, path, index, q0, dt, backend="python", **kw)
+    b = Tracker(r, path, index, q0, dt, backend="compiled", **kw)
+    assert (a.backend, b.backend) == ("python", "compiled")
+    for _ in range(steps):
+        a.step()
+        b.step()
+        assert b.t == a.t and b.stepper.rows == a.stepper.rows
+        np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
+    assert len(b.stepper.switches) == len(a.stepper.switches)
+    return b.compiled
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_a_held_sphere_with_switches_is_the_python_run(name):
+    r, path, index, q0, c = sphere(name)
+    a, b = both(r, path, index, q0, loops=2, constraints=[c])
+    assert len(a.meta["switches"]) >= 4 and any(a.meta["constraints"]["active"])  # met and left, each loop
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
+
+@pytest.mark.parametrize("options", [{"scheme": "velocity"}, {"strict": False}])
+def test_the_velocity_form_and_the_plain_step_too(options):
+    r, path, index, q0, c = sphere("panda_elbow_sphere")
+    a, b = both(r, path, index, q0, loops=1, constraints=[c], **options)
+    assert a.meta["switches"]
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
+
+def test_a_row_active_at_the_start():
+    """test_tracking_clearance's elbow starting on a sphere it moves into (the row active from the start, so the
+    stepper's lam holds its multiplier then): released and met again, the same on both backends."""
+    r, path, index, q0, _ = sphere("panda_elbow_sphere")
+    probe = SphereClearance(r, "panda_link4", [0.0, 0.0, 0.0], 1.0)
+    free = track(r, path, index, q0, loops=1, steps_per_loop=100)
+    p0, ahead = probe.point(q0), probe.point(free.q[1]) - probe.point(q0)
+    c = SphereClearance(r, "panda_link4", p0 + 0.05 * ahead / np.linalg.norm(ahead), 0.05)
+    a, b = both(r, path, index, q0, loops=2, steps_per_loop=100, constraints=[c])
+    assert a.meta["constraints"]["active"][0] == [0] and len(a.meta["switches"]) >= 2
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
+
+def test_a_scene_ball_held_is_the_python_run():
+    r, path, index, q0, sc = scene_setup("panda_elbow_ball")
+    a, b = both(r, path, index, q0, loops=1, scene=sc, clearance=CLEARANCE, self_clearance=False)
+    assert a.meta["switches"] and any(a.meta["constraints"]["active"])
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
+
+def test_the_core_takes_the_steps_with_no_row_active():
+    """Stepped one by one: every step agrees, and the core took all but the steps with the row active and those
+    its check handed back (a row reached within them)."""
+    r, path, index, q0, c = sphere("panda_elbow_sphere")
+    cs = stepped(r, path, index, q0, 200, constraints=[c])
+    back = cs.handed_back
+    assert back.get("row_active", 0) > 10 and back.get("rows", 0) >= 1  # both hybrid routes ran
+    assert cs.steps > 100 and cs.steps > back["row_active"]  # most steps are the core's
+    assert cs.steps + sum(back.values()) == 200
+
+
+def test_a_far_sphere_leaves_every_step_to_the_core():
+    """A sphere 2 m above the elbow's: no row is ever active or near, so no step is handed back for the rows, and
+    the record is the Python run's (and that of the run without the sphere)."""
+    r, path, index, q0, c = sphere("panda_elbow_sphere", shift=(0.0, 0.0, 2.0))
+    cs = stepped(r, path, index, q0, 100, constraints=[c])
+    assert "row_active" not in cs.handed_back and "rows" not in cs.handed_back and cs.steps >= 90
+    a, b = both(r, path, index, q0, loops=1, constraints=[c])
+    assert not any(b.meta["constraints"]["active"]) and not any(w.get("constraint") for w in b.meta["switches"])
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+    free = track(r, path, index, q0, loops=1, backend="compiled")
+    np.testing.assert_allclose(b.q, free.q, rtol=0, atol=Q_BAR)
+
+
+def test_a_self_pair_held_is_the_python_run():
+    """test_tracking_self_clearance's hand held off the upper arm (a self pair met and left twice a loop)."""
+    r, path, index, q0, sc = self_setup()
+    a, b = both(r, path, index, q0, loops=2, scene=sc, self_clearance=SELF_CLEARANCE)
+    assert len(a.meta["switches"]) >= 4
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
+
+def test_a_self_pair_that_cannot_be_held_stops_the_same_way():
+    """test_tracking_scene's fingers pressed on the upper arm until a pair's distance is not differentiable."""
+    r, path, index, q0, _ = scene_setup()
+    assert_same_stop("collision", r, path, index, q0, scene=Scene(r))
+
+
+@pytest.mark.parametrize("name", STOP_CASES)
+def test_a_sphere_that_cannot_be_held_stops_the_same_way(name):
+    circle, frame, center, radius, steps = STOP_CASES[name]
+    r, path, index, q0 = case(circle)
+    c = SphereClearance(r, frame, center, radius)
+    assert_same_stop("collision", r, path, index, q0, loops=1, steps_per_loop=steps, constraints=[c])
+
+
+def test_the_python_backend_runs_every_step_in_python(monkeypatch):
+    monkeypatch.setenv("KINREDUND_BACKEND", "python")
+    r, path, index, q0, c = sphere("panda_elbow_sphere")
+    tr = Tracker(r, path, index, q0, path.period / 200, constraints=[c])
+    assert tr.backend == "python" and getattr(tr, "compiled", None) is None
+    assert tr.step == tr.stepper.step  # the Python stepper's own step
+    monkeypatch.delenv("KINREDUND_BACKEND")
+    assert Tracker(r, path, index, q0, path.period / 200, constraints=[c]).backend == "compiled"
+
+
+@pytest.mark.parametrize(("name", "seed"), [("panda", 1), ("xarm7", 0), ("panda", 0), ("xarm7", 2)])
+def test_random_circles_among_random_objects_are_the_python_runs(name, seed):
+    """Draws of test_clearance_property (random reachable circles, one or two objects where the optimum passes,
+    the self pairs too): held with switches (panda 1, xarm7 0) or stopped (panda 0, xarm7 2), the same either way."""
+    r, path, index, q0, sc = task(name, seed)
+    options = {"loops": LOOPS, "steps_per_loop": STEPS, "scene": sc, "clearance": SCENE_CLEARANCE,
+               "self_clearance": OWN}
+    try:
+        a = track(r, path, index, q0, backend="python", **options)
+    except TrackingError as err:
+        assert_same_stop(err.cause, r, path, index, q0, **options)  # the partial records with their row fields
+        return
+    b = track(r, path, index, q0, backend="compiled", **options)
+    assert a.meta["switches"]
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+
