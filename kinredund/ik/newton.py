@@ -22,7 +22,8 @@ up to 2 MAX_STEP (x0 still restores g = x to first order in full); the restorati
 bounded steps below are scaled down to MAX_STEP as a whole. With joint limits as bounds, a step that
 would leave them is recomputed as a box-constrained QP (:mod:`kinredund.ik.qp`); first-order
 optimality then includes the multipliers of the active bounds. A converged start hands the terms of
-its last iteration to the optimality report (:class:`OptimalityTerms`): no second kinematics pass.
+its last iteration to the optimality report (:class:`OptimalityTerms`): no second kinematics pass. An iteration
+that takes a restoration step off the target computes no multipliers (no first-order test can pass there).
 
 A pose-only solve (no index) is the x0 part alone in its damped form, kept lean because multi-start
 IK runs it many times (:func:`kinredund.ik.pose_only.pose_only`): Levenberg-Marquardt steps d = -G^T (G G^T + mu 1)^-1 e
@@ -151,22 +152,18 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
             on_target[:] = [q.copy(), float(z), r]
         G = res.jacobian(K, jl)
         R, Y, L, ok = qr_split(G)  # G^T = Y R, G L = 0, Eq. (D.25)
-        L_kkt, active = L, None  # the null space and the held limits of the first-order conditions
-        if s.bounds or not ok:
-            # with bounds: the limits that hold count; G rank-deficient (a singular configuration): the SVD's
-            # null space, which holds every direction tangent to g = x, so the test is stricter, not looser
-            normality, lam, L_kkt, active = bound_kkt(G, grad, q, s.lower, s.upper, s.bounds)
-        else:
-            lam = -solve_r(R, Y.T @ grad)  # least-squares multipliers, Eqs. (4.11)-(4.12)
-            normality = float(np.linalg.norm(L.T @ grad))  # projected gradient, Eqs. (D.9), (D.30)
-        lam_k = res.k_multipliers(lam, jl)  # G^T lambda = K[rows]^T lambda*
+        x0 = Y @ solve_rt(R, -e) if ok else None  # minimum-norm part, Eq. (D.24)
+        newton = x0 is not None and max(map(abs, x0.tolist())) <= MAX_STEP
+        normality = math.nan
+        if newton or r < s.rtol or it == s.max_iter:  # else a restoration step follows: no multipliers needed
+            normality, lam, L_kkt, active = _first_order(s, G, grad, q, R, Y, L, ok)
         ntol = max(s.tol, 1e-13 * (1.0 + float(np.abs(grad).max())))
         if r < s.rtol and float(e @ e) < s.rtol * s.rtol and normality < ntol:
             if active is None:
                 active = np.zeros(q.shape[0], dtype=bool)
             extra = res.extra_hessian(K, lam, jl)
-            terms = OptimalityTerms(normality, float(z), H, dk, lam_k, L_kkt, active, extra)  # for the report
-            return StartOutcome(q, True, it, "", r, terms)
+            terms = OptimalityTerms(normality, float(z), H, dk, res.k_multipliers(lam, jl), L_kkt, active, extra)
+            return StartOutcome(q, True, it, "", r, terms)  # the terms are for the report
         if it == s.max_iter:
             why = f"max_iter={s.max_iter} reached at residual {r:.3g}, normality residual {normality:.3g}"
             return StartOutcome(q, False, it, why, r)
@@ -181,14 +178,14 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
             return StartOutcome(q, False, it, "on the target at a singular configuration (rank-deficient constraint "
                                 f"Jacobian), where z still changes along the null space (normality residual "
                                 f"{normality:.3g}): the step of Eq. (D.26) is undefined here; seed elsewhere", r)
-        x0 = Y @ solve_rt(R, -e) if ok else None  # minimum-norm part, Eq. (D.24)
-        if x0 is None or max(map(abs, x0.tolist())) > MAX_STEP:
+        if not newton:
             # near-singular G or far from g = x: a damped restoration step on the constraints alone
             qn = _restore(s, q, G, e, r, it)
             if isinstance(qn, StartOutcome):
                 return qn
             q = qn
             continue
+        lam_k = res.k_multipliers(lam, jl)  # G^T lambda = K[rows]^T lambda*
         enorm = math.sqrt(float(e @ e))
         rho = max(rho, 1.5 * float(np.linalg.norm(lam)) + 1.0)  # exact penalty > ||lambda||; > 0 at grad z = 0
         M = H + dk.contract(lam_k, rows)  # Hess z + Lambda, Eqs. (4.20)-(4.26)
@@ -218,6 +215,18 @@ def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
             return stall(q, it, r, f"{why} (normality residual {normality:.3g})", s.rtol)
         q = qn
     raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _first_order(s: Setup, G, grad, q, R, Y, L, ok: bool):
+    """(normality residual, multipliers lambda, null space for the report, held limits or None) at one iterate.
+
+    With bounds the limits that hold count; G rank-deficient (a singular configuration): the SVD's null space,
+    which holds every direction tangent to g = x, so the test is stricter, not looser.
+    """
+    if s.bounds or not ok:
+        return bound_kkt(G, grad, q, s.lower, s.upper, s.bounds)
+    lam = -solve_r(R, Y.T @ grad)  # least-squares multipliers, Eqs. (4.11)-(4.12)
+    return float(np.linalg.norm(L.T @ grad)), lam, L, None  # projected gradient, Eqs. (D.9), (D.30)
 
 
 def _merit_search(s: Setup, q, d, rho, phi, slope, R, Y) -> np.ndarray | None:
