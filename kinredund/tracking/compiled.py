@@ -14,7 +14,10 @@ multipliers') and returns the bound multipliers at the corrected point. Python s
 time-varying reference) once per step and passes them in; the active set goes to the core when it changes.
 
 Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
-R's condition drops) it does so in Python on the compiled step's results. Anything else is handed to the
+R's condition drops) the core measures it (``StepCore.watch_measure``, ``src/core/watch.cpp``: the watch's inverse
+iteration with R's factors and its gated SVD, with the LAPACK routines the Python watch calls) and the watch's
+bookkeeping (the crossing test, the history) stays in Python; the exact measurement every
+:data:`~kinredund.tracking.watch.EXACT_EVERY` is Python's. Anything else is handed to the
 Python reference from the same state (the stepper's, untouched until the compiled step is accepted, or put
 back with the watch's where the watch rejects the step): a step the watch predicts trouble within or
 rejects, a switch (a bound reached or released: located by the Python stepper's Brent search), a jump, a
@@ -266,9 +269,9 @@ class CompiledStep:
                 ctl.watch.due(rcond)
                 ctl.speed2 = speed2
             return None
-        watch = ctl.watch.save()  # the watch measures the new point (in Python): the step may still be rejected
-        s.lu = self.core.factors()  # the watch's inverse iteration solves with them
-        if ctl.watch_point(s.dt, speed2) is not None:  # rejected: the Python stepper's step
+        watch = ctl.watch.save()  # the watch measures the new point: the step may still be rejected
+        # the core measures with its J, M and R's factors (StepCore.watch_measure); the exact branch is Python's
+        if ctl.watch_point(s.dt, speed2, self.core) is not None:  # rejected: the Python stepper's step
             ctl.watch.load(watch)
             return self._undo(saved, 9)
         return None

@@ -13,7 +13,8 @@ go to the record in one call
 (:meth:`~kinredund.tracking.recorder.Recorder.add_rows`) and the last becomes the stepper's state. The run stops
 at the first step the core hands back (a bound reached, a jump, a failure: the Python stepper takes that step
 from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures
-(its row is finished in Python: :meth:`~kinredund.tracking.compiled.CompiledStep.accept`). Every step is the
+(its row is finished in Python: :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself
+the core's, ``StepCore.watch_measure``). Every step is the
 one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
 and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Steps with a joint held on its
 bound are the core's too, one call each (:meth:`~kinredund.tracking.compiled.CompiledStep.step`). Like

@@ -132,8 +132,9 @@ class StepControl:
                             "what the rates at both ends give (trapezoidal rule)")
         return self.watch_point(h, speed2)
 
-    def watch_point(self, h: float, speed2: float):
-        """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why)."""
+    def watch_point(self, h: float, speed2: float, core=None):
+        """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why).
+        ``core``: the compiled core that took the step (its measurement: :meth:`Watch.measure`)."""
         s = self.s
         if not (self.watch.due(s.rcond) or h < s.dt):
             self.speed2 = speed2
@@ -142,7 +143,7 @@ class StepControl:
             pt = s.evaluate(s.q, s.t)
             sigma, eig = self.watch.measure_exact(pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         else:
-            sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
+            sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None), core)
         kind = self.watch.crossed(sigma, eig)
         if kind is not None:
             return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"

@@ -70,6 +70,9 @@ def exact(J: np.ndarray, M: np.ndarray) -> tuple[float, float, np.ndarray]:
     return float(sJ[-1]), float(w[0]), Z @ V[:, 0]
 
 
+_NO_REF = np.zeros((0, 0))  # no reference J yet (the core's argument)
+
+
 class Watch:
     """The watched quantities along one run, their history and the crossing prediction.
 
@@ -78,6 +81,7 @@ class Watch:
         sigma_times, sigma: the last two exact values of sigma_min(J) and their times.
         sigma_max: the largest singular value of J at the last exact SVD (the kinematic floor's scale).
         scale: max(1, max |M_ij|) at the last exact eigenvalue (the fold floor's scale).
+        core_measured: the measurements the compiled core made (``measure``'s ``core``), of those kept.
     """
 
     def __init__(self):
@@ -94,6 +98,7 @@ class Watch:
         self._safe = -math.inf  # nothing measured yet: ahead() checks the history itself
         self._exact_at = None
         self._key = None  # the active set of the history (None: no joint on a bound)
+        self.core_measured = 0  # measurements the compiled core made (:meth:`took`)
 
     def due(self, rcond: float) -> bool:
         """Should this step be measured? (The cheap gate: R's condition estimate, see :data:`RCOND_NEAR`.)"""
@@ -137,12 +142,22 @@ class Watch:
             hist.clear()
         self._safe = -math.inf
 
-    def measure(self, J: np.ndarray, M: np.ndarray, lu=None, fixed: np.ndarray | None = None) -> tuple[float, float]:
+    def measure(self, J: np.ndarray, M: np.ndarray, lu=None, fixed: np.ndarray | None = None,
+                core=None) -> tuple[float, float]:
         """(sigma_min_J, reduced_hessian_min) at a point with J (m, n), M (n, n) and R's LU factors there.
 
         ``fixed``: the joints on a bound (their columns leave J and M, and ``lu`` must be the factors of
         the reduced R). Without ``lu`` (or where its size does not fit) the eigenvalue is computed exactly.
+        ``core``: the compiled core (``kinredund._core.StepCore``) whose last step's J, M and R's factors these
+        are; it computes the inverse-iteration branch below in C++ with the same LAPACK calls
+        (``StepCore.watch_measure``, ``src/core/watch.cpp``), and this watch keeps its results.
         """
+        if core is not None and self._v is not None and self._count % EXACT_EVERY != 0:
+            ref = self._J_ref if self._J_ref is not None else _NO_REF
+            out = core.watch_measure(self._v, ref, self._sigma_ref, J_GATE)
+            if out is not None:
+                return self.took(*out)
+            lu = None  # sizes that do not fit, or u not finite: exactly, as below
         J, M = reduce(J, M, fixed)
         m, n = J.shape
         v = self._v
@@ -160,6 +175,20 @@ class Watch:
         self._v = u
         eig = float(u @ (M @ u))  # Rayleigh quotient on the null space of J (u = P v lies in it)
         return self._sigma(J), eig
+
+    def took(self, sigma: float, eig: float, u: np.ndarray, fresh: bool, sigma_max, J, scale) -> tuple[float, float]:
+        """Keep a measurement of the compiled core (``_core.watch_measure``'s tuple: the vector u; where sigma_min(J)
+        was computed afresh J, the new reference, and sigma_max where dgesvd gave it; the fold floor's scale where
+        the exact branch gave it, J square); returns (sigma, eig)."""
+        self._v, self._fresh = u, fresh
+        self.core_measured += 1
+        if fresh:
+            self._J_ref, self._sigma_ref = J, sigma
+        if sigma_max is not None:
+            self.sigma_max = sigma_max
+        if scale is not None:
+            self.scale = scale
+        return sigma, eig
 
     def refresh(self, t: float, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> None:
         """Measure exactly at t and push it (before a prediction is acted on: the history may be stale)."""

@@ -18,6 +18,7 @@
 #include <string>
 
 #include "step.hpp"
+#include "watch.hpp"
 
 namespace nb = nanobind;
 namespace bp = boost::python;
@@ -92,4 +93,5 @@ NB_MODULE(_core, m) {
   kinredund::bind_step(m);
   kinredund::bind_distances(m);
   kinredund::bind_loop(m);
+  kinredund::bind_watch(m);
 }

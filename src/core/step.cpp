@@ -9,6 +9,7 @@
 // mu_i = s_i (grad z + J^T lambda)_i come out at the corrected point; a multiplier below zero (a release) is a switch.
 // Anything not ordinary returns a status code and the Python reference takes the step from the same state.
 #include "step.hpp"
+#include "watch.hpp"
 
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/tuple.h>
@@ -201,6 +202,8 @@ class StepCore {
     system(lam, M, top);
     // the step's J (at the predicted point: the chord iterations evaluate afresh) goes to the output now
     Eigen::Map<RowMatrixXd>(out.data() + 2 * N + n * n, m_, n) = J_;
+    Jw_ = J_;  // the step's J and M, which the watch measures (watch_measure)
+    Mw_ = M;
     const double grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());  // switches._events' scale
     int st = factor(M);
     if (st != OK) return (st);
@@ -280,6 +283,23 @@ class StepCore {
     MatrixXd lu = lu_;
     Eigen::VectorXd piv = ipiv_.cast<double>();
     return nb::make_tuple(lu, piv);
+  }
+
+  // The watch's measurement of the last step (Watch.measure's inverse iteration; watch.cpp): its J and M (at the
+  // predicted point, as the step's output has them) reduced to the free joints, R's factors. ``v``: the watch's
+  // vector (nf); ``J_ref``: its last exact J (m x nf; another shape: none). None where the sizes do not fit or u is
+  // not finite (the Python watch then computes exactly), else watch.cpp's tuple.
+  nb::object watch_measure(CRef v, const Eigen::Ref<const RowMatrixXd>& J_ref, double sigma_ref, double gate) const {
+    const int nf = static_cast<int>(free_.size());
+    if (v.size() != nf || lu_.rows() != nf + m_ || Jw_.rows() != m_) return nb::none();
+    RowMatrixXd Jr(m_, nf), Mr(nf, nf);
+    for (int b = 0; b < nf; ++b) {
+      Jr.col(b) = Jw_.col(free_[b]);
+      for (int a = 0; a < nf; ++a) Mr(a, b) = Mw_(free_[a], free_[b]);
+    }
+    const bool ref = J_ref.rows() == m_ && J_ref.cols() == nf;
+    return kinredund::watch_measure(Jr.data(), Mr.data(), lu_.data(), ipiv_.data(), nf, m_, v.data(),
+                                    ref ? J_ref.data() : nullptr, sigma_ref, gate);
   }
 
   // The evaluation at q (t of the last step's sample): (r, J, xdot, grad, Lambda+Hess (M) for lam, top) - for tests.
@@ -701,7 +721,7 @@ class StepCore {
   pinocchio::Data::Tensor3x H_;
   Matrix3d Q_, rel_, A_;
   Vector3d p_, v_, wd_, a_, ah_;
-  RowMatrixXd W_, J_;
+  RowMatrixXd W_, J_, Jw_, Mw_;
   VectorXd r_, xdot_, grad_;
   bool log_ok_ = true;
   // R and its factors
@@ -757,6 +777,8 @@ void bind_step(nb::module_& m) {
            nb::arg("speed2"), nb::arg("check_jump"))
       .def("set_active", &StepCore::set_active, nb::arg("free"), nb::arg("bound"), nb::arg("side"))
       .def("factors", &StepCore::factors)
+      .def("watch_measure", &StepCore::watch_measure, nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"),
+           nb::arg("gate"))
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
            nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"));
 }

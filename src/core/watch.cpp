@@ -1,0 +1,187 @@
+// The fold and singularity watch's measurement of a step in C++ (issue 28): the branch of
+// kinredund.tracking.watch.Watch.measure that reuses R's LU factors, operation by operation. One step of inverse
+// iteration u = P v with P the top block of R^{-1} (LAPACK dgetrs on the factors, the Python watch's call), u
+// normalised, the Rayleigh quotient u^T M u (the reduced Hessian's eigenvalue nearest zero, Eq. (4.24)'s R singular
+// where it is zero), and sigma_min(J): the last exact value while ||J - J_ref||_F < J_GATE sigma_ref (Weyl), else
+// LAPACK dgesvd without vectors. dgetrs and dgesvd are scipy's own (scipy.linalg.cython_lapack's capsules, the
+// library behind scipy.linalg.lapack), so the numbers are the Python watch's to rounding of the vector operations.
+// The exact branch (QR null basis, eigh; every EXACT_EVERY measurements) stays in Python.
+#include "watch.hpp"
+
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/tuple.h>
+
+#include <Python.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <vector>
+
+namespace nb = nanobind;
+
+namespace kinredund {
+
+namespace {
+
+using getrs_t = void (*)(char*, int*, int*, double*, int*, int*, double*, int*, int*);
+using gesvd_t = void (*)(char*, char*, int*, int*, double*, int*, double*, double*, int*, double*, int*, double*,
+                         int*, int*);
+
+using gesdd_t = void (*)(char*, int*, int*, double*, int*, double*, double*, int*, double*, int*, double*, int*, int*,
+                         int*);
+
+struct Lapack {
+  getrs_t getrs = nullptr;
+  gesvd_t gesvd = nullptr;
+  gesdd_t gesdd = nullptr;
+};
+
+void* capsule_pointer(nb::handle capi, const char* name) {
+  nb::object cap = capi[name];
+  void* p = PyCapsule_GetPointer(cap.ptr(), PyCapsule_GetName(cap.ptr()));
+  if (p == nullptr) throw nb::python_error();
+  return p;
+}
+
+// scipy's LAPACK (needs the GIL the first time: every caller of watch_measure holds it)
+const Lapack& lapack() {
+  static Lapack L;
+  if (L.getrs == nullptr) {
+    nb::object capi = nb::module_::import_("scipy.linalg.cython_lapack").attr("__pyx_capi__");
+    L.gesvd = reinterpret_cast<gesvd_t>(capsule_pointer(capi, "dgesvd"));
+    L.gesdd = reinterpret_cast<gesdd_t>(capsule_pointer(capi, "dgesdd"));
+    L.getrs = reinterpret_cast<getrs_t>(capsule_pointer(capi, "dgetrs"));
+  }
+  return L;
+}
+
+using Vec = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Mat = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using FMat = nb::ndarray<const double, nb::ndim<2>, nb::f_contig, nb::device::cpu>;
+using Out1 = nb::ndarray<nb::numpy, double, nb::ndim<1>>;
+using Out2 = nb::ndarray<nb::numpy, double, nb::ndim<2>>;
+
+template <class A>
+A owned(std::vector<double>&& data, std::initializer_list<size_t> shape) {
+  auto* buf = new std::vector<double>(std::move(data));
+  nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<std::vector<double>*>(p); });
+  return A(buf->data(), shape, owner);
+}
+
+// Watch._exact where J is square (no null space: numpy.linalg.svd's dgesdd('N') gives sigma_min, the eigenvalue is
+// +inf, the vector zero): (sigma_min_J, inf, 0, true, None, J, max(1, max |M_ij|)).
+nb::object exact_square(const Lapack& L, const double* J, const double* M, int m) {
+  const size_t mn = static_cast<size_t>(m) * m;
+  std::vector<double> Jc(mn), sv(std::max(m, 1)), u1(1), vt1(1);
+  for (int i = 0; i < m; ++i)
+    for (int k = 0; k < m; ++k) Jc[static_cast<size_t>(k) * m + i] = J[static_cast<size_t>(i) * m + k];
+  int mm = m, lda = std::max(1, m), one = 1, info = 0, lwork = -1;
+  std::vector<int> iw(8 * static_cast<size_t>(std::max(m, 1)));
+  double query = 0.0;
+  char jobz = 'N';
+  L.gesdd(&jobz, &mm, &mm, Jc.data(), &lda, sv.data(), u1.data(), &one, vt1.data(), &one, &query, &lwork, iw.data(),
+          &info);
+  lwork = std::max(1, static_cast<int>(query));
+  std::vector<double> work(lwork);
+  L.gesdd(&jobz, &mm, &mm, Jc.data(), &lda, sv.data(), u1.data(), &one, vt1.data(), &one, work.data(), &lwork,
+          iw.data(), &info);
+  const double sigma = info == 0 && m > 0 ? sv[m - 1] : std::nan("");
+  double scale = 1.0;
+  for (size_t k = 0; k < mn; ++k) scale = std::max(scale, std::abs(M[k]));
+  std::vector<double> Jcopy(J, J + mn);
+  return nb::make_tuple(sigma, INFINITY, owned<Out1>(std::vector<double>(m, 0.0), {static_cast<size_t>(m)}), true,
+                        nb::none(), owned<Out2>(std::move(Jcopy), {static_cast<size_t>(m), static_cast<size_t>(m)}),
+                        scale);
+}
+
+}  // namespace
+
+nb::object watch_measure(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
+                         const double* v, const double* J_ref, double sigma_ref, double gate) {
+  const Lapack& L = lapack();
+  if (nf == m) return exact_square(L, J, M, m);  // u = P v is zero: the Python watch's exact branch
+  int N = nf + m, one = 1, info = 0;
+  // u = P v: the top block of R^{-1} [v; 0] (Watch.measure: lapack.dgetrs(lu, piv, b) with b = [v; 0])
+  std::vector<double> b(N, 0.0);
+  std::vector<int> piv(N);
+  for (int i = 0; i < N; ++i) piv[i] = piv0[i] + 1;  // scipy's wrapper passes LAPACK's 1-based pivots
+  std::copy(v, v + nf, b.begin());
+  char trans = 'N';  // dgetrs reads the factors only
+  L.getrs(&trans, &N, &one, const_cast<double*>(lu), &N, piv.data(), b.data(), &N, &info);
+  std::vector<double> u(b.begin(), b.begin() + nf);
+  double uu = 0.0;
+  for (double e : u) uu += e * e;
+  if (!(uu > 0.0 && std::isfinite(uu))) return nb::none();  // the Python watch computes exactly
+  const double s = std::sqrt(uu);
+  for (double& e : u) e /= s;
+  double eig = 0.0;  // the Rayleigh quotient u^T (M u) on the null space of J (u = P v lies in it)
+  for (int i = 0; i < nf; ++i) {
+    double mi = 0.0;
+    for (int k = 0; k < nf; ++k) mi += M[static_cast<size_t>(i) * nf + k] * u[k];
+    eig += u[i] * mi;
+  }
+  const size_t mn = static_cast<size_t>(m) * nf;
+  if (J_ref != nullptr) {  // Watch._sigma: the last exact value while J stays within J_GATE of it (Weyl)
+    double d2 = 0.0;
+    for (size_t k = 0; k < mn; ++k) d2 += (J[k] - J_ref[k]) * (J[k] - J_ref[k]);
+    if (d2 < (gate * sigma_ref) * (gate * sigma_ref))
+      return nb::make_tuple(sigma_ref, eig, owned<Out1>(std::move(u), {static_cast<size_t>(nf)}), false,
+                            nb::none(), nb::none(), nb::none());
+  }
+  // dgesvd('N', 'N') on J (column-major copy, scipy's default lwork)
+  int mm = m, nn = nf, minmn = std::min(m, nf), lda = std::max(1, m), ldu = 1, ldvt = 1;
+  int lwork = std::max({3 * minmn + std::max(m, nf), 5 * minmn, 1});
+  std::vector<double> Jc(mn), sv(std::max(minmn, 1)), work(lwork), uu1(1), vt1(1);
+  for (int i = 0; i < m; ++i)
+    for (int k = 0; k < nf; ++k) Jc[static_cast<size_t>(k) * m + i] = J[static_cast<size_t>(i) * nf + k];
+  char jn = 'N';
+  L.gesvd(&jn, &jn, &mm, &nn, Jc.data(), &lda, sv.data(), uu1.data(), &ldu, vt1.data(), &ldvt, work.data(), &lwork,
+          &info);
+  const double sigma = info == 0 ? sv[minmn - 1] : std::nan(""), sigma_max = info == 0 ? sv[0] : std::nan("");
+  std::vector<double> Jcopy(J, J + mn);
+  return nb::make_tuple(sigma, eig, owned<Out1>(std::move(u), {static_cast<size_t>(nf)}), true, sigma_max,
+                        owned<Out2>(std::move(Jcopy), {static_cast<size_t>(m), static_cast<size_t>(nf)}), nb::none());
+}
+
+namespace {
+
+// watch_measure(J (m x n), M (n x n), lu (N x N, column-major), piv (N, 0-based), free (int32, ascending),
+//               v (nf), J_ref (m x nf, or any other shape: none), sigma_ref, gate): the free joints' J and M taken
+// as Watch.reduce takes them, then watch_measure above.
+nb::object measure_arrays(Mat J, Mat M, FMat lu, nb::ndarray<const int, nb::ndim<1>, nb::c_contig> piv,
+                          nb::ndarray<const int, nb::ndim<1>, nb::c_contig> free, Vec v, Mat J_ref, double sigma_ref,
+                          double gate) {
+  const int m = static_cast<int>(J.shape(0)), n = static_cast<int>(J.shape(1)), nf = static_cast<int>(free.shape(0));
+  const int N = nf + m;
+  if (M.shape(0) != static_cast<size_t>(n) || M.shape(1) != static_cast<size_t>(n))
+    throw nb::value_error("M must be n x n (J: m x n)");
+  if (lu.shape(0) != static_cast<size_t>(N) || lu.shape(1) != static_cast<size_t>(N) ||
+      piv.shape(0) != static_cast<size_t>(N))
+    throw nb::value_error("lu and piv: the factors of the reduced R (nf + m rows)");
+  if (v.shape(0) != static_cast<size_t>(nf)) throw nb::value_error("v must have one entry per free joint");
+  for (int k = 0; k < nf; ++k)
+    if (free(k) < 0 || free(k) >= n || (k > 0 && free(k) <= free(k - 1)))
+      throw nb::value_error("free: ascending joint numbers in [0, n)");
+  for (int i = 0; i < N; ++i)
+    if (piv(i) < 0 || piv(i) >= N) throw nb::value_error("piv: 0-based row numbers in [0, N)");
+  std::vector<double> Jr(static_cast<size_t>(m) * nf), Mr(static_cast<size_t>(nf) * nf);
+  for (int i = 0; i < m; ++i)
+    for (int k = 0; k < nf; ++k) Jr[static_cast<size_t>(i) * nf + k] = J(i, free(k));
+  for (int i = 0; i < nf; ++i)
+    for (int k = 0; k < nf; ++k) Mr[static_cast<size_t>(i) * nf + k] = M(free(i), free(k));
+  const bool ref = J_ref.shape(0) == static_cast<size_t>(m) && J_ref.shape(1) == static_cast<size_t>(nf);
+  return watch_measure(Jr.data(), Mr.data(), lu.data(), piv.data(), nf, m, v.data(), ref ? J_ref.data() : nullptr,
+                       sigma_ref, gate);
+}
+
+}  // namespace
+
+void bind_watch(nb::module_& m) {
+  m.def("watch_measure", &measure_arrays, nb::arg("J"), nb::arg("M"), nb::arg("lu"), nb::arg("piv"), nb::arg("free"),
+        nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"), nb::arg("gate"),
+        "The watch's inverse-iteration measurement (kinredund.tracking.watch.Watch.measure) on given matrices: "
+        "None (the exact computation's turn) or (sigma_min_J, eig, u, fresh, sigma_max, J or None).");
+}
+
+}  // namespace kinredund

@@ -1,0 +1,23 @@
+// kinredund._core: the fold and singularity watch's measurement of a step (issue 28; watch.cpp).
+#pragma once
+
+#include <nanobind/nanobind.h>
+
+namespace kinredund {
+
+// The watch's inverse-iteration measurement (kinredund.tracking.watch.Watch.measure, the branch that reuses R's
+// factors): J (m x nf, row-major), M (nf x nf, row-major) of the free joints, R's LU factors (N x N column-major,
+// N = nf + m, LAPACK's layout) with 0-based pivots, the last vector v (nf), the last exact J_ref (m x nf,
+// row-major; null where there is none or its shape differs) and sigma_min there, J_GATE. Returns None where the
+// Python watch computes exactly instead (u = P v not finite or zero, J not square), else (sigma_min_J, eig, u,
+// fresh, sigma_max or None, J or None, scale or None): ``fresh`` where sigma_min(J) was computed afresh (then the
+// copy of J is the new reference; sigma_max where dgesvd gave it); where J is square (no null space) the exact
+// branch's (dgesdd, eig = inf, u = 0, the fold floor's scale max(1, max |M_ij|)). LAPACK's dgetrs, dgesvd and dgesdd
+// are scipy's (cython_lapack), the routines of the Python watch's calls (numpy's svd: dgesdd, another build).
+nanobind::object watch_measure(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
+                               const double* v, const double* J_ref, double sigma_ref, double gate);
+
+// Binds watch_measure on arrays into the module (for tests: any J, M and factors).
+void bind_watch(nanobind::module_& m);
+
+}  // namespace kinredund
