@@ -299,6 +299,8 @@ class CompiledStep:
 
     def sync_active(self) -> None:
         """Give the core the stepper's active set where it changed (a switch replaces the ``fixed`` array)."""
+        if self.stepper.fixed is self._fixed:  # the common case, without making the bound values
+            return
         fixed, side, bound = self.stepper.active_set()
         if fixed is not self._fixed:
             self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
