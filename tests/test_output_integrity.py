@@ -396,6 +396,26 @@ def test_a_zero_range_joint_is_locked_not_refused_with_a_margin_never_given(tmp_
 
 
 @pytest.mark.slow
+def test_the_closing_of_a_killed_cluster_logs_no_traceback_and_the_levels_come_back(caplog):
+    """CI once caught a Ctrl-C on a Dask sweep printing distributed's CommClosedError traceback: the client's
+    batched send to a killed worker, logged at INFO while the cluster closed (a race). The teardown runs with
+    distributed's loggers quiet, and their levels are put back after it."""
+    import logging
+
+    from kinredund.sweep.cluster import _quiet_distributed
+
+    batched = logging.getLogger("distributed.batched")
+    before = batched.level
+    with caplog.at_level(logging.DEBUG, logger="distributed.batched"):
+        batched.setLevel(logging.INFO)
+        with _quiet_distributed():
+            batched.info("Batched Comm Closed", exc_info=RuntimeError("CommClosedError"))
+        assert not caplog.records
+        batched.info("after the teardown")
+        assert [r.getMessage() for r in caplog.records] == ["after the teardown"]
+    batched.setLevel(before)
+
+
 def test_ctrl_c_on_a_dask_sweep_is_quiet_and_names_the_file_kept(tmp_path):
     """Before: every worker printed its own KeyboardInterrupt traceback. The terminal's Ctrl-C goes to the
     whole process group: sent here with killpg once the cluster has written its first batch."""

@@ -113,12 +113,34 @@ def dask_client(client, scheduler: str | None, workers: int | None):
             c.run(ignore_interrupt)  # a terminal's Ctrl-C reaches the whole process group: this process decides
             yield c
         except BaseException:
-            _kill_workers(cluster)  # interrupted or failed: do not wait for the placements in flight
+            with _quiet_distributed():  # interrupted or failed: do not wait for the placements in flight
+                _kill_workers(cluster)
+                c.close()
+                cluster.close()
             raise
         finally:
             c.close()
     finally:
         cluster.close()
+
+
+@contextlib.contextmanager
+def _quiet_distributed():
+    """distributed's loggers in this process quiet while the killed cluster is closed, then as they were.
+
+    The client's comms to the killed workers close under their batched sends, which distributed logs with a
+    traceback (``distributed.batched``, INFO, CommClosedError) whenever a send was in flight: a Ctrl-C on a
+    sweep printed a traceback on some runs (a race with the sends)."""
+    names = ("distributed", "distributed.batched", "distributed.comm", "distributed.client", "distributed.core")
+    loggers = [logging.getLogger(name) for name in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
 
 
 def connect(scheduler: str):
