@@ -63,12 +63,7 @@ def gil_free_share(jobs: list, options: dict) -> float:
 def bench(runs: int = 8, loops: int = 1, repeat: int = 3) -> dict:
     jobs = problems(runs)
     options = {"loops": loops}
-    alone = []
-    for job in jobs:
-        try:
-            alone.append(track(*job, **options))
-        except TrackingError as err:
-            alone.append(err)
+    alone = track_many(jobs, threads=1, **options)  # one track() after another, in this thread
     rates = {1: [], 2: []}
     same = True
     for _ in range(repeat):

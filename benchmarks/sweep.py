@@ -113,7 +113,7 @@ def tracking_figures(robot, path, index, P: np.ndarray, threads: int = 2) -> dic
     from kinredund.errors import KinredundError
     from kinredund.sweep.evaluate import SweepOptions, start_configuration
     from kinredund.sweep.placement import PartPath
-    from kinredund.tracking import track, track_many
+    from kinredund.tracking import track_many
 
     options = SweepOptions()
     kw = {"steps_per_loop": options.steps_per_loop, "loops": options.loops, "diagnostics": False}
@@ -127,12 +127,7 @@ def tracking_figures(robot, path, index, P: np.ndarray, threads: int = 2) -> dic
         if ik.converged:
             jobs.append((robot, part, index, ik.q))
     t0 = time.perf_counter()
-    alone = []
-    for job in jobs:
-        try:
-            alone.append(track(*job, **kw))
-        except KinredundError as err:
-            alone.append(err)
+    alone = track_many(jobs, threads=1, **kw)  # one track() after another, in this thread
     t_alone = time.perf_counter() - t0
     t0 = time.perf_counter()
     many = track_many(jobs, threads=threads, **kw)

@@ -302,9 +302,8 @@ class CompiledStep:
         if self.stepper.fixed is self._fixed:  # the common case, without making the bound values
             return
         fixed, side, bound = self.stepper.active_set()
-        if fixed is not self._fixed:
-            self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
-            self._fixed = fixed
+        self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
+        self._fixed = fixed
 
     def apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
