@@ -11,7 +11,8 @@ rounds of runs per second, and the speed-up (2 threads over 1: at most 2 on 2 co
 the machine). The compiled core runs the ordinary steps in runs, each one C++ call with the GIL released
 (:mod:`kinredund.tracking.runs`); the rest (the path samples, the record, the steps it hands back) holds it.
 The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
-a run's time spent in the core's runs of steps (C++, the GIL released; numpy's LAPACK calls release it as well).
+a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in the core's runs of
+steps (C++, the GIL released; numpy's LAPACK calls release it as well), which bounds the speed-up on two threads.
 On a shared machine the speed-up moves with the others' load (``parallel capacity`` in ``benchmarks/sweep.py``).
 """
 
@@ -33,28 +34,30 @@ def problems(count: int) -> list:
 
 
 def gil_free_share(jobs: list, options: dict) -> float:
-    """The share of the runs' time (one by one, one thread) spent in the core's runs of steps, where the GIL is
-    released (numpy's LAPACK calls, the watch's, release it too: the share of the whole run is larger)."""
+    """The share of the runs' CPU time (one by one, this thread's: ``time.thread_time``, which other processes'
+    load does not count) spent in the core's runs of steps, where the GIL is released (numpy's LAPACK calls, the
+    watch's, release it too: the share of the whole run is larger). With a GIL-held share g the speed-up on two
+    threads is at most min(2, 1 / g)."""
     import kinredund._core as core
 
     inner, spent = core.run_steps, [0.0]
 
     def timed(*args):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         try:
             return inner(*args)
         finally:
-            spent[0] += time.perf_counter() - t0
+            spent[0] += time.thread_time() - t0
 
     core.run_steps = timed
     try:
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         for job in jobs:
             try:
                 track(*job, **options)
             except TrackingError:
                 pass
-        total = time.perf_counter() - t0
+        total = time.thread_time() - t0
     finally:
         core.run_steps = inner
     return spent[0] / total
@@ -93,7 +96,8 @@ def main() -> None:
                   res["speedup_2_over_1"], res["core_runs_share"], res["stopped"], res["same_as_one_by_one"]]],
                 ["runs", "steps each", "runs/s 1 thread", "runs/s 2 threads", "speed-up", "in core runs", "stopped",
                  "same"])
-    print("in core runs: the share of a run's time (1 thread) in the core's runs of steps, C++ with the GIL released")
+    print("in core runs: the share of a run's CPU time (1 thread) in the core's runs of steps, C++ with the GIL "
+          "released")
     write_json(args.json, res)
 
 

@@ -63,22 +63,28 @@ class Recorder:
         if self.rows is not None:
             self.rows.append(s.row_record())
 
-    def add_rows(self, t: list[float], q, lam, M, J, pose, desired, qdot) -> None:
+    def add_rows(self, t: list[float], q, lam, M, J, pose, desired, qdot, held: tuple | None = None) -> None:
         """Record several steps at once (:mod:`kinredund.tracking.runs`): per step its time [s], joints,
-        multipliers, M, the step's J (rows of arrays, the solver labels pending) and rates, ``pose`` (Q (k, 3, 3),
-        p (k, 3)) at the corrected joints and ``desired``, the path's (p_d (k, 3), Q_d (k, 3, 3) or None); no joint
-        on a bound, no general rows (the stepper's own multipliers of the bounds, zero, as :meth:`add` records)."""
+        multipliers, M, the step's J (rows of arrays) and rates, ``pose`` (Q (k, 3, 3), p (k, 3)) at the corrected
+        joints and ``desired``, the path's (p_d (k, 3), Q_d (k, 3, 3) or None); no general rows. Without ``held``
+        no joint is on a bound (the solver labels pending, the stepper's own multipliers of the bounds, zero, as
+        :meth:`add` records); else (the steps' solver labels, the active bounds (n,), the bound multipliers
+        (k, n)), the same active set throughout."""
         k = len(t)
         self.t += t
         self.q += list(q)
         self.lam += list(lam)
-        self.solver += [None] * k
         self.M += list(M)
-        self.J_step += list(J)
         self.points.append(PoseRows(*pose, *desired))
+        if held is None:
+            self.solver += [None] * k
+            self.J_step += list(J)
+        else:
+            self.solver += held[0]
+            self.J_step += [None] * k
         if self.limited:
-            self.active += [None] * k
-            self.mu += [self.stepper.mu] * k
+            self.active += [None] * k if held is None else [held[1]] * k
+            self.mu += [self.stepper.mu] * k if held is None else list(held[2])
             self.qdot += list(qdot)
 
     def _lam_full(self) -> np.ndarray:
@@ -107,18 +113,25 @@ class Recorder:
                 "bound_multipliers": np.array(self.mu), "limit_margins": np.minimum(lim.margins(q), 1e10),
                 "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
-    def _evaluate(self):
-        """(Q, p, {k: J} where the step's own evaluation was made at recorded point k, p_d, Q_d per point): the
-        pose afresh at the other recorded joints (K there is left to :class:`Diagnostics`)."""
+    def _evaluate(self, oriented: bool):
+        """(Q (k, 3, 3), p (k, 3), {k: J} where the step's own evaluation was made at recorded point k, p_d (k, 3),
+        Q_d (k, 3, 3), None where the task has no orientation (``oriented``)): the pose afresh at the other
+        recorded joints (K there is left to :class:`Diagnostics`). A run's rows (:class:`PoseRows`) are stacked as
+        the blocks they are, the points recorded one by one in between a block each."""
         kin = self.stepper.ev.robot.kinematics
-        Qs, ps, own, p_d, Q_d = [], [], {}, [], []
+        blocks, single, own = [], [], {}
+
+        def close() -> None:  # the points recorded one by one since the last block, as one block
+            if single:
+                Q, p, p_d, Q_d = zip(*single, strict=True)
+                blocks.append((np.array(Q), np.array(p), np.array(p_d), np.array(Q_d) if oriented else None))
+                single.clear()
+
         k = 0
         for item in self.points:
             if isinstance(item, PoseRows):  # the rows of a run (add_rows)
-                Qs += list(item.Q)
-                ps += list(item.p)
-                p_d += list(item.p_d)
-                Q_d += [None] * len(item.p) if item.Q_d is None else list(item.Q_d)
+                close()
+                blocks.append((item.Q, item.p, item.p_d, item.Q_d))
                 k += len(item.p)
                 continue
             if hasattr(item, "terms"):
@@ -127,21 +140,18 @@ class Recorder:
                 (Q, p), sample = item.pose, item.sample
             else:
                 (Q, p), sample = kin.pose(self.q[k]), item
-            Qs.append(Q)
-            ps.append(p)
-            p_d.append(sample.p)
-            Q_d.append(sample.Q)
+            single.append((Q, p, sample.p, sample.Q))
             k += 1
-        return np.array(Qs), np.array(ps), own, p_d, Q_d
+        close()
+        Q, p, p_d = (np.concatenate([b[j] for b in blocks]) for j in range(3))
+        return Q, p, own, p_d, np.concatenate([b[3] for b in blocks]) if oriented else None
 
     def trajectory(self, *, robot_name: str, scheme: str, mode: str, loops: int | None, steps_per_loop: int | None,
                    period: float | None, meta: dict) -> Trajectory:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
         task = get_task(s.ev.task)
-        Q, p, own, p_d, Q_d = self._evaluate()
-        p_d = np.array(p_d)
-        Q_d = np.array(Q_d) if task.has_orientation else None
+        Q, p, own, p_d, Q_d = self._evaluate(task.has_orientation)
         errors = task.errors_many(Q, p, Q_d, p_d)
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
         t, q = np.array(self.t), np.array(self.q)

@@ -60,13 +60,21 @@ def reduce(J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None) -> tuple[np.n
 
 
 def exact(J: np.ndarray, M: np.ndarray) -> tuple[float, float, np.ndarray]:
-    """(sigma_min(J), smallest eigenvalue of Z^T sym(M) Z, its eigenvector in joint space), exactly."""
+    """(sigma_min(J), smallest eigenvalue of Z^T sym(M) Z, its eigenvector in joint space), exactly.
+
+    One SVD of J gives both sigma_min(J) and Z, the last n - m right singular vectors (an orthonormal basis of the
+    null space of J; the eigenvalues of Z^T sym(M) Z do not depend on which). Where n - m = 1 the reduced Hessian
+    is the number z^T sym(M) z and z its eigenvector."""
     m, n = J.shape
-    sJ = np.linalg.svd(J, compute_uv=False)
     if n == m:
+        sJ = np.linalg.svd(J, compute_uv=False)
         return float(sJ[-1]), math.inf, np.zeros(n)
-    Z = np.linalg.qr(J.T, mode="complete")[0][:, m:]
-    w, V = np.linalg.eigh(Z.T @ (0.5 * (M + M.T)) @ Z)
+    sJ, Vt = np.linalg.svd(J)[1:]
+    Z = Vt[m:].T
+    S = Z.T @ (0.5 * (M + M.T)) @ Z
+    if n - m == 1:
+        return float(sJ[-1]), float(S[0, 0]), Z[:, 0]
+    w, V = np.linalg.eigh(S)
     return float(sJ[-1]), float(w[0]), Z @ V[:, 0]
 
 
