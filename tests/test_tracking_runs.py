@@ -64,7 +64,8 @@ def tracked(monkeypatch, name: str, batched: bool, **options):
 
 
 @pytest.mark.parametrize(("name", "options"), [
-    ("panda_elbow_circle", {"loops": 2}),  # a joint reaches its bound and leaves it (handed back, then runs again)
+    ("panda_elbow_circle", {"loops": 2}),  # a joint reaches its bound and leaves it (runs go on while it is held)
+    ("panda_elbow_circle", {"loops": 1, "scheme": "velocity"}),  # held steps of the velocity form (label lu)
     ("ur5_axis", {"loops": 2, "scheme": "velocity"}),  # the path's orientation, the velocity form
     ("planar_time_varying", {"loops": 1, "limits": False}),  # the reference sampled per step with the path
     ("example_4.1", {"loops": 2, "limits": False, "strict": False}),  # no step control, no watch
@@ -111,6 +112,39 @@ def test_runs_take_many_steps_per_call_and_leave_the_state_of_single_steps():
     assert b.control.watch.gate == a.control.watch.gate and b.control.speed2 == a.control.speed2
     assert batched.compiled.steps == single.compiled.steps
     assert batched.compiled.handed_back == single.compiled.handed_back
+
+
+def test_runs_go_on_through_steps_with_a_joint_held_on_its_bound():
+    """Runs do not stop at a held joint: the core steps on the reduced system (the active set it was given) until
+    the active set changes, and the record, the switches and the state are those of single steps."""
+    r, path, index, q0 = problem("panda_elbow_circle")
+    dt = path.period / 200
+    single = Tracker(r, path, index, q0, dt, backend="compiled")
+    batched = Tracker(r, path, index, q0, dt, backend="compiled")
+    rec_a, rec_b = Recorder(single.stepper), Recorder(batched.stepper)
+    rec_a.add()
+    rec_b.add()
+    advance = runs.stepping(batched, rec_b)
+    held_runs, done = [], 0
+    while done < 200:
+        held = batched.stepper.any_active
+        k = advance(200 - done)
+        done += k
+        if held and batched.stepper.any_active:
+            held_runs.append(k)
+    for _ in range(200):
+        single.step()
+        rec_a.add()
+    assert max(held_runs) >= 10  # many held steps per call (the watch's measured steps still end runs)
+    assert batched.compiled.held_steps == single.compiled.held_steps > max(held_runs)
+    assert batched.compiled.handed_back == single.compiled.handed_back
+    info = {"robot_name": "panda", "scheme": "augmented", "mode": "default", "loops": 1, "steps_per_loop": 200,
+            "period": path.period}
+    a, b = (rec.trajectory(meta={}, **info) for rec in (rec_a, rec_b))
+    assert_identical(a, b)
+    assert len(a.meta["switches"]) >= 2 and a.meta == b.meta
+    np.testing.assert_array_equal(a.active_bounds, b.active_bounds)
+    assert np.count_nonzero(np.abs(b.active_bounds).sum(axis=1)) > max(held_runs)  # points recorded with a held joint
 
 
 def test_the_core_refuses_arrays_of_the_wrong_shape():

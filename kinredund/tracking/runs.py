@@ -16,8 +16,10 @@ from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`
 (its row is finished in Python: :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself
 the core's, ``StepCore.watch_measure``). Every step is the
 one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
-and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Steps with a joint held on its
-bound are the core's too, one call each (:meth:`~kinredund.tracking.compiled.CompiledStep.step`). Like
+and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Runs go on through steps with
+joints held on their bounds (the core's reduced system, the active set it was given: ``StepCore.set_active``); the
+active set changes only at a step the core hands back (a bound reached or released, whose switch the Python stepper
+locates), so it is the same throughout a run. Like
 :mod:`~kinredund.tracking.compiled`, it reads only the stepper's and the step control's public interface.
 """
 
@@ -75,8 +77,6 @@ class Runs:
     def _ordinary(self, count: int) -> int:
         """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
         s, ctl = self.s, self.ctl
-        if getattr(s, "any_active", False):  # a joint on a bound: the core's held steps, one at a time
-            return 0
         K = min(count, MAX_RUN)
         if ctl is not None:
             t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before
@@ -158,9 +158,10 @@ class Runs:
         n, m, _ = c.shapes
         K = len(times)
         Y, SOL = out[:, sy], out[:, ssol]
-        self.rec.add_rows(times, Y[:, :n], Y[:, n:], out[:, sM].reshape(K, n, n), out[:, sJ].reshape(K, m, n),
-                          (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
-                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n])
+        M, J = out[:, sM].reshape(K, n, n), out[:, sJ].reshape(K, m, n)
+        held = self._held(out, M, J) if c.limited and s.any_active else None
+        self.rec.add_rows(times, Y[:, :n], Y[:, n:], M, J, (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
+                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n], held)
         if K > 1:  # the state before the last row: the predictor's history as the steps between carried it
             hist = [*s.prev, s.y, s.yd]
             for j in range(K - 2):
@@ -169,9 +170,19 @@ class Runs:
             s.y, s.yd = Y[K - 2], SOL[K - 2]
             s.k += K - 1
             c.steps += K - 1
+            c.held_steps += (K - 1) * (held is not None)
         last = out[K - 1]
         rcond = float(last[-2])
         c.apply(last, at.sample(i + K - 1), times[-1], rcond)
         if ctl is not None:
             ctl.watch.passed(K, rcond)
             ctl.speed2 = float(last[-1])
+
+    def _held(self, out: np.ndarray, M: np.ndarray, J: np.ndarray) -> tuple:
+        """(solver labels, active bounds, bound multipliers (K, n)) of a run's rows with joints held on their bounds,
+        as :meth:`~kinredund.tracking.compiled.CompiledStep.apply` gives each step (the reduced system's label from
+        the core's verdict) and :meth:`~kinredund.tracking.recorder.Recorder.add` records it."""
+        s, (*_, s_mu, s_label) = self.s, self.c.slices
+        codes = out[:, s_label][:, 0].astype(int)
+        labels = [s.reduced_label(M[j], J[j], int(codes[j])) for j in range(len(out))]
+        return labels, s.active_bounds(), out[:, s_mu]

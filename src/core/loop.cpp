@@ -24,8 +24,8 @@ using Rows = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cp
 using Vec = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
 using Sink = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
-// The status of a step the watch measures (after step.cpp's codes and the driver's 8-10).
-constexpr int WATCH_DUE = 11;
+// The status of a step the watch measures (after step.cpp's codes, RELEASE = 11 among them, and the driver's 8-13).
+constexpr int WATCH_DUE = 20;
 
 void check_rows(const Rows& a, size_t k, size_t width, const char* name) {
   if (a.shape(0) != k || a.shape(1) != width)
