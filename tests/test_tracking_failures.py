@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import rounding
 
 import kinredund
 from kinredund import load_robot
@@ -29,6 +30,7 @@ from kinredund.ik.solve import solve_ik
 from kinredund.indices import CustomIndex, minimum_norm
 from kinredund.paths import Circle, FunctionPath
 from kinredund.tracking import Tracker, track
+from kinredund.tracking.watch import exact
 
 #: the stepper's on-path bar (1e-6 of the path's scale) is what "on the path" means for the last good point
 ON_PATH = 1e-6
@@ -284,3 +286,26 @@ def test_a_named_failure_at_the_start_keeps_its_cause(monkeypatch):
     with pytest.raises(TrackingError) as info:
         track(robot, path, index, q0, steps_per_loop=20)
     assert info.value.cause == "not_strongly_stable" and "stand-in" in str(info.value)
+
+
+@pytest.mark.parametrize(("m", "n"), [(2, 3), (6, 7), (3, 7), (5, 5)])
+def test_the_watch_measures_what_a_qr_null_basis_gives(m, n):
+    """The watch's exact measurement (one SVD of J: sigma_min and the null-space basis together) against the
+    same quantities computed another way: a QR null basis Z of J and the eigenvalues of Z^T sym(M) Z, which do not
+    depend on the orthonormal basis (rounding of numbers of size |M| cond(J), the tolerance policy's kind 1); its
+    vector is a unit vector in the null space of J whose Rayleigh quotient is the eigenvalue."""
+    rng = np.random.default_rng(m * 10 + n)
+    for _ in range(5):
+        J, M = rng.standard_normal((m, n)), rng.standard_normal((n, n))
+        sigma, eig, v = exact(J, M)
+        s = np.linalg.svd(J, compute_uv=False)
+        assert abs(sigma - s[-1]) <= rounding(s[0])
+        if n == m:
+            assert eig == np.inf and not v.any()
+            continue
+        Z = np.linalg.qr(J.T, mode="complete")[0][:, m:]
+        S = Z.T @ (0.5 * (M + M.T)) @ Z
+        bar = rounding(np.abs(M).max() * n * s[0] / s[-1])
+        assert abs(eig - np.linalg.eigvalsh(S)[0]) <= bar
+        assert abs(v @ v - 1.0) <= rounding() and np.linalg.norm(J @ v) <= rounding(s[0])
+        assert abs(v @ (0.5 * (M + M.T)) @ v - eig) <= bar
