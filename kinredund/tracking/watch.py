@@ -40,8 +40,8 @@ from scipy.linalg import lapack
 #: this, or fell below RCOND_DROP of the previous step's, or every EXACT_EVERY steps; elsewhere it skips
 RCOND_NEAR = 1e-4
 RCOND_DROP = 0.8
-#: an exact eigenvalue computation (QR null basis, eigvalsh) every this many measurements resets the
-#: inverse iteration's vector (where n - m > 1 a second eigenvalue may come nearer zero)
+#: an exact eigenvalue computation (one SVD of J for sigma_min and the null-space basis, eigh) every this many
+#: measurements resets the inverse iteration's vector (where n - m > 1 a second eigenvalue may come nearer zero)
 EXACT_EVERY = 32
 #: the exact sigma_min(J) is recomputed once ||J - J_ref||_F exceeds this fraction of the last exact value
 J_GATE = 0.25
@@ -209,7 +209,7 @@ class Watch:
         return self._exact_at == t
 
     def measure_exact(self, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> tuple[float, float]:
-        """(sigma_min_J, reduced_hessian_min) exactly (QR null basis and eigh, SVD), at the caller's point."""
+        """(sigma_min_J, reduced_hessian_min) exactly (one SVD of J, eigh where n - m > 1), at the caller's point."""
         self._exact_at = None
         return self._exact(*reduce(J, M, fixed))
 

@@ -5,7 +5,8 @@
 // where it is zero), and sigma_min(J): the last exact value while ||J - J_ref||_F < J_GATE sigma_ref (Weyl), else
 // LAPACK dgesvd without vectors. dgetrs and dgesvd are scipy's own (scipy.linalg.cython_lapack's capsules, the
 // library behind scipy.linalg.lapack), so the numbers are the Python watch's to rounding of the vector operations.
-// The exact branch (QR null basis, eigh; every EXACT_EVERY measurements) stays in Python.
+// The exact branch (one SVD of J for sigma_min and the null basis, eigh; every EXACT_EVERY measurements) stays in
+// Python.
 #include "watch.hpp"
 
 #include <nanobind/ndarray.h>
