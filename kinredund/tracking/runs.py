@@ -163,10 +163,11 @@ class Runs:
         self.rec.add_rows(times, Y[:, :n], Y[:, n:], M, J, (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
                           (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n], held)
         if K > 1:  # the state before the last row: the predictor's history as the steps between carried it
+            keep = PREDICTOR_POINTS - 1  # the (y, ydot) pairs the history holds: the rows before them drop out
             hist = [*s.prev, s.y, s.yd]
-            for j in range(K - 2):
+            for j in range(max(0, K - 2 - keep), K - 2):
                 hist += (Y[j], SOL[j])
-            s.prev[:] = hist[-2 * (PREDICTOR_POINTS - 1):]
+            s.prev[:] = hist[-2 * keep:]
             s.y, s.yd = Y[K - 2], SOL[K - 2]
             s.k += K - 1
             c.steps += K - 1
