@@ -44,7 +44,8 @@ switch in Python; ``scene_python_over_default`` the scene step on the Python ste
 scene step's time goes (``scene_breakdown_us``: the compiled distance
 query, the Python around it, the stepper's rows, the rate QP, the rest) and the queries' share
 (``scene_query_share``). Run:
-``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
+``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (``--scene``: the Panda's
+scene figures only, a few minutes less) (pink comes with
 ``pip install .[bench]``; without it the pink columns are left out). The JSON holds ``robots`` (the
 figures per robot) and ``keys`` (what each figure times).
 """
@@ -484,10 +485,37 @@ def write_plot(results: dict, path: Path) -> None:
     print(f"wrote {path}")
 
 
+def print_scene(panda: dict) -> None:
+    """Print the scene figures of :func:`scene_figures` (where they were measured)."""
+    if "scene_over_limits" not in panda:
+        return
+    same, other, part = panda["scene_in_turn_us"], panda["scene_default_in_turn_us"], panda["scene_breakdown_us"]
+    print(f"Panda, five-object scene and self pairs held: on the Python stepper, step {same['step_scene_us']:.3g} "
+          f"us against {same['step_limits_us']:.3g} us with the limits only: {panda['scene_over_limits']:.2f} "
+          f"(target <= 1.5); on the default backend ({panda['scene_backend']}), {other['step_scene_us']:.3g} us "
+          f"against the limits-only step ({panda['limits_backend']}, {other['step_limits_us']:.3g} us): "
+          f"{panda['scene_over_default']:.2f} (the Python stepper's scene step {other['step_scene_python_us']:.3g} "
+          f"us: {panda['scene_python_over_default']:.2f})")
+    print("  per scene step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in part.items())
+          + f"; {100 * panda['scene_query_share']:.2g} % in the distance queries (core + query; "
+          f"{panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
+
+
+def scene_only(steps: int, json_path: Path | None) -> None:
+    """``--scene``: the Panda's scene figures alone (:func:`scene_figures`), printed and written as ``robots``."""
+    robot, path, index, q0 = _setup("panda")
+    panda = scene_figures(robot, path, index, q0, path.period / 200, steps)
+    print_scene(panda)
+    write_json(json_path, {"robots": {"panda": panda}, "keys": KEYS})
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--plot", type=Path, default=None, help="write a bar chart of the times (png, svg, pdf)")
+    p.add_argument("--scene", action="store_true", help="the Panda's scene figures only (scene_*)")
     args = p.parse_args()
+    if args.scene:
+        return scene_only(10 if args.smoke else 1000, args.json)
     results = {name: bench(name, 10 if args.smoke else 1000) for name in ("panda", "cybotech_p15")}
     cols = ["eval_us", "eval_stepper_us", "step_default_us", "step_default_velocity_us", "step_thesis_us", "pinv_us",
             "pink_step_us", "pink_limits_step_us"]
@@ -510,17 +538,7 @@ def main() -> None:
               f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP; with joint 4 held "
               f"{panda['switching_held_step_us']:.3g} us (the Python stepper "
               f"{panda['switching_held_step_python_us']:.3g} us)")
-    if "scene_over_limits" in panda:
-        same, other, part = panda["scene_in_turn_us"], panda["scene_default_in_turn_us"], panda["scene_breakdown_us"]
-        print(f"Panda, five-object scene and self pairs held: on the Python stepper, step {same['step_scene_us']:.3g} "
-              f"us against {same['step_limits_us']:.3g} us with the limits only: {panda['scene_over_limits']:.2f} "
-              f"(target <= 1.5); on the default backend ({panda['scene_backend']}), {other['step_scene_us']:.3g} us "
-              f"against the limits-only step ({panda['limits_backend']}, {other['step_limits_us']:.3g} us): "
-              f"{panda['scene_over_default']:.2f} (the Python stepper's scene step {other['step_scene_python_us']:.3g} "
-              f"us: {panda['scene_python_over_default']:.2f})")
-        print("  per scene step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in part.items())
-              + f"; {100 * panda['scene_query_share']:.2g} % in the distance queries (core + query; "
-              f"{panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
+    print_scene(panda)
     for name, r in results.items():
         print(f"{name}: track() {r['track_step_us']:.3g} us per step against Tracker.step() {r['tracker_step_us']:.3g} "
               f"us: ratio {r['track_over_step']:.2f} (target <= 1.3); {r['track_read_over_step']:.2f} with its "
