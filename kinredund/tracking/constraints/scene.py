@@ -224,6 +224,13 @@ class SceneClearance(Constraint):
     def gradients(self, q: np.ndarray) -> np.ndarray:
         return self._query(q)[4].copy()
 
+    def row_guard(self, tol: float):
+        """The compiled check of a step (``kinredund._core.RowGuard`` on a workspace of its own): the lowered values
+        of :meth:`_query` (exact below :data:`SKIP_MARGIN`) and the test of :meth:`segment_lower_bounds`, in C++;
+        None where the scene's queries run in Python."""
+        return self.scene.workspace(own=True).row_guard(self._row, self.clearances, self.influence, self._bound,
+                                                        self._extent, tol, SKIP_MARGIN)
+
     def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         out = self._query(q)
         return out[3].copy(), out[4].copy()
