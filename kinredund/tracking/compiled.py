@@ -37,8 +37,8 @@ bounds) the step is taken without the search, else the search decides as above.
 
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
 own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
-``reduced_label``, ``rows``, ``row_pairs`` and ``pending_switches``, and the step control's ``snapshot``,
-``restore``, ``watch_point`` and ``speed2``.
+``reduced_label``, ``rows``, ``row_pairs``, ``pending_switches`` and ``general`` (its constraint's
+``row_guard``), and the step control's ``snapshot``, ``restore``, ``watch_point`` and ``speed2``.
 
 :func:`attach` picks the backend of a :class:`~kinredund.tracking.tracker.Tracker`: ``compiled`` where the
 core loads and supports the problem, else ``python`` (``backend="compiled"`` then raises an
