@@ -350,10 +350,10 @@ class _TimedCore:
 
 
 class _TimedGuard:
-    """The compiled driver's row check (``kinredund._core.RowGuard``) with its ``clear`` timed."""
+    """The compiled driver's row check (``SceneClearance.row_guard``) with its ``clear`` timed."""
 
     def __init__(self, guard, sections: _Sections):
-        self.clear, self.values = sections.wrap("guard", guard.clear), guard.values
+        self.clear = sections.wrap("guard", guard.clear)
 
 
 def scene_breakdown(tracker, steps: int = 200) -> dict:

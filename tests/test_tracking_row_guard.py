@@ -16,6 +16,7 @@ import pytest
 from test_tracking_compiled import Q_BAR
 
 import kinredund as kr
+from kinredund.errors import OptionError
 from kinredund.problems import panda_circle
 from kinredund.tracking import SceneClearance, Tracker, compiled
 from kinredund.tracking.rows import ROW_TOL
@@ -144,3 +145,18 @@ def test_bad_guard_arguments_name_what_is_expected():
         guard.clear(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), 0.01)
     nan = np.full(r.nq, np.nan)
     assert not guard.clear(nan, nan, nan, nan, 0.01)  # not finite: handed back, never a silent clear
+
+
+@pytest.mark.parametrize("backend", ["python", "compiled"])
+def test_a_scene_changed_during_a_run_is_refused_as_on_the_python_stepper(backend):
+    """The guard checks the scene as it was made: after a change it clears no step, so the compiled run meets the
+    stepper's error (SceneClearance: make a new one) at the next step, as the Python run does."""
+    robot, path, index, q0 = panda_circle()
+    far = kr.Scene(robot)
+    far.add_sphere("lamp", 0.05, [0.0, 0.0, 1.6])
+    tr = Tracker(robot, path, index, q0, path.period / 200, scene=far, backend=backend)
+    for _ in range(3):
+        tr.step()
+    far.add_sphere("ball", 0.05, [0.0, 0.5, 1.6])
+    with pytest.raises(OptionError, match="make a new one"):
+        tr.step()

@@ -411,15 +411,6 @@ class RowGuard {
     return 0.5 * (c0 + c1 - bound_ * move).minCoeff() >= -tol_;
   }
 
-  // the rows' values [m] at q as `clear` takes them (lower bounds; exact where near)
-  VectorXd values(const Eigen::Ref<const VectorXd>& q) {
-    if (q.size() != bound_.cols()) throw nb::value_error(("q must have " + str(bound_.cols()) + " entries").c_str());
-    VectorXd c(bound_.rows());
-    nb::gil_scoped_release release;
-    values_at(q, c, true);
-    return c;
-  }
-
  private:
   bool boxed(const Eigen::Ref<const VectorXd>& q) const {
     return q.allFinite() && (q.cwiseAbs().array() <= extent_.array()).all();
@@ -480,8 +471,7 @@ void bind_distances(nb::module_& m) {
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),
            nb::arg("query"), nb::arg("row_of_pair"), nb::arg("clearances"), nb::arg("influence"), nb::arg("bound"),
            nb::arg("extent"), nb::arg("tol"), nb::arg("skip"), nb::keep_alive<1, 2>())
-      .def("clear", &RowGuard::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"))
-      .def("values", &RowGuard::values, nb::arg("q"));
+      .def("clear", &RowGuard::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"));
 }
 
 }  // namespace kinredund
