@@ -44,7 +44,8 @@ switch in Python; ``scene_python_over_default`` the scene step on the Python ste
 scene step's time goes (``scene_breakdown_us``: the compiled distance
 query, the Python around it, the stepper's rows, the rate QP, the rest) and the queries' share
 (``scene_query_share``). Run:
-``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (pink comes with
+``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (``--scene``: the Panda's
+scene figures only, a few minutes less) (pink comes with
 ``pip install .[bench]``; without it the pink columns are left out). The JSON holds ``robots`` (the
 figures per robot) and ``keys`` (what each figure times).
 """
@@ -124,11 +125,14 @@ KEYS = {
     "scene_backend": "the backend the scene run takes (python: compiled.unsupported names why)",
     "limits_backend": "the backend the limits-only run takes by default",
     "scene_breakdown_us": "the scene step's exclusive times per step [us] over 200 steps (means less the slowest "
-                          "tenth): core (the compiled distance query: broadphase and coal), query (the Python around "
-                          "it: SceneClearance._query, Workspace.query), rows (the stepper's row events and dip test), "
-                          "qp (the rate QP at a weakly active row), rest (the step as "
-                          "without a scene), total (their sum, with ~1 us per timed call)",
-    "scene_query_share": "scene_breakdown_us: (core + query) / total, the distance queries' share of the scene step",
+                          "tenth): core (the compiled distance query: broadphase and coal), guard (the compiled "
+                          "driver's row check of a step with no row active, RowGuard.clear: lowered values, exact "
+                          "queries where near, the step's bound), query (the Python around the query: "
+                          "SceneClearance._query, Workspace.query), rows (the stepper's row events and dip test), "
+                          "qp (the rate QP at a weakly active row), rest (the step as without a scene), total (their "
+                          "sum, with ~1 us per timed call)",
+    "scene_query_share": "scene_breakdown_us: (core + guard + query) / total, the distance queries' share of the "
+                         "scene step (the guard's bound arithmetic counted in)",
     "scene_pairs": "pairs the scene checks (rows of the constraint)",
     "scene_pairs_near": "of those, the pairs within the influence distance (computed by coal) at the end",
     "default_over_pink": "in_turn_us: step_default_us / pink_step_us",
@@ -345,10 +349,19 @@ class _TimedCore:
         self.query, self.closest = sections.wrap("core", core.query), core.closest
 
 
+class _TimedGuard:
+    """The compiled driver's row check (``SceneClearance.row_guard``) with its ``clear`` timed."""
+
+    def __init__(self, guard, sections: _Sections):
+        self.clear = sections.wrap("guard", guard.clear)
+
+
 def scene_breakdown(tracker, steps: int = 200) -> dict:
     """Where the scene step's time goes: the exclusive times per step [us] (a part leaves out the parts it
     calls), means over ``steps`` steps of ``tracker`` less the slowest tenth (steps the machine's load
     interrupted): ``core``, the compiled distance query itself (broadphase and coal, ``DistanceQuery.query``);
+    ``guard``, the compiled driver's check of a step with no row active (``RowGuard.clear``: the rows' lowered
+    values, exact queries where near, the step's bound; where it rules a switch out, no ``rows`` or ``query``);
     ``query``, the Python around it (``SceneClearance._query`` and ``Workspace.query``: the kept last query, the
     values' lower bounds, the arrays); ``rows``, the stepper's handling of the rows (events, the dip test and
     its samples); ``qp``, the rate QP at a weakly active row; ``rest``, the step as without a scene (task,
@@ -361,12 +374,16 @@ def scene_breakdown(tracker, steps: int = 200) -> dict:
     sections, saved = _Sections(), ws._core
     if saved is not None:
         ws._core = _TimedCore(saved, sections)
+    driver = getattr(tracker, "compiled", None)
+    guard = getattr(driver, "_guard", None)
+    if guard is not None:
+        driver._guard = _TimedGuard(guard, sections)
     patched = [(constraint, "_query", "query"), (ws, "query", "query"), (stepper, "_row_events", "rows"),
                (stepper, "_row_dips", "rows"), (stepper, "_qp_keeps_row", "qp")]
     for obj, attr, part in patched:
         setattr(obj, attr, sections.wrap(part, getattr(obj, attr)))
     step = sections.wrap("rest", tracker.step)
-    per = {name: np.empty(steps) for name in ("core", "query", "rows", "qp", "rest", "total")}
+    per = {name: np.empty(steps) for name in ("core", "guard", "query", "rows", "qp", "rest", "total")}
     try:
         for k in range(steps):
             for name in sections.spent:
@@ -378,9 +395,12 @@ def scene_breakdown(tracker, steps: int = 200) -> dict:
         for obj, attr, _ in patched:
             del obj.__dict__[attr]
         ws._core = saved
+        if guard is not None:
+            driver._guard = guard
     calm = per["total"] <= np.percentile(per["total"], 90)  # the steps the machine's load did not interrupt
     mean = {k: float(v[calm].mean() * 1e6) for k, v in per.items()}
-    return {"scene_breakdown_us": mean, "scene_query_share": (mean["core"] + mean["query"]) / mean["total"]}
+    share = (mean["core"] + mean["guard"] + mean["query"]) / mean["total"]
+    return {"scene_breakdown_us": mean, "scene_query_share": share}
 
 
 def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
@@ -484,10 +504,37 @@ def write_plot(results: dict, path: Path) -> None:
     print(f"wrote {path}")
 
 
+def print_scene(panda: dict) -> None:
+    """Print the scene figures of :func:`scene_figures` (where they were measured)."""
+    if "scene_over_limits" not in panda:
+        return
+    same, other, part = panda["scene_in_turn_us"], panda["scene_default_in_turn_us"], panda["scene_breakdown_us"]
+    print(f"Panda, five-object scene and self pairs held: on the Python stepper, step {same['step_scene_us']:.3g} "
+          f"us against {same['step_limits_us']:.3g} us with the limits only: {panda['scene_over_limits']:.2f} "
+          f"(target <= 1.5); on the default backend ({panda['scene_backend']}), {other['step_scene_us']:.3g} us "
+          f"against the limits-only step ({panda['limits_backend']}, {other['step_limits_us']:.3g} us): "
+          f"{panda['scene_over_default']:.2f} (the Python stepper's scene step {other['step_scene_python_us']:.3g} "
+          f"us: {panda['scene_python_over_default']:.2f})")
+    print("  per scene step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in part.items())
+          + f"; {100 * panda['scene_query_share']:.2g} % in the distance queries (core + guard + query; "
+          f"{panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
+
+
+def scene_only(steps: int, json_path: Path | None) -> None:
+    """``--scene``: the Panda's scene figures alone (:func:`scene_figures`), printed and written as ``robots``."""
+    robot, path, index, q0 = _setup("panda")
+    panda = scene_figures(robot, path, index, q0, path.period / 200, steps)
+    print_scene(panda)
+    write_json(json_path, {"robots": {"panda": panda}, "keys": KEYS})
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--plot", type=Path, default=None, help="write a bar chart of the times (png, svg, pdf)")
+    p.add_argument("--scene", action="store_true", help="the Panda's scene figures only (scene_*)")
     args = p.parse_args()
+    if args.scene:
+        return scene_only(10 if args.smoke else 1000, args.json)
     results = {name: bench(name, 10 if args.smoke else 1000) for name in ("panda", "cybotech_p15")}
     cols = ["eval_us", "eval_stepper_us", "step_default_us", "step_default_velocity_us", "step_thesis_us", "pinv_us",
             "pink_step_us", "pink_limits_step_us"]
@@ -510,17 +557,7 @@ def main() -> None:
               f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP; with joint 4 held "
               f"{panda['switching_held_step_us']:.3g} us (the Python stepper "
               f"{panda['switching_held_step_python_us']:.3g} us)")
-    if "scene_over_limits" in panda:
-        same, other, part = panda["scene_in_turn_us"], panda["scene_default_in_turn_us"], panda["scene_breakdown_us"]
-        print(f"Panda, five-object scene and self pairs held: on the Python stepper, step {same['step_scene_us']:.3g} "
-              f"us against {same['step_limits_us']:.3g} us with the limits only: {panda['scene_over_limits']:.2f} "
-              f"(target <= 1.5); on the default backend ({panda['scene_backend']}), {other['step_scene_us']:.3g} us "
-              f"against the limits-only step ({panda['limits_backend']}, {other['step_limits_us']:.3g} us): "
-              f"{panda['scene_over_default']:.2f} (the Python stepper's scene step {other['step_scene_python_us']:.3g} "
-              f"us: {panda['scene_python_over_default']:.2f})")
-        print("  per scene step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in part.items())
-              + f"; {100 * panda['scene_query_share']:.2g} % in the distance queries (core + query; "
-              f"{panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
+    print_scene(panda)
     for name, r in results.items():
         print(f"{name}: track() {r['track_step_us']:.3g} us per step against Tracker.step() {r['tracker_step_us']:.3g} "
               f"us: ratio {r['track_over_step']:.2f} (target <= 1.3); {r['track_read_over_step']:.2f} with its "

@@ -169,6 +169,21 @@ class Workspace:
         """Whether :meth:`query` and :meth:`closest` run in the compiled core."""
         return self._core is not None
 
+    def row_guard(self, row_of_pair: np.ndarray, clearances: np.ndarray, influence: float, bound: np.ndarray,
+                  extent: np.ndarray, tol: float, skip: float):
+        """The compiled core's check of a tracker's step for a switch of distance rows on this workspace's query
+        (``kinredund._core.RowGuard``, src/core/distances.cpp; used by :mod:`kinredund.tracking.compiled`), or
+        None where the queries run in Python. ``row_of_pair``: each pair's row (-1: none); ``clearances`` [m] per
+        row; ``influence`` [m] the broadphase distance; ``bound`` (rows, nv) [m/rad] the motion bound valid for
+        |q| <= ``extent``; ``tol`` [m] how far below zero a row counts; ``skip`` [m] the margin above which lowered
+        values stand in for exact ones."""
+        if self._core is None:
+            return None
+        return _CORE.RowGuard(self._core, np.asarray(row_of_pair, dtype=np.int64),
+                              np.asarray(clearances, dtype=float), float(influence),
+                              np.ascontiguousarray(bound, dtype=float), np.asarray(extent, dtype=float),
+                              float(tol), float(skip))
+
     def query(self, q: np.ndarray, limit: float | None, rows: bool = False):
         """(pairs, signed distances [m], unit normals, p_first, p_second [m], rows G [m/rad] or None) at q: the
         pairs (indices, shape (k,)) within ``limit`` [m] by the broadphase (:meth:`near_pairs`; every pair when

@@ -279,14 +279,16 @@ class Scene:
         self._compiled = value
         self._local = threading.local()
 
-    def workspace(self) -> Workspace:
-        """This thread's workspace (:class:`~kinredund.geometry.engine.Workspace`), made on first use."""
-        try:
-            return self._local.workspace
-        except AttributeError:
-            ws = self._local.workspace = Workspace(self.robot.model, self._gm, *self._spheres, self._first,
-                                                   self._second, compiled=self._compiled)
-            return ws
+    def workspace(self, own: bool = False) -> Workspace:
+        """This thread's workspace (:class:`~kinredund.geometry.engine.Workspace`), made on first use; ``own``: a
+        new one, not kept (for one user that keeps it, e.g. the compiled tracker's row check)."""
+        ws = None if own else getattr(self._local, "workspace", None)
+        if ws is None:
+            ws = Workspace(self.robot.model, self._gm, *self._spheres, self._first, self._second,
+                           compiled=self._compiled)
+            if not own:
+                self._local.workspace = ws
+        return ws
 
     @property
     def pairs(self) -> tuple[tuple[str, str], ...]:

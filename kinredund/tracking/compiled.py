@@ -29,12 +29,16 @@ a step with a row active is the Python stepper's (the extended system of :class:
 is not compiled); a step with none active is taken in C++ and then checked by the stepper's own search for a
 switch within it (``pending_switches``: an event at its end, a row below zero there, a row dipping below zero
 inside it), the call the Python step makes after its own step. Where it finds one, the step is dropped (the
-state put back) and handed to the Python stepper (reason ``rows``), which locates the switch itself.
+state put back) and handed to the Python stepper (reason ``rows``), which locates the switch itself. Where the
+rows' constraint has a compiled check (:meth:`~kinredund.tracking.constraints.base.Constraint.row_guard`: a
+scene's, ``src/core/distances.cpp``), that check runs first, before the step is applied: where it rules out a
+switch (every row above -ROW_TOL at the end and none able to dip below it inside, by the constraint's lower
+bounds) the step is taken without the search, else the search decides as above.
 
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
 own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
-``reduced_label``, ``rows``, ``row_pairs`` and ``pending_switches``, and the step control's ``snapshot``,
-``restore``, ``watch_point`` and ``speed2``.
+``reduced_label``, ``rows``, ``row_pairs``, ``pending_switches`` and ``general`` (its constraint's
+``row_guard``), and the step control's ``snapshot``, ``restore``, ``watch_point`` and ``speed2``.
 
 :func:`attach` picks the backend of a :class:`~kinredund.tracking.tracker.Tracker`: ``compiled`` where the
 core loads and supports the problem, else ``python`` (``backend="compiled"`` then raises an
@@ -54,6 +58,7 @@ from kinredund.errors import KinredundError, OptionError, check_choice
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.point import Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
+from kinredund.tracking.rows import ROW_TOL
 
 BACKENDS = ("auto", "compiled", "python")
 #: the task kinds' codes in the core (src/core/step.cpp)
@@ -206,6 +211,8 @@ class CompiledStep:
                                   lo_tol, hi_tol)
         self.limited = limited
         self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
+        general = getattr(stepper, "general", [])  # one constraint's compiled check of a step, where it has one
+        self._guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
         self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
@@ -258,11 +265,12 @@ class CompiledStep:
         ctl = s.control
         rcond, speed2 = float(out[-2]), float(out[-1])
         measured = ctl is not None and ctl.watch.due_next(rcond)
+        look = self.rows and not self._clear(out, t_to)  # the stepper's search for a row switch is needed
         saved = None
-        if measured or self.rows:  # what a rejected step goes back to (the state, the control's speed)
+        if measured or look:  # what a rejected step goes back to (the state, the control's speed)
             saved = ctl.snapshot() if ctl is not None else (s.state,)
         self.apply(out, sample, t_to, rcond)
-        if self.rows and self._switch_within(saved[0]):
+        if look and self._switch_within(saved[0]):
             return self._undo(saved, ROWS)
         if not measured:
             if ctl is not None:
@@ -275,6 +283,15 @@ class CompiledStep:
             ctl.watch.load(watch)
             return self._undo(saved, 9)
         return None
+
+    def _clear(self, out: np.ndarray, t_to: float) -> bool:
+        """Does the compiled row check rule out a switch within the core's step ``out`` to ``t_to``, before it is
+        applied? False where there is no such check, or no rate at the step's start (the first step)."""
+        s = self.stepper
+        if self._guard is None or s.qdot is None:
+            return False
+        n, (sy, ssol) = self.n, self.slices[:2]
+        return self._guard.clear(s.q, out[sy][:n], s.qdot, out[ssol][:n], t_to - s.t)
 
     def _switch_within(self, start) -> bool:
         """Does the stepper find a switch within the step from ``start`` to now? (A failure of its search, a

@@ -175,6 +175,20 @@ class DistanceQuery {
     return ks.size();
   }
 
+  // The pairs within `limit` [m] at q into `ks` and their signed distances [m] into `d`: query's pairs and
+  // distances alone (no normals, points or rows), for RowGuard
+  void near_distances(const Eigen::Ref<const VectorXd>& q, double limit, std::vector<std::int64_t>& ks,
+                      std::vector<double>& d) {
+    ks.clear();
+    d.clear();
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    near_pairs(limit, ks);
+    for (std::int64_t k : ks) d.push_back(pinocchio::computeDistance(gm_, gd_, static_cast<std::size_t>(k)).min_distance);
+  }
+
+  Eigen::Index nv() const { return model_.nv; }
+  std::size_t npairs() const { return first_.size(); }
+
   // (pair index, signed distance [m]) of the closest pair at q, the first of equals in pair order: the answer of
   // engine.Workspace.closest's Python path, from fewer exact distances. Two lower bounds on a pair's distance: the
   // gap between the spheres around its objects (outer_bound, one root per pair) and the least gap between their
@@ -342,6 +356,103 @@ class DistanceQuery {
   std::vector<std::size_t> order_;
 };
 
+// The compiled driver's check of a step taken with no general row active (kinredund/tracking/compiled.py, issue
+// 27): can a row of a SceneClearance (c_k = d_k - clearance_k, the pairs beyond the influence at their lower bound
+// influence - clearance_k) be below -tol at the step's end (GeneralRows._row_events) or dip below it inside the step
+// (the first test of SwitchLocation._row_dips)? The rows' values are lower bounds, as SceneClearance._query's:
+// c(q) >= c(q_e) - B |q - q_e| from the last exact values at q_e (B the scene's motion bound, valid where no
+// prismatic joint is beyond its extent) while that stays above `skip` [m], else exact from the query (at the start
+// of a step that does not start at the last one's end, always exact). `clear` is
+// true where every c(q1) >= -tol and every (c(q0) + c(q1) - B move) / 2 >= -tol, move = max(|q1 - q0|, h max(|v0|,
+// |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would find nothing).
+// False (look in Python) otherwise, and for a q outside the box of the bound or not finite.
+class RowGuard {
+ public:
+  RowGuard(DistanceQuery& query, const Eigen::Ref<const VectorXl>& row_of_pair, const Eigen::Ref<const VectorXd>& clearances,
+           double influence, const Eigen::Ref<const RowMatrixXd>& bound, const Eigen::Ref<const VectorXd>& extent,
+           double tol, double skip)
+      : query_(query), row_of_pair_(row_of_pair), clearances_(clearances), bound_(bound), extent_(extent),
+        influence_(influence), tol_(tol), skip_(skip) {
+    const Eigen::Index size = clearances.size(), nv = query.nv();
+    if (static_cast<std::size_t>(row_of_pair.size()) != query.npairs())
+      throw nb::value_error(("row_of_pair needs one entry per pair (" + str(query.npairs()) + "), got " +
+                             str(row_of_pair.size())).c_str());
+    for (Eigen::Index k = 0; k < row_of_pair.size(); ++k)
+      if (row_of_pair[k] < -1 || row_of_pair[k] >= size)
+        throw nb::value_error(("row_of_pair[" + str(k) + "] must be a row (0.." + str(size) + ") or -1").c_str());
+    if (size == 0 || bound.rows() != size || bound.cols() != nv || extent.size() != nv)
+      throw nb::value_error(("at least one row, bound (" + str(size) + ", " + str(nv) + ") and extent (" + str(nv) +
+                             ",) expected, got " + str(size) + " rows, bound (" + str(bound.rows()) + ", " +
+                             str(bound.cols()) + "), extent (" + str(extent.size()) + ",)").c_str());
+    if (!(influence > clearances.maxCoeff()) || !(tol >= 0.0) || !(skip >= 0.0))
+      throw nb::value_error("the influence must exceed every clearance, tol and skip be >= 0 [m]");
+  }
+
+  bool clear(const Eigen::Ref<const VectorXd>& q0, const Eigen::Ref<const VectorXd>& q1,
+             const Eigen::Ref<const VectorXd>& v0, const Eigen::Ref<const VectorXd>& v1, double h) {
+    const Eigen::Index nv = bound_.cols();
+    if (q0.size() != nv || q1.size() != nv || v0.size() != nv || v1.size() != nv)
+      throw nb::value_error(("q0, q1, v0, v1 must have " + str(nv) + " entries").c_str());
+    nb::gil_scoped_release release;
+    if (!(h >= 0.0) || !boxed(q0) || !boxed(q1) || !v0.allFinite() || !v1.allFinite()) return false;
+    VectorXd c1(bound_.rows()), c0(bound_.rows());
+    values_at(q1, c1, true);
+    const bool reached = !(c1.minCoeff() >= -tol_);
+    if (have_end_ && q0 == q_end_)
+      c0 = c_end_;
+    else  // a step from elsewhere (the first, or after a step of the Python stepper's): exact
+      values_at(q0, c0, false);
+    q_end_ = q1;
+    c_end_ = c1;
+    have_end_ = true;
+    if (reached) return false;
+    const VectorXd move = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) +
+                          0.25 * h * (v1 - v0).cwiseAbs();
+    return 0.5 * (c0 + c1 - bound_ * move).minCoeff() >= -tol_;
+  }
+
+ private:
+  bool boxed(const Eigen::Ref<const VectorXd>& q) const {
+    return q.allFinite() && (q.cwiseAbs().array() <= extent_.array()).all();
+  }
+
+  // the rows' values at q: the kept exact ones at the same q; lowered from them (`lower`, both q in the bound's box)
+  // while every one stays above skip_; else exact, from the query, and kept
+  void values_at(const Eigen::Ref<const VectorXd>& q, VectorXd& c, bool lower) {
+    if (have_exact_) {
+      if (q == q_exact_) {
+        c = c_exact_;
+        return;
+      }
+      if (lower && boxed(q) && boxed(q_exact_)) {
+        c = c_exact_ - bound_ * (q - q_exact_).cwiseAbs();
+        if (c.minCoeff() > skip_) return;
+      }
+    }
+    query_.near_distances(q, influence_, ks_, d_);
+    c = -clearances_;
+    c.array() += influence_;
+    for (std::size_t r = 0; r < ks_.size(); ++r) {
+      const std::int64_t row = row_of_pair_[ks_[r]];
+      if (row >= 0) c[row] = d_[r] - clearances_[row];
+    }
+    q_exact_ = q;
+    c_exact_ = c;
+    have_exact_ = true;
+  }
+
+  DistanceQuery& query_;
+  VectorXl row_of_pair_;
+  VectorXd clearances_;
+  RowMatrixXd bound_;
+  VectorXd extent_;
+  double influence_, tol_, skip_;
+  bool have_exact_ = false, have_end_ = false;
+  VectorXd q_exact_, c_exact_, q_end_, c_end_;  // the last exact values, and the last step's end's
+  std::vector<std::int64_t> ks_;
+  std::vector<double> d_;
+};
+
 }  // namespace
 
 void bind_distances(nb::module_& m) {
@@ -355,6 +466,12 @@ void bind_distances(nb::module_& m) {
       .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"),
            nb::arg("index").noconvert(), nb::arg("out").noconvert())  // written in place: never a converted copy
       .def("closest", &DistanceQuery::closest, nb::arg("q"));
+  nb::class_<RowGuard>(m, "RowGuard", "The compiled driver's check of a step for a scene's row switch (issue 27).")
+      .def(nb::init<DistanceQuery&, const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXd>&, double,
+                    const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),
+           nb::arg("query"), nb::arg("row_of_pair"), nb::arg("clearances"), nb::arg("influence"), nb::arg("bound"),
+           nb::arg("extent"), nb::arg("tol"), nb::arg("skip"), nb::keep_alive<1, 2>())
+      .def("clear", &RowGuard::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"));
 }
 
 }  // namespace kinredund

@@ -99,6 +99,12 @@ class Constraint(abc.ABC):
         """
         return None
 
+    def row_guard(self, tol: float):
+        """A compiled check that a step holds no switch of these rows (``clear(q0, q1, v0, v1, h)``: none reached
+        below -``tol`` [m] at q1, none able to dip below it between; :mod:`kinredund.tracking.compiled`), or None:
+        the default, where the stepper's own search checks every step."""
+        return None
+
     def discontinuities(self, q: np.ndarray, dq: np.ndarray, rows) -> list[str]:
         """Messages for those of the inequalities ``rows`` whose gradient jumps on the segment from q to q + dq.
 

@@ -224,6 +224,14 @@ class SceneClearance(Constraint):
     def gradients(self, q: np.ndarray) -> np.ndarray:
         return self._query(q)[4].copy()
 
+    def row_guard(self, tol: float):
+        """The compiled check of a step (``kinredund._core.RowGuard`` on a workspace of its own): the lowered values
+        of :meth:`_query` (exact below :data:`SKIP_MARGIN`) and the test of :meth:`segment_lower_bounds`, in C++;
+        None where the scene's queries run in Python."""
+        guard = self.scene.workspace(own=True).row_guard(self._row, self.clearances, self.influence, self._bound,
+                                                         self._extent, tol, SKIP_MARGIN)
+        return None if guard is None else _SceneGuard(guard, self.scene, self._scene_pairs)
+
     def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         out = self._query(q)
         return out[3].copy(), out[4].copy()
@@ -282,6 +290,20 @@ class SceneClearance(Constraint):
                            f"last good point: its witness points jump by {jump:.3g} m there (faces or edges of the two "
                            f"convex shapes parallel{note}), a corner one row per pair cannot hold")
         return out
+
+
+class _SceneGuard:
+    """:meth:`SceneClearance.row_guard`'s check for the scene as it was when the constraint was made: after a change
+    of the scene it clears no step (the stepper's search then meets :meth:`SceneClearance._query`'s error)."""
+
+    __slots__ = ("_guard", "_scene", "_pairs")
+
+    def __init__(self, guard, scene: Scene, pairs: tuple):
+        self._guard, self._scene, self._pairs = guard, scene, pairs
+
+    def clear(self, q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float) -> bool:
+        """True where no row can switch within the step (``kinredund._core.RowGuard.clear``)."""
+        return self._scene.pairs is self._pairs and self._guard.clear(q0, q1, v0, v1, h)
 
 
 def _corner_note(one: Scene, pair: tuple[str, str], a: np.ndarray, b: np.ndarray) -> str:
