@@ -8,11 +8,15 @@ a block of steps together, the same numbers (as the runs of :mod:`kinredund.trac
 
 from __future__ import annotations
 
+import numpy as np
+
 from kinredund.errors import PathError
 from kinredund.paths import Path
 
 #: the steps sampled in one call of Path.sample_many
 BLOCK = 64
+#: the core's Q and omega of a sample without orientation (src/core/step.cpp reads them for oriented tasks only)
+NO_Q, NO_OMEGA = np.zeros((0, 0)), np.zeros(3)
 
 
 class SamplesAhead:
@@ -27,22 +31,31 @@ class SamplesAhead:
     Attributes:
         first: the step number of the block's first row; ``count``: the block's steps.
         samples: the block's :class:`~kinredund.paths.base.Samples` (row j: step ``first + j``), or None.
+        rows: per step of the block, (p, v, Q, omega) as the core takes them (views of ``samples``' rows; Q and
+            omega of a path without orientation: :data:`NO_Q`, :data:`NO_OMEGA`).
     """
 
     def __init__(self, path: Path, t0: float, dt: float, block: int = BLOCK):
         self.path, self.t0, self.dt, self.block = path, t0, dt, block
         self.own = type(path).sample_many is not Path.sample_many
-        self.first, self.count, self.samples = 0, 0, None
+        self.first, self.count, self.samples, self.rows = 0, 0, None, []
 
     def fill(self, k: int) -> None:
         """Sample the block of steps k .. k + ``block`` - 1 (``samples`` None where it cannot be sampled ahead)."""
-        self.first, self.count, self.samples = k, self.block, None
+        self.first, self.count, self.samples, self.rows = k, self.block, None, []
         if not self.own:
             return
-        t0, dt = self.t0, self.dt
+        t0, dt, count = self.t0, self.dt, self.block
         try:
-            at = self.path.sample_many([t0 + j * dt for j in range(k, k + self.block)])
+            at = self.path.sample_many([t0 + j * dt for j in range(k, k + count)])
         except PathError:
             return
-        if at.p.shape == at.v.shape == (self.block, 3) and (at.Q is None or at.Q.shape == (self.block, 3, 3)):
-            self.samples = at
+        if at.p.shape != (count, 3) or at.v.shape != (count, 3):
+            return
+        if at.Q is None:
+            self.rows = [(p, v, NO_Q, NO_OMEGA) for p, v in zip(at.p, at.v, strict=True)]
+        elif at.Q.shape == (count, 3, 3) and at.omega.shape == (count, 3):
+            self.rows = list(zip(at.p, at.v, at.Q, at.omega, strict=True))
+        else:
+            return
+        self.samples = at

@@ -54,7 +54,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError, OptionError, check_choice
 from kinredund.indices import JointDeviation, TimeVaryingReference
-from kinredund.tracking.ahead import SamplesAhead
+from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
 from kinredund.tracking.point import Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 
@@ -233,7 +233,7 @@ class CompiledStep:
         self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
-        self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
+        self._empty = np.zeros(0)
         m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)
         N = n + m
         ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1])  # the core's output layout (src/core/step.cpp)
@@ -269,17 +269,19 @@ class CompiledStep:
         at = ahead.samples
         if at is None:  # sampled here (a path not sampled ahead)
             sample = s.ev.sample(t_to)
-            p, v, Q, omega = sample.p, sample.v, sample.Q, sample.omega
+            p, v = sample.p, sample.v
+            Q = NO_Q if sample.Q is None else sample.Q
+            omega = NO_OMEGA if sample.omega is None else sample.omega
         else:  # the PathSample itself is made only where the step's point is read (CompiledPoint)
-            sample, p, v = None, at.p[row], at.v[row]
-            Q, omega = (None, None) if at.Q is None else (at.Q[row], at.omega[row])
+            sample = None
+            p, v, Q, omega = ahead.rows[row]
         if self.time_varying:
             index = s.ev.index
             ref, rate = np.asarray(index.reference(t_to), float), np.asarray(index.rate(t_to), float)
         else:
             ref = rate = self._empty
-        out = self.core.step(t_to, p, v, self._none33 if Q is None else Q, self._none3 if omega is None else omega,
-                             ref, rate, s.y, s.yd, s.prev, s.qdot, 0.0 if ctl is None else ctl.speed2, ctl is not None)
+        out = self.core.step(t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
+                             0.0 if ctl is None else ctl.speed2, ctl is not None)
         if type(out) is int:
             return self.hand_back(out)
         return self.accept(out, sample, t_to, (at, row))
@@ -294,6 +296,10 @@ class CompiledStep:
         s = self.stepper
         ctl = s.control
         rcond = float(out[-2])
+        if ctl is not None and not self.rows and ctl.watch.passes(rcond):  # the common step: nothing to check
+            self.apply(out, sample, t_to, rcond, ahead)
+            ctl.speed2 = float(out[-1])
+            return None
         measured = ctl is not None and ctl.watch.due_next(rcond)
         saved = None
         if measured or self.rows:  # what a rejected step goes back to (the state, the control's speed)
