@@ -16,7 +16,7 @@ from conftest import rounding
 from kinredund.paths import Circle, FunctionPath
 from kinredund.problems import panda_circle
 from kinredund.tracking import Tracker, compiled
-from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
+from kinredund.tracking.ahead import BLOCK, MIN_BLOCK, NO_OMEGA, NO_Q, SamplesAhead
 
 Q0 = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 CIRCLES = {"position": Circle(np.array([0.4, 0.1, 0.5]), 0.1, speed=0.3),
@@ -30,10 +30,11 @@ def test_a_block_holds_the_path_s_samples_at_the_steps_times(kind):
     (the same operations on arrays: the circle's sample_many); a path without orientation gets the core's
     placeholders for Q and omega."""
     path, t0, dt = CIRCLES[kind], 0.25, 0.013
-    ahead = SamplesAhead(path, t0, dt, block=5)
-    for k in (3, 8):
+    ahead = SamplesAhead(path, t0, dt, block=MIN_BLOCK + 3)
+    ahead.first, ahead.count = 3 - ahead.block, ahead.block  # as after a whole block: the next ones follow it
+    for k in (3, 3 + ahead.block):
         ahead.fill(k)
-        assert (ahead.first, ahead.count, len(ahead.rows)) == (k, 5, 5)
+        assert (ahead.first, ahead.count, len(ahead.rows)) == (k, ahead.block, ahead.block)
         for j, (p, v, Q, omega) in enumerate(ahead.rows):
             s = path.sample(t0 + (k + j) * dt)
             np.testing.assert_allclose(p, s.p, rtol=0, atol=rounding(1.0))
@@ -55,8 +56,25 @@ def test_a_path_without_its_own_sample_many_is_not_called_ahead():
         return np.array([t, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
 
     ahead = SamplesAhead(FunctionPath(fn), 0.0, 0.01)
-    ahead.fill(1)
+    for k in range(1, 200):
+        ahead.fill(k)
     assert ahead.samples is None and ahead.rows == [] and calls == []
+
+
+def test_blocks_grow_while_steps_follow_and_start_over_after_a_gap():
+    """Steps one after another: blocks of 1, 2, 4, ... steps (sampled ahead from MIN_BLOCK on), up to the block
+    size; a step after a gap (a run taken elsewhere) starts over with one step, sampled by the step itself."""
+    ahead = SamplesAhead(CIRCLES["frenet"], 0.0, 0.01)
+    sizes, k = [], 1
+    while len(sizes) < 9:
+        ahead.fill(k)
+        sizes.append(ahead.count)
+        sampled = ahead.count >= MIN_BLOCK
+        assert (ahead.samples is not None) == sampled and len(ahead.rows) == sampled * ahead.count
+        k += ahead.count
+    assert sizes == [1, 2, 4, 8, 16, 32, 64, 64, 64] and BLOCK == 64
+    ahead.fill(k + 5)
+    assert (ahead.first, ahead.count, ahead.samples) == (k + 5, 1, None)
 
 
 @pytest.mark.skipif(compiled.load_core() is None and not os.environ.get("CI"), reason="the compiled core is not built")

@@ -13,15 +13,22 @@ import numpy as np
 from kinredund.errors import PathError
 from kinredund.paths import Path
 
-#: the steps sampled in one call of Path.sample_many
+#: the most steps sampled in one call of Path.sample_many
 BLOCK = 64
+#: the fewest: a call's own cost is that of ~10 single samples of a circle, so shorter blocks are sampled step by step
+MIN_BLOCK = 16
 #: the core's Q and omega of a sample without orientation (src/core/step.cpp reads them for oriented tasks only)
 NO_Q, NO_OMEGA = np.zeros((0, 0)), np.zeros(3)
 
 
 class SamplesAhead:
-    """The path's samples at the requested times t0 + k dt [s] of steps k .. k + ``block`` - 1 (the clock of
+    """The path's samples at the requested times t0 + k dt [s] of a block of steps k, k + 1, ... (the clock of
     :class:`~kinredund.tracking.stepper.Stepper`), refilled where a step outside the block is asked for.
+
+    Blocks grow while the steps come one after another: a step that does not follow the last block (the first,
+    or one after a run of steps taken elsewhere: :mod:`kinredund.tracking.runs`) starts a block of one step, and
+    each block that follows its predecessor is twice as long, up to ``block``; blocks shorter than
+    :data:`MIN_BLOCK` are not sampled ahead (``samples`` None), so a step between runs costs no block it won't use.
 
     Only a path with its own ``sample_many`` (one that computes the samples together, e.g.
     :class:`~kinredund.paths.Circle`) is sampled ahead: the base class's loops over ``sample``, which gains
@@ -41,11 +48,12 @@ class SamplesAhead:
         self.first, self.count, self.samples, self.rows = 0, 0, None, []
 
     def fill(self, k: int) -> None:
-        """Sample the block of steps k .. k + ``block`` - 1 (``samples`` None where it cannot be sampled ahead)."""
-        self.first, self.count, self.samples, self.rows = k, self.block, None, []
-        if not self.own:
+        """Start the block of step k (see the class docstring; ``samples`` None where it is not sampled ahead)."""
+        count = min(2 * self.count, self.block) if k == self.first + self.count else 1
+        self.first, self.count, self.samples, self.rows = k, count, None, []
+        if count < MIN_BLOCK or not self.own:
             return
-        t0, dt, count = self.t0, self.dt, self.block
+        t0, dt = self.t0, self.dt
         try:
             at = self.path.sample_many([t0 + j * dt for j in range(k, k + count)])
         except PathError:
