@@ -10,8 +10,10 @@ the Newton update and the chord iterations, then the checks that make the step o
 bound, no multiplier of a joint held on its bound below zero, no jump (the step control's check,
 :mod:`kinredund.tracking.step_control`). With joints on their bounds it runs on the reduced system of
 :mod:`kinredund.tracking.limited` (the held joints' columns removed from R, their residual rows the bound
-multipliers') and returns the bound multipliers at the corrected point. Python samples the path (and a
-time-varying reference) once per step and passes them in; the active set goes to the core when it changes.
+multipliers') and returns the bound multipliers at the corrected point. Python samples the path (in blocks of
+steps ahead where the path computes its samples together: :mod:`kinredund.tracking.ahead`) and a time-varying
+reference and passes them in; the active set goes to the core when it changes. The step's point
+(:class:`CompiledPoint`) reads the core's output row only where someone asks for it.
 
 Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
 R's condition drops) the core measures it (``StepCore.watch_measure``, ``src/core/watch.cpp``: the watch's inverse
@@ -56,6 +58,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError, OptionError, check_choice
 from kinredund.indices import JointDeviation, TimeVaryingReference
+from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
 from kinredund.tracking.point import Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
@@ -163,22 +166,43 @@ class RecordedPose:
 
 
 class CompiledPoint(Point):
-    """The step's evaluation as the core left it: q, t, J and the path sample (and ``recorded``, the
-    :class:`RecordedPose` at the corrected joints); the rest (pose, task and index terms,
-    :meth:`~kinredund.tracking.point.Point.system`) is evaluated in Python at (q, t) on first use."""
+    """The step's evaluation as the core left it (its output row ``out``): t and the basis set, q (the predicted
+    point), J, the path sample and ``recorded`` (the :class:`RecordedPose` at the corrected joints) read from the
+    row on first use; the rest (pose, task and index terms, :meth:`~kinredund.tracking.point.Point.system`) is
+    evaluated in Python at (q, t) on first use. A step whose point nobody reads makes none of them.
 
-    __slots__ = ("_ev", "recorded")
+    Args:
+        layout: (the slices of ``out``'s fields, (n, m)): :attr:`CompiledStep.layout`.
+        sample: the path sample at t, or None with ``ahead`` = (Samples, row) to make it from on first use.
+    """
 
-    def __init__(self, ev, q, t, sample, J, basis, recorded):
-        self.q, self.t, self.sample, self.J, self.basis, self._ev, self.recorded = q, t, sample, J, basis, ev, recorded
+    __slots__ = ("_ev", "_out", "_layout", "_ahead", "recorded")
 
-    def __getattr__(self, name):  # an unset slot of Point: the full evaluation fills them all
-        if name not in Point.__slots__:
+    def __init__(self, ev, out, t, sample, basis, layout, ahead=None):
+        self._ev, self._out, self.t, self.basis, self._layout, self._ahead = ev, out, t, basis, layout, ahead
+        if sample is not None:
+            self.sample = sample
+
+    def __getattr__(self, name):  # an unset slot: read from the core's row, or the full evaluation fills them all
+        out, (sl, (n, m)) = self._out, self._layout
+        if name == "q":
+            value = out[sl[7]]
+        elif name == "J":
+            value = out[sl[3]].reshape(m, n)
+        elif name == "sample":
+            at, row = self._ahead
+            value = at.sample(row)
+        elif name == "recorded":
+            value = RecordedPose(self.sample, (out[sl[5]].reshape(3, 3), out[sl[6]]))
+        elif name in Point.__slots__:
+            full = self._ev.point(self.q, self.t, sample=self.sample)
+            for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
+                setattr(self, key, getattr(full, key))
+            return getattr(self, name)
+        else:
             raise AttributeError(name)
-        full = self._ev.point(self.q, self.t)
-        for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
-            setattr(self, key, getattr(full, key))
-        return getattr(self, name)
+        setattr(self, name, value)
+        return value
 
 
 class CompiledStep:
@@ -215,12 +239,14 @@ class CompiledStep:
         self._guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
         self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
-        self._none3, self._none33, self._empty = np.zeros(3), np.zeros((0, 0)), np.zeros(0)
+        self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
+        self._empty = np.zeros(0)
         m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)
         N = n + m
         ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1])  # the core's output layout (src/core/step.cpp)
         self.slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
         self.shapes = (n, m, N)
+        self.layout = (self.slices, (n, m))  # what a CompiledPoint reads its fields with
         self.steps = self.held_steps = 0
         self.handed_back: dict[str, int] = {}
 
@@ -234,52 +260,69 @@ class CompiledStep:
         """One step from t to t0 + (k + 1) dt: in C++ where it is ordinary, else the Python stepper's."""
         s = self.stepper
         ctl = s.control
-        t_to = s.t0 + (s.k + 1) * s.dt
+        k = s.k + 1
+        t_to = s.t0 + k * s.dt
         if self.rows and s.rows:  # a general row active: the extended system is the Python stepper's
             return self.hand_back(ROW_ACTIVE)
         if ctl is not None and ctl.watch.ahead(t_to) is not None:
             return self.hand_back(8)
-        if self.limited:
+        if self.limited and s.fixed is not self._fixed:
             self.sync_active()
-        sample = s.ev.sample(t_to)
+        ahead = self.ahead
+        row = k - ahead.first
+        if not 0 <= row < ahead.count:
+            ahead.fill(k)
+            row = 0
+        at = ahead.samples
+        if at is None:  # sampled here (a path not sampled ahead)
+            sample = s.ev.sample(t_to)
+            p, v = sample.p, sample.v
+            Q = NO_Q if sample.Q is None else sample.Q
+            omega = NO_OMEGA if sample.omega is None else sample.omega
+        else:  # the PathSample itself is made only where the step's point is read (CompiledPoint)
+            sample = None
+            p, v, Q, omega = ahead.rows[row]
         if self.time_varying:
             index = s.ev.index
             ref, rate = np.asarray(index.reference(t_to), float), np.asarray(index.rate(t_to), float)
         else:
             ref = rate = self._empty
-        Q = self._none33 if sample.Q is None else sample.Q
-        omega = self._none3 if sample.omega is None else sample.omega
-        out = self.core.step(t_to, sample.p, sample.v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
+        out = self.core.step(t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
                              0.0 if ctl is None else ctl.speed2, ctl is not None)
         if type(out) is int:
             return self.hand_back(out)
-        return self.accept(out, sample, t_to)
+        return self.accept(out, sample, t_to, (at, row))
 
-    def accept(self, out: np.ndarray, sample, t_to: float) -> None:
+    def accept(self, out: np.ndarray, sample, t_to: float, ahead: tuple | None = None) -> None:
         """The core's ordinary step to ``t_to`` (its output row ``out``, R's factors still in the core) as the
         stepper's new state, then the checks that may still hand it back to the Python stepper (from the state
         before it): with general rows, the stepper's own search for a switch within the step
         (``pending_switches``: a row reached, a row dipping below zero inside the step); the watch's
-        measurement where due. Either rejection gives the Python stepper's step, which runs both itself."""
+        measurement where due. Either rejection gives the Python stepper's step, which runs both itself.
+        ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it."""
         s = self.stepper
         ctl = s.control
-        rcond, speed2 = float(out[-2]), float(out[-1])
+        rcond = float(out[-2])
+        if ctl is not None and not self.rows and ctl.watch.passes(rcond):  # the common step: nothing to check
+            self.apply(out, sample, t_to, rcond, ahead)
+            ctl.speed2 = float(out[-1])
+            return None
         measured = ctl is not None and ctl.watch.due_next(rcond)
         look = self.rows and not self._clear(out, t_to)  # the stepper's search for a row switch is needed
         saved = None
         if measured or look:  # what a rejected step goes back to (the state, the control's speed)
             saved = ctl.snapshot() if ctl is not None else (s.state,)
-        self.apply(out, sample, t_to, rcond)
+        self.apply(out, sample, t_to, rcond, ahead)
         if look and self._switch_within(saved[0]):
             return self._undo(saved, ROWS)
         if not measured:
             if ctl is not None:
-                ctl.watch.due(rcond)
-                ctl.speed2 = speed2
+                ctl.watch.passed(1, rcond)  # Watch.due of an unmeasured step
+                ctl.speed2 = float(out[-1])
             return None
         watch = ctl.watch.save()  # the watch measures the new point: the step may still be rejected
         # the core measures with its J, M and R's factors (StepCore.watch_measure); the exact branch is Python's
-        if ctl.watch_point(s.dt, speed2, self.core) is not None:  # rejected: the Python stepper's step
+        if ctl.watch_point(s.dt, float(out[-1]), self.core) is not None:  # rejected: the Python stepper's step
             ctl.watch.load(watch)
             return self._undo(saved, 9)
         return None
@@ -322,17 +365,19 @@ class CompiledStep:
         self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
         self._fixed = fixed
 
-    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float) -> None:
+    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float, ahead: tuple | None = None) -> None:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
-        the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it)."""
+        the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it).
+        ``sample``, ``ahead``: the path sample at ``t_to`` (see :meth:`accept`)."""
         s = self.stepper
-        sy, ssol, sM, sJ, sq, sQ, sp, s_eval, s_mu, s_label = self.slices
-        n, m, _ = self.shapes
-        M, J = out[sM].reshape(n, n), out[sJ].reshape(m, n)
-        pt = CompiledPoint(s.ev, out[s_eval], t_to, sample, J, self._basis,
-                           RecordedPose(sample, (out[sQ].reshape(3, 3), out[sp])))
-        held = self.limited and s.any_active
-        label = s.reduced_label(M, J, int(out[s_label][0])) if held else None
-        s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu] if held else None)
+        sy, ssol, sM, _, sq, _, _, _, s_mu, s_label = self.slices
+        n = self.n
+        M = out[sM].reshape(n, n)
+        pt = CompiledPoint(s.ev, out, t_to, sample, self._basis, self.layout, ahead)
+        if self.limited and s.any_active:  # joints held: the reduced system's label, the bound multipliers
+            label = s.reduced_label(M, pt.J, int(out[s_label][0]))
+            s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu])
+            self.held_steps += 1
+        else:
+            s.accept(out[sy], out[ssol], pt, M, out[sq], rcond)
         self.steps += 1
-        self.held_steps += held

@@ -75,17 +75,19 @@ class PredictorCorrector(Stepper):
         y, yd = self.y, self.yd
         prev = self.prev  # [y, ydot, y, ydot, ...], oldest first
         y_p = self._hermite[len(prev) // 2] @ np.array(prev + [y, yd]) if prev else y + h * yd
-        self._push_history()
-        self.t = self._next_time()
+        self._advance()
         self.q_pred = y_p[: self.n]  # the step control compares the corrected joints with it
         self._correct(y_p)  # checks its results for non-finite values
 
-    def _push_history(self) -> None:
-        """The current point and its rates join the predictor's history (the oldest pair leaves when full)."""
+    def _advance(self) -> None:
+        """The current point and its rates join the predictor's history (the oldest pair leaves when full) and the
+        clock moves on a requested step: t = t0 + (k + 1) dt (one call: it runs at every step)."""
         prev = self.prev
         prev += (self.y, self.yd)
         if len(prev) == 2 * PREDICTOR_POINTS:
             del prev[:2]
+        self.k = k = self.k + 1
+        self.t = self.t0 + k * self.dt
 
     @property
     def hermite(self) -> list:
@@ -100,8 +102,7 @@ class PredictorCorrector(Stepper):
         (t0 + (k + 1) dt), the corrected ``y`` = [q; lambda] and its rates ``yd``, the step's evaluation ``pt``
         and M there, the predicted joints ``q_pred`` and R's condition estimate ``rcond`` (its factors ``lu``
         are None: the caller sets them where they are needed). ``label``: the step's solver label, if known."""
-        self._push_history()
-        self.t = self._next_time()
+        self._advance()
         n = self.n
         self.q_pred = q_pred
         self.q, self.lam, self.y, self.yd = y[:n], y[n:], y, yd

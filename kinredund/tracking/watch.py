@@ -119,6 +119,16 @@ class Watch:
         """What :meth:`due` would say of a step with ``rcond``, without counting the step."""
         return not rcond > RCOND_NEAR or rcond < RCOND_DROP * self._rcond or (self._count + 1) % EXACT_EVERY == 0
 
+    def passes(self, rcond: float) -> bool:
+        """Does a step with ``rcond`` go unmeasured? Where it does (:meth:`due` would say False), it is counted as
+        :meth:`due` counts it; where it does not, nothing is counted (:meth:`due` is then called by the measurement).
+        """
+        if self.due_next(rcond):
+            return False
+        self._count += 1
+        self._rcond = rcond
+        return True
+
     @property
     def gate(self) -> tuple[float, int]:
         """(the last step's rcond, steps counted): what :meth:`due_next` reads besides the step's own rcond."""

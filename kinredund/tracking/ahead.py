@@ -1,0 +1,69 @@
+"""The path's samples at the next steps' times, computed together (issue 28): :class:`SamplesAhead`.
+
+The compiled step (:mod:`kinredund.tracking.compiled`) passes the path's sample at each step's time to the core.
+Sampling a circle one time at a time costs more than its share of the step (a few numpy arrays and a
+:class:`~kinredund.paths.PathSample` per call); :meth:`~kinredund.paths.Path.sample_many` computes the samples of
+a block of steps together, the same numbers (as the runs of :mod:`kinredund.tracking.runs` sample them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinredund.errors import PathError
+from kinredund.paths import Path
+
+#: the most steps sampled in one call of Path.sample_many
+BLOCK = 64
+#: the fewest: a call's own cost is that of ~10 single samples of a circle, so shorter blocks are sampled step by step
+MIN_BLOCK = 16
+#: the core's Q and omega of a sample without orientation (src/core/step.cpp reads them for oriented tasks only)
+NO_Q, NO_OMEGA = np.zeros((0, 0)), np.zeros(3)
+
+
+class SamplesAhead:
+    """The path's samples at the requested times t0 + k dt [s] of a block of steps k, k + 1, ... (the clock of
+    :class:`~kinredund.tracking.stepper.Stepper`), refilled where a step outside the block is asked for.
+
+    Blocks grow while the steps come one after another: a step that does not follow the last block (the first,
+    or one after a run of steps taken elsewhere: :mod:`kinredund.tracking.runs`) starts a block of one step, and
+    each block that follows its predecessor is twice as long, up to ``block``; blocks shorter than
+    :data:`MIN_BLOCK` are not sampled ahead (``samples`` None), so a step between runs costs no block it won't use.
+
+    Only a path with its own ``sample_many`` (one that computes the samples together, e.g.
+    :class:`~kinredund.paths.Circle`) is sampled ahead: the base class's loops over ``sample``, which gains
+    nothing and would call a path of the caller's own code ahead of time. Elsewhere, and where the samples of a
+    block do not stack (:class:`~kinredund.errors.PathError`), ``samples`` is None: the step samples itself.
+
+    Attributes:
+        first: the step number of the block's first row; ``count``: the block's steps.
+        samples: the block's :class:`~kinredund.paths.base.Samples` (row j: step ``first + j``), or None.
+        rows: per step of the block, (p, v, Q, omega) as the core takes them (views of ``samples``' rows; Q and
+            omega of a path without orientation: :data:`NO_Q`, :data:`NO_OMEGA`).
+    """
+
+    def __init__(self, path: Path, t0: float, dt: float, block: int = BLOCK):
+        self.path, self.t0, self.dt, self.block = path, t0, dt, block
+        self.own = type(path).sample_many is not Path.sample_many
+        self.first, self.count, self.samples, self.rows = 0, 0, None, []
+
+    def fill(self, k: int) -> None:
+        """Start the block of step k (see the class docstring; ``samples`` None where it is not sampled ahead)."""
+        count = min(2 * self.count, self.block) if k == self.first + self.count else 1
+        self.first, self.count, self.samples, self.rows = k, count, None, []
+        if count < MIN_BLOCK or not self.own:
+            return
+        t0, dt = self.t0, self.dt
+        try:
+            at = self.path.sample_many([t0 + j * dt for j in range(k, k + count)])
+        except PathError:
+            return
+        if at.p.shape != (count, 3) or at.v.shape != (count, 3):
+            return
+        if at.Q is None:
+            self.rows = [(p, v, NO_Q, NO_OMEGA) for p, v in zip(at.p, at.v, strict=True)]
+        elif at.Q.shape == (count, 3, 3) and at.omega.shape == (count, 3):
+            self.rows = list(zip(at.p, at.v, at.Q, at.omega, strict=True))
+        else:
+            return
+        self.samples = at
