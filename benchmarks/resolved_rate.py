@@ -99,7 +99,7 @@ KEYS = {
     "switching_held_step_python_us": "switching_held_step_us on the Python stepper",
     "switching_steps_with_switch": "steps of that loop with a switch in them",
     "switching_qp_share": "share of that loop's step time spent in the rate QP (proxsuite, only at a switch "
-                          "the LU route cannot decide)",
+                          "the LU route cannot decide), from a second run of the loop under cProfile",
     "in_turn_us": "the default steps (augmented, velocity) and pink's QP step timed in turn, one step each per "
                   "round (Panda)",
     "tracker_step_us": "median per step of the bare Tracker.step() over two loops (augmented, default mode)",
@@ -247,7 +247,7 @@ def bench(name: str, steps: int) -> dict:
             out["limits_python_over_pink"] = turn["step_limits_python_us"] / turn["pink_limits_step_us"]
             out["limits_compiled_over_python"] = turn["step_limits_us"] / turn["step_limits_python_us"]
         out.update(switching_figures())
-        out.update({f"{k[:-3]}_python_us": v for k, v in switching_figures("python").items()
+        out.update({f"{k[:-3]}_python_us": v for k, v in switching_figures("python", share=False).items()
                     if k in ("switching_step_us", "switching_held_step_us")})
         out.update(scene_figures(robot, path, index, q0, dt, steps))
     out.update(predictor_figures(robot, path, index, q0, dt))
@@ -263,15 +263,11 @@ SWITCHING_CIRCLE = ([-0.0777, -1.1391, 0.2501, -2.9447, -0.306, 2.1239, 1.2622],
                     [0.9464, -0.289, 0.1442], 0.0626)
 
 
-def switching_figures(backend: str | None = None) -> dict:
-    """The limited step over one loop of :data:`SWITCHING_CIRCLE`: median, mean, the median with a joint held
-    (no switch), and the QP's share; ``backend``: the Tracker's (its default where None)."""
-    import time
-
+def _switching_tracker(backend: str | None):
+    """A Tracker on :data:`SWITCHING_CIRCLE` from the within-limits optimum (``backend``: its default where None)."""
     import kinredund
     from kinredund.indices import JointDeviation
     from kinredund.paths import Circle
-    from kinredund.tracking.limited import LimitedPredictorCorrector
 
     qs, n, ax, rad = (np.array(v, float) if isinstance(v, list) else v for v in SWITCHING_CIRCLE)
     robot = kinredund.load_robot("panda")
@@ -283,18 +279,38 @@ def switching_figures(backend: str | None = None) -> dict:
     index = JointDeviation(robot.home.copy())
     free = kinredund.solve_ik(robot, (T[:3, :3], T[:3, 3]), index, q0=qs)
     start = kinredund.solve_ik(robot, (T[:3, :3], T[:3, 3]), index, q0=free.q, bounds=True)
-    tracker = Tracker(robot, path, index, start.q, path.period / 200, backend=backend)
-    stepper, qp_time = tracker.stepper, [0.0]
-    qp = LimitedPredictorCorrector._qp_keeps_bound
+    return Tracker(robot, path, index, start.q, path.period / 200, backend=backend)
 
-    def timed_qp(*args):
-        t0 = time.perf_counter()
-        try:
-            return qp(stepper, *args)
-        finally:
-            qp_time[0] += time.perf_counter() - t0
 
-    stepper._qp_keeps_bound = timed_qp
+def _qp_share(backend: str | None, steps: int) -> float:
+    """The share of the loop's time spent in the rate QP (the public ``tracking.linalg.bound_rate_qp``), from a
+    second run under ``cProfile`` (no patching of the stepper; the profile's own overhead per Python call makes
+    the share a rough figure, which is all it is for)."""
+    import cProfile
+    import pstats
+
+    from kinredund.tracking import linalg
+
+    tracker = _switching_tracker(backend)
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(steps):
+        tracker.step()
+    prof.disable()
+    st = pstats.Stats(prof)
+    code = linalg.bound_rate_qp.__code__
+    qp = sum(v[3] for k, v in st.stats.items() if k == (code.co_filename, code.co_firstlineno, code.co_name))
+    return float(qp / st.total_tt) if st.total_tt > 0 else 0.0
+
+
+def switching_figures(backend: str | None = None, share: bool = True) -> dict:
+    """The limited step over one loop of :data:`SWITCHING_CIRCLE`: median, mean, the median with a joint held
+    (no switch), and where ``share``, the QP's share (:func:`_qp_share`); ``backend``: the Tracker's (its default where
+    None)."""
+    import time
+
+    tracker = _switching_tracker(backend)
+    stepper = tracker.stepper
     times, with_switch, held = np.empty(200), 0, np.zeros(200, bool)
     for k in range(200):
         before, was_held = len(stepper.switches), stepper.any_active
@@ -303,9 +319,12 @@ def switching_figures(backend: str | None = None) -> dict:
         times[k] = time.perf_counter() - t0
         with_switch += len(stepper.switches) > before
         held[k] = was_held and len(stepper.switches) == before
-    return {"switching_step_us": float(np.median(times) * 1e6), "switching_step_mean_us": float(times.mean() * 1e6),
-            "switching_held_step_us": float(np.median(times[held]) * 1e6) if held.any() else float("nan"),
-            "switching_steps_with_switch": with_switch, "switching_qp_share": qp_time[0] / float(times.sum())}
+    out = {"switching_step_us": float(np.median(times) * 1e6), "switching_step_mean_us": float(times.mean() * 1e6),
+           "switching_held_step_us": float(np.median(times[held]) * 1e6) if held.any() else float("nan"),
+           "switching_steps_with_switch": with_switch}
+    if share:
+        out["switching_qp_share"] = _qp_share(backend, 200)
+    return out
 
 
 #: five obstacles around the Panda circle's workspace (name, shape, size or radius [m], position [m]): clear of

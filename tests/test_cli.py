@@ -397,6 +397,22 @@ def test_a_path_file_fixes_the_radius_and_speed_so_they_are_refused_with_it(tmp_
     assert "a path file whose times are 2 times as long" in err and "--speed" not in err, err
 
 
+@pytest.mark.parametrize(("argv", "task"), [(["track", "planar3r"], "planar"),
+                                            (["track", "panda", "--task", "position"], "position"),
+                                            (["sweep", "planar3r", "--grid", "0:0:1,0:0:1"], "planar")])
+def test_a_path_file_with_rotations_is_refused_for_a_task_without_orientation(tmp_path, capsys, argv, task):
+    """A file's 'Q' was dropped silently where the task follows the position only: refused, naming both."""
+    ts = np.linspace(0.0, 4.0, 41)
+    xy = np.column_stack([3.0 + 0.5 * np.cos(np.pi * ts / 2), 3.0 + 0.5 * np.sin(np.pi * ts / 2)])
+    Q = [[[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]] for a in np.pi * ts / 2]
+    f = tmp_path / "turning.json"
+    f.write_text(json.dumps({"t": ts.tolist(), "p": xy.tolist(), "Q": Q}))
+    assert main([*argv, "--path", "file", "--path-file", str(f), "--quiet"]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "holds rotations ('Q')" in err and f"{task!r} task follows the position only" in err, err
+    assert "leave 'Q' out" in err and "--task pose" in err, err
+
+
 def test_a_path_file_moving_in_z_is_refused_for_a_planar_task(tmp_path, capsys):
     """The planar task follows x and y: a file whose z moves was tracked as its shadow on the plane, silently."""
     ts = np.linspace(0.0, 4.0, 41)

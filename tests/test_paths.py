@@ -135,3 +135,37 @@ def test_huge_but_finite_path_values_are_named_not_called_non_finite():
             path(0.25)
     with pytest.raises(kinredund.PathError, match="non-finite p at t = 0.25 s"):
         FunctionPath(lambda t: (np.array([np.inf, 0.0, 0.0]), np.zeros(3)))(0.25)
+
+
+def _part(inner: str):
+    from kinredund.sweep.placement import PartPath, placement_pose
+
+    T = placement_pose(0.3, -0.2, 0.1, 0.8)
+    T[:3, :3] = T[:3, :3] @ rotation_from_invariants(np.array([1.0, 0.2, 0.0]), 0.6)
+    return PartPath(PATHS[inner](), T)
+
+
+MANY = {"ellipse": PATHS["ellipse"], "helix": PATHS["helix"], "part_circle_roll": lambda: _part("circle_roll"),
+        "part_circle_frenet": lambda: _part("circle_frenet_tilted"), "part_ellipse": lambda: _part("ellipse"),
+        "part_function": lambda: _part("function")}
+
+
+@pytest.mark.parametrize("name", sorted(MANY))
+def test_sample_many_is_sample_at_each_time(name):
+    """The vectorised samples (Ellipse, Helix, PartPath) are the scalar ones: the same operations on arrays,
+    equal to 1e-15 of each field's size at random times (both sides round each product once)."""
+    path = MANY[name]()
+    times = np.random.default_rng(7).uniform(-3.0, 12.0, 50).tolist()
+    many = path.sample_many(times)
+    assert many.listed is None  # computed as arrays (the default samples one by one and lists them)
+    for field in ("p", "v", "Q", "omega"):
+        want = [getattr(path.sample(t), field) for t in times]
+        got = getattr(many, field)
+        assert (got is None) == (want[0] is None), field
+        if got is None:
+            continue
+        want = np.array(want)
+        assert got.shape == want.shape, field
+        scale = max(1.0, float(np.abs(want).max()))
+        assert np.abs(got - want).max() <= 1e-15 * scale, field
+        assert np.all([np.array_equal(getattr(many.sample(k), field), got[k]) for k in range(len(times))])

@@ -374,3 +374,25 @@ def test_a_start_on_a_bound_stays_on_it():
         tracker.step()
         assert excess(r, tracker.q) <= 1e-10
     assert np.abs(tracker.q - tr.q[k + 5]).max() <= 1e-9  # the same constrained optimum as the run
+
+
+def test_a_bounded_stop_is_retried_in_sub_steps_like_any_failed_step():
+    """A whole step the bounded stepper cannot take (its corrector fails with a joint held, a TrackingError of
+    the limits) was a stop at once, without the sub-steps every other failed step gets: with 4 steps per loop
+    the pose circle stopped one step (T/4) before the fold that finer steps all stop at, and the infeasible
+    circle's stop was named for its corrector (not_strongly_stable) instead of the two joints on their limits."""
+    r, path, index, q0 = case("panda_pose_circle")
+    stops = []
+    for steps in (4, 8):
+        with pytest.raises(TrackingError) as info:
+            track(r, path, index, q0, steps_per_loop=steps, loops=1, diagnostics=False)
+        stops.append(info.value)
+    coarse, fine = stops
+    assert coarse.cause == fine.cause == "not_strongly_stable"
+    assert coarse.t == pytest.approx(fine.t, abs=1e-12) and coarse.t == pytest.approx(0.75 * path.period, abs=1e-12)
+    np.testing.assert_allclose(coarse.q, fine.q, rtol=0, atol=1e-8)  # the same point, corrected from other steps
+    r, path, index, q0 = case("panda_pose_infeasible")
+    with pytest.raises(TrackingError) as info:
+        track(r, path, index, q0, steps_per_loop=8, loops=1, diagnostics=False)
+    assert info.value.cause == "limits_infeasible" and "2 joints on their limits" in str(info.value)
+    assert np.all(info.value.q >= r.lower - 1e-12) and np.all(info.value.q <= r.upper + 1e-12)

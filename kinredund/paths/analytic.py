@@ -199,12 +199,24 @@ class Ellipse(Path):
 
     def sample(self, t: float) -> PathSample:
         s = self.start + self.rate * t
-        ca, sa = np.cos(self.angle), np.sin(self.angle)
-        local = np.array([self.a * np.cos(s), self.b * np.sin(s)])
-        dlocal = self.rate * np.array([-self.a * np.sin(s), self.b * np.cos(s)])
-        R = np.array([[ca, -sa], [sa, ca]])
-        p = self.center + np.append(R @ local, 0.0)
-        return PathSample(p, np.append(R @ dlocal, 0.0))
+        ca, sa = math.cos(self.angle), math.sin(self.angle)
+        cs, ss = math.cos(s), math.sin(s)
+        lx, ly = self.a * cs, self.b * ss  # (a cos s, b sin s) and its rate
+        dx, dy = self.rate * (-self.a * ss), self.rate * (self.b * cs)
+        cx, cy, cz = self.center.tolist()
+        return PathSample(np.array([cx + (ca * lx - sa * ly), cy + (sa * lx + ca * ly), cz]),
+                          np.array([ca * dx - sa * dy, sa * dx + ca * dy, 0.0]))
+
+    def sample_many(self, times: list[float]) -> Samples:
+        """:meth:`sample` at each of ``times`` [s], computed together (the same operations on arrays)."""
+        cs, ss = _cos_sin(self.start + self.rate * np.asarray(times, float))
+        ca, sa = math.cos(self.angle), math.sin(self.angle)
+        lx, ly = self.a * cs, self.b * ss
+        dx, dy = self.rate * (-self.a * ss), self.rate * (self.b * cs)
+        cx, cy, cz = self.center.tolist()
+        P = np.stack([cx + (ca * lx - sa * ly), cy + (sa * lx + ca * ly), np.full(len(cs), cz)], axis=1)
+        V = np.stack([ca * dx - sa * dy, sa * dx + ca * dy, np.zeros(len(cs))], axis=1)
+        return Samples(P, V)
 
 
 @dataclass(frozen=True)
@@ -222,6 +234,16 @@ class Helix(Path):
 
     def sample(self, t: float) -> PathSample:
         beta = self.rate * t
-        p = np.array([self.radius * np.cos(beta), self.radius * np.sin(beta), self.pitch * beta + self.z0])
-        v = self.rate * np.array([-self.radius * np.sin(beta), self.radius * np.cos(beta), self.pitch])
-        return PathSample(p, v)
+        c, s = math.cos(beta), math.sin(beta)
+        r = self.radius
+        return PathSample(np.array([r * c, r * s, self.pitch * beta + self.z0]),
+                          np.array([self.rate * (-r * s), self.rate * (r * c), self.rate * self.pitch]))
+
+    def sample_many(self, times: list[float]) -> Samples:
+        """:meth:`sample` at each of ``times`` [s], computed together (the same operations on arrays)."""
+        beta = self.rate * np.asarray(times, float)
+        c, s = _cos_sin(beta)
+        r = self.radius
+        P = np.stack([r * c, r * s, self.pitch * beta + self.z0], axis=1)
+        V = np.stack([self.rate * (-r * s), self.rate * (r * c), np.full(len(beta), self.rate * self.pitch)], axis=1)
+        return Samples(P, V)

@@ -30,6 +30,12 @@ from kinredund.planning.walk import (
     walk_costs,
 )
 
+#: after the first sample, whose random starts all run (they find the branches), a sample's random starts stop
+#: after this many in a row that add no candidate to a pool the neighbours' continuation has filled: most
+#: starts then reach no minimum or one the pool holds (about half the planner's IK time before), and a branch
+#: that appears later is still found by the starts that do run and continued backward (:meth:`collect`)
+SEED_PATIENCE = 2
+
 
 class CandidateSet:
     """The samples of one plan: times, targets, candidate pools and the branch links between them.
@@ -84,11 +90,17 @@ class CandidateSet:
         continue_candidates(self.inner, self.targets, self.index, self.pools, a, b, self.links, self.counter,
                             self.opt.max_iter, self._keep, self._hold)
 
-    def _seed_pool(self, k: int, tries: int, seed: int) -> None:
+    def _seed_pool(self, k: int, tries: int, seed: int, patience: int | None = None) -> None:
         """Random starts at sample k; where none reaches a minimum, a within-limits point on the path from a
-        pose-only multi-start seeds one."""
+        pose-only multi-start seeds one. With ``patience``, a pool that holds candidates already (continued from
+        the neighbours) stops after that many starts in a row that add none (no minimum, or one it holds)."""
+        pool, idle = self.pools[k], 0
         for _ in range(tries):
-            self.pools[k].add(self._minimum(k, self.rng.uniform(*self.box)), self.counter)
+            before = len(pool.q)
+            pool.add(self._minimum(k, self.rng.uniform(*self.box)), self.counter)
+            idle = idle + 1 if len(pool.q) == before and before > 0 else 0
+            if patience is not None and idle >= patience:
+                break
         if not self.pools[k].q:
             feasible = solve_ik(self.inner, self.targets[k], None, bounds=True, starts=4 * self.opt.starts, seed=seed)
             if feasible.converged:
@@ -117,7 +129,7 @@ class CandidateSet:
             tries = opt.starts * (4 if k == 0 else 1)
             if k == 0 and inside_limits(self.inner, self.inner.home):  # the robot's home seeds the first sample too
                 self.pools[0].add(self._minimum(0, self.inner.home), self.counter)
-            self._seed_pool(k, tries, opt.seed + k)
+            self._seed_pool(k, tries, opt.seed + k, None if k == 0 else SEED_PATIENCE)
             if not self.pools[k].q and self.rejections > before:
                 self.collided = True
                 return (f"sample {k + 1} of {n} (t = {self.ts[k]:.4g} s): every within-limits local minimum of the "
@@ -173,7 +185,7 @@ class CandidateSet:
         for side in (k, after):
             self._continue(side, m)
             self._continue(m, side)
-        self._seed_pool(m, self.opt.starts, self.opt.seed + len(self.ts))
+        self._seed_pool(m, self.opt.starts, self.opt.seed + len(self.ts), SEED_PATIENCE)
         if not self.pools[m].q:
             del self.ts[m], self.targets[m], self.pools[m]
             return False

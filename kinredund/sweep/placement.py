@@ -18,6 +18,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError, PathError, check_array, check_size
 from kinredund.paths import Path, PathSample
+from kinredund.paths.base import Samples
 
 
 class PlacementError(KinredundError, ValueError):
@@ -118,6 +119,16 @@ class PartPath(Path):
         if s.Q is None:
             return PathSample(p, R @ s.v)
         return PathSample(p, R @ s.v, R @ s.Q, R @ s.omega)
+
+    def sample_many(self, times: list[float]) -> Samples:
+        """:meth:`sample` at each of ``times`` [s]: the wrapped path's samples together (its own
+        ``sample_many``), turned and moved by the pose as arrays (row-wise R x, the same dot products)."""
+        s = self.path.sample_many(times)
+        R, Rt = self._R, self._R.T
+        P, V = s.p @ Rt + self._o, s.v @ Rt
+        if s.Q is None:
+            return Samples(P, V)
+        return Samples(P, V, R @ s.Q, s.omega @ Rt)
 
     def __repr__(self) -> str:
         return f"PartPath({self.path!r}, pose={self.pose.tolist()})"

@@ -88,7 +88,8 @@ def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 20
 
 
 def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: int = 0) -> tuple[bool, float, float]:
-    """(out of reach at any of ``times``, the largest smallest residual there [m], at which time [s]).
+    """(out of reach at any of ``times``, the largest smallest residual there [m], at which time [s]: where every
+    time is within reach, the first, as the residuals are then rounding whose largest says nothing of the path).
 
     From q first, then (where that leaves a residual) from ``restarts`` seeded perturbations of q (0.3 and
     1 rad, clipped into the robot's limits): Levenberg-Marquardt from the last good point alone can end
@@ -99,7 +100,7 @@ def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: 
         ev = Evaluator(ev.robot, ev.path, ev.index, "augmented")
     rng = np.random.default_rng(seed)
     lo, hi = np.maximum(ev.robot.lower, -1e3), np.minimum(ev.robot.upper, 1e3)
-    worst, at = 0.0, float(times[0])
+    worst, worst_far, at = 0.0, 0.0, float(times[0])  # worst_far: the largest residual out of reach (0: none)
     for tp in times:
         scale = max(1.0, float(np.abs(ev.sample(tp).p).max()))
         res, _ = task_residual_min(ev, q, tp)
@@ -109,9 +110,10 @@ def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: 
             start = np.clip(q + (0.3 if k % 2 == 0 else 1.0) * rng.standard_normal(len(q)), lo, hi)
             res = min(res, task_residual_min(ev, start, tp)[0])
         if not res <= worst:
-            worst, at = res, float(tp)
-    scale = max(1.0, float(np.abs(ev.sample(at).p).max()))
-    return not worst <= REACH_TOL * scale, worst, at
+            worst = res
+        if not res <= REACH_TOL * scale and not res <= worst_far:  # out of reach there, the farthest so far
+            worst_far, at = res, float(tp)
+    return not worst_far <= 0.0, worst, at
 
 
 def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> dict:

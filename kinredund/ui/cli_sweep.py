@@ -126,11 +126,13 @@ def add_parser(sub) -> None:
 def _part_path(args, robot):
     from kinredund.paths import read_path_file
     from kinredund.sweep.placement import part_circle
+    from kinredund.ui.path_options import check_file_for_task
 
     if args.path == "file":
         if args.path_file is None:
             raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q')")
         path, _ = read_path_file(args.path_file)
+        check_file_for_task(args.path_file, path, robot)
         if path.period is None:
             raise KinredundError(f"{args.path_file}: a sweep needs a closed path ('closed': true)")
         return path

@@ -24,7 +24,7 @@ def path_for(args, robot, q_start: np.ndarray):
         if args.path_file is None:
             raise KinredundError("--path file needs --path-file FILE (JSON with 't', 'p' and optionally 'Q', 'closed')")
         path, duration = paths.read_path_file(args.path_file)
-        _check_planar_file(args.path_file, path, robot)
+        check_file_for_task(args.path_file, path, robot)
         return path, (duration if path.period is None else None)
     T0 = robot.fk(q_start)
     p0 = T0[:3, 3]
@@ -58,13 +58,19 @@ def _check_path_options(args) -> None:
         args.speed = SPEED if args.speed is None else args.speed
 
 
-def _check_planar_file(file, path, robot) -> None:
-    """Refuse a path file that moves in z for a planar task, which follows x and y only: it would be tracked as its
-    shadow on the plane (as a tilted --normal would)."""
+def check_file_for_task(file, path, robot) -> None:
+    """Refuse a path file that says more than the robot's task follows, which would be dropped silently: rotations
+    ('Q') for a task without orientation (planar, position), and a z that moves for a planar task (it follows x
+    and y only: the path would be tracked as its shadow on the plane, as a tilted --normal would)."""
     from kinredund.paths.sampled import POINT_TOL
 
+    task = get_task(robot.task)
+    if path.has_orientation and not task.has_orientation:
+        raise KinredundError(f"{file} holds rotations ('Q'), and {robot.name}'s {robot.task!r} task follows the "
+                             "position only: the rotations would be ignored. Allowed: leave 'Q' out of the file, or "
+                             "--task pose (or axis) to follow them too")
     z = path.points[:, 2]
-    if get_task(robot.task).planar and np.ptp(z) > POINT_TOL:
+    if task.planar and np.ptp(z) > POINT_TOL:
         raise KinredundError(f"{file} moves in z (from {z.min():.6g} to {z.max():.6g} m), and {robot.name}'s "
                              f"{robot.task!r} task follows x and y only: the path would be tracked as its shadow on "
                              f"the plane. Allowed: one z for every sample (within {POINT_TOL:g} m), 'p' in x, y only "
