@@ -203,7 +203,7 @@ class GeneralRows:
         if not values.min() < -ROW_TOL and not self.rows:  # the common case: one reduction
             return []
         out = [(int(f), "row_reach") for f in np.flatnonzero(values < -ROW_TOL)
-               if int(f) not in self.rows and self._twin(int(f)) is None]
+               if int(f) not in self.rows and self._own(int(f))]
         if self.rows:
             scale = max(1.0, float(np.abs(self.pt.grad).max()))
             nu = -self.lam[self._m:]
@@ -247,6 +247,12 @@ class GeneralRows:
             if abs(c[rf] - c[ri]) <= TWIN_VALUE and np.linalg.norm(G[rf] - G[ri]) <= TWIN_RATE * scale:
                 return f
         return None
+
+    def _own(self, key: int) -> bool:
+        """Does row ``key`` stand for itself at q (:meth:`~Constraint.representative`)? One that does not (the pair's
+        own distance realised at a vertex) reaches zero with the row that stands for it, which is the event."""
+        ci, ri = self.row_pairs[key]
+        return self.general[ci].representative(self.q, ri) == ri
 
     def _representatives(self) -> None:
         """Each active row replaced by its constraint's :meth:`~Constraint.representative` at q (the row to hold
