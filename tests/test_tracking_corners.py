@@ -80,6 +80,29 @@ def test_the_corner_is_the_least_of_two_smooth_pieces():
     assert np.linalg.norm(grads[0][0] - grads[0][1]) > 0.01  # the two rates differ (0.022 m/rad): the corner
 
 
+#: the named case's configuration where the left finger's edge (vertices 5 and 7, both on their rows' zero) lies
+#: across a ridge of panda_link1_0's hull (t = 6.94095 s of the CornerClearance run)
+RIDGE = [-0.029090122586550284, -1.2718651994063495, -0.017369157206159194, -2.7519487946631633,
+         -0.0124061351060702, 0.706328982931735, 0.7945438316220923]
+
+
+def test_the_pair_row_stands_for_itself_only_edge_to_edge():
+    """At FLAT the pair's row is realised at a vertex (it equals that vertex's row: not its own); at RIDGE the left
+    finger's pair is 1.35e-6 m under both end vertices' rows (which are on zero): an edge-to-edge contact, where
+    the pair's row stands for itself, its rate between the ends' (coal's witness inside the edge)."""
+    c = constraint()
+    left = ("panda_link1_0", "panda_leftfinger_3")
+    r = c.pairs.index(left)
+    vals, G = c.rows_at(np.array(RIDGE))
+    ends = [piece_row(c, left, 1, i) for i in (5, 7)]
+    assert np.all(np.abs(vals[ends]) <= 1e-12) and -2e-6 < vals[r] < -1e-6
+    assert c.representative(np.array(RIDGE), r) == r
+    s = np.linalg.lstsq(G[ends].T, G[r], rcond=None)[0]  # the pair's rate: a combination of the ends' to 1e-3
+    assert np.linalg.norm(G[ends].T @ s - G[r]) <= 1e-3 * np.linalg.norm(G[r]) and np.all(s > 0)
+    flat = c.pairs.index(PAIR)
+    assert c.representative(np.array(FLAT), flat) != flat
+
+
 def test_the_rows_are_named_and_pairs_checked():
     c = constraint()
     names = c.names()

@@ -19,9 +19,18 @@ piece (to coal's rounding, ~1e-16 m; measured), value and rate.
 Two rows that are the same contact (equal values and rates: the pair's row and its realising vertex's, a vertex
 against a vertex) are never held together (their gradients would be one row twice): the stepper swaps one for the
 other where one reaches zero with the other active (:meth:`~kinredund.tracking.rows.GeneralRows._twin`), and
-holds a vertex row rather than the pair's row it equals where a second piece comes (:meth:`representative`). So an
+holds a vertex row rather than the pair's row it equals at the start of each step (:meth:`representative`). So an
 edge-to-edge contact that slides onto a vertex, and back, is a hand-over of one row to the other at the point where
 they agree to first order, and a corner is held as its two (or more) vertex rows.
+
+What is not held yet (measured on ``panda_elbow_circle``, tests/test_tracking_corners.py): the corner of
+panda_link2_0 and the right finger is met (its vertex 5 reached at t = 6.93596 s, vertex 7 released 0.5 ms later),
+but where the left finger's edge, held at both ends (vertices 5 and 7) on panda_link1_0's hull, lies across a ridge
+of that hull (two nearly coplanar facets), the pair's distance goes 1.35e-6 m under both ends' rows within the
+step in which the second end is met: while an end's row equals the pair's row the pair's row is not an event
+(:meth:`~kinredund.tracking.rows.GeneralRows._own`), so its leaving them inside a step is not located, and the three
+rows (the pair's rate between the ends') are held together: R singular, the run stops, cause ``collision``. An
+edge-to-edge row per pair of edges (its own switching events) is what that needs.
 
 Values. A pair whose distance is more than :data:`PIECE_MARGIN` above its clearance (exactly, or by the scene's
 lower bound) reports that value for every one of its pieces: a lower bound of each (every piece >= d), as
