@@ -23,22 +23,15 @@ holds a vertex row rather than the pair's row it equals at the start of each ste
 edge-to-edge contact that slides onto a vertex, and back, is a hand-over of one row to the other at the point where
 they agree to first order, and a corner is held as its two (or more) vertex rows.
 
-What is not held yet (measured on ``panda_elbow_circle``, tests/test_tracking_corners.py): the corner of
-panda_link2_0 and the right finger is met (its vertex 5 reached at t = 6.93596 s, vertex 7 released 0.5 ms later),
-but where the left finger's edge, held at both ends (vertices 5 and 7) on panda_link1_0's hull, lies across a ridge
-of that hull (two nearly coplanar facets), the pair's distance goes 1.35e-6 m under both ends' rows within the
-step in which the second end is met: while an end's row equals the pair's row the pair's row is not an event
-(:meth:`~kinredund.tracking.rows.GeneralRows._own`), so its leaving them inside a step is not located, and the three
-rows (the pair's rate between the ends') are held together: R singular, the run stops, cause ``collision``. An
-edge-to-edge row per pair of edges (its own switching events) is what that needs.
-
-Values. A pair whose distance is more than :data:`PIECE_MARGIN` above its clearance (exactly, or by the scene's
-lower bound) reports that value for every one of its pieces: a lower bound of each (every piece >= d), as
-SceneClearance's rows beyond the influence or between exact queries. Otherwise a vertex's separating-plane bound
-max_f (m_f . v - o_f) (:func:`~kinredund.geometry.polytopes.vertex_lower_bounds`, a lower bound of psi_v) is
-reported where it is more than :data:`PIECE_MARGIN` above the clearance, and psi_v afresh (coal) with its row where
-it is not; a row reported as a bound has a zero gradient. A row near zero is therefore always exact, and a bound is
-never within :data:`PIECE_MARGIN` of zero.
+What is held, and what not yet (measured on ``panda_elbow_circle``, tests/test_tracking_corners.py): the corner of
+panda_link2_0 and the right finger is met (its vertex 5 reached at t = 6.93596 s, vertex 7 released 0.5 ms later);
+the left finger's edge, held at vertex 7 on panda_link1_0's hull, comes across a ridge of that hull (two nearly
+coplanar facets): the pair's row leaves vertex 7's at t = 6.94032 s and takes its place (the pair's row is not an
+event while it equals a vertex row: :meth:`~kinredund.tracking.rows.GeneralRows._row_watch`; its own reach inside
+a step is looked for before the first switch), and is held as vertex 5's from t = 6.95165 s and back again at
+6.98481 s. At t = 7.0230 s the run stops, cause ``collision`` (underlying ``fold``: sigma_min of [J; G_A] 0.04 ->
+0.021 with the left pair's row and the right finger's vertex 5 active), where the one-row-per-pair run stopped too:
+not located further.
 """
 
 from __future__ import annotations
