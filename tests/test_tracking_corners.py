@@ -138,8 +138,9 @@ def test_the_hand_into_the_upper_arm_passes_the_corner_then_stops_named():
     """What holds today (issue 27 open): on the run that stops at the corner with one row per pair, the corner of
     (panda_link2_0, panda_rightfinger_3) is met piece by piece (its vertex 5 reached, vertex 7 released) and the left
     finger's edge is handed from its vertex's row to the pair's (edge to edge across a ridge of link1's hull) and
-    back; the run still stops at t = 7.02 s, cause ``collision`` (underlying ``fold``), naming the rows held there
-    (pieces.py's docstring); the partial record keeps 1 cm at every point and the first-order conditions hold on it
+    back; the run still stops at t = 7.02 s, cause ``collision`` (underlying ``fold``: the right finger's vertex 7
+    row crosses zero inside steps the step control rejects, pieces.py's docstring), naming the rows held
+    there; the partial record keeps 1 cm at every point and switching time, and the first-order conditions hold on it
     with the active piece rows, checked independently."""
     r, path, index, q0 = case("panda_elbow_circle")
     c = kr.CornerClearance(kr.Scene(r), self_clearance=SELF_CLEARANCE)

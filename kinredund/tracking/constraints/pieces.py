@@ -29,9 +29,13 @@ the left finger's edge, held at vertex 7 on panda_link1_0's hull, comes across a
 coplanar facets): the pair's row leaves vertex 7's at t = 6.94032 s and takes its place (the pair's row is not an
 event while it equals a vertex row: :meth:`~kinredund.tracking.rows.GeneralRows._row_watch`; its own reach inside
 a step is looked for before the first switch), and is held as vertex 5's from t = 6.95165 s and back again at
-6.98481 s. At t = 7.0230 s the run stops, cause ``collision`` (underlying ``fold``: sigma_min of [J; G_A] 0.04 ->
-0.021 with the left pair's row and the right finger's vertex 5 active), where the one-row-per-pair run stopped too:
-not located further.
+6.98481 s. At t = 7.0230 s the run stops, cause ``collision`` (underlying ``fold``), where the one-row-per-pair run
+stopped too: with the left pair's row and the right finger's vertex 5 active, sigma_min of [J; G_A] falls 0.04 ->
+0.021 and the step control predicts a fold at 7.02298 s and rejects the steps there; but the right finger's
+vertex 7 row has crossed zero before that (-2.3e-4 m at the nearest good sub-step point, t = 7.02232 s, not
+recorded), and a switch is looked for only in a step the step control accepts, so that reach (the corner back
+from vertex 5 to 7, which would take the fold's place) is not located. Not yet done: a row crossing zero inside
+a rejected step located before the fold is declared.
 """
 
 from __future__ import annotations
