@@ -65,7 +65,15 @@ from kinredund.planning.cyclic import CyclicPlan, plan
 from kinredund.planning.options import PlanOptions
 from kinredund.planning.result import PlanResult
 from kinredund.tasks import Task, get_task, task_names
-from kinredund.tracking import JointLimits, PlaneClearance, SceneClearance, SphereClearance, Tracker, track
+from kinredund.tracking import (
+    CornerClearance,
+    JointLimits,
+    PlaneClearance,
+    SceneClearance,
+    SphereClearance,
+    Tracker,
+    track,
+)
 from kinredund.trajectory import Trajectory
 
 __version__ = _version("kinredund")
@@ -101,6 +109,7 @@ __all__ = [
     "PlanOptions",
     "PlanResult",
     "SceneClearance",
+    "CornerClearance",
     "Robot",
     "SampledPath",
     "Scene",

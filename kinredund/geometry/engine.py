@@ -298,7 +298,8 @@ class Workspace:
         if not k:  # (the reshape below cannot infer the width of no rows)
             return np.zeros((0, self.model.nv))
         n2 = np.concatenate([normal, normal])
-        P = np.concatenate([self._ones[:2 * k], self._points if points is None else points], axis=1)  # (1, p) per row
+        ones = self._ones[:2 * k] if 2 * k <= len(self._ones) else np.ones((2 * k, 1))  # (more rows than pairs)
+        P = np.concatenate([ones, self._points if points is None else points], axis=1)  # (1, p) per row
         outer = (P[:, :, None] * n2[:, None, :]).reshape(2 * k, 12)
         both = (outer @ (_LIFT @ self.data.J)).reshape(2, k, -1)
         return np.einsum("skc,ksc->kc", both, self._signed.take(ks, axis=0))

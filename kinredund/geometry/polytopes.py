@@ -76,23 +76,42 @@ def placed_pair(scene, k: int) -> tuple:
     return tuple(out)
 
 
+def vertex_lower_bounds(objects, side: int) -> np.ndarray:
+    """Lower bounds [m] (V,) of the distances of the vertices of ``objects[side]`` (a :func:`placed_pair`) to the
+    other object: per vertex max_f (m_f . v - o_f) over the other's face planes (separating planes; exact where the
+    nearest point is on a face's interior)."""
+    V, (_, N, o) = objects[side][0][0], objects[1 - side][0]
+    return np.max(V @ N.T - o, axis=1)
+
+
+def vertex_distances(objects, side: int, which) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(psi [m] (m,), p_a (m, 3), p_b (m, 3)): the distances of the vertices ``which`` of ``objects[side]`` (a
+    :func:`placed_pair`) to the other object and their nearest points, p_a on the pair's first object (coal, each
+    vertex as a sphere of radius 0; signed: < 0 for a vertex inside the other object)."""
+    V = objects[side][0][0]
+    _, shape, pose = objects[1 - side]
+    req = coal.DistanceRequest()
+    req.enable_signed_distance, req.gjk_tolerance = True, 1e-9
+    psi, pa, pb = np.empty(len(which)), np.empty((len(which), 3)), np.empty((len(which), 3))
+    for m, i in enumerate(which):
+        v = V[i]
+        res = coal.DistanceResult()
+        psi[m] = coal.distance(shape, pose, _POINT, coal.Transform3s(np.eye(3), v), req, res)
+        y = np.array(res.getNearestPoint1())
+        pa[m], pb[m] = (v, y) if side == 0 else (y, v)
+    return psi, pa, pb
+
+
 def vertex_piece(scene, k: int, side: int, i: int, q) -> tuple[float, np.ndarray]:
     """(psi [m], its row (n,) [m/rad]): the distance of vertex i of pair k's object ``side`` (0 its first, 1 its
     second: ``scene.pairs[k]``) to the pair's other object at q, and its rate n^T (J_b(p_b) - J_a(p_a)) with the
     nearest points (coal, the vertex as a sphere of radius 0). The vertex must be outside the other object."""
     q = scene.distances(q).q  # (validated) places this thread's workspace at q
-    objects = placed_pair(scene, k)
-    v = objects[side][0][0][i]
-    _, shape, pose = objects[1 - side]
-    req, res = coal.DistanceRequest(), coal.DistanceResult()
-    req.enable_signed_distance, req.gjk_tolerance = True, 1e-9
-    psi = coal.distance(shape, pose, _POINT, coal.Transform3s(np.eye(3), v), req, res)
-    y = np.array(res.getNearestPoint1())
-    pa, pb = (v, y) if side == 0 else (y, v)
-    n = (pb - pa) / np.linalg.norm(pb - pa)
+    psi, pa, pb = vertex_distances(placed_pair(scene, k), side, [i])
+    n = (pb[0] - pa[0]) / np.linalg.norm(pb[0] - pa[0])
     ws = scene.workspace()
     ws.place(q)
-    return float(psi), ws.rows(np.array([k]), n[None], np.vstack([pa, pb]))[0]
+    return float(psi[0]), ws.rows(np.array([k]), n[None], np.vstack([pa, pb]))[0]
 
 
 def vertex_corner(scene, k: int, before, after) -> tuple[int, int, int] | None:

@@ -274,6 +274,8 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
 
     def step(self) -> None:
         """One step to t + dt; a switch of the active set within it is located and stepped to exactly."""
+        if self.rows:  # a row that equals another there is held as that one (:meth:`GeneralRows._representatives`)
+            self._representatives()
         snap = self.state
         bounded = self._sel is not None or bool(self.switches)  # a failure then is the limits' to name
         try:

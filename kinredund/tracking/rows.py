@@ -103,6 +103,8 @@ def row_rate_qp(M: np.ndarray, top: np.ndarray, A: np.ndarray, b: np.ndarray, g:
 
 #: an inactive row below -ROW_TOL [m] after a step is a switch (rounding below that is not)
 ROW_TOL = 1e-13
+#: two rows of one constraint within TWIN_VALUE [m] and TWIN_RATE (relative) of each other at q are one contact
+TWIN_VALUE, TWIN_RATE = 1e-9, 1e-4
 
 
 class GeneralRows:
@@ -200,7 +202,8 @@ class GeneralRows:
         values = self._row_values(self.q)
         if not values.min() < -ROW_TOL and not self.rows:  # the common case: one reduction
             return []
-        out = [(int(f), "row_reach") for f in np.flatnonzero(values < -ROW_TOL) if int(f) not in self.rows]
+        out = [(int(f), "row_reach") for f in np.flatnonzero(values < -ROW_TOL)
+               if int(f) not in self.rows]
         if self.rows:
             scale = max(1.0, float(np.abs(self.pt.grad).max()))
             nu = -self.lam[self._m:]
@@ -208,22 +211,72 @@ class GeneralRows:
         return out
 
     def _row_watch(self, key: int, kind: str) -> float:
-        """The zero of the switch: the row's value c (reach) or its multiplier nu (release), >= 0 before."""
+        """The zero of the switch: the row's value c (reach) or its multiplier nu (release), >= 0 before. A row
+        below zero that does not stand for itself there (:meth:`_own`: it equals a row that does, which is that
+        event) counts as 2 ROW_TOL: its own reach is where it goes under that row (the switches' search looks for
+        it inside the step, :meth:`~kinredund.tracking.switches.Switches._crossing`)."""
         if kind == "row_reach":
-            return float(self._row_values(self.q)[key])
+            c = float(self._row_values(self.q)[key])
+            return c if c >= 0.0 or self._own(key) else 2.0 * ROW_TOL
         return float(-self.lam[self._m + self.rows.index(key)])
 
     def _apply_row_switch(self, key: int, kind: str) -> float:
         if kind == "row_reach":
-            self.rows, self.lam = self.rows + (key,), np.append(self.lam, 0.0)
+            self._representatives()
+            twin = self._twin(key)
+            if twin is not None:  # the same contact as an active row: it takes that row's place and multiplier
+                pos = self.rows.index(twin)
+                self.rows = self.rows[:pos] + (key,) + self.rows[pos + 1:]
+                self._handed_over = key  # (its direction is its twin's: _check_row_direction)
+            else:
+                self.rows, self.lam = self.rows + (key,), np.append(self.lam, 0.0)
         else:
             pos = self.rows.index(key)
             self.rows, self.lam = self.rows[:pos] + self.rows[pos + 1:], np.delete(self.lam, self._m + pos)
         self._update_sel()
         return 0.0
 
+    def _twin(self, key: int) -> int | None:
+        """An active row of ``key``'s constraint equal to it at q to first order (values within :data:`TWIN_VALUE`,
+        gradients within :data:`TWIN_RATE` relative): one contact seen as two of the constraint's pieces (a
+        vertex's and the pair's own distance, two vertices' against each other). Holding both would put one
+        gradient twice into the system; None where there is none."""
+        ci, ri = self.row_pairs[key]
+        mates = [f for f in self.rows if self.row_pairs[f][0] == ci]
+        if not mates:
+            return None
+        c, G = self.general[ci].rows_at(self.q)
+        for f in mates:
+            rf = self.row_pairs[f][1]
+            scale = max(1.0, float(np.linalg.norm(G[rf])))
+            if abs(c[rf] - c[ri]) <= TWIN_VALUE and np.linalg.norm(G[rf] - G[ri]) <= TWIN_RATE * scale:
+                return f
+        return None
+
+    def _own(self, key: int) -> bool:
+        """Does row ``key`` stand for itself at q (:meth:`~Constraint.representative`)? One that does not (the pair's
+        own distance realised at a vertex) reaches zero with the row that stands for it (:meth:`_row_watch`)."""
+        ci, ri = self.row_pairs[key]
+        return self.general[ci].representative(self.q, ri) == ri
+
+    def _representatives(self) -> None:
+        """Each active row replaced by its constraint's :meth:`~Constraint.representative` at q (the row to hold
+        where another joins: a vertex's rather than the pair's own distance it equals), keeping its multiplier."""
+        rows = list(self.rows)
+        for pos, f in enumerate(rows):
+            ci, ri = self.row_pairs[f]
+            g = self.general[ci].representative(self.q, ri)
+            if g != ri:
+                key = self.row_pairs.index((ci, g))
+                if key not in rows:
+                    rows[pos] = key
+        self.rows = tuple(rows)
+
     def _check_row_direction(self, key: int, kind: str) -> None:
-        """After a row's switch: a reached row's nu grows, a released row's c grows; else the rate QP decides."""
+        """After a row's switch: a reached row's nu grows, a released row's c grows; else the rate QP decides. A
+        row that took its twin's place (:meth:`_twin`) carries on its multiplier: nothing to decide."""
+        if kind == "row_reach" and self.__dict__.pop("_handed_over", None) == key:
+            return
         if kind == "row_reach":
             rate = -float(self.lamdot[self._m + self.rows.index(key)])
         else:

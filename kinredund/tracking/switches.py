@@ -119,6 +119,11 @@ class SwitchLocation:
             if inside is None:
                 return t_start
             t_start = inside
+        if kind == "row_reach" and phi(t_end) > 0.0:  # below zero at the end as another row (GeneralRows._row_watch)
+            below = self._under_inside(phi, t_start, t_end)
+            if below is None:
+                return np.inf  # not an event of its own
+            t_end = below
         try:
             return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
         except (ValueError, RuntimeError, KinredundError) as err:
@@ -176,6 +181,17 @@ class SwitchLocation:
         return ROW_TOL if kind == "row_reach" else 0.0
 
     @staticmethod
+    def _under_inside(phi, t_start: float, t_end: float) -> float | None:
+        """The first time inside (t_start, t_end) where phi < 0, from 7 evenly spaced ones and then 12 halvings of
+        the distance to t_end (a row under the one it equals at t_end is so just before it), or None."""
+        taus = [t_start + (t_end - t_start) * k / 8 for k in range(1, 8)]
+        taus += [t_end - (t_end - t_start) * 0.5 ** k for k in range(4, 16)]
+        for tau in taus:
+            if phi(tau) < 0.0:
+                return tau
+        return None
+
+    @staticmethod
     def _positive_inside(phi, t_start: float, t_end: float, samples: int = 8) -> float | None:
         """The first of ``samples - 1`` evenly spaced times inside (t_start, t_end) where phi > 0, or None."""
         for k in range(1, samples):
@@ -200,6 +216,14 @@ class SwitchLocation:
             state_end = self.state
             times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
             times += [(self._crossing(snap, tau, j, "row_reach"), j, "row_reach") for j, tau in dips]
+            hidden = [(j, kind) for t, j, kind in times if not np.isfinite(t)]
+            times = [x for x in times if np.isfinite(x[0])]
+            if not times:
+                self.state = state_end
+                return
+            if hidden:  # under zero only as another row at the end: on its own before the first switch?
+                first = min(times)[0]
+                times += [(self._crossing(snap, first, j, kind), j, kind) for j, kind in hidden]
             self.state = state_end
             tau, joint, kind = min(times)
             self.state = snap

@@ -105,6 +105,12 @@ class Constraint(abc.ABC):
         the default, where the stepper's own search checks every step."""
         return None
 
+    def representative(self, q: np.ndarray, row: int) -> int:
+        """The inequality that stands for inequality ``row`` at q where another one joins the active set: ``row``
+        itself (the default), or, for a constraint whose rows can coincide (two pieces of one distance equal in
+        value and rate there, :mod:`kinredund.tracking.constraints.pieces`), the one to hold."""
+        return int(row)
+
     def discontinuities(self, q: np.ndarray, dq: np.ndarray, rows) -> list[str]:
         """Messages for those of the inequalities ``rows`` whose gradient jumps on the segment from q to q + dq.
 

@@ -192,7 +192,7 @@ class SceneClearance(Constraint):
             mine = np.flatnonzero(keep >= 0)
             here = keep[mine]
             c[here] = rec.d[mine] - self.clearances[here]
-            G = np.zeros((self.size, len(q)))
+            G = np.zeros((len(self.index), len(q)))  # (a subclass may add rows after these)
             G[here] = rec.G[mine]
             out = (rec, mine, here, c, G)
         else:  # the values alone: the pairs' positions and distances (no record, no names)
