@@ -166,6 +166,6 @@ def run_compiled(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome | tup
     _, _, qc, r, normality, z, lam_k, L, active, extra, hbuf = out[:11]
     n = qc.shape[0]
     active = np.zeros(n, dtype=bool) if active is None else active.astype(bool)
-    terms = OptimalityTerms(float(normality), float(z), index.evaluate(qc)[2], HessianContraction(hbuf.reshape(6, n, n)),
-                            lam_k, L, active, extra)
+    dk = HessianContraction(hbuf.reshape(6, n, n))  # the buffer of Pinocchio's tensor, as eigenpy gives it
+    terms = OptimalityTerms(float(normality), float(z), index.evaluate(qc)[2], dk, lam_k, L, active, extra)
     return StartOutcome(qc, True, it, "", float(r), terms)
