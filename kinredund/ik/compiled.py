@@ -3,18 +3,19 @@
 ``kinredund._core.IKCore`` (``src/core/ik.cpp``) runs the iterations of one start of the constrained minimum
 (:func:`kinredund.ik.newton._constrained_minimum`) operation by operation: one Pinocchio evaluation per iteration
 (shared with the compiled step), e and G of the task kinds' IK residuals (point, planar, pose, axis), the QR split
-of G^T (Eq. D.25), x0 (Eq. D.24), the least-squares multipliers (Eqs. 4.11-4.12) or the first-order conditions
-with bounds (Eq. D.30), the Lagrangian Hessian M (Eqs. 4.20-4.26), the reduced Newton step of Eq. (D.26) with its
-eigenvalue fix, the merit search with its second-order correction, the damped least-squares restoration step and
-the stall and convergence tests, for the index :class:`~kinredund.indices.JointDeviation` (``minimum_norm``,
-``mid_range``).
+of G^T (Eq. D.25), x0 (Eq. D.24), the least-squares multipliers (Eqs. 4.11-4.12) or the first-order conditions with
+bounds (Eq. D.30), the Lagrangian Hessian M (Eqs. 4.20-4.26), the reduced Newton step of Eq. (D.26) with its
+eigenvalue fix, the merit search with its second-order correction, the damped least-squares restoration step (with
+bounds, its box least squares where :mod:`kinredund.ik.qp`'s active-set guess solves it) and the stall and
+convergence tests, for the index :class:`~kinredund.indices.JointDeviation` (``minimum_norm``, ``mid_range``).
 
-A start that converges there comes back with the terms of its last iteration (the optimality report's, as the
-Python iteration gives them). Anything else is handed back to the Python iteration from the state at the start
-of the iteration that needs it (:data:`STATUS`): a step that leaves the joint limits (the box QP of
-:mod:`kinredund.ik.qp`), every stop that is not convergence (the reason is the Python iteration's to word),
-a rotation near a half turn (the log's symmetric-part branch), a spurious zero of e. The Python iteration
-redoes that iteration and goes on, so the results are the Python iteration's to rounding.
+A start that converges there comes back with the terms of its last iteration (the optimality report's, as the Python
+iteration gives them). Anything else is handed to the Python iteration from the state at the start of the iteration
+that needs it (:data:`STATUS`): a Newton step that leaves the joint limits (the box QP of :mod:`kinredund.ik.qp`), a
+restoration step whose box least squares needs proxsuite, every stop that is not convergence (the reason is the
+Python iteration's to word), a rotation near a half turn (the log's symmetric-part branch), a spurious zero of e.
+The Python iteration redoes that iteration and hands the next one back to the core, so the results are the Python
+iteration's to rounding.
 
 Backends as the tracker's (:mod:`kinredund.tracking.compiled`): ``solve_ik(..., backend=)`` or the environment
 variable ``KINREDUND_BACKEND`` where the caller gives none; ``auto`` (the default) runs the core where it loads
@@ -45,6 +46,7 @@ from kinredund.ik.common import (
     Setup,
     StartOutcome,
 )
+from kinredund.ik.qp import GUESS_ROUNDS
 from kinredund.indices import JointDeviation
 from kinredund.kinematics.state import HessianContraction
 from kinredund.tasks.axis import AxisResidual
@@ -53,11 +55,13 @@ from kinredund.tasks.position import PointResidual
 
 BACKENDS = ("auto", "compiled", "python")
 #: the constants of :mod:`kinredund.ik.common` as the core takes them (src/core/ik.cpp Constants)
-CONSTANTS = np.array([ARMIJO, MAX_STEP, MIN_ALPHA, RANK_TOL, DAMPING, LM_WEIGHT, ACTIVE_TOL, STALL_ITERS], float)
+CONSTANTS = np.array([ARMIJO, MAX_STEP, MIN_ALPHA, RANK_TOL, DAMPING, LM_WEIGHT, ACTIVE_TOL, STALL_ITERS, GUESS_ROUNDS],
+                     float)
 #: why the core handed an iteration back to Python (its status codes)
 STATUS = {1: "log_near_pi", 2: "not_finite", 3: "spurious", 4: "max_iter", 5: "timeout", 6: "stalled",
           7: "singular", 8: "restore_box", 9: "restore_failed", 10: "box_qp", 11: "merit_failed"}
-#: iterations handed back by reason, and starts run in C++ (for benchmarks and tests; per process)
+_EMPTY = np.zeros(0)
+#: iterations handed back by reason, and runs of the core ending converged (for benchmarks and tests; per process)
 COUNTS: dict[str, int] = {}
 
 
@@ -145,15 +149,19 @@ def _core_of(kin):
     return core
 
 
-def run_compiled(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome | tuple:
-    """The iterations of one start in the core: the converged :class:`StartOutcome`, or the state
+def run_compiled(s: Setup, q: np.ndarray, on_target: list, state: tuple | None = None) -> StartOutcome | tuple:
+    """The iterations of one start in the core from q (a fresh start) or from ``state`` (where the Python iteration
+    hands back, :func:`kinredund.ik.newton._iterate`'s): the converged :class:`StartOutcome`, or the state
     ``(it, q, rho, r_ref, since, q_prev, r_prev)`` at the start of the iteration handed back to Python
     (``on_target`` updated as :func:`kinredund.ik.newton._iterate` updates it)."""
     res, index = s.res, s.index
     t = res.target
     Qd = np.eye(3) if t.Q is None else t.Q
+    it0, q, rho, r_ref, since, q_prev, r_prev = state or (0, q, 0.0, math.inf, 0, q, math.inf)
+    on_q, on_z, on_r = on_target or (_EMPTY, 0.0, 0.0)
     out = _core_of(s.kin).run(q, _task_code(res), Qd, t.p, index.weights, index.reference, s.lower, s.upper,
-                              s.bounds, s.rtol, s.tol, s.max_iter, math.inf if s.deadline is None else s.deadline)
+                              s.bounds, s.rtol, s.tol, s.max_iter, math.inf if s.deadline is None else s.deadline,
+                              it0, rho, r_ref, since, q_prev, r_prev, on_q, on_z, on_r)
     status, it = out[0], out[1]
     on_q, on_z, on_r = out[-3:]
     if on_q is not None:

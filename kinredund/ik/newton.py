@@ -125,21 +125,27 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
                             f"(z = {z_on:.6g})", r_on)
 
     state = None
-    if s.compiled:  # the iterations in C++ up to convergence or to one they hand back (kinredund.ik.compiled)
-        state = run_compiled(s, q, on_target)
-        if isinstance(state, StartOutcome):
-            return state
-    out = _iterate(s, q, on_target, state)
-    return out if out.converged else give_up(out)
+    while True:
+        if s.compiled:  # the iterations in C++ up to convergence or to one they hand back (kinredund.ik.compiled)
+            state = run_compiled(s, q, on_target, state)
+            if isinstance(state, StartOutcome):
+                return state
+        out = _iterate(s, q, on_target, state)
+        if isinstance(out, StartOutcome):
+            return out if out.converged else give_up(out)
+        state = out
 
 
-def _iterate(s: Setup, q: np.ndarray, on_target: list, state: tuple | None = None) -> StartOutcome:
+def _iterate(s: Setup, q: np.ndarray, on_target: list, state: tuple | None = None) -> StartOutcome | tuple:
     """The iterations of :func:`_constrained_minimum`; ``on_target`` is updated with [q, z, r]. ``state``:
-    where the compiled iteration handed back, (iteration, q, rho, r_ref, since, q_prev, r_prev) at its start."""
+    where the compiled iteration handed back, (iteration, q, rho, r_ref, since, q_prev, r_prev) at its start;
+    the iteration after it is handed back to the core (the state at its start returned)."""
     kin, res, index, rows = s.kin, s.res, s.index, s.res.rows
     # r_ref, since: the stall test's; q_prev, r_prev: the last iterate where the index was finite, and its residual
     it0, q, rho, r_ref, since, q_prev, r_prev = state or (0, q, 0.0, math.inf, 0, q, math.inf)
     for it in range(it0, s.max_iter + 1):
+        if s.compiled and it > it0:
+            return it, q, rho, r_ref, since, q_prev, r_prev
         Q, p, K, dk = kin.jacobian_hessian(q)
         e, jl = res.error(Q, p)
         r = res.residual(Q, p)

@@ -3,15 +3,15 @@
 // index JointDeviation: one Pinocchio evaluation per iteration (frame.hpp, shared with the compiled step), e and G,
 // the Householder QR split of G^T (Eq. D.25), x0 (Eq. D.24), the least-squares multipliers (Eqs. 4.11-4.12) or
 // bound_kkt (Eq. D.30), the Lagrangian Hessian M (Eqs. 4.20-4.26), the reduced Newton step of Eq. (D.26) with its
-// eigenvalue fix, the merit search with second-order correction, the damped least-squares restoration step,
-// cap_step and the stall and convergence tests. The algorithm is invariant under the choice of orthonormal bases
+// eigenvalue fix, the merit search with second-order correction, the damped least-squares restoration step (with
+// bounds, its box least squares where kinredund/ik/qp.py's active-set guess solves it), cap_step and the stall and convergence tests. The algorithm is invariant under the choice of orthonormal bases
 // (x0, L u, Y Y^T, the multipliers and ||L^T grad|| do not depend on them), so Eigen's QR, SVD and eigensolver give
 // the Python reference's numbers (LAPACK's) to rounding.
 //
-// Whatever the iteration would do that is not here - a step that leaves the bounds (the box QP of
-// kinredund/ik/qp.py), a stop of any kind but convergence (its reason is Python's to word), the rotation log near a
-// half turn, a spurious zero of e - hands back to Python: run() returns the state at the start of that iteration
-// and the Python iteration redoes it from there (newton.py `_iterate(..., state)`).
+// Whatever the iteration would do that is not here - a Newton step that leaves the bounds (the box QP of
+// kinredund/ik/qp.py), a restoration step whose box least squares needs proxsuite, a stop of any kind but convergence (its reason is Python's to word), the rotation log near a
+// half turn, a spurious zero of e - hands back to Python: run() returns the state at the start of that iteration,
+// the Python iteration redoes it from there (newton.py `_iterate(..., state)`) and hands the next one back to run().
 #include "ik.hpp"
 #include "frame.hpp"
 
@@ -59,7 +59,7 @@ double max_abs(const VectorXd& v) { return v.size() ? v.cwiseAbs().maxCoeff() : 
 // The constants of kinredund/ik/common.py, passed in by the driver (one source)
 struct Constants {
   double armijo, max_step, min_alpha, rank_tol, damping, lm_weight, active_tol;
-  int stall_iters;
+  int stall_iters, guess_rounds;
 };
 
 // One iterate's evaluation (the first lines of `_iterate`)
@@ -96,21 +96,25 @@ class IKCore {
   IKCore(nb::handle model, int frame_id, CRef constants) : model_(model_from_python(model)), data_(model_) {
     if (model_.nq != model_.nv) throw nb::value_error("the compiled IK needs nq == nv (revolute and prismatic joints)");
     if (frame_id < 0 || frame_id >= static_cast<int>(model_.nframes)) throw nb::value_error("frame id out of range");
-    if (constants.size() != 8) throw nb::value_error("constants: the 8 of kinredund.ik.compiled.CONSTANTS");
+    if (constants.size() != 9) throw nb::value_error("constants: the 9 of kinredund.ik.compiled.CONSTANTS");
     fid_ = frame_id;
     n_ = model_.nv;
     c_ = Constants{constants[0], constants[1], constants[2], constants[3], constants[4], constants[5], constants[6],
-                   static_cast<int>(constants[7])};
+                   static_cast<int>(constants[7]), static_cast<int>(constants[8])};
   }
 
   // One start of `_constrained_minimum` from q0 (see the file's comment); the tuple's layout is
   // kinredund/ik/compiled.py's (run_compiled).
+  // ``it0``, ``rho``, ``r_ref``, ``since``, ``q_prev``, ``r_prev``, ``on_q`` (empty: none), ``on_z``, ``on_r``: the
+  // state to go on from (that of `_iterate` at the start of iteration it0; a fresh start: 0, 0, inf, 0, q0, inf).
   nb::tuple run(CRef q0, int task, const Matrix3d& Qd, const Vector3d& pd, CRef weights, CRef reference, CRef lower,
-                CRef upper, bool bounds, double rtol, double tol, int max_iter, double deadline) {
+                CRef upper, bool bounds, double rtol, double tol, int max_iter, double deadline, int it0, double rho,
+                double r_ref, int since, CRef q_prev, double r_prev, CRef on_q, double on_z, double on_r) {
     const int n = n_;
     if (task < PLANAR || task > AXIS) throw nb::value_error("unknown task code");
-    if (q0.size() != n || weights.size() != n || reference.size() != n || lower.size() != n || upper.size() != n)
-      throw nb::value_error("q0, weights, reference, lower and upper must have n entries");
+    if (q0.size() != n || weights.size() != n || reference.size() != n || lower.size() != n || upper.size() != n ||
+        q_prev.size() != n || (on_q.size() != 0 && on_q.size() != n))
+      throw nb::value_error("q0, weights, reference, lower, upper, q_prev and on_q (or empty) must have n entries");
     task_ = task;
     m_ = task == PLANAR ? 2 : task == POSITION ? 3 : task == POSE ? 6 : 5;
     if (m_ >= n) throw nb::value_error("the constrained iteration needs n > m");
@@ -120,10 +124,13 @@ class IKCore {
     trace_d_ = Qd.trace();
     State st;
     st.q = q0;
-    st.q_prev = q0;
+    st.q_prev = q_prev;
+    st.rho = rho, st.r_ref = r_ref, st.since = since, st.r_prev = r_prev;
+    st.on = on_q.size() != 0;
+    if (st.on) st.on_q = on_q, st.on_z = on_z, st.on_r = on_r;
     Eval ev;
     FirstOrder fo;
-    int it = 0, status;
+    int it = it0, status;
     {
       nb::gil_scoped_release release;  // touches no Python object
       status = iterate(st, ev, fo, it);
@@ -146,7 +153,7 @@ class IKCore {
   // `_iterate`'s loop: CONVERGED (st.q the converged iterate, ev and fo its terms) or a hand-back status with st
   // the state at the start of iteration ``it``.
   int iterate(State& st, Eval& ev, FirstOrder& fo, int& it) {
-    for (it = 0; it <= max_iter_; ++it) {
+    for (; it <= max_iter_; ++it) {
       const State start = st;
       int s = step(st, ev, fo, it);
       if (s == CONVERGED) return s;
@@ -387,6 +394,52 @@ class IKCore {
     return error(oMf.rotation(), oMf.translation(), e, ee, nullptr);
   }
 
+  // BoxStep.least_squares where qp._active_set_guess solves it: min 1/2 ||G d + e||^2 + mu/2 ||d||^2 within
+  // lo - q <= d <= hi - q, by guesses of the active set (the joints at a limit, then those the guess pushes past
+  // one) kept only where they meet the QP's KKT conditions (then the QP's unique solution). False: no guess did.
+  bool box_least_squares(const Eval& ev, double mu, const VectorXd& q, VectorXd& d) const {
+    const int n = n_;
+    MatrixXd H = ev.G.transpose() * ev.G;
+    H.diagonal().array() += mu;
+    const VectorXd g = ev.G.transpose() * ev.e, lb = lo_ - q, ub = hi_ - q;
+    std::vector<int> held(n, 0);  // 0 free, -1 held at lb, +1 held at ub
+    for (int i = 0; i < n; ++i)
+      if (lb[i] >= 0.0) held[i] = -1;
+      else if (ub[i] <= 0.0) held[i] = 1;
+    for (int round = 0; round < c_.guess_rounds; ++round) {
+      std::vector<int> free;
+      d.setZero(n);
+      for (int i = 0; i < n; ++i)
+        if (held[i]) d[i] = held[i] < 0 ? lb[i] : ub[i];
+        else free.push_back(i);
+      const int nf = static_cast<int>(free.size());
+      if (nf == 0) return false;
+      MatrixXd Hff(nf, nf);
+      VectorXd rhs(nf);
+      const VectorXd Hd = H * d;
+      for (int a = 0; a < nf; ++a) {
+        rhs[a] = -(g[free[a]] + Hd[free[a]]);
+        for (int b = 0; b < nf; ++b) Hff(a, b) = H(free[a], free[b]);
+      }
+      Eigen::LLT<MatrixXd> llt(Hff);  // dposv's Cholesky solve of the free block
+      if (llt.info() != Eigen::Success) return false;
+      const VectorXd x = llt.solve(rhs);
+      bool out = false;
+      for (int a = 0; a < nf; ++a) {
+        const int i = free[a];
+        d[i] = x[a];
+        if (!(lb[i] <= x[a] && x[a] <= ub[i])) held[i] = x[a] < lb[i] ? -1 : 1, out = true;
+      }
+      if (out) continue;
+      const VectorXd grad = H * d + g;
+      const double tol = 1e-12 * (1.0 + max_abs(grad));
+      for (int i = 0; i < n; ++i)
+        if ((held[i] < 0 && grad[i] < -tol) || (held[i] > 0 && grad[i] > tol)) return false;
+      return true;
+    }
+    return false;
+  }
+
   // `_restore`: a damped least-squares step on the constraints alone, backtracking on 1/2 ||e||^2
   int restore(State& st, const Eval& ev) {
     const int m = m_, n = n_;
@@ -397,7 +450,8 @@ class IKCore {
     VectorXd rhs = VectorXd::Zero(m + n);
     rhs.head(m) = -ev.e;
     VectorXd d = A.householderQr().solve(rhs);
-    if (bounds_ && !in_box(st.q + d)) return RESTORE_BOX;  // the box least squares is Python's
+    // the box least squares where the active-set guess solves it (else Python's, with proxsuite)
+    if (bounds_ && !in_box(st.q + d) && !box_least_squares(ev, mu, st.q, d)) return RESTORE_BOX;
     d = cap_step(d, c_.max_step);
     const double slope = ev.e.dot(ev.G * d);
     if (!(slope < 0.0)) return RESTORE_FAILED;
@@ -498,7 +552,8 @@ void bind_ik(nb::module_& m) {
       .def(nb::init<nb::handle, int, CRef>(), nb::arg("model"), nb::arg("frame_id"), nb::arg("constants"))
       .def("run", &IKCore::run, nb::arg("q0"), nb::arg("task"), nb::arg("Qd"), nb::arg("pd"), nb::arg("weights"),
            nb::arg("reference"), nb::arg("lower"), nb::arg("upper"), nb::arg("bounds"), nb::arg("rtol"), nb::arg("tol"),
-           nb::arg("max_iter"), nb::arg("deadline"));
+           nb::arg("max_iter"), nb::arg("deadline"), nb::arg("it0"), nb::arg("rho"), nb::arg("r_ref"), nb::arg("since"),
+           nb::arg("q_prev"), nb::arg("r_prev"), nb::arg("on_q"), nb::arg("on_z"), nb::arg("on_r"));
 }
 
 }  // namespace kinredund
