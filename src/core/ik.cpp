@@ -135,9 +135,9 @@ class IKCore {
       nb::gil_scoped_release release;  // touches no Python object
       status = iterate(st, ev, fo, it);
     }
-    nb::object on_q = st.on ? nb::cast(st.on_q) : nb::none();
+    nb::object on_out = st.on ? nb::cast(st.on_q) : nb::none();
     if (status != CONVERGED)
-      return nb::make_tuple(status, it, st.q, st.rho, st.r_ref, st.since, st.q_prev, st.r_prev, on_q, st.on_z, st.on_r);
+      return nb::make_tuple(status, it, st.q, st.rho, st.r_ref, st.since, st.q_prev, st.r_prev, on_out, st.on_z, st.on_r);
     // converged: the terms of OptimalityTerms (k multipliers, null space, held limits, extra, dK's tensor)
     VectorXd lam_k;
     Vector6d mu;
@@ -145,7 +145,7 @@ class IKCore {
     nb::object extra = task_ == AXIS ? nb::cast(axis_extra(ev, fo.lam)) : nb::none();
     VectorXd hbuf = Eigen::Map<const VectorXd>(ev.H.data(), 6 * n * n);
     nb::object active = fo.active.size() ? nb::cast(fo.active) : nb::none();
-    return nb::make_tuple(status, it, st.q, ev.r, fo.normality, ev.z, lam_k, fo.L, active, extra, hbuf, on_q,
+    return nb::make_tuple(status, it, st.q, ev.r, fo.normality, ev.z, lam_k, fo.L, active, extra, hbuf, on_out,
                           st.on_z, st.on_r);
   }
 
