@@ -24,6 +24,8 @@ would leave them is recomputed as a box-constrained QP (:mod:`kinredund.ik.qp`);
 optimality then includes the multipliers of the active bounds. A converged start hands the terms of
 its last iteration to the optimality report (:class:`OptimalityTerms`): no second kinematics pass. An iteration
 that takes a restoration step off the target computes no multipliers (no first-order test can pass there).
+Where the compiled core runs the iterations (:mod:`kinredund.ik.compiled`), this module takes over the
+iterations that the core hands back, one at a time, with the same results.
 
 A pose-only solve (no index) is the x0 part alone in its damped form, kept lean because multi-start
 IK runs it many times (:func:`kinredund.ik.pose_only.pose_only`): Levenberg-Marquardt steps d = -G^T (G G^T + mu 1)^-1 e
