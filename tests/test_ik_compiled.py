@@ -150,6 +150,7 @@ def test_the_core_runs_the_constrained_iteration_where_it_is_expected():
 
 
 def test_backend_options(monkeypatch):
+    monkeypatch.delenv("KINREDUND_BACKEND", raising=False)
     r = robot("panda")
     target, q0 = _draw(r, np.random.default_rng(2))
     custom = CustomIndex(lambda q: 0.5 * float(q @ q), lambda q: q.copy(), lambda q: np.eye(r.nq))
@@ -163,3 +164,14 @@ def test_backend_options(monkeypatch):
     monkeypatch.setenv("KINREDUND_BACKEND", "python")
     solve_ik(r, target, minimum_norm(r.nq), q0=q0)
     assert sum(compiled.COUNTS.values()) == before
+
+
+@pytest.mark.parametrize("name,task", [("panda", None), ("xarm7", None), ("panda", "position")])
+def test_far_seeds_with_bounds(name, task):
+    """Seeds far from the target: restoration steps (their box least squares in C++ where the active-set guess
+    solves it, else Python's), stalls and multi-start, all with the Python iteration's results."""
+    r = robot(name, task)
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        target, q0 = _draw(r, rng, spread=1.5)
+        _same(r, target, mid_range(r.lower, r.upper), q0, bounds=True, starts=2, seed=1)
