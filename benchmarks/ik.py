@@ -25,7 +25,8 @@ On the first M targets the script also compares the mid-range index z = 1/2 sum 
 ``solve_ik(robot, T, mid_range(...), q0=<pose solution>, bounds=True)``: how much lower z is there, and the
 median wall time and mean CPU time of that constrained solve (the Newton iteration of :mod:`kinredund.ik.newton`,
 the planner's kind of solve); and, on the first B targets (``--backend-subset``), that solve by the Python and the
-compiled iteration (:mod:`kinredund.ik.compiled`) in turn: median wall time per solve, time per iteration, ratio.
+compiled iteration (:mod:`kinredund.ik.compiled`) in turn: median wall time per solve, time per iteration, ratio;
+and the core's own time per iteration (``IKCore.run`` alone, pose targets, unbounded).
 
 Prints a table; with ``--json FILE`` writes the figures atomically. The default run (N = 10000 on
 both robots) takes about 20 s on an unloaded 2-core machine.
@@ -39,6 +40,7 @@ import numpy as np
 from _bench import parser, print_table, write_json
 
 import kinredund
+from kinredund.ik import compiled
 from kinredund.ik.solve import MAX_STARTS, solve_ik
 from kinredund.indices import mid_range
 
@@ -161,6 +163,29 @@ def backends(robot, targets: list[np.ndarray]) -> dict:
             "compiled_us_per_iteration": per_it["compiled"], "same_results": bool(same)}
 
 
+def core_iteration_us(robot, n: int) -> float:
+    """The core's own time per iteration [us]: ``IKCore.run`` alone (no solve_ik around it) on the converged
+    unbounded starts of the mid-range minimum from n random pose targets, seeded 0.1 rad (sd) from their joints."""
+    core = compiled.core_module()
+    if core is None:
+        return float("nan")
+    ik = core.IKCore(robot.model, int(robot.ee_frame_id), compiled.CONSTANTS)
+    index = mid_range(robot.lower, robot.upper)
+    rng = np.random.default_rng(SEED)
+    total, iterations, empty = 0.0, 0, np.zeros(0)
+    for _ in range(n):
+        qt = robot.random_configuration(rng)
+        Q, p = robot.kinematics.pose(qt)
+        q0 = qt + rng.normal(0.0, 0.1, robot.nq)
+        t0 = time.perf_counter()
+        out = ik.run(q0, 2, Q.copy(), p.copy(), index.weights, index.reference, robot.lower, robot.upper, False,
+                     1e-10, 1e-10, 200, np.inf, 0, 0.0, np.inf, 0, q0, np.inf, empty, 0.0, 0.0)
+        dt = time.perf_counter() - t0
+        if out[0] == 0:  # converged: iterations 0..it, each one evaluation and its line search
+            total, iterations = total + dt, iterations + out[1] + 1
+    return 1e6 * total / max(1, iterations)
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--robot", choices=ROBOTS, default=None, help="one robot (default: both)")
@@ -181,7 +206,8 @@ def main() -> None:
         free = run_protocol(robot, targets, bounds=False)
         need = starts_needed(robot, targets[: args.starts_subset])
         zc = z_comparison(robot, targets[: args.z_subset])
-        bk = backends(robot, targets[: args.backend_subset])
+        bk = {**backends(robot, targets[: args.backend_subset]),
+              "core_us_per_iteration": core_iteration_us(robot, args.backend_subset)}
         figures[name] = {**bounded, "unbounded": free, "starts_needed": need, "z_mid_range": zc, "backends": bk}
         for label, f in (("yes", bounded), ("no", free)):
             rows.append([name, label, f"{100 * f['success_rate']:.2f}", f["median_ms"], f["mean_ms"], f["p95_ms"],
@@ -200,7 +226,8 @@ def main() -> None:
         extra.append(f"{name}: constrained minimum, Python -> compiled iteration in turn ({bk['n']} targets): median "
                      f"{bk['python_median_ms']:.3f} -> {bk['compiled_median_ms']:.3f} ms per solve "
                      f"({bk['median_ratio']:.2f}x), {bk['python_us_per_iteration']:.0f} -> "
-                     f"{bk['compiled_us_per_iteration']:.0f} us per iteration; same results: {bk['same_results']}")
+                     f"{bk['compiled_us_per_iteration']:.0f} us per iteration (whole solves); the core alone "
+                     f"{bk['core_us_per_iteration']:.1f} us per iteration; same results: {bk['same_results']}")
     print_table(rows, ["robot", "limits", "success %", "median ms", "mean ms", "p95 ms", "starts"])
     for line in extra:
         print(line)
