@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/ik.py [--robot NAME] [--n N] [--json FILE] [--z-subset M] [--starts-subset S]
+    python benchmarks/ik.py [--robot NAME] [--n N] [--json FILE] [--z-subset M] [--starts-subset S] [--backend-subset B]
 
 Protocol (Beeson and Ames 2015, TRAC-IK): draw N configurations uniformly within the joint limits
 (``np.random.default_rng(2015)``), take their forward pose as the target, and solve seeded at
@@ -24,7 +24,9 @@ On the first M targets the script also compares the mid-range index z = 1/2 sum 
 (Eq. 4.49, all joints) of the plain pose solve with that of the constrained minimum
 ``solve_ik(robot, T, mid_range(...), q0=<pose solution>, bounds=True)``: how much lower z is there, and the
 median wall time and mean CPU time of that constrained solve (the Newton iteration of :mod:`kinredund.ik.newton`,
-the planner's kind of solve).
+the planner's kind of solve); and, on the first B targets (``--backend-subset``), that solve by the Python and the
+compiled iteration (:mod:`kinredund.ik.compiled`) in turn: median wall time per solve, time per iteration, ratio;
+and the core's own time per iteration (``IKCore.run`` alone, pose targets, unbounded).
 
 Prints a table; with ``--json FILE`` writes the figures atomically. The default run (N = 10000 on
 both robots) takes about 20 s on an unloaded 2-core machine.
@@ -38,6 +40,7 @@ import numpy as np
 from _bench import parser, print_table, write_json
 
 import kinredund
+from kinredund.ik import compiled
 from kinredund.ik.solve import MAX_STARTS, solve_ik
 from kinredund.indices import mid_range
 
@@ -131,15 +134,69 @@ def z_comparison(robot, targets: list[np.ndarray]) -> dict:
     }
 
 
+def backends(robot, targets: list[np.ndarray]) -> dict:
+    """The constrained minimum of :func:`z_comparison` by the Python and the compiled iteration in turn
+    (:mod:`kinredund.ik.compiled`; one solve each per target, alternating, so both see the same load): median
+    wall time per solve [ms], time per iteration [us] (total time over total iterations), their ratio, and
+    whether both gave the same q (to 1e-9) and iteration counts."""
+    index = mid_range(robot.lower, robot.upper)
+    mid = 0.5 * (robot.lower + robot.upper)
+    ms = {"python": [], "compiled": []}
+    its = {"python": 0, "compiled": 0}
+    same = True
+    for T in targets:
+        pose = solve_ik(robot, T, q0=mid, tol=TOL, bounds=True, starts=64)
+        if not pose.converged:
+            continue
+        out = {}
+        for backend in ("python", "compiled"):
+            t0 = time.perf_counter()
+            out[backend] = solve_ik(robot, T, index, q0=pose.q, bounds=True, tol=1e-8, backend=backend)
+            ms[backend].append((time.perf_counter() - t0) * 1e3)
+            its[backend] += out[backend].iterations
+        a, b = out["python"], out["compiled"]
+        same &= a.iterations == b.iterations and bool(np.allclose(a.q, b.q, rtol=0.0, atol=1e-9))
+    med = {k: float(np.median(v)) for k, v in ms.items()}
+    per_it = {k: 1e3 * float(np.sum(ms[k])) / max(1, its[k]) for k in ms}
+    return {"n": len(ms["python"]), "python_median_ms": med["python"], "compiled_median_ms": med["compiled"],
+            "median_ratio": med["compiled"] / med["python"], "python_us_per_iteration": per_it["python"],
+            "compiled_us_per_iteration": per_it["compiled"], "same_results": bool(same)}
+
+
+def core_iteration_us(robot, n: int) -> float:
+    """The core's own time per iteration [us]: ``IKCore.run`` alone (no solve_ik around it) on the converged
+    unbounded starts of the mid-range minimum from n random pose targets, seeded 0.1 rad (sd) from their joints."""
+    core = compiled.core_module()
+    if core is None:
+        return float("nan")
+    ik = core.IKCore(robot.model, int(robot.ee_frame_id), compiled.CONSTANTS)
+    index = mid_range(robot.lower, robot.upper)
+    rng = np.random.default_rng(SEED)
+    total, iterations, empty = 0.0, 0, np.zeros(0)
+    for _ in range(n):
+        qt = robot.random_configuration(rng)
+        Q, p = robot.kinematics.pose(qt)
+        q0 = qt + rng.normal(0.0, 0.1, robot.nq)
+        t0 = time.perf_counter()
+        out = ik.run(q0, 2, Q.copy(), p.copy(), index.weights, index.reference, robot.lower, robot.upper, False,
+                     1e-10, 1e-10, 200, np.inf, 0, 0.0, np.inf, 0, q0, np.inf, empty, 0.0, 0.0)
+        dt = time.perf_counter() - t0
+        if out[0] == 0:  # converged: iterations 0..it, each one evaluation and its line search
+            total, iterations = total + dt, iterations + out[1] + 1
+    return 1e6 * total / max(1, iterations)
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--robot", choices=ROBOTS, default=None, help="one robot (default: both)")
     p.add_argument("--n", type=int, default=10000, help="number of random targets per robot")
     p.add_argument("--z-subset", type=int, default=200, help="targets used for the z comparison")
     p.add_argument("--starts-subset", type=int, default=1000, help="targets used for the starts-needed figures")
+    p.add_argument("--backend-subset", type=int, default=200,
+                   help="targets used for the compiled-against-Python constrained solves")
     args = p.parse_args()
     if args.smoke:
-        args.robot, args.n, args.z_subset, args.starts_subset = "panda", 2, 2, 2
+        args.robot, args.n, args.z_subset, args.starts_subset, args.backend_subset = "panda", 2, 2, 2, 2
     figures, rows, extra = {}, [], []
     for name in (args.robot,) if args.robot else ROBOTS:
         robot = kinredund.load_robot(name)
@@ -149,7 +206,9 @@ def main() -> None:
         free = run_protocol(robot, targets, bounds=False)
         need = starts_needed(robot, targets[: args.starts_subset])
         zc = z_comparison(robot, targets[: args.z_subset])
-        figures[name] = {**bounded, "unbounded": free, "starts_needed": need, "z_mid_range": zc}
+        bk = {**backends(robot, targets[: args.backend_subset]),
+              "core_us_per_iteration": core_iteration_us(robot, args.backend_subset)}
+        figures[name] = {**bounded, "unbounded": free, "starts_needed": need, "z_mid_range": zc, "backends": bk}
         for label, f in (("yes", bounded), ("no", free)):
             rows.append([name, label, f"{100 * f['success_rate']:.2f}", f["median_ms"], f["mean_ms"], f["p95_ms"],
                          f["mean_starts"]])
@@ -164,6 +223,11 @@ def main() -> None:
                      f"{zc['z_pose_median']:.3g} -> {zc['z_min_median']:.3g} "
                      f"({100 * zc['z_reduction_median']:.1f} % lower; {zc['constrained_min_median_ms']:.2f} ms median "
                      f"wall, {zc['constrained_min_cpu_ms_mean']:.2f} ms mean CPU per constrained solve)")
+        extra.append(f"{name}: constrained minimum, Python -> compiled iteration in turn ({bk['n']} targets): median "
+                     f"{bk['python_median_ms']:.3f} -> {bk['compiled_median_ms']:.3f} ms per solve "
+                     f"({bk['median_ratio']:.2f}x), {bk['python_us_per_iteration']:.0f} -> "
+                     f"{bk['compiled_us_per_iteration']:.0f} us per iteration (whole solves); the core alone "
+                     f"{bk['core_us_per_iteration']:.1f} us per iteration; same results: {bk['same_results']}")
     print_table(rows, ["robot", "limits", "success %", "median ms", "mean ms", "p95 ms", "starts"])
     for line in extra:
         print(line)

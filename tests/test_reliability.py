@@ -195,10 +195,12 @@ def test_bad_input_exits_2_naming_it(tmp_path):
 
 def test_sigint_exits_130_with_a_short_message(tmp_path):
     js = tmp_path / "long.json"
-    # an unreachable pose from MAX_STARTS starts: minutes of work, so the interrupt always comes first
+    # an unreachable pose from MAX_STARTS starts: minutes of work on the Python iteration (the compiled one takes
+    # seconds, kinredund.ik.compiled), so the interrupt always comes first
     proc = subprocess.Popen([str(SCRIPT), "ik", "panda", "--target", "3,3,3", "--rpy", "0,0,0", "--index", "home",
                              "--starts", str(MAX_STARTS), "--json", str(js)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "KINREDUND_BACKEND": "python"})
     time.sleep(6.0)  # past the imports (about 1 s) and into the run
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)

@@ -78,6 +78,8 @@ class Setup:
     quick_exit: bool = False
     #: revolute joints (n,) bool; None: no joint is turned past its limits
     revolute: np.ndarray | None = None
+    #: the constrained iteration runs in the compiled core (:mod:`kinredund.ik.compiled`)
+    compiled: bool = False
 
     def __post_init__(self):
         self.eye = np.eye(self.res.m)

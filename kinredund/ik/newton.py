@@ -24,6 +24,8 @@ would leave them is recomputed as a box-constrained QP (:mod:`kinredund.ik.qp`);
 optimality then includes the multipliers of the active bounds. A converged start hands the terms of
 its last iteration to the optimality report (:class:`OptimalityTerms`): no second kinematics pass. An iteration
 that takes a restoration step off the target computes no multipliers (no first-order test can pass there).
+Where the compiled core runs the iterations (:mod:`kinredund.ik.compiled`), this module takes over the
+iterations that the core hands back, one at a time, with the same results.
 
 A pose-only solve (no index) is the x0 part alone in its damped form, kept lean because multi-start
 IK runs it many times (:func:`kinredund.ik.pose_only.pose_only`): Levenberg-Marquardt steps d = -G^T (G G^T + mu 1)^-1 e
@@ -58,6 +60,7 @@ from kinredund.ik.common import (
     solve_rt,
     stall,
 )
+from kinredund.ik.compiled import run_compiled
 from kinredund.ik.pose_only import pose_only
 
 
@@ -123,17 +126,28 @@ def _constrained_minimum(s: Setup, q: np.ndarray) -> StartOutcome:
                             f"below along the self-motion? The lowest-z point on the target is returned "
                             f"(z = {z_on:.6g})", r_on)
 
-    out = _iterate(s, q, on_target)
-    return out if out.converged else give_up(out)
+    state = None
+    while True:
+        if s.compiled:  # the iterations in C++ up to convergence or to one they hand back (kinredund.ik.compiled)
+            state = run_compiled(s, q, on_target, state)
+            if isinstance(state, StartOutcome):
+                return state
+        out = _iterate(s, q, on_target, state)
+        if isinstance(out, StartOutcome):
+            return out if out.converged else give_up(out)
+        state = out
 
 
-def _iterate(s: Setup, q: np.ndarray, on_target: list) -> StartOutcome:
-    """The iterations of :func:`_constrained_minimum`; ``on_target`` is updated with [q, z, r]."""
+def _iterate(s: Setup, q: np.ndarray, on_target: list, state: tuple | None = None) -> StartOutcome | tuple:
+    """The iterations of :func:`_constrained_minimum`; ``on_target`` is updated with [q, z, r]. ``state``:
+    where the compiled iteration handed back, (iteration, q, rho, r_ref, since, q_prev, r_prev) at its start;
+    the iteration after it is handed back to the core (the state at its start returned)."""
     kin, res, index, rows = s.kin, s.res, s.index, s.res.rows
-    rho = 0.0
-    r_ref, since = math.inf, 0
-    q_prev, r_prev = q, math.inf  # the last iterate where the index was finite, and its residual
-    for it in range(s.max_iter + 1):
+    # r_ref, since: the stall test's; q_prev, r_prev: the last iterate where the index was finite, and its residual
+    it0, q, rho, r_ref, since, q_prev, r_prev = state or (0, q, 0.0, math.inf, 0, q, math.inf)
+    for it in range(it0, s.max_iter + 1):
+        if s.compiled and it > it0:
+            return it, q, rho, r_ref, since, q_prev, r_prev
         Q, p, K, dk = kin.jacobian_hessian(q)
         e, jl = res.error(Q, p)
         r = res.residual(Q, p)

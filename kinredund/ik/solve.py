@@ -35,6 +35,7 @@ import numpy as np
 
 from kinredund.errors import SIZES, TaskError, check_count, check_flag, check_positive, check_size
 from kinredund.ik.common import Setup, StartOutcome
+from kinredund.ik.compiled import pick
 from kinredund.ik.newton import run_start
 from kinredund.ik.optimality import (  # noqa: F401  (check_optimality, check_index_at: importable here too)
     Optimality,
@@ -156,6 +157,7 @@ def solve_ik(
     tol: float = 1e-10,
     max_iter: int = 200,
     timeout: float | None = None,
+    backend: str | None = None,
 ) -> IKResult:
     """Solve g(theta) = x, or min z(theta) s.t. g(theta) = x (Eq. 4.3), by the method of Appendix D.
 
@@ -183,6 +185,10 @@ def solve_ik(
             20 iterations with an index, or, pose-only, its squared error has not decreased in 10).
         timeout: wall-time budget of the whole call [s]; when it runs out, the best converged result so
             far is returned, else ``converged=False`` with reason ``"timeout"``.
+        backend: where the constrained iteration (with an index) runs: ``"auto"`` (the compiled core where it
+            loads and supports the problem), ``"compiled"`` (an OptionError where it cannot) or ``"python"``;
+            None reads the environment variable ``KINREDUND_BACKEND`` (default ``"auto"``). The same results
+            either way (:mod:`kinredund.ik.compiled`); pose-only solves are Python's.
 
     Returns:
         An :class:`IKResult`. An unreachable target gives ``converged=False``, the configuration with
@@ -193,6 +199,8 @@ def solve_ik(
         converged when the gradient vanishes on the SVD null space there. Every reason says which.
 
     Raises:
+        OptionError: ``backend="compiled"`` where the compiled core cannot run the problem.
+        ChoiceError: an unknown ``backend``.
         TaskError: wrong-size or non-finite target, a target for another task kind, bad options (``starts``
             outside 1..:data:`MAX_STARTS`, a negative ``seed``, ``bounds`` not a bool), an index of the wrong size.
         JointVectorError: q0 of the wrong size or non-finite.
@@ -217,7 +225,7 @@ def solve_ik(
         bounds=bool(bounds), rtol=max(float(tol), ROUNDING * (1.0 + res.scale())), tol=float(tol),
         max_iter=int(max_iter), deadline=None if timeout is None else t0 + float(timeout),
         box=BoxStep(robot.nq, res.m) if bounds and index is not None else None,  # pose-only: no QP
-        revolute=robot.revolute,
+        revolute=robot.revolute, compiled=pick(robot, res, index, backend),
     )
     rng = box = None
     outcomes: list[tuple[StartOutcome, float]] = []

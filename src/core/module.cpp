@@ -17,6 +17,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "frame.hpp"
+#include "ik.hpp"
 #include "step.hpp"
 #include "watch.hpp"
 
@@ -54,12 +56,9 @@ class Kinematics {
   // (T 4x4, J 6 x nv, H 6 x nv*nv with H[a, i*nv + k] = dJ[a, i] / dq_k (the layout-fixed pin Hessian, shared/STACK.md)).
   std::tuple<RowMatrixXd, RowMatrixXd, RowMatrixXd> jacobian_hessian(const Eigen::Ref<const VectorXd>& q) {
     check_q(q);
-    pinocchio::computeJointJacobians(model_, data_, q);
-    const auto& M = pinocchio::updateFramePlacement(model_, data_, fid_);
-    J_.setZero();
-    pinocchio::getFrameJacobian(model_, data_, fid_, pinocchio::LOCAL_WORLD_ALIGNED, J_);
-    pinocchio::computeJointKinematicHessians(model_, data_);
-    auto H = pinocchio::getFrameKinematicHessian(model_, data_, fid_, pinocchio::LOCAL_WORLD_ALIGNED);
+    pinocchio::Data::Tensor3x H;
+    frame_jacobian_hessian(model_, data_, fid_, q, J_, H);  // frame.hpp
+    const auto& M = data_.oMf[fid_];
     RowMatrixXd Hm(6, model_.nv * model_.nv);
     const Eigen::DenseIndex nv = model_.nv;
     for (Eigen::DenseIndex a = 0; a < 6; ++a)
@@ -91,6 +90,7 @@ NB_MODULE(_core, m) {
       .def_prop_ro("nv", &kinredund::Kinematics::nv)
       .def("jacobian_hessian", &kinredund::Kinematics::jacobian_hessian, nb::arg("q"));
   kinredund::bind_step(m);
+  kinredund::bind_ik(m);
   kinredund::bind_distances(m);
   kinredund::bind_loop(m);
   kinredund::bind_watch(m);

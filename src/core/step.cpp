@@ -8,6 +8,7 @@
 // the held joints' columns leave R, their rows of the residual are the bound multipliers', and the multipliers
 // mu_i = s_i (grad z + J^T lambda)_i come out at the corrected point; a multiplier below zero (a release) is a switch.
 // Anything not ordinary returns a status code and the Python reference takes the step from the same state.
+#include "frame.hpp"
 #include "step.hpp"
 #include "watch.hpp"
 
@@ -53,31 +54,6 @@ enum Task { PLANAR = 0, POSITION = 1, POSE = 2, AXIS = 3 };
 // Why a step is handed back to the Python reference.
 constexpr int OK = 0, FACTOR_SINGULAR = 1, RCOND_LOW = 2, NOT_FINITE = 3, CHORD_FAILED = 4, JUMP = 5, LIMIT = 6,
               LOG_NEAR_PI = 7, RELEASE = 11;
-
-constexpr double SMALL_ANGLE = 1e-4;  // kinredund.kinematics.closure
-constexpr double NEAR_PI_SIN = 1e-6;
-
-Vector3d cross(const Vector3d& a, const Vector3d& b) {
-  return Vector3d(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]);
-}
-
-// log of a rotation (closure.log_scalars); false near phi = pi (the Python reference's symmetric-part branch)
-bool rotation_log(const Matrix3d& R, Vector3d& w) {
-  double vx = 0.5 * (R(2, 1) - R(1, 2)), vy = 0.5 * (R(0, 2) - R(2, 0)), vz = 0.5 * (R(1, 0) - R(0, 1));
-  double c = 0.5 * (R(0, 0) + R(1, 1) + R(2, 2) - 1.0);
-  double s = std::sqrt(vx * vx + vy * vy + vz * vz);
-  double phi = std::atan2(s, c);
-  double f;
-  if (phi < SMALL_ANGLE) {
-    f = 1.0 + phi * phi / 6.0;
-  } else if (s > NEAR_PI_SIN) {
-    f = phi / s;
-  } else {
-    return false;
-  }
-  w = Vector3d(f * vx, f * vy, f * vz);
-  return true;
-}
 
 struct Sample {
   Vector3d p, v, omega;
@@ -340,12 +316,7 @@ class StepCore {
   // Point.__init__ / Evaluator.point: kinematics, task terms, index terms at q (with the Hessian: need_dJ)
   void evaluate(const Eigen::Ref<const VectorXd>& q, bool need_dJ) {
     if (need_dJ) {
-      pinocchio::computeJointJacobians(model_, data_, q);
-      pinocchio::updateFramePlacement(model_, data_, fid_);
-      J6_.setZero();
-      pinocchio::getFrameJacobian(model_, data_, fid_, pinocchio::LOCAL_WORLD_ALIGNED, J6_);
-      pinocchio::computeJointKinematicHessians(model_, data_);
-      H_ = pinocchio::getFrameKinematicHessian(model_, data_, fid_, pinocchio::LOCAL_WORLD_ALIGNED);
+      frame_jacobian_hessian(model_, data_, fid_, q, J6_, H_);  // frame.hpp (shared with the compiled IK)
     } else {
       J6_.setZero();
       pinocchio::computeFrameJacobian(model_, data_, q, fid_, pinocchio::LOCAL_WORLD_ALIGNED, J6_);
@@ -416,22 +387,12 @@ class StepCore {
     J_.resize(5, n);
     J_.topRows(2) = rows * W_;
     J_.bottomRows(3) = K_.bottomRows(3);
-    const Vector3d c = cross(wd, ah_);
+    const Vector3d c = cross3(wd, ah_);
     xdot_.resize(5);
     xdot_ << c[0], c[1], s_.v;
   }
 
-  // sum_a mu_a dK[a, i, k] with mu in Pinocchio's [v; omega] order (HessianContraction.contract_pinocchio)
-  void contract(const Eigen::Matrix<double, 6, 1>& mu, RowMatrixXd& out) const {
-    const int n = n_;
-    out.resize(n, n);
-    const double* h = H_.data();  // column-major (6, n, n): (a, i, k) at a + 6 (i + n k)
-    for (int i = 0; i < n; ++i)
-      for (int k = 0; k < n; ++k) {
-        const double* e = h + 6 * (i + n * k);
-        out(i, k) = e[0] * mu[0] + e[1] * mu[1] + e[2] * mu[2] + e[3] * mu[3] + e[4] * mu[4] + e[5] * mu[5];
-      }
-  }
+  void contract(const Eigen::Matrix<double, 6, 1>& mu, RowMatrixXd& out) const { contract_hessian(H_, n_, mu, out); }
 
   // Point.system: (M, top) of Eq. (4.24) for lam
   void system(const VectorXd& lam, RowMatrixXd& M, VectorXd& top) {
@@ -463,8 +424,8 @@ class StepCore {
       Lam -= W_.transpose() * (G * W_);  // Eq. (4.20)
       const Vector3d& w = wd_;
       const double s = 2.0 * v_.dot(w);
-      const Vector3d x = cross(l, w);
-      const Vector3d c = s * l + q.transpose() * x - cross(m3, w);
+      const Vector3d x = cross3(l, w);
+      const Vector3d c = s * l + q.transpose() * x - cross3(m3, w);
       extra = W_.transpose() * c;
       has_extra = true;
     } else {  // AXIS
@@ -474,10 +435,10 @@ class StepCore {
       Vector3d w;
       if (velocity_) {
         w = m3;  // Eq. (4.42)
-        extra = Ko.transpose() * cross(s_.omega, m3);
+        extra = Ko.transpose() * cross3(s_.omega, m3);
       } else {
-        w = cross(a_, m3);
-        extra = Ko.transpose() * cross(a_, cross(s_.omega, m3));
+        w = cross3(a_, m3);
+        extra = Ko.transpose() * cross3(a_, cross3(s_.omega, m3));
       }
       has_extra = true;
       mu << lam.segment(2, 3), w;

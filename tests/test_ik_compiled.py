@@ -1,0 +1,177 @@
+"""The IK's constrained iteration in C++ (issue 28, :mod:`kinredund.ik.compiled`): the same results as the Python
+iteration (q, converged, reason, iterations), on several arms, task kinds, indices, with and without bounds; the
+hand-back to Python (a step leaving the bounds: the box QP) gives the same answer; the answers pass
+check_optimality on their own; the backend's options and errors."""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+import pytest
+from conftest import IK_TOL, robot, rounding
+
+from kinredund.errors import ChoiceError, OptionError
+from kinredund.ik import compiled
+from kinredund.ik.solve import check_optimality, solve_ik
+from kinredund.indices import CustomIndex, JointDeviation, mid_range, minimum_norm
+
+pytestmark = pytest.mark.skipif(compiled.core_module() is None and not os.environ.get("CI"),
+                                reason="the compiled core is not built (CI requires it: test_core_build.py)")
+
+#: joints of the two backends [rad or m]: both iterations take the same steps (the same decisions at every test)
+#: and stop at the same iteration; they differ by the rounding of their linear algebra (LAPACK's against
+#: Eigen's factorisations) carried through the Newton iterations, far below the residual tolerance (1e-10)
+Q_BAR = 1e-10
+
+#: (robot, task, index kind): 7-axis arms with the pose task and the position task, the axis task on the Panda and
+#: on a 6-axis arm, the planar 3R (an HD table) with the planar task
+CASES = [
+    ("panda", None, "mid_range"),
+    ("panda", "position", "minimum_norm"),
+    ("panda", "axis", "weighted"),
+    ("xarm7", None, "minimum_norm"),
+    ("puma7", None, "mid_range"),
+    ("ur5", "axis", "mid_range"),
+    ("planar3r", None, "minimum_norm"),
+    ("planar3r", None, "weighted"),
+]
+
+
+def _index(r, kind: str, rng) -> JointDeviation:
+    if kind == "mid_range":
+        return mid_range(r.lower, r.upper)
+    if kind == "minimum_norm":
+        return minimum_norm(r.nq)
+    return JointDeviation(rng.uniform(-1.0, 1.0, r.nq), rng.uniform(0.2, 2.0, r.nq))
+
+
+def _draw(r, rng, spread: float = 0.3):
+    """A reachable target (the pose at a random q within the limits) and a seed near that q."""
+    lo, hi = np.maximum(r.lower, -np.pi), np.minimum(r.upper, np.pi)
+    qt = rng.uniform(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo))
+    Q, p = r.kinematics.pose(qt)
+    target = {"pose": (Q.copy(), p.copy()), "axis": (Q[:, 2].copy(), p.copy()), "position": p.copy(),
+              "planar": p[:2].copy()}[r.task]
+    q0 = np.clip(qt + rng.normal(0.0, spread, r.nq), r.lower, r.upper)
+    return target, q0
+
+
+def _same(r, target, index, q0, **kw):
+    """The Python and compiled solves of one problem agree; returns (python, compiled, the core's outcomes)."""
+    py = solve_ik(r, target, index, q0=q0, backend="python", **kw)
+    before = dict(compiled.COUNTS)
+    cc = solve_ik(r, target, index, q0=q0, backend="compiled", **kw)
+    counts = {k: compiled.COUNTS.get(k, 0) - before.get(k, 0) for k in compiled.COUNTS}
+    assert sum(counts.values()) >= cc.starts  # the core ran every start (again after each hand-back)
+    assert (cc.converged, cc.reason, cc.iterations, cc.starts) == (py.converged, py.reason, py.iterations, py.starts)
+    np.testing.assert_allclose(cc.q, py.q, rtol=0.0, atol=Q_BAR)
+    g = float(np.abs(index.evaluate(py.q)[1]).max())
+    assert abs(cc.objective - py.objective) <= Q_BAR * max(1.0, g)
+    assert cc.reduced_hessian_pd == py.reduced_hessian_pd
+    return py, cc, counts
+
+
+def _check_answer(r, target, index, res, bounds: bool) -> None:
+    """check_optimality's own evaluation: residual and normality within the solver's bars plus rounding."""
+    opt = check_optimality(r, target, res.q, index, bounds=bounds)
+    g = float(np.abs(index.evaluate(res.q)[1]).max())
+    assert opt.residual <= IK_TOL + rounding(10.0)
+    # the normality on K's null space (the solver's is on G's, which differs by O(residual), Eq. D.30)
+    assert opt.normality_residual <= max(IK_TOL, 1e-13 * (1.0 + g)) + rounding(g) + 10.0 * g * opt.residual
+    assert opt.reduced_hessian_pd
+    if bounds:
+        assert np.all(res.q >= r.lower) and np.all(res.q <= r.upper)
+
+
+@pytest.mark.parametrize("name,task,kind", CASES)
+@pytest.mark.parametrize("bounds", [False, True])
+def test_compiled_iteration_gives_the_python_results(name, task, kind, bounds):
+    r = robot(name, task)
+    rng = np.random.default_rng(sum(map(ord, f"{name}{task}{kind}{bounds}")))
+    converged = 0
+    for _ in range(3):
+        target, q0 = _draw(r, rng)
+        index = _index(r, kind, rng)
+        _, cc, _ = _same(r, target, index, q0, bounds=bounds)
+        if cc.converged:
+            converged += 1
+            _check_answer(r, target, index, cc, bounds)
+    assert converged >= 2  # reachable targets from nearby seeds: most converge
+
+
+def test_a_bound_active_hands_back_to_the_box_qp_with_the_same_answer():
+    """An index pulling every joint beyond its upper limit: the unconstrained step leaves the box, the core hands
+    the iteration to the Python iteration's box QP, takes the next one back, and the answer is the Python
+    iteration's, on limits."""
+    r = robot("panda", "position")  # four dimensions of self-motion: the minimum sits on limits
+    rng = np.random.default_rng(7)
+    handed = converged = 0
+    for _ in range(3):
+        target, q0 = _draw(r, rng)
+        index = JointDeviation(r.upper + 1.0, np.ones(r.nq))
+        _, cc, counts = _same(r, target, index, q0, bounds=True)
+        handed += counts.get("box_qp", 0)
+        if cc.converged:
+            converged += 1
+            _check_answer(r, target, index, cc, True)  # with the limits that hold (Eq. D.30)
+            assert counts["converged"] == 1  # the core went on after the Python iteration's QP step
+            assert np.any(cc.q >= r.upper - 1e-9)  # a limit holds at the answer
+    assert handed >= 1 and converged >= 1
+
+
+def test_stops_that_are_not_convergence_are_the_python_iterations():
+    """max_iter and an unreachable target: handed back, with the Python iteration's reasons and counts."""
+    r = robot("panda", "position")
+    index = minimum_norm(r.nq)
+    _, cc, counts = _same(r, np.array([3.0, 0.0, 0.5]), index, r.home)  # beyond the reach
+    assert not cc.converged and counts.get("converged", 0) == 0
+    target, q0 = _draw(r, np.random.default_rng(3))
+    _, cc, counts = _same(r, target, index, q0, max_iter=1)
+    assert not cc.converged and counts["max_iter"] == 1
+
+
+def test_multi_start_picks_the_same_start():
+    r = robot("planar3r")
+    _same(r, np.array([2.5, 1.5]), minimum_norm(3), r.home, starts=6, seed=4)
+
+
+def test_the_core_runs_the_constrained_iteration_where_it_is_expected():
+    """In CI (which builds the core) and wherever it loads, backend auto runs the iteration in C++: fails where
+    the Python iteration ran instead."""
+    r = robot("panda")
+    target, q0 = _draw(r, np.random.default_rng(1))
+    before = sum(compiled.COUNTS.values())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", compiled.IKBackendWarning)
+        res = solve_ik(r, target, mid_range(r.lower, r.upper), q0=q0, backend="auto")
+    assert res.converged and sum(compiled.COUNTS.values()) == before + 1
+
+
+def test_backend_options(monkeypatch):
+    monkeypatch.delenv("KINREDUND_BACKEND", raising=False)
+    r = robot("panda")
+    target, q0 = _draw(r, np.random.default_rng(2))
+    custom = CustomIndex(lambda q: 0.5 * float(q @ q), lambda q: q.copy(), lambda q: np.eye(r.nq))
+    with pytest.raises(OptionError, match="CustomIndex"):
+        solve_ik(r, target, custom, q0=q0, backend="compiled")
+    with pytest.raises(ChoiceError):
+        solve_ik(r, target, minimum_norm(r.nq), q0=q0, backend="fast")
+    before = sum(compiled.COUNTS.values())
+    solve_ik(r, target, custom, q0=q0)  # auto: an index the core does not know runs in Python
+    solve_ik(r, target, None, q0=q0, backend="compiled")  # pose-only: Python's under every backend
+    monkeypatch.setenv("KINREDUND_BACKEND", "python")
+    solve_ik(r, target, minimum_norm(r.nq), q0=q0)
+    assert sum(compiled.COUNTS.values()) == before
+
+
+@pytest.mark.parametrize("name,task", [("panda", None), ("xarm7", None), ("panda", "position")])
+def test_far_seeds_with_bounds(name, task):
+    """Seeds far from the target: restoration steps (their box least squares in C++ where the active-set guess
+    solves it, else Python's), stalls and multi-start, all with the Python iteration's results."""
+    r = robot(name, task)
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        target, q0 = _draw(r, rng, spread=1.5)
+        _same(r, target, mid_range(r.lower, r.upper), q0, bounds=True, starts=2, seed=1)
