@@ -15,7 +15,7 @@ from conftest import rounding
 
 from kinredund.paths import Circle, FunctionPath
 from kinredund.problems import panda_circle
-from kinredund.tracking import Tracker, compiled
+from kinredund.tracking import Tracker, compiled, track
 from kinredund.tracking.ahead import BLOCK, MIN_BLOCK, NO_OMEGA, NO_Q, SamplesAhead
 
 Q0 = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -61,6 +61,50 @@ def test_a_path_without_its_own_sample_many_is_not_called_ahead():
     assert ahead.samples is None and ahead.rows == [] and calls == []
 
 
+class Raised(Circle):
+    """A user's circle 2 cm higher: it overrides ``sample`` only, so Circle's ``sample_many`` does not follow it."""
+
+    def sample(self, t):
+        s = super().sample(t)
+        return type(s)(s.p + np.array([0.0, 0.0, 0.02]), s.v, s.Q, s.omega)
+
+
+def test_a_path_that_overrides_sample_alone_is_sampled_by_its_own_sample():
+    """computes_together is False for a subclass overriding ``sample`` alone and for a part path around a user's
+    path (whose ``sample_many`` would call the user's code ahead); True for the library's circle and a part path
+    around it. A compiled track() and Tracker.step() on the raised circle then follow its own sample: the record's
+    targets are its samples, the same as the Python backend's run."""
+    from kinredund.sweep.placement import PartPath
+
+    base = CIRCLES["position"]
+    raised = Raised(base.center, base.radius, speed=base.speed)
+    user = FunctionPath(lambda t: (np.array([t, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])))
+    assert base.computes_together() and PartPath(base, np.eye(4)).computes_together()
+    assert not raised.computes_together() and not user.computes_together()
+    assert not PartPath(user, np.eye(4)).computes_together()
+    assert SamplesAhead(PartPath(user, np.eye(4)), 0.0, 0.01).own is False
+    robot, _, index, q0 = panda_circle()
+    robot = robot.with_task("position")
+    from kinredund.ik import solve_ik
+
+    start = solve_ik(robot, raised.sample(0.0).p, index, q0=q0)
+    assert start.converged, start.reason
+    dt = raised.period / 100
+    if compiled.load_core() is not None:
+        tracker = Tracker(robot, raised, index, start.q, dt, backend="compiled")
+        for _ in range(40):  # beyond the first block sampled ahead
+            tracker.step()
+        np.testing.assert_allclose(robot.kinematics.pose(tracker.q)[1], raised.sample(tracker.t).p, rtol=0,
+                                   atol=1e-10)
+    runs = {b: track(robot, raised, index, start.q, steps_per_loop=100, backend=b)
+            for b in (("compiled", "python") if compiled.load_core() is not None else ("python",))}
+    for rec in runs.values():
+        heights = rec.p_desired[:, 2]
+        np.testing.assert_allclose(heights, [raised.sample(t).p[2] for t in rec.t], rtol=0, atol=rounding(1.0))
+    if len(runs) == 2:
+        np.testing.assert_allclose(runs["compiled"].q, runs["python"].q, rtol=0, atol=1e-12)
+
+
 def test_blocks_grow_while_steps_follow_and_start_over_after_a_gap():
     """Steps one after another: blocks of 1, 2, 4, ... steps (sampled ahead from MIN_BLOCK on), up to the block
     size; a step after a gap (a run taken elsewhere) starts over with one step, sampled by the step itself."""
@@ -101,3 +145,7 @@ def test_the_compiled_step_s_point_is_the_evaluation_at_its_point():
     np.testing.assert_allclose(pt.recorded.sample.p, s.p, rtol=0, atol=rounding(1.0))
     with pytest.raises(AttributeError):
         pt.not_a_field  # noqa: B018 - the attribute access is the test
+    import copy
+
+    twin = copy.copy(pt)  # a copy's slots are copied (the fields read so far); it reads none it lacks by recursion
+    np.testing.assert_array_equal(twin.q, pt.q)

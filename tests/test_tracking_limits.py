@@ -396,3 +396,27 @@ def test_a_bounded_stop_is_retried_in_sub_steps_like_any_failed_step():
         track(r, path, index, q0, steps_per_loop=8, loops=1, diagnostics=False)
     assert info.value.cause == "limits_infeasible" and "2 joints on their limits" in str(info.value)
     assert np.all(info.value.q >= r.lower - 1e-12) and np.all(info.value.q <= r.upper + 1e-12)
+
+
+def test_a_bounded_stop_stays_the_limits_cause_where_the_sub_steps_fail_otherwise():
+    """Where the whole step raises the limits' stop and every sub-step then fails in its corrector (emulated: the
+    stepper's step raises limits_infeasible, its Euler sub-steps a SingularityError), the stop is the limits' stop
+    (the cause the whole step named, at the step's start), not step_control_exhausted."""
+    r, path, index, q0 = case("panda_pose_circle")
+    tracker = Tracker(r, path, index, q0, path.period / 100, limits=True, backend="python")
+    tracker.step()
+    s = tracker.stepper
+    t_start, q_start = tracker.t, tracker.q.copy()
+
+    def whole_step():
+        raise s._failure("limits_infeasible", "emulated: 2 joints on their limits")
+
+    def sub_step(t_next):
+        raise SingularityError("emulated: the corrector diverged")
+
+    s.plain_step, s.euler_to = whole_step, sub_step
+    with pytest.raises(TrackingError) as info:
+        tracker.step()
+    err = info.value
+    assert err.cause == "limits_infeasible" and "emulated: 2 joints" in str(err)
+    assert err.t == pytest.approx(t_start, abs=1e-15) and np.abs(np.asarray(err.q) - q_start).max() <= 1e-15

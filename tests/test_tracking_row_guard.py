@@ -20,6 +20,7 @@ from kinredund.errors import OptionError
 from kinredund.problems import panda_circle
 from kinredund.tracking import SceneClearance, Tracker, compiled
 from kinredund.tracking.rows import ROW_TOL
+from kinredund.tracking.switches import segment_move
 
 pytestmark = pytest.mark.skipif(compiled.load_core() is None, reason="the compiled core is not built")
 
@@ -42,7 +43,7 @@ def exact_test(sc, q0, q1, v0, v1, h) -> tuple[bool, float]:
     """(the step is clear by the stepper's test on exact values, its least margin above -ROW_TOL [m])."""
     c = SceneClearance(sc)
     c0, c1 = SceneClearance(sc).values(q0), SceneClearance(sc).values(q1)
-    move = np.maximum(np.abs(q1 - q0), h * np.maximum(np.abs(v0), np.abs(v1))) + 0.25 * h * np.abs(v1 - v0)
+    move = segment_move(q0, q1, v0, v1, h)  # the stepper's own (_row_dips)
     margin = min(c1.min(), c.segment_lower_bounds(q0, q1, c0, c1, move).min()) + ROW_TOL
     return margin >= 0.0, margin
 
@@ -135,11 +136,25 @@ def test_bad_guard_arguments_name_what_is_expected():
     with pytest.raises(ValueError, match="row_of_pair"):
         ws.row_guard(np.zeros(3, int), c.clearances, c.influence, np.zeros((c.size, r.nq)), np.full(r.nq, np.inf),
                      ROW_TOL, 0.005)
-    rows = np.arange(len(sc.pairs)) % c.size
+    rows = np.where(np.arange(len(sc.pairs)) < c.size, np.arange(len(sc.pairs)), -1)
+    twice = rows.copy()
+    twice[1] = 0
+    with pytest.raises(OptionError, match="row_of_pair names a row twice"):  # a row's value is one pair's
+        ws.row_guard(twice, c.clearances, c.influence, np.zeros((c.size, r.nq)), np.full(r.nq, np.inf), ROW_TOL,
+                     0.005)
+    for what, bound, extent in (("bound", -np.ones((c.size, r.nq)), np.full(r.nq, np.inf)),
+                                ("bound", np.full((c.size, r.nq), np.nan), np.full(r.nq, np.inf)),
+                                ("extent", np.zeros((c.size, r.nq)), np.full(r.nq, np.nan))):
+        with pytest.raises(OptionError, match=f"row guard's {what} must be >= 0"):  # never a looser test
+            ws.row_guard(rows, c.clearances, c.influence, bound, extent, ROW_TOL, 0.005)
     with pytest.raises(ValueError, match="bound"):
         ws.row_guard(rows, c.clearances, c.influence, np.zeros((c.size, 3)), np.full(r.nq, np.inf), ROW_TOL, 0.005)
     with pytest.raises(ValueError, match="influence"):
         ws.row_guard(rows, c.clearances, 0.0, np.zeros((c.size, r.nq)), np.full(r.nq, np.inf), ROW_TOL, 0.005)
+    class Mine(SceneClearance):  # a subclass's rows are its own: the scene's check is not for them
+        pass
+
+    assert Mine(sc).row_guard(ROW_TOL) is None
     guard = c.row_guard(ROW_TOL)
     with pytest.raises(ValueError, match="entries"):
         guard.clear(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), 0.01)

@@ -31,7 +31,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from kinredund.errors import GeometryError
+from kinredund.errors import GeometryError, OptionError
 from kinredund.kinematics.state import point_curvature
 
 #: GJK's stopping tolerance (coal's default is 1e-6): separated distances to ~1e-9 m, at no measurable cost on
@@ -179,10 +179,18 @@ class Workspace:
         values stand in for exact ones."""
         if self._core is None:
             return None
-        return _CORE.RowGuard(self._core, np.asarray(row_of_pair, dtype=np.int64),
-                              np.asarray(clearances, dtype=float), float(influence),
-                              np.ascontiguousarray(bound, dtype=float), np.asarray(extent, dtype=float),
-                              float(tol), float(skip))
+        rows = np.asarray(row_of_pair, dtype=np.int64)
+        clearances, bound = np.asarray(clearances, dtype=float), np.ascontiguousarray(bound, dtype=float)
+        extent = np.asarray(extent, dtype=float)
+        taken = rows[rows >= 0]
+        if len(np.unique(taken)) != len(taken):  # a row's value is its one pair's distance (no min over pairs)
+            raise OptionError(f"row_of_pair names a row twice ({np.sort(taken).tolist()}): each row is one pair's")
+        for what, a, top in (("clearances", clearances, "finite"), ("bound", bound, "finite"),
+                             ("extent", extent, "or inf (no side)")):
+            ok = np.isfinite(a) if top == "finite" else ~np.isnan(a)
+            if not (ok.all() and (a >= 0.0).all()):  # lowered values must stay lower bounds
+                raise OptionError(f"the row guard's {what} must be >= 0 and {top}, got {a.tolist()}")
+        return _CORE.RowGuard(self._core, rows, clearances, float(influence), bound, extent, float(tol), float(skip))
 
     def query(self, q: np.ndarray, limit: float | None, rows: bool = False):
         """(pairs, signed distances [m], unit normals, p_first, p_second [m], rows G [m/rad] or None) at q: the

@@ -51,6 +51,15 @@ class Path:
         """Desired pose and twist at time t [s]."""
         raise NotImplementedError
 
+    def computes_together(self) -> bool:
+        """Does :meth:`sample_many` compute the samples together by the path's own formulas, the numbers of
+        :meth:`sample`? True where one class of the path's own defines both (a subclass that overrides
+        :meth:`sample` alone gets False: its parent's ``sample_many`` would not follow it); the base class's loop
+        over :meth:`sample` gains nothing, and a caller's own :meth:`sample` is never called ahead of time."""
+        cls = type(self)
+        owner = next(c for c in cls.__mro__ if "sample_many" in c.__dict__)
+        return owner is not Path and next(c for c in cls.__mro__ if "sample" in c.__dict__) is owner
+
     def sample_many(self, times: list[float]) -> Samples:
         """:meth:`sample` at each of ``times`` [s], and the fields stacked; a path may compute them together (the
         same numbers). Raises PathError where the samples do not stack (no orientation at some of the times)."""

@@ -120,6 +120,10 @@ class PartPath(Path):
             return PathSample(p, R @ s.v)
         return PathSample(p, R @ s.v, R @ s.Q, R @ s.omega)
 
+    def computes_together(self) -> bool:
+        """As :meth:`Path.computes_together`, and so does the wrapped path (a caller's path is not called ahead)."""
+        return super().computes_together() and self.path.computes_together()
+
     def sample_many(self, times: list[float]) -> Samples:
         """:meth:`sample` at each of ``times`` [s]: the wrapped path's samples together (its own
         ``sample_many``), turned and moved by the pose as arrays (row-wise R x, the same dot products)."""

@@ -17,16 +17,16 @@
 """
 
 from kinredund.tracking.constraints import (
-           Constraint,
-           CornerClearance,
-           JointLimits,
-           PlaneClearance,
-           SceneClearance,
-           SphereClearance,
+    Constraint,
+    CornerClearance,
+    JointLimits,
+    PlaneClearance,
+    SceneClearance,
+    SphereClearance,
 )
 from kinredund.tracking.many import track_many
 from kinredund.tracking.run import MAX_STEPS, track
 from kinredund.tracking.tracker import LINEAR_SOLVERS, MODES, QP_BACKENDS, SCHEMES, Tracker
 
-__all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Constraint", "JointLimits",
-           "CornerClearance", "PlaneClearance", "SceneClearance", "SphereClearance", "Tracker", "track", "track_many"]
+__all__ = ["LINEAR_SOLVERS", "MAX_STEPS", "MODES", "QP_BACKENDS", "SCHEMES", "Constraint", "CornerClearance",
+           "JointLimits", "PlaneClearance", "SceneClearance", "SphereClearance", "Tracker", "track", "track_many"]

@@ -30,7 +30,7 @@ class SamplesAhead:
     each block that follows its predecessor is twice as long, up to ``block``; blocks shorter than
     :data:`MIN_BLOCK` are not sampled ahead (``samples`` None), so a step between runs costs no block it won't use.
 
-    Only a path with its own ``sample_many`` (one that computes the samples together, e.g.
+    Only a path that computes its samples together (:meth:`~kinredund.paths.Path.computes_together`, e.g.
     :class:`~kinredund.paths.Circle`) is sampled ahead: the base class's loops over ``sample``, which gains
     nothing and would call a path of the caller's own code ahead of time. Elsewhere, and where the samples of a
     block do not stack (:class:`~kinredund.errors.PathError`), ``samples`` is None: the step samples itself.
@@ -44,7 +44,7 @@ class SamplesAhead:
 
     def __init__(self, path: Path, t0: float, dt: float, block: int = BLOCK):
         self.path, self.t0, self.dt, self.block = path, t0, dt, block
-        self.own = type(path).sample_many is not Path.sample_many
+        self.own = path.computes_together()  # Path.computes_together: never a caller's sample() ahead of time
         self.first, self.count, self.samples, self.rows = 0, 0, None, []
 
     def fill(self, k: int) -> None:

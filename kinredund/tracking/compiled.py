@@ -184,6 +184,8 @@ class CompiledPoint(Point):
             self.sample = sample
 
     def __getattr__(self, name):  # an unset slot: read from the core's row, or the full evaluation fills them all
+        if name not in Point.__slots__ and name != "recorded":  # (also an instance without its own slots: a copy)
+            raise AttributeError(name)
         out, (sl, (n, m)) = self._out, self._layout
         if name == "q":
             value = out[sl[7]]
@@ -194,13 +196,11 @@ class CompiledPoint(Point):
             value = at.sample(row)
         elif name == "recorded":
             value = RecordedPose(self.sample, (out[sl[5]].reshape(3, 3), out[sl[6]]))
-        elif name in Point.__slots__:
+        else:
             full = self._ev.point(self.q, self.t, sample=self.sample)
             for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
                 setattr(self, key, getattr(full, key))
             return getattr(self, name)
-        else:
-            raise AttributeError(name)
         setattr(self, name, value)
         return value
 

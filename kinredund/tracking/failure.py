@@ -88,8 +88,9 @@ def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 20
 
 
 def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: int = 0) -> tuple[bool, float, float]:
-    """(out of reach at any of ``times``, the largest smallest residual there [m], at which time [s]: where every
-    time is within reach, the first, as the residuals are then rounding whose largest says nothing of the path).
+    """(out of reach at any of ``times``, a smallest residual [m], a time [s]): where some time is out of reach, the
+    farthest such residual and its time; where every time is within reach, the largest residual and the first time
+    (the residuals are then rounding, whose largest says nothing of the path).
 
     From q first, then (where that leaves a residual) from ``restarts`` seeded perturbations of q (0.3 and
     1 rad, clipped into the robot's limits): Levenberg-Marquardt from the last good point alone can end
@@ -113,7 +114,9 @@ def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: 
             worst = res
         if not res <= REACH_TOL * scale and not res <= worst_far:  # out of reach there, the farthest so far
             worst_far, at = res, float(tp)
-    return not worst_far <= 0.0, worst, at
+    if worst_far > 0.0:  # out of reach: the farthest such residual and its time
+        return True, worst_far, at
+    return False, worst, at
 
 
 def watched_at(stepper, q: np.ndarray | None = None, t: float | None = None) -> dict:

@@ -119,7 +119,8 @@ class Runs:
         None where the samples do not stack or a task with orientation has none."""
         j0 = self.s.k + 1
         if self.grid is None or not self.grid[0] <= j0 <= j0 + K <= self.grid[0] + len(self.grid[2]):
-            self.grid = self._sample(j0, max(K, min(count, GRID)))
+            ahead = min(count, GRID) if self.s.ev.path.computes_together() else K  # a caller's path: no further
+            self.grid = self._sample(j0, max(K, ahead))
         first, at, times, arrays = self.grid
         if at is None:
             return None

@@ -201,7 +201,7 @@ class StepControl:
         """
         s = self.s
         kind, why = reason
-        if kind == "bounded":
+        if self._bounded is not None:  # the limits' stop met in this step: theirs, whatever failed last
             return self._bounded_stop(snap_step, t_fail)
         near = watched_at(s)
         t_near, q_near = s.t, s.q.copy()
@@ -246,7 +246,6 @@ class StepControl:
             f"{near.get('reduced_hessian_min', float('nan')):.3g})",
             cause=cause, t=s.t, q=s.q.copy(), watched=watched)
 
-
     def _bounded_stop(self, snap_step: tuple, t_fail: float) -> TrackingError:
         """The bounded stepper's own stop (the limits' cause), where no sub-step down to the floor gets past it: the
         first one of the step (the whole step's), the stepper put back at the last requested time, where the
@@ -263,6 +262,7 @@ class StepControl:
                          substep_reason=str(last).split("; last good point")[0])
         err.watched = dict(err.watched or {}) | extra
         return err
+
 
 def _bounds_dependent(s, q, t) -> bool:
     """With joints on bounds: is J itself regular at (q, t) while its free columns are (nearly) not?"""

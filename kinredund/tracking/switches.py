@@ -39,6 +39,13 @@ _DIP_AT = np.linspace(0.0, 1.0, 65)
 _DIP_FIT = np.vander(_DIP_AT, 5) @ np.linalg.inv(np.vander(np.array([0.0, *DIP_SAMPLES, 1.0]), 5))
 
 
+def segment_move(q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float) -> np.ndarray:
+    """Per joint, a bound of |q(tau) - q0| and |q(tau) - q1| along a step of h [s] from (q0, v0) to (q1, v1) on
+    the cubic Hermite of the joints: max(|dq|, h max(|qdot_0|, |qdot_1|)) + h |qdot_1 - qdot_0| / 4 [rad or m]
+    (the compiled row check, ``RowGuard`` in src/core/distances.cpp, computes the same)."""
+    return np.maximum(np.abs(q1 - q0), h * np.maximum(np.abs(v0), np.abs(v1))) + 0.25 * h * np.abs(v1 - v0)
+
+
 class SwitchLocation:
     """The switch location of :class:`~kinredund.tracking.limited.LimitedPredictorCorrector` (a mixin: it uses the
     stepper's state, ``euler_to``, ``_newton``, ``_rates`` and the rows' hooks of
@@ -148,7 +155,7 @@ class SwitchLocation:
             return []
         q0, q1, v0, v1 = snap.q, self.q, snap.qdot, self.qdot
         c1, c0 = self._row_values(q1), self._row_values(q0)  # c0: the last step's end, kept
-        move = np.maximum(np.abs(q1 - q0), h * np.maximum(np.abs(v0), np.abs(v1))) + 0.25 * h * np.abs(v1 - v0)
+        move = segment_move(q0, q1, v0, v1, h)
         bound = self._segment_bounds(q0, q1, c0, c1, move)
         if not bound.min() < -ROW_TOL:  # the common case: no row can dip (one reduction)
             return []

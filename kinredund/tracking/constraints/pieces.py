@@ -195,11 +195,6 @@ class CornerClearance(SceneClearance):
         """sum_i w_i Hess c_i over piece ``rows``: central differences of their gradients (step 1e-6)."""
         return super(SceneClearance, self).curvature(q, w, rows)
 
-    def row_guard(self, tol: float):
-        """None: the compiled check knows the scene's pair rows only, so the stepper's own search checks every step
-        of the piece rows."""
-        return None
-
     def representative(self, q: np.ndarray, row: int) -> int:
         """The row that stands for ``row`` at q when another row joins it: for a held pair's own row realised at a
         vertex (within :data:`VERTEX_GAP` of its least vertex piece) that vertex's row, else ``row`` itself."""

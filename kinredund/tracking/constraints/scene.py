@@ -227,7 +227,10 @@ class SceneClearance(Constraint):
     def row_guard(self, tol: float):
         """The compiled check of a step (``kinredund._core.RowGuard`` on a workspace of its own): the lowered values
         of :meth:`_query` (exact below :data:`SKIP_MARGIN`) and the test of :meth:`segment_lower_bounds`, in C++;
-        None where the scene's queries run in Python."""
+        None where the scene's queries run in Python, and for a subclass (its rows, values or bounds may differ from
+        the ones the check knows: it gives its own check, or none)."""
+        if type(self) is not SceneClearance:
+            return None
         guard = self.scene.workspace(own=True).row_guard(self._row, self.clearances, self.influence, self._bound,
                                                          self._extent, tol, SKIP_MARGIN)
         return None if guard is None else _SceneGuard(guard, self.scene, self._scene_pairs)
