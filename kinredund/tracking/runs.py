@@ -8,13 +8,19 @@ what Python knows before them - no joint on a bound, no crossing the watch could
 which a circle computes together), and a time-varying reference, then
 one C++ call steps through them with the GIL released (threads running other tasks compute meanwhile:
 :func:`~kinredund.tracking.many.track_many`) and writes each step's output row (the layout of ``StepCore.step``)
-into one array; the run samples twice the steps the last run took (the watch's measured steps end runs). The rows
-go to the record in one call
+into one array (the path sampled :data:`GRID` steps ahead). The rows go to the record in one call
 (:meth:`~kinredund.tracking.recorder.Recorder.add_rows`) and the last becomes the stepper's state. The run stops
 at the first step the core hands back (a bound reached, a jump, a failure: the Python stepper takes that step
-from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures
-(its row is finished in Python: :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself
-the core's, ``StepCore.watch_measure``). Every step is the
+from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures by
+its inverse iteration, where R's condition drops (its row is finished in Python:
+:meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself the core's,
+``StepCore.watch_measure``). It goes on through the steps the watch measures exactly (every
+:data:`~kinredund.tracking.watch.EXACT_EVERY`-th: one SVD of J and the eigenvalue of Z^T M Z, from the J and M of
+the step's row): after the run Python measures them in order, as the step control does one by one (the watch's
+exact branch, its crossing test and history), and keeps the rows up to the first measured step the watch rejects
+(that step then goes through :meth:`~kinredund.tracking.compiled.CompiledStep.accept` as one by one, which hands
+it back) or the first step its new prediction (:meth:`~kinredund.tracking.watch.Watch.ahead`) does not let
+through (left to the next call, which hands it back); the core's rows after it are dropped. Every step is the
 one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
 and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Runs go on through steps with
 joints held on their bounds (the core's reduced system, the active set it was given: ``StepCore.set_active``); the
@@ -80,7 +86,8 @@ class Runs:
         K = min(count, MAX_RUN)
         if ctl is not None:
             t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before
-            K = sum(1 for j in range(1, K + 1) if t0 + (k + j) * dt < safe)  # Watch.ahead is None before safe
+            if not t0 + (k + K) * dt < safe:  # (the times grow with j: where the last is before safe, all are)
+                K = sum(1 for j in range(1, K + 1) if t0 + (k + j) * dt < safe)  # Watch.ahead is None before safe
         return K
 
     def advance(self, count: int) -> int:
