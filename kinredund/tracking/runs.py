@@ -129,8 +129,8 @@ class Runs:
         :meth:`~kinredund.tracking.step_control.StepControl.watch_point` takes them one by one) and the
         prediction before each later step (``Watch.ahead``, as :meth:`~kinredund.tracking.compiled.CompiledStep.step`
         checks it): (the rows kept, the status of the step after them: WATCH_DUE for a measured step the watch
-        rejects, which :meth:`CompiledStep.accept` then takes and hands back as one by one; -1 for a step
-        predicted into trouble, left to the next call)."""
+        rejects, which :meth:`~kinredund.tracking.compiled.CompiledStep.accept` then takes and hands back as one
+        by one; -1 for a step predicted into trouble, left to the next call)."""
         watch, fixed = self.ctl.watch, getattr(self.s, "fixed", None)
         n, m, _ = self.c.shapes
         sM, sJ = self.c.slices[2:4]
