@@ -17,9 +17,12 @@ import numpy as np
 import pytest
 from test_tracking_compiled import problem
 
+from kinredund import load_robot
 from kinredund.errors import TrackingError
+from kinredund.ik.solve import solve_ik
+from kinredund.indices import minimum_norm
 from kinredund.paths import Circle, FunctionPath
-from kinredund.tracking import Tracker, compiled, run, runs
+from kinredund.tracking import Tracker, compiled, run, runs, watch
 from kinredund.tracking.recorder import Recorder
 from kinredund.trajectory import Deferred
 
@@ -88,6 +91,39 @@ def test_a_stop_in_a_run_is_the_same_stop(monkeypatch):
     assert_identical(a.partial, b.partial, "partial.")
 
 
+def test_a_run_through_the_watch_stops_where_single_steps_stop(monkeypatch):
+    """A planar arm stretched towards its reach (sigma_min(J) -> 0 at T/2): the watch's measurements inside a run
+    predict the crossing (the run is cut before the step it predicts into) and, with the watch made to call
+    sigma_min(J) < 1.5 crossed, reject a measured step inside a run (:meth:`CompiledStep.accept` takes it and hands
+    it back): the same stop, partial record and counters as single steps, each branch reached."""
+    arm = load_robot("planar3r")
+    path = Circle(np.array([5.0, 0.0, 0.0]), 1.0, 1.0, start_angle=np.pi)
+    index = minimum_norm(3)
+    q0 = solve_ik(arm, path(0.0).p[:2], index, starts=12, seed=0).q
+    verdicts, inner, crossed = [], runs.Runs._verdicts, watch.Watch.crossed
+
+    def seen(self, out, times, done, status, exact):
+        kept, why = inner(self, out, times, done, status, exact)
+        verdicts.append("cut" if why == -1 else "rejected" if kept in exact else "kept")
+        return kept, why
+
+    monkeypatch.setattr(runs.Runs, "_verdicts", seen)
+    for floor, branch in ((0.0, "cut"), (1.5, "rejected")):
+        monkeypatch.setattr(watch.Watch, "crossed", lambda w, s, e, f=floor: "kinematic" if s < f else crossed(w, s, e))
+        stops = []
+        for stepping in (runs.one_by_one, runs.stepping):
+            monkeypatch.setattr(run, "stepping", stepping)
+            with pytest.raises(TrackingError) as info:
+                run.track(arm, path, index, q0, backend="compiled", steps_per_loop=200)
+            stops.append(info.value)
+        a, b = stops
+        assert (b.cause, b.t) == (a.cause, a.t) == ("kinematic_singularity", b.t)
+        assert_identical(a.partial, b.partial, "partial.")
+        assert a.partial.meta == b.partial.meta
+        assert branch in verdicts
+        verdicts.clear()
+
+
 def test_runs_take_many_steps_per_call_and_leave_the_state_of_single_steps():
     r, path, index, q0 = problem("panda_elbow_circle")
     dt = path.period / 200
@@ -101,7 +137,7 @@ def test_runs_take_many_steps_per_call_and_leave_the_state_of_single_steps():
     for _ in range(300):
         single.step()
     assert sum(taken) == 300 and len(rec) == 300
-    assert max(taken) >= 20  # whole runs between the watch's measured steps (every 32nd)
+    assert max(taken) > watch.EXACT_EVERY  # runs go on through the watch's exact measurements (every 32nd step)
     a, b = single.stepper, batched.stepper
     assert (b.t, b.k) == (a.t, a.k)
     for key in ("q", "lam", "qdot", "lamdot", "y", "yd", "M"):
@@ -125,17 +161,15 @@ def test_runs_go_on_through_steps_with_a_joint_held_on_its_bound():
     rec_a.add()
     rec_b.add()
     advance = runs.stepping(batched, rec_b)
-    held_runs, done = [], 0
+    held_runs, done = [], 0  # the held steps the core took in each call
     while done < 200:
-        held = batched.stepper.any_active
-        k = advance(200 - done)
-        done += k
-        if held and batched.stepper.any_active:
-            held_runs.append(k)
+        before = batched.compiled.held_steps
+        done += advance(200 - done)
+        held_runs.append(batched.compiled.held_steps - before)
     for _ in range(200):
         single.step()
         rec_a.add()
-    assert max(held_runs) >= 10  # many held steps per call (the watch's measured steps still end runs)
+    assert max(held_runs) >= 10  # many held steps per call
     assert batched.compiled.held_steps == single.compiled.held_steps > max(held_runs)
     assert batched.compiled.handed_back == single.compiled.handed_back
     info = {"robot_name": "panda", "scheme": "augmented", "mode": "default", "loops": 1, "steps_per_loop": 200,

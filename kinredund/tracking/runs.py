@@ -8,13 +8,19 @@ what Python knows before them - no joint on a bound, no crossing the watch could
 which a circle computes together), and a time-varying reference, then
 one C++ call steps through them with the GIL released (threads running other tasks compute meanwhile:
 :func:`~kinredund.tracking.many.track_many`) and writes each step's output row (the layout of ``StepCore.step``)
-into one array; the run samples twice the steps the last run took (the watch's measured steps end runs). The rows
-go to the record in one call
+into one array (the path sampled :data:`GRID` steps ahead). The rows go to the record in one call
 (:meth:`~kinredund.tracking.recorder.Recorder.add_rows`) and the last becomes the stepper's state. The run stops
 at the first step the core hands back (a bound reached, a jump, a failure: the Python stepper takes that step
-from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures
-(its row is finished in Python: :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself
-the core's, ``StepCore.watch_measure``). Every step is the
+from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures by
+its inverse iteration, where R's condition drops (its row is finished in Python:
+:meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself the core's,
+``StepCore.watch_measure``). It goes on through the steps the watch measures exactly (every
+:data:`~kinredund.tracking.watch.EXACT_EVERY`-th: one SVD of J and the eigenvalue of Z^T M Z, from the J and M of
+the step's row): after the run Python measures them in order, as the step control does one by one (the watch's
+exact branch, its crossing test and history), and keeps the rows up to the first measured step the watch rejects
+(that step then goes through :meth:`~kinredund.tracking.compiled.CompiledStep.accept` as one by one, which hands
+it back) or the first step its new prediction (:meth:`~kinredund.tracking.watch.Watch.ahead`) does not let
+through (left to the next call, which hands it back); the core's rows after it are dropped. Every step is the
 one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
 and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Runs go on through steps with
 joints held on their bounds (the core's reduced system, the active set it was given: ``StepCore.set_active``); the
@@ -33,10 +39,10 @@ from kinredund.tracking.compiled import load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
 from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 
-#: the most steps of one C++ call (the watch measures every EXACT_EVERY steps anyway)
-MAX_RUN = EXACT_EVERY
 #: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
 GRID = 256
+#: the most steps of one C++ call (it goes on through the watch's exact measurements, every EXACT_EVERY steps)
+MAX_RUN = GRID
 
 
 def stepping(tracker, rec):
@@ -80,7 +86,8 @@ class Runs:
         K = min(count, MAX_RUN)
         if ctl is not None:
             t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before
-            K = sum(1 for j in range(1, K + 1) if t0 + (k + j) * dt < safe)  # Watch.ahead is None before safe
+            if not t0 + (k + K) * dt < safe:  # (the times grow with j: where the last is before safe, all are)
+                K = sum(1 for j in range(1, K + 1) if t0 + (k + j) * dt < safe)  # Watch.ahead is None before safe
         return K
 
     def advance(self, count: int) -> int:
@@ -95,23 +102,51 @@ class Runs:
         times, at, i, arrays = window
         out = np.empty((K, int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
         if ctl is None:
-            watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY), 0.0
-        else:
-            watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY), ctl.speed2
+            watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY, False), 0.0
+        else:  # on through the steps the watch measures exactly (measured below, after the run)
+            watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY, True), ctl.speed2
         if c.limited:
             c.sync_active()  # a release taken by the Python stepper: the core holds none now
-        done, status = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev, s.qdot, speed2,
-                                           ctl is not None, watch, out)
+        done, status, exact = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev, s.qdot,
+                                                  speed2, ctl is not None, watch, out)
+        if exact:
+            done, status = self._verdicts(out, times, done, status, exact)
         if done:
             self._commit(out[:done], at, i, times[:done])
         if status == self.core.WATCH_DUE:
             c.accept(out[done], at.sample(i + done), times[done])
-        elif status:
+        elif status > 0:
             c.hand_back(status)
         else:
             return done
         rec.add()
         return done + 1
+
+    def _verdicts(self, out: np.ndarray, times: list[float], done: int, status: int, exact: list[int]) -> tuple:
+        """The watch's measurements of the run's steps ``exact`` (Watch.measure's exact branch, on the J and M of
+        their rows, then :meth:`~kinredund.tracking.watch.Watch.crossed` and
+        :meth:`~kinredund.tracking.watch.Watch.push`, as
+        :meth:`~kinredund.tracking.step_control.StepControl.watch_point` takes them one by one) and the
+        prediction before each later step (``Watch.ahead``, as :meth:`~kinredund.tracking.compiled.CompiledStep.step`
+        checks it): (the rows kept, the status of the step after them: WATCH_DUE for a measured step the watch
+        rejects, which :meth:`~kinredund.tracking.compiled.CompiledStep.accept` then takes and hands back as one
+        by one; -1 for a step predicted into trouble, left to the next call)."""
+        watch, fixed = self.ctl.watch, getattr(self.s, "fixed", None)
+        n, m, _ = self.c.shapes
+        sM, sJ = self.c.slices[2:4]
+        ends = [e + 1 for e in exact[1:]] + [done + (status != 0)]  # to the next measured step, or the step after
+        for e, end in zip(exact, ends, strict=True):
+            saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
+            sigma, eig = watch.measure(out[e, sJ].reshape(m, n), out[e, sM].reshape(n, n), None, fixed)
+            if watch.crossed(sigma, eig) is not None:
+                watch.load(saved)
+                return e, self.core.WATCH_DUE
+            watch.push(times[e], sigma, eig, fixed)
+            safe = watch.safe_before
+            for j in range(e + 1, end):
+                if times[j] >= safe and watch.ahead(times[j]) is not None:
+                    return j, -1
+        return done, status
 
     def _window(self, K: int, count: int):
         """(times, the Samples, the offset of the next step in them, (p, v, Q, omega, ref, rate) of the next K steps

@@ -3,7 +3,10 @@
 // array that the caller made, the predictor's history carried from step to step as the Python driver carries it
 // (kinredund/tracking/compiled.py, CompiledStep._apply). The run ends at the first step that is not ordinary (its
 // status, nothing written) or that the fold and singularity watch must measure (its row written: the caller
-// finishes that step in Python), or after the last time given.
+// finishes that step in Python), or after the last time given. With the watch's ``through`` flag the run goes on
+// through the steps the watch measures exactly (every ``every``-th step: Watch.measure's exact branch, Python's,
+// which reads only the step's J and M in its row): their indices are returned, and the caller measures them after
+// the run and keeps the rows up to the first step the watch's verdict does not accept (kinredund/tracking/runs.py).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
@@ -44,16 +47,19 @@ struct Gate {
   bool on;
   double near, drop, last;
   long count, every;
+  bool through;  // go on through the steps measured exactly (their indices returned)
   bool due(double rcond) const {
     return !(rcond > near) || rcond < drop * last || (count + 1) % every == 0;
   }
+  bool exact_next() const { return through && (count + 1) % every == 0; }
 };
 
 }  // namespace
 
 // run(core, t (K), p, v (K x 3), Q (K x 9 or 0 x 9), omega (K x 3 or 0 x 3), ref, rate (K x n or 0 x n), y, yd,
-//     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every), out)
-// -> (steps done, status): status 0 after all K steps, else that of step ``done`` (WATCH_DUE: its row is written).
+//     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every[, through]),
+//     out) -> (steps done, status, the indices of the steps passed through that the watch measures exactly):
+// status 0 after all K steps, else that of step ``done`` (WATCH_DUE: its row is written).
 nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows omega, Rows ref, Rows rate, Vec y0,
                     Vec yd0, nb::list prev_list, Vec qdot0, double speed2, bool check_jump, nb::tuple watch,
                     Sink out) {
@@ -88,10 +94,12 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
   const double* yd = vector_of(yd0, N, "yd");
   const double* qd = vector_of(qdot0, n, "qdot0");
   Gate gate{nb::cast<bool>(watch[0]), nb::cast<double>(watch[1]), nb::cast<double>(watch[2]),
-            nb::cast<double>(watch[3]), nb::cast<long>(watch[4]), nb::cast<long>(watch[5])};
+            nb::cast<double>(watch[3]), nb::cast<long>(watch[4]), nb::cast<long>(watch[5]),
+            nb::len(watch) > 6 && nb::cast<bool>(watch[6])};
   if (gate.every < 1) throw nb::value_error("the watch's exact interval must be >= 1");
   size_t done = 0;
   int status = 0;
+  std::vector<size_t> measured;
   {
     nb::gil_scoped_release release;  // no Python object below: runs in threads compute in parallel
     for (; done < K; ++done) {
@@ -104,8 +112,11 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
       if (status != 0) break;
       const double rcond = o[row - 2];
       if (gate.on && gate.due(rcond)) {
-        status = WATCH_DUE;
-        break;
+        if (!gate.exact_next()) {
+          status = WATCH_DUE;
+          break;
+        }
+        measured.push_back(k);
       }
       // the driver's bookkeeping (CompiledStep._apply): (y, ydot) joins the history, which keeps two pairs
       prev.push_back(y);
@@ -121,7 +132,9 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
       }
     }
   }
-  return nb::make_tuple(done, status);
+  nb::list exact;
+  for (size_t k : measured) exact.append(k);
+  return nb::make_tuple(done, status, exact);
 }
 
 void bind_loop(nb::module_& m) {
