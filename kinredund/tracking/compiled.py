@@ -172,7 +172,7 @@ class CompiledPoint(Point):
     evaluated in Python at (q, t) on first use. A step whose point nobody reads makes none of them.
 
     Args:
-        layout: (the slices of ``out``'s fields, (n, m)): :attr:`CompiledStep.layout`.
+        layout: (the slices of ``out``'s fields, (n, m)): ``CompiledStep.layout``.
         sample: the path sample at t, or None with ``ahead`` = (Samples, row) to make it from on first use.
     """
 

@@ -214,7 +214,7 @@ class GeneralRows:
         """The zero of the switch: the row's value c (reach) or its multiplier nu (release), >= 0 before. A row
         below zero that does not stand for itself there (:meth:`_own`: it equals a row that does, which is that
         event) counts as 2 ROW_TOL: its own reach is where it goes under that row (the switches' search looks for
-        it inside the step, :meth:`~kinredund.tracking.switches.Switches._crossing`)."""
+        it inside the step, ``SwitchLocation._crossing`` in :mod:`kinredund.tracking.switches`)."""
         if kind == "row_reach":
             c = float(self._row_values(self.q)[key])
             return c if c >= 0.0 or self._own(key) else 2.0 * ROW_TOL
