@@ -20,8 +20,9 @@ Two rows that are the same contact (equal values and rates: the pair's row and i
 against a vertex) are never held together (their gradients would be one row twice): the stepper swaps one for the
 other where one reaches zero with the other active (:meth:`~kinredund.tracking.rows.GeneralRows._twin`), and
 holds a vertex row rather than the pair's row it equals at the start of each step
-(:meth:`CornerClearance.representative`). So an edge-to-edge contact that slides onto a vertex, and back, is a hand-over of one row to the other at the point where
-they agree to first order, and a corner is held as its two (or more) vertex rows.
+(:meth:`CornerClearance.representative`). So an edge-to-edge contact that slides onto a vertex, and back, is a
+hand-over of one row to the other at the point where they agree to first order, and a corner is held as its two
+(or more) vertex rows.
 
 What is held, and what not yet (measured on ``panda_elbow_circle``, tests/test_tracking_corners.py): the corner of
 panda_link2_0 and the right finger is met (its vertex 5 reached at t = 6.93596 s, vertex 7 released 0.5 ms later);
