@@ -94,6 +94,7 @@ def test_a_path_that_overrides_sample_alone_is_sampled_by_its_own_sample():
         tracker = Tracker(robot, raised, index, start.q, dt, backend="compiled")
         for _ in range(40):  # beyond the first block sampled ahead
             tracker.step()
+        assert tracker.compiled.steps == 40  # all the core's (a parent's samples: steps handed back as jumps)
         np.testing.assert_allclose(robot.kinematics.pose(tracker.q)[1], raised.sample(tracker.t).p, rtol=0,
                                    atol=1e-10)
     runs = {b: track(robot, raised, index, start.q, steps_per_loop=100, backend=b)
