@@ -38,8 +38,11 @@ left finger's vertex 7 held). The run then stops at t = 7.0258 s, cause ``collis
 ``kinematic_singularity``): from the sub-step point t = 7.02512 s (both fingers' vertex 7 rows held, each equal to its
 pair's row to 1e-16 m; sigma_min of the held [J; G_A] 0.0167, reduced-Hessian eigenvalue 0.553, so neither watched
 quantity is near zero) the corrector of the 0.65 ms sub-step diverges to a rank-deficient J at a far iterate, while
-the 1.3 ms step from the same point converges and holds no switch: not a switch the search misses, the corrector's
-own failure there (not yet understood; the vertex rows' curvature near the hulls' ridges is the suspect).
+the 1.3 ms step from the same point converges and holds no switch. At 800 steps per loop the run stops at the same
+place as a jump (``fold``): from t = 7.02527 s the joints move 0.0225 rad in 0.164 ms, 0.0206 rad off the
+trapezoidal rule, at the sub-step floor. So the held optimum itself jumps at t ~ 7.0253 s, with neither watched
+quantity near zero: a discontinuity of the optimum (or of a held row, not yet understood), not a switch the search
+misses.
 """
 
 from __future__ import annotations
