@@ -138,8 +138,9 @@ def test_the_hand_into_the_upper_arm_passes_the_corner_then_stops_named():
     """What holds today (issue 27 open): on the run that stops at the corner with one row per pair, the corner of
     (panda_link2_0, panda_rightfinger_3) is met piece by piece (its vertex 5 reached, vertex 7 released) and the left
     finger's edge is handed from its vertex's row to the pair's (edge to edge across a ridge of link1's hull) and
-    back; the run still stops at t = 7.02 s, cause ``collision`` (underlying ``fold``: the right finger's vertex 7
-    row crosses zero inside steps the step control rejects, pieces.py's docstring), naming the rows held
+    back; the right finger's vertex 7 row, crossing zero inside steps the step control rejects for a predicted fold,
+    is reached there (located before the fold is declared); the run still stops at t = 7.026 s, cause ``collision``
+    (underlying ``kinematic_singularity``: the corrector diverges, pieces.py's docstring), naming the rows held
     there; the partial record keeps 1 cm at every point and switching time, and the first-order conditions hold on it
     with the active piece rows, checked independently."""
     r, path, index, q0 = case("panda_elbow_circle")
@@ -148,6 +149,8 @@ def test_the_hand_into_the_upper_arm_passes_the_corner_then_stops_named():
         kr.track(r, path, index, q0, constraints=[c])
     e = err.value
     assert e.cause == "collision" and 6.9 < e.t < path.period
+    # past the fold predicted at 7.02298 s (where it stopped before the reach inside the rejected steps was located)
+    assert e.watched["substep_t"] > 7.023 and e.watched["underlying_cause"] == "kinematic_singularity"
     sw = [w for w in e.partial.meta["switches"] if w.get("constraint")]
     assert "panda_link2_0 and panda_rightfinger_3 kept 0.01 m apart: panda_rightfinger_3's vertex 5" in \
         [w["name"] for w in sw]

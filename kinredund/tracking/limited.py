@@ -76,6 +76,7 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         self.mu = self._no_mu = np.zeros(n)
         self._no_mu.flags.writeable = False
         self.switches: tuple[dict, ...] = ()
+        self.switch_anchor = None  # see step()
         self._sel = None  # the free rows of R (None: all joints free)
         q0 = self._start_inside(q0, evaluator)
         self._init_rows(constraints, q0, qp_solver)
@@ -278,9 +279,11 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
             self._representatives()
         snap = self.state
         bounded = self._sel is not None or bool(self.switches)  # a failure then is the limits' to name
+        self.switch_anchor = None  # a switch the step control located inside a rejected sub-step (switch_within)
         try:
             super().step()
-            self._resolve_switches(snap)
+            # the rest of the step, from the last switch located inside a rejected sub-step (if any)
+            self._resolve_switches(snap if self.switch_anchor is None else self.switch_anchor)
         except TrackingError as err:
             inside = err.q is None  # raised within the step (a corrector iterate's): said at the step's start
             if inside:

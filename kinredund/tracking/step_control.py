@@ -78,6 +78,7 @@ class StepControl:
         self.watch = Watch()
         self.floor = stepper.dt / 2**MAX_HALVINGS
         self._bounded = None  # see step()
+        self._searched = None  # (start, end) of the last sub-step searched for a switch without one (_switch_inside)
         s = stepper
         sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
         self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
@@ -173,23 +174,53 @@ class StepControl:
         s = self.s
         s.prev.clear()  # the Hermite history does not fit sub-steps: Euler, as after a jump
         t, h, t_tried = snap_step[0].t, 0.5 * s.dt, t_to
+        self._searched = None
         while t_to - t > 1e-12 * s.dt:
             if h < self.floor * (1.0 - 1e-9):
                 raise self._exhausted(snap_step, t_to, reason, t_tried)
             t_next = t_tried = t_to if h >= (t_to - t) * (1.0 - 1e-9) else t + h
             kind = self.watch.ahead(t_next) and self._refreshed_ahead(t_next)
             if kind is not None:
+                if self._switch_inside(t_next, snap_step):
+                    t = s.t
+                    continue
                 reason, h = (kind, f"predicted before t = {t_next:.6g} s"), 0.5 * h
                 continue
             snap = self.snapshot()
             why = self._attempt(lambda tn=t_next: s.euler_to(tn), snap, t_next - t)
             if why is not None:
                 self.restore(snap)
+                if why[0] in ("fold", "kinematic") and self._switch_inside(t_next, snap_step):
+                    t = s.t
+                    continue
                 reason, h = why, 0.5 * h
                 continue
             t, h = t_next, min(2.0 * h, s.dt)
         s.t, s.k = t_to, snap_step[0].k + 1
         s.prev.clear()  # the next step restarts the predictor from this point
+
+    def _switch_inside(self, t_next: float, snap_step: tuple) -> bool:
+        """Before a (sub-)step to ``t_next`` is rejected for the watch (a fold or singularity predicted or met for
+        the current active set): does the stepper find a switch of the active set inside it, or inside the sub-steps
+        of the requested step (from ``snap_step``) accepted before it (``switch_within`` of a stepper with limits or
+        rows, :mod:`kinredund.tracking.switches`)? Where it does, the stepper is at the
+        switching time with the new active set, and the watch's history starts afresh there (an exact
+        measurement: the quantities jump at a switch). A step from one point searched without a switch up to a
+        time is not searched again up to an earlier one (the search locates any switch before its end)."""
+        s = self.s
+        within = getattr(s, "switch_within", None)
+        if within is None or (self._searched is not None and self._searched[0] == s.t and
+                              t_next <= self._searched[1]):
+            return False
+        t = s.t
+        found = within(t_next, snap_step[0])
+        if not found:
+            self._searched = None if found is None else (t, t_next)
+            return False
+        self.watch.reset()
+        self._refreshed_ahead(t_next)
+        self.speed2 = float(s.qdot @ s.qdot)
+        return True
 
     # -- the stop ---------------------------------------------------------------------------------------
     def _exhausted(self, snap_step: tuple, t_to: float, reason, t_fail: float) -> TrackingError:

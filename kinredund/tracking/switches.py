@@ -214,25 +214,61 @@ class SwitchLocation:
         taken in C++ (:mod:`kinredund.tracking.compiled`), so its check is this stepper's own."""
         return self._events(), self._row_dips(snap)
 
+    def _first_switch(self, snap: ConstrainedState) -> tuple[float, int, str] | None:
+        """(tau, joint or row, kind) of the earliest switch within the step from ``snap`` to now (the state at its
+        end, kept), or None where the step holds none (:meth:`pending_switches`, each located by :meth:`_crossing`)."""
+        events, dips = self.pending_switches(snap)
+        if not (events or dips):
+            return None
+        state_end, t_end = self.state, self.t
+        times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
+        times += [(self._crossing(snap, tau, j, "row_reach"), j, "row_reach") for j, tau in dips]
+        hidden = [(j, kind) for t, j, kind in times if not np.isfinite(t)]
+        times = [x for x in times if np.isfinite(x[0])]
+        if times and hidden:  # under zero only as another row at the end: on its own before the first switch?
+            first = min(times)[0]
+            times += [(self._crossing(snap, first, j, kind), j, kind) for j, kind in hidden]
+        self.state = state_end
+        return min(times) if times else None
+
+    def switch_within(self, t_next: float, since: ConstrainedState) -> bool | None:
+        """A switch inside a (sub-)step the step control rejects for the watch (a fold or a singularity predicted,
+        or met, for the current active set), located before that is declared: the step from the current state to
+        ``t_next`` is taken anyway (an Euler prediction and the corrector) and the whole of the requested step
+        so far, from ``since`` (its start: the sub-steps accepted within it are not searched until it ends) or
+        from the last switch located within it, is searched as an accepted step is (:meth:`_first_switch`).
+
+        Where it holds a switch, the stepper is left at the (first) switching time with the active set changed
+        there (:meth:`_switch`: the predicted fold may be the old set's only), :attr:`switch_anchor` is that
+        state (the search of the rest of the step starts there,
+        :meth:`~kinredund.tracking.limited.LimitedPredictorCorrector.step`) and True is returned; else the state
+        is put back and False returned (the step holds no switch) or None (the step or the search failed: a
+        shorter one may not)."""
+        snap = self.state
+        since = since if self.switch_anchor is None else self.switch_anchor
+        try:
+            self.euler_to(t_next)
+            first = self._first_switch(since)
+            if first is not None:
+                self.state = since
+                self._corrected_to(first[0])
+                self._switch(*first[1:])
+        except KinredundError:  # the step's or the search's failure: the step control's rejection stands
+            self.state = snap
+            return None
+        if first is None:
+            self.state = snap
+            return False
+        self.switch_anchor = self.state
+        return True
+
     def _resolve_switches(self, snap: ConstrainedState) -> None:
         t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
         for _ in range(MAX_SWITCHES_PER_STEP):
-            events, dips = self.pending_switches(snap)
-            if not (events or dips):
+            first = self._first_switch(snap)
+            if first is None:
                 return
-            state_end = self.state
-            times = [(self._crossing(snap, t_end, j, kind), j, kind) for j, kind in events]
-            times += [(self._crossing(snap, tau, j, "row_reach"), j, "row_reach") for j, tau in dips]
-            hidden = [(j, kind) for t, j, kind in times if not np.isfinite(t)]
-            times = [x for x in times if np.isfinite(x[0])]
-            if not times:
-                self.state = state_end
-                return
-            if hidden:  # under zero only as another row at the end: on its own before the first switch?
-                first = min(times)[0]
-                times += [(self._crossing(snap, first, j, kind), j, kind) for j, kind in hidden]
-            self.state = state_end
-            tau, joint, kind = min(times)
+            tau, joint, kind = first
             self.state = snap
             self._corrected_to(tau)
             self._switch(joint, kind)

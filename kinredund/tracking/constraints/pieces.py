@@ -30,13 +30,20 @@ the left finger's edge, held at vertex 7 on panda_link1_0's hull, comes across a
 coplanar facets): the pair's row leaves vertex 7's at t = 6.94032 s and takes its place (the pair's row is not an
 event while it equals a vertex row: :meth:`~kinredund.tracking.rows.GeneralRows._row_watch`; its own reach inside
 a step is looked for before the first switch), and is held as vertex 5's from t = 6.95165 s and back again at
-6.98481 s. At t = 7.0230 s the run stops, cause ``collision`` (underlying ``fold``), where the one-row-per-pair run
-stopped too: with the left pair's row and the right finger's vertex 5 active, sigma_min of [J; G_A] falls 0.04 ->
-0.021 and the step control predicts a fold at 7.02298 s and rejects the steps there; but the right finger's
-vertex 7 row has crossed zero before that (-2.3e-4 m at the nearest good sub-step point, t = 7.02232 s, not
-recorded), and a switch is looked for only in a step the step control accepts, so that reach (the corner back
-from vertex 5 to 7, which would take the fold's place) is not located. Not yet done: a row crossing zero inside
-a rejected step located before the fold is declared.
+6.98481 s. With the left pair's row and the right finger's vertex 5 active, sigma_min of [J; G_A] falls 0.04 ->
+0.021 and the step control predicts a fold at 7.02298 s; the right finger's vertex 7 row crosses zero inside the
+sub-steps of that step (t = 7.00394 s): the step control looks for a switch inside a step it rejects for the watch
+before it declares the fold (:meth:`~kinredund.tracking.switches.SwitchLocation.switch_within`), so that reach is
+located and the fold prediction, the old active set's, goes (vertex 5 and the left pair's row are released there, the
+left finger's vertex 7 held). The run then stops at t = 7.0258 s, cause ``collision`` (underlying
+``kinematic_singularity``): from the sub-step point t = 7.02512 s (both fingers' vertex 7 rows held, each equal to its
+pair's row to 1e-16 m; sigma_min of the held [J; G_A] 0.0167, reduced-Hessian eigenvalue 0.553, so neither watched
+quantity is near zero) the corrector of the 0.65 ms sub-step diverges to a rank-deficient J at a far iterate, while
+the 1.3 ms step from the same point converges and holds no switch. At 800 steps per loop the run stops at the same
+place as a jump (``fold``): from t = 7.02527 s the joints move 0.0225 rad in 0.164 ms, 0.0206 rad off the
+trapezoidal rule, at the sub-step floor. So the held optimum itself jumps at t ~ 7.0253 s, with neither watched
+quantity near zero: a discontinuity of the optimum (or of a held row, not yet understood), not a switch the search
+misses.
 """
 
 from __future__ import annotations
