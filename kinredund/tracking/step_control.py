@@ -181,7 +181,7 @@ class StepControl:
             t_next = t_tried = t_to if h >= (t_to - t) * (1.0 - 1e-9) else t + h
             kind = self.watch.ahead(t_next) and self._refreshed_ahead(t_next)
             if kind is not None:
-                if self._switch_inside(t_next, snap_step):
+                if self._switch_inside(t_next, snap_step) and s.t > t:  # (no progress: halve as ever, never a loop)
                     t = s.t
                     continue
                 reason, h = (kind, f"predicted before t = {t_next:.6g} s"), 0.5 * h
@@ -190,7 +190,7 @@ class StepControl:
             why = self._attempt(lambda tn=t_next: s.euler_to(tn), snap, t_next - t)
             if why is not None:
                 self.restore(snap)
-                if why[0] in ("fold", "kinematic") and self._switch_inside(t_next, snap_step):
+                if why[0] in ("fold", "kinematic") and self._switch_inside(t_next, snap_step) and s.t > t:
                     t = s.t
                     continue
                 reason, h = why, 0.5 * h
