@@ -64,6 +64,8 @@ double max_abs(const VectorXd& v) { return v.size() ? v.cwiseAbs().maxCoeff() : 
 // The certificate of an infeasible box QP (IKCore::infeasible): its damping relative to max|G|^2, and its margin
 // [rad^2 or m^2] over proxsuite's tolerance (eps_abs 1e-11 on the residual: ~1e-21 on its square)
 constexpr double INFEASIBLE_DAMPING = 1e-10, INFEASIBLE_MARGIN = 1e-12;
+// The Farkas certificate's margin, relative to what a point within proxsuite's tolerance could reach (IKCore::farkas)
+constexpr double FARKAS_MARGIN = 1e-10;
 
 // The constants of kinredund/ik/common.py, passed in by the driver (one source)
 struct Constants {
@@ -507,18 +509,28 @@ class IKCore {
     return false;
   }
 
-  // Whether G d = -e has no solution within lb <= d <= ub, certified: the box least squares with the damping
-  // mu' = INFEASIBLE_DAMPING max|G|^2 (by box_guess) leaves ||G d + e||^2 + mu' ||d||^2 above mu' ||d_f||^2 for
-  // every d_f in the box (so no d_f with G d_f = -e exists), by a margin far above proxsuite's tolerance (1e-11):
-  // then qp.BoxStep.equality's proxsuite call does not solve the QP. False: not certified.
-  bool infeasible(const Eval& ev, const VectorXd& lb, const VectorXd& ub) const {
+  // Whether G d = -e has no solution within lb <= d <= ub, certified (Farkas): y = G d + e of a step d (the box least
+  // squares') with y^T (G d' + e) >= y^T e + sum_i min(lb_i a_i, ub_i a_i) > 0 for every d' in the box (a = G^T y),
+  // by a margin far above what proxsuite's tolerance (eps_abs 1e-11 on G d' + e and on the box) could close: then
+  // qp.BoxStep.equality's proxsuite call does not solve the QP. Else, the same from the box least squares with the
+  // tiny damping mu' = INFEASIBLE_DAMPING max|G|^2 (by box_guess): ||G d + e||^2 + mu' ||d||^2 above mu' ||d_f||^2 for
+  // every d_f in the box. False: not certified.
+  bool infeasible(const Eval& ev, const VectorXd& d, const VectorXd& lb, const VectorXd& ub) const {
+    if (farkas(ev, d, lb, ub)) return true;
     const double mu = INFEASIBLE_DAMPING * std::pow(ev.G.cwiseAbs().maxCoeff(), 2);
     MatrixXd H = ev.G.transpose() * ev.G;
     H.diagonal().array() += mu;
-    VectorXd d;
-    if (!box_guess(H, ev.G.transpose() * ev.e, lb, ub, d)) return false;
+    VectorXd dt;
+    if (!box_guess(H, ev.G.transpose() * ev.e, lb, ub, dt)) return false;
     const double reach = lb.cwiseAbs().cwiseMax(ub.cwiseAbs()).squaredNorm();  // max ||d_f||^2 over the box
-    return (ev.G * d + ev.e).squaredNorm() + mu * d.squaredNorm() > mu * reach + INFEASIBLE_MARGIN;
+    return (ev.G * dt + ev.e).squaredNorm() + mu * dt.squaredNorm() > mu * reach + INFEASIBLE_MARGIN ||
+           farkas(ev, dt, lb, ub);
+  }
+
+  bool farkas(const Eval& ev, const VectorXd& d, const VectorXd& lb, const VectorXd& ub) const {
+    const VectorXd y = ev.G * d + ev.e, a = ev.G.transpose() * y;
+    const double h = y.dot(ev.e) + lb.cwiseProduct(a).cwiseMin(ub.cwiseProduct(a)).sum();
+    return h > FARKAS_MARGIN * (std::sqrt(static_cast<double>(m_)) * y.norm() + a.cwiseAbs().sum());
   }
 
   // BoxStep.least_squares where qp._active_set_guess solves it: min 1/2 ||G d + e||^2 + mu/2 ||d||^2 within
@@ -596,7 +608,7 @@ class IKCore {
       const VectorXd c = ev.grad + L * (L.transpose() * (M * x0));
       VectorXd dq;
       if (box_equality(B, c, ev.G, ev.e, lb, ub, dq) ||
-          (infeasible(ev, lb, ub) && box_least_squares(ev, lm_damping(ev), st.q, dq)))
+          (box_least_squares(ev, lm_damping(ev), st.q, dq) && infeasible(ev, dq, lb, ub)))
         d = cap_step(dq, c_.max_step);
       else
         return BOX_QP;  // proxsuite's (Python's)
