@@ -342,6 +342,14 @@ def test_pose_only_result_reports_the_residual_reached_and_no_index_terms():
     assert np.isnan(res.reduced_hessian_min_eig) and res.starts == 1 and res.time_s > 0.0
 
 
+def _at_a_limit(r, rng):
+    """A random q with one joint at a limit, and the box lb <= d <= ub of a step from it."""
+    q = r.random_configuration(rng)
+    j = rng.integers(r.nq)
+    q[j] = r.upper[j] if rng.random() < 0.5 else r.lower[j]
+    return q, r.lower - q, r.upper - q
+
+
 def test_box_step_guess_is_the_proxsuite_solution(monkeypatch):
     """The active-set guess of the bounded least-squares step is taken only when it is the QP's
     solution: compare with proxsuite on random problems with joints at and past their limits."""
@@ -351,11 +359,8 @@ def test_box_step_guess_is_the_proxsuite_solution(monkeypatch):
     r = robot("panda")
     guessed = 0
     for _ in range(100):
-        q = r.random_configuration(rng)
-        j = rng.integers(7)
-        q[j] = r.upper[j] if rng.random() < 0.5 else r.lower[j]
-        G, e = r.velocity_jacobian(q), 0.1 * rng.normal(size=6)
-        lb, ub, mu = r.lower - q, r.upper - q, 1e-3
+        q, lb, ub = _at_a_limit(r, rng)
+        G, e, mu = r.velocity_jacobian(q), 0.1 * rng.normal(size=6), 1e-3
         H, g = G.T @ G + mu * np.eye(7), G.T @ e
         guess = ik_qp._active_set_guess(H, g, lb, ub)
         monkeypatch.setattr(ik_qp, "GUESS_ROUNDS", 0)
@@ -365,6 +370,33 @@ def test_box_step_guess_is_the_proxsuite_solution(monkeypatch):
             guessed += 1
             assert np.abs(guess - exact).max() < 1e-7  # proxsuite: eps_abs 1e-11 over mu 1e-3
     assert guessed >= 20
+
+
+def test_box_step_equality_guess_is_the_proxsuite_solution(monkeypatch):
+    """The active-set guesses of the bounded Newton step (min 1/2 d^T B d + c^T d, G d = -e, within the box) are
+    taken only when they are the QP's solution: compare with proxsuite on random feasible problems (about half of
+    the solved ones hold two joints or more at a bound), and check the constraints on their own."""
+    from kinredund.ik import qp as ik_qp
+
+    rng = np.random.default_rng(5)
+    r = robot("panda")
+    guessed = 0
+    for _ in range(100):
+        q, lb, ub = _at_a_limit(r, rng)
+        G = r.velocity_jacobian(q)[:3]  # three constraint rows: four dimensions to meet the box in
+        e = -G @ rng.uniform(lb, ub)  # feasible: some d in the box meets G d = -e
+        A = rng.normal(size=(7, 7))
+        B, c = A @ A.T + 0.1 * np.eye(7), 5.0 * rng.normal(size=7)
+        guess = ik_qp._equality_guess(B, c, G, e, lb, ub)
+        monkeypatch.setattr(ik_qp, "GUESS_ROUNDS", 0)
+        exact = ik_qp.BoxStep(7, 3).equality(B, c, G, e, lb, ub)
+        monkeypatch.undo()
+        if guess is not None:
+            guessed += 1
+            assert np.all(guess >= lb) and np.all(guess <= ub)
+            assert np.abs(G @ guess + e).max() <= 1e-12 * (1.0 + np.abs(e).max())  # an exact solve, rounding only
+            assert exact is not None and np.abs(guess - exact).max() < 1e-7  # proxsuite: eps_abs 1e-11
+    assert guessed >= 50
 
 
 def test_unbounded_result_turns_free_wrist_joints_into_their_limits():

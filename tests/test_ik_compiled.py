@@ -1,6 +1,7 @@
 """The IK's constrained iteration in C++ (issue 28, :mod:`kinredund.ik.compiled`): the same results as the Python
 iteration (q, converged, reason, iterations), on several arms, task kinds, indices, with and without bounds; the
-hand-back to Python (a step leaving the bounds: the box QP) gives the same answer; the answers pass
+box QP of a step leaving the bounds is the core's where the Python iteration's guesses solve it or its equality form
+is infeasible (a plan hands back few), with the same answers; the answers pass
 check_optimality on their own; the backend's options and errors."""
 
 from __future__ import annotations
@@ -14,8 +15,11 @@ from conftest import IK_TOL, robot, rounding
 
 from kinredund.errors import ChoiceError, OptionError
 from kinredund.ik import compiled
+from kinredund.ik.qp import BoxStep
 from kinredund.ik.solve import check_optimality, solve_ik
 from kinredund.indices import CustomIndex, JointDeviation, mid_range, minimum_norm
+from kinredund.planning.cyclic import plan
+from kinredund.problems import panda_circle
 
 pytestmark = pytest.mark.skipif(compiled.core_module() is None and not os.environ.get("CI"),
                                 reason="the compiled core is not built (CI requires it: test_core_build.py)")
@@ -101,24 +105,64 @@ def test_compiled_iteration_gives_the_python_results(name, task, kind, bounds):
     assert converged >= 2  # reachable targets from nearby seeds: most converge
 
 
-def test_a_bound_active_hands_back_to_the_box_qp_with_the_same_answer():
-    """An index pulling every joint beyond its upper limit: the unconstrained step leaves the box, the core hands
-    the iteration to the Python iteration's box QP, takes the next one back, and the answer is the Python
-    iteration's, on limits."""
+def _box_qp_calls(monkeypatch) -> list:
+    """A list that grows by one at each call of the Python iteration's box QP of the Newton step (BoxStep.equality)."""
+    calls = []
+    original = BoxStep.equality
+
+    def counted(self, *args):
+        calls.append(1)
+        return original(self, *args)
+
+    monkeypatch.setattr(BoxStep, "equality", counted)
+    return calls
+
+
+def test_a_bound_active_box_qp_is_solved_in_the_core_with_the_same_answer(monkeypatch):
+    """An index pulling every joint beyond its upper limit: the unconstrained step leaves the box and the core
+    solves the box QP itself (qp.py's active-set guesses, as the Python iteration does first) where the Python
+    iteration calls it, with the Python iteration's answer, on limits. (Before the core had the box QP, each such
+    step was handed back to the Python iteration.)"""
     r = robot("panda", "position")  # four dimensions of self-motion: the minimum sits on limits
     rng = np.random.default_rng(7)
-    handed = converged = 0
+    calls = _box_qp_calls(monkeypatch)
+    python_calls = core_calls = converged = 0
     for _ in range(3):
         target, q0 = _draw(r, rng)
         index = JointDeviation(r.upper + 1.0, np.ones(r.nq))
+        n0 = len(calls)
+        py = solve_ik(r, target, index, q0=q0, bounds=True, backend="python")
+        n1 = len(calls)
         _, cc, counts = _same(r, target, index, q0, bounds=True)
-        handed += counts.get("box_qp", 0)
+        python_calls += n1 - n0
+        core_calls += len(calls) - 2 * n1 + n0  # _same's Python solve calls it n1 - n0 times again
         if cc.converged:
             converged += 1
             _check_answer(r, target, index, cc, True)  # with the limits that hold (Eq. D.30)
-            assert counts["converged"] == 1  # the core went on after the Python iteration's QP step
+            assert counts.get("converged", 0) == 1 and py.converged
             assert np.any(cc.q >= r.upper - 1e-9)  # a limit holds at the answer
-    assert handed >= 1 and converged >= 1
+    assert python_calls >= 3 and core_calls < python_calls and converged >= 1
+
+
+def test_a_plan_takes_its_box_steps_in_the_core(monkeypatch):
+    """kr.plan on the Panda benchmark circle (its samples' IK with bounds): the same joint path with the compiled
+    IK as with the Python one, and the core takes the box steps of the Newton iteration itself, both where the
+    guesses solve the box QP and where its equality form is infeasible (certified in the core, then the box least
+    squares): it hands back a small fraction of the steps that call the Python iteration's box QP."""
+    robot_, path, index, _ = panda_circle()
+    calls = _box_qp_calls(monkeypatch)
+    runs = {}
+    for backend in ("python", "auto"):
+        monkeypatch.setenv("KINREDUND_BACKEND", backend)
+        n0, before = len(calls), dict(compiled.COUNTS)
+        result = plan(robot_, path, index, samples=8)
+        runs[backend] = (result, len(calls) - n0, compiled.COUNTS.get("box_qp", 0) - before.get("box_qp", 0),
+                         sum(compiled.COUNTS.values()) - sum(before.values()))
+    (py, py_calls, _, _), (cc, cc_calls, handed, core_runs) = runs["python"], runs["auto"]
+    assert py.ok and cc.ok and core_runs > 0  # the core ran (CI builds it)
+    np.testing.assert_allclose(cc.trajectory.q, py.trajectory.q, rtol=0.0, atol=Q_BAR)
+    # the Python iteration's box QP calls left: those handed back, and the follow stage's (a blended index, Python's)
+    assert py_calls >= 20 and handed <= 0.1 * py_calls and cc_calls <= 0.3 * py_calls
 
 
 def test_stops_that_are_not_convergence_are_the_python_iterations():

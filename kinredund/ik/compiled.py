@@ -6,14 +6,17 @@
 of G^T (Eq. D.25), x0 (Eq. D.24), the least-squares multipliers (Eqs. 4.11-4.12) or the first-order conditions with
 bounds (Eq. D.30), the Lagrangian Hessian M (Eqs. 4.20-4.26), the reduced Newton step of Eq. (D.26) with its
 eigenvalue fix, the merit search with its second-order correction, the damped least-squares restoration step (with
-bounds, its box least squares where :mod:`kinredund.ik.qp`'s active-set guess solves it) and the stall and
+bounds, its box least squares where :mod:`kinredund.ik.qp`'s active-set guesses solve it), the box QP of a Newton step
+that leaves the joint limits (where :mod:`kinredund.ik.qp`'s guesses solve its equality form, or the core certifies
+that form infeasible and the guesses solve the box least squares that Python then takes) and the stall and
 convergence tests, for the index :class:`~kinredund.indices.JointDeviation` (``minimum_norm``, ``mid_range``).
 
 A start that converges there comes back with the terms of its last iteration (the optimality report's, as the Python
 iteration gives them). Anything else is handed to the Python iteration from the state at the start of the iteration
-that needs it (:data:`STATUS`): a Newton step that leaves the joint limits (the box QP of :mod:`kinredund.ik.qp`), a
-restoration step whose box least squares needs proxsuite, every stop that is not convergence (the reason is the
-Python iteration's to word), a rotation near a half turn (the log's symmetric-part branch), a spurious zero of e.
+that needs it (:data:`STATUS`): a box QP of the Newton step that needs proxsuite (the guesses neither solve it nor
+certify its equality form infeasible), a restoration step whose box least squares needs proxsuite, every stop that
+is not convergence (the reason is the Python iteration's to word), a rotation near a half turn (the log's
+symmetric-part branch), a spurious zero of e.
 The Python iteration redoes that iteration and hands the next one back to the core, so the results are the Python
 iteration's to rounding.
 

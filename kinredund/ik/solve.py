@@ -115,6 +115,11 @@ def _check_options(robot, starts, tol, max_iter, timeout, seed, bounds) -> None:
         )
 
 
+#: converged starts whose z differ by less than this times 1 + |z| count as equal minima (the first is returned): two
+#: starts that reach the same minimum stop at points ~tol apart, whose z differ by ~|lambda| tol, so the choice
+#: between them would otherwise be the rounding's (and differ between the backends)
+Z_TIE = 1e-9
+
 #: multi-start samples of a pose-only solve (index=None) leave out this fraction of each joint range at
 #: either end: local solves from the middle of the ranges succeeded more often in a one-off measurement
 #: on the Panda with bounds (hardest targets; no benchmark reproduces it)
@@ -172,11 +177,12 @@ def solve_ik(
         starts: number of starts: q0, then ``starts - 1`` samples of ``np.random.default_rng(seed)``
             uniform in the limits (unbounded joints: [-pi, pi] or [-1, 1] m; pose-only solves leave
             out :data:`POSE_SAMPLE_MARGIN` of each range at either end). With an index the converged
-            result of lowest z is returned (the global constrained minimum when enough starts are
-            run); without one, the first converged. While other starts remain (or with a timeout), a
-            pose-only start whose squared error has not halved in 3 iterations (20 at most, 60 for a
-            start already close and still gaining) is abandoned for the next one, after one try at
-            turning a joint stuck at a limit through a full turn (:mod:`kinredund.ik.newton`).
+            result of lowest z is returned (the first of those within :data:`Z_TIE` of it; the global
+            constrained minimum when enough starts are run); without one, the first converged. While
+            other starts remain (or with a timeout), a pose-only start whose squared error has not
+            halved in 3 iterations (20 at most, 60 for a start already close and still gaining) is
+            abandoned for the next one, after one try at turning a joint stuck at a limit through a
+            full turn (:mod:`kinredund.ik.newton`).
         seed: seed of the multi-start samples, an integer >= 0.
         tol: convergence tolerance on the residual and, with an index, on the normality residual. It
             is raised to the round-off floor (64 eps times the target scale, and 1e-13 (1 + |grad z|)
@@ -247,7 +253,8 @@ def solve_ik(
             break
     converged = [(o, z) for o, z in outcomes if o.converged]
     if converged:
-        best = min(converged, key=lambda oz: oz[1])[0]  # the first of equal minima
+        z_min = min(z for _, z in converged)  # the first of equal minima (to Z_TIE: the same minimum found again)
+        best = next(o for o, z in converged if z <= z_min + Z_TIE * (1.0 + abs(z_min)))
     else:
         best = min(outcomes, key=lambda oz: oz[0].residual)[0]
         if outcomes[-1][0].reason == "timeout":

@@ -4,12 +4,15 @@
 // the Householder QR split of G^T (Eq. D.25), x0 (Eq. D.24), the least-squares multipliers (Eqs. 4.11-4.12) or
 // bound_kkt (Eq. D.30), the Lagrangian Hessian M (Eqs. 4.20-4.26), the reduced Newton step of Eq. (D.26) with its
 // eigenvalue fix, the merit search with second-order correction, the damped least-squares restoration step (with
-// bounds, its box least squares where kinredund/ik/qp.py's active-set guess solves it), cap_step and the stall and convergence tests. The algorithm is invariant under the choice of orthonormal bases
+// bounds, its box least squares where kinredund/ik/qp.py's active-set guess solves it), the box QP of a Newton step that
+// leaves the bounds where qp.py's guesses solve it or certify it infeasible, cap_step and the stall and convergence
+// tests. The algorithm is invariant under the choice of orthonormal bases
 // (x0, L u, Y Y^T, the multipliers and ||L^T grad|| do not depend on them), so Eigen's QR, SVD and eigensolver give
 // the Python reference's numbers (LAPACK's) to rounding.
 //
 // Whatever the iteration would do that is not here - a Newton step that leaves the bounds (the box QP of
-// kinredund/ik/qp.py), a restoration step whose box least squares needs proxsuite, a stop of any kind but convergence (its reason is Python's to word), the rotation log near a
+// kinredund/ik/qp.py) that its guesses neither solve nor certify infeasible, a restoration step whose box least
+// squares needs proxsuite, a stop of any kind but convergence (its reason is Python's to word), the rotation log near a
 // half turn, a spurious zero of e - hands back to Python: run() returns the state at the start of that iteration,
 // the Python iteration redoes it from there (newton.py `_iterate(..., state)`) and hands the next one back to run().
 #include "ik.hpp"
@@ -19,6 +22,7 @@
 #include <nanobind/stl/tuple.h>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 #include <Eigen/QR>
 #include <Eigen/SVD>
 
@@ -26,6 +30,7 @@
 #include <limits>
 #include <string>
 #include <time.h>
+#include <vector>
 
 namespace nb = nanobind;
 
@@ -55,6 +60,12 @@ double now() {  // Python's time.perf_counter on Linux
 }
 
 double max_abs(const VectorXd& v) { return v.size() ? v.cwiseAbs().maxCoeff() : 0.0; }
+
+// The certificate of an infeasible box QP (IKCore::infeasible): its damping relative to max|G|^2, and its margin
+// [rad^2 or m^2] over proxsuite's tolerance (eps_abs 1e-11 on the residual: ~1e-21 on its square)
+constexpr double INFEASIBLE_DAMPING = 1e-10, INFEASIBLE_MARGIN = 1e-12;
+// The Farkas certificate's margin, relative to what a point within proxsuite's tolerance could reach (IKCore::farkas)
+constexpr double FARKAS_MARGIN = 1e-10;
 
 // The constants of kinredund/ik/common.py, passed in by the driver (one source)
 struct Constants {
@@ -394,24 +405,56 @@ class IKCore {
     return error(oMf.rotation(), oMf.translation(), e, ee, nullptr);
   }
 
-  // BoxStep.least_squares where qp._active_set_guess solves it: min 1/2 ||G d + e||^2 + mu/2 ||d||^2 within
-  // lo - q <= d <= hi - q, by guesses of the active set (the joints at a limit, then those the guess pushes past
-  // one) kept only where they meet the QP's KKT conditions (then the QP's unique solution). False: no guess did.
-  bool box_least_squares(const Eval& ev, double mu, const VectorXd& q, VectorXd& d) const {
-    const int n = n_;
-    MatrixXd H = ev.G.transpose() * ev.G;
-    H.diagonal().array() += mu;
-    const VectorXd g = ev.G.transpose() * ev.e, lb = lo_ - q, ub = hi_ - q;
-    std::vector<int> held(n, 0);  // 0 free, -1 held at lb, +1 held at ub
-    for (int i = 0; i < n; ++i)
+  // The joints at a limit, held there (qp._initial_held): 0 free, -1 held at lb, +1 held at ub
+  static std::vector<int> initial_held(const VectorXd& lb, const VectorXd& ub) {
+    std::vector<int> held(lb.size(), 0);
+    for (int i = 0; i < lb.size(); ++i)
       if (lb[i] >= 0.0) held[i] = -1;
       else if (ub[i] <= 0.0) held[i] = 1;
+    return held;
+  }
+
+  // d with the held joints at their bounds and the free ones zero; the free joints' indices
+  static VectorXd held_part(const std::vector<int>& held, const VectorXd& lb, const VectorXd& ub,
+                            std::vector<int>& free) {
+    VectorXd d = VectorXd::Zero(lb.size());
+    free.clear();
+    for (int i = 0; i < lb.size(); ++i)
+      if (held[i]) d[i] = held[i] < 0 ? lb[i] : ub[i];
+      else free.push_back(i);
+    return d;
+  }
+
+  // qp._pushed_out: hold the free joints that d puts past a bound there; whether any was
+  static bool push_out(const std::vector<int>& free, const VectorXd& d, const VectorXd& lb, const VectorXd& ub,
+                       std::vector<int>& held) {
+    bool out = false;
+    for (const int i : free)
+      if (!(lb[i] <= d[i] && d[i] <= ub[i])) held[i] = d[i] < lb[i] ? -1 : 1, out = true;
+    return out;
+  }
+
+  // qp._pulled_in: the held joint that the Lagrangian's gradient pulls into the box hardest (its multiplier's sign
+  // wrong), or -1 where it pulls none
+  static int pulled_in(const std::vector<int>& held, const VectorXd& grad) {
+    const double tol = 1e-12 * (1.0 + max_abs(grad));
+    int worst = -1;
+    double least = 0.0;
+    for (int i = 0; i < grad.size(); ++i) {
+      if (!held[i]) continue;
+      const double pull = held[i] < 0 ? grad[i] : -grad[i];  // > 0 pushes outwards
+      if (worst < 0 || pull < least) worst = i, least = pull;
+    }
+    return worst >= 0 && least < -tol ? worst : -1;
+  }
+
+  // qp._active_set_guess: min 1/2 d^T H d + g^T d within lb <= d <= ub (H positive definite) where a guess of the
+  // active set (the joints at a limit; then also those the guess pushes past one, or less the held one pulled in
+  // hardest) meets the QP's KKT conditions (then the QP's unique solution). False: no guess did.
+  bool box_guess(const MatrixXd& H, const VectorXd& g, const VectorXd& lb, const VectorXd& ub, VectorXd& d) const {
+    std::vector<int> held = initial_held(lb, ub), free;
     for (int round = 0; round < c_.guess_rounds; ++round) {
-      std::vector<int> free;
-      d.setZero(n);
-      for (int i = 0; i < n; ++i)
-        if (held[i]) d[i] = held[i] < 0 ? lb[i] : ub[i];
-        else free.push_back(i);
+      d = held_part(held, lb, ub, free);
       const int nf = static_cast<int>(free.size());
       if (nf == 0) return false;
       MatrixXd Hff(nf, nf);
@@ -424,26 +467,88 @@ class IKCore {
       Eigen::LLT<MatrixXd> llt(Hff);  // dposv's Cholesky solve of the free block
       if (llt.info() != Eigen::Success) return false;
       const VectorXd x = llt.solve(rhs);
-      bool out = false;
-      for (int a = 0; a < nf; ++a) {
-        const int i = free[a];
-        d[i] = x[a];
-        if (!(lb[i] <= x[a] && x[a] <= ub[i])) held[i] = x[a] < lb[i] ? -1 : 1, out = true;
-      }
-      if (out) continue;
-      const VectorXd grad = H * d + g;
-      const double tol = 1e-12 * (1.0 + max_abs(grad));
-      for (int i = 0; i < n; ++i)
-        if ((held[i] < 0 && grad[i] < -tol) || (held[i] > 0 && grad[i] > tol)) return false;
-      return true;
+      for (int a = 0; a < nf; ++a) d[free[a]] = x[a];
+      if (push_out(free, d, lb, ub, held)) continue;
+      const int wrong = pulled_in(held, H * d + g);
+      if (wrong < 0) return true;
+      held[wrong] = 0;  // released
     }
     return false;
+  }
+
+  // qp._equality_guess: min 1/2 d^T B d + c^T d s.t. G d = -e within lb <= d <= ub (B positive definite) where a
+  // guess of the active set meets the QP's KKT conditions; the free joints from the KKT system
+  // [B_ff G_f^T; G_f 0] [d_f; y] = [-(c + B d_h)_f; -e - G d_h] (LU with partial pivoting, as dgesv).
+  bool box_equality(const MatrixXd& B, const VectorXd& c, const MatrixXd& G, const VectorXd& e, const VectorXd& lb,
+                    const VectorXd& ub, VectorXd& d) const {
+    const int m = static_cast<int>(e.size());
+    std::vector<int> held = initial_held(lb, ub), free;
+    for (int round = 0; round < c_.guess_rounds; ++round) {
+      d = held_part(held, lb, ub, free);
+      const int nf = static_cast<int>(free.size());
+      if (nf < m) return false;  // G_f d_f = -e - G d_h has no solution in general
+      MatrixXd A = MatrixXd::Zero(nf + m, nf + m);
+      VectorXd rhs(nf + m);
+      const VectorXd Bd = B * d;
+      for (int a = 0; a < nf; ++a) {
+        rhs[a] = -(c[free[a]] + Bd[free[a]]);
+        for (int b = 0; b < nf; ++b) A(a, b) = B(free[a], free[b]);
+        A.block(nf, a, m, 1) = G.col(free[a]);
+        A.block(a, nf, 1, m) = G.col(free[a]).transpose();
+      }
+      rhs.tail(m) = -e - G * d;
+      Eigen::PartialPivLU<MatrixXd> lu(A);
+      const VectorXd x = lu.solve(rhs);
+      if (!x.allFinite()) return false;
+      for (int a = 0; a < nf; ++a) d[free[a]] = x[a];
+      if (push_out(free, d, lb, ub, held)) continue;
+      const int wrong = pulled_in(held, B * d + c + G.transpose() * x.tail(m));
+      if (wrong < 0) return true;
+      held[wrong] = 0;  // released
+    }
+    return false;
+  }
+
+  // Whether G d = -e has no solution within lb <= d <= ub, certified (Farkas): y = G d + e of a step d (the box least
+  // squares') with y^T (G d' + e) >= y^T e + sum_i min(lb_i a_i, ub_i a_i) > 0 for every d' in the box (a = G^T y),
+  // by a margin far above what proxsuite's tolerance (eps_abs 1e-11 on G d' + e and on the box) could close: then
+  // qp.BoxStep.equality's proxsuite call does not solve the QP. Else, the same from the box least squares with the
+  // tiny damping mu' = INFEASIBLE_DAMPING max|G|^2 (by box_guess): ||G d + e||^2 + mu' ||d||^2 above mu' ||d_f||^2 for
+  // every d_f in the box. False: not certified.
+  bool infeasible(const Eval& ev, const VectorXd& d, const VectorXd& lb, const VectorXd& ub) const {
+    if (farkas(ev, d, lb, ub)) return true;
+    const double mu = INFEASIBLE_DAMPING * std::pow(ev.G.cwiseAbs().maxCoeff(), 2);
+    MatrixXd H = ev.G.transpose() * ev.G;
+    H.diagonal().array() += mu;
+    VectorXd dt;
+    if (!box_guess(H, ev.G.transpose() * ev.e, lb, ub, dt)) return false;
+    const double reach = lb.cwiseAbs().cwiseMax(ub.cwiseAbs()).squaredNorm();  // max ||d_f||^2 over the box
+    return (ev.G * dt + ev.e).squaredNorm() + mu * dt.squaredNorm() > mu * reach + INFEASIBLE_MARGIN ||
+           farkas(ev, dt, lb, ub);
+  }
+
+  bool farkas(const Eval& ev, const VectorXd& d, const VectorXd& lb, const VectorXd& ub) const {
+    const VectorXd y = ev.G * d + ev.e, a = ev.G.transpose() * y;
+    const double h = y.dot(ev.e) + lb.cwiseProduct(a).cwiseMin(ub.cwiseProduct(a)).sum();
+    return h > FARKAS_MARGIN * (std::sqrt(static_cast<double>(m_)) * y.norm() + a.cwiseAbs().sum());
+  }
+
+  // BoxStep.least_squares where qp._active_set_guess solves it: min 1/2 ||G d + e||^2 + mu/2 ||d||^2 within
+  // lo - q <= d <= hi - q. False: no guess did (then proxsuite, Python's).
+  bool box_least_squares(const Eval& ev, double mu, const VectorXd& q, VectorXd& d) const {
+    MatrixXd H = ev.G.transpose() * ev.G;
+    H.diagonal().array() += mu;
+    return box_guess(H, ev.G.transpose() * ev.e, lo_ - q, hi_ - q, d);
+  }
+
+  double lm_damping(const Eval& ev) const {
+    return c_.lm_weight * ev.ee + c_.damping * std::pow(ev.G.cwiseAbs().maxCoeff(), 2);
   }
 
   // `_restore`: a damped least-squares step on the constraints alone, backtracking on 1/2 ||e||^2
   int restore(State& st, const Eval& ev) {
     const int m = m_, n = n_;
-    const double mu = c_.lm_weight * ev.ee + c_.damping * std::pow(ev.G.cwiseAbs().maxCoeff(), 2);  // lm_damping
+    const double mu = lm_damping(ev);
     MatrixXd A = MatrixXd::Zero(m + n, n);  // damped_step: [G; sqrt(mu) 1] d = [-e; 0]
     A.topRows(m) = ev.G;
     A.bottomRows(n).diagonal().setConstant(std::sqrt(mu));
@@ -496,7 +601,18 @@ class IKCore {
       u = -V * ((V.transpose() * gr).cwiseQuotient(wmod));  // a sure descent direction
       d = x0 + cap_step(L * u, c_.max_step);
     }
-    if (bounds_ && !in_box(st.q + d)) return BOX_QP;  // the box QP is Python's
+    if (bounds_ && !in_box(st.q + d)) {  // the box QP: BoxStep.equality, else BoxStep.least_squares
+      const VectorXd lb = lo_ - st.q, ub = hi_ - st.q;
+      const MatrixXd LV = L * V;
+      const MatrixXd B = LV * wmod.asDiagonal() * LV.transpose() + Y * Y.transpose();  // Eq. (D.26)'s model, PD
+      const VectorXd c = ev.grad + L * (L.transpose() * (M * x0));
+      VectorXd dq;
+      if (box_equality(B, c, ev.G, ev.e, lb, ub, dq) ||
+          (box_least_squares(ev, lm_damping(ev), st.q, dq) && infeasible(ev, dq, lb, ub)))
+        d = cap_step(dq, c_.max_step);
+      else
+        return BOX_QP;  // proxsuite's (Python's)
+    }
     const VectorXd Gd = ev.G * d;
     const double slope = ev.grad.dot(d) + rho * (enorm > 0.0 ? ev.e.dot(Gd) / enorm : Gd.norm());
     const double phi = ev.z + rho * enorm;
