@@ -7,6 +7,7 @@ command line) can report precisely what is wrong and what is allowed.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 
 
@@ -343,6 +344,22 @@ def check_choice(what: str, value: str, allowed: Sequence[str]) -> str:
     if not isinstance(value, str) or value not in allowed:  # an array would make `in` ambiguous
         raise ChoiceError(what, value, allowed)
     return value
+
+
+#: the backends of the compiled core's users (the tracker's step, the IK's iteration)
+BACKENDS = ("auto", "compiled", "python")
+
+
+def check_backend(backend: str | None) -> tuple[str, bool]:
+    """(the backend asked for, whether a problem the core cannot run is an error). The caller's ``backend``, else
+    the environment variable ``KINREDUND_BACKEND``, else ``auto``. Only the caller's own ``"compiled"`` makes an
+    unsupported problem an error: the environment's ``compiled`` holds for a whole program (every tracker and IK
+    solve in it, a plan's stages among them), so there it asks for the core wherever it can run the problem (and
+    for a core that loads), the rest running in Python as under ``auto``. Raises ChoiceError: an unknown name."""
+    forced = backend == "compiled"
+    if backend is None:
+        backend = os.environ.get("KINREDUND_BACKEND") or "auto"
+    return check_choice("backend", backend, BACKENDS), forced
 
 
 class _FileError(KinredundError, OSError):

@@ -208,6 +208,13 @@ def test_backend_options(monkeypatch):
     monkeypatch.setenv("KINREDUND_BACKEND", "python")
     solve_ik(r, target, minimum_norm(r.nq), q0=q0)
     assert sum(compiled.COUNTS.values()) == before
+    monkeypatch.setenv("KINREDUND_BACKEND", "compiled")  # a whole program's (a plan's blended index among it)
+    assert solve_ik(r, target, custom, q0=q0).converged  # the index the core does not know: Python's, no error
+    assert sum(compiled.COUNTS.values()) == before
+    solve_ik(r, target, minimum_norm(r.nq), q0=q0)
+    assert sum(compiled.COUNTS.values()) == before + 1
+    with pytest.raises(OptionError, match="CustomIndex"):  # the caller's own "compiled" still insists
+        solve_ik(r, target, custom, q0=q0, backend="compiled")
 
 
 @pytest.mark.parametrize("name,task", [("panda", None), ("xarm7", None), ("panda", "position")])

@@ -339,6 +339,9 @@ def test_the_default_is_compiled_where_the_core_runs_and_python_elsewhere(monkey
     monkeypatch.setenv("KINREDUND_BACKEND", "python")
     assert Tracker(r, path, index, q0, dt).backend == "python"
     assert Tracker(r, path, index, q0, dt, backend="compiled").backend == "compiled"  # the argument wins
+    monkeypatch.setenv("KINREDUND_BACKEND", "compiled")  # a whole program's: the core wherever it can run
+    assert Tracker(r, path, index, q0, dt).backend == "compiled"
+    assert Tracker(r, path, custom, q0, dt).backend == "python"  # not an error: only the argument's is
 
 
 def test_compiled_where_it_cannot_run_says_why():

@@ -22,20 +22,20 @@ iteration's to rounding.
 
 Backends as the tracker's (:mod:`kinredund.tracking.compiled`): ``solve_ik(..., backend=)`` or the environment
 variable ``KINREDUND_BACKEND`` where the caller gives none; ``auto`` (the default) runs the core where it loads
-and supports the problem, ``python`` the reference, ``compiled`` raises an :class:`~kinredund.errors.OptionError`
-where the core cannot run it. A core that cannot be loaded warns once. Pose-only solves (``index=None``,
+and supports the problem, ``python`` the reference, the caller's ``compiled`` raises an
+:class:`~kinredund.errors.OptionError` where the core cannot run it (the environment's ``compiled`` where it cannot
+load: :func:`~kinredund.errors.check_backend`). A core that cannot be loaded warns once. Pose-only solves (``index=None``,
 :mod:`kinredund.ik.pose_only`) are Python's under every backend.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import warnings
 
 import numpy as np
 
-from kinredund.errors import OptionError, check_choice
+from kinredund.errors import OptionError, check_backend
 from kinredund.ik.common import (
     ACTIVE_TOL,
     ARMIJO,
@@ -56,7 +56,6 @@ from kinredund.tasks.axis import AxisResidual
 from kinredund.tasks.pose import PoseResidual
 from kinredund.tasks.position import PointResidual
 
-BACKENDS = ("auto", "compiled", "python")
 #: the constants of :mod:`kinredund.ik.common` as the core takes them (src/core/ik.cpp Constants)
 CONSTANTS = np.array([ARMIJO, MAX_STEP, MIN_ALPHA, RANK_TOL, DAMPING, LM_WEIGHT, ACTIVE_TOL, STALL_ITERS, GUESS_ROUNDS],
                      float)
@@ -113,14 +112,12 @@ def pick(robot, res, index, backend: str | None) -> bool:
         OptionError: ``backend="compiled"`` where the core cannot run the problem or cannot be loaded.
         ChoiceError: an unknown backend.
     """
-    if backend is None:
-        backend = os.environ.get("KINREDUND_BACKEND") or "auto"
-    check_choice("backend", backend, BACKENDS)
+    backend, forced = check_backend(backend)
     if backend == "python" or index is None:  # pose-only solves are Python's under every backend
         return False
     why = unsupported(robot, res, index)
     if why:
-        if backend == "compiled":
+        if forced:
             raise OptionError(f"backend='compiled' cannot run this IK: {why}; use backend='python' or 'auto'")
         return False
     core, why = _load()

@@ -46,24 +46,23 @@ own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``,
 core loads and supports the problem, else ``python`` (``backend="compiled"`` then raises an
 :class:`~kinredund.errors.OptionError` saying why; a core that cannot be loaded at all warns once). The
 environment variable ``KINREDUND_BACKEND`` (``python``, ``compiled`` or ``auto``) is read where the caller
-gives no backend.
+gives no backend (:func:`~kinredund.errors.check_backend`: its ``compiled`` insists on a core that loads, but a
+problem the core cannot run is Python's, as under ``auto``: it holds for the whole program).
 """
 
 from __future__ import annotations
 
-import os
 import warnings
 
 import numpy as np
 
-from kinredund.errors import KinredundError, OptionError, check_choice
+from kinredund.errors import KinredundError, OptionError, check_backend
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
 from kinredund.tracking.point import Point
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
 
-BACKENDS = ("auto", "compiled", "python")
 #: the task kinds' codes in the core (src/core/step.cpp)
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
@@ -123,14 +122,12 @@ def attach(tracker, backend: str | None) -> str:
         OptionError: ``backend="compiled"`` where the core cannot run the problem or cannot be loaded.
         ChoiceError: an unknown backend.
     """
-    if backend is None:
-        backend = os.environ.get("KINREDUND_BACKEND") or "auto"
-    check_choice("backend", backend, BACKENDS)
+    backend, forced = check_backend(backend)
     if backend == "python":
         return "python"
     why = unsupported(tracker)
     if why:
-        if backend == "compiled":
+        if forced:
             raise OptionError(f"backend='compiled' cannot run this problem: {why}; use backend='python' or 'auto'")
         return "python"
     core = load_core()

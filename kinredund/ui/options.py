@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinredund.errors import OptionError, check_size
+from kinredund.errors import BACKENDS, OptionError, check_size
 from kinredund.tasks import task_names
 from kinredund.ui.path_options import RADIUS, SPEED, path_for
 
@@ -290,7 +290,7 @@ def build_parser(commands: dict) -> argparse.ArgumentParser:
                         "from mid-range (Chapter 2); the baselines' normality residual is measured against it "
                         "(default: %(default)s)")
     _add_tracking(p)
-    p.add_argument("--backend", choices=("auto", "compiled", "python"), default=None,
+    p.add_argument("--backend", choices=BACKENDS, default=None,
                    help="compiled: the default mode's ordinary steps in the compiled core (same results, faster); "
                         "python: every step in Python; auto: compiled where it can run (default: "
                         "$KINREDUND_BACKEND, else auto)")
