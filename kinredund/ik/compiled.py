@@ -24,8 +24,8 @@ Backends as the tracker's (:mod:`kinredund.tracking.compiled`): ``solve_ik(..., 
 variable ``KINREDUND_BACKEND`` where the caller gives none; ``auto`` (the default) runs the core where it loads
 and supports the problem, ``python`` the reference, the caller's ``compiled`` raises an
 :class:`~kinredund.errors.OptionError` where the core cannot run it (the environment's ``compiled`` where it cannot
-load: :func:`~kinredund.errors.check_backend`). A core that cannot be loaded warns once. Pose-only solves (``index=None``,
-:mod:`kinredund.ik.pose_only`) are Python's under every backend.
+load: :func:`~kinredund.errors.check_backend`). A core that cannot be loaded warns once. Pose-only solves
+(``index=None``, :mod:`kinredund.ik.pose_only`) are Python's under every backend.
 """
 
 from __future__ import annotations
