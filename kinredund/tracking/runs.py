@@ -43,6 +43,8 @@ from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 GRID = 256
 #: the most steps of one C++ call (it goes on through the watch's exact measurements, every EXACT_EVERY steps)
 MAX_RUN = GRID
+#: the fewest samples taken ahead that a run uses before it samples afresh (:meth:`Runs._window`)
+REFILL = 32
 
 
 def stepping(tracker, rec):
@@ -100,6 +102,7 @@ class Runs:
             rec.add()
             return 1
         times, at, i, arrays = window
+        K = len(times)  # (a run ends where the samples taken ahead end: _window)
         out = np.empty((K, int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
         if ctl is None:
             watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY, False), 0.0
@@ -151,8 +154,14 @@ class Runs:
     def _window(self, K: int, count: int):
         """(times, the Samples, the offset of the next step in them, (p, v, Q, omega, ref, rate) of the next K steps
         as the core's arrays), sampled ahead (:data:`GRID` steps or the ``count`` left) where the last grid ends; or
-        None where the samples do not stack or a task with orientation has none."""
+        None where the samples do not stack or a task with orientation has none. A run that would go past the end
+        of the samples taken ahead is cut there where at least :data:`REFILL` of them are left (a run handed back
+        every few steps would otherwise sample GRID steps ahead at every start)."""
         j0 = self.s.k + 1
+        if self.grid is not None and self.grid[0] <= j0:
+            left = self.grid[0] + len(self.grid[2]) - j0
+            if left >= min(K, REFILL):
+                K = min(K, left)
         if self.grid is None or not self.grid[0] <= j0 <= j0 + K <= self.grid[0] + len(self.grid[2]):
             ahead = min(count, GRID) if self.s.ev.path.computes_together() else K  # a caller's path: no further
             self.grid = self._sample(j0, max(K, ahead))
