@@ -52,6 +52,8 @@ from kinredund.tracking.watch import Watch
 
 #: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
 MAX_HALVINGS = 6
+#: switches of the active set found in a row at one time inside rejected sub-steps before the sub-step is halved
+MAX_SWITCHES_AT_ONCE = 4
 #: a step whose displacement misses the trapezoidal rule's h (qdot_k + qdot_{k+1}) / 2 by more than this
 #: fraction of max(|Delta q|, h |qdot|) is rejected (see the module docstring)
 TRAPEZOID_TOL = 0.25
@@ -79,6 +81,7 @@ class StepControl:
         self.floor = stepper.dt / 2**MAX_HALVINGS
         self._bounded = None  # see step()
         self._searched = None  # (start, end) of the last sub-step searched for a switch without one (_switch_inside)
+        self._stuck = 0  # switches found in a row at one time (_moved)
         s = stepper
         sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
         self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
@@ -175,13 +178,14 @@ class StepControl:
         s.prev.clear()  # the Hermite history does not fit sub-steps: Euler, as after a jump
         t, h, t_tried = snap_step[0].t, 0.5 * s.dt, t_to
         self._searched = None
+        self._stuck = 0  # switches found in a row at one time (_moved)
         while t_to - t > 1e-12 * s.dt:
             if h < self.floor * (1.0 - 1e-9):
                 raise self._exhausted(snap_step, t_to, reason, t_tried)
             t_next = t_tried = t_to if h >= (t_to - t) * (1.0 - 1e-9) else t + h
             kind = self.watch.ahead(t_next) and self._refreshed_ahead(t_next)
             if kind is not None:
-                if self._switch_inside(t_next, snap_step) and s.t > t:  # (no progress: halve as ever, never a loop)
+                if self._switch_inside(t_next, snap_step) and self._moved(t, s.t):
                     t = s.t
                     continue
                 reason, h = (kind, f"predicted before t = {t_next:.6g} s"), 0.5 * h
@@ -190,7 +194,7 @@ class StepControl:
             why = self._attempt(lambda tn=t_next: s.euler_to(tn), snap, t_next - t)
             if why is not None:
                 self.restore(snap)
-                if why[0] in ("fold", "kinematic") and self._switch_inside(t_next, snap_step) and s.t > t:
+                if why[0] in ("fold", "kinematic") and self._switch_inside(t_next, snap_step) and self._moved(t, s.t):
                     t = s.t
                     continue
                 reason, h = why, 0.5 * h
@@ -198,6 +202,14 @@ class StepControl:
             t, h = t_next, min(2.0 * h, s.dt)
         s.t, s.k = t_to, snap_step[0].k + 1
         s.prev.clear()  # the next step restarts the predictor from this point
+
+    def _moved(self, t: float, t_switch: float) -> bool:
+        """Carry the sub-steps on from a switch found at ``t_switch`` (from a sub-step start t)? Yes where it moved
+        time forward; at t itself (two rows swapping at a corner, a reach at the start) up to
+        :data:`MAX_SWITCHES_AT_ONCE` in a row, then the sub-step is halved as any rejected one (two active sets
+        switching back and forth at one time never loop)."""
+        self._stuck = 0 if t_switch > t else self._stuck + 1
+        return self._stuck <= MAX_SWITCHES_AT_ONCE
 
     def _switch_inside(self, t_next: float, snap_step: tuple) -> bool:
         """Before a (sub-)step to ``t_next`` is rejected for the watch (a fold or singularity predicted or met for

@@ -239,7 +239,7 @@ class SwitchLocation:
         from the last switch located within it, is searched as an accepted step is (:meth:`_first_switch`).
 
         Where it holds a switch, the stepper is left at the (first) switching time with the active set changed
-        there (:meth:`_switch`: the predicted fold may be the old set's only), :attr:`switch_anchor` is that
+        there (:meth:`_switch`: the predicted fold may be the old set's only), ``switch_anchor`` is that
         state (the search of the rest of the step starts there,
         :meth:`~kinredund.tracking.limited.LimitedPredictorCorrector.step`) and True is returned; else the state
         is put back and False returned (the step holds no switch) or None (the step or the search failed: a
