@@ -31,6 +31,7 @@ load: :func:`~kinredund.errors.check_backend`). A core that cannot be loaded war
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 
 import numpy as np
@@ -65,6 +66,12 @@ STATUS = {1: "log_near_pi", 2: "not_finite", 3: "spurious", 4: "max_iter", 5: "t
 _EMPTY = np.zeros(0)
 #: iterations handed back by reason, and runs of the core ending converged (for benchmarks and tests; per process)
 COUNTS: dict[str, int] = {}
+_COUNTS_LOCK = threading.Lock()  # solves run in threads (track_many, a sweep's workers)
+
+
+def _count(key: str) -> None:
+    with _COUNTS_LOCK:
+        COUNTS[key] = COUNTS.get(key, 0) + 1
 
 
 class IKBackendWarning(UserWarning):
@@ -168,9 +175,9 @@ def run_compiled(s: Setup, q: np.ndarray, on_target: list, state: tuple | None =
         on_target[:] = [on_q, float(on_z), float(on_r)]
     if status:
         why = STATUS[status]
-        COUNTS[why] = COUNTS.get(why, 0) + 1
+        _count(why)
         return out[1:8]
-    COUNTS["converged"] = COUNTS.get("converged", 0) + 1
+    _count("converged")
     _, _, qc, r, normality, z, lam_k, L, active, extra, hbuf = out[:11]
     n = qc.shape[0]
     active = np.zeros(n, dtype=bool) if active is None else active.astype(bool)

@@ -103,7 +103,7 @@ def row_rate_qp(M: np.ndarray, top: np.ndarray, A: np.ndarray, b: np.ndarray, g:
 
 #: an inactive row below -ROW_TOL [m] after a step is a switch (rounding below that is not)
 ROW_TOL = 1e-13
-#: two rows of one constraint within TWIN_VALUE [m] and TWIN_RATE (relative) of each other at q are one contact
+#: two rows of one constraint within TWIN_VALUE [m] and TWIN_RATE max(1, |G|) [m/rad] of each other at q are one contact
 TWIN_VALUE, TWIN_RATE = 1e-9, 1e-4
 
 
@@ -238,8 +238,8 @@ class GeneralRows:
 
     def _twin(self, key: int) -> int | None:
         """An active row of ``key``'s constraint equal to it at q to first order (values within :data:`TWIN_VALUE`,
-        gradients within :data:`TWIN_RATE` relative): one contact seen as two of the constraint's pieces (a
-        vertex's and the pair's own distance, two vertices' against each other). Holding both would put one
+        gradients within :data:`TWIN_RATE` max(1, |G|) [m/rad]: absolute below 1 m/rad): one contact seen as two
+        of the constraint's pieces (a vertex's and the pair's own distance, two vertices' against each other). Holding both would put one
         gradient twice into the system; None where there is none."""
         ci, ri = self.row_pairs[key]
         mates = [f for f in self.rows if self.row_pairs[f][0] == ci]
