@@ -239,8 +239,8 @@ class GeneralRows:
     def _twin(self, key: int) -> int | None:
         """An active row of ``key``'s constraint equal to it at q to first order (values within :data:`TWIN_VALUE`,
         gradients within :data:`TWIN_RATE` max(1, |G|) [m/rad]: absolute below 1 m/rad): one contact seen as two
-        of the constraint's pieces (a vertex's and the pair's own distance, two vertices' against each other). Holding both would put one
-        gradient twice into the system; None where there is none."""
+        of the constraint's pieces (a vertex's and the pair's own distance, two vertices' against each other).
+        Holding both would put one gradient twice into the system; None where there is none."""
         ci, ri = self.row_pairs[key]
         mates = [f for f in self.rows if self.row_pairs[f][0] == ci]
         if not mates:
