@@ -134,32 +134,100 @@ def test_segment_bounds_hold_inside_a_step():
 
 
 @pytest.mark.slow
-def test_the_hand_into_the_upper_arm_passes_the_corner_then_stops_named():
-    """What holds today (issue 27 open): on the run that stops at the corner with one row per pair, the corner of
-    (panda_link2_0, panda_rightfinger_3) is met piece by piece (its vertex 5 reached, vertex 7 released) and the left
-    finger's edge is handed from its vertex's row to the pair's (edge to edge across a ridge of link1's hull) and
-    back; the right finger's vertex 7 row, crossing zero inside steps the step control rejects for a predicted fold,
-    is reached there (located before the fold is declared); the run still stops at t = 7.026 s, cause ``collision``
-    (underlying ``kinematic_singularity``: the corrector diverges, pieces.py's docstring), naming the rows held
-    there; the partial record keeps 1 cm at every point and switching time, and the first-order conditions hold on it
-    with the active piece rows, checked independently."""
+def test_the_hand_into_the_upper_arm_passes_the_corner_then_stops_at_the_fold_named():
+    """On the run that stops at the corner with one row per pair, the corner of (panda_link2_0,
+    panda_rightfinger_3) is met piece by piece (its vertex 5 reached, vertex 7 released) and the left finger's edge
+    is handed from its vertex's row to the pair's (edge to edge across a ridge of link1's hull) and back; the right
+    finger's vertex 7 row, crossing zero inside steps the step control rejects for a predicted fold, is reached there
+    (located before the fold is declared). The optimum held on both fingers' vertex 7 rows then ends in a fold
+    (pieces.py's docstring): continued independently from the last good sub-step point, its branch turns back in t
+    with the reduced Hessian's eigenvalue (the rows' curvature included) crossing zero, the active set still valid
+    (multipliers > 0, every other row >= 0, [J; G_A] regular). The run stops there, cause ``collision`` (a row
+    active), underlying ``fold``, its last good sub-step point before the fold and within one floor sub-step of it,
+    the failed attempt past it; the watched eigenvalue there is the independent one; the partial record keeps 1 cm
+    at every point and switching time, and the first-order conditions hold on it with the active piece rows."""
     r, path, index, q0 = case("panda_elbow_circle")
     c = kr.CornerClearance(kr.Scene(r), self_clearance=SELF_CLEARANCE)
     with pytest.raises(kr.TrackingError) as err:
         kr.track(r, path, index, q0, constraints=[c])
     e = err.value
-    assert e.cause == "collision" and 6.9 < e.t < path.period
-    # past the fold predicted at 7.02298 s (where it stopped before the reach inside the rejected steps was located)
-    assert e.watched["substep_t"] > 7.023 and e.watched["underlying_cause"] == "kinematic_singularity"
-    sw = [w for w in e.partial.meta["switches"] if w.get("constraint")]
+    w = e.watched
+    assert e.cause == "collision" and w["underlying_cause"] == "fold" and 6.9 < e.t < path.period
+    sw = [s for s in e.partial.meta["switches"] if s.get("constraint")]
     assert "panda_link2_0 and panda_rightfinger_3 kept 0.01 m apart: panda_rightfinger_3's vertex 5" in \
-        [w["name"] for w in sw]
-    assert min(c.scene.distances(np.array(w["q"])).min_distance for w in sw) >= SELF_CLEARANCE - 1e-9
-    assert any("panda_link1_0 and panda_leftfinger_3" in n for n in e.watched["constraints"])
+        [s["name"] for s in sw]
+    assert min(c.scene.distances(np.array(s["q"])).min_distance for s in sw) >= SELF_CLEARANCE - 1e-9
+    assert any("panda_link1_0 and panda_leftfinger_3" in n for n in w["constraints"])
+    q, t = np.array(w["substep_q"]), w["substep_t"]
+    assert c.scene.distances(q).min_distance >= SELF_CLEARANCE - 1e-9
+    held = [i for i in np.flatnonzero(np.abs(c.values(q)) <= 1e-12) if i >= len(c.pairs)]  # the piece rows on zero
+    assert [c.names()[i].rsplit("'s ", 1)[1] for i in held] == ["vertex 7", "vertex 7"]  # both fingers'
+    branch = _held_branch(r, path, index, c, q, t, held)
+    assert abs(branch[0][1] - w["substep_reduced_hessian_min"]) <= 1e-6  # 0.553: the watch's is the true one
+    top = int(np.argmax([b[0] for b in branch]))
+    t_fold = branch[top][0]
+    assert 0 < top < len(branch) - 1 and branch[top + 1][1] < 0.0 < branch[top - 1][1]  # the minimum turns: a fold
+    assert all(b[2] > 0.01 and b[3] > 0.0 and b[4] >= -1e-12 for b in branch[: top + 1])
+    assert t < t_fold < w["t_failed"] and t_fold - t <= w["min_substep"]  # 7.02512 < 7.02538 < 7.02577 s
     part = e.partial
     assert min(c.scene.distances(q).min_distance for q in part.q) >= SELF_CLEARANCE - 1e-9
     worst, seen = _kkt(r, index, part, c)
     assert seen > 10 and worst <= 1e-9
+
+
+def _held_branch(r, path, index, c, q, t, rows, ds=2e-3) -> list[tuple]:
+    """The optimum held on ``rows`` from (q, t) on, by pseudo-arclength continuation of its first-order conditions
+    grad z + J^T lambda - G^T nu = 0, p(q) = x(t), c_rows(q) = 0 in (q, lambda, nu, t) (scaled 1, 1e-2, 1e-2, 1e2;
+    step ``ds``), their Jacobian by central differences (1e-6 in the scaled variables: the rows' gradients, exact,
+    differenced once), through the turn in t and three points beyond. Per point (t, the smallest eigenvalue of
+    Z^T W Z with W the Lagrangian's Hessian and Z a null basis of [J; G_rows], sigma_min([J; G_rows]), the least
+    multiplier nu, the least value of all the constraint's rows)."""
+    n, k = len(q), len(rows)
+    D = np.concatenate([np.ones(n), np.full(3 + k, 1e-2), [1e2]])
+
+    def F(y):
+        x = y / D
+        qq, lam, nu, tt = x[:n], x[n: n + 3], x[n + 3: -1], x[-1]
+        _, p, K = r.kinematics.jacobian(qq)
+        vals, G = c.rows_at(qq)
+        grad = index.evaluate(qq, tt)[1] + K[3:].T @ lam - G[rows].T @ nu
+        return np.concatenate([grad, p - path.sample(tt).p, vals[rows]])
+
+    def jac(y):
+        return np.array([(F(y + 1e-6 * e) - F(y - 1e-6 * e)) / 2e-6 for e in np.eye(len(y))]).T
+
+    def point(y):
+        A = jac(y)
+        W, B = A[:n, :n], A[n:, :n]  # the Lagrangian's Hessian, [J; G_rows] (the q columns are unscaled)
+        sv, Vt = np.linalg.svd(B)[1:]
+        Z = Vt[len(B):].T
+        x = y / D
+        return (x[-1], float(np.linalg.eigvalsh(Z.T @ (0.5 * (W + W.T)) @ Z)[0]), float(sv[-1]),
+                float(x[n + 3: -1].min()), float(c.values(x[:n]).min()))
+
+    _, _, K = r.kinematics.jacobian(q)
+    G = c.rows_at(q)[1][rows]
+    mult = np.linalg.lstsq(np.vstack([K[3:], -G]).T, -index.evaluate(q, t)[1], rcond=None)[0]
+    y = D * np.concatenate([q, mult, [t]])
+    tangent = None
+    out = [point(y)]
+    while len(out) < 200:
+        tn = np.linalg.svd(jac(y))[2][-1]
+        tangent = tn * (1.0 if (tn[-1] if tangent is None else tn @ tangent) > 0 else -1.0)
+        y0 = y + ds * tangent
+        y = y0.copy()
+        for _ in range(20):
+            f = np.concatenate([F(y), [tangent @ (y - y0)]])
+            if np.linalg.norm(f) <= 1e-11:
+                break
+            y = y - np.linalg.solve(np.vstack([jac(y), tangent]), f)
+        else:
+            raise AssertionError(f"the continuation's corrector failed at t = {y[-1] / D[-1]:.8f} s")
+        out.append(point(y))
+        top = int(np.argmax([o[0] for o in out]))
+        if top < len(out) - 3:
+            return out
+    raise AssertionError("the held branch does not turn back in t within 200 steps")
 
 
 def _kkt(r, index, tr, c) -> tuple[float, int]:

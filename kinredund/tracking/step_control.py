@@ -260,6 +260,9 @@ class StepControl:
             # R singular with J of full rank (Z^T M Z singular), unless sigma_min(J) is the one heading to zero
             if kind == "corrector" and (ahead == "fold" or (ahead is None and "algorithmic" in why)):
                 cause = "fold"
+                if ahead == "fold":  # the corrector's words say where its iterate went (off the ended branch)
+                    why = (f"the corrector failed ({why}) with the reduced-Hessian eigenvalue predicted to reach zero "
+                           f"at t = {self.watch.crossings()['fold']:.6g} s")
             else:
                 # an open path is not sampled beyond the requested step
                 probe = [t_to] if s.ev.path.period is None else [t_to, t_near + s.dt]

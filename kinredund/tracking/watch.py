@@ -259,8 +259,7 @@ class Watch:
         if self._fresh or not self.sigma:
             _keep(self.sigma_times, t, self.sigma, sigma)
         _keep(self.times, t, self.eig, eig)
-        fs, fe = self.floors()
-        self._safe = min(_crossing_time(self.sigma_times, self.sigma, fs), _crossing_time(self.times, self.eig, fe))
+        self._safe = min(self.crossings().values())
         self._exact_at = t if exact else None
 
     def floors(self) -> tuple[float, float]:
@@ -276,16 +275,23 @@ class Watch:
             return "fold"
         return None
 
+    def crossings(self) -> dict[str, float]:
+        """{``kinematic``: t, ``fold``: t}: when each quantity, extrapolated from its last two values (v and v^2
+        linearly, the module docstring), reaches its floor [s] (-inf: at or below it now; +inf: not decreasing)."""
+        fs, fe = self.floors()
+        return {"kinematic": _crossing_time(self.sigma_times, self.sigma, fs),
+                "fold": _crossing_time(self.times, self.eig, fe)}
+
     def ahead(self, t_next: float) -> str | None:
-        """``kinematic``, ``fold`` or None: the quantity predicted to cross zero by ``t_next`` [s]."""
+        """``kinematic``, ``fold`` or None: the quantity predicted to cross zero by ``t_next`` [s]; where both are, the
+        one predicted to cross first (:meth:`crossings`; a tie, both at their floors already, is ``kinematic``, as in
+        :meth:`crossed`), so that a stop looking a whole step ahead names the quantity that goes first, not the one
+        checked first (a fold was named a singularity: :mod:`kinredund.tracking.constraints.pieces`)."""
         if t_next < self._safe:  # the earliest predicted crossing, computed at the last push
             return None
-        fs, fe = self.floors()
-        for kind, times, hist, floor in (("kinematic", self.sigma_times, self.sigma, fs),
-                                         ("fold", self.times, self.eig, fe)):
-            if hist and _crosses(times, hist, t_next, floor):
-                return kind
-        return None
+        when = self.crossings()
+        kind = min(when, key=when.get)  # dicts keep their order: kinematic first in a tie
+        return kind if when[kind] <= t_next else None
 
 
 def _keep(times: list[float], t: float, values: list[float], v: float) -> None:
@@ -313,17 +319,3 @@ def _crossing_time(times: list[float], values: list[float], floor: float) -> flo
         return math.inf
     slope, slope2 = (v1 - v0) / (t1 - t0), (v1 * v1 - v0 * v0) / (t1 - t0)
     return min(t1 + (floor - v1) / slope, t1 + (floor * floor - v1 * v1) / slope2)
-
-
-def _crosses(times: list[float], values: list[float], t_next: float, floor: float) -> bool:
-    """Does v (or v^2), extrapolated linearly from its last two values, reach ``floor`` by ``t_next``?"""
-    v1 = values[-1]
-    if not v1 > floor:
-        return True
-    if len(values) < 2:
-        return False
-    v0, t0, t1 = values[-2], times[-2], times[-1]
-    if not (v1 < v0 and t1 > t0):
-        return False
-    r = (t_next - t1) / (t1 - t0)
-    return v1 + r * (v1 - v0) <= floor or v1 * v1 + r * (v1 * v1 - v0 * v0) <= floor * floor
