@@ -30,7 +30,7 @@ from kinredund.ik.solve import solve_ik
 from kinredund.indices import CustomIndex, minimum_norm
 from kinredund.paths import Circle, FunctionPath
 from kinredund.tracking import Tracker, track
-from kinredund.tracking.watch import exact
+from kinredund.tracking.watch import Watch, exact
 
 #: the stepper's on-path bar (1e-6 of the path's scale) is what "on the path" means for the last good point
 ON_PATH = 1e-6
@@ -309,3 +309,30 @@ def test_the_watch_measures_what_a_qr_null_basis_gives(m, n):
         assert abs(eig - np.linalg.eigvalsh(S)[0]) <= bar
         assert abs(v @ v - 1.0) <= rounding() and np.linalg.norm(J @ v) <= rounding(s[0])
         assert abs(v @ (0.5 * (M + M.T)) @ v - eig) <= bar
+
+
+def test_the_watch_names_the_crossing_predicted_first():
+    """Both quantities heading to zero: ``ahead`` names the one whose extrapolated crossing comes first, whichever
+    is checked first. The histories are the corner run's last two sub-step points (tests/test_tracking_corners.py:
+    sigma_min 0.0210 -> 0.0167, the eigenvalue 0.753 -> 0.553 from t = 7.02446 to 7.02512 s), where the held optimum
+    folds; with the two histories swapped, sigma_min goes first. Crossing times by hand from the v^2-linear
+    extrapolation (here the earlier of the watch's two, v and v^2 linear)."""
+    times = [7.0244649298625195, 7.0251192647074]
+    sigma, eig = [0.021002700769252577, 0.01666967412650829], [0.7533603598097082, 0.5530735112037583]
+
+    def watch(sig, e):
+        w = Watch()
+        for t, s, v in zip(times, sig, e, strict=True):
+            w.push(t, s, v)
+        return w
+
+    def crossing(v):  # v^2 linear through both points, to zero (the floors, ~1e-8, move it by < 1e-12 s)
+        return times[1] + v[1] ** 2 * (times[1] - times[0]) / (v[0] ** 2 - v[1] ** 2)
+
+    w = watch(sigma, eig)
+    t_fold, t_sigma = crossing(eig), crossing(sigma)
+    assert t_fold < t_sigma  # 7.02588 < 7.02623 s
+    assert w.ahead(t_fold - 1e-6) is None and w.ahead(t_fold + 1e-6) == "fold" and w.ahead(7.07) == "fold"
+    assert abs(w.crossings()["fold"] - t_fold) <= 1e-9 and abs(w.crossings()["kinematic"] - t_sigma) <= 1e-9
+    w = watch([v * 0.05 for v in eig], [v * 40 for v in sigma])  # the same shapes, the roles swapped
+    assert w.ahead(7.07) == "kinematic" and w.ahead(t_fold - 1e-6) is None

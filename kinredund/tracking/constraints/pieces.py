@@ -35,15 +35,29 @@ a step is looked for before the first switch), and is held as vertex 5's from t 
 sub-steps of that step (t = 7.00394 s): the step control looks for a switch inside a step it rejects for the watch
 before it declares the fold (:meth:`~kinredund.tracking.switches.SwitchLocation.switch_within`), so that reach is
 located and the fold prediction, the old active set's, goes (vertex 5 and the left pair's row are released there, the
-left finger's vertex 7 held). The run then stops at t = 7.0258 s, cause ``collision`` (underlying
-``kinematic_singularity``): from the sub-step point t = 7.02512 s (both fingers' vertex 7 rows held, each equal to its
-pair's row to 1e-16 m; sigma_min of the held [J; G_A] 0.0167, reduced-Hessian eigenvalue 0.553, so neither watched
-quantity is near zero) the corrector of the 0.65 ms sub-step diverges to a rank-deficient J at a far iterate, while
-the 1.3 ms step from the same point converges and holds no switch. At 800 steps per loop the run stops at the same
-place as a jump (``fold``): from t = 7.02527 s the joints move 0.0225 rad in 0.164 ms, 0.0206 rad off the
-trapezoidal rule, at the sub-step floor. So the held optimum itself jumps at t ~ 7.0253 s, with neither watched
-quantity near zero: a discontinuity of the optimum (or of a held row, not yet understood), not a switch the search
-misses.
+left finger's vertex 7 held). There the optimum held on both fingers' vertex 7 rows (each equal to its pair's row to
+1e-16 m) ends in a fold: continued independently (pseudo-arclength on its first-order conditions, the rows'
+curvature by differences of their gradients: tests/test_tracking_corners.py's ``_held_branch``), its branch turns
+back in t at t* = 7.025379 s, where the smallest eigenvalue of Z^T (Hess z + Lambda - sum_i nu_i Hess c_i) Z passes
+zero (0.553 at 7.02512 s, 0.011 at the turn, negative on the saddle branch beyond it), the active set still valid
+(multipliers 4.6 and 7.5, every other row positive, sigma_min of [J; G_A] 0.0124): no missed switch, no
+discontinuous row (both rows' gradients agree with central differences of coal's vertex distances to 1e-10 m/rad
+within 0.02 rad of the stop) and no singularity. Multi-start SQP (:func:`~kinredund.ik.rows.solve_ik_rows` with the
+scene's rows, 25 starts) agrees: it finds this branch's minimum at 7.0253 and 7.02537 s (eigenvalue 0.37, 0.15) and
+not at 7.0254, 7.0256 or 7.026 s, where a minimum 0.025 rad away (eigenvalue 1.02) and a distant one (0.23 rad, lower
+z) remain. So the local optimum followed ends there, and no row per piece can hold it further: going on is a jump.
+
+The eigenvalue's square falls ever faster towards t* (0.971 at 7.02185 s, 0.753 at 7.02446 s, 0.553 at 7.02512 s;
+eig^2 / (t* - t) grows from 620 to 2600 1/s between 7.02446 s and 3 us before t*), so the watch's extrapolation from
+its last two values (eig^2 linear) puts the crossing late, at 7.02588 s; the floor
+sub-step (0.65 ms at 200 steps per loop) from 7.02512 s is tried, lands past t*, and its corrector diverges (longer
+sub-steps land on the other minimum: the jump check rejects them). The run stops at its last requested time
+(6.99353 s), cause ``collision`` (a row active), underlying ``fold``: its last good sub-step point 0.26 ms before t*,
+the failed attempt at 7.02577 s past it. The fold is named because the stop looks a whole step ahead and takes the
+crossing predicted first (:meth:`~kinredund.tracking.watch.Watch.ahead`: the eigenvalue's, before sigma_min's at
+7.02623 s; it took sigma_min's, checked first, and said ``kinematic_singularity`` before). At 800 steps per loop the
+run stops at the same fold as a jump at the floor (0.0225 rad in 0.164 ms from 7.02527 s), and the plain
+SceneClearance (one row per pair, the same two contacts) also as a jump (from 7.02494 s, attempt to 7.02559 s).
 """
 
 from __future__ import annotations
