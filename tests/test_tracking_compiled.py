@@ -305,7 +305,12 @@ def test_a_stop_after_a_diverged_corrector_says_the_same_on_both_backends():
     singular values at that diverged iterate, which follow the rounding of the run (3.7e-17 and 6.8e-19 for R,
     0.037 and 0.0026 for J, even two Python runs differed); the reason names the kind and the time alone. The
     path's reach, checked at two times, is rounding at both (2e-15 m): ``reach_checked_at`` was the time of the
-    larger rounding (2.2528 and 2.2723 s), now the first time checked, as at every stop within reach."""
+    larger rounding (2.2528 and 2.2723 s), now the first time checked, as at every stop within reach. The stop is a
+    fold: R singular with J of full rank at the iterate, and at the last good point (t = 2.24451 s) the reduced
+    Hessian's eigenvalue 1.04 -> 0.80 in 0.43 ms is predicted to reach zero at 2.24512 s, sigma_min(J) (0.0022 ->
+    0.0019) at 2.24599 s; at 3200 steps per loop the fold is predicted outright (eigenvalue 0.27 at 2.24481 s,
+    sigma_min 0.0015). It was named ``kinematic_singularity`` while the watch named the quantity checked first, not
+    the first to cross (:meth:`~kinredund.tracking.watch.Watch.ahead`)."""
     r = robot("panda")
     path = Circle(np.array([-0.33903649101701, 0.34581688074079814, 0.9497127978493409]), 0.06253317604837266,
                   0.07063657766295746, normal=(-0.6396533827388732, 0.5962898719226892, 0.48505869602877905),
@@ -313,9 +318,9 @@ def test_a_stop_after_a_diverged_corrector_says_the_same_on_both_backends():
     q0 = np.array([0.9558297502240778, 0.35911663111437214, 1.6815512339550884, -1.096070832997186,
                    -2.4551767145700514, 3.084526350768149, -0.4031411704149526])
     index = mid_range(r.lower, r.upper)
-    reasons = assert_same_stop("kinematic_singularity", r, path, index, q0, steps_per_loop=200, loops=1,
-                               diagnostics=False)
+    reasons = assert_same_stop("fold", r, path, index, q0, steps_per_loop=200, loops=1, diagnostics=False)
     assert all("singularity at t = " in w and "smallest singular value" not in w for w in reasons), reasons
+    assert all("eigenvalue predicted to reach zero at t = 2.2451" in w for w in reasons), reasons
 
 
 def test_sub_steps_of_a_coarse_run_are_the_same():
