@@ -25,8 +25,11 @@ On the first M targets the script also compares the mid-range index z = 1/2 sum 
 ``solve_ik(robot, T, mid_range(...), q0=<pose solution>, bounds=True)``: how much lower z is there, and the
 median wall time and mean CPU time of that constrained solve (the Newton iteration of :mod:`kinredund.ik.newton`,
 the planner's kind of solve); and, on the first B targets (``--backend-subset``), that solve by the Python and the
-compiled iteration (:mod:`kinredund.ik.compiled`) in turn: median wall time per solve, time per iteration, ratio;
-and the core's own time per iteration (``IKCore.run`` alone, pose targets, unbounded).
+compiled iteration (:mod:`kinredund.ik.compiled`) in turn: median wall time per solve, time per iteration, ratio,
+and their agreement (solves converged on one backend only or at q more than 1e-9 apart, failed starts and those
+failing for different causes on the two); the same agreement on B bounded solves that use proxsuite's box QPs more
+(seeds 0.3 rad (sd) from a configuration reaching the target, three indices, two pulling joints onto their limits:
+tests/test_ik_compiled.py's); and the core's own time per iteration (``IKCore.run`` alone, pose targets, unbounded).
 
 Prints a table; with ``--json FILE`` writes the figures atomically. The default run (N = 10000 on
 both robots) takes about 20 s on an unloaded 2-core machine.
@@ -34,6 +37,7 @@ both robots) takes about 20 s on an unloaded 2-core machine.
 
 from __future__ import annotations
 
+import re
 import time
 
 import numpy as np
@@ -43,6 +47,7 @@ import kinredund
 from kinredund.ik import compiled
 from kinredund.ik.solve import MAX_STARTS, solve_ik
 from kinredund.indices import mid_range
+from kinredund.problems import near_seed_ik_problems
 
 ROBOTS = ("panda", "xarm7")
 TOL = 1e-5
@@ -50,6 +55,8 @@ BUDGET_S = 0.005
 SEED = 2015
 STARTS_K = (1, 2, 4, 8, 16, 64)
 EVALS_E = (50, 100, 150, 200, 300)
+#: the q difference [rad or m] beyond which two backends' solves disagree
+Q_AGREE = 1e-9
 
 
 def run_protocol(robot, targets: list[np.ndarray], *, bounds: bool) -> dict:
@@ -134,16 +141,42 @@ def z_comparison(robot, targets: list[np.ndarray]) -> dict:
     }
 
 
+def agreement(pairs: list) -> dict:
+    """Of (Python, compiled) results of the same solves: how many converged on one backend only or at q more than
+    Q_AGREE apart, how many failed on both and of those how many for different causes (reasons that differ in more
+    than their numbers), and the largest |q| difference of the solves converged on both [rad or m]."""
+    def cause(reason: str) -> str:
+        return re.sub(r"-?\d[\d.]*(e[-+]?\d+)?", "#", reason)
+
+    both = [(a, b) for a, b in pairs if a.converged and b.converged]
+    failed = [(a, b) for a, b in pairs if not (a.converged or b.converged)]
+    dq = [float(np.abs(a.q - b.q).max()) for a, b in both]
+    return {"n": len(pairs), "converged_disagreements": sum(a.converged != b.converged for a, b in pairs)
+            + sum(d > Q_AGREE for d in dq), "failed_both": len(failed),
+            "failed_different_cause": sum(cause(a.reason) != cause(b.reason) for a, b in failed),
+            "max_dq_converged": max(dq, default=0.0)}
+
+
+def near_seeds(robot, n: int) -> dict:
+    """:func:`agreement` of the Python and compiled iterations on n bounded solves (tol 1e-8) of
+    :func:`kinredund.problems.near_seed_ik_problems` (seeds 0.3 rad (sd) from a configuration reaching the target,
+    indices in turn mid-range, a random reference and weights, a reference 1 rad beyond the upper limits: the last
+    two hold joints on limits, box QPs, some for proxsuite)."""
+    return agreement([tuple(solve_ik(robot, T, index, q0=q0, bounds=True, tol=1e-8, backend=b)
+                            for b in ("python", "compiled")) for T, q0, index in near_seed_ik_problems(robot, n, SEED)])
+
+
 def backends(robot, targets: list[np.ndarray]) -> dict:
     """The constrained minimum of :func:`z_comparison` by the Python and the compiled iteration in turn
     (:mod:`kinredund.ik.compiled`; one solve each per target, alternating, so both see the same load): median
-    wall time per solve [ms], time per iteration [us] (total time over total iterations), their ratio, and
-    whether both gave the same q (to 1e-9) and iteration counts."""
+    wall time per solve [ms], time per iteration [us] (total time over total iterations), their ratio,
+    whether both gave the same q (to 1e-9) and iteration counts, and their :func:`agreement`."""
     index = mid_range(robot.lower, robot.upper)
     mid = 0.5 * (robot.lower + robot.upper)
     ms = {"python": [], "compiled": []}
     its = {"python": 0, "compiled": 0}
     same = True
+    pairs = []
     for T in targets:
         pose = solve_ik(robot, T, q0=mid, tol=TOL, bounds=True, starts=64)
         if not pose.converged:
@@ -155,12 +188,14 @@ def backends(robot, targets: list[np.ndarray]) -> dict:
             ms[backend].append((time.perf_counter() - t0) * 1e3)
             its[backend] += out[backend].iterations
         a, b = out["python"], out["compiled"]
-        same &= a.iterations == b.iterations and bool(np.allclose(a.q, b.q, rtol=0.0, atol=1e-9))
+        same &= a.iterations == b.iterations and bool(np.allclose(a.q, b.q, rtol=0.0, atol=Q_AGREE))
+        pairs.append((a, b))
     med = {k: float(np.median(v)) for k, v in ms.items()}
     per_it = {k: 1e3 * float(np.sum(ms[k])) / max(1, its[k]) for k in ms}
     return {"n": len(ms["python"]), "python_median_ms": med["python"], "compiled_median_ms": med["compiled"],
             "median_ratio": med["compiled"] / med["python"], "python_us_per_iteration": per_it["python"],
-            "compiled_us_per_iteration": per_it["compiled"], "same_results": bool(same)}
+            "compiled_us_per_iteration": per_it["compiled"], "same_results": bool(same),
+            "agreement": agreement(pairs)}
 
 
 def core_iteration_us(robot, n: int) -> float:
@@ -206,7 +241,7 @@ def main() -> None:
         free = run_protocol(robot, targets, bounds=False)
         need = starts_needed(robot, targets[: args.starts_subset])
         zc = z_comparison(robot, targets[: args.z_subset])
-        bk = {**backends(robot, targets[: args.backend_subset]),
+        bk = {**backends(robot, targets[: args.backend_subset]), "near_seeds": near_seeds(robot, args.backend_subset),
               "core_us_per_iteration": core_iteration_us(robot, args.backend_subset)}
         figures[name] = {**bounded, "unbounded": free, "starts_needed": need, "z_mid_range": zc, "backends": bk}
         for label, f in (("yes", bounded), ("no", free)):
@@ -228,6 +263,11 @@ def main() -> None:
                      f"({bk['median_ratio']:.2f}x), {bk['python_us_per_iteration']:.0f} -> "
                      f"{bk['compiled_us_per_iteration']:.0f} us per iteration (whole solves); the core alone "
                      f"{bk['core_us_per_iteration']:.1f} us per iteration; same results: {bk['same_results']}")
+        for what, ag in (("the constrained minimum", bk["agreement"]), ("near seeds, bounds", bk["near_seeds"])):
+            extra.append(f"{name}: backends' agreement, {what} ({ag['n']} solves): {ag['converged_disagreements']} "
+                         f"converged on one only or > {Q_AGREE:g} apart (largest difference of the others "
+                         f"{ag['max_dq_converged']:.2g}); failed on both {ag['failed_both']}, for different causes "
+                         f"{ag['failed_different_cause']}")
     print_table(rows, ["robot", "limits", "success %", "median ms", "mean ms", "p95 ms", "starts"])
     for line in extra:
         print(line)

@@ -372,6 +372,15 @@ def test_box_step_guess_is_the_proxsuite_solution(monkeypatch):
     assert guessed >= 20
 
 
+def _equality_problem(r, rng):
+    """A random feasible equality-form box QP (B, c, G, e, lb, ub) of a step from a q with a joint at a limit."""
+    q, lb, ub = _at_a_limit(r, rng)
+    G = r.velocity_jacobian(q)[:3]  # three constraint rows: four dimensions to meet the box in
+    e = -G @ rng.uniform(lb, ub)  # feasible: some d in the box meets G d = -e
+    A = rng.normal(size=(r.nq, r.nq))
+    return A @ A.T + 0.1 * np.eye(r.nq), 5.0 * rng.normal(size=r.nq), G, e, lb, ub
+
+
 def test_box_step_equality_guess_is_the_proxsuite_solution(monkeypatch):
     """The active-set guesses of the bounded Newton step (min 1/2 d^T B d + c^T d, G d = -e, within the box) are
     taken only when they are the QP's solution: compare with proxsuite on random feasible problems (about half of
@@ -382,11 +391,7 @@ def test_box_step_equality_guess_is_the_proxsuite_solution(monkeypatch):
     r = robot("panda")
     guessed = 0
     for _ in range(100):
-        q, lb, ub = _at_a_limit(r, rng)
-        G = r.velocity_jacobian(q)[:3]  # three constraint rows: four dimensions to meet the box in
-        e = -G @ rng.uniform(lb, ub)  # feasible: some d in the box meets G d = -e
-        A = rng.normal(size=(7, 7))
-        B, c = A @ A.T + 0.1 * np.eye(7), 5.0 * rng.normal(size=7)
+        B, c, G, e, lb, ub = _equality_problem(r, rng)
         guess = ik_qp._equality_guess(B, c, G, e, lb, ub)
         monkeypatch.setattr(ik_qp, "GUESS_ROUNDS", 0)
         exact = ik_qp.BoxStep(7, 3).equality(B, c, G, e, lb, ub)
@@ -397,6 +402,46 @@ def test_box_step_equality_guess_is_the_proxsuite_solution(monkeypatch):
             assert np.abs(G @ guess + e).max() <= 1e-12 * (1.0 + np.abs(e).max())  # an exact solve, rounding only
             assert exact is not None and np.abs(guess - exact).max() < 1e-7  # proxsuite: eps_abs 1e-11
     assert guessed >= 50
+
+
+def test_proxsuite_answer_is_polished_to_the_exact_solution_of_its_active_set():
+    """Where the guesses fail and proxsuite solves the bounded Newton step's QP, the step returned is proxsuite's
+    answer polished: the exact solution of the equality-constrained QP on proxsuite's active set (its joints within
+    1e-6 of a bound; the KKT system solved here with numpy), which meets the QP's KKT conditions, while proxsuite's
+    own answer is off by up to ~1e-9 (its eps_abs 1e-11 is on the residuals)."""
+    from kinredund.ik import qp as ik_qp
+
+    rng = np.random.default_rng(5)
+    r = robot("panda")
+    n, m = r.nq, 3
+    cases, raw_off = 0, 0.0
+    for _ in range(200):
+        B, c, G, e, lb, ub = _equality_problem(r, rng)
+        if ik_qp._equality_guess(B, c, G, e, lb, ub) is not None:
+            continue  # proxsuite is used only where the guesses fail
+        box = ik_qp.BoxStep(n, m)
+        d = box.equality(B, c, G, e, lb, ub)
+        x = box._eq[0].results.x
+        if d is None:  # infeasible for proxsuite (rare: e is drawn feasible)
+            continue
+        cases += 1
+        at_lb, at_ub = x - lb <= 1e-6, ub - x <= 1e-6
+        free = ~(at_lb | at_ub)
+        dh = np.where(at_lb, lb, np.where(at_ub, ub, 0.0))
+        K = np.block([[B[np.ix_(free, free)], G[:, free].T], [G[:, free], np.zeros((m, m))]])
+        sol = np.linalg.solve(K, np.concatenate([-(c + B @ dh)[free], -e - G @ dh]))
+        exact = dh.copy()
+        exact[free] = sol[: free.sum()]
+        # two LU solves of one KKT system (cond(K) < 1e4 here): rounding only (1e-15 seen)
+        assert np.abs(d - exact).max() <= 1e-13 * max(1.0, np.abs(exact).max())
+        # KKT: within the box, G d = -e, and the Lagrangian's gradient pushes every held joint outwards
+        assert np.all(d >= lb) and np.all(d <= ub)
+        assert np.abs(G @ d + e).max() <= rounding(np.abs(G).max() * np.abs(d).max() + np.abs(e).max())
+        grad = B @ exact + c + G.T @ sol[free.sum():]
+        bar = rounding(np.abs(B).max() * np.abs(exact).max() + np.abs(c).max())
+        assert np.all(grad[at_lb] >= -bar) and np.all(grad[at_ub] <= bar) and np.abs(grad[free]).max() <= bar
+        raw_off = max(raw_off, float(np.abs(x - exact).max()))
+    assert cases >= 20 and raw_off > 1e-11  # proxsuite was used, and its own answer was not the exact one
 
 
 def test_unbounded_result_turns_free_wrist_joints_into_their_limits():
