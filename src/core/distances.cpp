@@ -9,7 +9,8 @@
 // - the distance rows G[k] = n^T (J_b(p_b) - J_a(p_a)) from the world-frame joint Jacobians data.J, each body's
 //   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega.
 // The model, data, geometry model and geometry data are the Python Workspace's own objects (Boost.Python),
-// referenced, not copied: after a query they hold what the Python path would leave in them.
+// referenced, not copied: after a query they hold what the Python path would leave in them (a RowGuard's checks,
+// on a workspace of their own, may leave the objects' poses behind the joints': DistanceQuery::place).
 #include "distances.hpp"
 
 #include <boost/python.hpp>
@@ -21,6 +22,7 @@
 
 #include <pinocchio/algorithm/geometry.hpp>
 #include <pinocchio/algorithm/jacobian.hpp>
+#include <pinocchio/algorithm/kinematics.hpp>
 #include <pinocchio/collision/distance.hpp>
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
@@ -179,11 +181,13 @@ class DistanceQuery {
     return ks.size();
   }
 
-  // For RowGuard, query's steps one pair at a time: `place` the objects at q (the placements and the bounding
-  // spheres), then per pair whether it is `near` (query's broadphase at `limit` [m]) and its signed `distance` [m]
+  // For RowGuard, query's steps one pair at a time: `place` the objects at q (the joints and the bounding spheres;
+  // the objects' own poses, which only coal reads, before the first `distance`), then per pair whether it is `near`
+  // (query's broadphase at `limit` [m]) and its signed `distance` [m]
   void place(const Eigen::Ref<const VectorXd>& q) {
-    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    pinocchio::forwardKinematics(model_, data_, q);
     place_spheres();
+    posed_ = false;
   }
   bool near(std::size_t k, double limit) const {
     if (surely_apart(k, limit)) return false;
@@ -196,7 +200,11 @@ class DistanceQuery {
       }
     return false;
   }
-  double distance(std::size_t k) { return pinocchio::computeDistance(gm_, gd_, k).min_distance; }
+  double distance(std::size_t k) {
+    if (!posed_) pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_);  // (updateGeometryPlacements at q's)
+    posed_ = true;
+    return pinocchio::computeDistance(gm_, gd_, k).min_distance;
+  }
   // a lower bound [m] on the least gap between pair k's bounding spheres: the gap of the spheres around its objects
   // where that exceeds `limit` by kGapReach, else the least gap itself (both less the rounding slack)
   double gap(std::size_t k, double limit) const {
@@ -359,6 +367,7 @@ class DistanceQuery {
   std::vector<std::int64_t> first_, second_;
   std::vector<std::vector<int>> columns_;
   std::vector<std::int64_t> ks_;  // the pairs of the current query
+  bool posed_ = true;             // after place: are the objects' poses (gdata.oMg) those at its q?
   std::vector<double> lb_;        // closest: each pair's sphere bound
   std::vector<std::size_t> order_;
 };
@@ -368,11 +377,19 @@ class DistanceQuery {
 // The compiled driver's check of a step taken with no general row active (kinredund/tracking/compiled.py, issue
 // 27): can a row of a SceneClearance (c_k = d_k - clearance_k, the pairs beyond the influence at their lower bound
 // influence - clearance_k) be below -tol at the step's end (GeneralRows._row_events) or dip below it inside the step
-// (the first test of SwitchLocation._row_dips)? The rows' values are lower bounds, as SceneClearance._query's, kept
-// row by row: c_k(q) >= c_k(q_k) - B_k |q - q_k| from row k's last exact value at q_k (B the scene's motion bound,
-// valid where no prismatic joint is beyond its extent) while that stays above `skip` [m]; a row lowered to `skip`
-// or below is computed afresh at q (its pair's broadphase test and, where near, its exact distance: the other rows'
-// kept values stand), and at the start of a step that does not start at the last one's end every row is exact.
+// (the first test of SwitchLocation._row_dips)? The rows' values are lower bounds of the values that test takes
+// from exact distances (SceneClearance.values of a fresh constraint), kept row by row (B the scene's motion bound,
+// valid where no prismatic joint is beyond its extent: every point of the pair's objects, and of their bounding
+// spheres, moves by at most B_k |dq| relative to the other):
+// - row k's exact value c_k(q_k) is kept with its point q_k; at q, c_k(q) >= c_k(q_k) - B_k |q - q_k|;
+// - a pair beyond the influence at q_k keeps a lower bound g_k on its sphere gap there: while g_k - B_k |q - q_k|
+//   exceeds the influence it is beyond it at q too, and its value is exactly influence - clearance_k; after that
+//   it is at least min(influence - clearance_k, g_k - clearance_k - B_k |q - q_k|) (the distance is at least the
+//   sphere gap);
+// - a lowered value at `skip` [m] or below is computed afresh at q (its pair's broadphase test and, where near, one
+//   exact distance; the objects placed at q once), and where the objects are placed the rows beyond the influence
+//   are computed afresh too (no distance), so that their bounds lapse together; at the start of a step that does not
+//   start at the last one's end every row is exact.
 // `clear` is true where every c(q1) >= -tol and every (c(q0) + c(q1) - B move) / 2 >= -tol, move = max(|q1 - q0|,
 // h max(|v0|, |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would
 // find nothing). False (look in Python) otherwise, and for a q outside the box of the bound or not finite. The
@@ -458,10 +475,9 @@ class RowGuard {
     return q.allFinite() && (q.cwiseAbs().array() <= extent_.array()).all();
   }
 
-  // the rows' values at q: row r's kept exact value at its point q_r where its pair is surely still beyond the
-  // influence (beyond_), else lowered to q (`lower`) while it stays above skip_, else (or without `lower`, where
-  // q_r is not q) exact at q and kept. (The kept points were boxed when kept, and q is: clear checks both ends
-  // first.)
+  // the rows' values at q (the class comment): row r's kept exact value where q is its point or its pair is surely
+  // still beyond the influence (beyond_), else lowered to q (`lower`) while it stays above skip_, else (or without
+  // `lower`) exact at q and kept. (The kept points were boxed when kept, and q is: clear checks both ends first.)
   void values_at(const Eigen::Map<const VectorXd>& q, VectorXd& c, bool lower) {
     const Eigen::Index size = c.size(), nv = q.size();
     // |q - q_p| and whether q is q_p, per kept point p (few: the rows share them)
@@ -487,8 +503,10 @@ class RowGuard {
           c[r] = kept_[r];
           continue;
         }
-        if (lower) {
+        if (lower) {  // (beyond the influence at q_r: the pair's distance at q is at least its sphere gap there)
           c[r] = kept_[r] - drop;
+          if (beyond_[i] > -std::numeric_limits<double>::infinity())
+            c[r] = std::min(kept_[r], beyond_[i] - clearances_[r] - drop);
           if (c[r] > skip_) continue;
         }
       }
