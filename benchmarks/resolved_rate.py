@@ -134,8 +134,9 @@ KEYS = {
     "limits_backend": "the backend the limits-only run takes by default",
     "scene_breakdown_us": "the scene step's exclusive times per step [us] over 200 steps (means less the slowest "
                           "tenth): core (the compiled distance query: broadphase and coal), guard (the compiled "
-                          "driver's row check of a step with no row active, RowGuard.clear: lowered values, exact "
-                          "queries where near, the step's bound), query (the Python around the query: "
+                          "driver's row check of a step with no row active, RowGuard.clear inside the core's step, "
+                          "by its own clock: kept and lowered values, the rows whose bounds lapse afresh, the "
+                          "step's bound), query (the Python around the query: "
                           "SceneClearance._query, Workspace.query), rows (the stepper's row events and dip test), "
                           "qp (the rate QP at a weakly active row), rest (the step as without a scene), total (their "
                           "sum, with ~1 us per timed call)",
@@ -380,8 +381,9 @@ def scene_breakdown(tracker, steps: int = 200) -> dict:
     """Where the scene step's time goes: the exclusive times per step [us] (a part leaves out the parts it
     calls), means over ``steps`` steps of ``tracker`` less the slowest tenth (steps the machine's load
     interrupted): ``core``, the compiled distance query itself (broadphase and coal, ``DistanceQuery.query``);
-    ``guard``, the compiled driver's check of a step with no row active (``RowGuard.clear``: the rows' lowered
-    values, exact queries where near, the step's bound; where it rules a switch out, no ``rows`` or ``query``);
+    ``guard``, the compiled driver's check of a step with no row active (``RowGuard.clear``, which the core's step
+    runs: its own clock, ``RowGuard.seconds``, taken out of ``rest``; the rows' kept and lowered values, the rows
+    whose bounds lapse afresh, the step's bound; where it rules a switch out, no ``rows`` or ``query``);
     ``query``, the Python around it (``SceneClearance._query`` and ``Workspace.query``: the kept last query, the
     values' lower bounds, the arrays); ``rows``, the stepper's handling of the rows (events, the dip test and
     its samples); ``qp``, the rate QP at a weakly active row; ``rest``, the step as without a scene (task,

@@ -35,7 +35,9 @@ state put back) and handed to the Python stepper (reason ``rows``), which locate
 rows' constraint has a compiled check (:meth:`~kinredund.tracking.constraints.base.Constraint.row_guard`: a
 scene's, ``src/core/distances.cpp``), that check runs first, before the step is applied: where it rules out a
 switch (every row above -ROW_TOL at the end and none able to dip below it inside, by the constraint's lower
-bounds) the step is taken without the search, else the search decides as above.
+bounds) the step is taken without the search, else the search decides as above. The core holds the check
+(``StepCore.set_guard``) and runs it in the same call as its step (``StepCore.step_guarded``: the row and the
+verdict), so the check costs no call from Python of its own.
 
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
 own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
