@@ -388,8 +388,8 @@ class DistanceQuery {
 //   sphere gap);
 // - a lowered value at `skip` [m] or below is computed afresh at q (its pair's broadphase test and, where near, one
 //   exact distance; the objects placed at q once), and where the objects are placed the rows beyond the influence
-//   are computed afresh too (no distance), so that their bounds lapse together; at the start of a step that does not
-//   start at the last one's end every row is exact.
+//   whose proof has used half its margin are computed afresh too (no distance), so that the proofs lapse together;
+//   at the start of a step that does not start at the last one's end every row is exact.
 // `clear` is true where every c(q1) >= -tol and every (c(q0) + c(q1) - B move) / 2 >= -tol, move = max(|q1 - q0|,
 // h max(|v0|, |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would
 // find nothing). False (look in Python) otherwise, and for a q outside the box of the bound or not finite. The
@@ -420,6 +420,7 @@ class RowGuard {
     point_of_row_.assign(static_cast<std::size_t>(size), 0);
     beyond_.assign(static_cast<std::size_t>(size), -std::numeric_limits<double>::infinity());
     computed_.assign(static_cast<std::size_t>(size), 0);
+    drop_.assign(static_cast<std::size_t>(size), 0.0);
     kept_.resize(size);
     c0_.resize(size);
     c1_.resize(size);
@@ -467,7 +468,8 @@ class RowGuard {
     c_end_ = c1_;
     have_end_ = true;
     if (reached) return false;
-    move_ = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) + 0.25 * h * (v1 - v0).cwiseAbs();
+    move_ = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) +
+            0.25 * h * (v1 - v0).cwiseAbs();
     return 0.5 * (c0_ + c1_ - bound_ * move_).minCoeff() >= -tol_;
   }
 
@@ -494,11 +496,13 @@ class RowGuard {
         const std::size_t p = point_of_row_[i];
         if (same_[p]) {
           c[r] = kept_[r];
+          drop_[i] = 0.0;
           continue;
         }
         const double *b = bound_.data() + r * nv, *g = gaps_[p].data();  // B_r |q - q_p|
         double drop = 0.0;
         for (Eigen::Index j = 0; j < nv; ++j) drop += b[j] * g[j];
+        drop_[i] = drop;
         if (beyond_[i] - drop > influence_ + kSphereSlack) {  // its spheres still beyond the influence: exact
           c[r] = kept_[r];
           continue;
@@ -519,9 +523,12 @@ class RowGuard {
       compute(r, near(r), here, c);
       ++computed_[i];
     }
-    if (placed && lower)  // placed anyway: the rows beyond the influence at q afresh too (no distance to compute),
-      for (Eigen::Index r = 0; r < size; ++r)  // so that their proofs lapse together, not one placement each
-        if (point_of_row_[static_cast<std::size_t>(r)] != here && !near(r)) compute(r, false, here, c);
+    if (placed && lower)  // placed anyway: the rows beyond the influence whose proof has used half its margin or
+      for (Eigen::Index r = 0; r < size; ++r) {  // more afresh too (no distance), so that their proofs lapse together
+        const std::size_t i = static_cast<std::size_t>(r);  // later, not each at a placement of its own
+        if (point_of_row_[i] != here && beyond_[i] - influence_ < 2.0 * drop_[i] && !near(r))
+          compute(r, false, here, c);
+      }
     have_ = true;
   }
 
@@ -543,7 +550,8 @@ class RowGuard {
       c[r] = query_.distance(static_cast<std::size_t>(k)) - clearances_[r];
       ++distances_;
     } else {
-      beyond_[i] = k < 0 ? std::numeric_limits<double>::infinity() : query_.gap(static_cast<std::size_t>(k), influence_);
+      beyond_[i] = k < 0 ? std::numeric_limits<double>::infinity()
+                         : query_.gap(static_cast<std::size_t>(k), influence_);
     }
     if (have_) --users_[point_of_row_[i]];
     point_of_row_[i] = here;
@@ -581,6 +589,7 @@ class RowGuard {
   // apart by at most B_r |dq| too, so while gap - B_r |q - q_r| exceeds the influence, the pair is beyond it at q and
   // the row's exact value is still -clearance + influence); -inf for a row within it, inf for a row with no pair
   std::vector<double> beyond_;
+  std::vector<double> drop_;  // at the current values_at: each row's B_r |q - q_r| (0 where q is q_r)
   std::vector<VectorXd> points_, gaps_;
   std::vector<long> users_;
   std::vector<char> same_;
@@ -623,7 +632,8 @@ void bind_distances(nb::module_& m) {
       .def_prop_ro("seconds", &RowGuard::seconds, "time spent in its checks [s] (the core's calls included)")
       .def_prop_ro("distances", &RowGuard::distances, "exact distances its checks computed")
       .def_prop_ro("placements", &RowGuard::placements, "placements of the objects its checks made")
-      .def_prop_ro("computed", &RowGuard::computed, "per row, the times its checks needed its value afresh (placing the objects)");
+      .def_prop_ro("computed", &RowGuard::computed,
+                   "per row, the times its checks needed its value afresh (placing the objects)");
 }
 
 }  // namespace kinredund
