@@ -389,7 +389,9 @@ class DistanceQuery {
 // - a lowered value at `skip` [m] or below is computed afresh at q (its pair's broadphase test and, where near, one
 //   exact distance; the objects placed at q once), and where the objects are placed the rows beyond the influence
 //   whose proof has used half its margin are computed afresh too (no distance), so that the proofs lapse together;
-//   at the start of a step that does not start at the last one's end every row is exact.
+//   at the start of a step that does not start at the last one's end every row is exact;
+// - a proof and the dip test below take the cheap bound max_j B_kj sum |dq| (above B_k |dq|) first, the product
+//   itself where that does not decide.
 // `clear` is true where every c(q1) >= -tol and every (c(q0) + c(q1) - B move) / 2 >= -tol, move = max(|q1 - q0|,
 // h max(|v0|, |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would
 // find nothing). False (look in Python) otherwise, and for a q outside the box of the bound or not finite. The
@@ -418,6 +420,7 @@ class RowGuard {
     for (Eigen::Index k = 0; k < row_of_pair.size(); ++k)
       if (row_of_pair[k] >= 0) pair_of_row_[static_cast<std::size_t>(row_of_pair[k])] = k;
     point_of_row_.assign(static_cast<std::size_t>(size), 0);
+    top_ = bound_.rowwise().maxCoeff();
     beyond_.assign(static_cast<std::size_t>(size), -std::numeric_limits<double>::infinity());
     computed_.assign(static_cast<std::size_t>(size), 0);
     drop_.assign(static_cast<std::size_t>(size), 0.0);
@@ -470,6 +473,7 @@ class RowGuard {
     if (reached) return false;
     move_ = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) +
             0.25 * h * (v1 - v0).cwiseAbs();
+    if (0.5 * (c0_ + c1_ - top_ * move_.sum()).minCoeff() >= -tol_) return true;  // B_r move <= max(B_r) sum(move)
     return 0.5 * (c0_ + c1_ - bound_ * move_).minCoeff() >= -tol_;
   }
 
@@ -486,6 +490,7 @@ class RowGuard {
     for (std::size_t p = 0; p < points_.size(); ++p)
       if (users_[p]) {
         gaps_[p] = (q - points_[p]).cwiseAbs();
+        sums_[p] = gaps_[p].sum();
         same_[p] = q == points_[p];
       }
     bool placed = false;
@@ -497,6 +502,12 @@ class RowGuard {
         if (same_[p]) {
           c[r] = kept_[r];
           drop_[i] = 0.0;
+          continue;
+        }
+        const double over = top_[r] * sums_[p];  // >= B_r |q - q_p|: a row surely beyond needs no more
+        if (beyond_[i] - over > influence_ + kSphereSlack) {
+          c[r] = kept_[r];
+          drop_[i] = over;
           continue;
         }
         const double *b = bound_.data() + r * nv, *g = gaps_[p].data();  // B_r |q - q_p|
@@ -566,10 +577,13 @@ class RowGuard {
     if (p == points_.size()) {
       points_.emplace_back();
       gaps_.emplace_back();
+      sums_.push_back(0.0);
       users_.push_back(0);
       same_.push_back(0);
     }
     points_[p] = q;
+    gaps_[p].setZero(q.size());
+    sums_[p] = 0.0;
     same_[p] = 1;
     return p;
   }
@@ -591,6 +605,8 @@ class RowGuard {
   std::vector<double> beyond_;
   std::vector<double> drop_;  // at the current values_at: each row's B_r |q - q_r| (0 where q is q_r)
   std::vector<VectorXd> points_, gaps_;
+  std::vector<double> sums_;  // at the current values_at: sum |q - point| per point
+  VectorXd top_;  // each row's largest bound entry max_j B_rj: B_r |dq| <= top_r sum |dq|, the cheap first test
   std::vector<long> users_;
   std::vector<char> same_;
   double seconds_ = 0.0;  // time spent in clear_at [s]
