@@ -48,6 +48,15 @@ def exact_test(sc, q0, q1, v0, v1, h) -> tuple[bool, float]:
     return margin >= 0.0, margin
 
 
+def run_steps(tr, count: int):
+    """The steps (q0, q1, v0, v1, h) of ``count`` steps of ``tr`` (the first left out: no rate at its start)."""
+    for _ in range(count):
+        q0, v0, t0 = tr.stepper.q, tr.stepper.qdot, tr.t
+        tr.step()
+        if v0 is not None:
+            yield q0, tr.stepper.q, v0, tr.stepper.qdot, tr.t - t0
+
+
 def random_step(r, rng):
     q0 = r.lower + (r.upper - r.lower) * rng.uniform(0.1, 0.9, r.nq)
     scale = 10.0 ** rng.uniform(-4, -0.5)
@@ -98,12 +107,7 @@ def test_the_guard_along_a_run_never_calls_clear_what_the_exact_test_does_not():
     tr = Tracker(r, path, index, q0, path.period / 200, scene=sc, backend="python")
     guard = tr.stepper.general[0].row_guard(ROW_TOL)
     cleared = 0
-    for _ in range(60):
-        q0, v0, t0 = tr.stepper.q, tr.stepper.qdot, tr.t
-        tr.step()
-        if v0 is None:
-            continue
-        step = (q0, tr.stepper.q, v0, tr.stepper.qdot, tr.t - t0)
+    for step in run_steps(tr, 60):
         if guard.clear(*step):
             cleared += 1
             assert exact_test(sc, *step)[0]
@@ -175,3 +179,82 @@ def test_a_scene_changed_during_a_run_is_refused_as_on_the_python_stepper(backen
     far.add_sphere("ball", 0.05, [0.0, 0.5, 1.6])
     with pytest.raises(OptionError, match="make a new one"):
         tr.step()
+
+
+def _core_args(tr):
+    """The arguments of the core's next step from ``tr``'s state, as the compiled driver passes them."""
+    s, ctl = tr.stepper, tr.stepper.control
+    t_to = s.t0 + (s.k + 1) * s.dt
+    sample = s.ev.sample(t_to)
+    empty = np.zeros(0)
+    return t_to, (t_to, sample.p, sample.v, sample.Q, sample.omega, empty, empty, s.y, s.yd, s.prev, s.qdot,
+                  ctl.speed2, True)
+
+
+def test_the_core_step_with_its_guard_is_the_step_then_the_guard():
+    """StepCore.step_guarded: the row of StepCore.step, bit for bit, and the verdict of RowGuard.clear on that step
+    (from y[:n] with the rates qdot to the row's q and qdot), bit for bit: one piece of code called two ways. A fast
+    start (a possible dip) and h < 0 (no check) are not cleared."""
+    r, sc = panda_scene()
+    _, path, index, q0 = panda_circle(r)
+    tr = Tracker(r, path, index, q0, path.period / 200, scene=sc, backend="compiled")
+    core, n = tr.compiled.core, r.nq
+    N = len(tr.stepper.task_lam) + n
+    verdicts = []
+    for k in range(40):
+        tr.step()
+        if k % 4:
+            continue
+        s = tr.stepper
+        t_to, args = _core_args(tr)
+        h = t_to - s.t
+        for qdot in (s.qdot, 30 * s.qdot):  # the second: the rows' bounds along the step lower
+            args = (*args[:10], qdot, *args[11:])
+            plain = core.step(*args)
+            core.set_guard(SceneClearance(sc).row_guard(ROW_TOL).compiled)  # fresh guards: the same kept values
+            if type(plain) is int:  # handed back (a jump): no row, no check
+                assert core.step_guarded(h, *args) == plain
+                continue
+            out, cleared = core.step_guarded(h, *args)
+            assert np.array_equal(out, plain)
+            want = SceneClearance(sc).row_guard(ROW_TOL).compiled.clear(s.y[:n], out[:n], qdot, out[N:N + n], h)
+            assert cleared == want
+            verdicts.append(cleared)
+            assert core.step_guarded(-1.0, *args)[1] is False
+    assert any(verdicts) and not all(verdicts)
+    core.set_guard(None)  # none: nothing is cleared
+    t_to, args = _core_args(tr)
+    assert core.step_guarded(t_to - tr.stepper.t, *args)[1] is False
+    with pytest.raises(TypeError, match="RowGuard"):
+        core.set_guard(np.zeros(3))
+
+
+def test_the_kept_rows_stand_in_for_queries_until_their_bounds_lapse():
+    """After one check, a step of 1e-6 rad places nothing (every row kept: exact beyond the influence, or lowered far
+    above skip) and gives the exact test's verdict; a long step places the objects again. Over a run near the ball
+    the kept rows never clear a step the exact test does not, and they place the objects on few steps."""
+    r, sc = panda_scene()
+    c = SceneClearance(sc)
+    q = r.home.copy()
+    v = np.zeros(r.nq)
+    guard = c.row_guard(ROW_TOL).compiled
+    assert guard.clear(q, q, v, v, 0.01) == exact_test(sc, q, q, v, v, 0.01)[0]
+    placed = guard.placements
+    assert placed == 1  # the start: every row exact at q
+    q1 = q + 1e-6
+    assert guard.clear(q, q1, v, v, 0.01) == exact_test(sc, q, q1, v, v, 0.01)[0]
+    assert guard.placements == placed
+    q2 = q1 + 0.5
+    assert guard.clear(q1, q2, v, v, 0.01) == exact_test(sc, q1, q2, v, v, 0.01)[0]
+    assert guard.placements == placed + 1
+    _, path, index, q0 = panda_circle(r)
+    tr = Tracker(r, path, index, q0, path.period / 200, scene=sc, backend="python")
+    guard = tr.stepper.general[0].row_guard(ROW_TOL).compiled
+    steps = cleared = 0
+    for step in run_steps(tr, 200):
+        steps += 1
+        if guard.clear(*step):
+            cleared += 1
+            assert exact_test(sc, *step)[0]
+    assert cleared > steps // 2
+    assert guard.placements < steps // 2  # most steps: the kept rows alone

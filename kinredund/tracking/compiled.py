@@ -35,7 +35,9 @@ state put back) and handed to the Python stepper (reason ``rows``), which locate
 rows' constraint has a compiled check (:meth:`~kinredund.tracking.constraints.base.Constraint.row_guard`: a
 scene's, ``src/core/distances.cpp``), that check runs first, before the step is applied: where it rules out a
 switch (every row above -ROW_TOL at the end and none able to dip below it inside, by the constraint's lower
-bounds) the step is taken without the search, else the search decides as above.
+bounds) the step is taken without the search, else the search decides as above. The core holds the check
+(``StepCore.set_guard``) and runs it in the same call as its step (``StepCore.step_guarded``: the row and the
+verdict), so the check costs no call from Python of its own.
 
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
 own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
@@ -234,6 +236,8 @@ class CompiledStep:
         self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
         general = getattr(stepper, "general", [])  # one constraint's compiled check of a step, where it has one
         self._guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
+        if self._guard is not None:  # the core runs the check right after its step (StepCore.step_guarded)
+            self.core.set_guard(self._guard.compiled)
         self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
@@ -284,28 +288,41 @@ class CompiledStep:
             ref, rate = np.asarray(index.reference(t_to), float), np.asarray(index.rate(t_to), float)
         else:
             ref = rate = self._empty
-        out = self.core.step(t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot,
-                             0.0 if ctl is None else ctl.speed2, ctl is not None)
+        args = (t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot, 0.0 if ctl is None else ctl.speed2,
+                ctl is not None)
+        cleared = None
+        if self._guard is None:
+            out = self.core.step(*args)
+        else:  # the step and the scene's check of it in one call (h < 0: no check, not cleared)
+            guard = self._guard
+            h = t_to - s.t if s.qdot is not None and guard.valid() else -1.0
+            out = self.core.step_guarded(h, *args)
+            if type(out) is not int:
+                out, cleared = out
         if type(out) is int:
             return self.hand_back(out)
-        return self.accept(out, sample, t_to, (at, row))
+        return self.accept(out, sample, t_to, (at, row), cleared)
 
-    def accept(self, out: np.ndarray, sample, t_to: float, ahead: tuple | None = None) -> None:
+    def accept(self, out: np.ndarray, sample, t_to: float, ahead: tuple | None = None,
+               cleared: bool | None = None) -> None:
         """The core's ordinary step to ``t_to`` (its output row ``out``, R's factors still in the core) as the
         stepper's new state, then the checks that may still hand it back to the Python stepper (from the state
         before it): with general rows, the stepper's own search for a switch within the step
-        (``pending_switches``: a row reached, a row dipping below zero inside the step); the watch's
-        measurement where due. Either rejection gives the Python stepper's step, which runs both itself.
+        (``pending_switches``: a row reached, a row dipping below zero inside the step) unless the compiled check
+        ruled one out (``cleared``: its verdict where the core ran it with the step, None to run it here); the
+        watch's measurement where due. Either rejection gives the Python stepper's step, which runs both itself.
         ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it."""
         s = self.stepper
         ctl = s.control
         rcond = float(out[-2])
-        if ctl is not None and not self.rows and ctl.watch.passes(rcond):  # the common step: nothing to check
+        if ctl is not None and (not self.rows or cleared) and ctl.watch.passes(rcond):  # nothing to check
             self.apply(out, sample, t_to, rcond, ahead)
             ctl.speed2 = float(out[-1])
             return None
         measured = ctl is not None and ctl.watch.due_next(rcond)
-        look = self.rows and not self._clear(out, t_to)  # the stepper's search for a row switch is needed
+        if cleared is None and self.rows:
+            cleared = self._clear(out, t_to)
+        look = self.rows and not cleared  # the stepper's search for a row switch is needed
         saved = None
         if measured or look:  # what a rejected step goes back to (the state, the control's speed)
             saved = ctl.snapshot() if ctl is not None else (s.state,)

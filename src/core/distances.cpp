@@ -9,7 +9,8 @@
 // - the distance rows G[k] = n^T (J_b(p_b) - J_a(p_a)) from the world-frame joint Jacobians data.J, each body's
 //   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega.
 // The model, data, geometry model and geometry data are the Python Workspace's own objects (Boost.Python),
-// referenced, not copied: after a query they hold what the Python path would leave in them.
+// referenced, not copied: after a query they hold what the Python path would leave in them (a RowGuard's checks,
+// on a workspace of their own, may leave the objects' poses behind the joints': DistanceQuery::place).
 #include "distances.hpp"
 
 #include <boost/python.hpp>
@@ -17,14 +18,17 @@
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
 
 #include <pinocchio/algorithm/geometry.hpp>
 #include <pinocchio/algorithm/jacobian.hpp>
+#include <pinocchio/algorithm/kinematics.hpp>
 #include <pinocchio/collision/distance.hpp>
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -55,6 +59,8 @@ constexpr double kNearContact = 1e-6;
 constexpr double kBoundSlack = 1e-9;
 // the rounding allowance [m] of the coarse broadphase test (one sphere around each object's bounding spheres)
 constexpr double kSphereSlack = 1e-9;
+// DistanceQuery::gap: the outer spheres' gap beyond the limit [m] above which the bounding spheres' own is not sought
+constexpr double kGapReach = 0.05;
 // the columns of a query's output row before G's: d, unit normal (3), p_first (3), p_second (3)
 constexpr Eigen::Index kColumns = 10;
 
@@ -175,15 +181,35 @@ class DistanceQuery {
     return ks.size();
   }
 
-  // The pairs within `limit` [m] at q into `ks` and their signed distances [m] into `d`: query's pairs and
-  // distances alone (no normals, points or rows), for RowGuard
-  void near_distances(const Eigen::Ref<const VectorXd>& q, double limit, std::vector<std::int64_t>& ks,
-                      std::vector<double>& d) {
-    ks.clear();
-    d.clear();
-    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
-    near_pairs(limit, ks);
-    for (std::int64_t k : ks) d.push_back(pinocchio::computeDistance(gm_, gd_, static_cast<std::size_t>(k)).min_distance);
+  // For RowGuard, query's steps one pair at a time: `place` the objects at q (the joints and the bounding spheres;
+  // the objects' own poses, which only coal reads, before the first `distance`), then per pair whether it is `near`
+  // (query's broadphase at `limit` [m]) and its signed `distance` [m]
+  void place(const Eigen::Ref<const VectorXd>& q) {
+    pinocchio::forwardKinematics(model_, data_, q);
+    place_spheres();
+    posed_ = false;
+  }
+  bool near(std::size_t k, double limit) const {
+    if (surely_apart(k, limit)) return false;
+    const Eigen::Index m = slabs_, a = first_[k] * m, b = second_[k] * m;
+    for (Eigen::Index i = 0; i < m; ++i)
+      for (Eigen::Index j = 0; j < m; ++j) {
+        const Vector3 diff = (world_.row(a + i) - world_.row(b + j)).transpose();
+        const double reach = radii_[a + i] + radii_[b + j] + limit;
+        if (diff.squaredNorm() <= reach * reach) return true;
+      }
+    return false;
+  }
+  double distance(std::size_t k) {
+    if (!posed_) pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_);  // (updateGeometryPlacements at q's)
+    posed_ = true;
+    return pinocchio::computeDistance(gm_, gd_, k).min_distance;
+  }
+  // a lower bound [m] on the least gap between pair k's bounding spheres: the gap of the spheres around its objects
+  // where that exceeds `limit` by kGapReach, else the least gap itself (both less the rounding slack)
+  double gap(std::size_t k, double limit) const {
+    const double outer = outer_bound(k);
+    return outer > limit + kGapReach ? outer : std::max(outer, lower_bound(k));
   }
 
   Eigen::Index nv() const { return model_.nv; }
@@ -270,19 +296,8 @@ class DistanceQuery {
   // the pairs with a sphere pair whose gap is within `limit` [m] (engine.Workspace.near_pairs)
   void near_pairs(double limit, std::vector<std::int64_t>& ks) {
     place_spheres();
-    const Eigen::Index m = slabs_;
-    for (std::size_t k = 0; k < first_.size(); ++k) {
-      if (surely_apart(k, limit)) continue;
-      const Eigen::Index a = first_[k] * m, b = second_[k] * m;
-      bool close = false;
-      for (Eigen::Index i = 0; i < m && !close; ++i)
-        for (Eigen::Index j = 0; j < m && !close; ++j) {
-          const Vector3 diff = (world_.row(a + i) - world_.row(b + j)).transpose();
-          const double reach = radii_[a + i] + radii_[b + j] + limit;
-          close = diff.squaredNorm() <= reach * reach;
-        }
-      if (close) ks.push_back(static_cast<std::int64_t>(k));
-    }
+    for (std::size_t k = 0; k < first_.size(); ++k)
+      if (near(k, limit)) ks.push_back(static_cast<std::int64_t>(k));
   }
 
   // the least gap between pair k's bounding spheres less the slack (engine.Workspace.lower_bounds)
@@ -352,27 +367,42 @@ class DistanceQuery {
   std::vector<std::int64_t> first_, second_;
   std::vector<std::vector<int>> columns_;
   std::vector<std::int64_t> ks_;  // the pairs of the current query
+  bool posed_ = true;             // after place: are the objects' poses (gdata.oMg) those at its q?
   std::vector<double> lb_;        // closest: each pair's sphere bound
   std::vector<std::size_t> order_;
 };
 
+}  // namespace
+
 // The compiled driver's check of a step taken with no general row active (kinredund/tracking/compiled.py, issue
 // 27): can a row of a SceneClearance (c_k = d_k - clearance_k, the pairs beyond the influence at their lower bound
 // influence - clearance_k) be below -tol at the step's end (GeneralRows._row_events) or dip below it inside the step
-// (the first test of SwitchLocation._row_dips)? The rows' values are lower bounds, as SceneClearance._query's:
-// c(q) >= c(q_e) - B |q - q_e| from the last exact values at q_e (B the scene's motion bound, valid where no
-// prismatic joint is beyond its extent) while that stays above `skip` [m], else exact from the query (at the start
-// of a step that does not start at the last one's end, always exact). `clear` is
-// true where every c(q1) >= -tol and every (c(q0) + c(q1) - B move) / 2 >= -tol, move = max(|q1 - q0|, h max(|v0|,
-// |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would find nothing).
-// False (look in Python) otherwise, and for a q outside the box of the bound or not finite.
+// (the first test of SwitchLocation._row_dips)? The rows' values are lower bounds of the values that test takes
+// from exact distances (SceneClearance.values of a fresh constraint), kept row by row (B the scene's motion bound,
+// valid where no prismatic joint is beyond its extent: every point of the pair's objects, and of their bounding
+// spheres, moves by at most B_k |dq| relative to the other):
+// - row k's exact value c_k(q_k) is kept with its point q_k; at q, c_k(q) >= c_k(q_k) - B_k |q - q_k|;
+// - a pair beyond the influence at q_k keeps a lower bound g_k on its sphere gap there: while g_k - B_k |q - q_k|
+//   exceeds the influence it is beyond it at q too, and its value is exactly influence - clearance_k; after that
+//   it is at least min(influence - clearance_k, g_k - clearance_k - B_k |q - q_k|) (the distance is at least the
+//   sphere gap);
+// - a lowered value at `skip` [m] or below is computed afresh at q (its pair's broadphase test and, where near, one
+//   exact distance; the objects placed at q once), and where the objects are placed the rows beyond the influence
+//   whose proof has used half its margin are computed afresh too (no distance), so that the proofs lapse together;
+//   at the start of a step that does not start at the last one's end every row is exact;
+// - a proof and the dip test below take the cheap bound max_j B_kj sum |dq| (above B_k |dq|) first, the product
+//   itself where that does not decide.
+// `clear` is true where every c(q1) >= -tol and every (c(q0) + c(q1) - B move) / 2 >= -tol, move = max(|q1 - q0|,
+// h max(|v0|, |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would
+// find nothing). False (look in Python) otherwise, and for a q outside the box of the bound or not finite. The
+// core's step calls it directly where it holds the guard (StepCore.set_guard, step.cpp): row_guard_clear.
 class RowGuard {
  public:
   RowGuard(DistanceQuery& query, const Eigen::Ref<const VectorXl>& row_of_pair, const Eigen::Ref<const VectorXd>& clearances,
            double influence, const Eigen::Ref<const RowMatrixXd>& bound, const Eigen::Ref<const VectorXd>& extent,
            double tol, double skip)
-      : query_(query), row_of_pair_(row_of_pair), clearances_(clearances), bound_(bound), extent_(extent),
-        influence_(influence), tol_(tol), skip_(skip) {
+      : query_(query), clearances_(clearances), bound_(bound), extent_(extent), influence_(influence), tol_(tol),
+        skip_(skip) {
     const Eigen::Index size = clearances.size(), nv = query.nv();
     if (static_cast<std::size_t>(row_of_pair.size()) != query.npairs())
       throw nb::value_error(("row_of_pair needs one entry per pair (" + str(query.npairs()) + "), got " +
@@ -386,74 +416,217 @@ class RowGuard {
                              str(bound.cols()) + "), extent (" + str(extent.size()) + ",)").c_str());
     if (!(influence > clearances.maxCoeff()) || !(tol >= 0.0) || !(skip >= 0.0))
       throw nb::value_error("the influence must exceed every clearance, tol and skip be >= 0 [m]");
+    pair_of_row_.assign(static_cast<std::size_t>(size), -1);  // (engine.row_guard checks that no row has two)
+    for (Eigen::Index k = 0; k < row_of_pair.size(); ++k)
+      if (row_of_pair[k] >= 0) pair_of_row_[static_cast<std::size_t>(row_of_pair[k])] = k;
+    point_of_row_.assign(static_cast<std::size_t>(size), 0);
+    top_ = bound_.rowwise().maxCoeff();
+    beyond_.assign(static_cast<std::size_t>(size), -std::numeric_limits<double>::infinity());
+    computed_.assign(static_cast<std::size_t>(size), 0);
+    drop_.assign(static_cast<std::size_t>(size), 0.0);
+    kept_.resize(size);
+    c0_.resize(size);
+    c1_.resize(size);
+    c_end_.resize(size);
+    move_.resize(nv);
   }
 
+  Eigen::Index nv() const { return bound_.cols(); }
+
+  // The Python binding: sizes checked, then clear_at with the GIL released.
   bool clear(const Eigen::Ref<const VectorXd>& q0, const Eigen::Ref<const VectorXd>& q1,
              const Eigen::Ref<const VectorXd>& v0, const Eigen::Ref<const VectorXd>& v1, double h) {
     const Eigen::Index nv = bound_.cols();
     if (q0.size() != nv || q1.size() != nv || v0.size() != nv || v1.size() != nv)
       throw nb::value_error(("q0, q1, v0, v1 must have " + str(nv) + " entries").c_str());
     nb::gil_scoped_release release;
-    if (!(h >= 0.0) || !boxed(q0) || !boxed(q1) || !v0.allFinite() || !v1.allFinite()) return false;
-    VectorXd c1(bound_.rows()), c0(bound_.rows());
-    values_at(q1, c1, true);
-    const bool reached = !(c1.minCoeff() >= -tol_);
-    if (have_end_ && q0 == q_end_)
-      c0 = c_end_;
-    else  // a step from elsewhere (the first, or after a step of the Python stepper's): exact
-      values_at(q0, c0, false);
-    q_end_ = q1;
-    c_end_ = c1;
-    have_end_ = true;
-    if (reached) return false;
-    const VectorXd move = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) +
-                          0.25 * h * (v1 - v0).cwiseAbs();
-    return 0.5 * (c0 + c1 - bound_ * move).minCoeff() >= -tol_;
+    return clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h);
   }
 
+  // The check itself on raw arrays of nv entries (no Python object touched).
+  bool clear_at(const double* q0p, const double* q1p, const double* v0p, const double* v1p, double h) {
+    const auto start = std::chrono::steady_clock::now();
+    const bool out = check(Eigen::Map<const VectorXd>(q0p, nv()), Eigen::Map<const VectorXd>(q1p, nv()),
+                           Eigen::Map<const VectorXd>(v0p, nv()), Eigen::Map<const VectorXd>(v1p, nv()), h);
+    seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return out;
+  }
+
+  double seconds() const { return seconds_; }
+  long distances() const { return distances_; }
+  long placements() const { return placements_; }
+  const std::vector<long>& computed() const { return computed_; }
+
  private:
+  bool check(const Eigen::Map<const VectorXd>& q0, const Eigen::Map<const VectorXd>& q1,
+             const Eigen::Map<const VectorXd>& v0, const Eigen::Map<const VectorXd>& v1, double h) {
+    if (!(h >= 0.0) || !boxed(q0) || !boxed(q1) || !v0.allFinite() || !v1.allFinite()) return false;
+    values_at(q1, c1_, true);
+    const bool reached = !(c1_.minCoeff() >= -tol_);
+    if (have_end_ && q0 == q_end_)
+      c0_ = c_end_;
+    else  // a step from elsewhere (the first, or after a step of the Python stepper's): exact
+      values_at(q0, c0_, false);
+    q_end_ = q1;
+    c_end_ = c1_;
+    have_end_ = true;
+    if (reached) return false;
+    move_ = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) +
+            0.25 * h * (v1 - v0).cwiseAbs();
+    if (0.5 * (c0_ + c1_ - top_ * move_.sum()).minCoeff() >= -tol_) return true;  // B_r move <= max(B_r) sum(move)
+    return 0.5 * (c0_ + c1_ - bound_ * move_).minCoeff() >= -tol_;
+  }
+
   bool boxed(const Eigen::Ref<const VectorXd>& q) const {
     return q.allFinite() && (q.cwiseAbs().array() <= extent_.array()).all();
   }
 
-  // the rows' values at q: the kept exact ones at the same q; lowered from them (`lower`, both q in the bound's box)
-  // while every one stays above skip_; else exact, from the query, and kept
-  void values_at(const Eigen::Ref<const VectorXd>& q, VectorXd& c, bool lower) {
-    if (have_exact_) {
-      if (q == q_exact_) {
-        c = c_exact_;
-        return;
+  // the rows' values at q (the class comment): row r's kept exact value where q is its point or its pair is surely
+  // still beyond the influence (beyond_), else lowered to q (`lower`) while it stays above skip_, else (or without
+  // `lower`) exact at q and kept. (The kept points were boxed when kept, and q is: clear checks both ends first.)
+  void values_at(const Eigen::Map<const VectorXd>& q, VectorXd& c, bool lower) {
+    const Eigen::Index size = c.size(), nv = q.size();
+    // |q - q_p| and whether q is q_p, per kept point p (few: the rows share them)
+    for (std::size_t p = 0; p < points_.size(); ++p)
+      if (users_[p]) {
+        gaps_[p] = (q - points_[p]).cwiseAbs();
+        sums_[p] = gaps_[p].sum();
+        same_[p] = q == points_[p];
       }
-      if (lower && boxed(q) && boxed(q_exact_)) {
-        c = c_exact_ - bound_ * (q - q_exact_).cwiseAbs();
-        if (c.minCoeff() > skip_) return;
+    bool placed = false;
+    std::size_t here = points_.size();  // the kept point q (made where a row is computed at q)
+    for (Eigen::Index r = 0; r < size; ++r) {
+      const std::size_t i = static_cast<std::size_t>(r);
+      if (have_) {
+        const std::size_t p = point_of_row_[i];
+        if (same_[p]) {
+          c[r] = kept_[r];
+          drop_[i] = 0.0;
+          continue;
+        }
+        const double over = top_[r] * sums_[p];  // >= B_r |q - q_p|: a row surely beyond needs no more
+        if (beyond_[i] - over > influence_ + kSphereSlack) {
+          c[r] = kept_[r];
+          drop_[i] = over;
+          continue;
+        }
+        const double *b = bound_.data() + r * nv, *g = gaps_[p].data();  // B_r |q - q_p|
+        double drop = 0.0;
+        for (Eigen::Index j = 0; j < nv; ++j) drop += b[j] * g[j];
+        drop_[i] = drop;
+        if (beyond_[i] - drop > influence_ + kSphereSlack) {  // its spheres still beyond the influence: exact
+          c[r] = kept_[r];
+          continue;
+        }
+        if (lower) {  // (beyond the influence at q_r: the pair's distance at q is at least its sphere gap there)
+          c[r] = kept_[r] - drop;
+          if (beyond_[i] > -std::numeric_limits<double>::infinity())
+            c[r] = std::min(kept_[r], beyond_[i] - clearances_[r] - drop);
+          if (c[r] > skip_) continue;
+        }
       }
+      if (!placed) {
+        query_.place(q);
+        ++placements_;
+        placed = true;
+        here = new_point(q);
+      }
+      compute(r, near(r), here, c);
+      ++computed_[i];
     }
-    query_.near_distances(q, influence_, ks_, d_);
-    c = -clearances_;
-    c.array() += influence_;
-    for (std::size_t r = 0; r < ks_.size(); ++r) {
-      const std::int64_t row = row_of_pair_[ks_[r]];
-      if (row >= 0) c[row] = d_[r] - clearances_[row];
+    if (placed && lower)  // placed anyway: the rows beyond the influence whose proof has used half its margin or
+      for (Eigen::Index r = 0; r < size; ++r) {  // more afresh too (no distance), so that their proofs lapse together
+        const std::size_t i = static_cast<std::size_t>(r);  // later, not each at a placement of its own
+        if (point_of_row_[i] != here && beyond_[i] - influence_ < 2.0 * drop_[i] && !near(r))
+          compute(r, false, here, c);
+      }
+    have_ = true;
+  }
+
+  // is row r's pair within the influence by the broadphase (the objects placed)?
+  bool near(Eigen::Index r) const {
+    const std::int64_t k = pair_of_row_[static_cast<std::size_t>(r)];
+    return k >= 0 && query_.near(static_cast<std::size_t>(k), influence_);
+  }
+
+  // row r exact at q (the objects placed there; `near`: its pair within the influence), kept with the kept point
+  // `here` (q): -clearance + influence beyond the influence (the bound of SceneClearance._query), else the pair's
+  // distance less the clearance
+  void compute(Eigen::Index r, bool near, std::size_t here, VectorXd& c) {
+    const std::size_t i = static_cast<std::size_t>(r);
+    const std::int64_t k = pair_of_row_[i];
+    c[r] = -clearances_[r] + influence_;
+    beyond_[i] = -std::numeric_limits<double>::infinity();
+    if (near) {
+      c[r] = query_.distance(static_cast<std::size_t>(k)) - clearances_[r];
+      ++distances_;
+    } else {
+      beyond_[i] = k < 0 ? std::numeric_limits<double>::infinity()
+                         : query_.gap(static_cast<std::size_t>(k), influence_);
     }
-    q_exact_ = q;
-    c_exact_ = c;
-    have_exact_ = true;
+    if (have_) --users_[point_of_row_[i]];
+    point_of_row_[i] = here;
+    ++users_[here];
+    kept_[r] = c[r];
+  }
+
+  // a kept point for q (a free slot, or a new one), with no rows yet
+  std::size_t new_point(const Eigen::Map<const VectorXd>& q) {
+    std::size_t p = 0;
+    while (p < points_.size() && users_[p]) ++p;
+    if (p == points_.size()) {
+      points_.emplace_back();
+      gaps_.emplace_back();
+      sums_.push_back(0.0);
+      users_.push_back(0);
+      same_.push_back(0);
+    }
+    points_[p] = q;
+    gaps_[p].setZero(q.size());
+    sums_[p] = 0.0;
+    same_[p] = 1;
+    return p;
   }
 
   DistanceQuery& query_;
-  VectorXl row_of_pair_;
+  std::vector<std::int64_t> pair_of_row_;  // each row's pair (-1: a row no pair of the query gives)
   VectorXd clearances_;
   RowMatrixXd bound_;
   VectorXd extent_;
   double influence_, tol_, skip_;
-  bool have_exact_ = false, have_end_ = false;
-  VectorXd q_exact_, c_exact_, q_end_, c_end_;  // the last exact values, and the last step's end's
-  std::vector<std::int64_t> ks_;
-  std::vector<double> d_;
+  bool have_ = false, have_end_ = false;
+  // the kept exact values, each row's point (an entry of points_, shared: users_ counts its rows; at the current
+  // values_at, gaps_ |q - point| and same_ q == point), the last step's end and its values
+  VectorXd kept_, q_end_, c_end_, c0_, c1_, move_;
+  std::vector<std::size_t> point_of_row_;
+  // per row beyond the influence at its point: a lower bound on its pair's sphere gap there [m] (its spheres move
+  // apart by at most B_r |dq| too, so while gap - B_r |q - q_r| exceeds the influence, the pair is beyond it at q and
+  // the row's exact value is still -clearance + influence); -inf for a row within it, inf for a row with no pair
+  std::vector<double> beyond_;
+  std::vector<double> drop_;  // at the current values_at: each row's B_r |q - q_r| (0 where q is q_r)
+  std::vector<VectorXd> points_, gaps_;
+  std::vector<double> sums_;  // at the current values_at: sum |q - point| per point
+  VectorXd top_;  // each row's largest bound entry max_j B_rj: B_r |dq| <= top_r sum |dq|, the cheap first test
+  std::vector<long> users_;
+  std::vector<char> same_;
+  double seconds_ = 0.0;  // time spent in clear_at [s]
+  long distances_ = 0;    // exact distances computed
+  long placements_ = 0;   // placements of the objects (forward kinematics and the bounding spheres)
+  std::vector<long> computed_;  // per row, the times its value was needed afresh
 };
 
-}  // namespace
+RowGuard& row_guard(nb::handle obj) {
+  if (!nb::isinstance<RowGuard>(obj)) throw nb::type_error("expected a kinredund._core.RowGuard");
+  return *nb::inst_ptr<RowGuard>(obj);
+}
+
+Eigen::Index row_guard_nv(const RowGuard& guard) { return guard.nv(); }
+
+bool row_guard_clear(RowGuard& guard, const double* q0, const double* q1, const double* v0, const double* v1,
+                     double h) {
+  return guard.clear_at(q0, q1, v0, v1, h);
+}
+
 
 void bind_distances(nb::module_& m) {
   nb::class_<DistanceQuery>(m, "DistanceQuery",
@@ -471,7 +644,12 @@ void bind_distances(nb::module_& m) {
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),
            nb::arg("query"), nb::arg("row_of_pair"), nb::arg("clearances"), nb::arg("influence"), nb::arg("bound"),
            nb::arg("extent"), nb::arg("tol"), nb::arg("skip"), nb::keep_alive<1, 2>())
-      .def("clear", &RowGuard::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"));
+      .def("clear", &RowGuard::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"))
+      .def_prop_ro("seconds", &RowGuard::seconds, "time spent in its checks [s] (the core's calls included)")
+      .def_prop_ro("distances", &RowGuard::distances, "exact distances its checks computed")
+      .def_prop_ro("placements", &RowGuard::placements, "placements of the objects its checks made")
+      .def_prop_ro("computed", &RowGuard::computed,
+                   "per row, the times its checks needed its value afresh (placing the objects)");
 }
 
 }  // namespace kinredund

@@ -8,6 +8,7 @@
 // the held joints' columns leave R, their rows of the residual are the bound multipliers', and the multipliers
 // mu_i = s_i (grad z + J^T lambda)_i come out at the corrected point; a multiplier below zero (a release) is a switch.
 // Anything not ordinary returns a status code and the Python reference takes the step from the same state.
+#include "distances.hpp"
 #include "frame.hpp"
 #include "step.hpp"
 #include "watch.hpp"
@@ -121,6 +122,38 @@ class StepCore {
   // status code that hands the step back to Python.
   nb::object step(double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t, CRef y, CRef yd,
                   nb::list prev_list, CRef qdot0, double speed2_prev, bool check_jump) {
+    return step_checked(t, sp, sv, sQ, somega, ref_t, rate_t, y, yd, prev_list, qdot0, speed2_prev, check_jump,
+                        nullptr, 0.0);
+  }
+
+  // The row check of a scene (distances.cpp's RowGuard, issue 27) that step_guarded runs after an ordinary step;
+  // None: none.
+  void set_guard(nb::object guard) {
+    if (guard.is_none()) {
+      guard_ = nullptr;
+    } else {
+      RowGuard& g = row_guard(guard);
+      if (row_guard_nv(g) != n_) throw nb::value_error("the row guard's arrays must have the step's n entries");
+      guard_ = &g;
+    }
+    guard_obj_ = guard;  // keeps the guard (and its distance query) alive while it is used
+  }
+
+  // step() and, after an ordinary step, the guard's check of it (RowGuard.clear from the step's start y[:n] with
+  // rates qdot0 to its end, h [s] long; h < 0 or no guard: not cleared): the status code, or (array, cleared).
+  nb::object step_guarded(double h, double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t,
+                          CRef y, CRef yd, nb::list prev_list, CRef qdot0, double speed2_prev, bool check_jump) {
+    bool cleared = false;
+    nb::object out = step_checked(t, sp, sv, sQ, somega, ref_t, rate_t, y, yd, prev_list, qdot0, speed2_prev,
+                                  check_jump, &cleared, h);
+    if (nb::isinstance<nb::int_>(out)) return out;
+    return nb::make_tuple(out, cleared);
+  }
+
+ private:
+  nb::object step_checked(double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t, CRef y,
+                          CRef yd, nb::list prev_list, CRef qdot0, double speed2_prev, bool check_jump,
+                          bool* cleared, double h) {
     const size_t np_ = nb::len(prev_list);
     if (np_ > 2 * hermite_.size() - 2 || np_ % 2) throw nb::value_error("prev: (y, ydot) pairs, at most two");
     Vec1 prev[4];
@@ -140,6 +173,8 @@ class StepCore {
     {
       nb::gil_scoped_release release;  // the step touches no Python object: trackers in threads step in parallel
       st = advance(y, yd, prevp, qdot0, speed2_prev, check_jump, *out);
+      if (st == OK && cleared != nullptr && guard_ != nullptr && h >= 0.0)  // [q; lam] and its rates lead the row
+        *cleared = row_guard_clear(*guard_, y.data(), out->data(), qdot0.data(), out->data() + N, h);
     }
     if (st != OK) return nb::int_(st);
     VectorXd* buf = out.release();
@@ -149,6 +184,7 @@ class StepCore {
                     nb::rv_policy::reference);
   }
 
+ public:
   // The step itself (no Python object touched: called with the GIL released); fills ``out`` (see step()).
   int advance(CRef y, CRef yd, const std::vector<const double*>& prev, CRef qdot0, double speed2_prev,
               bool check_jump, VectorXd& out) {
@@ -689,6 +725,8 @@ class StepCore {
   MatrixXd R_, lu_;
   VectorXi ipiv_;
   double rcond_ = 0.0;
+  RowGuard* guard_ = nullptr;  // set_guard's (held by guard_obj_)
+  nb::object guard_obj_;
 };
 
 StepCore& step_core(nb::handle obj) {
@@ -736,6 +774,10 @@ void bind_step(nb::module_& m) {
       .def("step", &StepCore::step, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
            nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"), nb::arg("qdot0"),
            nb::arg("speed2"), nb::arg("check_jump"))
+      .def("step_guarded", &StepCore::step_guarded, nb::arg("h"), nb::arg("t"), nb::arg("p"), nb::arg("v"),
+           nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"),
+           nb::arg("prev"), nb::arg("qdot0"), nb::arg("speed2"), nb::arg("check_jump"))
+      .def("set_guard", &StepCore::set_guard, nb::arg("guard").none())
       .def("set_active", &StepCore::set_active, nb::arg("free"), nb::arg("bound"), nb::arg("side"))
       .def("factors", &StepCore::factors)
       .def("watch_measure", &StepCore::watch_measure, nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"),

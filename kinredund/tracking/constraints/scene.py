@@ -299,14 +299,19 @@ class _SceneGuard:
     """:meth:`SceneClearance.row_guard`'s check for the scene as it was when the constraint was made: after a change
     of the scene it clears no step (the stepper's search then meets :meth:`SceneClearance._query`'s error)."""
 
-    __slots__ = ("_guard", "_scene", "_pairs")
+    __slots__ = ("compiled", "_scene", "_pairs")
 
     def __init__(self, guard, scene: Scene, pairs: tuple):
-        self._guard, self._scene, self._pairs = guard, scene, pairs
+        self.compiled, self._scene, self._pairs = guard, scene, pairs  # compiled: the kinredund._core.RowGuard
+
+    def valid(self) -> bool:
+        """Is the scene still the one the check was made for? (The core's step runs ``compiled`` itself:
+        ``StepCore.set_guard``; its verdict counts only where this holds.)"""
+        return self._scene.pairs is self._pairs
 
     def clear(self, q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float) -> bool:
         """True where no row can switch within the step (``kinredund._core.RowGuard.clear``)."""
-        return self._scene.pairs is self._pairs and self._guard.clear(q0, q1, v0, v1, h)
+        return self._scene.pairs is self._pairs and self.compiled.clear(q0, q1, v0, v1, h)
 
 
 def _corner_note(one: Scene, pair: tuple[str, str], a: np.ndarray, b: np.ndarray) -> str:
