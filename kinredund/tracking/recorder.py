@@ -35,7 +35,8 @@ class Recorder:
         self.t, self.solver, self.M, self.J_step, self.points = [], [], [], [], []
         self.q, self.lam = Column(), Column()
         self.limited = getattr(stepper, "limits", None) is not None
-        self.active, self.mu, self.qdot = [], Column(), Column()
+        self.active, self.mu, self.qdot = Column(), Column(), Column()
+        self._free = np.zeros(stepper.n, dtype=int) if self.limited else None  # the active bounds with none held
         self.rows = [] if getattr(stepper, "general", None) else None  # general rows: (min c, active, nu)
 
     def add(self) -> None:
@@ -58,7 +59,7 @@ class Recorder:
         # at the recorded joints where the step has it: a compiled step's RecordedPose)
         self.points.append(pt if pt.q is s.q and pt.t == s.t else getattr(pt, "recorded", pt.sample))
         if self.limited:
-            self.active.append(s.active_bounds() if s.any_active else None)
+            self.active.append(s.active_bounds() if s.any_active else self._free)
             self.mu.append(s.mu)
             self.qdot.append(s.qdot)
         if self.rows is not None:
@@ -84,7 +85,7 @@ class Recorder:
             self.solver += held[0]
             self.J_step += [None] * k
         if self.limited:
-            self.active += [None] * k if held is None else [held[1]] * k
+            self.active.extend(np.repeat((self._free if held is None else held[1])[None], k, axis=0))
             self.mu.extend(np.repeat(self.stepper.mu[None], k, axis=0) if held is None else held[2])
             self.qdot.extend(qdot)
 
@@ -109,8 +110,7 @@ class Recorder:
         meta.update(switches=list(s.switches), joint_speed_max=fastest.tolist(), velocity_limit=vmax.tolist(),
                     speed_over_velocity_limit_max=float(np.max(ratio)) if np.all(np.isfinite(ratio)) else None,
                     limit_margin=lim.margin)
-        free = np.zeros(len(q[0]), dtype=int)
-        return {"active_bounds": np.array([free if a is None else a for a in self.active]),
+        return {"active_bounds": self.active.array(),
                 "bound_multipliers": self.mu.array(), "limit_margins": np.minimum(lim.margins(q), 1e10),
                 "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
