@@ -213,9 +213,17 @@ def test_the_core_s_exact_measurement_is_numpy_s(kind, m, n, held):
     assert abs(np.linalg.norm(v) - 1.0) <= 32 * EPS and np.linalg.norm(Jr @ v) <= 32 * EPS * sJ[0]
 
 
-def test_the_core_s_exact_measurement_refuses_mismatched_matrices():
+def test_the_core_s_exact_measurement_refuses_mismatched_matrices_and_says_nan_where_not_finite():
     with pytest.raises(ValueError, match=r"M must be 7 x 7 \(J: 6 x 7\)"):
         core.watch_exact(np.ones((6, 7)), np.ones((6, 6)))
+    rng = np.random.default_rng(7)
+    J, M = rng.standard_normal((6, 7)), np.eye(7)
+    sigma, eig, v, _ = core.watch_exact(np.where(np.arange(7) == 2, np.nan, J), M)  # (Eigen leaves garbage else)
+    assert np.isnan(sigma) and np.isnan(eig) and not v.any()
+    sigma, eig, _, scale = core.watch_exact(J, np.where(np.eye(7) > 0, np.inf, 0.0))
+    assert sigma == core.watch_exact(J, M)[0] and np.isnan(eig) and scale == np.inf
+    watch = Watch()
+    assert watch.crossed(np.nan, 1.0) == "kinematic" and watch.crossed(1.0, np.nan) == "fold"  # NaN: crossed
 
 
 def test_the_compiled_backend_measures_exactly_in_the_core(monkeypatch):

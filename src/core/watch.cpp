@@ -116,6 +116,10 @@ void watch_exact(const double* J, const double* M, int m, int nf, ExactMeasure& 
     out.eig = INFINITY;
     return;
   }
+  if (!Jm.allFinite()) {  // (Eigen's SVD leaves its values unset on such input) NaN: the watch counts it crossed
+    out.sigma = out.eig = std::nan("");
+    return;
+  }
   const Eigen::MatrixXd Jc = Jm;
   if (nf <= m) {  // no null space (Watch's exact where J is square): sigma_min, eig = +inf, v = 0
     Eigen::JacobiSVD<Eigen::MatrixXd> svd(Jc);
@@ -125,6 +129,10 @@ void watch_exact(const double* J, const double* M, int m, int nf, ExactMeasure& 
   }
   Eigen::JacobiSVD<Eigen::MatrixXd> svd(Jc, Eigen::ComputeFullV);
   out.sigma = svd.singularValues()(r - 1);  // (descending)
+  if (!Mm.allFinite()) {
+    out.eig = std::nan("");
+    return;
+  }
   const Eigen::MatrixXd Z = svd.matrixV().rightCols(nf - m);
   const Eigen::MatrixXd S = Z.transpose() * (0.5 * (Mm + Mm.transpose())) * Z;  // Z^T sym(M) Z
   if (nf - m == 1) {

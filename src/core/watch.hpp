@@ -24,7 +24,8 @@ nanobind::object watch_measure(const double* J, const double* M, const double* l
 // gives sigma_min(J) and Z, the last nf - m right singular vectors (a basis of J's null space); the smallest
 // eigenvalue of Z^T sym(M) Z (Eq. (4.24)'s R is singular where it is zero; Eigen's SelfAdjointEigenSolver where
 // nf - m > 1, the number z^T sym(M) z where nf - m = 1) and its eigenvector in joint space v = Z w; where nf <= m (no
-// null space) eig = +inf and v = 0. ``scale``: the fold floor's max(1, max |M_ij|).
+// null space) eig = +inf and v = 0. ``scale``: the fold floor's max(1, max |M_ij|). A J (M) with an entry not finite
+// gives sigma and eig (eig) NaN, which the watch counts as crossed.
 struct ExactMeasure {
   double sigma = 0.0, eig = 0.0, scale = 1.0;
   std::vector<double> v;
