@@ -9,7 +9,8 @@ loop, limits held), the k-th turning the tool about its axis by up to 2 k degree
 times ``track_many(problems, threads=1)`` and ``threads=2`` in turn; the figures are the medians over the
 rounds of runs per second, and the speed-up (2 threads over 1: at most 2 on 2 cores, less where others load
 the machine). The compiled core runs the ordinary steps in runs, each one C++ call with the GIL released
-(:mod:`kinredund.tracking.runs`); the rest (the path samples, the record, the steps it hands back) holds it.
+(:mod:`kinredund.tracking.runs`; the watch's exact measurements inside them); the rest (each run's set-up, the
+path samples, the watch's verdicts, the record, the steps it hands back) holds it.
 The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
 a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in the core's runs of
 steps (C++, the GIL released; numpy's LAPACK calls release it as well), which bounds the speed-up on two threads.
@@ -35,9 +36,9 @@ def problems(count: int) -> list:
 
 def gil_free_share(jobs: list, options: dict) -> float:
     """The share of the runs' CPU time (one by one, this thread's: ``time.thread_time``, which other processes'
-    load does not count) spent in the core's runs of steps, where the GIL is released (numpy's LAPACK calls, the
-    watch's, release it too: the share of the whole run is larger). With a GIL-held share g the speed-up on two
-    threads is at most min(2, 1 / g)."""
+    load does not count) spent in the core's runs of steps, where the GIL is released (with the watch's exact
+    measurements, which the core makes inside the run). With a GIL-held share g the speed-up on two threads is at
+    most min(2, 1 / g)."""
     import kinredund._core as core
 
     inner, spent = core.run_steps, [0.0]

@@ -102,8 +102,8 @@ def test_a_run_through_the_watch_stops_where_single_steps_stop(monkeypatch):
     q0 = solve_ik(arm, path(0.0).p[:2], index, starts=12, seed=0).q
     verdicts, inner, crossed = [], runs.Runs._verdicts, watch.Watch.crossed
 
-    def seen(self, out, times, done, status, exact):
-        kept, why = inner(self, out, times, done, status, exact)
+    def seen(self, out, times, done, status, exact, measured):
+        kept, why = inner(self, out, times, done, status, exact, measured)
         verdicts.append("cut" if why == -1 else "rejected" if kept in exact else "kept")
         return kept, why
 

@@ -19,6 +19,7 @@ from conftest import rounding
 from test_tracking_compiled import assert_same_record, problem
 
 from kinredund.tracking import Tracker, compiled, track
+from kinredund.tracking import watch as watch_module
 from kinredund.tracking.watch import J_GATE, Watch, reduce
 
 core = compiled.load_core()
@@ -168,3 +169,91 @@ def test_the_switching_circle_s_measured_steps_are_measured_in_the_core(scheme, 
     for _ in range(len(a.t) - 1):
         tracker.step()
     assert tracker.stepper.control.watch.core_measured >= seen["held"]
+
+
+# -- the exact measurement (src/core/watch.cpp's watch_exact: Eigen) -------------------------------------------------
+
+EPS = np.finfo(float).eps
+
+
+@pytest.mark.parametrize("kind", ["random", "fold", "kinematic"])
+@pytest.mark.parametrize(("m", "n", "held"), [(6, 7, ()), (6, 7, (3,)), (6, 8, (2,)), (3, 7, ()), (3, 7, (1, 5)),
+                                              (2, 3, ())])
+def test_the_core_s_exact_measurement_is_numpy_s(kind, m, n, held):
+    """``_core.watch_exact`` (one JacobiSVD of J with V, Z^T sym(M) Z, SelfAdjointEigenSolver) against
+    :func:`watch.exact` (numpy's LAPACK) on the free joints' J and M: n - m free = 0 (no null space: eig +inf,
+    v = 0), 1 and > 1. An SVD is backward stable: the singular values move by at most ~eps ||J||_2, the null space
+    by an angle ~eps ||J||_2 / sigma_min (Wedin), which moves the eigenvalue by ~||M||_2 times that and its
+    eigenvector besides by ~eps ||M||_2 / (the gap to the next eigenvalue); the vectors are compared up to sign."""
+    from kinredund.tracking.watch import exact
+
+    rng = np.random.default_rng(zlib.crc32(f"{kind}{m}{n}{held}".encode()))
+    fixed = np.zeros(n, bool)
+    fixed[list(held)] = True
+    nf = n - len(held)
+    J, M = _matrices(rng, n, m, fixed, "random" if kind == "fold" and nf == m else kind, velocity=True)
+    Jr, Mr = reduce(J, M, fixed)
+    sigma, eig, v, scale = core.watch_exact(Jr, Mr)
+    s_a, e_a, v_a = exact(Jr, Mr)
+    sJ = np.linalg.svd(Jr, compute_uv=False)
+    assert abs(sigma - s_a) <= 32 * EPS * sJ[0]
+    assert scale == max(1.0, np.abs(Mr).max())
+    assert v.shape == (nf,)
+    if nf == m:
+        assert eig == e_a == np.inf and not v.any()
+        return
+    angle = 32 * EPS * sJ[0] / sJ[-1]  # the null space's
+    norm_M = np.linalg.norm(Mr, 2)
+    assert abs(eig - e_a) <= 4 * norm_M * angle + rounding(norm_M)
+    Z = np.linalg.svd(Jr)[2][m:].T
+    w = np.linalg.eigvalsh(Z.T @ (0.5 * (Mr + Mr.T)) @ Z)
+    gap = w[1] - w[0] if len(w) > 1 else np.inf
+    assert min(np.linalg.norm(v - v_a), np.linalg.norm(v + v_a)) <= 4 * angle * (1 + norm_M / gap) + 32 * EPS * (
+        norm_M / gap)
+    assert abs(np.linalg.norm(v) - 1.0) <= 32 * EPS and np.linalg.norm(Jr @ v) <= 32 * EPS * sJ[0]
+
+
+def test_the_core_s_exact_measurement_refuses_mismatched_matrices_and_says_nan_where_not_finite():
+    with pytest.raises(ValueError, match=r"M must be 7 x 7 \(J: 6 x 7\)"):
+        core.watch_exact(np.ones((6, 7)), np.ones((6, 6)))
+    rng = np.random.default_rng(7)
+    J, M = rng.standard_normal((6, 7)), np.eye(7)
+    sigma, eig, v, _ = core.watch_exact(np.where(np.arange(7) == 2, np.nan, J), M)  # (Eigen leaves garbage else)
+    assert np.isnan(sigma) and np.isnan(eig) and not v.any()
+    sigma, eig, _, scale = core.watch_exact(J, np.where(np.eye(7) > 0, np.inf, 0.0))
+    assert sigma == core.watch_exact(J, M)[0] and np.isnan(eig) and scale == np.inf
+    watch = Watch()
+    assert watch.crossed(np.nan, 1.0) == "kinematic" and watch.crossed(1.0, np.nan) == "fold"  # NaN: crossed
+
+
+def test_the_compiled_backend_measures_exactly_in_the_core(monkeypatch):
+    """After the start (measured before the backend is attached), every exact measurement of a compiled run is the
+    core's (numpy's :func:`watch.exact` is not called), in single steps and in runs of steps alike, so they give the
+    same bits; the record is the Python backend's (whose measurements stay numpy's) to the backends' bars."""
+    from kinredund.tracking import runs
+    from kinredund.tracking.recorder import Recorder
+    from kinredund.tracking.watch import EXACT_EVERY
+
+    r, path, index, q0 = problem("panda_pose_circle")
+    dt = path.period / 200
+    inner, numpy_exact, calls = core.watch_exact, watch_module.exact, {"core": 0, "numpy": 0}
+
+    def counted(key, fn):
+        return lambda J, M: calls.__setitem__(key, calls[key] + 1) or fn(J, M)
+
+    monkeypatch.setattr(core, "watch_exact", counted("core", inner))
+    monkeypatch.setattr(watch_module, "exact", counted("numpy", numpy_exact))
+    single, batched = (Tracker(r, path, index, q0, dt, backend="compiled") for _ in range(2))
+    assert calls == {"core": 0, "numpy": 2}  # the starts'
+    for _ in range(200):
+        single.step()
+    assert calls["numpy"] == 2 and calls["core"] >= 200 // EXACT_EVERY
+    advance, done = runs.stepping(batched, Recorder(batched.stepper)), 0
+    while done < 200:
+        done += advance(200 - done)
+    assert calls["numpy"] == 2
+    a, b = single.stepper, batched.stepper
+    np.testing.assert_array_equal(b.q, a.q)
+    wa, wb = a.control.watch.save(), b.control.watch.save()
+    for key in wa:
+        np.testing.assert_array_equal(wb[key], wa[key], err_msg=key)

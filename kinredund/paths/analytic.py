@@ -173,8 +173,8 @@ class Circle(Path):
 
 def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(cos, sin) of each angle [rad] by ``math`` (numpy's vectorised ones may round differently)."""
-    a = angles.tolist()
-    return np.array([math.cos(x) for x in a]), np.array([math.sin(x) for x in a])
+    a, k = angles.tolist(), len(angles)
+    return np.fromiter(map(math.cos, a), float, k), np.fromiter(map(math.sin, a), float, k)
 
 
 @dataclass(frozen=True)

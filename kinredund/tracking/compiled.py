@@ -19,8 +19,9 @@ Where the watch measures the new point (every :data:`~kinredund.tracking.watch.E
 R's condition drops) the core measures it (``StepCore.watch_measure``, ``src/core/watch.cpp``: the watch's inverse
 iteration with R's factors and its gated SVD, with the LAPACK routines the Python watch calls) and the watch's
 bookkeeping (the crossing test, the history) stays in Python; the exact measurement every
-:data:`~kinredund.tracking.watch.EXACT_EVERY` is Python's. Anything else is handed to the
-Python reference from the same state (the stepper's, untouched until the compiled step is accepted, or put
+:data:`~kinredund.tracking.watch.EXACT_EVERY` is the core's too (``watch_exact``, Eigen's SVD and eigensolver:
+:meth:`~kinredund.tracking.watch.Watch.use_core`), the routine the runs of steps measure with. Anything else is
+handed to the Python reference from the same state (the stepper's, untouched until the compiled step is accepted, or put
 back with the watch's where the watch rejects the step): a step the watch predicts trouble within or
 rejects, a switch (a bound reached or released: located by the Python stepper's Brent search), a jump, a
 corrector that needs fresh factorisations, a singular R, a failure. Those steps are the Python stepper's own, so
@@ -250,6 +251,8 @@ class CompiledStep:
         self.layout = (self.slices, (n, m))  # what a CompiledPoint reads its fields with
         self.steps = self.held_steps = 0
         self.handed_back: dict[str, int] = {}
+        if stepper.control is not None and hasattr(core, "watch_exact"):  # the exact measurements the runs' own
+            stepper.control.watch.use_core(core)
 
     def hand_back(self, status: int) -> None:
         """The step as the Python stepper's, counted under ``status``'s reason (:data:`STATUS`)."""

@@ -4,9 +4,12 @@ problem, in threads.
 Each run is independent and deterministic (its own stepper, its own compiled core and, per thread, its own
 kinematics workspace: ``Robot.kinematics``), so the results equal the runs made one by one. On the compiled
 backend ``track()`` advances in runs of ordinary steps, each one C++ call with the GIL released
-(:mod:`kinredund.tracking.runs`), so threads overlap those; the path samples, the record's Python and the steps
-handed back to the Python stepper hold the GIL (``python benchmarks/many.py``: runs per second on 1 and 2
-threads).
+(:mod:`kinredund.tracking.runs`; the watch's exact measurements inside them), so threads overlap those. Each
+run's set-up (the :class:`~kinredund.tracking.tracker.Tracker`: the start's evaluation, correction onto the
+optimum, rates and first watch measurement, in Python), the path samples, the watch's verdicts after each run,
+the steps handed back to the Python stepper and the record's end hold the GIL: on the 200-step Panda circle
+about 55-60 % of a run's CPU time, which bounds the speed-up on two threads (``python benchmarks/many.py``: runs
+per second on 1 and 2 threads, and the share in the core's runs).
 """
 
 from __future__ import annotations

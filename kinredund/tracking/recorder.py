@@ -32,9 +32,11 @@ class Recorder:
 
     def __init__(self, stepper: Stepper, diagnostics: bool = True):
         self.stepper, self.diagnostics = stepper, diagnostics
-        self.t, self.q, self.lam, self.solver, self.M, self.J_step, self.points = [], [], [], [], [], [], []
+        self.t, self.solver, self.M, self.J_step, self.points = [], [], [], [], []
+        self.q, self.lam = Column(), Column()
         self.limited = getattr(stepper, "limits", None) is not None
-        self.active, self.mu, self.qdot = [], [], []
+        self.active, self.mu, self.qdot = Column(), Column(), Column()
+        self._free = np.zeros(stepper.n, dtype=int) if self.limited else None  # the active bounds with none held
         self.rows = [] if getattr(stepper, "general", None) else None  # general rows: (min c, active, nu)
 
     def add(self) -> None:
@@ -57,7 +59,7 @@ class Recorder:
         # at the recorded joints where the step has it: a compiled step's RecordedPose)
         self.points.append(pt if pt.q is s.q and pt.t == s.t else getattr(pt, "recorded", pt.sample))
         if self.limited:
-            self.active.append(s.active_bounds() if s.any_active else None)
+            self.active.append(s.active_bounds() if s.any_active else self._free)
             self.mu.append(s.mu)
             self.qdot.append(s.qdot)
         if self.rows is not None:
@@ -72,8 +74,8 @@ class Recorder:
         (k, n)), the same active set throughout."""
         k = len(t)
         self.t += t
-        self.q += list(q)
-        self.lam += list(lam)
+        self.q.extend(q)
+        self.lam.extend(lam)
         self.M += list(M)
         self.points.append(PoseRows(*pose, *desired))
         if held is None:
@@ -83,13 +85,13 @@ class Recorder:
             self.solver += held[0]
             self.J_step += [None] * k
         if self.limited:
-            self.active += [None] * k if held is None else [held[1]] * k
-            self.mu += [self.stepper.mu] * k if held is None else list(held[2])
-            self.qdot += list(qdot)
+            self.active.extend(np.repeat((self._free if held is None else held[1])[None], k, axis=0))
+            self.mu.extend(np.repeat(self.stepper.mu[None], k, axis=0) if held is None else held[2])
+            self.qdot.extend(qdot)
 
     def _lam_full(self) -> np.ndarray:
         """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""
-        lam = np.array(self.lam)
+        lam = self.lam.array()
         basis = self.stepper.pt.basis
         return lam if basis is None else lam @ basis.T
 
@@ -100,7 +102,7 @@ class Recorder:
         """The limits' record: active sets, bound multipliers, margins, switches, speeds against the limits."""
         s = self.stepper
         lim = s.limits
-        speeds = np.abs(np.array(self.qdot))
+        speeds = np.abs(self.qdot.array())
         vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float)
         fastest = speeds.max(axis=0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -108,12 +110,11 @@ class Recorder:
         meta.update(switches=list(s.switches), joint_speed_max=fastest.tolist(), velocity_limit=vmax.tolist(),
                     speed_over_velocity_limit_max=float(np.max(ratio)) if np.all(np.isfinite(ratio)) else None,
                     limit_margin=lim.margin)
-        free = np.zeros(len(q[0]), dtype=int)
-        return {"active_bounds": np.array([free if a is None else a for a in self.active]),
-                "bound_multipliers": np.array(self.mu), "limit_margins": np.minimum(lim.margins(q), 1e10),
+        return {"active_bounds": self.active.array(),
+                "bound_multipliers": self.mu.array(), "limit_margins": np.minimum(lim.margins(q), 1e10),
                 "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
 
-    def _evaluate(self, oriented: bool):
+    def _evaluate(self, q: np.ndarray, oriented: bool):
         """(Q (k, 3, 3), p (k, 3), {k: J} where the step's own evaluation was made at recorded point k, p_d (k, 3),
         Q_d (k, 3, 3), None where the task has no orientation (``oriented``)): the pose afresh at the other
         recorded joints (K there is left to :class:`Diagnostics`). A run's rows (:class:`PoseRows`) are stacked as
@@ -139,7 +140,7 @@ class Recorder:
             elif hasattr(item, "pose"):
                 (Q, p), sample = item.pose, item.sample
             else:
-                (Q, p), sample = kin.pose(self.q[k]), item
+                (Q, p), sample = kin.pose(q[k]), item
             single.append((Q, p, sample.p, sample.Q))
             k += 1
         close()
@@ -151,10 +152,10 @@ class Recorder:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
         task = get_task(s.ev.task)
-        Q, p, own, p_d, Q_d = self._evaluate(task.has_orientation)
+        t, q = np.array(self.t), self.q.array()
+        Q, p, own, p_d, Q_d = self._evaluate(q, task.has_orientation)
         errors = task.errors_many(Q, p, Q_d, p_d)
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
-        t, q = np.array(self.t), np.array(self.q)
         index = s.ev.index  # grad z now: the index is the caller's object, the record must not follow it
         grad = np.zeros_like(q) if index is None else index.gradients_many(q, t)
         diag = Diagnostics(self, t, q, grad, own, Q_d)
@@ -177,6 +178,46 @@ class Recorder:
             position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
             vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
             normality_residual=Deferred(diag.normality_residual), loop_drift=drift, loop_period=period, meta=meta)
+
+
+class Column:
+    """One recorded vector field (q, lambda, the rates, the bound multipliers): rows added one by one
+    (:meth:`append`, the stepper's arrays, kept by reference) or as a run's block (:meth:`extend`: a 2-D array of
+    rows), stacked into one array when read (:meth:`array`: a new array, the rows' values)."""
+
+    __slots__ = ("_blocks", "_rows", "_count")
+
+    def __init__(self):
+        self._blocks: list = []  # 2-D arrays and lists of rows, in order
+        self._rows: list = []  # the rows appended since the last block
+        self._count = 0
+
+    def append(self, row) -> None:
+        self._rows.append(row)
+        self._count += 1
+
+    def extend(self, block: np.ndarray) -> None:
+        self._flush()
+        self._blocks.append(block)
+        self._count += len(block)
+
+    def _flush(self) -> None:
+        if self._rows:
+            self._blocks.append(self._rows)
+            self._rows = []
+
+    def __len__(self) -> int:
+        return self._count
+
+    def array(self) -> np.ndarray:
+        """The rows stacked (k, width)."""
+        self._flush()
+        parts = [np.array(b) for b in self._blocks]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = self.array()
+        return out if dtype is None else out.astype(dtype)
 
 
 class PoseRows:

@@ -16,8 +16,10 @@ its inverse iteration, where R's condition drops (its row is finished in Python:
 :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself the core's,
 ``StepCore.watch_measure``). It goes on through the steps the watch measures exactly (every
 :data:`~kinredund.tracking.watch.EXACT_EVERY`-th: one SVD of J and the eigenvalue of Z^T M Z, from the J and M of
-the step's row): after the run Python measures them in order, as the step control does one by one (the watch's
-exact branch, its crossing test and history), and keeps the rows up to the first measured step the watch rejects
+the step's row), which the core measures in the run (``watch_exact``, ``src/core/watch.cpp``: the routine of the
+compiled backend's single steps, :meth:`~kinredund.tracking.watch.Watch.use_core`): after the run Python takes
+the watch's verdicts on them in order, as the step control does one by one (the measurement kept, the crossing
+test and history), and keeps the rows up to the first measured step the watch rejects
 (that step then goes through :meth:`~kinredund.tracking.compiled.CompiledStep.accept` as one by one, which hands
 it back) or the first step its new prediction (:meth:`~kinredund.tracking.watch.Watch.ahead`) does not let
 through (left to the next call, which hands it back); the core's rows after it are dropped. Every step is the
@@ -37,7 +39,7 @@ from kinredund.errors import PathError
 from kinredund.tasks import get_task
 from kinredund.tracking.compiled import load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
-from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
+from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, reduce
 
 #: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
 GRID = 256
@@ -110,10 +112,10 @@ class Runs:
             watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY, True), ctl.speed2
         if c.limited:
             c.sync_active()  # a release taken by the Python stepper: the core holds none now
-        done, status, exact = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev, s.qdot,
-                                                  speed2, ctl is not None, watch, out)
+        done, status, exact, measured = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev,
+                                                            s.qdot, speed2, ctl is not None, watch, out)
         if exact:
-            done, status = self._verdicts(out, times, done, status, exact)
+            done, status = self._verdicts(out, times, done, status, exact, measured)
         if done:
             self._commit(out[:done], at, i, times[:done])
         if status == self.core.WATCH_DUE:
@@ -125,9 +127,11 @@ class Runs:
         rec.add()
         return done + 1
 
-    def _verdicts(self, out: np.ndarray, times: list[float], done: int, status: int, exact: list[int]) -> tuple:
-        """The watch's measurements of the run's steps ``exact`` (Watch.measure's exact branch, on the J and M of
-        their rows, then :meth:`~kinredund.tracking.watch.Watch.crossed` and
+    def _verdicts(self, out: np.ndarray, times: list[float], done: int, status: int, exact: list[int],
+                  measured: list[tuple]) -> tuple:
+        """The watch's measurements of the run's steps ``exact`` (``measured``: the core's, in the run, of
+        Watch.measure's exact branch on the free joints' J and M of their rows:
+        :meth:`~kinredund.tracking.watch.Watch.keep_exact`), then :meth:`~kinredund.tracking.watch.Watch.crossed` and
         :meth:`~kinredund.tracking.watch.Watch.push`, as
         :meth:`~kinredund.tracking.step_control.StepControl.watch_point` takes them one by one) and the
         prediction before each later step (``Watch.ahead``, as :meth:`~kinredund.tracking.compiled.CompiledStep.step`
@@ -138,9 +142,10 @@ class Runs:
         n, m, _ = self.c.shapes
         sM, sJ = self.c.slices[2:4]
         ends = [e + 1 for e in exact[1:]] + [done + (status != 0)]  # to the next measured step, or the step after
-        for e, end in zip(exact, ends, strict=True):
+        for e, end, values in zip(exact, ends, measured, strict=True):
             saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
-            sigma, eig = watch.measure(out[e, sJ].reshape(m, n), out[e, sM].reshape(n, n), None, fixed)
+            J = reduce(out[e, sJ].reshape(m, n), out[e, sM].reshape(n, n), fixed)[0]
+            sigma, eig = watch.keep_exact(J, *values)
             if watch.crossed(sigma, eig) is not None:
                 watch.load(saved)
                 return e, self.core.WATCH_DUE

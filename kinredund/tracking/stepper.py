@@ -152,7 +152,10 @@ class Stepper:
 
     def _check_rank(self, pt: Point) -> None:
         """Raise SingularityError where J loses rank (a kinematic singularity: the watch's floor)."""
-        sJ = np.linalg.svd(pt.J, compute_uv=False)
+        J = pt.J
+        sJ, info = lapack.dgesvd(J, compute_uv=0, full_matrices=0)[1::2] if np.isfinite(J).all() else (None, 1)
+        if info != 0:  # (LAPACK's dgesvd without vectors, as the watch's: numpy's svd costs twice as much)
+            sJ = np.full(2, np.nan)
         if not sJ[-1] > SIGMA_FLOOR * max(1.0, sJ[0]):  # "not >": NaN is singular too
             raise SingularityError(
                 f"kinematic singularity at t = {pt.t:.6g} s: smallest singular value of J {sJ[-1]:.3g}; "

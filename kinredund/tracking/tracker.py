@@ -25,6 +25,7 @@ is for thesis mode only.
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 
@@ -226,7 +227,7 @@ class Tracker:
     def _limits(robot: Robot, limits, mode: str, scheme: str) -> JointLimits | None:
         if not check_limits_option(limits, mode, scheme):
             return None
-        return JointLimits(robot) if limits is None or limits is True else limits
+        return robot_limits(robot) if limits is None or limits is True else limits
 
     def step(self) -> None:  # replaced by the stepper's own bound method in __init__ (no extra call)
         """One time step: from (q, lambda) at t to t + dt."""
@@ -240,6 +241,20 @@ class Tracker:
     lamdot = _from_stepper("lamdot", "The multipliers' rates at :attr:`t`.")
     solver = _from_stepper("solver", "The step's linear-solver label (``qp``, ``qp_aug``, ``lu``; ``lstsq`` for the "
                                      "baselines).")
+
+
+_LIMITS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # robot -> ((lower, upper), its JointLimits)
+
+
+def robot_limits(robot: Robot) -> JointLimits:
+    """``JointLimits(robot)``, made once per robot (its ``lower`` and ``upper``, read-only arrays) and shared by its
+    runs (:func:`~kinredund.tracking.many.track_many`'s make one per problem otherwise): a JointLimits is not
+    changed after it is made."""
+    key = (robot.lower, robot.upper)
+    kept = _LIMITS.get(robot)
+    if kept is None or kept[0][0] is not key[0] or kept[0][1] is not key[1]:
+        kept = _LIMITS[robot] = (key, JointLimits(robot))
+    return kept[1]
 
 
 def scene_constraints(robot: Robot, scene, clearance, self_clearance) -> list:

@@ -107,6 +107,7 @@ class Watch:
         self._exact_at = None
         self._key = None  # the active set of the history (None: no joint on a bound)
         self.core_measured = 0  # measurements the compiled core made (:meth:`took`)
+        self._core_exact = None  # the core's exact measurement (:meth:`use_core`), or None: numpy's (:func:`exact`)
 
     def due(self, rcond: float) -> bool:
         """Should this step be measured? (The cheap gate: R's condition estimate, see :data:`RCOND_NEAR`.)"""
@@ -146,9 +147,11 @@ class Watch:
         self._rcond = rcond
 
     def save(self) -> dict:
-        """The watch's state (its attributes; the histories are changed only by :meth:`push` and :meth:`reset`,
-        which a step that is undone has not reached)."""
-        return dict(vars(self))
+        """The watch's state (its attributes but the routine of :meth:`use_core`; the histories are changed only
+        by :meth:`push` and :meth:`reset`, which a step that is undone has not reached)."""
+        state = dict(vars(self))
+        del state["_core_exact"]
+        return state
 
     def load(self, saved: dict) -> None:
         """Back to a state of :meth:`save` (a measured step that was rejected after all)."""
@@ -223,10 +226,25 @@ class Watch:
         self._exact_at = None
         return self._exact(*reduce(J, M, fixed))
 
+    def use_core(self, core) -> None:
+        """Measure exactly with the compiled core's ``watch_exact`` (``src/core/watch.cpp``, Eigen) instead of
+        :func:`exact` (numpy's LAPACK): the compiled backend's, whose runs of steps measure with the same routine
+        in C++ (:mod:`kinredund.tracking.runs`), so that runs and single steps give the same bits."""
+        self._core_exact = core.watch_exact
+
     def _exact(self, J, M) -> tuple[float, float]:
-        sigma, eig, v = exact(J, M)
+        if self._core_exact is None:
+            sigma, eig, v = exact(J, M)
+            scale = max(1.0, float(np.abs(M).max()))
+        else:
+            sigma, eig, v, scale = self._core_exact(np.ascontiguousarray(J, float), np.ascontiguousarray(M, float))
+        return self.keep_exact(J, sigma, eig, v, scale)
+
+    def keep_exact(self, J: np.ndarray, sigma: float, eig: float, v: np.ndarray, scale: float) -> tuple[float, float]:
+        """Keep an exact measurement at J (the free joints'): :func:`exact`'s (sigma, eig, v) and the fold floor's
+        scale max(1, max |M_ij|) (the core's ``watch_exact`` gives all four); returns (sigma, eig)."""
         self._v = v
-        self.scale = max(1.0, float(np.abs(M).max()))
+        self.scale = scale
         self._J_ref, self._sigma_ref, self._fresh = J.copy(), sigma, True
         return sigma, eig
 

@@ -4,9 +4,10 @@
 // (kinredund/tracking/compiled.py, CompiledStep._apply). The run ends at the first step that is not ordinary (its
 // status, nothing written) or that the fold and singularity watch must measure (its row written: the caller
 // finishes that step in Python), or after the last time given. With the watch's ``through`` flag the run goes on
-// through the steps the watch measures exactly (every ``every``-th step: Watch.measure's exact branch, Python's,
-// which reads only the step's J and M in its row): their indices are returned, and the caller measures them after
-// the run and keeps the rows up to the first step the watch's verdict does not accept (kinredund/tracking/runs.py).
+// through the steps the watch measures exactly (every ``every``-th step): each is measured here, in the run, on the
+// free joints' J and M of its row (watch.cpp's watch_exact, the routine of the compiled backend's single steps), and
+// their indices and measurements are returned; the caller takes the watch's verdicts on them after the run and keeps
+// the rows up to the first step the watch does not accept (kinredund/tracking/runs.py).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
@@ -16,6 +17,7 @@
 #include <vector>
 
 #include "step.hpp"
+#include "watch.hpp"
 
 namespace nb = nanobind;
 
@@ -58,8 +60,9 @@ struct Gate {
 
 // run(core, t (K), p, v (K x 3), Q (K x 9 or 0 x 9), omega (K x 3 or 0 x 3), ref, rate (K x n or 0 x n), y, yd,
 //     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every[, through]),
-//     out) -> (steps done, status, the indices of the steps passed through that the watch measures exactly):
-// status 0 after all K steps, else that of step ``done`` (WATCH_DUE: its row is written).
+//     out) -> (steps done, status, the indices of the steps passed through that the watch measures exactly, their
+// measurements (sigma_min_J, eig, v, scale): watch_exact's): status 0 after all K steps, else that of step ``done``
+// (WATCH_DUE: its row is written).
 nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows omega, Rows ref, Rows rate, Vec y0,
                     Vec yd0, nb::list prev_list, Vec qdot0, double speed2, bool check_jump, nb::tuple watch,
                     Sink out) {
@@ -100,6 +103,11 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
   size_t done = 0;
   int status = 0;
   std::vector<size_t> measured;
+  std::vector<ExactMeasure> measures;
+  int nf = 0;
+  const int* free = step_core_free(core, nf);
+  std::vector<double> Jr(static_cast<size_t>(m) * nf), Mr(static_cast<size_t>(nf) * nf);
+  const size_t oM = 2 * N, oJ = oM + static_cast<size_t>(n) * n;  // M (n x n) and J (m x n) in the row
   {
     nb::gil_scoped_release release;  // no Python object below: runs in threads compute in parallel
     for (; done < K; ++done) {
@@ -117,6 +125,14 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
           break;
         }
         measured.push_back(k);
+        for (int i = 0; i < m; ++i)  // Watch.reduce: the free joints' columns of J, rows and columns of M
+          for (int b = 0; b < nf; ++b)
+            Jr[static_cast<size_t>(i) * nf + b] = o[oJ + static_cast<size_t>(i) * n + free[b]];
+        for (int a = 0; a < nf; ++a)
+          for (int b = 0; b < nf; ++b)
+            Mr[static_cast<size_t>(a) * nf + b] = o[oM + static_cast<size_t>(free[a]) * n + free[b]];
+        measures.emplace_back();
+        watch_exact(Jr.data(), Mr.data(), m, nf, measures.back());
       }
       // the driver's bookkeeping (CompiledStep._apply): (y, ydot) joins the history, which keeps two pairs
       prev.push_back(y);
@@ -132,9 +148,16 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
       }
     }
   }
-  nb::list exact;
-  for (size_t k : measured) exact.append(k);
-  return nb::make_tuple(done, status, exact);
+  nb::list exact, values;
+  for (size_t j = 0; j < measured.size(); ++j) {
+    exact.append(measured[j]);
+    ExactMeasure& e = measures[j];
+    auto* buf = new std::vector<double>(std::move(e.v));
+    nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<std::vector<double>*>(p); });
+    nb::ndarray<nb::numpy, double, nb::ndim<1>> v(buf->data(), {static_cast<size_t>(nf)}, owner);
+    values.append(nb::make_tuple(e.sigma, e.eig, v, e.scale));
+  }
+  return nb::make_tuple(done, status, exact, values);
 }
 
 void bind_loop(nb::module_& m) {

@@ -64,6 +64,7 @@ struct Sample {
 }  // namespace
 
 class StepCore {
+  friend const int* step_core_free(const StepCore&, int&);
   friend int step_core_advance(StepCore&, const StepInput&, const double*, const double*,
                                const std::vector<const double*>&, const double*, double, bool, double*);
 
@@ -737,6 +738,11 @@ StepCore& step_core(nb::handle obj) {
 void step_core_sizes(const StepCore& c, int& n, int& m, int& row) {
   n = c.n(), m = c.m();
   row = static_cast<int>(c.output_size());  // StepCore::step's layout
+}
+
+const int* step_core_free(const StepCore& c, int& nf) {
+  nf = static_cast<int>(c.free_.size());
+  return c.free_.data();
 }
 
 int step_core_advance(StepCore& c, const StepInput& in, const double* y, const double* yd,

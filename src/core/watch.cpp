@@ -5,14 +5,20 @@
 // where it is zero), and sigma_min(J): the last exact value while ||J - J_ref||_F < J_GATE sigma_ref (Weyl), else
 // LAPACK dgesvd without vectors. dgetrs and dgesvd are scipy's own (scipy.linalg.cython_lapack's capsules, the
 // library behind scipy.linalg.lapack), so the numbers are the Python watch's to rounding of the vector operations.
-// The exact branch (one SVD of J for sigma_min and the null basis, eigh; every EXACT_EVERY measurements) stays in
-// Python.
+// The exact branch (one SVD of J for sigma_min and the null basis, the eigenvalue of Z^T sym(M) Z; every EXACT_EVERY
+// measurements) is watch_exact, in Eigen: the compiled backend's single steps (Watch._exact with a core) and its
+// runs of steps (loop.cpp, the GIL released) call the same routine, so both give the same bits; the Python backend
+// keeps numpy's LAPACK (the values agree to the SVD's rounding, ~eps ||J||, and the eigensolver's, ~eps ||M||; the
+// vectors up to sign: only the inverse iteration's start reads them, whose Rayleigh quotient does not see the sign).
 #include "watch.hpp"
 
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/tuple.h>
 
 #include <Python.h>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
 
 #include <algorithm>
 #include <cmath>
@@ -98,6 +104,51 @@ nb::object exact_square(const Lapack& L, const double* J, const double* M, int m
 
 }  // namespace
 
+void watch_exact(const double* J, const double* M, int m, int nf, ExactMeasure& out) {
+  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  const Eigen::Map<const RowMat> Jm(J, m, nf), Mm(M, nf, nf);
+  out.scale = 1.0;
+  for (Eigen::Index k = 0; k < Mm.size(); ++k) out.scale = std::max(out.scale, std::abs(M[k]));
+  out.v.assign(static_cast<size_t>(nf), 0.0);
+  const int r = std::min(m, nf);
+  if (r == 0) {
+    out.sigma = std::nan("");
+    out.eig = INFINITY;
+    return;
+  }
+  if (!Jm.allFinite()) {  // (Eigen's SVD leaves its values unset on such input) NaN: the watch counts it crossed
+    out.sigma = out.eig = std::nan("");
+    return;
+  }
+  const Eigen::MatrixXd Jc = Jm;
+  if (nf <= m) {  // no null space (Watch's exact where J is square): sigma_min, eig = +inf, v = 0
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd(Jc);
+    out.sigma = svd.singularValues()(r - 1);
+    out.eig = INFINITY;
+    return;
+  }
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(Jc, Eigen::ComputeFullV);
+  out.sigma = svd.singularValues()(r - 1);  // (descending)
+  if (!Mm.allFinite()) {
+    out.eig = std::nan("");
+    return;
+  }
+  const Eigen::MatrixXd Z = svd.matrixV().rightCols(nf - m);
+  const Eigen::MatrixXd S = Z.transpose() * (0.5 * (Mm + Mm.transpose())) * Z;  // Z^T sym(M) Z
+  if (nf - m == 1) {
+    out.eig = S(0, 0);
+    Eigen::Map<Eigen::VectorXd>(out.v.data(), nf) = Z.col(0);
+    return;
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(S);
+  if (es.info() != Eigen::Success) {
+    out.eig = std::nan("");
+    return;
+  }
+  out.eig = es.eigenvalues()(0);  // (ascending)
+  Eigen::Map<Eigen::VectorXd>(out.v.data(), nf) = Z * es.eigenvectors().col(0);
+}
+
 nb::object watch_measure(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
                          const double* v, const double* J_ref, double sigma_ref, double gate) {
   const Lapack& L = lapack();
@@ -176,9 +227,22 @@ nb::object measure_arrays(Mat J, Mat M, FMat lu, nb::ndarray<const int, nb::ndim
                        sigma_ref, gate);
 }
 
+// watch_exact(J (m x nf), M (nf x nf)) -> (sigma_min_J, eig, v (nf), scale).
+nb::tuple exact_arrays(Mat J, Mat M) {
+  const int m = static_cast<int>(J.shape(0)), nf = static_cast<int>(J.shape(1));
+  if (M.shape(0) != static_cast<size_t>(nf) || M.shape(1) != static_cast<size_t>(nf))
+    throw nb::value_error(("M must be " + std::to_string(nf) + " x " + std::to_string(nf) + " (J: " +
+                           std::to_string(m) + " x " + std::to_string(nf) + ")").c_str());
+  ExactMeasure e;
+  watch_exact(J.data(), M.data(), m, nf, e);
+  return nb::make_tuple(e.sigma, e.eig, owned<Out1>(std::move(e.v), {static_cast<size_t>(nf)}), e.scale);
+}
+
 }  // namespace
 
 void bind_watch(nb::module_& m) {
+  m.def("watch_exact", &exact_arrays, nb::arg("J"), nb::arg("M"),
+        "The watch's exact measurement (kinredund.tracking.watch.exact) in Eigen: (sigma_min_J, eig, v, scale).");
   m.def("watch_measure", &measure_arrays, nb::arg("J"), nb::arg("M"), nb::arg("lu"), nb::arg("piv"), nb::arg("free"),
         nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"), nb::arg("gate"),
         "The watch's inverse-iteration measurement (kinredund.tracking.watch.Watch.measure) on given matrices: "

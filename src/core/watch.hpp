@@ -3,6 +3,8 @@
 
 #include <nanobind/nanobind.h>
 
+#include <vector>
+
 namespace kinredund {
 
 // The watch's inverse-iteration measurement (kinredund.tracking.watch.Watch.measure, the branch that reuses R's
@@ -16,6 +18,20 @@ namespace kinredund {
 // are scipy's (cython_lapack), the routines of the Python watch's calls (numpy's svd: dgesdd, another build).
 nanobind::object watch_measure(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
                                const double* v, const double* J_ref, double sigma_ref, double gate);
+
+// The watch's exact measurement (kinredund.tracking.watch.exact, the compiled backend's: Watch._exact with a core),
+// without Python objects (runs of steps call it with the GIL released): one SVD of J (Eigen's JacobiSVD, full V)
+// gives sigma_min(J) and Z, the last nf - m right singular vectors (a basis of J's null space); the smallest
+// eigenvalue of Z^T sym(M) Z (Eq. (4.24)'s R is singular where it is zero; Eigen's SelfAdjointEigenSolver where
+// nf - m > 1, the number z^T sym(M) z where nf - m = 1) and its eigenvector in joint space v = Z w; where nf <= m (no
+// null space) eig = +inf and v = 0. ``scale``: the fold floor's max(1, max |M_ij|). A J (M) with an entry not finite
+// gives sigma and eig (eig) NaN, which the watch counts as crossed.
+struct ExactMeasure {
+  double sigma = 0.0, eig = 0.0, scale = 1.0;
+  std::vector<double> v;
+};
+// J (m x nf, row-major), M (nf x nf, row-major).
+void watch_exact(const double* J, const double* M, int m, int nf, ExactMeasure& out);
 
 // Binds watch_measure on arrays into the module (for tests: any J, M and factors).
 void bind_watch(nanobind::module_& m);

@@ -60,7 +60,11 @@ class Constraint(abc.ABC):
     def violations(self, q: np.ndarray, tol: float = 0.0) -> list[tuple[str, float]]:
         """(name, amount) of each inequality violated by more than ``tol`` at q [rad or m]."""
         c = self.values(q)
-        return [(name, float(-v)) for name, v in zip(self.names(), c, strict=True) if v < -tol]
+        bad = np.flatnonzero(c < -tol)
+        if not bad.size:  # (the names are made only where one is violated)
+            return []
+        names = self.names()
+        return [(names[i], float(-c[i])) for i in bad]
 
     def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(values, gradients) at q together (a subclass computes both from one kinematics pass)."""
