@@ -636,3 +636,17 @@ def test_constrained_minimum_seeded_at_the_index_reference_off_the_path():
     res = kinredund.solve_ik(r, target, JointDeviation(r.home), q0=r.home)
     assert_ik_converged(r, target, res)
     assert res.reduced_hessian_pd
+
+
+def test_a_stop_s_cause_is_its_reason_without_numbers():
+    """IKResult.cause: two stops alike at points a rounding apart compare equal; different kinds do not."""
+    from kinredund.ik.solve import IKResult
+
+    def stop(reason):
+        return IKResult(np.zeros(7), False, 200, 1e-3, 0.0, 0.0, False, np.nan, reason)
+
+    a, b = stop("max_iter (200) reached: residual 1.25e-07, normality 3.1e-05"), stop(
+        "max_iter (200) reached: residual 9.7e-08, normality -2e-05")
+    assert a.cause == b.cause == "max_iter (#) reached: residual #, normality #"
+    assert stop("line search failed at residual 0.5").cause != a.cause
+    assert stop("").cause == ""

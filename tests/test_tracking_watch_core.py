@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 from conftest import rounding
-from test_tracking_compiled import assert_same_record, problem
+from test_tracking_compiled import Q_BAR, assert_same_record, problem
 
 from kinredund.tracking import Tracker, compiled, track
 from kinredund.tracking import watch as watch_module
@@ -254,6 +254,10 @@ def test_the_compiled_backend_measures_exactly_in_the_core(monkeypatch):
     assert calls["numpy"] == 2
     a, b = single.stepper, batched.stepper
     np.testing.assert_array_equal(b.q, a.q)
+    python = Tracker(r, path, index, q0, dt, backend="python")  # numpy's measurements: the same run to the bars
+    for _ in range(200):
+        python.step()
+    np.testing.assert_allclose(python.stepper.q, a.q, rtol=0, atol=Q_BAR)
     wa, wb = a.control.watch.save(), b.control.watch.save()
     for key in wa:
         np.testing.assert_array_equal(wb[key], wa[key], err_msg=key)

@@ -28,6 +28,7 @@ z [rad^2] for the joint-deviation indices, times [s].
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from time import perf_counter
 
@@ -94,6 +95,15 @@ class IKResult:
     time_s: float = 0.0
     notes: str = ""
 
+    @property
+    def cause(self) -> str:
+        """``reason`` with its numbers (the residual, time or count it stopped at) replaced by ``#``: the kind of stop,
+        comparable between two runs that stop alike at points a rounding apart ("" when converged)."""
+        return _NUMBER.sub("#", self.reason)
+
+
+#: a number in a stop's reason (IKResult.cause)
+_NUMBER = re.compile(r"-?\d[\d.]*(e[-+]?\d+)?")
 
 #: the most starts one call runs (each is a whole local solve: a typo such as 1e8 would run for days);
 #: use ``timeout`` to bound a search by time instead (kinredund.errors.SIZES holds every such limit)
