@@ -32,7 +32,9 @@ predicted to cross, or the step keeps jumping at the floor: the optimum is disco
 ``kinematic_singularity`` or ``out_of_reach`` (sigma_min(J) predicted to cross; out of reach where the
 path point at the end of the step, or one step after the stop, cannot be reached: task-only
 Levenberg-Marquardt, :func:`~kinredund.tracking.failure.task_residual_min`), else (the corrector fails
-with neither quantity near zero) ``out_of_reach`` if the path cannot be reached there, else
+with neither quantity near zero) ``out_of_reach`` if the path cannot be reached there, else the branch is
+followed toward the failed time by bisection and the stop named by what has fallen at its end (``fold`` or
+``kinematic_singularity``: a quantity that jumps within a sub-step, which the watch cannot extrapolate), else
 ``step_control_exhausted``; a jump where the path's own position jumps is ``path_discontinuity``.
 
 On a step with no trouble the control costs the watch (see :mod:`kinredund.tracking.watch`), the jump
@@ -60,6 +62,14 @@ TRAPEZOID_TOL = 0.25
 #: a whole step whose corrected joints lie within this fraction of h |qdot| of the predictor's point
 #: (extrapolated from the smooth past) is no jump, and the trapezoidal check is skipped
 PREDICTED_TOL = 0.01
+#: where the corrector fails below the floor unannounced, the branch is followed toward the failed time by this many
+#: bisections, down to BRANCH_RESOLUTION dt, and a quantity that has fallen below BRANCH_FALL of its value at the
+#: nearest good point by the branch's end names the stop (:meth:`StepControl._branch_end`)
+BRANCH_BISECTIONS, BRANCH_RESOLUTION, BRANCH_FALL = 40, 1e-9, 0.1
+#: a sub-step of the branch's end search that moves the joints by more than this times its length times the larger
+#: of the rates at its ends has jumped onto another branch (a move along one branch is at most the largest rate
+#: on it times the length)
+BRANCH_SPEED = 2.0
 
 
 class StepControl:
@@ -131,20 +141,27 @@ class StepControl:
             # follow the rounding of whichever backend (or BLAS run) took the iterate off the path, not the path (two
             # runs of one stop gave 3.7e-17 and 7.3e-16, J 0.037 and 0.15); the error reports the last good point's
             return "corrector", str(err).split("; q = ")[0].split(": smallest singular value")[0]
-        qd0, qd1 = snap[0].qdot, s.qdot
-        speed2 = float(qd1 @ qd1)
+        speed2 = float(s.qdot @ s.qdot)
         if h == s.dt:  # a whole step: where the corrector ended next to the predictor's point, no jump
             m = s.q - s.q_pred
             if float(m @ m) <= (PREDICTED_TOL * h) ** 2 * max(self.speed2, speed2):
                 return self.watch_point(h, speed2)
+        jump = self._jump(snap, h)
+        return ("jump", jump) if jump is not None else self.watch_point(h, speed2)
+
+    def _jump(self, snap: tuple, h: float) -> str | None:
+        """Why the (sub-)step of length h from ``snap`` to the current point is a jump (the trapezoidal check of
+        the module docstring), or None."""
+        s = self.s
+        qd0, qd1 = snap[0].qdot, s.qdot
         dq = s.q - snap[0].q
         e = dq - (0.5 * h) * (qd0 + qd1)  # the trapezoidal rule's miss: h^3 |q'''| / 12 on a smooth step
         move2, miss2 = float(dq @ dq), float(e @ e)
-        scale2 = max(move2, h * h * max(self.speed2, speed2))
+        scale2 = max(move2, h * h * max(self.speed2, float(qd1 @ qd1)))
         if not miss2 <= TRAPEZOID_TOL**2 * scale2 + 1e-24:
-            return "jump", (f"the joints moved {math.sqrt(move2):.3g} in {h:.3g} s, {math.sqrt(miss2):.3g} away from "
-                            "what the rates at both ends give (trapezoidal rule)")
-        return self.watch_point(h, speed2)
+            return (f"the joints moved {math.sqrt(move2):.3g} in {h:.3g} s, {math.sqrt(miss2):.3g} away from what the "
+                    "rates at both ends give (trapezoidal rule)")
+        return None
 
     def watch_point(self, h: float, speed2: float, core=None):
         """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why).
@@ -272,6 +289,9 @@ class StepControl:
                     cause = "out_of_reach"
                 elif kind == "kinematic" or ahead == "kinematic":
                     cause = "kinematic_singularity"
+                elif kind == "corrector":
+                    cause, why, branch = self._branch_end(t_fail, near, why)
+                    extra.update(branch)
                 else:
                     cause = "step_control_exhausted"
         if cause == "kinematic_singularity" and _bounds_dependent(s, q_near, t_near):
@@ -291,6 +311,50 @@ class StepControl:
             f"{near.get('sigma_min_J', float('nan')):.3g}, reduced-Hessian eigenvalue "
             f"{near.get('reduced_hessian_min', float('nan')):.3g})",
             cause=cause, t=s.t, q=s.q.copy(), watched=watched)
+
+    def _branch_end(self, t_fail: float, near: dict, why: str) -> tuple[str, str, dict]:
+        """(cause, reason, watched) of a corrector that fails below the floor with neither quantity predicted to cross.
+
+        The watch extrapolates smooth quantities; where one jumps within a sub-step (a distance row's curvature
+        where its witness point passes from a face to an edge, Lagrangian -nu Hess c) and then runs to zero, the
+        branch ends inside the floor's sub-step unannounced, and the corrector's iterates beyond it diverge (their
+        own words, a singular R far off the path, say nothing of the path). So the branch is followed from the
+        nearest good point (the current one) toward ``t_fail`` by :data:`BRANCH_BISECTIONS` bisections (Euler
+        sub-steps from the farthest point reached; one that moves the joints more than :data:`BRANCH_SPEED` times its
+        length times the larger of the rates at its ends has jumped onto another branch; not the trapezoidal check,
+        which the rates' own jump where the curvature jumps fails at any length) and measured exactly at its end: a
+        quantity fallen below :data:`BRANCH_FALL` of its value at the nearest good point names the stop (``fold``
+        or ``kinematic_singularity``), else it is ``step_control_exhausted``. ``watched``: the end's time and joints
+        (``branch_end_t``, ``branch_end_q``: a good point, corrected, nearer the failure than the sub-steps'). The
+        stepper is left at that end."""
+        s = self.s
+        t_near, lo, hi = s.t, self.snapshot(), t_fail
+        for _ in range(BRANCH_BISECTIONS):
+            if hi - lo[0].t <= BRANCH_RESOLUTION * s.dt:
+                break
+            mid = 0.5 * (lo[0].t + hi)
+            s.prev.clear()
+            try:
+                s.euler_to(mid)
+                dq, qd0, qd1 = s.q - lo[0].q, lo[0].qdot, s.qdot  # no jump onto another branch: the move within
+                ok = float(dq @ dq) <= (BRANCH_SPEED * (mid - lo[0].t)) ** 2 * max(qd0 @ qd0, qd1 @ qd1)  # the rates'
+            except (PathError, SingularityError, TrackingError):
+                ok = False
+            if ok:
+                lo = self.snapshot()
+            else:
+                hi = mid
+            self.restore(lo)
+        end = watched_at(s) if s.t > t_near else near
+        words = f"the corrector finds no optimum on the branch followed beyond t = {hi:.9g} s"
+        branch = {"branch_end_t": float(s.t), "branch_end_q": s.q.tolist()}
+        for cause, key, what in (("fold", "reduced_hessian_min", "the reduced-Hessian eigenvalue"),
+                                 ("kinematic_singularity", "sigma_min_J", "sigma_min(J)")):
+            was, now = near.get(key, math.nan), end.get(key, math.nan)
+            if now < BRANCH_FALL * was:
+                return cause, (f"{words}: {what} falls from {was:.3g} at t = {t_near:.6g} s to {now:.3g} at t = "
+                               f"{s.t:.9g} s, within a sub-step (a jump the watch cannot extrapolate)"), branch
+        return "step_control_exhausted", f"{words} (at its iterates: {why})", branch
 
     def _bounded_stop(self, snap_step: tuple, t_fail: float) -> TrackingError:
         """The bounded stepper's own stop (the limits' cause), where no sub-step down to the floor gets past it: the

@@ -1,0 +1,92 @@
+"""A branch of the held optimum that ends unannounced inside the sub-step floor is named by where it ends.
+
+Named case ``kinova_ball`` (a draw of tests/test_clearance_property.py's generator on the Kinova arm, an arm that
+test never draws; pinned here): a 4.4 cm circle at 0.1 m/s, z = 1/2 ||q - q_home||^2, a 4 cm ball beside the
+upper arm held 2 cm off. The ball's row is met at t = 0.23 s and held; at t ~ 0.75678 s the ball's witness point on
+j2s6s200_link_2's hull passes onto another feature, the distance's curvature jumps (its row is continuously
+differentiable, not twice), and the reduced Hessian's eigenvalue with the row's curvature jumps from 1.31 to about
+0.03, then runs to zero at t ~ 0.75695 s: a fold, 0.35 ms after the last sub-step point, inside the floor's
+sub-step (0.44 ms). The watch, which extrapolates smooth quantities, saw nothing coming; the corrector's iterates
+past the fold diverged, and the stop was named after their singular R ("kinematic (J rank-deficient)
+singularity", with sigma_min(J) 0.23 at the last good point).
+
+The step control now follows the branch toward the failed time by bisection and names the stop by what fell by
+its end (:meth:`~kinredund.tracking.step_control.StepControl._branch_end`). Checked independently with the
+joint-level IK with rows (:func:`~kinredund.ik.rows.solve_ik_rows`, its own reduced Hessian with the rows'
+curvature): continued in small steps it finds the branch up to the reported end and its eigenvalue near zero
+there, and just beyond it no optimum near the branch.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+from conftest import robot
+
+import kinredund as kr
+from kinredund.errors import TrackingError
+from kinredund.ik.rows import solve_ik_rows
+from kinredund.indices import JointDeviation
+from kinredund.paths import Circle
+
+CLEARANCE, SELF_CLEARANCE = 0.02, 0.01
+CIRCLE = dict(center=[0.059089045851722755, -0.10002163787536182, 0.4133806568786667], radius=0.04439334334678957,
+              normal=(0.030957278655572327, 0.817373012511926, -0.5752764599002987),
+              axis_x=(-0.9959306416821336, 0.0739625289803582, 0.05149467220444464))
+Q0 = [-0.059578603642609286, 2.1596568037327315, 1.0074187801146517, 0.0027506322846885933, 4.506508909817697,
+      0.428276363788403]
+BALL = ([-0.13692999954042664, 0.36382399249722086, 0.4661864761637927], 0.039823458193293484)
+
+
+@functools.cache
+def stop():
+    r = robot("kinova", "position")
+    path = Circle(np.array(CIRCLE["center"]), CIRCLE["radius"], 0.1, normal=CIRCLE["normal"],
+                  axis_x=CIRCLE["axis_x"])
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", BALL[1], BALL[0])
+    index = JointDeviation(r.home.copy())
+    with pytest.raises(TrackingError) as info:
+        kr.track(r, path, index, np.array(Q0), loops=1, steps_per_loop=100, scene=sc, clearance=CLEARANCE,
+                 self_clearance=SELF_CLEARANCE)
+    return r, path, index, sc, info.value
+
+
+def _ik(r, path, index, rows, t, q):
+    return solve_ik_rows(r, path(t).p, index, rows, q, tol=1e-12)
+
+
+def test_the_stop_is_named_a_fold_where_the_branch_ends():
+    r, path, index, sc, err = stop()
+    assert err.cause == "collision" and err.watched["underlying_cause"] == "fold", str(err)
+    assert "kinematic" not in str(err)  # the diverged iterates' words are not the cause
+    t_sub, t_end = err.watched["substep_t"], err.watched["branch_end_t"]
+    assert t_sub < t_end < err.watched["t_failed"]
+    q_end = np.array(err.watched["branch_end_q"])  # a good point: on the path, clear, inside the limits
+    assert np.linalg.norm(r.fk(q_end)[:3, 3] - path(t_end).p) <= 1e-10
+    assert sc.min_distance(q_end) >= CLEARANCE - 1e-9
+    assert np.all(q_end >= r.lower - 1e-10) and np.all(q_end <= r.upper + 1e-10)
+
+
+def test_the_branch_end_agrees_with_the_joint_level_ik():
+    """Continued from the last sub-step point in 1e-5 s steps, the IK with rows stays on the branch (each move under
+    1e-3 rad: the branch's other side is 8.5e-3 rad away) up to 1e-6 s before the reported end, where its reduced
+    Hessian's least eigenvalue has fallen under 1e-2 (1.0 at the start; at a fold it goes as the square root of the
+    time left) and its joints are within 1e-3 rad of the reported end's; 2e-6 s past the end it finds no optimum
+    within 1e-3 rad of the branch (it fails, or lands on the other branch)."""
+    r, path, index, sc, err = stop()
+    rows = [kr.SceneClearance(sc, CLEARANCE, SELF_CLEARANCE)]
+    t_sub, t_end = err.watched["substep_t"], err.watched["branch_end_t"]
+    q = np.array(err.watched["substep_q"])
+    first = _ik(r, path, index, rows, t_sub, q)
+    assert first.converged and first.reduced_hessian_min_eig > 0.9
+    for t in [*np.arange(t_sub + 1e-5, t_end - 1e-6, 1e-5), t_end - 1e-6]:
+        res = _ik(r, path, index, rows, t, q)
+        assert res.converged and np.linalg.norm(res.q - q) <= 1e-3, t
+        q = res.q
+    assert res.reduced_hessian_min_eig < 1e-2
+    assert np.linalg.norm(q - np.array(err.watched["branch_end_q"])) <= 1e-3
+    beyond = _ik(r, path, index, rows, t_end + 2e-6, q)
+    assert not beyond.converged or np.linalg.norm(beyond.q - q) > 1e-3
