@@ -313,7 +313,8 @@ class GeneralRows:
 
     def _name_row_failure(self, err, snap, involved: set | None = None) -> None:
         """A stop with a general row active (or switched in the step) is the constraint's: ``err.cause``
-        becomes its cause (``collision``), the former one ``watched["underlying_cause"]``. ``involved``: the
+        becomes its cause (``collision``), the former one ``watched["underlying_cause"]``, and the message names the
+        rows (``watched["constraints"]``) where it does not yet. ``involved``: the
         rows of :meth:`_rows_involved`, where the caller has already put the state back."""
         involved = self._rows_involved(snap) if involved is None else involved
         if not involved:
@@ -322,7 +323,9 @@ class GeneralRows:
         if err.cause != cause:
             err.watched["underlying_cause"] = err.cause
             err.cause = cause
-        err.watched["constraints"] = self.row_names(sorted(involved))
+        names = err.watched["constraints"] = self.row_names(sorted(involved))
+        if not all(n in err.args[0] for n in names):  # the message names the pairs (the issue: cause and pair)
+            err.args = (f"{err.args[0]}; the constraints involved: {'; '.join(names)}",) + tuple(err.args[1:])
         notes = self._discontinuities(snap, involved, err.watched.get("substep_q"))
         if notes:
             err.watched["nonsmooth"] = notes

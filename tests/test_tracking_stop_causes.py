@@ -1,6 +1,7 @@
-"""A branch of the held optimum that ends unannounced inside the sub-step floor is named by where it ends.
+"""Stops among obstacles named by what happened, not by a corrector iterate's words, and naming the pair.
 
-Named case ``kinova_ball`` (a draw of tests/test_clearance_property.py's generator on the Kinova arm, an arm that
+A branch of the held optimum that ends unannounced inside the sub-step floor is named by where it ends. Named case
+``kinova_ball`` (a draw of tests/test_clearance_property.py's generator on the Kinova arm, an arm that
 test never draws; pinned here): a 4.4 cm circle at 0.1 m/s, z = 1/2 ||q - q_home||^2, a 4 cm ball beside the
 upper arm held 2 cm off. The ball's row is met at t = 0.23 s and held; at t ~ 0.75678 s the ball's witness point on
 j2s6s200_link_2's hull passes onto another feature, the distance's curvature jumps (its row is continuously
@@ -15,6 +16,13 @@ its end (:meth:`~kinredund.tracking.step_control.StepControl._branch_end`). Chec
 joint-level IK with rows (:func:`~kinredund.ik.rows.solve_ik_rows`, its own reduced Hessian with the rows'
 curvature): continued in small steps it finds the branch up to the reported end and its eigenvalue near zero
 there, and just beyond it no optimum near the branch.
+
+A row the redundancy cannot move is named as such. Named case ``ur5_axis_ball``: the UR5 with the tool-axis task
+(n - m = 1: the redundancy is the tool's spin, joint 6 alone) on test_tracking_axis's circle, a 3.1 cm ball where
+the wrist_1 link passes. When its row is met, [J; G] is singular while J is not (LICQ fails: joint 6 does not move
+wrist_1): the stop said "kinematic (J rank-deficient) singularity"; it now says the constraints are dependent and
+names the pair. Checked independently: the row's gradient on the null space of the task's Jacobian (central
+differences of the tool's position and axis) vanishes at the last good point.
 """
 
 from __future__ import annotations
@@ -24,6 +32,8 @@ import functools
 import numpy as np
 import pytest
 from conftest import robot
+from test_clearance_property import CLEARANCE, SELF_CLEARANCE, margin
+from test_tracking_axis import _case as axis_case
 
 import kinredund as kr
 from kinredund.errors import TrackingError
@@ -31,7 +41,6 @@ from kinredund.ik.rows import solve_ik_rows
 from kinredund.indices import JointDeviation
 from kinredund.paths import Circle
 
-CLEARANCE, SELF_CLEARANCE = 0.02, 0.01
 CIRCLE = dict(center=[0.059089045851722755, -0.10002163787536182, 0.4133806568786667], radius=0.04439334334678957,
               normal=(0.030957278655572327, 0.817373012511926, -0.5752764599002987),
               axis_x=(-0.9959306416821336, 0.0739625289803582, 0.05149467220444464))
@@ -66,7 +75,7 @@ def test_the_stop_is_named_a_fold_where_the_branch_ends():
     assert t_sub < t_end < err.watched["t_failed"]
     q_end = np.array(err.watched["branch_end_q"])  # a good point: on the path, clear, inside the limits
     assert np.linalg.norm(r.fk(q_end)[:3, 3] - path(t_end).p) <= 1e-10
-    assert sc.min_distance(q_end) >= CLEARANCE - 1e-9
+    assert margin(sc, q_end) >= -1e-9  # each pair against its own clearance
     assert np.all(q_end >= r.lower - 1e-10) and np.all(q_end <= r.upper + 1e-10)
 
 
@@ -90,3 +99,36 @@ def test_the_branch_end_agrees_with_the_joint_level_ik():
     assert np.linalg.norm(q - np.array(err.watched["branch_end_q"])) <= 1e-3
     beyond = _ik(r, path, index, rows, t_end + 2e-6, q)
     assert not beyond.converged or np.linalg.norm(beyond.q - q) > 1e-3
+
+
+#: the ball of ``ur5_axis_ball``: center [m], radius [m]
+UR5_BALL = ([0.3052264560843312, 0.2987061378748938, 0.43822667631077344], 0.030826773397292048)
+
+
+def test_a_row_the_redundancy_cannot_move_is_named_dependent():
+    r, path, index, q0 = axis_case("ur5")
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", UR5_BALL[1], UR5_BALL[0])
+    with pytest.raises(TrackingError) as info:
+        kr.track(r, path, index, q0, loops=1, scene=sc)
+    err = info.value
+    assert err.cause == "collision" and err.watched["underlying_cause"] == "not_strongly_stable", str(err)
+    assert "dependent constraints" in str(err) and "kinematic" not in str(err)
+    pair = "wrist_1_link_0 and ball kept 0.02 m apart"
+    assert err.watched["constraints"] == [pair] and pair in str(err)
+    q = np.asarray(err.q, float)
+    assert margin(sc, q) >= -1e-9 and np.linalg.norm(r.fk(q)[:3, 3] - path(err.t).p) <= 1e-10
+    # independently: the task's Jacobian (tool position and axis, by central differences) and its null space
+    h = 1e-6
+
+    def task(x):
+        T = r.fk(x)
+        return np.concatenate([T[:3, 3], T[:3, 2]])
+
+    Jt = np.column_stack([(task(q + h * e) - task(q - h * e)) / (2 * h) for e in np.eye(len(q))])
+    _, sv, Vt = np.linalg.svd(Jt)
+    assert sv[4] > 0.1 and sv[5] < 1e-8  # rank 5: one redundant direction
+    c = kr.SceneClearance(sc, CLEARANCE, SELF_CLEARANCE)
+    k = [i for i, n in enumerate(c.names()) if n == pair][0]
+    G = c.gradients(q)[k]
+    assert np.linalg.norm(G) > 0.1 and abs(G @ Vt[5]) <= 1e-8 * np.linalg.norm(G)
