@@ -23,6 +23,13 @@ the wrist_1 link passes. When its row is met, [J; G] is singular while J is not 
 wrist_1): the stop said "kinematic (J rank-deficient) singularity"; it now says the constraints are dependent and
 names the pair. Checked independently: the row's gradient on the null space of the task's Jacobian (central
 differences of the tool's position and axis) vanishes at the last good point.
+
+The same seen coming by the watch. Named case ``panda_axis_ball``: the Panda with the tool-axis task (n - m = 2) on
+the same circle, a 5.1 cm ball where panda_link3 passes. Held, the smallest singular value of the watched Jacobian
+(J with the active row's gradient below) runs to zero at t ~ 2.5157 s while J's own stays 0.23: the stop was
+``kinematic_singularity``; it is now ``not_strongly_stable`` (the constraints become dependent), the pair named.
+Checked independently: [J; G] from central differences of the tool's position and axis and the pair's gradient
+loses rank toward the stop while J does not.
 """
 
 from __future__ import annotations
@@ -101,6 +108,14 @@ def test_the_branch_end_agrees_with_the_joint_level_ik():
     assert not beyond.converged or np.linalg.norm(beyond.q - q) > 1e-3
 
 
+def _axis_jacobian(r, q, h=1e-6):
+    """The tool-axis task's Jacobian (position and axis, 6 rows of rank 5) by central differences."""
+    def task(x):
+        T = r.fk(x)
+        return np.concatenate([T[:3, 3], T[:3, 2]])
+    return np.column_stack([(task(q + h * e) - task(q - h * e)) / (2 * h) for e in np.eye(len(q))])
+
+
 #: the ball of ``ur5_axis_ball``: center [m], radius [m]
 UR5_BALL = ([0.3052264560843312, 0.2987061378748938, 0.43822667631077344], 0.030826773397292048)
 
@@ -118,17 +133,40 @@ def test_a_row_the_redundancy_cannot_move_is_named_dependent():
     assert err.watched["constraints"] == [pair] and pair in str(err)
     q = np.asarray(err.q, float)
     assert margin(sc, q) >= -1e-9 and np.linalg.norm(r.fk(q)[:3, 3] - path(err.t).p) <= 1e-10
-    # independently: the task's Jacobian (tool position and axis, by central differences) and its null space
-    h = 1e-6
-
-    def task(x):
-        T = r.fk(x)
-        return np.concatenate([T[:3, 3], T[:3, 2]])
-
-    Jt = np.column_stack([(task(q + h * e) - task(q - h * e)) / (2 * h) for e in np.eye(len(q))])
-    _, sv, Vt = np.linalg.svd(Jt)
+    _, sv, Vt = np.linalg.svd(_axis_jacobian(r, q))  # independently: the task's Jacobian and its null space
     assert sv[4] > 0.1 and sv[5] < 1e-8  # rank 5: one redundant direction
     c = kr.SceneClearance(sc, CLEARANCE, SELF_CLEARANCE)
-    k = [i for i, n in enumerate(c.names()) if n == pair][0]
+    k = c.names().index(pair)
     G = c.gradients(q)[k]
     assert np.linalg.norm(G) > 0.1 and abs(G @ Vt[5]) <= 1e-8 * np.linalg.norm(G)
+
+
+#: the ball of ``panda_axis_ball``: center [m], radius [m]
+PANDA_BALL = ([-0.3229500137438989, -0.012906303399802612, 0.4955021017608718], 0.050936807120492436)
+
+
+def test_rows_becoming_dependent_on_the_task_are_named_so():
+    r, path, index, q0 = axis_case("panda")
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", PANDA_BALL[1], PANDA_BALL[0])
+    with pytest.raises(TrackingError) as info:
+        kr.track(r, path, index, q0, loops=1, scene=sc)
+    err = info.value
+    assert err.cause == "collision" and err.watched["underlying_cause"] == "not_strongly_stable", str(err)
+    pair = "panda_link3_0 and ball kept 0.02 m apart"
+    assert "constraints become dependent" in str(err) and pair in str(err)
+    c = kr.SceneClearance(sc, CLEARANCE, SELF_CLEARANCE)
+    k = c.names().index(pair)
+    q_good, q_near = np.asarray(err.q, float), np.array(err.watched["substep_q"])
+    assert margin(sc, q_near) >= -1e-9 and abs(c.values(q_near)[k]) <= 1e-9  # held on the row, clear
+
+    def least(q):  # [J; G] restricted to the row space of J (rank 5): its 6th singular value, and J's 5th
+        Jt = _axis_jacobian(r, q)
+        U, sv, Vt = np.linalg.svd(Jt)
+        A = np.vstack([Vt[:5] * sv[:5, None], c.gradients(q)[k]])
+        return np.linalg.svd(A, compute_uv=False)[-1], sv[4]
+
+    (a_good, j_good), (a_near, j_near) = least(q_good), least(q_near)
+    assert j_near > 0.1 and j_good > 0.1  # J regular
+    # the row falls into J's row space toward the stop: 0.0098 -> 0.0019 against J's 0.23 (measured)
+    assert a_near < 0.02 * j_near and a_near < 0.5 * a_good

@@ -294,8 +294,11 @@ class StepControl:
                     extra.update(branch)
                 else:
                     cause = "step_control_exhausted"
-        if cause == "kinematic_singularity" and _bounds_dependent(s, q_near, t_near):
-            cause = "not_strongly_stable"  # J of the free joints loses rank, J itself does not (LICQ fails)
+        s_task = _constraints_dependent(s, q_near, t_near) if cause == "kinematic_singularity" else None
+        if s_task is not None:  # J of the free joints, or with the active rows below, loses rank; J does not (LICQ)
+            cause, why = "not_strongly_stable", (f"{why}: the constraints become dependent (LICQ fails; the watched "
+                                                 f"Jacobian is J's free columns with the active rows' gradients, "
+                                                 f"J's own smallest singular value is {s_task:.3g})")
         self.restore(snap_step)
         s.prev.clear()
         watched = watched_at(s)
@@ -374,10 +377,12 @@ class StepControl:
         return err
 
 
-def _bounds_dependent(s, q, t) -> bool:
-    """With joints on bounds: is J itself regular at (q, t) while its free columns are (nearly) not?"""
+def _constraints_dependent(s, q, t) -> float | None:
+    """With joints on bounds or rows active: J's smallest singular value at (q, t) where J itself is regular while
+    the watched Jacobian (J's free columns, the active rows' gradients below J) is (nearly) not (the constraints,
+    not the arm, are singular), else None."""
     fixed = getattr(s, "fixed", None)
-    if fixed is None or not fixed.any():
-        return False
+    if (fixed is None or not fixed.any()) and not getattr(s, "rows", None):
+        return None
     sJ = np.linalg.svd(s.ev.point(q, t, need_dJ=False).J, compute_uv=False)
-    return bool(sJ[-1] > 1e-3 * sJ[0])
+    return float(sJ[-1]) if sJ[-1] > 1e-3 * sJ[0] else None
