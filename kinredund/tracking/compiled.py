@@ -293,7 +293,7 @@ class CompiledStep:
             ref = rate = self._empty
         args = (t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot, 0.0 if ctl is None else ctl.speed2,
                 ctl is not None)
-        cleared = None
+        cleared = smallest = None
         if self._guard is None:
             out = self.core.step(*args)
         else:  # the step and the scene's check of it in one call (h < 0: no check, not cleared)
@@ -301,25 +301,27 @@ class CompiledStep:
             h = t_to - s.t if s.qdot is not None and guard.valid() else -1.0
             out = self.core.step_guarded(h, *args)
             if type(out) is not int:
-                out, cleared = out
+                out, cleared, smallest = out
         if type(out) is int:
             return self.hand_back(out)
-        return self.accept(out, sample, t_to, (at, row), cleared)
+        return self.accept(out, sample, t_to, (at, row), cleared, smallest)
 
     def accept(self, out: np.ndarray, sample, t_to: float, ahead: tuple | None = None,
-               cleared: bool | None = None) -> None:
+               cleared: bool | None = None, smallest: float | None = None) -> None:
         """The core's ordinary step to ``t_to`` (its output row ``out``, R's factors still in the core) as the
         stepper's new state, then the checks that may still hand it back to the Python stepper (from the state
         before it): with general rows, the stepper's own search for a switch within the step
         (``pending_switches``: a row reached, a row dipping below zero inside the step) unless the compiled check
         ruled one out (``cleared``: its verdict where the core ran it with the step, None to run it here); the
         watch's measurement where due. Either rejection gives the Python stepper's step, which runs both itself.
-        ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it."""
+        ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it. ``smallest``:
+        the check's least row value at the step's end (``RowGuard.smallest``), handed to the stepper with a step
+        it keeps (``keep_smallest``: the record's smallest value there, no query of its own)."""
         s = self.stepper
         ctl = s.control
         rcond = float(out[-2])
         if ctl is not None and (not self.rows or cleared) and ctl.watch.passes(rcond):  # nothing to check
-            self.apply(out, sample, t_to, rcond, ahead)
+            self.apply(out, sample, t_to, rcond, ahead, smallest)
             ctl.speed2 = float(out[-1])
             return None
         measured = ctl is not None and ctl.watch.due_next(rcond)
@@ -329,7 +331,7 @@ class CompiledStep:
         saved = None
         if measured or look:  # what a rejected step goes back to (the state, the control's speed)
             saved = ctl.snapshot() if ctl is not None else (s.state,)
-        self.apply(out, sample, t_to, rcond, ahead)
+        self.apply(out, sample, t_to, rcond, ahead, smallest)
         if look and self._switch_within(saved[0]):
             return self._undo(saved, ROWS)
         if not measured:
@@ -382,10 +384,12 @@ class CompiledStep:
         self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
         self._fixed = fixed
 
-    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float, ahead: tuple | None = None) -> None:
+    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float, ahead: tuple | None = None,
+              smallest: float | None = None) -> None:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
         the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it).
-        ``sample``, ``ahead``: the path sample at ``t_to`` (see :meth:`accept`)."""
+        ``sample``, ``ahead``: the path sample at ``t_to``; ``smallest``: the rows' least value there, where the
+        compiled check has it (see :meth:`accept`; a step put back later leaves it with a q no longer current)."""
         s = self.stepper
         sy, ssol, sM, _, sq, _, _, _, s_mu, s_label = self.slices
         n = self.n
@@ -397,4 +401,6 @@ class CompiledStep:
             self.held_steps += 1
         else:
             s.accept(out[sy], out[ssol], pt, M, out[sq], rcond)
+        if smallest is not None and smallest == smallest:  # (NaN: the check stopped before its values)
+            s.keep_smallest(smallest)
         self.steps += 1
