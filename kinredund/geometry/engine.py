@@ -39,8 +39,9 @@ from kinredund.kinematics.state import point_curvature
 GJK_TOLERANCE = 1e-9
 
 
-def no_warm_start(request) -> None:
-    """GJK from its default guess at every call, never from the previous call's result.
+def no_warm_start(requests) -> None:
+    """GJK from its default guess at every call, never from the previous call's result (for each of ``requests``,
+    under one filter of the warning: a Scene's workspace sets a request per pair).
 
     With coal 3.0.3's warm start (the default), the distance between a hull and a box came out alternately
     0.0819774 and 0.0820143 m on consecutive calls at configurations 5e-5 rad apart (GJK stopping early from
@@ -50,10 +51,11 @@ def no_warm_start(request) -> None:
     """
     import warnings
 
-    request.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        request.enable_cached_gjk_guess = False
+        for request in requests:
+            request.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
+            request.enable_cached_gjk_guess = False
 
 
 #: below this distance [m] a pair's normal is coal's own, not (p_b - p_a) / d: the witness points' rounding
@@ -109,10 +111,11 @@ class Workspace:
         self.model, self.geometry = model, geometry
         self.data = model.createData()
         self.gdata = pin.GeometryData(geometry)
-        for req in self.gdata.distanceRequests:
+        requests = self.gdata.distanceRequests
+        for req in requests:
             req.enable_signed_distance = True
             req.gjk_tolerance = GJK_TOLERANCE
-            no_warm_start(req)
+        no_warm_start(requests)
         self.joints, self.first, self.second = joints, first, second
         self.centres, self.radii = centres, radii
         n, m = centres.shape[:2]

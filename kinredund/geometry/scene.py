@@ -330,11 +330,16 @@ class Scene:
         changes by at most sum_j B[k, j] |q'_j - q_j| (in the order of :attr:`pairs`).
 
         From :meth:`object_reach` (``extent`` as there: by default, for paths within the joint box). A joint
-        that moves both objects of a pair moves them rigidly together and leaves their distance alone.
+        that moves both objects of a pair moves them rigidly together and leaves their distance alone. Kept for the
+        scene as it is (its objects and pairs, rebuilt at every change) and ``extent``: a copy is returned.
         """
-        L = self.object_reach(extent)
-        a, b = L[self._first], L[self._second]
-        return np.where((a > 0) & (b > 0), 0.0, a + b)
+        key = None if extent is None else np.asarray(extent, float).tobytes()
+        kept = self.__dict__.get("_bound")
+        if kept is None or kept[0] is not self._spheres or kept[1] != key:
+            L = self.object_reach(extent)
+            a, b = L[self._first], L[self._second]
+            kept = self._bound = (self._spheres, key, np.where((a > 0) & (b > 0), 0.0, a + b))
+        return kept[2].copy()
 
     # -- queries --------------------------------------------------------------------------------
     @staticmethod
