@@ -283,9 +283,12 @@ class Scene:
         """This thread's workspace (:class:`~kinredund.geometry.engine.Workspace`), made on first use; ``own``: a
         new one, not kept (for one user that keeps it, e.g. the compiled tracker's row check)."""
         ws = None if own else getattr(self._local, "workspace", None)
-        if ws is None:
+        if ws is None:  # (the arrays that follow from the geometry made once per build: Workspace.layout)
+            kept = self.__dict__.get("_layout")
+            layout = kept[1] if kept is not None and kept[0] is self._gm else None
             ws = Workspace(self.robot.model, self._gm, *self._spheres, self._first, self._second,
-                           compiled=self._compiled)
+                           compiled=self._compiled, layout=layout)
+            self._layout = (self._gm, ws.layout)
             if not own:
                 self._local.workspace = ws
         return ws
