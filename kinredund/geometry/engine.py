@@ -95,7 +95,7 @@ _CORE = compiled_core()
 def _layout(model: pin.Model, geometry: pin.GeometryModel, joints: np.ndarray, centres: np.ndarray, radii: np.ndarray,
             first: np.ndarray, second: np.ndarray) -> dict:
     """A :class:`Workspace`'s arrays that follow from its geometry alone (read, never written: workspaces of one
-    geometry share them, :attr:`Workspace.layout`): the broadphase's sphere pairs and centres, the joints' columns
+    geometry share them: a Workspace's ``layout``): the broadphase's sphere pairs and centres, the joints' columns
     per pair, the pair matrix's cells, the output widths."""
     n, m = centres.shape[:2]
     # every sphere centre in one product: the poses of the joints that carry objects (J, 4, 4) times the

@@ -37,8 +37,10 @@ rows' constraint has a compiled check (:meth:`~kinredund.tracking.constraints.ba
 scene's, ``src/core/distances.cpp``), that check runs first, before the step is applied: where it rules out a
 switch (every row above -ROW_TOL at the end and none able to dip below it inside, by the constraint's lower
 bounds) the step is taken without the search, else the search decides as above. The core holds the check
-(``StepCore.set_guard``) and runs it in the same call as its step (``StepCore.step_guarded``: the row and the
-verdict), so the check costs no call from Python of its own.
+(``StepCore.set_guard``) and runs it in the same call as its step (``StepCore.step_guarded``: the row, the
+verdict and the rows' smallest value at the step's end), so the check costs no call from Python of its own, and a
+step kept hands that value to the stepper for the record (``keep_smallest``: the record's smallest row value there
+without a query of its own; exact near the clearances, a lower bound elsewhere, as the constraint's values are).
 
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
 own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
