@@ -178,33 +178,60 @@ class CompiledPoint(Point):
         sample: the path sample at t, or None with ``ahead`` = (Samples, row) to make it from on first use.
     """
 
-    __slots__ = ("_ev", "_out", "_layout", "_ahead", "recorded")
+    # q, J, sample and recorded: properties over slots of their own (an unset one None), read at every recorded
+    # step: a property costs less than __getattr__ after a missed slot (Recorder.add reads all four)
+    __slots__ = ("_ev", "_out", "_layout", "_ahead", "_q", "_J", "_sample", "_recorded")
 
     def __init__(self, ev, out, t, sample, basis, layout, ahead=None):
         self._ev, self._out, self.t, self.basis, self._layout, self._ahead = ev, out, t, basis, layout, ahead
-        if sample is not None:
-            self.sample = sample
+        self._sample, self._q, self._J, self._recorded = sample, None, None, None
 
-    def __getattr__(self, name):  # an unset slot: read from the core's row, or the full evaluation fills them all
-        if name not in Point.__slots__ and name != "recorded":  # (also an instance without its own slots: a copy)
-            raise AttributeError(name)
-        out, (sl, (n, m)) = self._out, self._layout
-        if name == "q":
-            value = out[sl[7]]
-        elif name == "J":
-            value = out[sl[3]].reshape(m, n)
-        elif name == "sample":
+    @property
+    def q(self) -> np.ndarray:
+        if self._q is None:
+            self._q = self._out[self._layout[0][7]]
+        return self._q
+
+    @q.setter
+    def q(self, value) -> None:
+        self._q = value
+
+    @property
+    def J(self) -> np.ndarray:
+        if self._J is None:
+            sl, (n, m) = self._layout
+            self._J = self._out[sl[3]].reshape(m, n)
+        return self._J
+
+    @J.setter
+    def J(self, value) -> None:
+        self._J = value
+
+    @property
+    def sample(self):
+        if self._sample is None:
             at, row = self._ahead
-            value = at.sample(row)
-        elif name == "recorded":
-            value = RecordedPose(self.sample, (out[sl[5]].reshape(3, 3), out[sl[6]]))
-        else:
-            full = self._ev.point(self.q, self.t, sample=self.sample)
-            for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
-                setattr(self, key, getattr(full, key))
-            return getattr(self, name)
-        setattr(self, name, value)
-        return value
+            self._sample = at.sample(row)
+        return self._sample
+
+    @sample.setter
+    def sample(self, value) -> None:
+        self._sample = value
+
+    @property
+    def recorded(self) -> RecordedPose:
+        if self._recorded is None:
+            out, sl = self._out, self._layout[0]
+            self._recorded = RecordedPose(self.sample, (out[sl[5]].reshape(3, 3), out[sl[6]]))
+        return self._recorded
+
+    def __getattr__(self, name):  # an unset slot of the rest: the full evaluation fills them all
+        if name not in Point.__slots__:  # (also an instance without its own slots: a copy)
+            raise AttributeError(name)
+        full = self._ev.point(self.q, self.t, sample=self.sample)
+        for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
+            setattr(self, key, getattr(full, key))
+        return getattr(self, name)
 
 
 class CompiledStep:
