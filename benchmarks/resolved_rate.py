@@ -45,7 +45,10 @@ between them slows the small limits-only step, so these flatter), and the two co
 between them (``scene_alone_over_default``, target <= 1.3); where the
 scene step's time goes (``scene_breakdown_us``: the compiled distance
 query, the Python around it, the stepper's rows, the rate QP, the rest) and the queries' share
-(``scene_query_share``). Run:
+(``scene_query_share``); and the whole run: ``track()`` with the scene against ``track()`` with the limits only (the
+same path, dt and steps, in turn: ``track_scene_over_track``, target <= 1.5) and where the scene run's time goes
+(``track_scene_breakdown_us``: the tracker's set-up, the steps, the record per step, the record's end, the checks of
+the record). Run:
 ``python benchmarks/resolved_rate.py [--json FILE]`` and ``--plot FILE`` for a bar chart (``--scene``: the Panda's
 scene figures only, a few minutes less) (pink comes with
 ``pip install .[bench]``; without it the pink columns are left out). The JSON holds ``robots`` (the
@@ -142,6 +145,16 @@ KEYS = {
                           "sum, with ~1 us per timed call)",
     "scene_query_share": "scene_breakdown_us: (core + guard + query) / total, the distance queries' share of the "
                          "scene step (the guard's bound arithmetic counted in)",
+    "track_scene_us": "track() with the five-object scene and the self pairs held (scene=), two loops of 200 steps, "
+                      "default backend: median time per step over rounds in turn with track_limits_us",
+    "track_limits_us": "track() with the limits only (limits=True) on the same path, dt and steps, default backend, in "
+                       "the same rounds",
+    "track_scene_over_track": "track_scene_us / track_limits_us (target <= 1.5)",
+    "track_scene_breakdown_us": "where the scene run's time goes, per step [us] (medians over the rounds of exclusive "
+                                "times, timers around the parts: ~1 us per timed call more): setup (Tracker with the "
+                                "scene: the constraint, its motion bound, the compiled check's workspace, the start), "
+                                "steps (Tracker.step), record (Recorder.add), end (Recorder.trajectory), checks "
+                                "(the record's checks in track()), other (the rest of track()), total",
     "scene_pairs": "pairs the scene checks (rows of the constraint)",
     "scene_pairs_near": "of those, the pairs within the influence distance (computed by coal) at the end",
     "default_over_pink": "in_turn_us: step_default_us / pink_step_us",
@@ -430,14 +443,7 @@ def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
     with the limits only, in turn: both on the Python stepper, and both on the default backend (the compiled core
     where it is built), with the scene step on the Python stepper in the same rounds. Then where the default
     backend's scene step's time goes (:func:`scene_breakdown`)."""
-    import kinredund
-
-    scene = kinredund.Scene(robot)
-    for name, shape, size, pos in SCENE_OBJECTS:
-        if shape == "box":
-            scene.add_box(name, size, pos)
-        else:
-            scene.add_sphere(name, size, pos)
+    scene = _scene(robot)
     with_scene = Tracker(robot, path, index, q0, dt, scene=scene)
     scene_python = Tracker(robot, path, index, q0, dt, scene=scene, backend="python")
     python = Tracker(robot, path, index, q0, dt, limits=True, backend="python")
@@ -464,7 +470,79 @@ def scene_figures(robot, path, index, q0, dt, steps: int) -> dict:
             "scene_python_over_default": other["step_scene_python_us"] / other["step_limits_us"],
             "scene_backend": with_scene.backend, "limits_backend": default.backend,
             **scene_breakdown(with_scene), "scene_pairs": constraint.size,
-            "scene_pairs_near": len(scene.distance_rows(with_scene.q, constraint.influence).pairs)}
+            "scene_pairs_near": len(scene.distance_rows(with_scene.q, constraint.influence).pairs),
+            **track_scene_figures(robot, path, index, q0, repeat=3 if steps < 100 else 7)}
+
+
+def _scene(robot):
+    """A Scene of ``robot`` with :data:`SCENE_OBJECTS`."""
+    import kinredund
+
+    scene = kinredund.Scene(robot)
+    for name, shape, size, pos in SCENE_OBJECTS:
+        if shape == "box":
+            scene.add_box(name, size, pos)
+        else:
+            scene.add_sphere(name, size, pos)
+    return scene
+
+
+def track_scene_figures(robot, path, index, q0, repeat: int = 7, loops: int = 2) -> dict:
+    """``track()`` with :data:`SCENE_OBJECTS` (and the self pairs) against ``track()`` with the limits only: the same
+    path, dt and steps, default backend, one run of each per round in turn (garbage collection off), the medians per
+    step over ``repeat`` rounds. Then where the scene run's time goes (:func:`track_scene_breakdown`)."""
+    import gc
+
+    scene = _scene(robot)
+    steps = 200 * loops
+    runs = {"track_scene_us": lambda: track(robot, path, index, q0, loops=loops, scene=scene),
+            "track_limits_us": lambda: track(robot, path, index, q0, loops=loops, limits=True)}
+    per = {k: [] for k in runs}
+    for fn in runs.values():  # warm-up
+        fn()
+    gc.disable()
+    try:
+        for _ in range(repeat):
+            for key, fn in runs.items():
+                t0 = time.perf_counter()
+                fn()
+                per[key].append((time.perf_counter() - t0) / steps * 1e6)
+    finally:
+        gc.enable()
+    out = {k: float(np.median(v)) for k, v in per.items()}
+    out["track_scene_over_track"] = out["track_scene_us"] / out["track_limits_us"]
+    out["track_scene_breakdown_us"] = track_scene_breakdown(robot, path, index, q0, scene, repeat, loops)
+    return out
+
+
+def track_scene_breakdown(robot, path, index, q0, scene, repeat: int = 7, loops: int = 2) -> dict:
+    """The scene run's exclusive times per step [us] by part (``track_scene_breakdown_us`` in :data:`KEYS`): the
+    library's functions wrapped with timers for the run (and put back), medians over ``repeat`` runs."""
+    from kinredund.tracking import compiled, recorder
+    from kinredund.tracking import run as run_module
+
+    sections = _Sections()
+    patched = [(run_module, "Tracker", "setup"), (compiled.CompiledStep, "step", "steps"),
+               (recorder.Recorder, "add", "record"), (recorder.Recorder, "trajectory", "end"),
+               (run_module, "say_rate_burst", "checks"), (run_module, "say_open_loop", "checks")]
+    saved = [(obj, attr, obj.__dict__[attr]) for obj, attr, _ in patched]
+    whole = sections.wrap("other", track)
+    steps = 200 * loops
+    per: dict = {}
+    try:
+        for obj, attr, part in patched:
+            setattr(obj, attr, sections.wrap(part, getattr(obj, attr)))
+        for _ in range(repeat):
+            for name in sections.spent:
+                sections.spent[name] = 0.0
+            whole(robot, path, index, q0, loops=loops, scene=scene)
+            for name, spent in sections.spent.items():
+                per.setdefault(name, []).append(spent / steps * 1e6)
+            per.setdefault("total", []).append(sum(sections.spent.values()) / steps * 1e6)
+    finally:
+        for obj, attr, fn in saved:
+            setattr(obj, attr, fn)
+    return {k: float(np.median(v)) for k, v in per.items()}
 
 
 def record_figures(robot, path, index, q0, repeat: int = 5, loops: int = 2, limits: bool = True) -> dict:
@@ -550,6 +628,9 @@ def print_scene(panda: dict) -> None:
     print("  per scene step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in part.items())
           + f"; {100 * panda['scene_query_share']:.2g} % in the distance queries (core + guard + query; "
           f"{panda['scene_pairs_near']} of {panda['scene_pairs']} pairs computed)")
+    print(f"  track() with the scene {panda['track_scene_us']:.3g} us per step against track() with the limits only "
+          f"{panda['track_limits_us']:.3g} us: {panda['track_scene_over_track']:.2f} (target <= 1.5); the scene run "
+          "per step [us]: " + ", ".join(f"{k} {v:.3g}" for k, v in panda["track_scene_breakdown_us"].items()))
 
 
 def scene_only(steps: int, json_path: Path | None) -> None:

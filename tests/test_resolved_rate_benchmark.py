@@ -22,6 +22,17 @@ def test_panda_figures_and_plot(tmp_path):
     # the same runs with their deferred diagnostics read: timed from the same start, so never shorter
     assert res["track_read_step_us"] >= res["track_step_us"] and res["track_read_over_step"] > 0
     assert res["switching_steps_with_switch"] >= 2 and 0.0 <= res["switching_qp_share"] < 1.0
+    # track() with the scene against track() with the limits only, and where the scene run's time goes: every part
+    # timed, none negative, the library's functions put back after the timers
+    assert res["track_scene_us"] > 0 and res["track_limits_us"] > 0 and res["track_scene_over_track"] > 0
+    part = res["track_scene_breakdown_us"]
+    assert set(part) == {"setup", "steps", "record", "end", "checks", "other", "total"}
+    assert min(part.values()) >= 0.0 and min(part["setup"], part["steps"], part["record"], part["end"]) > 0.0
+    assert part["total"] >= max(v for k, v in part.items() if k != "total")
+    from kinredund.tracking import compiled, recorder, run, tracker
+
+    assert run.Tracker is tracker.Tracker and "add" in recorder.Recorder.__dict__
+    assert compiled.CompiledStep.step.__qualname__ == "CompiledStep.step"
     if importlib.util.find_spec("pink") is not None:
         assert res["limits_over_pink"] > 0
     # on this smooth path the predictor lands within 1e-8 rad, so one Newton update ends most steps

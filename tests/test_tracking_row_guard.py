@@ -193,8 +193,9 @@ def _core_args(tr):
 
 def test_the_core_step_with_its_guard_is_the_step_then_the_guard():
     """StepCore.step_guarded: the row of StepCore.step, bit for bit, and the verdict of RowGuard.clear on that step
-    (from y[:n] with the rates qdot to the row's q and qdot), bit for bit: one piece of code called two ways. A fast
-    start (a possible dip) and h < 0 (no check) are not cleared."""
+    (from y[:n] with the rates qdot to the row's q and qdot) and its smallest value at the step's end
+    (RowGuard.smallest), bit for bit: one piece of code called two ways. A fast start (a possible dip) and h < 0 (no
+    check: no smallest value, NaN) are not cleared."""
     r, sc = panda_scene()
     _, path, index, q0 = panda_circle(r)
     tr = Tracker(r, path, index, q0, path.period / 200, scene=sc, backend="compiled")
@@ -215,12 +216,14 @@ def test_the_core_step_with_its_guard_is_the_step_then_the_guard():
             if type(plain) is int:  # handed back (a jump): no row, no check
                 assert core.step_guarded(h, *args) == plain
                 continue
-            out, cleared = core.step_guarded(h, *args)
+            out, cleared, smallest = core.step_guarded(h, *args)
             assert np.array_equal(out, plain)
-            want = SceneClearance(sc).row_guard(ROW_TOL).compiled.clear(s.y[:n], out[:n], qdot, out[N:N + n], h)
-            assert cleared == want
+            alone = SceneClearance(sc).row_guard(ROW_TOL).compiled
+            assert cleared == alone.clear(s.y[:n], out[:n], qdot, out[N:N + n], h)
+            assert smallest == alone.smallest  # the same values at the step's end, bit for bit
             verdicts.append(cleared)
-            assert core.step_guarded(-1.0, *args)[1] is False
+            unchecked = core.step_guarded(-1.0, *args)
+            assert unchecked[1] is False and np.isnan(unchecked[2])
     assert any(verdicts) and not all(verdicts)
     core.set_guard(None)  # none: nothing is cleared
     t_to, args = _core_args(tr)
@@ -258,3 +261,37 @@ def test_the_kept_rows_stand_in_for_queries_until_their_bounds_lapse():
             assert exact_test(sc, *step)[0]
     assert cleared > steps // 2
     assert guard.placements < steps // 2  # most steps: the kept rows alone
+
+
+def test_the_record_takes_the_checks_smallest_value_exact_near_the_clearance(monkeypatch):
+    """track() on the compiled backend records a guarded step's smallest row value from the core's check of it
+    (RowGuard.smallest, handed over with the step), with no query of its own. Against coal afresh at every recorded
+    point (test_tracking_scene's ball, met and left by the elbow: the ball's least distance less the clearance), the
+    record equals it (to 1e-12 m) wherever that is at or below SKIP_MARGIN, and is a lower bound above SKIP_MARGIN
+    elsewhere (SceneClearance's docstring: "exact near the clearances and lower bounds elsewhere")."""
+    from test_tracking_scene import CLEARANCE, ball_distance
+    from test_tracking_scene import setup as ball_setup
+
+    from kinredund.tracking.constraints.scene import SKIP_MARGIN
+    from kinredund.tracking.limited import LimitedPredictorCorrector
+
+    r, path, index, q0, sc = ball_setup("panda_elbow_ball")
+    kept = []  # per recorded point: did its smallest value come from the check (no query)?
+    record = LimitedPredictorCorrector.row_record
+
+    def row_record(self):
+        kept.append(self._smallest[0] is self.q)
+        return record(self)
+
+    monkeypatch.setattr(LimitedPredictorCorrector, "row_record", row_record)
+    tr = kr.track(r, path, index, q0, loops=1, steps_per_loop=400, scene=sc, clearance=CLEARANCE,
+                  self_clearance=False, backend="compiled")  # (400 steps: a few checked steps end near the ball)
+    smallest = np.array(tr.meta["constraints"]["min_value"])
+    exact = ball_distance(sc, tr.q) - CLEARANCE
+    kept = np.array(kept)
+    assert len(kept) == len(exact) and kept.sum() > len(kept) // 2  # most points: the check's value
+    near = exact <= SKIP_MARGIN
+    assert (near & kept).sum() >= 3 and (~near & kept).sum() >= 10  # both kinds from the check
+    np.testing.assert_allclose(smallest[near], exact[near], rtol=0, atol=1e-12)
+    assert np.all(smallest[~near] <= exact[~near] + 1e-12) and np.all(smallest[~near] > SKIP_MARGIN)
+    assert np.any(smallest[~near] < exact[~near] - 1e-3)  # (lower bounds there, not exact values)

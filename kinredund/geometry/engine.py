@@ -39,8 +39,9 @@ from kinredund.kinematics.state import point_curvature
 GJK_TOLERANCE = 1e-9
 
 
-def no_warm_start(request) -> None:
-    """GJK from its default guess at every call, never from the previous call's result.
+def no_warm_start(requests) -> None:
+    """GJK from its default guess at every call, never from the previous call's result (for each of ``requests``,
+    under one filter of the warning: a Scene's workspace sets a request per pair).
 
     With coal 3.0.3's warm start (the default), the distance between a hull and a box came out alternately
     0.0819774 and 0.0820143 m on consecutive calls at configurations 5e-5 rad apart (GJK stopping early from
@@ -50,10 +51,11 @@ def no_warm_start(request) -> None:
     """
     import warnings
 
-    request.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        request.enable_cached_gjk_guess = False
+        for request in requests:
+            request.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
+            request.enable_cached_gjk_guess = False
 
 
 #: below this distance [m] a pair's normal is coal's own, not (p_b - p_a) / d: the witness points' rounding
@@ -90,6 +92,46 @@ def compiled_core():
 _CORE = compiled_core()
 
 
+def _layout(model: pin.Model, geometry: pin.GeometryModel, joints: np.ndarray, centres: np.ndarray, radii: np.ndarray,
+            first: np.ndarray, second: np.ndarray) -> dict:
+    """A :class:`Workspace`'s arrays that follow from its geometry alone (read, never written: workspaces of one
+    geometry share them: a Workspace's ``layout``): the broadphase's sphere pairs and centres, the joints' columns
+    per pair, the pair matrix's cells, the output widths."""
+    n, m = centres.shape[:2]
+    # every sphere centre in one product: the poses of the joints that carry objects (J, 4, 4) times the
+    # centres in homogeneous coordinates (4, n*m); sphere s is column s of its joint's block, rows 0-2
+    pose_joints = sorted(set(joints.tolist()))
+    block = np.searchsorted(pose_joints, np.repeat(joints, m))
+    moving = [j for j in pose_joints if j > 0]  # the world's pose (joint 0) is the identity
+    fixed = [np.eye(4)] if 0 in pose_joints else []
+    s = np.arange(n * m)
+    local = np.vstack([centres.reshape(n * m, 3).T, np.ones(n * m)])
+    centre_index = (block * 4 * n * m)[:, None] + (np.arange(3) * n * m)[None, :] + s[:, None]  # (n*m, 3)
+    # the broadphase's sphere pairs, flattened: pair p's m*m sphere pairs are rows p*m*m ... (p+1)*m*m - 1
+    i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+    sa = (first[:, None] * m + i.ravel()[None, :]).ravel()
+    sb = (second[:, None] * m + j.ravel()[None, :]).ravel()
+    radii_ = radii.reshape(-1)[sa] + radii.reshape(-1)[sb]
+    # the centres of each sphere pair's a and b as flat indices into the product of the poses and centres
+    pair_centres = centre_index.ravel()[np.stack([sa, sb])[:, :, None] * 3 + np.arange(3)]
+    mm = m * m
+    # which columns of q move each joint's body (the world's row is all zeros), and per pair the first
+    # object's columns negated and the second's: rows of pair k are sum_s (coef_s J)[k] * _signed[k, s]
+    supports = np.zeros((model.njoints, model.nv))
+    for jt in range(1, model.njoints):
+        for t in model.supports[jt].tolist()[1:]:
+            supports[jt, model.idx_vs[t]:model.idx_vs[t] + model.nvs[t]] = 1.0
+    signed = np.stack([-supports[joints[first]], supports[joints[second]]], axis=1)
+    n_obj = len(geometry.geometryObjects)
+    map_shape, map_size = (n_obj, n_obj), n_obj * n_obj
+    cell_ab, cell_ba = first * n_obj + second, second * n_obj + first
+    ones = np.ones((2 * len(first), 1))
+    width = (10, 10 + model.nv)  # the compiled query's output row without and with the distance row
+    return {"_moving": moving, "_fixed": fixed, "_local": local, "_sa": sa, "_sb": sb, "_radii": radii_,
+            "_pair_centres": pair_centres, "_mm": mm, "_signed": signed, "_map_shape": map_shape,
+            "_map_size": map_size, "_cell_ab": cell_ab, "_cell_ba": cell_ba, "_ones": ones, "_width": width}
+
+
 class Workspace:
     """Pinocchio and coal data for one geometry model (not shared between threads).
 
@@ -102,51 +144,28 @@ class Workspace:
         first, second: the objects of each collision pair, in the order of ``geometry.collisionPairs``.
         compiled: run :meth:`query` and :meth:`closest` in the compiled core (True: it must be there), in
             Python (False), or in the core where it is importable (None).
+        layout: the ``layout`` of a workspace of the same arguments (its arrays that follow from them, shared), or
+            None to make them.
     """
 
     def __init__(self, model: pin.Model, geometry: pin.GeometryModel, joints: np.ndarray, centres: np.ndarray,
-                 radii: np.ndarray, first: np.ndarray, second: np.ndarray, compiled: bool | None = None):
+                 radii: np.ndarray, first: np.ndarray, second: np.ndarray, compiled: bool | None = None,
+                 layout: dict | None = None):
         self.model, self.geometry = model, geometry
         self.data = model.createData()
         self.gdata = pin.GeometryData(geometry)
-        for req in self.gdata.distanceRequests:
+        requests = self.gdata.distanceRequests
+        for req in requests:
             req.enable_signed_distance = True
             req.gjk_tolerance = GJK_TOLERANCE
-            no_warm_start(req)
+        no_warm_start(requests)
         self.joints, self.first, self.second = joints, first, second
         self.centres, self.radii = centres, radii
-        n, m = centres.shape[:2]
-        # every sphere centre in one product: the poses of the joints that carry objects (J, 4, 4) times the
-        # centres in homogeneous coordinates (4, n*m); sphere s is column s of its joint's block, rows 0-2
-        pose_joints = sorted(set(joints.tolist()))
-        block = np.searchsorted(pose_joints, np.repeat(joints, m))
-        self._moving = [j for j in pose_joints if j > 0]  # the world's pose (joint 0) is the identity
-        self._fixed = [np.eye(4)] if 0 in pose_joints else []
-        s = np.arange(n * m)
-        self._local = np.vstack([centres.reshape(n * m, 3).T, np.ones(n * m)])
-        centre_index = (block * 4 * n * m)[:, None] + (np.arange(3) * n * m)[None, :] + s[:, None]  # (n*m, 3)
-        # the broadphase's sphere pairs, flattened: pair p's m*m sphere pairs are rows p*m*m ... (p+1)*m*m - 1
-        i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
-        self._sa = (first[:, None] * m + i.ravel()[None, :]).ravel()
-        self._sb = (second[:, None] * m + j.ravel()[None, :]).ravel()
-        self._radii = radii.reshape(-1)[self._sa] + radii.reshape(-1)[self._sb]
-        # the centres of each sphere pair's a and b as flat indices into the product of the poses and centres
-        self._pair_centres = centre_index.ravel()[np.stack([self._sa, self._sb])[:, :, None] * 3 + np.arange(3)]
-        self._mm = m * m
+        # the arrays that follow from the geometry: made here, or those of another workspace of it (Scene.workspace)
+        self.layout = _layout(model, geometry, joints, centres, radii, first, second) if layout is None else layout
+        self.__dict__.update(self.layout)
         self._reach = (None, None)  # (limit, (radii + limit)^2) of the last broadphase distance
-        # which columns of q move each joint's body (the world's row is all zeros), and per pair the first
-        # object's columns negated and the second's: rows of pair k are sum_s (coef_s J)[k] * _signed[k, s]
-        supports = np.zeros((model.njoints, model.nv))
-        for jt in range(1, model.njoints):
-            for t in model.supports[jt].tolist()[1:]:
-                supports[jt, model.idx_vs[t]:model.idx_vs[t] + model.nvs[t]] = 1.0
-        self._signed = np.stack([-supports[joints[first]], supports[joints[second]]], axis=1)
         self._points = np.empty((0, 3))
-        n_obj = len(geometry.geometryObjects)
-        self._map_shape, self._map_size = (n_obj, n_obj), n_obj * n_obj
-        self._cell_ab, self._cell_ba = first * n_obj + second, second * n_obj + first
-        self._ones = np.ones((2 * len(first), 1))
-        self._width = (10, 10 + model.nv)  # the compiled query's output row without and with the distance row
         self.polytopes: dict = {}  # object index -> its kinredund.geometry.polytopes.Polytope or None, on first use
         self._core = self._compiled_query(compiled)
 

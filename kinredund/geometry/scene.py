@@ -283,9 +283,12 @@ class Scene:
         """This thread's workspace (:class:`~kinredund.geometry.engine.Workspace`), made on first use; ``own``: a
         new one, not kept (for one user that keeps it, e.g. the compiled tracker's row check)."""
         ws = None if own else getattr(self._local, "workspace", None)
-        if ws is None:
+        if ws is None:  # (the arrays that follow from the geometry made once per build: Workspace.layout)
+            kept = self.__dict__.get("_layout")
+            layout = kept[1] if kept is not None and kept[0] is self._gm else None
             ws = Workspace(self.robot.model, self._gm, *self._spheres, self._first, self._second,
-                           compiled=self._compiled)
+                           compiled=self._compiled, layout=layout)
+            self._layout = (self._gm, ws.layout)
             if not own:
                 self._local.workspace = ws
         return ws
@@ -330,11 +333,16 @@ class Scene:
         changes by at most sum_j B[k, j] |q'_j - q_j| (in the order of :attr:`pairs`).
 
         From :meth:`object_reach` (``extent`` as there: by default, for paths within the joint box). A joint
-        that moves both objects of a pair moves them rigidly together and leaves their distance alone.
+        that moves both objects of a pair moves them rigidly together and leaves their distance alone. Kept for the
+        scene as it is (its objects and pairs, rebuilt at every change) and ``extent``: a copy is returned.
         """
-        L = self.object_reach(extent)
-        a, b = L[self._first], L[self._second]
-        return np.where((a > 0) & (b > 0), 0.0, a + b)
+        key = None if extent is None else np.asarray(extent, float).tobytes()
+        kept = self.__dict__.get("_bound")
+        if kept is None or kept[0] is not self._spheres or kept[1] != key:
+            L = self.object_reach(extent)
+            a, b = L[self._first], L[self._second]
+            kept = self._bound = (self._spheres, key, np.where((a > 0) & (b > 0), 0.0, a + b))
+        return kept[2].copy()
 
     # -- queries --------------------------------------------------------------------------------
     @staticmethod

@@ -13,7 +13,7 @@ bound, no multiplier of a joint held on its bound below zero, no jump (the step 
 multipliers') and returns the bound multipliers at the corrected point. Python samples the path (in blocks of
 steps ahead where the path computes its samples together: :mod:`kinredund.tracking.ahead`) and a time-varying
 reference and passes them in; the active set goes to the core when it changes. The step's point
-(:class:`CompiledPoint`) reads the core's output row only where someone asks for it.
+(:class:`~kinredund.tracking.compiled_point.CompiledPoint`) reads the core's output row only where someone asks for it.
 
 Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
 R's condition drops) the core measures it (``StepCore.watch_measure``, ``src/core/watch.cpp``: the watch's inverse
@@ -37,8 +37,10 @@ rows' constraint has a compiled check (:meth:`~kinredund.tracking.constraints.ba
 scene's, ``src/core/distances.cpp``), that check runs first, before the step is applied: where it rules out a
 switch (every row above -ROW_TOL at the end and none able to dip below it inside, by the constraint's lower
 bounds) the step is taken without the search, else the search decides as above. The core holds the check
-(``StepCore.set_guard``) and runs it in the same call as its step (``StepCore.step_guarded``: the row and the
-verdict), so the check costs no call from Python of its own.
+(``StepCore.set_guard``) and runs it in the same call as its step (``StepCore.step_guarded``: the row, the
+verdict and the rows' smallest value at the step's end), so the check costs no call from Python of its own, and a
+step kept hands that value to the stepper for the record (``keep_smallest``: the record's smallest row value there
+without a query of its own; exact near the clearances, a lower bound elsewhere, as the constraint's values are).
 
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
 own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
@@ -62,7 +64,7 @@ import numpy as np
 from kinredund.errors import KinredundError, OptionError, check_backend
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
-from kinredund.tracking.point import Point
+from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
 
@@ -155,56 +157,6 @@ def _warn_once() -> None:
                       "stepper (same results, slower)", BackendWarning, stacklevel=4)
 
 
-class RecordedPose:
-    """What the record keeps of a compiled step: the path sample and the pose (Q, p) at the corrected joints
-    (:class:`~kinredund.tracking.recorder.Recorder` then needs no forward kinematics of its own)."""
-
-    __slots__ = ("sample", "pose")
-
-    def __init__(self, sample, pose):
-        self.sample, self.pose = sample, pose
-
-
-class CompiledPoint(Point):
-    """The step's evaluation as the core left it (its output row ``out``): t and the basis set, q (the predicted
-    point), J, the path sample and ``recorded`` (the :class:`RecordedPose` at the corrected joints) read from the
-    row on first use; the rest (pose, task and index terms, :meth:`~kinredund.tracking.point.Point.system`) is
-    evaluated in Python at (q, t) on first use. A step whose point nobody reads makes none of them.
-
-    Args:
-        layout: (the slices of ``out``'s fields, (n, m)): ``CompiledStep.layout``.
-        sample: the path sample at t, or None with ``ahead`` = (Samples, row) to make it from on first use.
-    """
-
-    __slots__ = ("_ev", "_out", "_layout", "_ahead", "recorded")
-
-    def __init__(self, ev, out, t, sample, basis, layout, ahead=None):
-        self._ev, self._out, self.t, self.basis, self._layout, self._ahead = ev, out, t, basis, layout, ahead
-        if sample is not None:
-            self.sample = sample
-
-    def __getattr__(self, name):  # an unset slot: read from the core's row, or the full evaluation fills them all
-        if name not in Point.__slots__ and name != "recorded":  # (also an instance without its own slots: a copy)
-            raise AttributeError(name)
-        out, (sl, (n, m)) = self._out, self._layout
-        if name == "q":
-            value = out[sl[7]]
-        elif name == "J":
-            value = out[sl[3]].reshape(m, n)
-        elif name == "sample":
-            at, row = self._ahead
-            value = at.sample(row)
-        elif name == "recorded":
-            value = RecordedPose(self.sample, (out[sl[5]].reshape(3, 3), out[sl[6]]))
-        else:
-            full = self._ev.point(self.q, self.t, sample=self.sample)
-            for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
-                setattr(self, key, getattr(full, key))
-            return getattr(self, name)
-        setattr(self, name, value)
-        return value
-
-
 class CompiledStep:
     """The ordinary step of ``stepper`` in the compiled core; other steps are the stepper's own.
 
@@ -293,7 +245,7 @@ class CompiledStep:
             ref = rate = self._empty
         args = (t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot, 0.0 if ctl is None else ctl.speed2,
                 ctl is not None)
-        cleared = None
+        cleared = smallest = None
         if self._guard is None:
             out = self.core.step(*args)
         else:  # the step and the scene's check of it in one call (h < 0: no check, not cleared)
@@ -301,25 +253,27 @@ class CompiledStep:
             h = t_to - s.t if s.qdot is not None and guard.valid() else -1.0
             out = self.core.step_guarded(h, *args)
             if type(out) is not int:
-                out, cleared = out
+                out, cleared, smallest = out
         if type(out) is int:
             return self.hand_back(out)
-        return self.accept(out, sample, t_to, (at, row), cleared)
+        return self.accept(out, sample, t_to, (at, row), cleared, smallest)
 
     def accept(self, out: np.ndarray, sample, t_to: float, ahead: tuple | None = None,
-               cleared: bool | None = None) -> None:
+               cleared: bool | None = None, smallest: float | None = None) -> None:
         """The core's ordinary step to ``t_to`` (its output row ``out``, R's factors still in the core) as the
         stepper's new state, then the checks that may still hand it back to the Python stepper (from the state
         before it): with general rows, the stepper's own search for a switch within the step
         (``pending_switches``: a row reached, a row dipping below zero inside the step) unless the compiled check
         ruled one out (``cleared``: its verdict where the core ran it with the step, None to run it here); the
         watch's measurement where due. Either rejection gives the Python stepper's step, which runs both itself.
-        ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it."""
+        ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it. ``smallest``:
+        the check's least row value at the step's end (``RowGuard.smallest``), handed to the stepper with a step
+        it keeps (``keep_smallest``: the record's smallest value there, no query of its own)."""
         s = self.stepper
         ctl = s.control
         rcond = float(out[-2])
         if ctl is not None and (not self.rows or cleared) and ctl.watch.passes(rcond):  # nothing to check
-            self.apply(out, sample, t_to, rcond, ahead)
+            self.apply(out, sample, t_to, rcond, ahead, smallest)
             ctl.speed2 = float(out[-1])
             return None
         measured = ctl is not None and ctl.watch.due_next(rcond)
@@ -329,7 +283,7 @@ class CompiledStep:
         saved = None
         if measured or look:  # what a rejected step goes back to (the state, the control's speed)
             saved = ctl.snapshot() if ctl is not None else (s.state,)
-        self.apply(out, sample, t_to, rcond, ahead)
+        self.apply(out, sample, t_to, rcond, ahead, smallest)
         if look and self._switch_within(saved[0]):
             return self._undo(saved, ROWS)
         if not measured:
@@ -382,10 +336,12 @@ class CompiledStep:
         self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
         self._fixed = fixed
 
-    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float, ahead: tuple | None = None) -> None:
+    def apply(self, out: np.ndarray, sample, t_to: float, rcond: float, ahead: tuple | None = None,
+              smallest: float | None = None) -> None:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
         the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it).
-        ``sample``, ``ahead``: the path sample at ``t_to`` (see :meth:`accept`)."""
+        ``sample``, ``ahead``: the path sample at ``t_to``; ``smallest``: the rows' least value there, where the
+        compiled check has it (see :meth:`accept`; a step put back later leaves it with a q no longer current)."""
         s = self.stepper
         sy, ssol, sM, _, sq, _, _, _, s_mu, s_label = self.slices
         n = self.n
@@ -397,4 +353,6 @@ class CompiledStep:
             self.held_steps += 1
         else:
             s.accept(out[sy], out[ssol], pt, M, out[sq], rcond)
+        if smallest is not None and smallest == smallest:  # (NaN: the check stopped before its values)
+            s.keep_smallest(smallest)
         self.steps += 1

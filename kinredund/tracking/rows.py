@@ -133,6 +133,7 @@ class GeneralRows:
         self.row_pairs = [(ci, ri) for ci, c in enumerate(self.general) for ri in range(c.size)]
         self._vals_key, self._vals = None, None
         self._prev_key, self._prev_vals = None, None  # and the values before them (:meth:`_row_values`)
+        self._smallest = (None, 0.0)  # (q, the smallest c there) from a compiled check (:meth:`keep_smallest`)
         values = self._row_values(q0)
         bad = np.flatnonzero(values < -1e-10)
         if bad.size:
@@ -366,7 +367,16 @@ class GeneralRows:
             return {}
         return {"constraint_values": self._row_values(state.q).tolist(), "active_rows": self.row_names(state.rows)}
 
+    def keep_smallest(self, value: float) -> None:
+        """The smallest c over the general rows at the current q [m] as the compiled check of the step to it computed
+        it (``RowGuard.smallest``: exact at or below the constraint's skip margin, a lower bound above it, as
+        :meth:`~kinredund.tracking.constraints.base.Constraint.values` may be), for :meth:`row_record` at this q."""
+        self._smallest = (self.q, value)
+
     def row_record(self) -> tuple[float, tuple, np.ndarray]:
-        """(the smallest c over the general rows [m], the active rows, their multipliers nu >= 0) now."""
-        values = self._row_values(self.q)
-        return float(values.min()), self.rows, -self.lam[self._m:]
+        """(the smallest c over the general rows [m], the active rows, their multipliers nu >= 0) now: the smallest
+        c the compiled check of the step kept for this q (:meth:`keep_smallest`), else from the rows' values."""
+        q, smallest = self._smallest
+        if q is not self.q:
+            smallest = float(self._row_values(self.q).min())
+        return smallest, self.rows, -self.lam[self._m:]

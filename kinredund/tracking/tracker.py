@@ -283,6 +283,8 @@ def scene_constraints(robot: Robot, scene, clearance, self_clearance) -> list:
 
 def same_chain(a, b) -> bool:
     """Do two Pinocchio models have one kinematic chain: parents, joint kinds and joint placements (to 1e-12)?"""
+    if a is b:  # (the common case: the scene made of the tracked robot)
+        return True
     if a.njoints != b.njoints or list(a.parents) != list(b.parents):
         return False
     kinds = all(x.shortname() == y.shortname() for x, y in zip(a.joints, b.joints, strict=True))

@@ -453,6 +453,10 @@ class RowGuard {
   }
 
   double seconds() const { return seconds_; }
+  // the smallest row value at the last check's end q1 [m] (NaN where that check stopped before its values): exact
+  // where it is at or below skip (the smallest row is then computed afresh or kept exact), else a lower bound above
+  // skip - SceneClearance.values' guarantee, so the record's smallest value per point needs no query of its own
+  double smallest() const { return smallest_; }
   long distances() const { return distances_; }
   long placements() const { return placements_; }
   const std::vector<long>& computed() const { return computed_; }
@@ -460,8 +464,10 @@ class RowGuard {
  private:
   bool check(const Eigen::Map<const VectorXd>& q0, const Eigen::Map<const VectorXd>& q1,
              const Eigen::Map<const VectorXd>& v0, const Eigen::Map<const VectorXd>& v1, double h) {
+    smallest_ = std::numeric_limits<double>::quiet_NaN();
     if (!(h >= 0.0) || !boxed(q0) || !boxed(q1) || !v0.allFinite() || !v1.allFinite()) return false;
     values_at(q1, c1_, true);
+    smallest_ = c1_.minCoeff();
     const bool reached = !(c1_.minCoeff() >= -tol_);
     if (have_end_ && q0 == q_end_)
       c0_ = c_end_;
@@ -610,6 +616,7 @@ class RowGuard {
   std::vector<long> users_;
   std::vector<char> same_;
   double seconds_ = 0.0;  // time spent in clear_at [s]
+  double smallest_ = std::numeric_limits<double>::quiet_NaN();  // smallest(): min c at the last check's end
   long distances_ = 0;    // exact distances computed
   long placements_ = 0;   // placements of the objects (forward kinematics and the bounding spheres)
   std::vector<long> computed_;  // per row, the times its value was needed afresh
@@ -626,6 +633,8 @@ bool row_guard_clear(RowGuard& guard, const double* q0, const double* q1, const 
                      double h) {
   return guard.clear_at(q0, q1, v0, v1, h);
 }
+
+double row_guard_smallest(const RowGuard& guard) { return guard.smallest(); }
 
 
 void bind_distances(nb::module_& m) {
@@ -645,6 +654,9 @@ void bind_distances(nb::module_& m) {
            nb::arg("query"), nb::arg("row_of_pair"), nb::arg("clearances"), nb::arg("influence"), nb::arg("bound"),
            nb::arg("extent"), nb::arg("tol"), nb::arg("skip"), nb::keep_alive<1, 2>())
       .def("clear", &RowGuard::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"))
+      .def_prop_ro("smallest", &RowGuard::smallest,
+                   "the smallest row value at the last check's end [m] (exact at or below skip, else a lower bound; "
+                   "NaN where that check stopped before its values)")
       .def_prop_ro("seconds", &RowGuard::seconds, "time spent in its checks [s] (the core's calls included)")
       .def_prop_ro("distances", &RowGuard::distances, "exact distances its checks computed")
       .def_prop_ro("placements", &RowGuard::placements, "placements of the objects its checks made")

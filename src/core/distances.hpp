@@ -20,5 +20,7 @@ Eigen::Index row_guard_nv(const RowGuard& guard);
 // RowGuard.clear on raw arrays of nv entries, touching no Python object (call it with the GIL released).
 bool row_guard_clear(RowGuard& guard, const double* q0, const double* q1, const double* v0, const double* v1,
                      double h);
+// RowGuard.smallest: min c at the last check's end [m] (exact at or below skip, else a lower bound; NaN: no values).
+double row_guard_smallest(const RowGuard& guard);
 
 }  // namespace kinredund

@@ -141,14 +141,16 @@ class StepCore {
   }
 
   // step() and, after an ordinary step, the guard's check of it (RowGuard.clear from the step's start y[:n] with
-  // rates qdot0 to its end, h [s] long; h < 0 or no guard: not cleared): the status code, or (array, cleared).
+  // rates qdot0 to its end, h [s] long; h < 0 or no guard: not cleared): the status code, or (array, cleared,
+  // smallest), smallest the guard's least row value at the step's end (RowGuard.smallest; NaN where it did not run).
   nb::object step_guarded(double h, double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t,
                           CRef y, CRef yd, nb::list prev_list, CRef qdot0, double speed2_prev, bool check_jump) {
     bool cleared = false;
     nb::object out = step_checked(t, sp, sv, sQ, somega, ref_t, rate_t, y, yd, prev_list, qdot0, speed2_prev,
                                   check_jump, &cleared, h);
     if (nb::isinstance<nb::int_>(out)) return out;
-    return nb::make_tuple(out, cleared);
+    const bool ran = guard_ != nullptr && h >= 0.0;  // (step_checked ran the guard on every ordinary step then)
+    return nb::make_tuple(out, cleared, ran ? row_guard_smallest(*guard_) : std::numeric_limits<double>::quiet_NaN());
   }
 
  private:

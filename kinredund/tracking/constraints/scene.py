@@ -23,7 +23,11 @@ sum_j B_kj |dq_j| (``Scene.motion_bound``; between configurations whose prismati
 extent of their limits, which it takes for their slides), so the last exact values lowered by that amount are
 lower bounds; a query is made when one of them comes within :data:`SKIP_MARGIN` of zero, and always for rows,
 gradients and curvature. So ``values`` (and the record's smallest value per point) are exact near the
-clearances and lower bounds elsewhere.
+clearances and lower bounds elsewhere: exact wherever the smallest value is at or below :data:`SKIP_MARGIN`; above
+it, exact or a lower bound above :data:`SKIP_MARGIN`. On the compiled backend the record's smallest value at a step
+the core's check ran on (:meth:`SceneClearance.row_guard`) is that check's (``RowGuard.smallest``: its values at the
+step's end, kept and lowered row by row, computed afresh at or below :data:`SKIP_MARGIN`), with the same guarantee;
+above :data:`SKIP_MARGIN` its lower bounds are its own, not the Python stepper's.
 
 The curvature term (the rows' share of M in the system, :meth:`SceneClearance.curvature`) is by default
 taken by central differences of the rows (``curvature="differences"``: 2n queries of the near pairs, made
