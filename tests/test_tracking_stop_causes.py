@@ -30,6 +30,13 @@ the same circle, a 5.1 cm ball where panda_link3 passes. Held, the smallest sing
 ``kinematic_singularity``; it is now ``not_strongly_stable`` (the constraints become dependent), the pair named.
 Checked independently: [J; G] from central differences of the tool's position and axis and the pair's gradient
 loses rank toward the stop while J does not.
+
+No saddle point recorded after a switch. Named case ``panda_switch_saddle`` (tests/test_clearance_property.py's
+draw 213 on the Panda, pinned): a 7.1 cm ball held off panda_link6; within one step (100 a loop) panda_link7's row
+is reached too, and with both held the reduced Hessian (the rows' curvature included) is indefinite at the step's
+end (-1.8). The step control had watched the step with the active set it started with, and the point was
+recorded: a saddle of the held problem, which solve_ik_rows's check rejects. The step's end is now measured
+exactly after its switches, and the run stops at the step's start, every recorded point a minimum.
 """
 
 from __future__ import annotations
@@ -170,3 +177,68 @@ def test_rows_becoming_dependent_on_the_task_are_named_so():
     assert j_near > 0.1 and j_good > 0.1  # J regular
     # the row falls into J's row space toward the stop: 0.0098 -> 0.0019 against J's 0.23 (measured)
     assert a_near < 0.02 * j_near and a_near < 0.5 * a_good
+
+
+#: ``panda_switch_saddle``: the circle (center, radius, normal, axis_x), the start and the ball (center, radius)
+SADDLE_CIRCLE = ([0.23604045233690363, -0.21129461260899526, 0.37644072455980765], 0.09465158713899309,
+                 (-0.33669385474093894, 0.470606307765529, 0.8155776794830667),
+                 (-0.018419664036611556, 0.8626909742257547, -0.5053958834084391))
+SADDLE_Q0 = [-0.24517045397756196, -0.5004210750298848, -0.24946301595196108, -2.754235153209326,
+             -0.10263901554396951, 1.5403650948045484, 0.785]
+SADDLE_BALL = ([0.1732207126001722, -0.2795524449373935, 0.4332241375014671], 0.07096232423881145)
+
+
+@pytest.mark.parametrize("backend", ["compiled", "python"])
+def test_no_saddle_point_is_recorded_after_a_switch(backend):
+    r = robot("panda", "position")
+    center, radius, normal, axis_x = SADDLE_CIRCLE
+    path = Circle(np.array(center), radius, 0.1, normal=normal, axis_x=axis_x)
+    index = JointDeviation(r.home.copy())
+    sc = kr.Scene(r)
+    sc.add_sphere("ball", SADDLE_BALL[1], SADDLE_BALL[0])
+    with pytest.raises(TrackingError) as info:
+        kr.track(r, path, index, np.array(SADDLE_Q0), loops=1, steps_per_loop=100, scene=sc, clearance=CLEARANCE,
+                 self_clearance=SELF_CLEARANCE, backend=backend)
+    err = info.value
+    assert err.cause == "collision" and err.watched["underlying_cause"] == "fold", str(err)
+    assert "no strict minimum" in str(err) and "panda_link7_0 and ball" in str(err)
+    rows = [kr.SceneClearance(sc, CLEARANCE, SELF_CLEARANCE)]
+    tr = err.partial
+    assert any(tr.meta["constraints"]["active"])  # the record holds a row
+    for t, q in zip(tr.t, tr.q, strict=True):  # every recorded point a strict minimum, independently
+        res = solve_ik_rows(r, path(t).p, index, rows, q, tol=1e-12)
+        assert res.converged and res.reduced_hessian_min_eig > 0.5 and np.linalg.norm(res.q - q) <= 1e-9, t
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_inertia_of_r_tells_an_indefinite_reduced_hessian(seed):
+    """StepControl._indefinite reads sign(det R) off R's LU factors (dgetrf, as the stepper keeps them): R =
+    [[M_F, A_F^T], [A_F, 0]] on the free joints, A = [J; G_A] of full row rank. Checked against the eigenvalues of
+    Z^T M_F Z (Z an SVD null basis of A_F) on random M with 0, 1 or 2 negative eigenvalues there: it says
+    indefinite exactly where their count is odd (det R's sign sees parity: an even count needs the watch's
+    measurement, which a crossing's zero triggers on the way)."""
+    from types import SimpleNamespace
+
+    from scipy.linalg import lu_factor
+
+    from kinredund.tracking.step_control import StepControl
+
+    rng = np.random.default_rng(seed)
+    n, m = 7, int(rng.integers(2, 5))
+    fixed = np.zeros(n, bool)
+    fixed[rng.choice(n, int(rng.integers(0, 2)), replace=False)] = True
+    F = np.flatnonzero(~fixed)
+    A = rng.normal(size=(m, len(F)))
+    Z = np.linalg.svd(A)[2][m:].T
+    for negatives in (0, 1, 2):
+        d = rng.uniform(0.5, 2.0, Z.shape[1])
+        d[:negatives] *= -1.0
+        Q = np.linalg.qr(rng.normal(size=(Z.shape[1],) * 2))[0]
+        S = Q @ np.diag(d) @ Q.T  # Z^T M Z with ``negatives`` negative eigenvalues
+        Y = np.linalg.svd(A)[2][:m].T  # the row space of A: M's other blocks are anything (Haynsworth's inertia)
+        C, E = rng.normal(size=(m, m)), rng.normal(size=(m, Z.shape[1]))
+        M = Z @ S @ Z.T + Y @ (C + C.T) @ Y.T + Y @ E @ Z.T + Z @ E.T @ Y.T
+        R = np.block([[M, A.T], [A, np.zeros((m, m))]])
+        stub = SimpleNamespace(s=SimpleNamespace(rows=(0,), lu=lu_factor(R), fixed=fixed, n=n))
+        assert np.sum(np.linalg.eigvalsh(Z.T @ M @ Z) < 0) == negatives
+        assert StepControl._indefinite(stub) == (negatives % 2 == 1), negatives

@@ -19,7 +19,10 @@
    past points) is consistent with the smooth past and skips this check (two vector operations);
 3. the watch (:mod:`kinredund.tracking.watch`) finds sigma_min(J) and the reduced Hessian's eigenvalue
    nearest zero both above their floors at the new point (a step onto a branch where Z^T M Z is not
-   positive definite, a saddle or a maximum of z, is rejected).
+   positive definite, a saddle or a maximum of z, is rejected). With general rows active the point is also
+   measured (exactly) wherever the inertia of R from its LU factors says Z^T M Z has an odd number of negative
+   eigenvalues (:meth:`StepControl._indefinite`), which R's condition, the watch's gate, misses when a step
+   passes over a crossing.
 
 A rejected step, or one the watch predicts a crossing within, is retried from the last good point in
 sub-steps: h = dt/2, halved on each rejection, doubled back after each accepted sub-step (at most dt),
@@ -66,6 +69,8 @@ PREDICTED_TOL = 0.01
 #: bisections, down to BRANCH_RESOLUTION dt, and a quantity that has fallen below BRANCH_FALL of its value at the
 #: nearest good point by the branch's end names the stop (:meth:`StepControl._branch_end`)
 BRANCH_BISECTIONS, BRANCH_RESOLUTION, BRANCH_FALL = 40, 1e-9, 0.1
+#: ... and a point within BRANCH_JUMP dt past the end that the watch's floors reject (no minimum there) names it too
+BRANCH_JUMP = 1e-6
 #: a sub-step of the branch's end search that moves the joints by more than this times its length times the larger
 #: of the rates at its ends has jumped onto another branch (a move along one branch is at most the largest rate
 #: on it times the length)
@@ -167,10 +172,11 @@ class StepControl:
         """The watch's verdict on the new point (measured where due): None if accepted, else (kind, why).
         ``core``: the compiled core that took the step (its measurement: :meth:`Watch.measure`)."""
         s = self.s
-        if not (self.watch.due(s.rcond) or h < s.dt):
+        indefinite = self._indefinite()
+        if not (self.watch.due(s.rcond) or h < s.dt or indefinite):
             self.speed2 = speed2
             return None
-        if h < s.dt:  # sub-steps (near trouble): exactly, at the corrected point (not the Euler prediction's)
+        if h < s.dt or indefinite:  # sub-steps (near trouble): exactly, at the corrected point (not the Euler's)
             pt = s.evaluate(s.q, s.t)
             sigma, eig = self.watch.measure_exact(pt.J, pt.system(s.lam)[0], getattr(s, "fixed", None))
         else:
@@ -181,6 +187,23 @@ class StepControl:
         self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None), exact=h < s.dt)
         self.speed2 = speed2
         return None
+
+    def _indefinite(self) -> bool:
+        """With general rows active (steps the Python stepper takes): does the inertia of R (Eq. 4.24) from its LU
+        factors say Z^T M Z has an odd number of negative eigenvalues? R = [[M, A^T], [A, 0]] with A of full row
+        rank r has det R = (-1)^r det(Z^T M Z) times a positive number, so sign(det R) is (-1)^r exactly where the
+        reduced Hessian is positive definite (one eigenvalue crossing flips it). The watch's gate (R's condition)
+        sees a crossing only near it, and a step over one, where an active row's curvature grows with its
+        multiplier or jumps, went unmeasured: the record held saddle points of the held problem. Free: the signs of
+        U's diagonal and the pivots' swaps."""
+        s = self.s
+        if not getattr(s, "rows", None) or s.lu is None:
+            return False
+        lu, piv = s.lu
+        fixed = getattr(s, "fixed", None)
+        free = s.n - (0 if fixed is None else int(np.count_nonzero(fixed)))
+        flips = int(np.count_nonzero(np.diag(lu) < 0.0)) + int(np.count_nonzero(piv != np.arange(len(piv))))
+        return (flips - (lu.shape[0] - free)) % 2 == 1
 
     def _refreshed_ahead(self, t_next: float) -> str | None:
         """The prediction again after an exact measurement at the current point (the gated history may be old)."""
@@ -325,13 +348,15 @@ class StepControl:
         nearest good point (the current one) toward ``t_fail`` by :data:`BRANCH_BISECTIONS` bisections (Euler
         sub-steps from the farthest point reached; one that moves the joints more than :data:`BRANCH_SPEED` times its
         length times the larger of the rates at its ends has jumped onto another branch; not the trapezoidal check,
-        which the rates' own jump where the curvature jumps fails at any length) and measured exactly at its end: a
+        which the rates' own jump where the curvature jumps fails at any length; one the watch's floors reject is no
+        minimum, or J is singular there) and measured exactly at its end: a
         quantity fallen below :data:`BRANCH_FALL` of its value at the nearest good point names the stop (``fold``
-        or ``kinematic_singularity``), else it is ``step_control_exhausted``. ``watched``: the end's time and joints
-        (``branch_end_t``, ``branch_end_q``: a good point, corrected, nearer the failure than the sub-steps'). The
-        stepper is left at that end."""
+        or ``kinematic_singularity``), and so does one below its floor at a corrected point within
+        :data:`BRANCH_JUMP` dt past the end (it jumped there), else it is ``step_control_exhausted``. ``watched``:
+        the end's time and joints (``branch_end_t``, ``branch_end_q``: a good point, corrected, nearer the failure
+        than the sub-steps'). The stepper is left at that end."""
         s = self.s
-        t_near, lo, hi = s.t, self.snapshot(), t_fail
+        t_near, lo, hi, end, beyond = s.t, self.snapshot(), t_fail, near, None
         for _ in range(BRANCH_BISECTIONS):
             if hi - lo[0].t <= BRANCH_RESOLUTION * s.dt:
                 break
@@ -341,14 +366,18 @@ class StepControl:
                 s.euler_to(mid)
                 dq, qd0, qd1 = s.q - lo[0].q, lo[0].qdot, s.qdot  # no jump onto another branch: the move within
                 ok = float(dq @ dq) <= (BRANCH_SPEED * (mid - lo[0].t)) ** 2 * max(qd0 @ qd0, qd1 @ qd1)  # the rates'
+                w = watched_at(s) if ok else {}
+                crossed = ok and self.watch.crossed(w.get("sigma_min_J", math.inf),
+                                                    w.get("reduced_hessian_min", math.inf))
+                if crossed:  # no minimum, or J singular (past a fold the corrector may converge onto a saddle)
+                    beyond, ok = (mid, crossed, w), False
             except (PathError, SingularityError, TrackingError):
                 ok = False
             if ok:
-                lo = self.snapshot()
+                lo, end = self.snapshot(), w
             else:
                 hi = mid
             self.restore(lo)
-        end = watched_at(s) if s.t > t_near else near
         words = f"the corrector finds no optimum on the branch followed beyond t = {hi:.9g} s"
         branch = {"branch_end_t": float(s.t), "branch_end_q": s.q.tolist()}
         for cause, key, what in (("fold", "reduced_hessian_min", "the reduced-Hessian eigenvalue"),
@@ -357,6 +386,14 @@ class StepControl:
             if now < BRANCH_FALL * was:
                 return cause, (f"{words}: {what} falls from {was:.3g} at t = {t_near:.6g} s to {now:.3g} at t = "
                                f"{s.t:.9g} s, within a sub-step (a jump the watch cannot extrapolate)"), branch
+        if beyond is not None and beyond[0] - s.t <= BRANCH_JUMP * s.dt:  # it jumps at the end: below a floor there
+            t_b, kind, w = beyond
+            key, what = ("sigma_min_J", "sigma_min(J)") if kind == "kinematic" else \
+                ("reduced_hessian_min", "the reduced-Hessian eigenvalue")
+            cause = "kinematic_singularity" if kind == "kinematic" else "fold"
+            return cause, (f"{words}: {what} jumps from {end.get(key, math.nan):.3g} to {w.get(key, math.nan):.3g} "
+                           f"within {t_b - s.t:.2g} s of t = {s.t:.9g} s (the minimum followed ends there: a "
+                           f"distance's curvature, or its gradient, jumps)"), branch
         return "step_control_exhausted", f"{words} (at its iterates: {why})", branch
 
     def _bounded_stop(self, snap_step: tuple, t_fail: float) -> TrackingError:

@@ -8,6 +8,8 @@ switching time on the corrected path (Brent's method on the joint's margin, the 
 each evaluation a corrector solve at that time), steps to it, changes the active set there and steps on to the
 end of the step. After a switch strict complementarity is checked: a reached bound's multiplier grows, a
 released joint moves inward; where the LU route cannot tell (a rate ~0) the rate QP decides which set continues.
+The step's end is then measured exactly (the step control watched the step with the active set it started with):
+a held point that is no strict minimum of the problem with the new active set stops the run at the step's start.
 """
 
 from __future__ import annotations
@@ -264,9 +266,11 @@ class SwitchLocation:
 
     def _resolve_switches(self, snap: ConstrainedState) -> None:
         t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
-        for _ in range(MAX_SWITCHES_PER_STEP):
+        for n_switches in range(MAX_SWITCHES_PER_STEP):
             first = self._first_switch(snap)
             if first is None:
+                if n_switches:
+                    self._watch_switched(snap.t)
                 return
             tau, joint, kind = first
             self.state = snap
@@ -277,6 +281,28 @@ class SwitchLocation:
             self.t, self.k = t_end, k_end
         raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
                             f"within one step before t = {t_end:.6g} s (chattering)")
+
+    def _watch_switched(self, t_switch: float) -> None:
+        """The watch at the step's end after the step's switches (the last at ``t_switch``), measured exactly: the step
+        control watched the step with the active set it started with, and the quantities jump at a switch (the null
+        space changes; a row's curvature enters with its multiplier). A reduced Hessian not positive definite there
+        (the held point is a saddle of the problem with the new active set), or J singular, stops the run (``fold``;
+        ``not_strongly_stable`` where J with the active rows below loses rank), the last good point the step's
+        start; else the watch's history starts afresh from this measurement."""
+        ctl = self.control
+        if ctl is None or self.ev.index is None:
+            return
+        pt = self.evaluate(self.q, self.t)
+        sigma, eig = ctl.watch.measure_exact(pt.J, pt.system(self.lam)[0], self.fixed)
+        kind = ctl.watch.crossed(sigma, eig)
+        if kind is None:
+            ctl.watch.reset()
+            ctl.watch.push(self.t, sigma, eig, self.fixed, exact=True)
+            return
+        cause = "fold" if kind == "fold" else "not_strongly_stable" if self.rows else "kinematic_singularity"
+        raise self._failure(cause, f"after the switch of the active set at t = {t_switch:.9g} s the held point at "
+                            f"t = {self.t:.6g} s is no strict minimum: reduced-Hessian eigenvalue {eig:.3g}, "
+                            f"sigma_min of J with the active rows {sigma:.3g}")
 
     def _apply_switch(self, joint: int, kind: str) -> float:
         """Change the active set: fix a joint on its bound, free it, or a row (``GeneralRows._apply_row_switch``)."""
