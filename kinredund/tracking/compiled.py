@@ -55,6 +55,7 @@ problem the core cannot run is Python's, as under ``auto``: it holds for the who
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -103,23 +104,127 @@ def core_error() -> str:
 def unsupported(tracker) -> str:
     """Why the compiled step cannot run ``tracker``'s problem ("" where it can)."""
     s = tracker.stepper
-    if not isinstance(s, PredictorCorrector):
-        return f"it compiles the default mode's augmented and velocity schemes, not mode={tracker.mode!r}, " \
-               f"scheme={tracker.scheme!r}"
-    index = s.ev.index
+    return unsupported_problem(type(s), s.ev, tracker.mode, tracker.scheme)
+
+
+def unsupported_problem(stepper_class: type, ev, mode: str, scheme: str) -> str:
+    """Why the compiled step cannot run a stepper of ``stepper_class`` on ``ev``'s problem ("" where it can): the
+    rule of :func:`unsupported`, before the stepper is made (:func:`compiled_start`)."""
+    if not issubclass(stepper_class, PredictorCorrector):
+        return f"it compiles the default mode's augmented and velocity schemes, not mode={mode!r}, scheme={scheme!r}"
+    index = ev.index
     if type(index) not in (JointDeviation, TimeVaryingReference):
         return f"it knows the indices JointDeviation (minimum_norm, mid_range) and TimeVaryingReference, not " \
                f"{type(index).__name__}"
-    model = s.ev.robot.model
+    model = ev.robot.model
     if model.nq != model.nv:
         return f"the robot's configuration has nq = {model.nq} != nv = {model.nv} entries"
-    if s.ev.task not in TASK_CODES:
-        return f"unknown task kind {s.ev.task!r}"
+    if ev.task not in TASK_CODES:
+        return f"unknown task kind {ev.task!r}"
     return ""
 
 
-def attach(tracker, backend: str | None) -> str:
+def compiled_start(backend: str | None, stepper_class: type, ev, mode: str, scheme: str):
+    """The :class:`CompiledStart` for a stepper of ``stepper_class`` where :func:`attach` will give it the compiled
+    backend (the core loads and runs the problem), else None (its start is Python's; :func:`attach` says why where
+    ``backend`` insists). Raises ChoiceError: an unknown backend."""
+    backend = check_backend(backend)[0]
+    if backend == "python" or unsupported_problem(stepper_class, ev, mode, scheme):
+        return None
+    core = load_core()
+    return None if core is None or not hasattr(core, "start_run") else CompiledStart(core)
+
+
+def make_step_core(stepper: PredictorCorrector, core):
+    """The core's ``StepCore`` of ``stepper``'s problem (its robot, task, index, tolerance, time step, predictor
+    weights and the limits' switch bounds): made once the stepper has set these, before its start."""
+    ev = stepper.ev
+    index = ev.index
+    n = stepper.n
+    if isinstance(index, TimeVaryingReference):
+        weights = np.ones(n) if index.weights is None else np.asarray(index.weights, float)
+        reference = np.zeros(n)
+    else:
+        weights, reference = index.weights, index.reference
+    limited = getattr(stepper, "lo", None) is not None
+    lo_tol, hi_tol = stepper.switch_limits if limited else (np.zeros(0), np.zeros(0))
+    hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper.hermite]
+    return core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
+                         ev.formulation == "velocity", np.asarray(weights, float), np.asarray(reference, float),
+                         isinstance(index, TimeVaryingReference), stepper.tol, stepper.dt, hermite, lo_tol, hi_tol)
+
+
+@functools.lru_cache(maxsize=64)
+def row_slices(n: int, m: int) -> tuple[slice, ...]:
+    """The fields of the core's output row (``src/core/step.cpp``, StepCore's step and start) for n joints and a task
+    of dimension m: y and its rates (n + m each), M (n x n), J (m x n), the predicted joints (n), the pose's Q (9)
+    and p (3) at the corrected joints, the evaluation's point (n), the bound multipliers (n), the label verdict (1);
+    rcond and |qdot|^2 follow them. Made once per (n, m)."""
+    N = n + m
+    ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1]).tolist()
+    return tuple(slice(a, b) for a, b in zip([0, *ends[:-1]], ends, strict=True))
+
+
+class CompiledStart:
+    """The start of a run in the core (``start_run``: ``src/core/step.cpp``, the GIL released): the
+    :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` calls it with itself where its Python start
+    would correct onto the optimum (``_newton``), solve for the rates (``_rates``) and then measure with the watch.
+
+    The core makes the ``StepCore`` (:func:`make_step_core`; :class:`CompiledStep` then steps with it), gives it the
+    stepper's active set, and from the stepper's [q; lambda] at t0 and the path's sample there (the stepper's first
+    evaluation's) makes the corrector's rounds, the rates and the bound multipliers at the corrected point and the
+    watch's exact measurement there, as the Python start does them (to rounding: ``tests/test_tracking_compiled.py``).
+    The stepper takes them (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_start`), its step
+    control the measurement. A start the core cannot make ordinarily (a singular or ill-conditioned R, a corrector
+    that does not converge, non-finite rates) is the Python stepper's: it meets and names the failure as on the
+    Python backend. (The tracker gives a stepper with general rows, :mod:`kinredund.tracking.rows`, none: their
+    extended system is Python's.)
+
+    Attributes:
+        core: the StepCore (None until called); fixed: the stepper's ``fixed`` array whose active set the core
+            holds (None: all joints free).
+    """
+
+    def __init__(self, module):
+        self.module, self.core, self.fixed = module, None, None
+
+    def __call__(self, stepper: PredictorCorrector) -> bool:
+        """Make ``stepper``'s start in the core; False (the stepper's state untouched) where it is Python's."""
+        core = self.core = make_step_core(stepper, self.module)
+        if getattr(stepper, "any_active", False):
+            fixed, side, bound = stepper.active_set()
+            core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
+            self.fixed = fixed
+        pt, t = stepper.pt, stepper.t
+        sample = pt.sample
+        Q = NO_Q if sample.Q is None else sample.Q
+        omega = NO_OMEGA if sample.omega is None else sample.omega
+        index = stepper.ev.index
+        if isinstance(index, TimeVaryingReference):
+            ref, rate = np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
+        else:
+            ref = rate = np.zeros(0)
+        got = self.module.start_run(core, sample.p, sample.v, Q, omega, ref, rate,
+                                    np.concatenate([stepper.q, stepper.lam]))
+        if type(got) is int:
+            return False
+        out, exact = got
+        n, m = stepper.n, len(stepper.lam)
+        slices = row_slices(n, m)
+        sy, ssol, sM = slices[:3]
+        M = out[sM].reshape(n, n)
+        point = CompiledPoint(stepper.ev, out, t, sample, pt.basis, (slices, (n, m)))
+        label = None
+        if getattr(stepper, "any_active", False):
+            label = stepper.reduced_label(M, point.J, int(out[slices[9]][0]))
+        stepper.take_start(out[sy], out[ssol], point, M, float(out[-2]), label=label, mu=out[slices[8]],
+                           exact=exact)
+        return True
+
+
+def attach(tracker, backend: str | None, start: CompiledStart | None = None) -> str:
     """Pick ``tracker``'s backend (see the module docstring) and set ``tracker.step``; returns its name.
+    ``start``: the stepper's :class:`CompiledStart` (:func:`compiled_start`), whose StepCore the steps use.
 
     Raises:
         OptionError: ``backend="compiled"`` where the core cannot run the problem or cannot be loaded.
@@ -140,7 +245,7 @@ def attach(tracker, backend: str | None) -> str:
                               "kinredund with pin[build] and nanobind beside pin, or use backend='python'")
         _warn_once()
         return "python"
-    tracker.compiled = CompiledStep(tracker.stepper, core)
+    tracker.compiled = CompiledStep(tracker.stepper, core, start)
     tracker.step = tracker.compiled.step
     return "compiled"
 
@@ -214,40 +319,28 @@ class CompiledStep:
         held_steps: of the steps taken in C++, those with a joint held on its bound.
     """
 
-    def __init__(self, stepper: PredictorCorrector, core):
+    def __init__(self, stepper: PredictorCorrector, core, start: CompiledStart | None = None):
         ev = stepper.ev
-        index = ev.index
         n = stepper.n
         self.stepper, self.n = stepper, n
         self._python_step = stepper.step
-        self.time_varying = isinstance(index, TimeVaryingReference)
-        if self.time_varying:
-            weights = np.ones(n) if index.weights is None else np.asarray(index.weights, float)
-            reference = np.zeros(n)
-        else:
-            weights, reference = index.weights, index.reference
+        self.time_varying = isinstance(ev.index, TimeVaryingReference)
         limited = getattr(stepper, "lo", None) is not None
-        lo_tol, hi_tol = stepper.switch_limits if limited else (np.zeros(0), np.zeros(0))
-        hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper.hermite]
-        self.core = core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
-                                  ev.formulation == "velocity", np.asarray(weights, float),
-                                  np.asarray(reference, float), self.time_varying, stepper.tol, stepper.dt, hermite,
-                                  lo_tol, hi_tol)
+        made = start is not None and start.core is not None  # the start's StepCore, with the active set it holds
+        self.core = start.core if made else make_step_core(stepper, core)
+        self._fixed = start.fixed if made else None  # the active set the core holds (the stepper's ``fixed``)
         self.limited = limited
         self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
         general = getattr(stepper, "general", [])  # one constraint's compiled check of a step, where it has one
         self._guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
         if self._guard is not None:  # the core runs the check right after its step (StepCore.step_guarded)
             self.core.set_guard(self._guard.compiled)
-        self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
         self._empty = np.zeros(0)
         m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)
-        N = n + m
-        ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1])  # the core's output layout (src/core/step.cpp)
-        self.slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
-        self.shapes = (n, m, N)
+        self.slices = row_slices(n, m)
+        self.shapes = (n, m, n + m)
         self.layout = (self.slices, (n, m))  # what a CompiledPoint reads its fields with
         self.steps = self.held_steps = 0
         self.handed_back: dict[str, int] = {}
