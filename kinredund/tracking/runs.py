@@ -39,7 +39,7 @@ from kinredund.errors import PathError
 from kinredund.tasks import get_task
 from kinredund.tracking.compiled import load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
-from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, reduce
+from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, free_columns
 
 #: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
 GRID = 256
@@ -140,11 +140,11 @@ class Runs:
         by one; -1 for a step predicted into trouble, left to the next call)."""
         watch, fixed = self.ctl.watch, getattr(self.s, "fixed", None)
         n, m, _ = self.c.shapes
-        sM, sJ = self.c.slices[2:4]
+        sJ = self.c.slices[3]
         ends = [e + 1 for e in exact[1:]] + [done + (status != 0)]  # to the next measured step, or the step after
         for e, end, values in zip(exact, ends, measured, strict=True):
             saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
-            J = reduce(out[e, sJ].reshape(m, n), out[e, sM].reshape(n, n), fixed)[0]
+            J = free_columns(out[e, sJ].reshape(m, n), fixed)
             sigma, eig = watch.keep_exact(J, *values)
             if watch.crossed(sigma, eig) is not None:
                 watch.load(saved)

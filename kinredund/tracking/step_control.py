@@ -48,7 +48,7 @@ import numpy as np
 
 from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.tracking.failure import out_of_reach, path_contradiction, path_jumps, watched_at
-from kinredund.tracking.watch import Watch, reduce
+from kinredund.tracking.watch import Watch, free_columns
 
 #: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
 MAX_HALVINGS = 6
@@ -87,7 +87,7 @@ class StepControl:
         if s.start_measure is None:
             sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, fixed)
         else:  # the compiled start's exact measurement (Watch.measure's first is exact: no vector yet)
-            sigma, eig = self.watch.keep_exact(reduce(s.pt.J, s.M, fixed)[0], *s.start_measure)
+            sigma, eig = self.watch.keep_exact(free_columns(s.pt.J, fixed), *s.start_measure)
         self.watch.push(s.t, sigma, eig, fixed)
         self.speed2 = float(s.qdot @ s.qdot)
 
