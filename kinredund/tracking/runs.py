@@ -33,6 +33,8 @@ locates), so it is the same throughout a run. Like
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 
 from kinredund.errors import PathError
@@ -150,9 +152,9 @@ class Runs:
                 watch.load(saved)
                 return e, self.core.WATCH_DUE
             watch.push(times[e], sigma, eig, fixed)
-            safe = watch.safe_before
-            for j in range(e + 1, end):
-                if times[j] >= safe and watch.ahead(times[j]) is not None:
+            # Watch.ahead is None before safe_before: the steps from the first at or after it (the times ascend)
+            for j in range(bisect.bisect_left(times, watch.safe_before, e + 1, end), end):
+                if watch.ahead(times[j]) is not None:
                     return j, -1
         return done, status
 
