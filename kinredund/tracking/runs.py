@@ -37,8 +37,8 @@ import bisect
 
 import numpy as np
 
-from kinredund.errors import PathError
 from kinredund.tasks import get_task
+from kinredund.tracking.ahead import sample_block, step_times
 from kinredund.tracking.compiled import load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
 from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, free_columns
@@ -181,25 +181,19 @@ class Runs:
     def _sample(self, j0: int, count: int) -> tuple:
         """(j0, Samples, times, the core's arrays) of steps j0 .. j0 + count - 1 (Samples None where unusable)."""
         s = self.s
-        t0, dt = s.t0, s.dt
-        times = [t0 + (j0 - 1 + j) * dt for j in range(1, count + 1)]  # the clock of Stepper: t0 + k dt
-        try:
-            at = s.ev.path.sample_many(times)  # Evaluator.sample's samples, computed together where the path can
-        except PathError:
+        times = step_times(s.t0, s.dt, j0, count)
+        at = sample_block(s.ev.path, times)  # Evaluator.sample's samples, computed together where the path can
+        if at is None or (self.oriented and at.Q is None):
             return j0, None, times, ()
         no3, no9, non = self.none
         Q, omega = no9, no3
         if self.oriented:
-            if at.Q is None:
-                return j0, None, times, ()
             Q, omega = at.Q.reshape(count, 9), at.omega
         ref = rate = non
         if self.c.time_varying:
             index = s.ev.index
             ref = np.array([index.reference(t) for t in times], float)
             rate = np.array([index.rate(t) for t in times], float)
-        if at.p.shape != (count, 3) or at.v.shape != at.p.shape:
-            return j0, None, times, ()
         return j0, at, times, (at.p, at.v, Q, omega, ref, rate)
 
     def _commit(self, out: np.ndarray, at, i: int, times: list[float]) -> None:
