@@ -13,7 +13,10 @@ bound, no multiplier of a joint held on its bound below zero, no jump (the step 
 multipliers') and returns the bound multipliers at the corrected point. Python samples the path (in blocks of
 steps ahead where the path computes its samples together: :mod:`kinredund.tracking.ahead`) and a time-varying
 reference and passes them in; the active set goes to the core when it changes. The step's point
-(:class:`CompiledPoint`) reads the core's output row only where someone asks for it.
+(:class:`~kinredund.tracking.compiled_start.CompiledPoint`) reads the core's output row only where someone asks for
+it. The run's start is the core's too (:mod:`kinredund.tracking.compiled_start`): :func:`compiled_start` gives the
+tracker a :class:`~kinredund.tracking.compiled_start.CompiledStart` for its stepper before the stepper is made, whose
+StepCore the steps then use.
 
 Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
 R's condition drops) the core measures it (``StepCore.watch_measure``, ``src/core/watch.cpp``: the watch's inverse
@@ -55,7 +58,6 @@ problem the core cannot run is Python's, as under ``auto``: it holds for the who
 
 from __future__ import annotations
 
-import functools
 import warnings
 
 import numpy as np
@@ -63,12 +65,10 @@ import numpy as np
 from kinredund.errors import KinredundError, OptionError, check_backend
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
-from kinredund.tracking.point import Point
+from kinredund.tracking.compiled_start import TASK_CODES, CompiledPoint, CompiledStart, make_step_core, row_slices
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
 
-#: the task kinds' codes in the core (src/core/step.cpp)
-TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
 STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
           7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 11: "release", 12: "row_active", 13: "rows"}
@@ -135,93 +135,6 @@ def compiled_start(backend: str | None, stepper_class: type, ev, mode: str, sche
     return None if core is None or not hasattr(core, "start_run") else CompiledStart(core)
 
 
-def make_step_core(stepper: PredictorCorrector, core):
-    """The core's ``StepCore`` of ``stepper``'s problem (its robot, task, index, tolerance, time step, predictor
-    weights and the limits' switch bounds): made once the stepper has set these, before its start."""
-    ev = stepper.ev
-    index = ev.index
-    n = stepper.n
-    if isinstance(index, TimeVaryingReference):
-        weights = np.ones(n) if index.weights is None else np.asarray(index.weights, float)
-        reference = np.zeros(n)
-    else:
-        weights, reference = index.weights, index.reference
-    limited = getattr(stepper, "lo", None) is not None
-    lo_tol, hi_tol = stepper.switch_limits if limited else (np.zeros(0), np.zeros(0))
-    hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper.hermite]
-    return core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
-                         ev.formulation == "velocity", np.asarray(weights, float), np.asarray(reference, float),
-                         isinstance(index, TimeVaryingReference), stepper.tol, stepper.dt, hermite, lo_tol, hi_tol)
-
-
-@functools.lru_cache(maxsize=64)
-def row_slices(n: int, m: int) -> tuple[slice, ...]:
-    """The fields of the core's output row (``src/core/step.cpp``, StepCore's step and start) for n joints and a task
-    of dimension m: y and its rates (n + m each), M (n x n), J (m x n), the predicted joints (n), the pose's Q (9)
-    and p (3) at the corrected joints, the evaluation's point (n), the bound multipliers (n), the label verdict (1);
-    rcond and |qdot|^2 follow them. Made once per (n, m)."""
-    N = n + m
-    ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1]).tolist()
-    return tuple(slice(a, b) for a, b in zip([0, *ends[:-1]], ends, strict=True))
-
-
-class CompiledStart:
-    """The start of a run in the core (``start_run``: ``src/core/step.cpp``, the GIL released): the
-    :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` calls it with itself where its Python start
-    would correct onto the optimum (``_newton``), solve for the rates (``_rates``) and then measure with the watch.
-
-    The core makes the ``StepCore`` (:func:`make_step_core`; :class:`CompiledStep` then steps with it), gives it the
-    stepper's active set, and from the stepper's [q; lambda] at t0 and the path's sample there (the stepper's first
-    evaluation's) makes the corrector's rounds, the rates and the bound multipliers at the corrected point and the
-    watch's exact measurement there, as the Python start does them (to rounding: ``tests/test_tracking_compiled.py``).
-    The stepper takes them (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_start`), its step
-    control the measurement. A start the core cannot make ordinarily (a singular or ill-conditioned R, a corrector
-    that does not converge, non-finite rates) is the Python stepper's: it meets and names the failure as on the
-    Python backend. (The tracker gives a stepper with general rows, :mod:`kinredund.tracking.rows`, none: their
-    extended system is Python's.)
-
-    Attributes:
-        core: the StepCore (None until called); fixed: the stepper's ``fixed`` array whose active set the core
-            holds (None: all joints free).
-    """
-
-    def __init__(self, module):
-        self.module, self.core, self.fixed = module, None, None
-
-    def __call__(self, stepper: PredictorCorrector) -> bool:
-        """Make ``stepper``'s start in the core; False (the stepper's state untouched) where it is Python's."""
-        core = self.core = make_step_core(stepper, self.module)
-        if getattr(stepper, "any_active", False):
-            fixed, side, bound = stepper.active_set()
-            core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
-            self.fixed = fixed
-        pt, t = stepper.pt, stepper.t
-        sample = pt.sample
-        Q = NO_Q if sample.Q is None else sample.Q
-        omega = NO_OMEGA if sample.omega is None else sample.omega
-        index = stepper.ev.index
-        if isinstance(index, TimeVaryingReference):
-            ref, rate = np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
-        else:
-            ref = rate = np.zeros(0)
-        got = self.module.start_run(core, sample.p, sample.v, Q, omega, ref, rate,
-                                    np.concatenate([stepper.q, stepper.lam]))
-        if type(got) is int:
-            return False
-        out, exact = got
-        n, m = stepper.n, len(stepper.lam)
-        slices = row_slices(n, m)
-        sy, ssol, sM = slices[:3]
-        M = out[sM].reshape(n, n)
-        point = CompiledPoint(stepper.ev, out, t, sample, pt.basis, (slices, (n, m)))
-        label = None
-        if getattr(stepper, "any_active", False):
-            label = stepper.reduced_label(M, point.J, int(out[slices[9]][0]))
-        stepper.take_start(out[sy], out[ssol], point, M, float(out[-2]), label=label, mu=out[slices[8]],
-                           exact=exact)
-        return True
-
-
 def attach(tracker, backend: str | None, start: CompiledStart | None = None) -> str:
     """Pick ``tracker``'s backend (see the module docstring) and set ``tracker.step``; returns its name.
     ``start``: the stepper's :class:`CompiledStart` (:func:`compiled_start`), whose StepCore the steps use.
@@ -258,56 +171,6 @@ def _warn_once() -> None:
         _WARNED.append(True)
         warnings.warn(f"kinredund's compiled core cannot be loaded ({core_error()}): tracking runs on the Python "
                       "stepper (same results, slower)", BackendWarning, stacklevel=4)
-
-
-class RecordedPose:
-    """What the record keeps of a compiled step: the path sample and the pose (Q, p) at the corrected joints
-    (:class:`~kinredund.tracking.recorder.Recorder` then needs no forward kinematics of its own)."""
-
-    __slots__ = ("sample", "pose")
-
-    def __init__(self, sample, pose):
-        self.sample, self.pose = sample, pose
-
-
-class CompiledPoint(Point):
-    """The step's evaluation as the core left it (its output row ``out``): t and the basis set, q (the predicted
-    point), J, the path sample and ``recorded`` (the :class:`RecordedPose` at the corrected joints) read from the
-    row on first use; the rest (pose, task and index terms, :meth:`~kinredund.tracking.point.Point.system`) is
-    evaluated in Python at (q, t) on first use. A step whose point nobody reads makes none of them.
-
-    Args:
-        layout: (the slices of ``out``'s fields, (n, m)): ``CompiledStep.layout``.
-        sample: the path sample at t, or None with ``ahead`` = (Samples, row) to make it from on first use.
-    """
-
-    __slots__ = ("_ev", "_out", "_layout", "_ahead", "recorded")
-
-    def __init__(self, ev, out, t, sample, basis, layout, ahead=None):
-        self._ev, self._out, self.t, self.basis, self._layout, self._ahead = ev, out, t, basis, layout, ahead
-        if sample is not None:
-            self.sample = sample
-
-    def __getattr__(self, name):  # an unset slot: read from the core's row, or the full evaluation fills them all
-        if name not in Point.__slots__ and name != "recorded":  # (also an instance without its own slots: a copy)
-            raise AttributeError(name)
-        out, (sl, (n, m)) = self._out, self._layout
-        if name == "q":
-            value = out[sl[7]]
-        elif name == "J":
-            value = out[sl[3]].reshape(m, n)
-        elif name == "sample":
-            at, row = self._ahead
-            value = at.sample(row)
-        elif name == "recorded":
-            value = RecordedPose(self.sample, (out[sl[5]].reshape(3, 3), out[sl[6]]))
-        else:
-            full = self._ev.point(self.q, self.t, sample=self.sample)
-            for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
-                setattr(self, key, getattr(full, key))
-            return getattr(self, name)
-        setattr(self, name, value)
-        return value
 
 
 class CompiledStep:

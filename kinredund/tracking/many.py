@@ -6,7 +6,7 @@ kinematics workspace: ``Robot.kinematics``), so the results equal the runs made 
 backend ``track()`` advances in runs of ordinary steps, each one C++ call with the GIL released
 (:mod:`kinredund.tracking.runs`; the watch's exact measurements inside them), and so is each run's start (the
 correction onto the optimum, the rates and the watch's first measurement:
-:class:`~kinredund.tracking.compiled.CompiledStart`), so threads overlap those. The rest of each run's set-up (the
+:class:`~kinredund.tracking.compiled_start.CompiledStart`), so threads overlap those. The rest of each run's set-up (the
 :class:`~kinredund.tracking.tracker.Tracker`'s checks and the start's first evaluation, in Python), the path samples,
 the watch's verdicts after each run, the steps handed back to the Python stepper and the record's end hold the GIL,
 which bounds the speed-up on two threads (``python benchmarks/many.py``: runs per second on 1 and 2 threads, and

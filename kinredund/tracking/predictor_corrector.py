@@ -40,7 +40,7 @@ class PredictorCorrector(Stepper):
     (sub-steps, the jump check, the fold and singularity watch; failures are a
     :class:`~kinredund.errors.TrackingError`); ``strict=False`` is the plain predictor-corrector step.
     ``start``: called with the stepper where it would correct its start and solve for the rates; where it returns
-    True it made them itself (the compiled core's :class:`~kinredund.tracking.compiled.CompiledStart`, through
+    True it made them itself (the compiled core's :class:`~kinredund.tracking.compiled_start.CompiledStart`, through
     :meth:`take_start`), else this stepper does.
     """
 
@@ -115,9 +115,9 @@ class PredictorCorrector(Stepper):
     def take_start(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, rcond: float,
                    label: str | None = None, exact: tuple | None = None, **_) -> None:
         """Take the start corrected onto the optimum and its rates, made elsewhere (the compiled core:
-        :class:`~kinredund.tracking.compiled.CompiledStart`), as :meth:`_newton` and :meth:`_rates` leave them: y =
-        [q; lambda] at t0, its rates ``yd``, the evaluation ``pt`` and M there, R's condition estimate ``rcond``
-        (``lu`` None). ``exact``: the watch's exact measurement there (sigma_min_J, eig, v, scale: the core's
+        :class:`~kinredund.tracking.compiled_start.CompiledStart`), as :meth:`_newton` and :meth:`_rates` leave
+        them: y = [q; lambda] at t0, its rates ``yd``, the evaluation ``pt`` and M there, R's condition estimate
+        ``rcond`` (``lu`` None). ``exact``: the watch's exact measurement there (sigma_min_J, eig, v, scale: the core's
         ``watch_exact`` on the free joints), which the step control keeps instead of measuring."""
         self._take(y, yd, pt, M, rcond, label)
         self.start_measure = exact
