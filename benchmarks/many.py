@@ -8,12 +8,13 @@ Problem: ``--runs`` variants of the Panda benchmark circle (``kinredund.problems
 loop, limits held), the k-th turning the tool about its axis by up to 2 k degrees along the loop. Each round
 times ``track_many(problems, threads=1)`` and ``threads=2`` in turn; the figures are the medians over the
 rounds of runs per second, and the speed-up (2 threads over 1: at most 2 on 2 cores, less where others load
-the machine). The compiled core runs the ordinary steps in runs, each one C++ call with the GIL released
-(:mod:`kinredund.tracking.runs`; the watch's exact measurements inside them); the rest (each run's set-up, the
-path samples, the watch's verdicts, the record, the steps it hands back) holds it.
+the machine). The compiled core makes each run's start (the correction onto the optimum, the rates, the watch's
+first measurement: ``start_run``) and runs the ordinary steps in runs (:mod:`kinredund.tracking.runs`; the watch's
+exact measurements inside them), each one C++ call with the GIL released; the rest (the rest of each run's set-up,
+the path samples, the watch's verdicts, the record, the steps it hands back) holds it.
 The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
-a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in the core's runs of
-steps (C++, the GIL released; numpy's LAPACK calls release it as well), which bounds the speed-up on two threads.
+a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in those calls of the
+core (C++, the GIL released; numpy's LAPACK calls release it as well), which bounds the speed-up on two threads.
 On a shared machine the speed-up moves with the others' load (``parallel capacity`` in ``benchmarks/sweep.py``).
 """
 
@@ -34,23 +35,31 @@ def problems(count: int) -> list:
     return [panda_circle(wrist_amplitude=float(np.radians(2.0 * k))) for k in range(count)]
 
 
+#: the core's calls that release the GIL for the whole of their work: the runs' start and their runs of steps
+GIL_FREE = ("start_run", "run_steps")
+
+
 def gil_free_share(jobs: list, options: dict) -> float:
     """The share of the runs' CPU time (one by one, this thread's: ``time.thread_time``, which other processes'
-    load does not count) spent in the core's runs of steps, where the GIL is released (with the watch's exact
-    measurements, which the core makes inside the run). With a GIL-held share g the speed-up on two threads is at
-    most min(2, 1 / g)."""
+    load does not count) spent in the core's calls of :data:`GIL_FREE` (the start: its correction, rates and first
+    watch measurement; the runs of steps, with the watch's exact measurements), where the GIL is released. With a
+    GIL-held share g the speed-up on two threads is at most min(2, 1 / g)."""
     import kinredund._core as core
 
-    inner, spent = core.run_steps, [0.0]
+    inner, spent = {name: getattr(core, name) for name in GIL_FREE if hasattr(core, name)}, [0.0]
 
-    def timed(*args):
-        t0 = time.thread_time()
-        try:
-            return inner(*args)
-        finally:
-            spent[0] += time.thread_time() - t0
+    def timed(fn):
+        def call(*args):
+            t0 = time.thread_time()
+            try:
+                return fn(*args)
+            finally:
+                spent[0] += time.thread_time() - t0
 
-    core.run_steps = timed
+        return call
+
+    for name, fn in inner.items():
+        setattr(core, name, timed(fn))
     try:
         t0 = time.thread_time()
         for job in jobs:
@@ -60,7 +69,8 @@ def gil_free_share(jobs: list, options: dict) -> float:
                 pass
         total = time.thread_time() - t0
     finally:
-        core.run_steps = inner
+        for name, fn in inner.items():
+            setattr(core, name, fn)
     return spent[0] / total
 
 
@@ -97,8 +107,8 @@ def main() -> None:
                   res["speedup_2_over_1"], res["core_runs_share"], res["stopped"], res["same_as_one_by_one"]]],
                 ["runs", "steps each", "runs/s 1 thread", "runs/s 2 threads", "speed-up", "in core runs", "stopped",
                  "same"])
-    print("in core runs: the share of a run's CPU time (1 thread) in the core's runs of steps, C++ with the GIL "
-          "released")
+    print("in core runs: the share of a run's CPU time (1 thread) in the core's start and runs of steps, C++ with the "
+          "GIL released")
     write_json(args.json, res)
 
 

@@ -223,3 +223,16 @@ def test_reproduce_in_thesis_mode_notes_the_drift_and_keeps_its_exit_code(capsys
     out, err = capsys.readouterr()
     assert "loop_closed                False" in out
     assert err.startswith("kinredund: note: the joints do not return") and "thesis mode" in err
+
+
+def test_the_burst_check_s_median_is_numpy_s_to_the_bit():
+    """record_checks.median (one partition) against np.median on odd and even lengths and on values spread over ten
+    decades (its claim: the same float, the middle value or the mean of the middle two)."""
+    from kinredund.tracking.record_checks import median
+
+    rng = np.random.default_rng(26)
+    for length in (1, 2, 3, 199, 200, 201, 400):
+        for _ in range(50):
+            d = rng.random(length) * 10.0 ** rng.uniform(-10.0, 0.0, length)
+            assert median(d) == float(np.median(d)), length
+    assert median(np.array([1.0, 3.0, 2.0, 10.0])) == 2.5

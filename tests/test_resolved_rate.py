@@ -234,7 +234,9 @@ def test_corrector_recovers_from_a_jump_in_the_path(jump, monkeypatch):
     assert err.value.cause == "path_discontinuity" and err.value.t < 0.5
     tr = track(r, FunctionPath(fn), minimum_norm(3), q0, duration=1.0, steps=40, strict=False)
     assert tr.position_error.max() < 1e-11 and tr.normality_residual.max() < 1e-11
-    assert fresh[0] == 0.0 and (jump < 0.1 or 0.5 in fresh)  # the start, then the jump for the larger one
+    # the start (the Python stepper's on the Python backend: the compiled one corrects it in the core, start_run),
+    # then the jump for the larger one
+    assert (0.0 in fresh) == (tr.meta["backend"] == "python") and (jump < 0.1 or 0.5 in fresh)
     # after the jump the joints sit at the constrained minimum of the shifted path
     k = int(np.argmax(tr.t >= 0.5))
     best = kinredund.solve_ik(r, tr.p_desired[k][:2], minimum_norm(3), q0=tr.q[k])

@@ -407,6 +407,100 @@ def test_in_ci_the_compiled_backend_never_falls_back_silently():
     assert tr.meta["backend"] == (os.environ.get("KINREDUND_BACKEND") or "compiled").replace("auto", "compiled")
 
 
+# -- the start: corrected onto the optimum, its rates and the watch's first measurement in the core ----------------
+
+def random_start(name: str, k: int):
+    """(robot, path, index, q0) of the k-th seeded random start of ``name``: q0 uniform inside the limits (away from
+    them), the path a circle through its pose (the pose task, the orientation held), the index a JointDeviation from
+    q0 plus noise, so that the start is off the optimum and the corrector moves it (k = 3: the second joint on its
+    upper limit and the reference beyond it, so that it stays held)."""
+    r = robot(name)
+    rng = np.random.default_rng([k, 28])
+    lo, hi = np.maximum(r.lower, -np.pi), np.minimum(r.upper, np.pi)
+    q0 = rng.uniform(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo))
+    reference = q0 + rng.normal(0.0, 0.2, r.nq)
+    if k == 3:
+        q0[1], reference[1] = r.upper[1], r.upper[1] + 2.0
+    T = r.fk(q0)
+    path = Circle(T[:3, 3] - np.array([0.0, 0.05, 0.0]), 0.05, 0.1, normal=(1.0, 0.0, 0.0), axis_x=(0.0, 1.0, 0.0),
+                  orientation=T[:3, :3])
+    return r, path, JointDeviation(reference), q0
+
+
+def counted_starts(monkeypatch) -> list:
+    """The results of the core's starts (``start_run``: a row, or the status that leaves the start to Python)."""
+    core, got = compiled.load_core(), []
+    inner = core.start_run
+
+    def spy(*args):
+        got.append(inner(*args))
+        return got[-1]
+
+    monkeypatch.setattr(core, "start_run", spy)
+    return got
+
+
+@pytest.mark.parametrize("name", ["panda", "xarm7"])
+@pytest.mark.parametrize("k", range(4))
+@pytest.mark.parametrize("limits", [None, False])
+def test_the_compiled_start_is_the_python_start(name, k, limits, monkeypatch):
+    """The core's start (``start_run``: the corrector's rounds from q0, the rates, the bound multipliers, the watch's
+    exact measurement) against the Python stepper's: both correct onto the same optimum (q to Q_BAR), the rest is the
+    same evaluation there to FIELD_BAR (measured: 1e-12 relative at most, lambda, on these starts)."""
+    r, path, index, q0 = random_start(name, k)
+    starts = counted_starts(monkeypatch)
+    a, b = (Tracker(r, path, index, q0, path.period / 200, limits=limits, backend=backend)
+            for backend in ("python", "compiled"))
+    assert len(starts) == 1 and type(starts[0]) is tuple  # the compiled backend's start was the core's
+    sa, sb = a.stepper, b.stepper
+    if k != 3:  # (with a joint held the 7-joint arms have no redundancy left on the pose task: q0 is the point)
+        assert np.abs(sa.q - q0).max() > 1e-3  # the start was corrected
+    np.testing.assert_allclose(sb.q, sa.q, rtol=0, atol=Q_BAR)
+    for key in ("lam", "qdot", "lamdot", "M", "rcond", "t"):
+        _close(getattr(sa, key), getattr(sb, key), key)
+    if limits is None:
+        np.testing.assert_array_equal(sb.fixed, sa.fixed)
+        assert sa.fixed.sum() == (k == 3)
+        _close(sa.mu, sb.mu, "mu")
+    assert sb.solver == sa.solver
+    wa, wb = a.stepper.control.watch, b.stepper.control.watch
+    _close([wa.sigma, wa.eig, wa.scale, wa.sigma_max], [wb.sigma, wb.eig, wb.scale, wb.sigma_max], "watch")
+
+
+@pytest.mark.parametrize("case", ["off_the_path", "singular", "non_optimal"])
+def test_a_start_that_fails_fails_alike_on_both_backends(case, monkeypatch):
+    """A start off the path and a singular one are refused before the correction (the same code on both backends); a
+    start the core cannot correct (R ill-conditioned at an iterate: status 2) is the Python stepper's, which names the
+    failure as on the Python backend, to the same message (the same operations from the same state)."""
+    if case == "singular":  # the planar 3R stretched out along the path's start
+        r, index, q0 = robot("planar3r"), minimum_norm(3), np.zeros(3)
+        path = Circle(np.array([5.0, 0.0, 0.0]), 1.0, 1.0)
+    else:
+        r, path, index, q0 = random_start("xarm7", 1)
+        if case == "off_the_path":
+            q0 = q0 + 0.01
+        else:  # a reference that makes the corrector diverge from q0 (seeded: the core's start gives up with 2)
+            index = JointDeviation(np.array([-1.07193156, 0.25140565, -1.53748977, 0.40307366, -2.05730051,
+                                             -0.24740914, 1.13181298]))
+            q0 = np.array([-0.98925069, -0.13681349, -1.83950706, 1.21642241, -1.49059654, -0.19497751, 1.25847011])
+            T = r.fk(q0)
+            path = Circle(T[:3, 3] - np.array([0.0, 0.05, 0.0]), 0.05, 0.1, normal=(1.0, 0.0, 0.0),
+                          axis_x=(0.0, 1.0, 0.0), orientation=T[:3, :3])
+    starts = counted_starts(monkeypatch)
+    errors = []
+    for backend in ("python", "compiled"):
+        with pytest.raises(kinredund.KinredundError) as info:
+            Tracker(r, path, index, q0, path.period / 200, backend=backend)
+        errors.append(info.value)
+    a, b = errors
+    assert type(a) is type(b) and str(a) == str(b)
+    assert getattr(a, "cause", None) == getattr(b, "cause", None)
+    expected = {"off_the_path": ("PathError", None), "singular": ("TrackingError", "kinematic_singularity"),
+                "non_optimal": ("TrackingError", "non_optimal_start")}[case]
+    assert (type(a).__name__, getattr(a, "cause", None)) == expected
+    assert starts == ([2] if case == "non_optimal" else [])
+
+
 # -- many runs in one call ---------------------------------------------------------------------------------------
 
 def test_track_many_equals_the_runs_one_by_one():

@@ -218,3 +218,40 @@ def test_progress_is_told_of_every_step_in_order():
     tr = run.track(r, path, index, q0, loops=1, steps_per_loop=60, backend="compiled",
                    progress=lambda done, total: seen.append((done, total)))
     assert seen == [(k, 60) for k in range(1, 61)] and len(tr.t) == 61
+
+
+def test_one_sampling_of_the_path_ahead_takes_the_blocks_that_stack_and_no_other():
+    """ahead.sample_block (SamplesAhead's and the runs' sampling): a circle's samples as Path.sample_many gives
+    them at step_times (t0 + k dt, the stepper's clock to the bit); None where the samples do not stack (PathError)
+    or a field has another shape, so that the steps sample one by one."""
+    from kinredund.errors import PathError
+    from kinredund.paths.base import Samples
+    from kinredund.tracking.ahead import sample_block, step_times
+
+    t0, dt = 0.25, 0.01
+    times = step_times(t0, dt, 3, 5)
+    assert times == [t0 + k * dt for k in range(3, 8)]
+    path = problem("panda_wrist15")[1]
+    at = sample_block(path, times)
+    for j, t in enumerate(times):
+        one = path.sample(t)
+        np.testing.assert_array_equal(at.p[j], one.p)
+        np.testing.assert_array_equal(at.Q[j], one.Q)
+
+    class Stub:
+        def __init__(self, samples):
+            self.samples = samples
+
+        def sample_many(self, times):
+            if self.samples is None:
+                raise PathError("no stack")
+            return self.samples
+
+    k = len(times)
+    good = Samples(np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 3)))
+    assert sample_block(Stub(good), times) is good
+    assert sample_block(Stub(Samples(np.zeros((k, 3)), np.zeros((k, 3)))), times) is not None  # no orientation
+    for bad in (None, Samples(np.zeros((k, 2)), np.zeros((k, 3))), Samples(np.zeros((k, 3)), np.zeros((k - 1, 3))),
+                Samples(np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 9)), np.zeros((k, 3))),
+                Samples(np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 4)))):
+        assert sample_block(Stub(bad), times) is None

@@ -53,17 +53,33 @@ class SamplesAhead:
         self.first, self.count, self.samples, self.rows = k, count, None, []
         if count < MIN_BLOCK or not self.own:
             return
-        t0, dt = self.t0, self.dt
-        try:
-            at = self.path.sample_many([t0 + j * dt for j in range(k, k + count)])
-        except PathError:
-            return
-        if at.p.shape != (count, 3) or at.v.shape != (count, 3):
+        at = sample_block(self.path, step_times(self.t0, self.dt, k, count))
+        if at is None:
             return
         if at.Q is None:
             self.rows = [(p, v, NO_Q, NO_OMEGA) for p, v in zip(at.p, at.v, strict=True)]
-        elif at.Q.shape == (count, 3, 3) and at.omega.shape == (count, 3):
-            self.rows = list(zip(at.p, at.v, at.Q, at.omega, strict=True))
         else:
-            return
+            self.rows = list(zip(at.p, at.v, at.Q, at.omega, strict=True))
         self.samples = at
+
+
+def step_times(t0: float, dt: float, first: int, count: int) -> list[float]:
+    """The requested times t0 + k dt [s] of steps k = first, ..., first + count - 1 (the clock of
+    :class:`~kinredund.tracking.stepper.Stepper`: no accumulated rounding)."""
+    return [t0 + k * dt for k in range(first, first + count)]
+
+
+def sample_block(path: Path, times: list[float]):
+    """``path.sample_many(times)`` where its fields stack as the core takes them (p and v (k, 3); Q (k, 3, 3) and
+    omega (k, 3), or no orientation at all), else None (:class:`~kinredund.errors.PathError`: the samples do not
+    stack; or fields of other shapes): the steps then sample one by one, and the step says what is wrong."""
+    try:
+        at = path.sample_many(times)
+    except PathError:
+        return None
+    k = len(times)
+    if at.p.shape != (k, 3) or at.v.shape != (k, 3):
+        return None
+    if at.Q is not None and (at.Q.shape != (k, 3, 3) or at.omega is None or at.omega.shape != (k, 3)):
+        return None
+    return at

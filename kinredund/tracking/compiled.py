@@ -13,7 +13,10 @@ bound, no multiplier of a joint held on its bound below zero, no jump (the step 
 multipliers') and returns the bound multipliers at the corrected point. Python samples the path (in blocks of
 steps ahead where the path computes its samples together: :mod:`kinredund.tracking.ahead`) and a time-varying
 reference and passes them in; the active set goes to the core when it changes. The step's point
-(:class:`~kinredund.tracking.compiled_point.CompiledPoint`) reads the core's output row only where someone asks for it.
+(:class:`~kinredund.tracking.compiled_point.CompiledPoint`) reads the core's output row only where someone asks for
+it. The run's start is the core's too (:mod:`kinredund.tracking.compiled_start`): :func:`compiled_start` gives the
+tracker a :class:`~kinredund.tracking.compiled_start.CompiledStart` for its stepper before the stepper is made, whose
+StepCore the steps then use.
 
 Where the watch measures the new point (every :data:`~kinredund.tracking.watch.EXACT_EVERY` steps, or where
 R's condition drops) the core measures it (``StepCore.watch_measure``, ``src/core/watch.cpp``: the watch's inverse
@@ -65,11 +68,10 @@ from kinredund.errors import KinredundError, OptionError, check_backend
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
 from kinredund.tracking.compiled_point import CompiledPoint
+from kinredund.tracking.compiled_start import TASK_CODES, CompiledStart, make_step_core, row_slices
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
 
-#: the task kinds' codes in the core (src/core/step.cpp)
-TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
 STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
           7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 11: "release", 12: "row_active", 13: "rows"}
@@ -105,23 +107,40 @@ def core_error() -> str:
 def unsupported(tracker) -> str:
     """Why the compiled step cannot run ``tracker``'s problem ("" where it can)."""
     s = tracker.stepper
-    if not isinstance(s, PredictorCorrector):
-        return f"it compiles the default mode's augmented and velocity schemes, not mode={tracker.mode!r}, " \
-               f"scheme={tracker.scheme!r}"
-    index = s.ev.index
+    return unsupported_problem(type(s), s.ev, tracker.mode, tracker.scheme)
+
+
+def unsupported_problem(stepper_class: type, ev, mode: str, scheme: str) -> str:
+    """Why the compiled step cannot run a stepper of ``stepper_class`` on ``ev``'s problem ("" where it can): the
+    rule of :func:`unsupported`, before the stepper is made (:func:`compiled_start`)."""
+    if not issubclass(stepper_class, PredictorCorrector):
+        return f"it compiles the default mode's augmented and velocity schemes, not mode={mode!r}, scheme={scheme!r}"
+    index = ev.index
     if type(index) not in (JointDeviation, TimeVaryingReference):
         return f"it knows the indices JointDeviation (minimum_norm, mid_range) and TimeVaryingReference, not " \
                f"{type(index).__name__}"
-    model = s.ev.robot.model
+    model = ev.robot.model
     if model.nq != model.nv:
         return f"the robot's configuration has nq = {model.nq} != nv = {model.nv} entries"
-    if s.ev.task not in TASK_CODES:
-        return f"unknown task kind {s.ev.task!r}"
+    if ev.task not in TASK_CODES:
+        return f"unknown task kind {ev.task!r}"
     return ""
 
 
-def attach(tracker, backend: str | None) -> str:
+def compiled_start(backend: str | None, stepper_class: type, ev, mode: str, scheme: str):
+    """The :class:`CompiledStart` for a stepper of ``stepper_class`` where :func:`attach` will give it the compiled
+    backend (the core loads and runs the problem), else None (its start is Python's; :func:`attach` says why where
+    ``backend`` insists). Raises ChoiceError: an unknown backend."""
+    backend = check_backend(backend)[0]
+    if backend == "python" or unsupported_problem(stepper_class, ev, mode, scheme):
+        return None
+    core = load_core()
+    return None if core is None or not hasattr(core, "start_run") else CompiledStart(core)
+
+
+def attach(tracker, backend: str | None, start: CompiledStart | None = None) -> str:
     """Pick ``tracker``'s backend (see the module docstring) and set ``tracker.step``; returns its name.
+    ``start``: the stepper's :class:`CompiledStart` (:func:`compiled_start`), whose StepCore the steps use.
 
     Raises:
         OptionError: ``backend="compiled"`` where the core cannot run the problem or cannot be loaded.
@@ -142,7 +161,7 @@ def attach(tracker, backend: str | None) -> str:
                               "kinredund with pin[build] and nanobind beside pin, or use backend='python'")
         _warn_once()
         return "python"
-    tracker.compiled = CompiledStep(tracker.stepper, core)
+    tracker.compiled = CompiledStep(tracker.stepper, core, start)
     tracker.step = tracker.compiled.step
     return "compiled"
 
@@ -166,40 +185,28 @@ class CompiledStep:
         held_steps: of the steps taken in C++, those with a joint held on its bound.
     """
 
-    def __init__(self, stepper: PredictorCorrector, core):
+    def __init__(self, stepper: PredictorCorrector, core, start: CompiledStart | None = None):
         ev = stepper.ev
-        index = ev.index
         n = stepper.n
         self.stepper, self.n = stepper, n
         self._python_step = stepper.step
-        self.time_varying = isinstance(index, TimeVaryingReference)
-        if self.time_varying:
-            weights = np.ones(n) if index.weights is None else np.asarray(index.weights, float)
-            reference = np.zeros(n)
-        else:
-            weights, reference = index.weights, index.reference
+        self.time_varying = isinstance(ev.index, TimeVaryingReference)
         limited = getattr(stepper, "lo", None) is not None
-        lo_tol, hi_tol = stepper.switch_limits if limited else (np.zeros(0), np.zeros(0))
-        hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper.hermite]
-        self.core = core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
-                                  ev.formulation == "velocity", np.asarray(weights, float),
-                                  np.asarray(reference, float), self.time_varying, stepper.tol, stepper.dt, hermite,
-                                  lo_tol, hi_tol)
+        made = start is not None and start.core is not None  # the start's StepCore, with the active set it holds
+        self.core = start.core if made else make_step_core(stepper, core)
+        self._fixed = start.fixed if made else None  # the active set the core holds (the stepper's ``fixed``)
         self.limited = limited
         self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
         general = getattr(stepper, "general", [])  # one constraint's compiled check of a step, where it has one
         self._guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
         if self._guard is not None:  # the core runs the check right after its step (StepCore.step_guarded)
             self.core.set_guard(self._guard.compiled)
-        self._fixed = None  # the active set the core holds (the stepper's ``fixed`` array: replaced at a switch)
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
         self._empty = np.zeros(0)
         m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)
-        N = n + m
-        ends = np.cumsum([N, N, n * n, m * n, n, 9, 3, n, n, 1])  # the core's output layout (src/core/step.cpp)
-        self.slices = [slice(a, b) for a, b in zip(np.r_[0, ends[:-1]], ends, strict=True)]
-        self.shapes = (n, m, N)
+        self.slices = row_slices(n, m)
+        self.shapes = (n, m, n + m)
         self.layout = (self.slices, (n, m))  # what a CompiledPoint reads its fields with
         self.steps = self.held_steps = 0
         self.handed_back: dict[str, int] = {}

@@ -182,6 +182,12 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         super().accept(y, yd, pt, M, q_pred, rcond, label)
         self.mu = self._no_mu if self._sel is None else mu
 
+    def take_start(self, y, yd, pt, M, rcond, label=None, exact=None, mu=None, **_) -> None:
+        """:meth:`PredictorCorrector.take_start`, and the bound multipliers ``mu`` (n,) at the start where a joint
+        is on a bound (else none)."""
+        super().take_start(y, yd, pt, M, rcond, label, exact)
+        self.mu = self._no_mu if self._sel is None else mu
+
     @property
     def any_active(self) -> bool:
         """Is any joint on a bound now?"""

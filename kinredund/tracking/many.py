@@ -4,12 +4,13 @@ problem, in threads.
 Each run is independent and deterministic (its own stepper, its own compiled core and, per thread, its own
 kinematics workspace: ``Robot.kinematics``), so the results equal the runs made one by one. On the compiled
 backend ``track()`` advances in runs of ordinary steps, each one C++ call with the GIL released
-(:mod:`kinredund.tracking.runs`; the watch's exact measurements inside them), so threads overlap those. Each
-run's set-up (the :class:`~kinredund.tracking.tracker.Tracker`: the start's evaluation, correction onto the
-optimum, rates and first watch measurement, in Python), the path samples, the watch's verdicts after each run,
-the steps handed back to the Python stepper and the record's end hold the GIL: on the 200-step Panda circle
-about 55-60 % of a run's CPU time, which bounds the speed-up on two threads (``python benchmarks/many.py``: runs
-per second on 1 and 2 threads, and the share in the core's runs).
+(:mod:`kinredund.tracking.runs`; the watch's exact measurements inside them), and so is each run's start (the
+correction onto the optimum, the rates and the watch's first measurement:
+:class:`~kinredund.tracking.compiled_start.CompiledStart`), so threads overlap those. The rest of each run's set-up (the
+:class:`~kinredund.tracking.tracker.Tracker`'s checks and the start's first evaluation, in Python), the path samples,
+the watch's verdicts after each run, the steps handed back to the Python stepper and the record's end hold the GIL,
+which bounds the speed-up on two threads (``python benchmarks/many.py``: runs per second on 1 and 2 threads, and
+the share in the core's GIL-free calls).
 """
 
 from __future__ import annotations

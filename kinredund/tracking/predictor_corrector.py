@@ -39,18 +39,24 @@ class PredictorCorrector(Stepper):
     ``strict`` (default): each step runs through the :class:`~kinredund.tracking.step_control.StepControl`
     (sub-steps, the jump check, the fold and singularity watch; failures are a
     :class:`~kinredund.errors.TrackingError`); ``strict=False`` is the plain predictor-corrector step.
+    ``start``: called with the stepper where it would correct its start and solve for the rates; where it returns
+    True it made them itself (the compiled core's :class:`~kinredund.tracking.compiled_start.CompiledStart`, through
+    :meth:`take_start`), else this stepper does.
     """
 
-    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, **kwargs):
+    def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, start=None, **kwargs):
         super().__init__(evaluator, q0, dt, **kwargs)
         self.symmetric = evaluator.formulation == "augmented"
         self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
         self.control = None
+        self.start_measure = None  # the watch's exact measurement at the start where take_start gave it
         try:
-            self._newton(self.pt)  # put the start exactly on the optimal manifold
-            self._rates()
+            if start is None or not start(self):  # the compiled core's start (take_start), else this one
+                self._newton(self.pt)  # put the start exactly on the optimal manifold
+                self._rates()
             if strict and evaluator.index is not None:
                 self.control = StepControl(self)
+                self.start_measure = None  # kept by the control's watch
                 if self.control.start_verdict() is not None:  # a saddle or maximum of z, or a singular start
                     raise SingularityError(f"the corrected start is not a regular constrained minimum "
                                            f"({self.control.start_verdict()})")
@@ -103,8 +109,21 @@ class PredictorCorrector(Stepper):
         and M there, the predicted joints ``q_pred`` and R's condition estimate ``rcond`` (its factors ``lu``
         are None: the caller sets them where they are needed). ``label``: the step's solver label, if known."""
         self._advance()
-        n = self.n
         self.q_pred = q_pred
+        self._take(y, yd, pt, M, rcond, label)
+
+    def take_start(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, rcond: float,
+                   label: str | None = None, exact: tuple | None = None, **_) -> None:
+        """Take the start corrected onto the optimum and its rates, made elsewhere (the compiled core:
+        :class:`~kinredund.tracking.compiled_start.CompiledStart`), as :meth:`_newton` and :meth:`_rates` leave
+        them: y = [q; lambda] at t0, its rates ``yd``, the evaluation ``pt`` and M there, R's condition estimate
+        ``rcond`` (``lu`` None). ``exact``: the watch's exact measurement there (sigma_min_J, eig, v, scale: the core's
+        ``watch_exact`` on the free joints), which the step control keeps instead of measuring."""
+        self._take(y, yd, pt, M, rcond, label)
+        self.start_measure = exact
+
+    def _take(self, y, yd, pt, M, rcond, label) -> None:
+        n = self.n
         self.q, self.lam, self.y, self.yd = y[:n], y[n:], y, yd
         self.qdot, self.lamdot, self.label, self.M, self.pt = yd[:n], yd[n:], label, M, pt
         self.lu, self.rcond = None, rcond

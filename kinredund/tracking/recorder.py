@@ -212,8 +212,10 @@ class Column:
     def array(self) -> np.ndarray:
         """The rows stacked (k, width)."""
         self._flush()
-        parts = [np.array(b) for b in self._blocks]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        blocks = self._blocks
+        if len(blocks) == 1:
+            return np.array(blocks[0])
+        return np.concatenate([b if isinstance(b, np.ndarray) else np.array(b) for b in blocks])  # (one copy each)
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         out = self.array()

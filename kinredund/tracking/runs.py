@@ -33,13 +33,15 @@ locates), so it is the same throughout a run. Like
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 
-from kinredund.errors import PathError
 from kinredund.tasks import get_task
+from kinredund.tracking.ahead import sample_block, step_times
 from kinredund.tracking.compiled import load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
-from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, reduce
+from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, free_columns
 
 #: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
 GRID = 256
@@ -140,19 +142,19 @@ class Runs:
         by one; -1 for a step predicted into trouble, left to the next call)."""
         watch, fixed = self.ctl.watch, getattr(self.s, "fixed", None)
         n, m, _ = self.c.shapes
-        sM, sJ = self.c.slices[2:4]
+        sJ = self.c.slices[3]
         ends = [e + 1 for e in exact[1:]] + [done + (status != 0)]  # to the next measured step, or the step after
         for e, end, values in zip(exact, ends, measured, strict=True):
             saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
-            J = reduce(out[e, sJ].reshape(m, n), out[e, sM].reshape(n, n), fixed)[0]
+            J = free_columns(out[e, sJ].reshape(m, n), fixed)
             sigma, eig = watch.keep_exact(J, *values)
             if watch.crossed(sigma, eig) is not None:
                 watch.load(saved)
                 return e, self.core.WATCH_DUE
             watch.push(times[e], sigma, eig, fixed)
-            safe = watch.safe_before
-            for j in range(e + 1, end):
-                if times[j] >= safe and watch.ahead(times[j]) is not None:
+            # Watch.ahead is None before safe_before: the steps from the first at or after it (the times ascend)
+            for j in range(bisect.bisect_left(times, watch.safe_before, e + 1, end), end):
+                if watch.ahead(times[j]) is not None:
                     return j, -1
         return done, status
 
@@ -179,25 +181,19 @@ class Runs:
     def _sample(self, j0: int, count: int) -> tuple:
         """(j0, Samples, times, the core's arrays) of steps j0 .. j0 + count - 1 (Samples None where unusable)."""
         s = self.s
-        t0, dt = s.t0, s.dt
-        times = [t0 + (j0 - 1 + j) * dt for j in range(1, count + 1)]  # the clock of Stepper: t0 + k dt
-        try:
-            at = s.ev.path.sample_many(times)  # Evaluator.sample's samples, computed together where the path can
-        except PathError:
+        times = step_times(s.t0, s.dt, j0, count)
+        at = sample_block(s.ev.path, times)  # Evaluator.sample's samples, computed together where the path can
+        if at is None or (self.oriented and at.Q is None):
             return j0, None, times, ()
         no3, no9, non = self.none
         Q, omega = no9, no3
         if self.oriented:
-            if at.Q is None:
-                return j0, None, times, ()
             Q, omega = at.Q.reshape(count, 9), at.omega
         ref = rate = non
         if self.c.time_varying:
             index = s.ev.index
             ref = np.array([index.reference(t) for t in times], float)
             rate = np.array([index.rate(t) for t in times], float)
-        if at.p.shape != (count, 3) or at.v.shape != at.p.shape:
-            return j0, None, times, ()
         return j0, at, times, (at.p, at.v, Q, omega, ref, rate)
 
     def _commit(self, out: np.ndarray, at, i: int, times: list[float]) -> None:

@@ -53,7 +53,7 @@ import numpy as np
 
 from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.tracking.failure import out_of_reach, path_contradiction, path_jumps, watched_at
-from kinredund.tracking.watch import Watch
+from kinredund.tracking.watch import Watch, free_columns
 
 #: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
 MAX_HALVINGS = 6
@@ -98,8 +98,12 @@ class StepControl:
         self._searched = None  # (start, end) of the last sub-step searched for a switch without one (_switch_inside)
         self._stuck = 0  # switches found in a row at one time (_moved)
         s = stepper
-        sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, getattr(s, "fixed", None))
-        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None))
+        fixed = getattr(s, "fixed", None)
+        if s.start_measure is None:
+            sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, fixed)
+        else:  # the compiled start's exact measurement (Watch.measure's first is exact: no vector yet)
+            sigma, eig = self.watch.keep_exact(free_columns(s.pt.J, fixed), *s.start_measure)
+        self.watch.push(s.t, sigma, eig, fixed)
         self.speed2 = float(s.qdot @ s.qdot)
 
     def start_verdict(self) -> str | None:

@@ -37,7 +37,7 @@ from kinredund.model.robot import Robot
 from kinredund.paths import Path
 from kinredund.tasks import get_task
 from kinredund.tracking.baselines import Liegeois, Pseudoinverse
-from kinredund.tracking.compiled import attach
+from kinredund.tracking.compiled import attach, compiled_start
 from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.tracking.constraints.scene import SceneClearance
 from kinredund.tracking.explicit import ExplicitEuler
@@ -205,13 +205,19 @@ class Tracker:
         if constraints and not (mode == "default" and scheme in ("augmented", "velocity")):
             raise OptionError(f"constraints are held by the default mode's augmented and velocity schemes only, "
                               f"not by mode={mode!r}, scheme={scheme!r}")
-        if limits is not None or constraints:
+        limited = limits is not None or bool(constraints)
+        cls = LimitedPredictorCorrector if limited else STEPPERS[mode, scheme]
+        # the start in the core where the steps are compiled (general rows: the Python stepper's extended system)
+        start = None if constraints else compiled_start(backend, cls, ev, mode, scheme)
+        if start is not None:
+            kwargs["start"] = start
+        if limited:
             if project_start and limits is not None:
                 q = limits.project(q)
             self.stepper: Stepper = LimitedPredictorCorrector(ev, q, dt, limits=limits, constraints=constraints,
                                                               qp_solver=qp_solver, strict=strict, **kwargs)
             self.step = self.stepper.step
-            self.backend = attach(self, backend)
+            self.backend = attach(self, backend, start)
             return
         if scheme in ("pseudoinverse", "liegeois"):
             kwargs["project"] = mode == "default"
@@ -219,9 +225,9 @@ class Tracker:
             kwargs["gain"] = gain
         if mode == "default" and scheme in ("augmented", "velocity"):
             kwargs["strict"] = strict
-        self.stepper: Stepper = STEPPERS[mode, scheme](ev, q, dt, **kwargs)
+        self.stepper: Stepper = cls(ev, q, dt, **kwargs)
         self.step = self.stepper.step
-        self.backend = attach(self, backend)
+        self.backend = attach(self, backend, start)
 
     @staticmethod
     def _limits(robot: Robot, limits, mode: str, scheme: str) -> JointLimits | None:

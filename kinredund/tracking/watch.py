@@ -59,6 +59,13 @@ def reduce(J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None) -> tuple[np.n
     return J[:, free], M[np.ix_(free, free)]
 
 
+def free_columns(J: np.ndarray, fixed: np.ndarray | None) -> np.ndarray:
+    """J of :func:`reduce` alone (where M is not needed: an exact measurement made elsewhere, kept with its J)."""
+    if fixed is None or not fixed.any():
+        return J
+    return J[:, np.flatnonzero(~fixed)]
+
+
 def exact(J: np.ndarray, M: np.ndarray) -> tuple[float, float, np.ndarray]:
     """(sigma_min(J), smallest eigenvalue of Z^T sym(M) Z, its eigenvector in joint space), exactly.
 

@@ -8,6 +8,9 @@
 // the held joints' columns leave R, their rows of the residual are the bound multipliers', and the multipliers
 // mu_i = s_i (grad z + J^T lambda)_i come out at the corrected point; a multiplier below zero (a release) is a switch.
 // Anything not ordinary returns a status code and the Python reference takes the step from the same state.
+// The run's start (start_run: PredictorCorrector.__init__'s corrector onto the optimum, then the rates and the
+// watch's first, exact measurement) runs here too, with the GIL released; a start that is not ordinary is the
+// Python reference's likewise (it then names the failure).
 #include "distances.hpp"
 #include "frame.hpp"
 #include "step.hpp"
@@ -180,11 +183,127 @@ class StepCore {
         *cleared = row_guard_clear(*guard_, y.data(), out->data(), qdot0.data(), out->data() + N, h);
     }
     if (st != OK) return nb::int_(st);
+    return numpy_of(std::move(out));
+  }
+
+  // A row as a numpy array that owns it.
+  static nb::object numpy_of(std::unique_ptr<VectorXd> out) {
     VectorXd* buf = out.release();
     nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<VectorXd*>(p); });
     size_t shape[1] = {static_cast<size_t>(buf->size())};
     return nb::cast(nb::ndarray<nb::numpy, double, nb::ndim<1>>(buf->data(), 1, shape, owner),
                     nb::rv_policy::reference);
+  }
+
+ public:
+  // The run's start at the time of the sample (start_run; kinredund/tracking/compiled.py's CompiledStart): from
+  // y0 = [q0; lambda0] (the held joints on their bounds) the corrector onto F = 0 (Eq. 4.5 and the task), then the
+  // rates there (Eq. 4.24), the bound multipliers of the held joints and the watch's exact measurement on the free
+  // joints' J and M (watch_exact), with the GIL released. Returns (the output row of step(): the corrected point,
+  // its rates, M and J there, the corrected joints as the predicted and evaluated ones, the pose there, mu, the label
+  // verdict, rcond, |qdot|^2; (sigma_min_J, eig, v, scale)) or the status code that leaves the start to Python.
+  nb::object start(CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t, CRef y0) {
+    if (y0.size() != n_ + m_) throw nb::value_error("y0 must have n + m entries");
+    set_sample(sp, sv, sQ, somega);
+    set_reference(ref_t, rate_t);
+    std::unique_ptr<VectorXd> out(new VectorXd(output_size()));
+    ExactMeasure e;
+    int st;
+    {
+      nb::gil_scoped_release release;  // no Python object below: the starts of runs in threads overlap
+      st = start_at(y0, *out);
+      if (st == OK) {
+        const int nf = static_cast<int>(free_.size()), n = n_;
+        RowMatrixXd Jr(m_, nf), Mr(nf, nf);  // Watch.reduce: the free joints' columns of J, rows and columns of M
+        for (int b = 0; b < nf; ++b) {
+          Jr.col(b) = J_.col(free_[b]);
+          for (int a = 0; a < nf; ++a) Mr(a, b) = (*out)[2 * (n + m_) + free_[a] * n + free_[b]];
+        }
+        watch_exact(Jr.data(), Mr.data(), m_, nf, e);
+      }
+    }
+    if (st != OK) return nb::int_(st);
+    auto* buf = new std::vector<double>(std::move(e.v));
+    nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<std::vector<double>*>(p); });
+    nb::ndarray<nb::numpy, double, nb::ndim<1>> v(buf->data(), {buf->size()}, owner);
+    return nb::make_tuple(numpy_of(std::move(out)), nb::make_tuple(e.sigma, e.eig, v, e.scale));
+  }
+
+ private:
+  // start(): PredictorCorrector._newton (rounds of chord iterations, each with R factorised afresh at its first
+  // iterate, at most 7 rounds of at most 8 updates) and _rates (LimitedPredictorCorrector's on the reduced system,
+  // _update_mu at the corrected point); fills out (start()'s row) or returns the status.
+  int start_at(CRef y0, VectorXd& out) {
+    const int n = n_, N = n_ + m_;
+    VectorXd y = y0;
+    RowMatrixXd M;
+    VectorXd top;
+    bool ok = false;
+    for (int round = 0; round < 7 && !ok; ++round) {
+      evaluate(y.head(n), true);
+      if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+      system(y.tail(m_), M, top);
+      const int st = factor(M);
+      if (st != OK) return st;
+      const double tol = tol_ * std::max(1.0, std::sqrt(grad_.dot(grad_)));
+      VectorXd F = residual(y.tail(m_));
+      for (int it = 0; it < 8; ++it) {  // _chord: the residual afresh (without dK) after each update
+        if (it > 0) {
+          evaluate(y.head(n), false);
+          if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+          F = residual(y.tail(m_));
+        }
+        if (F.dot(F) <= tol * tol) {
+          ok = true;
+          break;
+        }
+        solve(F);
+        y -= F;
+      }
+      if (!ok && !std::isfinite(y.dot(y))) break;
+    }
+    if (!ok) return CHORD_FAILED;
+    // _rates: one evaluation at the corrected point, R's LU, Eq. (4.24) for the rates
+    evaluate(y.head(n), true);
+    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+    const VectorXd lam = y.tail(m_);
+    system(lam, M, top);
+    const int st = factor(M);
+    if (st != OK) return st;
+    VectorXd sol(N);
+    sol << top, xdot_;
+    solve(sol);
+    if (!std::isfinite(sol.dot(sol))) return NOT_FINITE;
+    Jw_ = J_;  // the point's J and M, which the watch measures (watch_measure)
+    Mw_ = M;
+    VectorXd mu = VectorXd::Zero(n);
+    if (any_held_) {  // _update_mu: mu_i = s_i (grad z + J^T lambda)_i at the same evaluation
+      const VectorXd g = grad_ + J_.transpose() * lam;
+      for (int i = 0; i < n; ++i)
+        if (held_[i]) mu[i] = side_[i] * g[i];
+    }
+    if (out.size() != output_size()) out.resize(output_size());
+    double* o = out.data();  // advance()'s layout
+    Eigen::Map<VectorXd>(o, N) = y;
+    Eigen::Map<VectorXd>(o + N, N) = sol;
+    o += 2 * N;
+    Eigen::Map<RowMatrixXd>(o, n, n) = M;
+    o += n * n;
+    Eigen::Map<RowMatrixXd>(o, m_, n) = J_;
+    o += m_ * n;
+    Eigen::Map<VectorXd>(o, n) = y.head(n);  // no prediction: the corrected joints
+    o += n;
+    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Qc(o);  // the pose of this evaluation
+    Qc = Q_;
+    Eigen::Map<Vector3d> pc(o + 9);
+    pc = p_;
+    o += 12;
+    Eigen::Map<VectorXd>(o, n) = y.head(n);
+    Eigen::Map<VectorXd>(o + n, n) = mu;
+    o[2 * n] = any_held_ && !velocity_ ? label_code(M) : 0.0;
+    o[2 * n + 1] = rcond_;
+    o[2 * n + 2] = sol.head(n).dot(sol.head(n));
+    return OK;
   }
 
  public:
@@ -792,6 +911,11 @@ void bind_step(nb::module_& m) {
            nb::arg("gate"))
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
            nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"));
+  m.def("start_run", [](StepCore& core, CRef p, CRef v, Mat3 Q, CRef omega, CRef ref, CRef rate, CRef y0) {
+          return core.start(p, v, Q, omega, ref, rate, y0);
+        }, nb::arg("core"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"), nb::arg("ref"),
+        nb::arg("rate"), nb::arg("y0"),
+        "A run's start in the core, the GIL released: StepCore.start (see src/core/step.cpp).");
 }
 
 }  // namespace kinredund
