@@ -4,9 +4,10 @@
 output row (``src/core/step.cpp``: StepCore's step and start write it), which
 :class:`~kinredund.tracking.compiled_point.CompiledPoint` reads lazily as a step's evaluation. :class:`CompiledStart`
 makes a run's start in the core with the GIL released (``start_run``: the correction onto the optimum, the rates,
-the watch's first, exact measurement), the work that held the GIL in :func:`~kinredund.tracking.many.track_many`'s threads. The
-driver of the steps is :mod:`kinredund.tracking.compiled`, which picks the backend (its ``compiled_start`` gives the
-tracker a CompiledStart) and steps with the StepCore the start made.
+the watch's first, exact measurement), the work that held the GIL in
+:func:`~kinredund.tracking.many.track_many`'s threads. The driver of the steps is :mod:`kinredund.tracking.compiled`,
+which picks the backend (its ``compiled_start`` gives the tracker a CompiledStart) and steps with the StepCore the
+start made.
 """
 
 from __future__ import annotations

@@ -52,7 +52,7 @@ import math
 import numpy as np
 
 from kinredund.errors import PathError, SingularityError, TrackingError
-from kinredund.tracking.failure import out_of_reach, path_contradiction, path_jumps, watched_at
+from kinredund.tracking.failure import branch_end, out_of_reach, path_contradiction, path_jumps, watched_at
 from kinredund.tracking.watch import Watch, free_columns
 
 #: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
@@ -65,16 +65,6 @@ TRAPEZOID_TOL = 0.25
 #: a whole step whose corrected joints lie within this fraction of h |qdot| of the predictor's point
 #: (extrapolated from the smooth past) is no jump, and the trapezoidal check is skipped
 PREDICTED_TOL = 0.01
-#: where the corrector fails below the floor unannounced, the branch is followed toward the failed time by this many
-#: bisections, down to BRANCH_RESOLUTION dt, and a quantity that has fallen below BRANCH_FALL of its value at the
-#: nearest good point by the branch's end names the stop (:meth:`StepControl._branch_end`)
-BRANCH_BISECTIONS, BRANCH_RESOLUTION, BRANCH_FALL = 40, 1e-9, 0.1
-#: ... and a point within BRANCH_JUMP dt past the end that the watch's floors reject (no minimum there) names it too
-BRANCH_JUMP = 1e-6
-#: a sub-step of the branch's end search that moves the joints by more than this times its length times the larger
-#: of the rates at its ends has jumped onto another branch (a move along one branch is at most the largest rate
-#: on it times the length)
-BRANCH_SPEED = 2.0
 
 
 class StepControl:
@@ -317,7 +307,7 @@ class StepControl:
                 elif kind == "kinematic" or ahead == "kinematic":
                     cause = "kinematic_singularity"
                 elif kind == "corrector":
-                    cause, why, branch = self._branch_end(t_fail, near, why)
+                    cause, why, branch = branch_end(self, t_fail, near, why)
                     extra.update(branch)
                 else:
                     cause = "step_control_exhausted"
@@ -341,64 +331,6 @@ class StepControl:
             f"{near.get('sigma_min_J', float('nan')):.3g}, reduced-Hessian eigenvalue "
             f"{near.get('reduced_hessian_min', float('nan')):.3g})",
             cause=cause, t=s.t, q=s.q.copy(), watched=watched)
-
-    def _branch_end(self, t_fail: float, near: dict, why: str) -> tuple[str, str, dict]:
-        """(cause, reason, watched) of a corrector that fails below the floor with neither quantity predicted to cross.
-
-        The watch extrapolates smooth quantities; where one jumps within a sub-step (a distance row's curvature
-        where its witness point passes from a face to an edge, Lagrangian -nu Hess c) and then runs to zero, the
-        branch ends inside the floor's sub-step unannounced, and the corrector's iterates beyond it diverge (their
-        own words, a singular R far off the path, say nothing of the path). So the branch is followed from the
-        nearest good point (the current one) toward ``t_fail`` by :data:`BRANCH_BISECTIONS` bisections (Euler
-        sub-steps from the farthest point reached; one that moves the joints more than :data:`BRANCH_SPEED` times its
-        length times the larger of the rates at its ends has jumped onto another branch; not the trapezoidal check,
-        which the rates' own jump where the curvature jumps fails at any length; one the watch's floors reject is no
-        minimum, or J is singular there) and measured exactly at its end: a
-        quantity fallen below :data:`BRANCH_FALL` of its value at the nearest good point names the stop (``fold``
-        or ``kinematic_singularity``), and so does one below its floor at a corrected point within
-        :data:`BRANCH_JUMP` dt past the end (it jumped there), else it is ``step_control_exhausted``. ``watched``:
-        the end's time and joints (``branch_end_t``, ``branch_end_q``: a good point, corrected, nearer the failure
-        than the sub-steps'). The stepper is left at that end."""
-        s = self.s
-        t_near, lo, hi, end, beyond = s.t, self.snapshot(), t_fail, near, None
-        for _ in range(BRANCH_BISECTIONS):
-            if hi - lo[0].t <= BRANCH_RESOLUTION * s.dt:
-                break
-            mid = 0.5 * (lo[0].t + hi)
-            s.prev.clear()
-            try:
-                s.euler_to(mid)
-                dq, qd0, qd1 = s.q - lo[0].q, lo[0].qdot, s.qdot  # no jump onto another branch: the move within
-                ok = float(dq @ dq) <= (BRANCH_SPEED * (mid - lo[0].t)) ** 2 * max(qd0 @ qd0, qd1 @ qd1)  # the rates'
-                w = watched_at(s) if ok else {}
-                crossed = ok and self.watch.crossed(w.get("sigma_min_J", math.inf),
-                                                    w.get("reduced_hessian_min", math.inf))
-                if crossed:  # no minimum, or J singular (past a fold the corrector may converge onto a saddle)
-                    beyond, ok = (mid, crossed, w), False
-            except (PathError, SingularityError, TrackingError):
-                ok = False
-            if ok:
-                lo, end = self.snapshot(), w
-            else:
-                hi = mid
-            self.restore(lo)
-        words = f"the corrector finds no optimum on the branch followed beyond t = {hi:.9g} s"
-        branch = {"branch_end_t": float(s.t), "branch_end_q": s.q.tolist()}
-        for cause, key, what in (("fold", "reduced_hessian_min", "the reduced-Hessian eigenvalue"),
-                                 ("kinematic_singularity", "sigma_min_J", "sigma_min(J)")):
-            was, now = near.get(key, math.nan), end.get(key, math.nan)
-            if now < BRANCH_FALL * was:
-                return cause, (f"{words}: {what} falls from {was:.3g} at t = {t_near:.6g} s to {now:.3g} at t = "
-                               f"{s.t:.9g} s, within a sub-step (a jump the watch cannot extrapolate)"), branch
-        if beyond is not None and beyond[0] - s.t <= BRANCH_JUMP * s.dt:  # it jumps at the end: below a floor there
-            t_b, kind, w = beyond
-            key, what = ("sigma_min_J", "sigma_min(J)") if kind == "kinematic" else \
-                ("reduced_hessian_min", "the reduced-Hessian eigenvalue")
-            cause = "kinematic_singularity" if kind == "kinematic" else "fold"
-            return cause, (f"{words}: {what} jumps from {end.get(key, math.nan):.3g} to {w.get(key, math.nan):.3g} "
-                           f"within {t_b - s.t:.2g} s of t = {s.t:.9g} s (the minimum followed ends there: a "
-                           f"distance's curvature, or its gradient, jumps)"), branch
-        return "step_control_exhausted", f"{words} (at its iterates: {why})", branch
 
     def _bounded_stop(self, snap_step: tuple, t_fail: float) -> TrackingError:
         """The bounded stepper's own stop (the limits' cause), where no sub-step down to the floor gets past it: the
