@@ -7,7 +7,8 @@
   |r|^2 from a configuration): nonzero where the path has left the workspace;
 - :func:`start_failure`, :func:`step_too_long`: the :class:`~kinredund.errors.TrackingError` of a start
   that cannot be corrected onto a constrained minimum, and of a step longer than the path's period;
-- :func:`branch_end`: where a branch followed ends inside the step control's floor, and what ended it.
+- :func:`branch_end`: where a branch followed ends inside the step control's floor, and what ended it;
+  :func:`constraints_dependent`: whether a rank loss is the constraints' (LICQ) rather than the arm's.
 """
 
 from __future__ import annotations
@@ -333,3 +334,16 @@ def branch_end(ctl, t_fail: float, near: dict, why: str) -> tuple[str, str, dict
                        f"within {t_b - s.t:.2g} s of t = {s.t:.9g} s (the minimum followed ends there: a "
                        f"distance's curvature, or its gradient, jumps)"), branch
     return "step_control_exhausted", f"{words} (at its iterates: {why})", branch
+
+
+def constraints_dependent(s, q, t) -> float | None:
+    """With joints on bounds or rows active: J's smallest singular value at (q, t) where J itself is regular while
+    the watched Jacobian (J's free columns, the active rows' gradients below J) is (nearly) not (the constraints,
+    not the arm, are singular), else None. "Regular": sigma_min(J) above 1e-3 of sigma_max(J) at (q, t), the nearest
+    good point of a stop (at most a sub-step floor, dt/64, before the crossing; an arm singularity that close has
+    sigma_min(J) of that order itself, far below 1e-3 at ordinary speeds)."""
+    fixed = getattr(s, "fixed", None)
+    if (fixed is None or not fixed.any()) and not getattr(s, "rows", None):
+        return None
+    sJ = np.linalg.svd(s.ev.point(q, t, need_dJ=False).J, compute_uv=False)
+    return float(sJ[-1]) if sJ[-1] > 1e-3 * sJ[0] else None

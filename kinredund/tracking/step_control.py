@@ -52,7 +52,14 @@ import math
 import numpy as np
 
 from kinredund.errors import PathError, SingularityError, TrackingError
-from kinredund.tracking.failure import branch_end, out_of_reach, path_contradiction, path_jumps, watched_at
+from kinredund.tracking.failure import (
+    branch_end,
+    constraints_dependent,
+    out_of_reach,
+    path_contradiction,
+    path_jumps,
+    watched_at,
+)
 from kinredund.tracking.watch import Watch, free_columns
 
 #: the sub-step floor is dt / 2**MAX_HALVINGS (dt / 64)
@@ -178,15 +185,16 @@ class StepControl:
         kind = self.watch.crossed(sigma, eig)
         if kind is not None:
             return kind, f"sigma_min(J) = {sigma:.3g}, reduced-Hessian eigenvalue {eig:.3g} at t = {s.t:.6g} s"
-        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None), exact=h < s.dt)
+        self.watch.push(s.t, sigma, eig, getattr(s, "fixed", None), exact=h < s.dt or indefinite)
         self.speed2 = speed2
         return None
 
     def _indefinite(self) -> bool:
         """With general rows active (steps the Python stepper takes): does the inertia of R (Eq. 4.24) from its LU
-        factors say Z^T M Z has an odd number of negative eigenvalues? R = [[M, A^T], [A, 0]] with A of full row
-        rank r has det R = (-1)^r det(Z^T M Z) times a positive number, so sign(det R) is (-1)^r exactly where the
-        reduced Hessian is positive definite (one eigenvalue crossing flips it). The watch's gate (R's condition)
+        factors say Z^T M Z has an odd number of negative eigenvalues? R = [[M, A^T], [A, 0]] on the free joints, A
+        of full row rank r (the task's rows and the active rows'), has det R = (-1)^r det(Z^T M Z) times a positive
+        number, so sign(det R) is (-1)^r exactly where the count of negative eigenvalues of the reduced Hessian is
+        even (zero where it is positive definite; one eigenvalue crossing flips it). The watch's gate (R's condition)
         sees a crossing only near it, and a step over one, where an active row's curvature grows with its
         multiplier or jumps, went unmeasured: the record held saddle points of the held problem. Free: the signs of
         U's diagonal and the pivots' swaps."""
@@ -311,11 +319,12 @@ class StepControl:
                     extra.update(branch)
                 else:
                     cause = "step_control_exhausted"
-        s_task = _constraints_dependent(s, q_near, t_near) if cause == "kinematic_singularity" else None
+        s_task = constraints_dependent(s, q_near, t_near) if cause == "kinematic_singularity" else None
         if s_task is not None:  # J of the free joints, or with the active rows below, loses rank; J does not (LICQ)
-            cause, why = "not_strongly_stable", (f"{why}: the constraints become dependent (LICQ fails; the watched "
-                                                 f"Jacobian is J's free columns with the active rows' gradients, "
-                                                 f"J's own smallest singular value is {s_task:.3g})")
+            cause, why = "not_strongly_stable", (f"{why}: the constraints become dependent (LICQ fails: the watched "
+                                                 f"Jacobian, J's free columns with the active rows' gradients below, "
+                                                 f"loses rank while J's own smallest singular value is {s_task:.3g})")
+        rows = bool(getattr(s, "rows", None))  # the watched Jacobian has the active rows' gradients below J
         self.restore(snap_step)
         s.prev.clear()
         watched = watched_at(s)
@@ -327,7 +336,7 @@ class StepControl:
                        substep_reduced_hessian_min=near.get("reduced_hessian_min"))
         return TrackingError(
             f"tracking stopped after t = {s.t:.6g} s ({cause}): {why}; no sub-step down to {self.floor:.3g} s "
-            f"gets past it (nearest good point at t = {t_near:.6g} s: sigma_min(J) "
+            f"gets past it (nearest good point at t = {t_near:.6g} s: sigma_min({'[J; G_A]' if rows else 'J'}) "
             f"{near.get('sigma_min_J', float('nan')):.3g}, reduced-Hessian eigenvalue "
             f"{near.get('reduced_hessian_min', float('nan')):.3g})",
             cause=cause, t=s.t, q=s.q.copy(), watched=watched)
@@ -348,14 +357,3 @@ class StepControl:
                          substep_reason=str(last).split("; last good point")[0])
         err.watched = dict(err.watched or {}) | extra
         return err
-
-
-def _constraints_dependent(s, q, t) -> float | None:
-    """With joints on bounds or rows active: J's smallest singular value at (q, t) where J itself is regular while
-    the watched Jacobian (J's free columns, the active rows' gradients below J) is (nearly) not (the constraints,
-    not the arm, are singular), else None."""
-    fixed = getattr(s, "fixed", None)
-    if (fixed is None or not fixed.any()) and not getattr(s, "rows", None):
-        return None
-    sJ = np.linalg.svd(s.ev.point(q, t, need_dJ=False).J, compute_uv=False)
-    return float(sJ[-1]) if sJ[-1] > 1e-3 * sJ[0] else None

@@ -177,18 +177,18 @@ class Stepper:
         if not force and sR[-1] > 1e-11 * sR[0]:
             return  # the estimate was pessimistic: R is regular enough
         sJ = np.linalg.svd(J, compute_uv=False)
-        kind = "kinematic (J rank-deficient) singularity" if not sJ[-1] > SIGMA_FLOOR * max(1.0, sJ[0]) else \
-            "algorithmic (R singular while J has full rank) singularity"
         base = getattr(pt, "base", None)  # J = [J_task; G_A] with active rows: the task's rows first
-        if base is not None and kind.startswith("kinematic"):
+        of = "[J; G_A]" if base is not None and len(base.r) < J.shape[0] else "J"
+        kind = f"kinematic ({of} rank-deficient) singularity" if not sJ[-1] > SIGMA_FLOOR * max(1.0, sJ[0]) else \
+            f"algorithmic (R singular while {of} has full rank) singularity"
+        if of != "J" and kind.startswith("kinematic"):
             sT = np.linalg.svd(J[: len(base.r)], compute_uv=False)
-            if sT[-1] > SIGMA_FLOOR * max(1.0, sT[0]):  # the task's rows have full rank: the rows are dependent
-                kind = (f"dependent constraints (LICQ fails: the active rows' gradients lie in the span of the "
-                        f"task's rows, whose smallest singular value is {sT[-1]:.3g}; the redundancy left cannot "
-                        f"move those pairs apart, so the path itself runs into them)")
+            if sT[-1] > SIGMA_FLOOR * max(1.0, sT[0]):  # J alone keeps its rank: the rows are dependent (LICQ)
+                kind = ("dependent constraints (LICQ fails: J with the active rows' gradients below loses rank while "
+                        "J alone keeps it; the redundancy left cannot move those pairs apart: the path runs into them)")
         raise SingularityError(
             f"{kind} at t = {pt.t:.6g} s: smallest singular value of R {sR[-1]:.3g}, "
-            f"of J {sJ[-1]:.3g}; q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sR[-1]))
+            f"of {of} {sJ[-1]:.3g}; q = {np.round(pt.q, 6).tolist()}", t=pt.t, q=pt.q, sigma_min=float(sR[-1]))
 
     def _factor(self, pt: Point, M: np.ndarray):
         """The LU factors of R (Eq. 4.24) at pt with M; raises SingularityError where R is (numerically) singular.

@@ -9,7 +9,8 @@ each evaluation a corrector solve at that time), steps to it, changes the active
 end of the step. After a switch strict complementarity is checked: a reached bound's multiplier grows, a
 released joint moves inward; where the LU route cannot tell (a rate ~0) the rate QP decides which set continues.
 The step's end is then measured exactly (the step control watched the step with the active set it started with):
-a held point that is no strict minimum of the problem with the new active set stops the run at the step's start.
+where it is no strict minimum of the problem with the new active set, the path is followed again from the switch in
+checked pieces, and where none reaches the end the run stops at the step's start.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from kinredund.errors import KinredundError, PathError, SingularityError
+from kinredund.tracking.failure import BRANCH_SPEED, constraints_dependent
 from kinredund.tracking.linalg import bound_rate_qp
 from kinredund.tracking.rows import ROW_TOL
 from kinredund.tracking.state import ConstrainedState
@@ -266,11 +268,14 @@ class SwitchLocation:
 
     def _resolve_switches(self, snap: ConstrainedState) -> None:
         t_end, k_end = self.t, self.k  # the saved states before it keep the step's start count
+        followed = False
         for n_switches in range(MAX_SWITCHES_PER_STEP):
             first = self._first_switch(snap)
             if first is None:
-                if n_switches:
-                    self._watch_switched(snap.t)
+                if n_switches and not self._settled(snap, t_end, followed):
+                    followed = True  # followed again from the last switch in checked pieces: its switches afresh
+                    self.t, self.k = t_end, k_end
+                    continue
                 return
             tau, joint, kind = first
             self.state = snap
@@ -282,27 +287,64 @@ class SwitchLocation:
         raise self._failure("not_strongly_stable", f"more than {MAX_SWITCHES_PER_STEP} switches of the active set "
                             f"within one step before t = {t_end:.6g} s (chattering)")
 
-    def _watch_switched(self, t_switch: float) -> None:
-        """The watch at the step's end after the step's switches (the last at ``t_switch``), measured exactly: the step
-        control watched the step with the active set it started with, and the quantities jump at a switch (the null
-        space changes; a row's curvature enters with its multiplier). A reduced Hessian not positive definite there
-        (the held point is a saddle of the problem with the new active set), or J singular, stops the run (``fold``;
-        ``not_strongly_stable`` where J with the active rows below loses rank), the last good point the step's
-        start; else the watch's history starts afresh from this measurement."""
+    def _strict_minimum(self) -> tuple[str | None, float, float]:
+        """(what the watch's floors say at the current point measured exactly: None for a strict minimum with J
+        regular, else ``fold`` or ``kinematic``; sigma_min of J with the active rows; the reduced-Hessian eigenvalue).
+        """
+        pt = self.evaluate(self.q, self.t)
+        sigma, eig = self.control.watch.measure_exact(pt.J, pt.system(self.lam)[0], self.fixed)
+        return self.control.watch.crossed(sigma, eig), sigma, eig
+
+    def _settled(self, after: ConstrainedState, t_end: float, followed: bool) -> bool:
+        """Is the step's end, reached from the state ``after`` its last switch, a strict minimum (measured exactly)?
+        The step control watched the step with the active set it started with, and the quantities jump at a switch
+        (the null space changes; a row's curvature enters with its multiplier); a single prediction from the switch
+        (a kink of the path of optima) to the step's end may also land on another branch. Where it is not, the path
+        is followed again from ``after`` in 2, 4, ... checked pieces (:meth:`_followed_to`): False then (the caller
+        looks for switches afresh). Where that fails down to the floor, or the end was followed so already, the run
+        stops: ``fold`` (a saddle, the reduced Hessian indefinite), or where the watched Jacobian loses rank
+        ``not_strongly_stable`` with J itself regular, else ``kinematic_singularity``; the last good point is the
+        step's start. True: the watch's history starts afresh from this measurement."""
         ctl = self.control
         if ctl is None or self.ev.index is None:
-            return
-        pt = self.evaluate(self.q, self.t)
-        sigma, eig = ctl.watch.measure_exact(pt.J, pt.system(self.lam)[0], self.fixed)
-        kind = ctl.watch.crossed(sigma, eig)
+            return True
+        kind, sigma, eig = self._strict_minimum()
         if kind is None:
             ctl.watch.reset()
             ctl.watch.push(self.t, sigma, eig, self.fixed, exact=True)
-            return
-        cause = "fold" if kind == "fold" else "not_strongly_stable" if self.rows else "kinematic_singularity"
-        raise self._failure(cause, f"after the switch of the active set at t = {t_switch:.9g} s the held point at "
-                            f"t = {self.t:.6g} s is no strict minimum: reduced-Hessian eigenvalue {eig:.3g}, "
-                            f"sigma_min of J with the active rows {sigma:.3g}")
+            ctl.speed2 = float(self.qdot @ self.qdot)
+            return True
+        if not followed and self._followed_to(after, t_end):
+            return False
+        dependent = kind == "kinematic" and constraints_dependent(self, self.q, self.t) is not None
+        cause = "fold" if kind == "fold" else "not_strongly_stable" if dependent else "kinematic_singularity"
+        raise self._failure(cause, f"after the switch of the active set at t = {after.t:.9g} s no strict minimum is "
+                            f"followed to t = {t_end:.6g} s (at its end: reduced-Hessian eigenvalue {eig:.3g}, "
+                            f"sigma_min of J with the active rows {sigma:.3g})")
+
+    def _followed_to(self, start: ConstrainedState, t_end: float) -> bool:
+        """From ``start`` to ``t_end`` in 2, 4, ... pieces down to the step control's floor, each checked: no jump onto
+        another branch (the joints move at most :data:`~kinredund.tracking.failure.BRANCH_SPEED` times the piece's
+        length times the larger rate at its ends) and a strict minimum at its end (:meth:`_strict_minimum`).
+        True with the state at ``t_end``; False with the state back at ``start``."""
+        span, pieces = t_end - start.t, 2
+        while span / pieces >= self.dt / 2**MAX_HALVINGS * (1.0 - 1e-9):
+            self.state = start
+            try:
+                for k in range(1, pieces + 1):
+                    prev = self.state
+                    self.euler_to(t_end if k == pieces else start.t + span * k / pieces)
+                    dq, h = self.q - prev.q, self.t - prev.t
+                    if float(dq @ dq) > (BRANCH_SPEED * h) ** 2 * max(prev.qdot @ prev.qdot, self.qdot @ self.qdot) \
+                            or self._strict_minimum()[0] is not None:
+                        break
+                else:
+                    return True
+            except (PathError, SingularityError):
+                pass
+            pieces *= 2
+        self.state = start
+        return False
 
     def _apply_switch(self, joint: int, kind: str) -> float:
         """Change the active set: fix a joint on its bound, free it, or a row (``GeneralRows._apply_row_switch``)."""
