@@ -334,3 +334,24 @@ def test_scene_runs_leave_the_state_and_the_checks_counters_of_single_steps():
     ga, gb = single.compiled.guard.compiled, batched.compiled.guard.compiled
     assert (gb.placements, gb.distances, gb.computed) == (ga.placements, ga.distances, ga.computed)
     assert gb.placements > 0 and gb.distances > 0 and gb.seconds > 0.0
+
+
+def test_a_stop_in_a_scene_run_is_the_same_stop(monkeypatch):
+    """test_tracking_scene's fingers pressed on the upper arm until a self pair's distance is not differentiable
+    (``collision``): the same stop, time, joints and partial record (row fields included) in runs as in single steps."""
+    from test_tracking_scene import setup as scene_setup
+
+    from kinredund.geometry import Scene
+
+    r, path, index, q0, _ = scene_setup()
+    stops = []
+    for stepping in (runs.one_by_one, runs.stepping):
+        monkeypatch.setattr(run, "stepping", stepping)
+        with pytest.raises(TrackingError) as info:
+            run.track(r, path, index, q0, backend="compiled", scene=Scene(r))
+        stops.append(info.value)
+    a, b = stops
+    assert (b.cause, b.t) == (a.cause, a.t) and a.cause == "collision"
+    np.testing.assert_array_equal(b.q, a.q)
+    assert_identical(a.partial, b.partial, "partial.")
+    assert a.partial.meta == b.partial.meta
