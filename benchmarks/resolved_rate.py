@@ -153,8 +153,9 @@ KEYS = {
     "track_scene_breakdown_us": "where the scene run's time goes, per step [us] (medians over the rounds of exclusive "
                                 "times, timers around the parts: ~1 us per timed call more): setup (Tracker with the "
                                 "scene: the constraint, its motion bound, the compiled check's workspace, the start), "
-                                "steps (Tracker.step), record (Recorder.add), end (Recorder.trajectory), checks "
-                                "(the record's checks in track()), other (the rest of track()), total",
+                                "steps (Tracker.step, and the runs of steps in one call of the core: Runs.advance, "
+                                "their rows' record included), record (Recorder.add), end (Recorder.trajectory), "
+                                "checks (the record's checks in track()), other (the rest of track()), total",
     "scene_pairs": "pairs the scene checks (rows of the constraint)",
     "scene_pairs_near": "of those, the pairs within the influence distance (computed by coal) at the end",
     "default_over_pink": "in_turn_us: step_default_us / pink_step_us",
@@ -410,7 +411,7 @@ def scene_breakdown(tracker, steps: int = 200) -> dict:
     if saved is not None:
         ws._core = _TimedCore(saved, sections)
     driver = getattr(tracker, "compiled", None)
-    guard = getattr(getattr(driver, "_guard", None), "compiled", None)  # the RowGuard the core's step runs
+    guard = getattr(getattr(driver, "guard", None), "compiled", None)  # the RowGuard the core's step runs
     patched = [(constraint, "_query", "query"), (ws, "query", "query"), (stepper, "_row_events", "rows"),
                (stepper, "_row_dips", "rows"), (stepper, "_qp_keeps_row", "qp")]
     for obj, attr, part in patched:
@@ -518,13 +519,14 @@ def track_scene_figures(robot, path, index, q0, repeat: int = 7, loops: int = 2)
 def track_scene_breakdown(robot, path, index, q0, scene, repeat: int = 7, loops: int = 2) -> dict:
     """The scene run's exclusive times per step [us] by part (``track_scene_breakdown_us`` in :data:`KEYS`): the
     library's functions wrapped with timers for the run (and put back), medians over ``repeat`` runs."""
-    from kinredund.tracking import compiled, recorder
+    from kinredund.tracking import compiled, recorder, runs
     from kinredund.tracking import run as run_module
 
     sections = _Sections()
     patched = [(run_module, "Tracker", "setup"), (compiled.CompiledStep, "step", "steps"),
-               (recorder.Recorder, "add", "record"), (recorder.Recorder, "trajectory", "end"),
-               (run_module, "say_rate_burst", "checks"), (run_module, "say_open_loop", "checks")]
+               (runs.Runs, "advance", "steps"), (recorder.Recorder, "add", "record"),
+               (recorder.Recorder, "trajectory", "end"), (run_module, "say_rate_burst", "checks"),
+               (run_module, "say_open_loop", "checks")]
     saved = [(obj, attr, obj.__dict__[attr]) for obj, attr, _ in patched]
     whole = sections.wrap("other", track)
     steps = 200 * loops

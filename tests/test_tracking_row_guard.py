@@ -268,12 +268,16 @@ def test_the_record_takes_the_checks_smallest_value_exact_near_the_clearance(mon
     (RowGuard.smallest, handed over with the step), with no query of its own. Against coal afresh at every recorded
     point (test_tracking_scene's ball, met and left by the elbow: the ball's least distance less the clearance), the
     record equals it (to 1e-12 m) wherever that is at or below SKIP_MARGIN, and is a lower bound above SKIP_MARGIN
-    elsewhere (SceneClearance's docstring: "exact near the clearances and lower bounds elsewhere")."""
+    elsewhere (SceneClearance's docstring: "exact near the clearances and lower bounds elsewhere"). Single steps, to see
+    each point's value come from the check (test_tracking_runs: the runs' record is the same bits)."""
     from test_tracking_scene import CLEARANCE, ball_distance
     from test_tracking_scene import setup as ball_setup
 
+    from kinredund.tracking import run, runs
     from kinredund.tracking.constraints.scene import SKIP_MARGIN
     from kinredund.tracking.limited import LimitedPredictorCorrector
+
+    monkeypatch.setattr(run, "stepping", runs.one_by_one)
 
     r, path, index, q0, sc = ball_setup("panda_elbow_ball")
     kept = []  # per recorded point: did its smallest value come from the check (no query)?

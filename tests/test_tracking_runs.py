@@ -124,18 +124,24 @@ def test_a_run_through_the_watch_stops_where_single_steps_stop(monkeypatch):
         verdicts.clear()
 
 
-def test_runs_take_many_steps_per_call_and_leave_the_state_of_single_steps():
-    r, path, index, q0 = problem("panda_elbow_circle")
-    dt = path.period / 200
-    single = Tracker(r, path, index, q0, dt, backend="compiled")
-    batched = Tracker(r, path, index, q0, dt, backend="compiled")
+def single_and_runs(r, path, index, q0, dt: float, steps: int, **options) -> tuple:
+    """Two compiled Trackers of one problem after ``steps`` steps: one stepped alone, one advanced in runs (recorded);
+    (single, batched, the batched one's Recorder, the steps each call of the runs took)."""
+    single = Tracker(r, path, index, q0, dt, backend="compiled", **options)
+    batched = Tracker(r, path, index, q0, dt, backend="compiled", **options)
     rec = Recorder(batched.stepper)
     advance = runs.stepping(batched, rec)
     taken = []
-    while sum(taken) < 300:
-        taken.append(advance(300 - sum(taken)))
-    for _ in range(300):
+    while sum(taken) < steps:
+        taken.append(advance(steps - sum(taken)))
+    for _ in range(steps):
         single.step()
+    return single, batched, rec, taken
+
+
+def test_runs_take_many_steps_per_call_and_leave_the_state_of_single_steps():
+    r, path, index, q0 = problem("panda_elbow_circle")
+    single, batched, rec, taken = single_and_runs(r, path, index, q0, path.period / 200, 300)
     assert sum(taken) == 300 and len(rec) == 300
     assert max(taken) > watch.EXACT_EVERY  # runs go on through the watch's exact measurements (every 32nd step)
     a, b = single.stepper, batched.stepper
@@ -255,3 +261,97 @@ def test_one_sampling_of_the_path_ahead_takes_the_blocks_that_stack_and_no_other
                 Samples(np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 9)), np.zeros((k, 3))),
                 Samples(np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 4)))):
         assert sample_block(Stub(bad), times) is None
+
+
+def scene_case(name: str):
+    """(robot, path, index, q0, track's scene options) of test_tracking_scene's ball met and left by the elbow and
+    test_tracking_self_clearance's hand held off the upper arm (a self pair met and left twice a loop)."""
+    from test_tracking_scene import CLEARANCE
+    from test_tracking_scene import setup as ball_setup
+    from test_tracking_self_clearance import SELF_CLEARANCE
+    from test_tracking_self_clearance import setup as self_setup
+
+    if name == "ball":
+        *problem_, sc = ball_setup("panda_elbow_ball")
+        return (*problem_, {"scene": sc, "clearance": CLEARANCE, "self_clearance": False, "steps_per_loop": 400})
+    *problem_, sc = self_setup()
+    return (*problem_, {"scene": sc, "self_clearance": SELF_CLEARANCE})
+
+
+def counted_runs(monkeypatch) -> list:
+    """Per call of the core's run_steps from now on: (steps done, status, steps measured exactly, guarded)."""
+    core = compiled.load_core()
+    calls, inner = [], core.run_steps
+
+    def counting(*args):
+        done, status, exact, measured = inner(*args)
+        calls.append((done, status, len(exact), args[-1] is not None))
+        return done, status, exact, measured
+
+    monkeypatch.setattr(core, "run_steps", counting)
+    return calls
+
+
+@pytest.mark.parametrize("name", ["ball", "self_pair"])
+def test_a_scene_run_records_the_same_numbers_as_single_guarded_steps(monkeypatch, name):
+    """With a scene the runs check each step with the scene's compiled check in the core's run (RowGuard.clear, as
+    StepCore.step_guarded checks a single step) and hand the first step it does not clear to the stepper's search
+    (GUARD_DUE): the record - the row fields (smallest value per point, active rows, multipliers, switches)
+    included - is that of single guarded steps, bit for bit, and each kind of hand-back is reached."""
+    r, path, index, q0, options = scene_case(name)
+    records = []
+    for stepping in (runs.one_by_one, runs.stepping):
+        monkeypatch.setattr(run, "stepping", stepping)
+        calls = counted_runs(monkeypatch)
+        records.append(run.track(r, path, index, q0, loops=2, backend="compiled", **options))
+    a, b = records
+    assert_identical(a, b)
+    assert a.meta == b.meta
+    assert len(a.meta["switches"]) >= 4 and any(a.meta["constraints"]["active"])  # rows met and left
+    statuses = {status for _, status, _, _ in calls}
+    core = compiled.load_core()
+    assert core.GUARD_DUE in statuses  # a step the check does not clear: the stepper's search took it
+    assert all(guarded for *_, guarded in calls)
+    assert sum(done for done, *_ in calls) > len(a.t) // 2  # most steps in runs
+    # a guarded run ends at its step the watch measures exactly (the watch's verdict may drop the rows after it)
+    assert all(exact <= 1 for _, _, exact, _ in calls) and max(done for done, *_ in calls) <= watch.EXACT_EVERY
+
+
+def test_scene_runs_leave_the_state_and_the_checks_counters_of_single_steps():
+    """Tracker-level: after 400 steps in runs the stepper's state, the step counters and the scene check's own
+    counters (placements of the objects, exact distances, per-row recomputations) are those of single guarded
+    steps - the check ran on the same steps with the same arrays - and its clock counted the runs' checks."""
+    r, path, index, q0, options = scene_case("ball")
+    options = {k: v for k, v in options.items() if k != "steps_per_loop"}
+    single, batched, rec, taken = single_and_runs(r, path, index, q0, path.period / 400, 400, **options)
+    assert sum(taken) == 400 and len(rec) == 400 and max(taken) >= watch.EXACT_EVERY // 2
+    a, b = single.stepper, batched.stepper
+    assert (b.t, b.k, b.rows) == (a.t, a.k, a.rows)
+    for key in ("q", "lam", "qdot", "y", "yd"):
+        np.testing.assert_array_equal(getattr(b, key), getattr(a, key), err_msg=key)
+    assert batched.compiled.steps == single.compiled.steps
+    assert batched.compiled.handed_back == single.compiled.handed_back
+    ga, gb = single.compiled.guard.compiled, batched.compiled.guard.compiled
+    assert (gb.placements, gb.distances, gb.computed) == (ga.placements, ga.distances, ga.computed)
+    assert gb.placements > 0 and gb.distances > 0 and gb.seconds > 0.0
+
+
+def test_a_stop_in_a_scene_run_is_the_same_stop(monkeypatch):
+    """test_tracking_scene's fingers pressed on the upper arm until a self pair's distance is not differentiable
+    (``collision``): the same stop, time, joints and partial record (row fields included) in runs as in single steps."""
+    from test_tracking_scene import setup as scene_setup
+
+    from kinredund.geometry import Scene
+
+    r, path, index, q0, _ = scene_setup()
+    stops = []
+    for stepping in (runs.one_by_one, runs.stepping):
+        monkeypatch.setattr(run, "stepping", stepping)
+        with pytest.raises(TrackingError) as info:
+            run.track(r, path, index, q0, backend="compiled", scene=Scene(r))
+        stops.append(info.value)
+    a, b = stops
+    assert (b.cause, b.t) == (a.cause, a.t) and a.cause == "collision"
+    np.testing.assert_array_equal(b.q, a.q)
+    assert_identical(a.partial, b.partial, "partial.")
+    assert a.partial.meta == b.partial.meta

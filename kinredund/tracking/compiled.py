@@ -44,6 +44,8 @@ bounds) the step is taken without the search, else the search decides as above. 
 verdict and the rows' smallest value at the step's end), so the check costs no call from Python of its own, and a
 step kept hands that value to the stepper for the record (``keep_smallest``: the record's smallest row value there
 without a query of its own; exact near the clearances, a lower bound elsewhere, as the constraint's values are).
+``track()``'s runs of steps (:mod:`kinredund.tracking.runs`) make the same check inside the core's run and hand a step
+it does not clear to :meth:`CompiledStep.accept` with the verdict, as a single step would.
 
 The driver uses the stepper's public interface only: its state and ``accept`` (the step taken in C++ as its
 own), the predictor's ``hermite`` weights, the limited stepper's ``active_set``, ``switch_limits``,
@@ -183,6 +185,8 @@ class CompiledStep:
         stepper: the Python stepper (its state is the run's state, as with the Python backend).
         steps, handed_back: steps taken in C++, and the steps handed back by reason (:data:`STATUS`).
         held_steps: of the steps taken in C++, those with a joint held on its bound.
+        guard: the rows' compiled check of a step (the constraint's ``row_guard``, held by the core:
+            ``StepCore.set_guard``), or None.
     """
 
     def __init__(self, stepper: PredictorCorrector, core, start: CompiledStart | None = None):
@@ -198,9 +202,9 @@ class CompiledStep:
         self.limited = limited
         self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
         general = getattr(stepper, "general", [])  # one constraint's compiled check of a step, where it has one
-        self._guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
-        if self._guard is not None:  # the core runs the check right after its step (StepCore.step_guarded)
-            self.core.set_guard(self._guard.compiled)
+        self.guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
+        if self.guard is not None:  # the core runs the check right after its step (StepCore.step_guarded)
+            self.core.set_guard(self.guard.compiled)
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
         self._empty = np.zeros(0)
@@ -253,10 +257,10 @@ class CompiledStep:
         args = (t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot, 0.0 if ctl is None else ctl.speed2,
                 ctl is not None)
         cleared = smallest = None
-        if self._guard is None:
+        if self.guard is None:
             out = self.core.step(*args)
         else:  # the step and the scene's check of it in one call (h < 0: no check, not cleared)
-            guard = self._guard
+            guard = self.guard
             h = t_to - s.t if s.qdot is not None and guard.valid() else -1.0
             out = self.core.step_guarded(h, *args)
             if type(out) is not int:
@@ -309,10 +313,10 @@ class CompiledStep:
         """Does the compiled row check rule out a switch within the core's step ``out`` to ``t_to``, before it is
         applied? False where there is no such check, or no rate at the step's start (the first step)."""
         s = self.stepper
-        if self._guard is None or s.qdot is None:
+        if self.guard is None or s.qdot is None:
             return False
         n, (sy, ssol) = self.n, self.slices[:2]
-        return self._guard.clear(s.q, out[sy][:n], s.qdot, out[ssol][:n], t_to - s.t)
+        return self.guard.clear(s.q, out[sy][:n], s.qdot, out[ssol][:n], t_to - s.t)
 
     def _switch_within(self, start) -> bool:
         """Does the stepper find a switch within the step from ``start`` to now? (A failure of its search, a

@@ -65,13 +65,15 @@ class Recorder:
         if self.rows is not None:
             self.rows.append(s.row_record())
 
-    def add_rows(self, t: list[float], q, lam, M, J, pose, desired, qdot, held: tuple | None = None) -> None:
+    def add_rows(self, t: list[float], q, lam, M, J, pose, desired, qdot, held: tuple | None = None,
+                 smallest: list[float] | None = None) -> None:
         """Record several steps at once (:mod:`kinredund.tracking.runs`): per step its time [s], joints,
         multipliers, M, the step's J (rows of arrays) and rates, ``pose`` (Q (k, 3, 3), p (k, 3)) at the corrected
-        joints and ``desired``, the path's (p_d (k, 3), Q_d (k, 3, 3) or None); no general rows. Without ``held``
+        joints and ``desired``, the path's (p_d (k, 3), Q_d (k, 3, 3) or None). Without ``held``
         no joint is on a bound (the solver labels pending, the stepper's own multipliers of the bounds, zero, as
         :meth:`add` records); else (the steps' solver labels, the active bounds (n,), the bound multipliers
-        (k, n)), the same active set throughout."""
+        (k, n)), the same active set throughout. With general rows, none active throughout: ``smallest``, the rows'
+        smallest value per step [m] (the compiled check's, as :meth:`add` records it from ``row_record``)."""
         k = len(t)
         self.t += t
         self.q.extend(q)
@@ -88,6 +90,9 @@ class Recorder:
             self.active.extend(np.repeat((self._free if held is None else held[1])[None], k, axis=0))
             self.mu.extend(np.repeat(self.stepper.mu[None], k, axis=0) if held is None else held[2])
             self.qdot.extend(qdot)
+        if self.rows is not None:  # (row_record's with no row active: no multipliers)
+            active, none = self.stepper.rows, np.zeros(0)
+            self.rows += [(v, active, none) for v in smallest]
 
     def _lam_full(self) -> np.ndarray:
         """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""

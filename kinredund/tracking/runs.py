@@ -27,7 +27,15 @@ one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the 
 and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Runs go on through steps with
 joints held on their bounds (the core's reduced system, the active set it was given: ``StepCore.set_active``); the
 active set changes only at a step the core hands back (a bound reached or released, whose switch the Python stepper
-locates), so it is the same throughout a run. Like
+locates), so it is the same throughout a run. With a scene's general rows (issue 27) runs take the steps with no row
+active where the rows have the core's compiled check (:attr:`~kinredund.tracking.compiled.CompiledStep.guard`, which
+``StepCore.step_guarded`` runs after a single step): the run calls it after each step, as that single step does, and
+writes each step's smallest row value (``RowGuard.smallest``: the record's, as ``keep_smallest`` keeps it); the first
+step it does not clear is handed over with its verdict (``GUARD_DUE``:
+:meth:`~kinredund.tracking.compiled.CompiledStep.accept`, whose search for a switch decides), and a guarded run ends at
+the first step the watch measures exactly (the watch's verdict may drop the rows after it, and the check's kept values
+cannot be taken back), so the check runs on exactly the steps, with the same arrays, that single steps check. A step
+with a row active is the Python stepper's, one at a time. Like
 :mod:`~kinredund.tracking.compiled`, it reads only the stepper's and the step control's public interface.
 """
 
@@ -57,7 +65,7 @@ def stepping(tracker, rec):
     compiled = getattr(tracker, "compiled", None)
     if compiled is None or not hasattr(load_core(), "run_steps"):  # the Python stepper (or an older core)
         return one_by_one(tracker, rec)
-    if compiled.rows:  # general rows: each compiled step is checked for a switch in Python, one call each
+    if compiled.rows and compiled.guard is None:  # general rows without a compiled check: each step searched in Python
         return one_by_one(tracker, rec)
     return Runs(compiled, rec).advance
 
@@ -89,6 +97,8 @@ class Runs:
     def _ordinary(self, count: int) -> int:
         """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
         s, ctl = self.s, self.ctl
+        if self.c.rows and (s.rows or s.qdot is None or not self.c.guard.valid()):
+            return 1  # a row active (the Python stepper's step), or the step cannot be checked (CompiledStep.step's)
         K = min(count, MAX_RUN)
         if ctl is not None:
             t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before
@@ -114,14 +124,21 @@ class Runs:
             watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY, True), ctl.speed2
         if c.limited:
             c.sync_active()  # a release taken by the Python stepper: the core holds none now
+        smallest = guard = None
+        if c.rows:  # the core's check of each step (StepCore.step_guarded's), its smallest row value written here
+            smallest = np.empty(K)
+            guard = (s.t, smallest)
         done, status, exact, measured = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev,
-                                                            s.qdot, speed2, ctl is not None, watch, out)
+                                                            s.qdot, speed2, ctl is not None, watch, out, guard)
         if exact:
             done, status = self._verdicts(out, times, done, status, exact, measured)
         if done:
-            self._commit(out[:done], at, i, times[:done])
-        if status == self.core.WATCH_DUE:
-            c.accept(out[done], at.sample(i + done), times[done])
+            self._commit(out[:done], at, i, times[:done], smallest)
+        checked = {}  # the check's verdict on the step handed over (it ran: a step is checked once)
+        if guard is not None and status in (self.core.WATCH_DUE, self.core.GUARD_DUE):
+            checked = {"cleared": status == self.core.WATCH_DUE, "smallest": float(smallest[done])}
+        if status in (self.core.WATCH_DUE, self.core.GUARD_DUE):
+            c.accept(out[done], at.sample(i + done), times[done], **checked)
         elif status > 0:
             c.hand_back(status)
         else:
@@ -196,9 +213,11 @@ class Runs:
             rate = np.array([index.rate(t) for t in times], float)
         return j0, at, times, (at.p, at.v, Q, omega, ref, rate)
 
-    def _commit(self, out: np.ndarray, at, i: int, times: list[float]) -> None:
+    def _commit(self, out: np.ndarray, at, i: int, times: list[float], smallest: np.ndarray | None) -> None:
         """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it);
-        ``at``: the path's samples, the run's first at ``i``."""
+        ``at``: the path's samples, the run's first at ``i``; ``smallest``: with general rows, the rows' smallest
+        value at each step's end (the core's check's, as :meth:`~kinredund.tracking.compiled.CompiledStep.apply`
+        keeps it)."""
         c, s, ctl = self.c, self.s, self.ctl
         sy, ssol, sM, sJ, _, sQ, sp = c.slices[:7]
         n, m, _ = c.shapes
@@ -206,8 +225,10 @@ class Runs:
         Y, SOL = out[:, sy], out[:, ssol]
         M, J = out[:, sM].reshape(K, n, n), out[:, sJ].reshape(K, m, n)
         held = self._held(out, M, J) if c.limited and s.any_active else None
+        if smallest is not None:
+            smallest = smallest[:K].tolist()
         self.rec.add_rows(times, Y[:, :n], Y[:, n:], M, J, (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
-                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n], held)
+                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n], held, smallest)
         if K > 1:  # the state before the last row: the predictor's history as the steps between carried it
             keep = PREDICTOR_POINTS - 1  # the (y, ydot) pairs the history holds: the rows before them drop out
             hist = [*s.prev, s.y, s.yd]
@@ -220,7 +241,7 @@ class Runs:
             c.held_steps += (K - 1) * (held is not None)
         last = out[K - 1]
         rcond = float(last[-2])
-        c.apply(last, at.sample(i + K - 1), times[-1], rcond)
+        c.apply(last, at.sample(i + K - 1), times[-1], rcond, smallest=None if smallest is None else smallest[-1])
         if ctl is not None:
             ctl.watch.passed(K, rcond)
             ctl.speed2 = float(last[-1])

@@ -8,6 +8,11 @@
 // free joints' J and M of its row (watch.cpp's watch_exact, the routine of the compiled backend's single steps), and
 // their indices and measurements are returned; the caller takes the watch's verdicts on them after the run and keeps
 // the rows up to the first step the watch does not accept (kinredund/tracking/runs.py).
+// With a scene's row check (``guard``: the StepCore's RowGuard, StepCore.set_guard) each step is checked right after
+// it, as StepCore.step_guarded checks a single step (RowGuard.clear on the same arrays, its smallest row value at the
+// step's end written out): the run ends at the first step the check does not clear (GUARD_DUE, its row written: the
+// caller's stepper searches it for a switch), and after the first step the watch measures exactly (the watch's
+// verdict, taken after the run, may drop the rows after it, and the guard's kept values cannot be taken back).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
@@ -16,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "distances.hpp"
 #include "step.hpp"
 #include "watch.hpp"
 
@@ -28,9 +34,12 @@ namespace {
 using Rows = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Vec = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
 using Sink = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Small = nb::ndarray<double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
 
 // The status of a step the watch measures (after step.cpp's codes, RELEASE = 11 among them, and the driver's 8-13).
 constexpr int WATCH_DUE = 20;
+// The status of a step the scene's row check does not clear (its row and its smallest row value written).
+constexpr int GUARD_DUE = 21;
 
 void check_rows(const Rows& a, size_t k, size_t width, const char* name) {
   if (a.shape(0) != k || a.shape(1) != width)
@@ -60,12 +69,14 @@ struct Gate {
 
 // run(core, t (K), p, v (K x 3), Q (K x 9 or 0 x 9), omega (K x 3 or 0 x 3), ref, rate (K x n or 0 x n), y, yd,
 //     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every[, through]),
-//     out) -> (steps done, status, the indices of the steps passed through that the watch measures exactly, their
-// measurements (sigma_min_J, eig, v, scale): watch_exact's): status 0 after all K steps, else that of step ``done``
-// (WATCH_DUE: its row is written).
+//     out, guard (None, or (the time of the run's start [s], smallest: an array of >= K entries that receives each
+//     checked step's RowGuard.smallest))) -> (steps done, status, the indices of the steps passed through that the
+// watch measures exactly, their measurements (sigma_min_J, eig, v, scale): watch_exact's): status 0 after all K steps
+// (or after the step the watch measures exactly, with a guard), else that of step ``done`` (WATCH_DUE, GUARD_DUE: its
+// row is written).
 nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows omega, Rows ref, Rows rate, Vec y0,
                     Vec yd0, nb::list prev_list, Vec qdot0, double speed2, bool check_jump, nb::tuple watch,
-                    Sink out) {
+                    Sink out, nb::object guard_arg) {
   StepCore& core = step_core(core_obj);
   int n, m, row;
   step_core_sizes(core, n, m, row);
@@ -100,6 +111,20 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
             nb::cast<double>(watch[3]), nb::cast<long>(watch[4]), nb::cast<long>(watch[5]),
             nb::len(watch) > 6 && nb::cast<bool>(watch[6])};
   if (gate.every < 1) throw nb::value_error("the watch's exact interval must be >= 1");
+  RowGuard* guard = nullptr;
+  double t_start = 0.0;
+  Small smallest;  // (kept alive while its pointer is used)
+  if (!guard_arg.is_none()) {
+    guard = step_core_guard(core);
+    if (guard == nullptr) throw nb::value_error("guard: the StepCore holds no row guard (StepCore.set_guard)");
+    nb::tuple g = nb::cast<nb::tuple>(guard_arg);
+    if (nb::len(g) != 2) throw nb::value_error("guard: (the run's start time, the array of smallest values)");
+    t_start = nb::cast<double>(g[0]);
+    smallest = nb::cast<Small>(g[1]);
+    if (smallest.shape(0) < K)
+      throw nb::value_error(("guard: the smallest values' array needs at least " + std::to_string(K) +
+                             " entries").c_str());
+  }
   size_t done = 0;
   int status = 0;
   std::vector<size_t> measured;
@@ -118,6 +143,15 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
       double* o = out.data() + row * k;
       status = step_core_advance(core, in, y, yd, prev, qd, speed2, check_jump, o);
       if (status != 0) break;
+      if (guard != nullptr) {  // StepCore.step_guarded's check: from [q; lam] with rates qd to the row's, h [s] long
+        const double h = t.data()[k] - (k ? t.data()[k - 1] : t_start);
+        const bool clear = row_guard_clear(*guard, y, o, qd, o + N, h);
+        smallest.data()[k] = row_guard_smallest(*guard);
+        if (!clear) {
+          status = GUARD_DUE;
+          break;
+        }
+      }
       const double rcond = o[row - 2];
       if (gate.on && gate.due(rcond)) {
         if (!gate.exact_next()) {
@@ -133,6 +167,10 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
             Mr[static_cast<size_t>(a) * nf + b] = o[oM + static_cast<size_t>(free[a]) * n + free[b]];
         measures.emplace_back();
         watch_exact(Jr.data(), Mr.data(), m, nf, measures.back());
+        if (guard != nullptr) {  // the run ends here (the file's comment)
+          ++done;
+          break;
+        }
       }
       // the driver's bookkeeping (CompiledStep._apply): (y, ydot) joins the history, which keeps two pairs
       prev.push_back(y);
@@ -162,9 +200,11 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
 
 void bind_loop(nb::module_& m) {
   m.attr("WATCH_DUE") = WATCH_DUE;
+  m.attr("GUARD_DUE") = GUARD_DUE;
   m.def("run_steps", &run_steps, nb::arg("core"), nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"),
         nb::arg("omega"), nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"),
         nb::arg("qdot0"), nb::arg("speed2"), nb::arg("check_jump"), nb::arg("watch"), nb::arg("out"),
+        nb::arg("guard") = nb::none(),
         "Ordinary steps of a StepCore over presampled times, the GIL released (see src/core/loop.cpp).");
 }
 

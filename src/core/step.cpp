@@ -68,6 +68,7 @@ struct Sample {
 
 class StepCore {
   friend const int* step_core_free(const StepCore&, int&);
+  friend RowGuard* step_core_guard(const StepCore&);
   friend int step_core_advance(StepCore&, const StepInput&, const double*, const double*,
                                const std::vector<const double*>&, const double*, double, bool, double*);
 
@@ -865,6 +866,8 @@ const int* step_core_free(const StepCore& c, int& nf) {
   nf = static_cast<int>(c.free_.size());
   return c.free_.data();
 }
+
+RowGuard* step_core_guard(const StepCore& c) { return c.guard_; }
 
 int step_core_advance(StepCore& c, const StepInput& in, const double* y, const double* yd,
                       const std::vector<const double*>& prev, const double* qdot0, double speed2, bool check_jump,

@@ -21,6 +21,9 @@ struct StepInput {
 StepCore& step_core(nanobind::handle obj);
 // (n, m, the length of one step's output row: StepCore.step's array).
 void step_core_sizes(const StepCore& core, int& n, int& m, int& row);
+// The row check that step_guarded runs after a step (StepCore.set_guard; distances.hpp), or null: none.
+class RowGuard;
+RowGuard* step_core_guard(const StepCore& core);
 // The free joints' numbers (ascending; all n where no joint is held: StepCore.set_active), nf of them.
 const int* step_core_free(const StepCore& core, int& nf);
 // StepCore.step without Python objects: writes the output row into ``out`` and returns the status (0: ordinary).
