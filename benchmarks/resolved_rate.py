@@ -40,10 +40,10 @@ switch, the rate QP's share; the medians again on the Python stepper). With a Sc
 the step with five obstacles and the robot's own pairs held apart against the step with the limits only, in
 turn: both on the Python stepper (``scene_over_limits``, the issue's <= 1.5), and both on the default backend
 (``scene_over_default``: where the core is built, the compiled steps with no row active, each checked for a
-switch in Python; ``scene_python_over_default`` the scene step on the Python stepper against it: the Python step
-between them slows the small limits-only step, so these flatter), and the two compiled steps alone in turn, nothing
-between them (``scene_alone_over_default``, target <= 1.3); where the
-scene step's time goes (``scene_breakdown_us``: the compiled distance
+switch by the core's row guard in the same call; ``scene_python_over_default`` the scene step on the Python
+stepper against it: the Python step between them slows the small limits-only step, so these flatter), and the two
+compiled steps alone in turn, nothing between them (``scene_alone_over_default``, target <= 1.3); where the scene
+step's time goes (``scene_breakdown_us``: the compiled distance
 query, the Python around it, the stepper's rows, the rate QP, the rest) and the queries' share
 (``scene_query_share``); and the whole run: ``track()`` with the scene against ``track()`` with the limits only (the
 same path, dt and steps, in turn: ``track_scene_over_track``, target <= 1.5) and where the scene run's time goes
@@ -122,7 +122,8 @@ KEYS = {
                          "<= 1.5)",
     "scene_default_in_turn_us": "the scene step in turn with the limits-only step, both on the default backend "
                                 "(the compiled core where it is built: the scene's steps with no row active are "
-                                "the core's, each checked for a switch in Python), and the scene step on the Python "
+                                "the core's, each checked for a switch by its row guard in the same call), and the "
+                                "scene step on the Python "
                                 "stepper (step_scene_python_us) in the same rounds",
     "scene_over_default": "scene_default_in_turn_us: step_scene_us / step_limits_us, default against default",
     "scene_python_over_default": "scene_default_in_turn_us: step_scene_python_us / step_limits_us (the scene on "
