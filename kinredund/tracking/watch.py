@@ -187,8 +187,7 @@ class Watch:
         (``StepCore.watch_measure``, ``src/core/watch.cpp``), and this watch keeps its results.
         """
         if core is not None and self._v is not None and self._count % EXACT_EVERY != 0:
-            ref = self._J_ref if self._J_ref is not None else _NO_REF
-            out = core.watch_measure(self._v, ref, self._sigma_ref, J_GATE)
+            out = core.watch_measure(*self.iteration)
             if out is not None:
                 return self.took(*out)
             lu = None  # sizes that do not fit, or u not finite: exactly, as below
@@ -209,6 +208,13 @@ class Watch:
         self._v = u
         eig = float(u @ (M @ u))  # Rayleigh quotient on the null space of J (u = P v lies in it)
         return self._sigma(J), eig
+
+    @property
+    def iteration(self) -> tuple:
+        """(the vector v or None, the reference J or an empty array, sigma_min(J) there, :data:`J_GATE`): the inverse
+        iteration's state that :meth:`measure` hands the core (``StepCore.watch_measure``) and a run of steps carries
+        through its measurements (``run_steps``: :mod:`kinredund.tracking.runs`)."""
+        return self._v, _NO_REF if self._J_ref is None else self._J_ref, self._sigma_ref, J_GATE
 
     def took(self, sigma: float, eig: float, u: np.ndarray, fresh: bool, sigma_max, J, scale) -> tuple[float, float]:
         """Keep a measurement of the compiled core (``_core.watch_measure``'s tuple: the vector u; where sigma_min(J)

@@ -68,6 +68,7 @@ struct Sample {
 
 class StepCore {
   friend const int* step_core_free(const StepCore&, int&);
+  friend const double* step_core_factors(const StepCore&, const int*&, int&);
   friend int step_core_advance(StepCore&, const StepInput&, const double*, const double*,
                                const std::vector<const double*>&, const double*, double, bool, double*);
 
@@ -864,6 +865,12 @@ void step_core_sizes(const StepCore& c, int& n, int& m, int& row) {
 const int* step_core_free(const StepCore& c, int& nf) {
   nf = static_cast<int>(c.free_.size());
   return c.free_.data();
+}
+
+const double* step_core_factors(const StepCore& c, const int*& piv, int& N) {
+  N = static_cast<int>(c.lu_.rows());
+  piv = c.ipiv_.data();
+  return c.lu_.data();
 }
 
 int step_core_advance(StepCore& c, const StepInput& in, const double* y, const double* yd,
