@@ -283,3 +283,27 @@ def test_one_sampling_of_the_path_ahead_takes_the_blocks_that_stack_and_no_other
                 Samples(np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 9)), np.zeros((k, 3))),
                 Samples(np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 4)))):
         assert sample_block(Stub(bad), times) is None
+
+
+def test_a_rejected_inverse_iteration_measurement_in_a_run_is_handed_back_as_one_by_one(monkeypatch):
+    """A step the watch measures by its inverse iteration inside a run and rejects (made to reject the fifth such
+    measurement on the Panda pose circle, where every held step is measured) is handed back as
+    :meth:`CompiledStep.accept` hands it back one by one (the core holds a later step's factors by then): the same
+    record or stop, and the same counters, as single steps."""
+    verdicts, inner, crossed = [], runs.Runs._verdicts, watch.Watch.crossed
+
+    def seen(self, *args):
+        kept, why = inner(self, *args)
+        verdicts.append(why)
+        return kept, why
+
+    monkeypatch.setattr(runs.Runs, "_verdicts", seen)
+    monkeypatch.setattr(watch.Watch, "crossed", lambda w, s, e: "fold" if w.core_measured >= 5 else crossed(w, s, e))
+    a = tracked(monkeypatch, "panda_pose_circle", False, loops=1)
+    b = tracked(monkeypatch, "panda_pose_circle", True, loops=1)
+    assert compiled.WATCH_REJECTS in verdicts
+    if isinstance(a, TrackingError):
+        assert isinstance(b, TrackingError) and (b.cause, b.t) == (a.cause, a.t)
+        a, b = a.partial, b.partial
+    assert_identical(a, b)
+    assert a.meta == b.meta
