@@ -10,7 +10,7 @@ times ``track_many(problems, threads=1)`` and ``threads=2`` in turn; the figures
 rounds of runs per second, and the speed-up (2 threads over 1: at most 2 on 2 cores, less where others load
 the machine). The compiled core makes each run's start (the correction onto the optimum, the rates, the watch's
 first measurement: ``start_run``) and runs the ordinary steps in runs (:mod:`kinredund.tracking.runs`; the watch's
-exact measurements inside them), each one C++ call with the GIL released; the rest (the rest of each run's set-up,
+measurements inside them), each one C++ call with the GIL released; the rest (the rest of each run's set-up,
 the path samples, the watch's verdicts, the record, the steps it hands back) holds it.
 The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
 a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in those calls of the
@@ -42,7 +42,7 @@ GIL_FREE = ("start_run", "run_steps")
 def gil_free_share(jobs: list, options: dict) -> float:
     """The share of the runs' CPU time (one by one, this thread's: ``time.thread_time``, which other processes'
     load does not count) spent in the core's calls of :data:`GIL_FREE` (the start: its correction, rates and first
-    watch measurement; the runs of steps, with the watch's exact measurements), where the GIL is released. With a
+    watch measurement; the runs of steps, with the watch's measurements), where the GIL is released. With a
     GIL-held share g the speed-up on two threads is at most min(2, 1 / g)."""
     import kinredund._core as core
 

@@ -72,7 +72,8 @@ def tracked(monkeypatch, name: str, batched: bool, **options):
     ("ur5_axis", {"loops": 2, "scheme": "velocity"}),  # the path's orientation, the velocity form
     ("planar_time_varying", {"loops": 1, "limits": False}),  # the reference sampled per step with the path
     ("example_4.1", {"loops": 2, "limits": False, "strict": False}),  # no step control, no watch
-    ("panda_wrist15", {"loops": 1, "steps_per_loop": 37}),  # runs cut at the watch's measured steps
+    ("panda_wrist15", {"loops": 1, "steps_per_loop": 37}),  # runs through the watch's measured steps
+    ("panda_pose_circle", {"loops": 1}),  # held steps each measured (rcond low): inverse iteration in the runs
     ("user_path", {"loops": 1}),  # a path sampled one time at a time
 ])
 def test_runs_record_the_same_numbers_as_single_steps(monkeypatch, name, options):
@@ -156,27 +157,34 @@ def test_runs_take_many_steps_per_call_and_leave_the_state_of_single_steps():
     assert batched.compiled.handed_back == single.compiled.handed_back
 
 
-def test_runs_go_on_through_steps_with_a_joint_held_on_its_bound():
-    """Runs do not stop at a held joint: the core steps on the reduced system (the active set it was given) until
-    the active set changes, and the record, the switches and the state are those of single steps."""
-    r, path, index, q0 = problem("panda_elbow_circle")
+def side_by_side(name: str, held_per_call) -> tuple:
+    """(path, single, batched, their recorders): one loop of 200 steps of the named problem's compiled tracker one
+    step at a time and in runs (``held_per_call(k)``: the held steps the core took in each call)."""
+    r, path, index, q0 = problem(name)
     dt = path.period / 200
     single = Tracker(r, path, index, q0, dt, backend="compiled")
     batched = Tracker(r, path, index, q0, dt, backend="compiled")
     rec_a, rec_b = Recorder(single.stepper), Recorder(batched.stepper)
     rec_a.add()
     rec_b.add()
-    advance = runs.stepping(batched, rec_b)
-    held_runs, done = [], 0  # the held steps the core took in each call
+    advance, done = runs.stepping(batched, rec_b), 0
     while done < 200:
         before = batched.compiled.held_steps
         done += advance(200 - done)
-        held_runs.append(batched.compiled.held_steps - before)
+        held_per_call(batched.compiled.held_steps - before)
     for _ in range(200):
         single.step()
         rec_a.add()
-    assert max(held_runs) >= 10  # many held steps per call
-    assert batched.compiled.held_steps == single.compiled.held_steps > max(held_runs)
+    return path, single, batched, rec_a, rec_b
+
+
+def test_runs_go_on_through_steps_with_a_joint_held_on_its_bound():
+    """Runs do not stop at a held joint: the core steps on the reduced system (the active set it was given) until
+    the active set changes, and the record, the switches and the state are those of single steps."""
+    held_runs = []  # the held steps the core took in each call
+    path, single, batched, rec_a, rec_b = side_by_side("panda_elbow_circle", held_runs.append)
+    assert max(held_runs) >= 10  # many held steps per call (through the watch's measurements of each: rcond is low)
+    assert batched.compiled.held_steps == single.compiled.held_steps >= max(held_runs)
     assert batched.compiled.handed_back == single.compiled.handed_back
     info = {"robot_name": "panda", "scheme": "augmented", "mode": "default", "loops": 1, "steps_per_loop": 200,
             "period": path.period}
@@ -184,7 +192,27 @@ def test_runs_go_on_through_steps_with_a_joint_held_on_its_bound():
     assert_identical(a, b)
     assert len(a.meta["switches"]) >= 2 and a.meta == b.meta
     np.testing.assert_array_equal(a.active_bounds, b.active_bounds)
-    assert np.count_nonzero(np.abs(b.active_bounds).sum(axis=1)) > max(held_runs)  # points recorded with a held joint
+    assert np.count_nonzero(np.abs(b.active_bounds).sum(axis=1)) >= max(held_runs)  # points recorded with a held joint
+
+
+def test_runs_go_on_through_the_watch_s_inverse_iteration_and_leave_its_state_of_single_steps():
+    """On the Panda pose circle R's rcond is ~2.5e-5 while joint 4 is held: the watch measures every held step by its
+    inverse iteration with R's factors. The runs measure them in the core (run_steps, the routine of the single
+    steps' StepCore.watch_measure) and go on through them: far fewer calls than measured steps, and the watch's
+    history, vector, counters and the record those of single steps, bit for bit."""
+    held_runs = []
+    path, single, batched, rec_a, rec_b = side_by_side("panda_pose_circle", held_runs.append)
+    calls = len(held_runs)
+    wa, wb = single.stepper.control.watch, batched.stepper.control.watch
+    assert wb.core_measured == wa.core_measured >= 20 and wb.gate == wa.gate
+    assert calls < wa.core_measured // 2  # (a run was cut at each before: one call per measured step)
+    assert (wb.times, wb.eig, wb.sigma_times, wb.sigma) == (wa.times, wa.eig, wa.sigma_times, wa.sigma)
+    for u, v in zip(wb.iteration, wa.iteration, strict=True):
+        np.testing.assert_array_equal(u, v)
+    assert batched.compiled.handed_back == single.compiled.handed_back
+    info = {"robot_name": "panda", "scheme": "augmented", "mode": "default", "loops": 1, "steps_per_loop": 200,
+            "period": path.period}
+    assert_identical(*(rec.trajectory(meta={}, **info) for rec in (rec_a, rec_b)))
 
 
 def test_the_core_refuses_arrays_of_the_wrong_shape():
@@ -355,3 +383,27 @@ def test_a_stop_in_a_scene_run_is_the_same_stop(monkeypatch):
     np.testing.assert_array_equal(b.q, a.q)
     assert_identical(a.partial, b.partial, "partial.")
     assert a.partial.meta == b.partial.meta
+
+
+def test_a_rejected_inverse_iteration_measurement_in_a_run_is_handed_back_as_one_by_one(monkeypatch):
+    """A step the watch measures by its inverse iteration inside a run and rejects (made to reject the fifth such
+    measurement on the Panda pose circle, where every held step is measured) is handed back as
+    :meth:`CompiledStep.accept` hands it back one by one (the core holds a later step's factors by then): the same
+    record or stop, and the same counters, as single steps."""
+    verdicts, inner, crossed = [], runs.Runs._verdicts, watch.Watch.crossed
+
+    def seen(self, *args):
+        kept, why = inner(self, *args)
+        verdicts.append(why)
+        return kept, why
+
+    monkeypatch.setattr(runs.Runs, "_verdicts", seen)
+    monkeypatch.setattr(watch.Watch, "crossed", lambda w, s, e: "fold" if w.core_measured >= 5 else crossed(w, s, e))
+    a = tracked(monkeypatch, "panda_pose_circle", False, loops=1)
+    b = tracked(monkeypatch, "panda_pose_circle", True, loops=1)
+    assert compiled.WATCH_REJECTS in verdicts
+    if isinstance(a, TrackingError):
+        assert isinstance(b, TrackingError) and (b.cause, b.t) == (a.cause, a.t)
+        a, b = a.partial, b.partial
+    assert_identical(a, b)
+    assert a.meta == b.meta

@@ -136,9 +136,12 @@ def test_the_switching_circle_s_measured_steps_are_measured_in_the_core(scheme, 
     """One loop of the Panda circle on which joint 4 meets its limit and leaves it (R's rcond ~2.5e-5 while it is
     held: every held step is measured): each core measurement equals the Python watch's on the step's own J, M and
     the core's factors, from the same state; most measured steps (free and held) are the core's; the record is the
-    Python backend's."""
+    Python backend's. (The watch is made without the start's rcond, as before it had it, so that the first step, on
+    free joints, is measured: on this circle the gate measures no other free step.)"""
     r, path, index, q0 = problem("panda_pose_circle")
     original = Watch.measure
+    made = Watch.__init__
+    monkeypatch.setattr(Watch, "__init__", lambda self, rcond=None: made(self))
     seen = {"held": 0, "free": 0}
 
     def checked(self, J, M, lu=None, fixed=None, core=None):
@@ -155,19 +158,18 @@ def test_the_switching_circle_s_measured_steps_are_measured_in_the_core(scheme, 
             assert got[1] == expect[1] if np.isinf(expect[1]) else abs(got[1] - expect[1]) <= rounding(np.abs(M).max())
         return got
 
-    monkeypatch.setattr(Watch, "measure", checked)
     options = {"loops": 1, "steps_per_loop": 200, "scheme": scheme}
-    b = track(r, path, index, q0, backend="compiled", **options)
-    monkeypatch.setattr(Watch, "measure", original)
+    b = track(r, path, index, q0, backend="compiled", **options)  # (runs of steps: measured in run_steps)
     a = track(r, path, index, q0, backend="python", **options)
     assert_same_record(a, b)
     held = int(np.any(a.active_bounds != 0, axis=1).sum())
     assert held >= 20
-    assert seen["held"] >= held - 8 * len(a.switch_times) - held // 16  # but steps at switches and exact ones
-    assert seen["free"] >= 1
+    monkeypatch.setattr(Watch, "measure", checked)  # single steps: each measurement through Watch.measure
     tracker = Tracker(r, path, index, q0, path.period / 200, scheme=scheme, backend="compiled")
     for _ in range(len(a.t) - 1):
         tracker.step()
+    assert seen["held"] >= held - 8 * len(a.switch_times) - held // 16  # but steps at switches and exact ones
+    assert seen["free"] >= 1
     assert tracker.stepper.control.watch.core_measured >= seen["held"]
 
 
@@ -262,3 +264,24 @@ def test_the_compiled_backend_measures_exactly_in_the_core(monkeypatch):
     wa, wb = a.control.watch.save(), b.control.watch.save()
     for key in wa:
         np.testing.assert_array_equal(wb[key], wa[key], err_msg=key)
+
+
+# -- the gate's first step (the start's rcond) ------------------------------------------------------------------------
+def test_the_first_step_is_gated_against_the_start_s_rcond():
+    """The watch's gate compares the first step's rcond with the start's R's (both backends seed the watch with
+    their start's): a first step whose R is not nearer singular goes unmeasured (no second point in the history, no
+    call of ``Watch.measure``), one whose rcond drops below RCOND_DROP of the start's, or below RCOND_NEAR, is
+    measured; a watch made without it measures its first step."""
+    watch = Watch(1e-2)
+    assert not watch.due_next(0.9e-2) and watch.due_next(0.7e-2) and watch.due_next(0.5 * watch_module.RCOND_NEAR)
+    assert Watch().due_next(1.0)
+    r, path, index, q0 = problem("panda_pose_circle")
+    for backend in ("python", "compiled"):
+        tracker = Tracker(r, path, index, q0, path.period / 200, backend=backend)
+        s = tracker.stepper
+        watch, start_rcond = s.control.watch, s.rcond
+        assert watch.gate == (start_rcond, 0) and start_rcond > watch_module.RCOND_NEAR
+        tracker.step()
+        assert s.rcond > watch_module.RCOND_DROP * start_rcond  # so the gate lets it pass
+        assert len(watch.times) == 1 and watch.core_measured == 0, backend  # the start's measurement only
+        assert watch.gate == (s.rcond, 1)

@@ -80,6 +80,8 @@ STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_faile
 #: the driver's own reasons (codes the core does not return): a general row is active (its steps stay Python's);
 #: the stepper's row checks find a switch within the compiled step (a row reached or dipping below zero)
 ROW_ACTIVE, ROWS = 12, 13
+#: the watch's measurement of a core's step crossed a floor: the step is handed back (:mod:`kinredund.tracking.runs`)
+WATCH_REJECTS = 9
 
 
 class BackendWarning(UserWarning):

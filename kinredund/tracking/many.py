@@ -4,7 +4,7 @@ problem, in threads.
 Each run is independent and deterministic (its own stepper, its own compiled core and, per thread, its own
 kinematics workspace: ``Robot.kinematics``), so the results equal the runs made one by one. On the compiled
 backend ``track()`` advances in runs of ordinary steps, each one C++ call with the GIL released
-(:mod:`kinredund.tracking.runs`; the watch's exact measurements inside them), and so is each run's start (the
+(:mod:`kinredund.tracking.runs`; the watch's measurements inside them), and so is each run's start (the
 correction onto the optimum, the rates and the watch's first measurement:
 :class:`~kinredund.tracking.compiled_start.CompiledStart`), so threads overlap those. The rest of each run's set-up (the
 :class:`~kinredund.tracking.tracker.Tracker`'s checks and the start's first evaluation, in Python), the path samples,

@@ -11,18 +11,21 @@ one C++ call steps through them with the GIL released (threads running other tas
 into one array (the path sampled :data:`GRID` steps ahead). The rows go to the record in one call
 (:meth:`~kinredund.tracking.recorder.Recorder.add_rows`) and the last becomes the stepper's state. The run stops
 at the first step the core hands back (a bound reached, a jump, a failure: the Python stepper takes that step
-from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`) or that the watch measures by
-its inverse iteration, where R's condition drops (its row is finished in Python:
-:meth:`~kinredund.tracking.compiled.CompiledStep.accept`, the measurement itself the core's,
-``StepCore.watch_measure``). It goes on through the steps the watch measures exactly (every
-:data:`~kinredund.tracking.watch.EXACT_EVERY`-th: one SVD of J and the eigenvalue of Z^T M Z, from the J and M of
-the step's row), which the core measures in the run (``watch_exact``, ``src/core/watch.cpp``: the routine of the
-compiled backend's single steps, :meth:`~kinredund.tracking.watch.Watch.use_core`): after the run Python takes
-the watch's verdicts on them in order, as the step control does one by one (the measurement kept, the crossing
-test and history), and keeps the rows up to the first measured step the watch rejects
-(that step then goes through :meth:`~kinredund.tracking.compiled.CompiledStep.accept` as one by one, which hands
-it back) or the first step its new prediction (:meth:`~kinredund.tracking.watch.Watch.ahead`) does not let
-through (left to the next call, which hands it back); the core's rows after it are dropped. Every step is the
+from the same state, :meth:`~kinredund.tracking.compiled.CompiledStep.hand_back`). It goes on through the steps the
+watch measures: exactly (every :data:`~kinredund.tracking.watch.EXACT_EVERY`-th: one SVD of J and the eigenvalue of
+Z^T M Z, from the J and M of the step's row; ``watch_exact``, ``src/core/watch.cpp``: the routine of the compiled
+backend's single steps, :meth:`~kinredund.tracking.watch.Watch.use_core`) and by the inverse iteration with the
+step's R factors where R's condition drops (``watch_inverse``: the routine of the single steps'
+``StepCore.watch_measure``, the watch's vector and reference J carried from one measurement to the next,
+:attr:`~kinredund.tracking.watch.Watch.iteration`), both in the run (a measurement that is not one of these, the
+Python watch's exact fallback, ends the run there: its row is finished in Python,
+:meth:`~kinredund.tracking.compiled.CompiledStep.accept`). After the run Python takes the watch's verdicts on them in
+order, as the step control does one by one (the measurement kept, the crossing test and history), and keeps the rows
+up to the first measured step the watch rejects (an exact one then goes through
+:meth:`~kinredund.tracking.compiled.CompiledStep.accept` as one by one, which hands it back; one of the inverse
+iteration, whose factors the core no longer holds, is handed back as ``accept`` hands it back) or the first step
+its new prediction (:meth:`~kinredund.tracking.watch.Watch.ahead`) does not let through (left to the next call,
+which hands it back); the core's rows after it are dropped. Every step is the
 one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
 and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Runs go on through steps with
 joints held on their bounds (the core's reduced system, the active set it was given: ``StepCore.set_active``); the
@@ -47,13 +50,13 @@ import numpy as np
 
 from kinredund.tasks import get_task
 from kinredund.tracking.ahead import sample_block, step_times
-from kinredund.tracking.compiled import load_core
+from kinredund.tracking.compiled import WATCH_REJECTS, load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
 from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, free_columns
 
 #: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
 GRID = 256
-#: the most steps of one C++ call (it goes on through the watch's exact measurements, every EXACT_EVERY steps)
+#: the most steps of one C++ call (it goes on through the watch's measurements)
 MAX_RUN = GRID
 #: the fewest samples taken ahead that a run uses before it samples afresh (:meth:`Runs._window`)
 REFILL = 32
@@ -120,8 +123,9 @@ class Runs:
         out = np.empty((K, int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
         if ctl is None:
             watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY, False), 0.0
-        else:  # on through the steps the watch measures exactly (measured below, after the run)
-            watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY, True), ctl.speed2
+        else:  # on through the steps the watch measures (their verdicts below, after the run)
+            watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY, True,
+                             *ctl.watch.iteration), ctl.speed2
         if c.limited:
             c.sync_active()  # a release taken by the Python stepper: the core holds none now
         smallest = guard = None
@@ -148,15 +152,17 @@ class Runs:
 
     def _verdicts(self, out: np.ndarray, times: list[float], done: int, status: int, exact: list[int],
                   measured: list[tuple]) -> tuple:
-        """The watch's measurements of the run's steps ``exact`` (``measured``: the core's, in the run, of
-        Watch.measure's exact branch on the free joints' J and M of their rows:
-        :meth:`~kinredund.tracking.watch.Watch.keep_exact`), then :meth:`~kinredund.tracking.watch.Watch.crossed` and
+        """The watch's measurements of the run's measured steps ``exact`` (``measured``: the core's, in the run, on the
+        free joints' J and M of their rows: Watch.measure's exact branch,
+        :meth:`~kinredund.tracking.watch.Watch.keep_exact`, or its inverse iteration with the core,
+        :meth:`~kinredund.tracking.watch.Watch.took`), then :meth:`~kinredund.tracking.watch.Watch.crossed` and
         :meth:`~kinredund.tracking.watch.Watch.push`, as
         :meth:`~kinredund.tracking.step_control.StepControl.watch_point` takes them one by one) and the
         prediction before each later step (``Watch.ahead``, as :meth:`~kinredund.tracking.compiled.CompiledStep.step`
-        checks it): (the rows kept, the status of the step after them: WATCH_DUE for a measured step the watch
-        rejects, which :meth:`~kinredund.tracking.compiled.CompiledStep.accept` then takes and hands back as one
-        by one; -1 for a step predicted into trouble, left to the next call)."""
+        checks it): (the rows kept, the status of the step after them: WATCH_DUE for an exactly measured step the
+        watch rejects, which :meth:`~kinredund.tracking.compiled.CompiledStep.accept` then takes and hands back as one
+        by one, WATCH_REJECTS for one of the inverse iteration, handed back; -1 for a step predicted into trouble,
+        left to the next call)."""
         watch, fixed = self.ctl.watch, getattr(self.s, "fixed", None)
         n, m, _ = self.c.shapes
         sJ = self.c.slices[3]
@@ -164,10 +170,17 @@ class Runs:
         for e, end, values in zip(exact, ends, measured, strict=True):
             saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
             J = free_columns(out[e, sJ].reshape(m, n), fixed)
-            sigma, eig = watch.keep_exact(J, *values)
+            inverse = len(values) == 6  # (sigma, eig, u, fresh, sigma_max, scale): the inverse iteration's, not exact
+            if inverse:  # Watch.measure's with the core (StepCore.watch_measure): a fresh sigma's J the reference
+                sigma, eig = watch.took(*values[:5], J.copy() if values[3] else None, values[5])
+            else:
+                sigma, eig = watch.keep_exact(J, *values)
             if watch.crossed(sigma, eig) is not None:
                 watch.load(saved)
-                return e, self.core.WATCH_DUE
+                # the core's factors are a later step's now: a rejected inverse-iteration step is handed back as
+                # CompiledStep.accept hands it back after measuring it (from the state before it); an exact one is
+                # measured again there (from its row)
+                return e, WATCH_REJECTS if inverse else self.core.WATCH_DUE
             watch.push(times[e], sigma, eig, fixed)
             # Watch.ahead is None before safe_before: the steps from the first at or after it (the times ascend)
             for j in range(bisect.bisect_left(times, watch.safe_before, e + 1, end), end):

@@ -89,7 +89,7 @@ class StepControl:
 
     def __init__(self, stepper):
         self.s = stepper
-        self.watch = Watch()
+        self.watch = Watch(math.inf if stepper.rcond is None else stepper.rcond)  # the start's R (both backends)
         self.floor = stepper.dt / 2**MAX_HALVINGS
         self._bounded = None  # see step()
         self._searched = None  # (start, end) of the last sub-step searched for a switch without one (_switch_inside)

@@ -37,7 +37,8 @@ import numpy as np
 from scipy.linalg import lapack
 
 #: the watch measures where the condition estimate of R (dgecon's rcond, free with the step's LU) is below
-#: this, or fell below RCOND_DROP of the previous step's, or every EXACT_EVERY steps; elsewhere it skips
+#: this, or fell below RCOND_DROP of the previous step's (the first step: of the start's, Watch's ``rcond``), or every
+#: EXACT_EVERY steps; elsewhere it skips
 RCOND_NEAR = 1e-4
 RCOND_DROP = 0.8
 #: an exact eigenvalue computation (one SVD of J for sigma_min and the null-space basis, eigh) every this many
@@ -97,9 +98,14 @@ class Watch:
         sigma_max: the largest singular value of J at the last exact SVD (the kinematic floor's scale).
         scale: max(1, max |M_ij|) at the last exact eigenvalue (the fold floor's scale).
         core_measured: the measurements the compiled core made (``measure``'s ``core``), of those kept.
+
+    ``rcond``: R's condition estimate where the first measurement is taken (a run's start, whose R is factored for its
+    rates), which the gate compares the first step's with as it compares every later step's with the step before
+    (:meth:`due_next`): a first step whose R is not nearer singular than the start's goes unmeasured as any later one.
+    Without it (+inf) the first step is always measured.
     """
 
-    def __init__(self):
+    def __init__(self, rcond: float = math.inf):
         self.times: list[float] = []
         self.eig: list[float] = []
         self.sigma_times: list[float] = []
@@ -108,7 +114,7 @@ class Watch:
         self._v = None
         self._J_ref, self._sigma_ref, self.sigma_max, self.scale = None, 0.0, 1.0, 1.0
         self._count = 0
-        self._rcond = math.inf
+        self._rcond = rcond
         self._b = None
         self._safe = -math.inf  # nothing measured yet: ahead() checks the history itself
         self._exact_at = None
@@ -181,8 +187,7 @@ class Watch:
         (``StepCore.watch_measure``, ``src/core/watch.cpp``), and this watch keeps its results.
         """
         if core is not None and self._v is not None and self._count % EXACT_EVERY != 0:
-            ref = self._J_ref if self._J_ref is not None else _NO_REF
-            out = core.watch_measure(self._v, ref, self._sigma_ref, J_GATE)
+            out = core.watch_measure(*self.iteration)
             if out is not None:
                 return self.took(*out)
             lu = None  # sizes that do not fit, or u not finite: exactly, as below
@@ -203,6 +208,13 @@ class Watch:
         self._v = u
         eig = float(u @ (M @ u))  # Rayleigh quotient on the null space of J (u = P v lies in it)
         return self._sigma(J), eig
+
+    @property
+    def iteration(self) -> tuple:
+        """(the vector v or None, the reference J or an empty array, sigma_min(J) there, :data:`J_GATE`): the inverse
+        iteration's state that :meth:`measure` hands the core (``StepCore.watch_measure``) and a run of steps carries
+        through its measurements (``run_steps``: :mod:`kinredund.tracking.runs`)."""
+        return self._v, _NO_REF if self._J_ref is None else self._J_ref, self._sigma_ref, J_GATE
 
     def took(self, sigma: float, eig: float, u: np.ndarray, fresh: bool, sigma_max, J, scale) -> tuple[float, float]:
         """Keep a measurement of the compiled core (``_core.watch_measure``'s tuple: the vector u; where sigma_min(J)

@@ -7,12 +7,18 @@
 // through the steps the watch measures exactly (every ``every``-th step): each is measured here, in the run, on the
 // free joints' J and M of its row (watch.cpp's watch_exact, the routine of the compiled backend's single steps), and
 // their indices and measurements are returned; the caller takes the watch's verdicts on them after the run and keeps
-// the rows up to the first step the watch does not accept (kinredund/tracking/runs.py).
+// the rows up to the first step the watch does not accept (kinredund/tracking/runs.py). Given the watch's inverse
+// iteration's state too (its vector v, the reference J_ref and sigma_min there, J_GATE) the run goes on through the
+// other measured steps as well: each is measured here by watch.cpp's watch_inverse with the step's R factors (the
+// routine of StepCore.watch_measure, which the single steps call), the state carried from measurement to measurement
+// as the watch carries it (Watch.took, Watch.keep_exact); where that measurement is not watch_measure's (v of another
+// size, u not finite: the Python watch's exact branch) the run ends there as without it.
 // With a scene's row check (``guard``: the StepCore's RowGuard, StepCore.set_guard) each step is checked right after
 // it, as StepCore.step_guarded checks a single step (RowGuard.clear on the same arrays, its smallest row value at the
 // step's end written out): the run ends at the first step the check does not clear (GUARD_DUE, its row written: the
-// caller's stepper searches it for a switch), and after the first step the watch measures exactly (the watch's
-// verdict, taken after the run, may drop the rows after it, and the guard's kept values cannot be taken back).
+// caller's stepper searches it for a switch), and after the first step the watch measures, exactly or by the inverse
+// iteration (the watch's verdict, taken after the run, may drop the rows after it, and the guard's kept values
+// cannot be taken back).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
@@ -65,15 +71,37 @@ struct Gate {
   bool exact_next() const { return through && (count + 1) % every == 0; }
 };
 
+// The watch's inverse iteration's state (Watch._v, _J_ref, _sigma_ref), carried through a run's measurements.
+struct Inverse {
+  bool on = false;
+  std::vector<double> v, J_ref;  // J_ref empty: none (or of another shape)
+  double sigma_ref = 0.0, gate = 0.0;
+};
+
+Inverse inverse_of(const nb::tuple& watch, int m, int nf) {
+  Inverse s;
+  if (nb::len(watch) < 11 || watch[7].is_none()) return s;
+  const Vec v = nb::cast<Vec>(watch[7]);
+  const Rows ref = nb::cast<Rows>(watch[8]);
+  s.on = true;
+  s.v.assign(v.data(), v.data() + v.shape(0));
+  if (ref.shape(0) == static_cast<size_t>(m) && ref.shape(1) == static_cast<size_t>(nf))
+    s.J_ref.assign(ref.data(), ref.data() + ref.shape(0) * ref.shape(1));
+  s.sigma_ref = nb::cast<double>(watch[9]);
+  s.gate = nb::cast<double>(watch[10]);
+  return s;
+}
+
 }  // namespace
 
 // run(core, t (K), p, v (K x 3), Q (K x 9 or 0 x 9), omega (K x 3 or 0 x 3), ref, rate (K x n or 0 x n), y, yd,
-//     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every[, through]),
-//     out, guard (None, or (the time of the run's start [s], smallest: an array of >= K entries that receives each
-//     checked step's RowGuard.smallest))) -> (steps done, status, the indices of the steps passed through that the
-// watch measures exactly, their measurements (sigma_min_J, eig, v, scale): watch_exact's): status 0 after all K steps
-// (or after the step the watch measures exactly, with a guard), else that of step ``done`` (WATCH_DUE, GUARD_DUE: its
-// row is written).
+//     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every[, through[,
+//     v or None, J_ref, sigma_ref, gate]]), out, guard (None, or (the time of the run's start [s], smallest: an array
+//     of >= K entries that receives each checked step's RowGuard.smallest))) -> (steps done, status, the indices of
+// the steps passed through that the watch measures, their measurements: (sigma_min_J, eig, v, scale) where exact
+// (watch_exact's), (sigma_min_J, eig, u, fresh, sigma_max or None, scale or None) where by the inverse iteration
+// (watch_measure's, but J)): status 0 after all K steps (or after the first step the watch measures, with a guard),
+// else that of step ``done`` (WATCH_DUE, GUARD_DUE: its row is written).
 nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows omega, Rows ref, Rows rate, Vec y0,
                     Vec yd0, nb::list prev_list, Vec qdot0, double speed2, bool check_jump, nb::tuple watch,
                     Sink out, nb::object guard_arg) {
@@ -129,8 +157,12 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
   int status = 0;
   std::vector<size_t> measured;
   std::vector<ExactMeasure> measures;
+  std::vector<InverseMeasure> inverses;  // (where a measurement is the inverse iteration's: measures' entry unused)
+  std::vector<bool> by_inverse;
   int nf = 0;
   const int* free = step_core_free(core, nf);
+  Inverse inv = inverse_of(watch, m, nf);
+  if (inv.on) watch_lapack();  // (with the GIL: its first call loads scipy's LAPACK)
   std::vector<double> Jr(static_cast<size_t>(m) * nf), Mr(static_cast<size_t>(nf) * nf);
   const size_t oM = 2 * N, oJ = oM + static_cast<size_t>(n) * n;  // M (n x n) and J (m x n) in the row
   {
@@ -154,11 +186,12 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
       }
       const double rcond = o[row - 2];
       if (gate.on && gate.due(rcond)) {
-        if (!gate.exact_next()) {
+        const bool exact = gate.exact_next();
+        // Watch.measure's inverse iteration with the core (StepCore.watch_measure), where it would be taken
+        if (!exact && !(inv.on && nf >= m && inv.v.size() == static_cast<size_t>(nf))) {
           status = WATCH_DUE;
           break;
         }
-        measured.push_back(k);
         for (int i = 0; i < m; ++i)  // Watch.reduce: the free joints' columns of J, rows and columns of M
           for (int b = 0; b < nf; ++b)
             Jr[static_cast<size_t>(i) * nf + b] = o[oJ + static_cast<size_t>(i) * n + free[b]];
@@ -166,7 +199,33 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
           for (int b = 0; b < nf; ++b)
             Mr[static_cast<size_t>(a) * nf + b] = o[oM + static_cast<size_t>(free[a]) * n + free[b]];
         measures.emplace_back();
-        watch_exact(Jr.data(), Mr.data(), m, nf, measures.back());
+        inverses.emplace_back();
+        if (exact) {
+          watch_exact(Jr.data(), Mr.data(), m, nf, measures.back());
+          inv.v = measures.back().v;  // Watch.keep_exact: the vector and the reference J
+          inv.J_ref = Jr;
+          inv.sigma_ref = measures.back().sigma;
+        } else {
+          int N_lu = 0;
+          const int* piv = nullptr;
+          const double* lu = step_core_factors(core, piv, N_lu);
+          InverseMeasure& r = inverses.back();
+          if (N_lu != nf + m || !watch_inverse(Jr.data(), Mr.data(), lu, piv, nf, m, inv.v.data(),
+                                                inv.J_ref.empty() ? nullptr : inv.J_ref.data(), inv.sigma_ref,
+                                                inv.gate, r)) {
+            measures.pop_back();  // the exact branch's: this step is the caller's (WATCH_DUE)
+            inverses.pop_back();
+            status = WATCH_DUE;
+            break;
+          }
+          inv.v = r.u;  // Watch.took
+          if (r.fresh) {
+            inv.J_ref = Jr;
+            inv.sigma_ref = r.sigma;
+          }
+        }
+        measured.push_back(k);
+        by_inverse.push_back(!exact);
         if (guard != nullptr) {  // the run ends here (the file's comment)
           ++done;
           break;
@@ -190,10 +249,15 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
   for (size_t j = 0; j < measured.size(); ++j) {
     exact.append(measured[j]);
     ExactMeasure& e = measures[j];
-    auto* buf = new std::vector<double>(std::move(e.v));
+    InverseMeasure& r = inverses[j];
+    auto* buf = new std::vector<double>(std::move(by_inverse[j] ? r.u : e.v));
     nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<std::vector<double>*>(p); });
     nb::ndarray<nb::numpy, double, nb::ndim<1>> v(buf->data(), {static_cast<size_t>(nf)}, owner);
-    values.append(nb::make_tuple(e.sigma, e.eig, v, e.scale));
+    if (by_inverse[j])
+      values.append(nb::make_tuple(r.sigma, r.eig, v, r.fresh, r.fresh && !r.square ? nb::cast(r.sigma_max) : nb::none(),
+                                   r.square ? nb::cast(r.scale) : nb::none()));
+    else
+      values.append(nb::make_tuple(e.sigma, e.eig, v, e.scale));
   }
   return nb::make_tuple(done, status, exact, values);
 }

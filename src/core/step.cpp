@@ -69,6 +69,7 @@ struct Sample {
 class StepCore {
   friend const int* step_core_free(const StepCore&, int&);
   friend RowGuard* step_core_guard(const StepCore&);
+  friend const double* step_core_factors(const StepCore&, const int*&, int&);
   friend int step_core_advance(StepCore&, const StepInput&, const double*, const double*,
                                const std::vector<const double*>&, const double*, double, bool, double*);
 
@@ -868,6 +869,12 @@ const int* step_core_free(const StepCore& c, int& nf) {
 }
 
 RowGuard* step_core_guard(const StepCore& c) { return c.guard_; }
+
+const double* step_core_factors(const StepCore& c, const int*& piv, int& N) {
+  N = static_cast<int>(c.lu_.rows());
+  piv = c.ipiv_.data();
+  return c.lu_.data();
+}
 
 int step_core_advance(StepCore& c, const StepInput& in, const double* y, const double* yd,
                       const std::vector<const double*>& prev, const double* qdot0, double speed2, bool check_jump,

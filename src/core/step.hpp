@@ -26,6 +26,8 @@ class RowGuard;
 RowGuard* step_core_guard(const StepCore& core);
 // The free joints' numbers (ascending; all n where no joint is held: StepCore.set_active), nf of them.
 const int* step_core_free(const StepCore& core, int& nf);
+// R's LU factors of the last step (N x N column-major, LAPACK's layout) and their 0-based pivots (StepCore.factors).
+const double* step_core_factors(const StepCore& core, const int*& piv, int& N);
 // StepCore.step without Python objects: writes the output row into ``out`` and returns the status (0: ordinary).
 int step_core_advance(StepCore& core, const StepInput& in, const double* y, const double* yd,
                       const std::vector<const double*>& prev, const double* qdot0, double speed2, bool check_jump,

@@ -76,9 +76,9 @@ A owned(std::vector<double>&& data, std::initializer_list<size_t> shape) {
   return A(buf->data(), shape, owner);
 }
 
-// Watch._exact where J is square (no null space: numpy.linalg.svd's dgesdd('N') gives sigma_min, the eigenvalue is
-// +inf, the vector zero): (sigma_min_J, inf, 0, true, None, J, max(1, max |M_ij|)).
-nb::object exact_square(const Lapack& L, const double* J, const double* M, int m) {
+// Watch._exact's sigma_min where J is square (m x m, row-major: no null space, the eigenvalue is +inf, the vector
+// zero): numpy.linalg.svd's dgesdd('N'), and the fold floor's scale max(1, max |M_ij|).
+void exact_square(const Lapack& L, const double* J, const double* M, int m, InverseMeasure& out) {
   const size_t mn = static_cast<size_t>(m) * m;
   std::vector<double> Jc(mn), sv(std::max(m, 1)), u1(1), vt1(1);
   for (int i = 0; i < m; ++i)
@@ -93,13 +93,12 @@ nb::object exact_square(const Lapack& L, const double* J, const double* M, int m
   std::vector<double> work(lwork);
   L.gesdd(&jobz, &mm, &mm, Jc.data(), &lda, sv.data(), u1.data(), &one, vt1.data(), &one, work.data(), &lwork,
           iw.data(), &info);
-  const double sigma = info == 0 && m > 0 ? sv[m - 1] : std::nan("");
-  double scale = 1.0;
-  for (size_t k = 0; k < mn; ++k) scale = std::max(scale, std::abs(M[k]));
-  std::vector<double> Jcopy(J, J + mn);
-  return nb::make_tuple(sigma, INFINITY, owned<Out1>(std::vector<double>(m, 0.0), {static_cast<size_t>(m)}), true,
-                        nb::none(), owned<Out2>(std::move(Jcopy), {static_cast<size_t>(m), static_cast<size_t>(m)}),
-                        scale);
+  out.sigma = info == 0 && m > 0 ? sv[m - 1] : std::nan("");
+  out.scale = 1.0;
+  for (size_t k = 0; k < mn; ++k) out.scale = std::max(out.scale, std::abs(M[k]));
+  out.eig = INFINITY;
+  out.u.assign(static_cast<size_t>(m), 0.0);
+  out.fresh = out.square = true;
 }
 
 }  // namespace
@@ -149,10 +148,16 @@ void watch_exact(const double* J, const double* M, int m, int nf, ExactMeasure& 
   Eigen::Map<Eigen::VectorXd>(out.v.data(), nf) = Z * es.eigenvectors().col(0);
 }
 
-nb::object watch_measure(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
-                         const double* v, const double* J_ref, double sigma_ref, double gate) {
+void watch_lapack() { lapack(); }
+
+bool watch_inverse(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
+                   const double* v, const double* J_ref, double sigma_ref, double gate, InverseMeasure& out) {
   const Lapack& L = lapack();
-  if (nf == m) return exact_square(L, J, M, m);  // u = P v is zero: the Python watch's exact branch
+  if (nf == m) {  // u = P v is zero: the Python watch's exact branch
+    exact_square(L, J, M, m, out);
+    return true;
+  }
+  out.square = false;
   int N = nf + m, one = 1, info = 0;
   // u = P v: the top block of R^{-1} [v; 0] (Watch.measure: lapack.dgetrs(lu, piv, b) with b = [v; 0])
   std::vector<double> b(N, 0.0);
@@ -161,10 +166,11 @@ nb::object watch_measure(const double* J, const double* M, const double* lu, con
   std::copy(v, v + nf, b.begin());
   char trans = 'N';  // dgetrs reads the factors only
   L.getrs(&trans, &N, &one, const_cast<double*>(lu), &N, piv.data(), b.data(), &N, &info);
-  std::vector<double> u(b.begin(), b.begin() + nf);
+  std::vector<double>& u = out.u;
+  u.assign(b.begin(), b.begin() + nf);
   double uu = 0.0;
   for (double e : u) uu += e * e;
-  if (!(uu > 0.0 && std::isfinite(uu))) return nb::none();  // the Python watch computes exactly
+  if (!(uu > 0.0 && std::isfinite(uu))) return false;  // the Python watch computes exactly
   const double s = std::sqrt(uu);
   for (double& e : u) e /= s;
   double eig = 0.0;  // the Rayleigh quotient u^T (M u) on the null space of J (u = P v lies in it)
@@ -173,13 +179,16 @@ nb::object watch_measure(const double* J, const double* M, const double* lu, con
     for (int k = 0; k < nf; ++k) mi += M[static_cast<size_t>(i) * nf + k] * u[k];
     eig += u[i] * mi;
   }
+  out.eig = eig;
   const size_t mn = static_cast<size_t>(m) * nf;
   if (J_ref != nullptr) {  // Watch._sigma: the last exact value while J stays within J_GATE of it (Weyl)
     double d2 = 0.0;
     for (size_t k = 0; k < mn; ++k) d2 += (J[k] - J_ref[k]) * (J[k] - J_ref[k]);
-    if (d2 < (gate * sigma_ref) * (gate * sigma_ref))
-      return nb::make_tuple(sigma_ref, eig, owned<Out1>(std::move(u), {static_cast<size_t>(nf)}), false,
-                            nb::none(), nb::none(), nb::none());
+    if (d2 < (gate * sigma_ref) * (gate * sigma_ref)) {
+      out.sigma = sigma_ref;
+      out.fresh = false;
+      return true;
+    }
   }
   // dgesvd('N', 'N') on J (column-major copy, scipy's default lwork)
   int mm = m, nn = nf, minmn = std::min(m, nf), lda = std::max(1, m), ldu = 1, ldvt = 1;
@@ -190,10 +199,22 @@ nb::object watch_measure(const double* J, const double* M, const double* lu, con
   char jn = 'N';
   L.gesvd(&jn, &jn, &mm, &nn, Jc.data(), &lda, sv.data(), uu1.data(), &ldu, vt1.data(), &ldvt, work.data(), &lwork,
           &info);
-  const double sigma = info == 0 ? sv[minmn - 1] : std::nan(""), sigma_max = info == 0 ? sv[0] : std::nan("");
-  std::vector<double> Jcopy(J, J + mn);
-  return nb::make_tuple(sigma, eig, owned<Out1>(std::move(u), {static_cast<size_t>(nf)}), true, sigma_max,
-                        owned<Out2>(std::move(Jcopy), {static_cast<size_t>(m), static_cast<size_t>(nf)}), nb::none());
+  out.sigma = info == 0 ? sv[minmn - 1] : std::nan("");
+  out.sigma_max = info == 0 ? sv[0] : std::nan("");
+  out.fresh = true;
+  return true;
+}
+
+nb::object watch_measure(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
+                         const double* v, const double* J_ref, double sigma_ref, double gate) {
+  InverseMeasure r;
+  if (!watch_inverse(J, M, lu, piv0, nf, m, v, J_ref, sigma_ref, gate, r)) return nb::none();
+  Out1 u = owned<Out1>(std::move(r.u), {static_cast<size_t>(nf)});
+  if (!r.fresh) return nb::make_tuple(r.sigma, r.eig, u, false, nb::none(), nb::none(), nb::none());
+  std::vector<double> Jcopy(J, J + static_cast<size_t>(m) * nf);
+  Out2 J_new = owned<Out2>(std::move(Jcopy), {static_cast<size_t>(m), static_cast<size_t>(nf)});
+  if (r.square) return nb::make_tuple(r.sigma, r.eig, u, true, nb::none(), J_new, r.scale);
+  return nb::make_tuple(r.sigma, r.eig, u, true, r.sigma_max, J_new, nb::none());
 }
 
 namespace {

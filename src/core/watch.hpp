@@ -19,6 +19,21 @@ namespace kinredund {
 nanobind::object watch_measure(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
                                const double* v, const double* J_ref, double sigma_ref, double gate);
 
+// watch_measure without Python objects (runs of steps call it with the GIL released, after watch_lapack()), where
+// nf >= m: false where u = P v is not finite or zero (the exact computation's turn), else the measurement in
+// ``out``: sigma_min_J (the reference's where ``fresh`` is false), the Rayleigh quotient, u and, where fresh (dgesvd
+// on J), sigma_max; a fresh measurement's J is the new reference. Where J is square (``square``): the exact branch's
+// sigma_min (dgesdd), eig = +inf, u = 0, fresh, the fold floor's ``scale`` (no sigma_max).
+struct InverseMeasure {
+  double sigma = 0.0, eig = 0.0, sigma_max = 0.0, scale = 1.0;
+  bool fresh = false, square = false;
+  std::vector<double> u;
+};
+bool watch_inverse(const double* J, const double* M, const double* lu, const int* piv0, int nf, int m,
+                   const double* v, const double* J_ref, double sigma_ref, double gate, InverseMeasure& out);
+// Loads scipy's LAPACK for watch_inverse (needs the GIL: call it before releasing the GIL around watch_inverse).
+void watch_lapack();
+
 // The watch's exact measurement (kinredund.tracking.watch.exact, the compiled backend's: Watch._exact with a core),
 // without Python objects (runs of steps call it with the GIL released): one SVD of J (Eigen's JacobiSVD, full V)
 // gives sigma_min(J) and Z, the last nf - m right singular vectors (a basis of J's null space); the smallest
