@@ -60,15 +60,15 @@ class CompiledStart:
     :class:`~kinredund.tracking.predictor_corrector.PredictorCorrector` calls it with itself where its Python start
     would correct onto the optimum (``_newton``), solve for the rates (``_rates``) and then measure with the watch.
 
-    The core makes the ``StepCore`` (:func:`make_step_core`; :class:`CompiledStep` then steps with it), gives it the
-    stepper's active set, and from the stepper's [q; lambda] at t0 and the path's sample there (the stepper's first
-    evaluation's) makes the corrector's rounds, the rates and the bound multipliers at the corrected point and the
-    watch's exact measurement there, as the Python start does them (to rounding: ``tests/test_tracking_compiled.py``).
-    The stepper takes them (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_start`), its step
-    control the measurement. A start the core cannot make ordinarily (a singular or ill-conditioned R, a corrector
-    that does not converge, non-finite rates) is the Python stepper's: it meets and names the failure as on the
-    Python backend. (The tracker gives a stepper with general rows, :mod:`kinredund.tracking.rows`, none: their
-    extended system is Python's.)
+    The core makes the ``StepCore`` (:func:`make_step_core`; :class:`~kinredund.tracking.compiled.CompiledStep` then
+    steps with it), gives it the stepper's active set, and from the stepper's [q; lambda] at t0 and the path's sample
+    there (the stepper's first evaluation's) makes the corrector's rounds, the rates and the bound multipliers at the
+    corrected point and the watch's exact measurement there, as the Python start does them (to rounding:
+    ``tests/test_tracking_compiled.py``). The stepper takes them
+    (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_start`), its step control the measurement. A
+    start the core cannot make ordinarily (a singular or ill-conditioned R, a corrector that does not converge,
+    non-finite rates) is the Python stepper's: it meets and names the failure as on the Python backend. (The tracker
+    gives a stepper with general rows, :mod:`kinredund.tracking.rows`, none: their extended system is Python's.)
 
     Attributes:
         core: the StepCore (None until called); fixed: the stepper's ``fixed`` array whose active set the core
