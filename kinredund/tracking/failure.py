@@ -276,6 +276,15 @@ def explicit_failure(stepper, err: Exception) -> TrackingError:
                          t=stepper.t, q=stepper.q.copy(), watched=watched)
 
 
+def on_branch(before, after) -> bool:
+    """Did the move from the state ``before`` to ``after`` (a piece of a branch, h = their times' difference) stay on
+    one branch? It moves the joints at most :data:`BRANCH_SPEED` h times the larger of the rates at its ends (a move
+    along a branch is at most its largest rate times h; one onto another branch moves as far however short h is).
+    Not the step control's trapezoidal check, which the rates' own jump where a curvature jumps fails at any h."""
+    dq, qd0, qd1 = after.q - before.q, before.qdot, after.qdot
+    return float(dq @ dq) <= (BRANCH_SPEED * (after.t - before.t)) ** 2 * max(float(qd0 @ qd0), float(qd1 @ qd1))
+
+
 def branch_end(ctl, t_fail: float, near: dict, why: str) -> tuple[str, str, dict]:
     """(cause, reason, watched) of a corrector that fails below the floor of the step control ``ctl``
     (:class:`~kinredund.tracking.step_control.StepControl`) with neither quantity predicted to cross.
@@ -303,8 +312,7 @@ def branch_end(ctl, t_fail: float, near: dict, why: str) -> tuple[str, str, dict
         s.prev.clear()
         try:
             s.euler_to(mid)
-            dq, qd0, qd1 = s.q - lo[0].q, lo[0].qdot, s.qdot  # no jump onto another branch: the move within
-            ok = float(dq @ dq) <= (BRANCH_SPEED * (mid - lo[0].t)) ** 2 * max(qd0 @ qd0, qd1 @ qd1)  # the rates'
+            ok = on_branch(lo[0], s)
             w = watched_at(s) if ok else {}
             crossed = ok and ctl.watch.crossed(w.get("sigma_min_J", math.inf),
                                                 w.get("reduced_hessian_min", math.inf))

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from kinredund.errors import KinredundError, PathError, SingularityError
-from kinredund.tracking.failure import BRANCH_SPEED, constraints_dependent
+from kinredund.tracking.failure import constraints_dependent, on_branch
 from kinredund.tracking.linalg import bound_rate_qp
 from kinredund.tracking.rows import ROW_TOL
 from kinredund.tracking.state import ConstrainedState
@@ -324,9 +324,8 @@ class SwitchLocation:
 
     def _followed_to(self, start: ConstrainedState, t_end: float) -> bool:
         """From ``start`` to ``t_end`` in 2, 4, ... pieces down to the step control's floor, each checked: no jump onto
-        another branch (the joints move at most :data:`~kinredund.tracking.failure.BRANCH_SPEED` times the piece's
-        length times the larger rate at its ends) and a strict minimum at its end (:meth:`_strict_minimum`).
-        True with the state at ``t_end``; False with the state back at ``start``."""
+        another branch (:func:`~kinredund.tracking.failure.on_branch`) and a strict minimum at its end
+        (:meth:`_strict_minimum`). True with the state at ``t_end``; False with the state back at ``start``."""
         span, pieces = t_end - start.t, 2
         while span / pieces >= self.dt / 2**MAX_HALVINGS * (1.0 - 1e-9):
             self.state = start
@@ -334,9 +333,7 @@ class SwitchLocation:
                 for k in range(1, pieces + 1):
                     prev = self.state
                     self.euler_to(t_end if k == pieces else start.t + span * k / pieces)
-                    dq, h = self.q - prev.q, self.t - prev.t
-                    if float(dq @ dq) > (BRANCH_SPEED * h) ** 2 * max(prev.qdot @ prev.qdot, self.qdot @ self.qdot) \
-                            or self._strict_minimum()[0] is not None:
+                    if not on_branch(prev, self) or self._strict_minimum()[0] is not None:
                         break
                 else:
                     return True
