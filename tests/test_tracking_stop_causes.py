@@ -129,14 +129,22 @@ def _axis_jacobian(r, q, h=1e-6):
 UR5_BALL = ([0.3052264560843312, 0.2987061378748938, 0.43822667631077344], 0.030826773397292048)
 
 
-def test_a_row_the_redundancy_cannot_move_is_named_dependent():
-    r, path, index, q0 = axis_case("ur5")
+def axis_ball_stop(name: str, ball):
+    """(robot, path, the scene, the stop) of test_tracking_axis's circle on ``name`` with a ball (center [m], radius
+    [m]) in the way, held at the default clearances; the stop is a collision whose underlying cause is
+    not_strongly_stable (the constraints dependent)."""
+    r, path, index, q0 = axis_case(name)
     sc = kr.Scene(r)
-    sc.add_sphere("ball", UR5_BALL[1], UR5_BALL[0])
+    sc.add_sphere("ball", ball[1], ball[0])
     with pytest.raises(TrackingError) as info:
         kr.track(r, path, index, q0, loops=1, scene=sc)
     err = info.value
     assert err.cause == "collision" and err.watched["underlying_cause"] == "not_strongly_stable", str(err)
+    return r, path, sc, err
+
+
+def test_a_row_the_redundancy_cannot_move_is_named_dependent():
+    r, path, sc, err = axis_ball_stop("ur5", UR5_BALL)
     assert "dependent constraints" in str(err) and "kinematic" not in str(err)
     pair = "wrist_1_link_0 and ball kept 0.02 m apart"
     assert err.watched["constraints"] == [pair] and pair in str(err)
@@ -155,13 +163,7 @@ PANDA_BALL = ([-0.3229500137438989, -0.012906303399802612, 0.4955021017608718], 
 
 
 def test_rows_becoming_dependent_on_the_task_are_named_so():
-    r, path, index, q0 = axis_case("panda")
-    sc = kr.Scene(r)
-    sc.add_sphere("ball", PANDA_BALL[1], PANDA_BALL[0])
-    with pytest.raises(TrackingError) as info:
-        kr.track(r, path, index, q0, loops=1, scene=sc)
-    err = info.value
-    assert err.cause == "collision" and err.watched["underlying_cause"] == "not_strongly_stable", str(err)
+    r, path, sc, err = axis_ball_stop("panda", PANDA_BALL)
     pair = "panda_link3_0 and ball kept 0.02 m apart"
     assert "constraints become dependent" in str(err) and pair in str(err)
     c = kr.SceneClearance(sc, CLEARANCE, SELF_CLEARANCE)
