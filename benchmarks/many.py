@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/many.py [--runs 8] [--loops 1] [--repeat 3] [--json FILE]
+    python benchmarks/many.py [--runs 8] [--loops 1] [--repeat 3] [--processes] [--json FILE]
 
 Problem: ``--runs`` variants of the Panda benchmark circle (``kinredund.problems.panda_circle``, 200 steps per
 loop, limits held), the k-th turning the tool about its axis by up to 2 k degrees along the loop. Each round
@@ -15,7 +15,9 @@ the path samples, the watch's verdicts, the record, the steps it hands back) hol
 The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
 a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in those calls of the
 core (C++, the GIL released; numpy's LAPACK calls release it as well), which bounds the speed-up on two threads.
-On a shared machine the speed-up moves with the others' load (``parallel capacity`` in ``benchmarks/sweep.py``).
+``--processes`` also times the problems split between two worker processes, which share no GIL: the ceiling
+threads could reach on this machine. On a shared machine the speed-up moves with the others' load
+(``parallel capacity`` in ``benchmarks/sweep.py``).
 """
 
 from __future__ import annotations
@@ -39,11 +41,13 @@ def problems(count: int) -> list:
 GIL_FREE = ("start_run", "run_steps")
 
 
-def gil_free_share(jobs: list, options: dict) -> float:
-    """The share of the runs' CPU time (one by one, this thread's: ``time.thread_time``, which other processes'
-    load does not count) spent in the core's calls of :data:`GIL_FREE` (the start: its correction, rates and first
-    watch measurement; the runs of steps, with the watch's measurements), where the GIL is released. With a
-    GIL-held share g the speed-up on two threads is at most min(2, 1 / g)."""
+def gil_free_share(jobs: list, options: dict) -> tuple[float, float]:
+    """(share, GIL-held ms per run): the share of the runs' CPU time (one by one, this thread's:
+    ``time.thread_time``, which other processes' load does not count) spent in the core's calls of :data:`GIL_FREE`
+    (the start: its correction, rates and first watch measurement; the runs of steps, with the watch's
+    measurements), where the GIL is released, and the rest of a run's CPU time [ms], which holds the GIL. With a
+    GIL-held share g the speed-up on two threads is at most min(2, 1 / g); in practice less, as two threads rarely
+    take turns without waiting for each other."""
     import kinredund._core as core
 
     inner, spent = {name: getattr(core, name) for name in GIL_FREE if hasattr(core, name)}, [0.0]
@@ -71,10 +75,39 @@ def gil_free_share(jobs: list, options: dict) -> float:
     finally:
         for name, fn in inner.items():
             setattr(core, name, fn)
-    return spent[0] / total
+    return spent[0] / total, 1e3 * (total - spent[0]) / len(jobs)
 
 
-def bench(runs: int = 8, loops: int = 1, repeat: int = 3) -> dict:
+def _track_all(jobs: list, options: dict) -> int:
+    """Track each job in this process (a worker of :func:`process_rate`); the number that ran to the end."""
+    done = 0
+    for job in jobs:
+        try:
+            track(*job, **options)
+            done += 1
+        except TrackingError:
+            pass
+    return done
+
+
+def process_rate(jobs: list, options: dict, repeat: int) -> float:
+    """Runs per second with the problems split between two worker processes (forked, warmed up; no GIL shared):
+    the ceiling that threads could reach on this machine. The records are not sent back (only counts)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    halves = [jobs[0::2], jobs[1::2]]
+    rates = []
+    with ProcessPoolExecutor(2, mp_context=mp.get_context("fork")) as pool:
+        list(pool.map(_track_all, halves, [options] * 2))  # each worker's first runs (imports, caches)
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            list(pool.map(_track_all, halves, [options] * 2))
+            rates.append(len(jobs) / (time.perf_counter() - t0))
+    return float(np.median(rates))
+
+
+def bench(runs: int = 8, loops: int = 1, repeat: int = 3, processes: bool = False) -> dict:
     jobs = problems(runs)
     options = {"loops": loops}
     alone = track_many(jobs, threads=1, **options)  # one track() after another, in this thread
@@ -88,10 +121,12 @@ def bench(runs: int = 8, loops: int = 1, repeat: int = 3) -> dict:
             same &= all(type(a) is type(b) and np.array_equal(np.asarray(a.q), np.asarray(b.q))
                         for a, b in zip(alone, got, strict=True))
     one, two = (float(np.median(rates[k])) for k in (1, 2))
-    share = gil_free_share(jobs, options)
+    share, held_ms = gil_free_share(jobs, options)
     return {"runs": runs, "steps_per_run": 200 * loops, "runs_per_s_1_thread": one, "runs_per_s_2_threads": two,
             "speedup_2_over_1": two / one, "same_as_one_by_one": bool(same), "core_runs_share": share,
-            "stopped": sum(isinstance(a, TrackingError) for a in alone), "machine": machine()}
+            "gil_held_ms_per_run": held_ms,
+            "stopped": sum(isinstance(a, TrackingError) for a in alone), "machine": machine(),
+            "runs_per_s_2_processes": process_rate(jobs, options, repeat) if processes else None}
 
 
 def main() -> None:
@@ -99,16 +134,21 @@ def main() -> None:
     p.add_argument("--runs", type=int, default=8, help="tracking runs per call (default 8)")
     p.add_argument("--loops", type=int, default=1, help="loops of each run (default 1)")
     p.add_argument("--repeat", type=int, default=3, help="rounds (default 3)")
+    p.add_argument("--processes", action="store_true", help="also time two worker processes (threads' ceiling)")
     args = p.parse_args()
     if args.smoke:
         args.runs, args.loops, args.repeat = 2, 1, 1
-    res = bench(args.runs, args.loops, args.repeat)
+    res = bench(args.runs, args.loops, args.repeat, args.processes)
     print_table([[res["runs"], res["steps_per_run"], res["runs_per_s_1_thread"], res["runs_per_s_2_threads"],
-                  res["speedup_2_over_1"], res["core_runs_share"], res["stopped"], res["same_as_one_by_one"]]],
-                ["runs", "steps each", "runs/s 1 thread", "runs/s 2 threads", "speed-up", "in core runs", "stopped",
-                 "same"])
+                  res["speedup_2_over_1"], res["core_runs_share"], res["gil_held_ms_per_run"], res["stopped"],
+                  res["same_as_one_by_one"]]],
+                ["runs", "steps each", "runs/s 1 thread", "runs/s 2 threads", "speed-up", "in core runs",
+                 "GIL-held ms/run", "stopped", "same"])
     print("in core runs: the share of a run's CPU time (1 thread) in the core's start and runs of steps, C++ with the "
-          "GIL released")
+          "GIL released;\nGIL-held ms/run: the rest of a run's CPU time (1 thread), which threads cannot overlap")
+    if res["runs_per_s_2_processes"] is not None:
+        print(f"2 processes: {res['runs_per_s_2_processes']:.0f} runs/s "
+              f"({res['runs_per_s_2_processes'] / res['runs_per_s_1_thread']:.2f}x one thread)")
     write_json(args.json, res)
 
 
