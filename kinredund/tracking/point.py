@@ -13,6 +13,7 @@ import numpy as np
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
+from kinredund.paths.base import checked
 from kinredund.tasks import get_task, task_terms
 
 
@@ -85,6 +86,10 @@ class Evaluator:
     def check_sample(self, t: float) -> None:
         """Raise PathError if the path's sample at t is not finite (says when)."""
         self.path(t)
+
+    def checked_sample(self, t: float):
+        """:meth:`sample` at t, checked as :meth:`check_sample` checks it (one sampling of the path for both)."""
+        return checked(self.sample(t), t)
 
     def branch_error(self, pt: Point) -> str:
         """Why pt, where the task residual vanishes, is not on the path's branch ("" where it is):

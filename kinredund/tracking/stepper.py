@@ -23,6 +23,13 @@ from kinredund.tracking.state import StepState, apply, capture
 from kinredund.tracking.watch import SIGMA_FLOOR
 
 
+def max_abs(a: np.ndarray) -> float:
+    """max |a_i| of a short vector, as ``float(np.abs(a).max())`` (NaN where an entry is NaN), in Python floats (a
+    numpy call costs more on a few entries)."""
+    v = a.tolist()
+    return math.nan if any(x != x for x in v) else max(map(abs, v))
+
+
 class Stepper:
     """One run's state, advanced by :meth:`step`; the start is checked on the path and regular.
 
@@ -53,7 +60,7 @@ class Stepper:
         self.y = self.yd = self.lu = self.rcond = None
         self.prev: list[np.ndarray] = []
         self.label: str | None = None
-        evaluator.check_sample(self.t)
+        evaluator.checked_sample(self.t)  # the evaluation's sample (Evaluator.sample keeps it)
         self.pt = self.evaluate(self.q, self.t)
         self._check_on_path(self.pt, "the starting configuration")
         mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
@@ -137,11 +144,11 @@ class Stepper:
     def _check_on_path(self, pt: Point, what: str, limit: float | None = None) -> None:
         """Raise PathError if pt is farther than ``limit`` (default 1e-6 of the path's scale) from the path, or
         on a spurious zero of the task residual (:meth:`~kinredund.tasks.Task.branch_error`)."""
-        err = float(np.abs(pt.r).max())
-        scale = max(1.0, float(np.abs(pt.sample.p).max()))
+        err = max_abs(pt.r)
+        scale = max(1.0, max_abs(pt.sample.p))
         if limit is None:
             limit = 1e-6 * scale
-        if not np.isfinite(err) or err > limit:
+        if not math.isfinite(err) or err > limit:
             raise PathError(
                 f"{what} is {err:.3g} away from the path at t = {pt.t:.6g} s (allowed {limit:.3g}); "
                 "the path may leave the workspace, or the steps are too coarse", t=pt.t, q=pt.q)
