@@ -12,6 +12,7 @@ and the velocity form (``velocity``: K, lambda*, M* = Hess z + Lambda*, Eqs. 4.3
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -28,6 +29,17 @@ from kinredund.tracking.stepper import Stepper
 #: ~1e-10 rad on Examples 4.1, 4.2 and the Panda circle; ~1e-5 on the fast Example 4.3, which needs
 #: chord iterations): ``python benchmarks/resolved_rate.py`` prints both figures per robot
 PREDICTOR_POINTS = 3
+
+
+@functools.lru_cache(maxsize=64)
+def predictor_weights(dt: float) -> tuple:
+    """(None, then the weights of the Hermite extrapolation through 2, ..., PREDICTOR_POINTS points:
+    :func:`~kinredund.tracking.linalg.hermite_weights`) for the time step dt [s]: made once per dt, read-only, and
+    shared by the runs with that step."""
+    weights = [hermite_weights(dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
+    for w in weights:
+        w.flags.writeable = False
+    return (None, *weights)
 
 
 class PredictorCorrector(Stepper):
@@ -47,7 +59,7 @@ class PredictorCorrector(Stepper):
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, start=None, **kwargs):
         super().__init__(evaluator, q0, dt, **kwargs)
         self.symmetric = evaluator.formulation == "augmented"
-        self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
+        self._hermite = predictor_weights(self.dt)
         self.control = None
         self.start_measure = None  # the watch's exact measurement at the start where take_start gave it
         try:
@@ -96,9 +108,10 @@ class PredictorCorrector(Stepper):
         self.t = self.t0 + k * self.dt
 
     @property
-    def hermite(self) -> list:
+    def hermite(self) -> tuple:
         """The predictor's weights: entry k (k >= 1) those of the Hermite extrapolation through k + 1 points (of
-        (y, ydot) pairs, oldest first; :func:`~kinredund.tracking.linalg.hermite_weights`), entry 0 None (Euler)."""
+        (y, ydot) pairs, oldest first; :func:`~kinredund.tracking.linalg.hermite_weights`; read-only), entry 0 None
+        (Euler)."""
         return self._hermite
 
     def accept(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, q_pred: np.ndarray, rcond: float,

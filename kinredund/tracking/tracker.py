@@ -191,7 +191,8 @@ class Tracker:
                               f"got {type(index).__name__}")
         if not isinstance(path, Path):
             raise OptionError(f"path must be a kinredund.paths.Path, got {type(path).__name__}")
-        dt = check_positive(dt, "the time step [s]", PathError)
+        if not (type(dt) is float and 0.0 < dt < math.inf):  # (a positive finite float is check_positive's own)
+            dt = check_positive(dt, "the time step [s]", PathError)
         if not math.isfinite(float(t0)):
             raise OptionError(f"t0 (the starting time [s]) must be finite, got {t0!r}")
         self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
