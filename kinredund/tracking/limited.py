@@ -50,14 +50,17 @@ ON_BOUND = 1e-10
 class Bounds:
     """What the stepper derives from its limits' ``bounds()`` alone, made once per limits object and shared by its
     runs and threads (read-only arrays, (n,)): ``lo``, ``hi`` per joint [rad or m] (-inf, +inf where unbounded);
-    ``lo_tol``, ``hi_tol`` beyond which a free joint is a switch (rounding below 1e-13 is not); ``inside``: (lower,
-    upper) as floats, strictly between which a start has no joint on or beyond a bound (``ON_BOUND``)."""
+    ``lo_tol``, ``hi_tol`` beyond which a free joint is a switch (rounding below 1e-13 is not), and ``switch``, the
+    two as lists of floats; ``inside``: (lower, upper) as floats, strictly between which a start has no joint on or
+    beyond a bound (``ON_BOUND``); ``free``: (fixed, side, mu) of a start with every joint free (zeros)."""
 
     lo: np.ndarray
     hi: np.ndarray
     lo_tol: np.ndarray
     hi_tol: np.ndarray
+    switch: tuple
     inside: tuple
+    free: tuple
 
 
 _BOUNDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # limits -> (its bounds() arrays, n, Bounds)
@@ -78,8 +81,10 @@ def limit_bounds(limits: Constraint | None, n: int) -> Bounds:
     if got is not None:  # the bounds through the base class: side (theta_joint - bound) >= 0
         joint, side, bound = got
         lo[joint[side > 0]], hi[joint[side < 0]] = bound[side > 0], bound[side < 0]
-    made = Bounds(lo, hi, lo - 1e-13, hi + 1e-13, ((lo + ON_BOUND).tolist(), (hi - ON_BOUND).tolist()))
-    for a in (made.lo, made.hi, made.lo_tol, made.hi_tol):
+    lo_tol, hi_tol = lo - 1e-13, hi + 1e-13
+    made = Bounds(lo, hi, lo_tol, hi_tol, (lo_tol.tolist(), hi_tol.tolist()),
+                  ((lo + ON_BOUND).tolist(), (hi - ON_BOUND).tolist()), (np.zeros(n, bool), np.zeros(n), np.zeros(n)))
+    for a in (made.lo, made.hi, made.lo_tol, made.hi_tol, *made.free):
         a.flags.writeable = False
     if limits is not None:
         try:
@@ -116,10 +121,9 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         bounds = limit_bounds(limits, n)
         self.lo, self.hi = bounds.lo, bounds.hi
         # a free joint beyond its bound by more than 1e-13 rad is a switch (rounding below that is not)
-        self._lo_tol, self._hi_tol = bounds.lo_tol, bounds.hi_tol
-        self.fixed, self.side = np.zeros(n, bool), np.zeros(n)
-        self.mu = self._no_mu = np.zeros(n)
-        self._no_mu.flags.writeable = False
+        self._lo_tol, self._hi_tol, self._switch_floats = bounds.lo_tol, bounds.hi_tol, bounds.switch
+        self.fixed, self.side, self._no_mu = bounds.free  # read-only: a switch replaces them (_fix, _free)
+        self.mu = self._no_mu
         self.switches: tuple[dict, ...] = ()
         self.switch_anchor = None  # see step()
         self._sel = None  # the free rows of R (None: all joints free)
