@@ -78,9 +78,21 @@ class Path:
         return checked(self.sample(t), t)
 
 
+#: a sample whose entries' magnitudes sum to below this passes :func:`checked` without its dot products (the
+#: squares of its at most 18 entries then sum to below 1e301: no overflow)
+SMALL_SUM = 1e150
+
+
 def checked(s: PathSample, t: float) -> PathSample:
     """``s``, the path's sample at t [s], if its entries are finite and their squares do not overflow, else
     PathError saying which field and when (what calling a path checks)."""
+    p, v, Q, omega = s.p, s.v, s.Q, s.omega
+    if type(p) is np.ndarray and type(v) is np.ndarray and (Q is None or (type(Q) is np.ndarray and
+                                                                         type(omega) is np.ndarray)):
+        entries = p.tolist() + v.tolist() if Q is None else p.tolist() + v.tolist() + Q.ravel().tolist() + \
+            omega.tolist()
+        if sum(map(abs, entries)) < SMALL_SUM:  # the common case in Python floats (a numpy call costs more); NaN fails
+            return s
     # one dot product per array: finite iff every entry is finite and below ~1e154 (its square overflows)
     with np.errstate(over="ignore", invalid="ignore"):
         total = float(s.p @ s.p) + float(s.v @ s.v)
