@@ -139,7 +139,9 @@ def compiled_start(backend: str | None, stepper_class: type, ev, mode: str, sche
     if backend == "python" or unsupported_problem(stepper_class, ev, mode, scheme):
         return None
     core = load_core()
-    return None if core is None or not hasattr(core, "start_run") else CompiledStart(core)
+    if core is None or not (hasattr(core, "start_run") and hasattr(core, "start_checks")):
+        return None
+    return CompiledStart(core)
 
 
 def attach(tracker, backend: str | None, start: CompiledStart | None = None) -> str:

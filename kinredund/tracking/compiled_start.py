@@ -20,6 +20,7 @@ from kinredund.indices import TimeVaryingReference
 from kinredund.tracking.ahead import NO_OMEGA, NO_Q
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.predictor_corrector import PredictorCorrector
+from kinredund.tracking.watch import SIGMA_FLOOR
 
 #: the task kinds' codes in the core (src/core/step.cpp)
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
@@ -79,6 +80,14 @@ class CompiledStart:
 
     def __init__(self, module):
         self.module, self.core, self.fixed = module, None, None
+
+    def checks(self, pt) -> tuple[bool, np.ndarray | None]:
+        """The start's rank check and lambda at ``pt`` (the stepper's first evaluation) in the core (``start_checks``:
+        scipy's LAPACK calls of the stepper's rank check and of :func:`~kinredund.tracking.linalg.multipliers`, the
+        same numbers, the GIL released): (J clearly of full rank: sigma_min(J) above 4x the stepper's floor, so that
+        its own check passes too; lambda, or None where the stepper computes it)."""
+        sv, lam = self.module.start_checks(pt.J, pt.grad)
+        return bool(sv[-1] > 4.0 * SIGMA_FLOOR * max(1.0, sv[0])), lam
 
     def __call__(self, stepper: PredictorCorrector) -> bool:
         """Make ``stepper``'s start in the core; False (the stepper's state untouched) where it is Python's."""

@@ -53,10 +53,12 @@ class PredictorCorrector(Stepper):
     :class:`~kinredund.errors.TrackingError`); ``strict=False`` is the plain predictor-corrector step.
     ``start``: called with the stepper where it would correct its start and solve for the rates; where it returns
     True it made them itself (the compiled core's :class:`~kinredund.tracking.compiled_start.CompiledStart`, through
-    :meth:`take_start`), else this stepper does.
+    :meth:`take_start`), else this stepper does; its ``checks`` make the start's rank check and lambda where J is
+    clearly of full rank (:meth:`_check_start`).
     """
 
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, start=None, **kwargs):
+        self._start = start  # (its start checks run in the base class's __init__: _check_start)
         super().__init__(evaluator, q0, dt, **kwargs)
         self.symmetric = evaluator.formulation == "augmented"
         self._hermite = predictor_weights(self.dt)
@@ -79,6 +81,16 @@ class PredictorCorrector(Stepper):
                 raise
             evaluator.check_sample(self.t0)  # a non-finite path sample says so itself
             raise start_failure(self, q0, err) from err
+
+    def _check_start(self, pt: Point) -> np.ndarray | None:
+        """The start's rank check and lambda, by the compiled start where there is one (``checks``: the same
+        LAPACK calls with the GIL released), else :meth:`Stepper._check_start`."""
+        if self._start is None:
+            return super()._check_start(pt)
+        clear, lam = self._start.checks(pt)
+        if not clear:  # near the floor (or not finite): the Python check decides, and names a singularity
+            self._check_rank(pt)
+        return lam
 
     def step(self) -> None:
         """One step; with ``strict``, under the step control (:mod:`kinredund.tracking.step_control`)."""

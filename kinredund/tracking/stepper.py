@@ -65,14 +65,23 @@ class Stepper:
         self._check_on_path(self.pt, "the starting configuration")
         mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
         try:
-            self._check_rank(self.pt)
+            lam = self._check_start(self.pt)
         except SingularityError as err:  # a TrackingError with its cause and a one-point record
             raise singular_start(evaluator, self.q, self.t, str(err), mode=mode) from err
         if evaluator.path.period is not None and dt > evaluator.path.period:
             raise step_too_long(evaluator, self.q, self.t, dt, mode=mode)
-        self.lam = multipliers(self.pt.J, self.pt.grad)[0] if evaluator.index is not None else np.zeros(len(self.pt.r))
+        if evaluator.index is None:
+            self.lam = np.zeros(len(self.pt.r))
+        else:  # Eqs. (4.11)-(4.12)
+            self.lam = lam if lam is not None else multipliers(self.pt.J, self.pt.grad)[0]
         m = len(self.pt.base.r)  # the task's rows (an active constraint row is not in R's workspace)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
+
+    def _check_start(self, pt: Point) -> np.ndarray | None:
+        """:meth:`_check_rank` at the start; returns lambda there where it was computed with the check (the same
+        numbers as :func:`~kinredund.tracking.linalg.multipliers`), else None (the stepper computes it)."""
+        self._check_rank(pt)
+        return None
 
     @property
     def state(self) -> StepState:
