@@ -75,8 +75,10 @@ def limit_bounds(limits: Constraint | None, n: int) -> Bounds:
         kept = _BOUNDS.get(limits) if limits is not None else None
     except TypeError:  # an unhashable constraint: made afresh
         kept = None
-    if kept is not None and kept[1] == n and all(a is b for a, b in zip(kept[0], got, strict=True)):
-        return kept[2]
+    if kept is not None and kept[1] == n:
+        (joint, side, bound), now = kept[0], got
+        if joint is now[0] and side is now[1] and bound is now[2]:
+            return kept[2]
     lo, hi = np.full(n, -np.inf), np.full(n, np.inf)
     if got is not None:  # the bounds through the base class: side (theta_joint - bound) >= 0
         joint, side, bound = got
