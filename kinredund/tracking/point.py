@@ -111,6 +111,17 @@ class Evaluator:
             Q, p, K, dk = kin.jacobian_hessian(q)
         else:
             (Q, p, K), dk = kin.jacobian(q), None
+        return self._point(q, t, s, Q, p, K, dk)
+
+    def start_point(self, q: np.ndarray, t: float) -> Point:
+        """The :class:`Point` at (q, t) without dK (no :meth:`Point.system`) whose J is :meth:`point`'s bit for bit
+        (:meth:`~kinredund.kinematics.state.Kinematics.jacobian_joints`): what a compiled start's checks and lambda
+        read (the core evaluates afresh)."""
+        Q, p, K = self.robot.kinematics.jacobian_joints(q)
+        return self._point(q, t, self.sample(t), Q, p, K, None)
+
+    def _point(self, q, t, s, Q, p, K, dk) -> Point:
+        """The task and index terms at (q, t) from the kinematics there (``dk`` None: without dK)."""
         terms = task_terms(self.task, self.formulation, Q, p, K, dk, s)
         if self.index is None:
             grad, hess, dgdt = self._zeros, self._zeros2, self._zeros

@@ -66,7 +66,7 @@ class PredictorCorrector(Stepper):
         self.start_measure = None  # the watch's exact measurement at the start where take_start gave it
         try:
             if start is None or not start(self):  # the compiled core's start (take_start), else this one
-                self._newton(self.pt)  # put the start exactly on the optimal manifold
+                self._newton(self.pt if start is None else None)  # exactly onto the optimal manifold (Eq. 4.5)
                 self._rates()
             if strict and evaluator.index is not None:
                 self.control = StepControl(self)
@@ -81,6 +81,13 @@ class PredictorCorrector(Stepper):
                 raise
             evaluator.check_sample(self.t0)  # a non-finite path sample says so itself
             raise start_failure(self, q0, err) from err
+
+    def _start_point(self) -> Point:
+        """With a compiled start, the evaluation without dK that its checks read (the core evaluates afresh; a start
+        left to Python evaluates again, the same numbers): :meth:`Evaluator.start_point`."""
+        if self._start is None:
+            return super()._start_point()
+        return self.ev.start_point(self.q, self.t)
 
     def _check_start(self, pt: Point) -> np.ndarray | None:
         """The start's rank check and lambda, by the compiled start where there is one (``checks``: the same

@@ -61,7 +61,7 @@ class Stepper:
         self.prev: list[np.ndarray] = []
         self.label: str | None = None
         evaluator.checked_sample(self.t)  # the evaluation's sample (Evaluator.sample keeps it)
-        self.pt = self.evaluate(self.q, self.t)
+        self.pt = self._start_point()
         self._check_on_path(self.pt, "the starting configuration")
         mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
         try:
@@ -76,6 +76,10 @@ class Stepper:
             self.lam = lam if lam is not None else multipliers(self.pt.J, self.pt.grad)[0]
         m = len(self.pt.base.r)  # the task's rows (an active constraint row is not in R's workspace)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
+
+    def _start_point(self) -> Point:
+        """The evaluation at the start (q0, t0) that its checks read (and the first step or correction, where full)."""
+        return self.evaluate(self.q, self.t)
 
     def _check_start(self, pt: Point) -> np.ndarray | None:
         """:meth:`_check_rank` at the start; returns lambda there where it was computed with the check (the same
