@@ -152,3 +152,21 @@ def test_checked_passes_small_samples_and_names_what_is_wrong_as_calling_a_path_
     with pytest.raises(PathError, match="too large"):
         checked(PathSample(np.array([1e200, 0.0, 0.0]), v), 0.5)
     assert checked(PathSample(np.array([1e151, 0.0, 0.0]), v), 0.5).p[0] == 1e151  # squares below overflow: passes
+
+
+def test_the_index_checked_at_the_start_serves_the_first_evaluation_there_only():
+    """The tracker checks the index at q0 (check_index_at) and hands its terms to the evaluator: the first evaluation
+    takes them where it is at that very array and t = 0; another array with the same numbers, or another time,
+    evaluates the index; either way only the first evaluation is offered them."""
+    from kinredund.tracking.point import Evaluator
+
+    r, path, index, q0 = panda_circle()
+    ev = Evaluator(r, path, index, "augmented")
+    kept = (0.0, np.arange(7.0), np.eye(7))  # not the index's terms at q0 (its gradient is zero there)
+    ev.keep_index_at(q0, kept)
+    np.testing.assert_array_equal(ev.point(q0.copy(), 0.0).grad, 0.0)  # another array: evaluated
+    ev.keep_index_at(q0, kept)
+    np.testing.assert_array_equal(ev.point(q0, 0.5).grad, 0.0)  # another time: evaluated
+    ev.keep_index_at(q0, kept)
+    assert ev.point(q0, 0.0).grad is kept[1]  # the very array at t = 0: taken
+    np.testing.assert_array_equal(ev.point(q0, 0.0).grad, 0.0)  # once

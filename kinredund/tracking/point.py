@@ -71,6 +71,12 @@ class Evaluator:
         self.n = robot.nq
         self._cache_t, self._cache = None, None
         self._zeros, self._zeros2 = np.zeros(self.n), np.zeros((self.n, self.n))
+        self._index_at = None  # (q, grad z, Hess z) at t = 0 for the first evaluation there (keep_index_at)
+
+    def keep_index_at(self, q: np.ndarray, terms: tuple | None) -> None:
+        """The index's (z, grad z, Hess z) at q and t = 0 (:func:`~kinredund.ik.solve.check_index_at`'s): the first
+        evaluation at this q (the same array) and t = 0 takes them instead of evaluating the index again."""
+        self._index_at = None if terms is None else (q, terms[1], terms[2])
 
     def sample(self, t: float):
         """The path sample at t, cached (the corrector evaluates the same time several times).
@@ -126,6 +132,12 @@ class Evaluator:
         if self.index is None:
             grad, hess, dgdt = self._zeros, self._zeros2, self._zeros
         else:
-            _, grad, hess = self.index.evaluate(q, t)
+            kept = self._index_at
+            if kept is not None:  # (once: the first evaluation)
+                self._index_at = None
+            if kept is not None and kept[0] is q and t == 0.0:
+                _, grad, hess = kept
+            else:
+                _, grad, hess = self.index.evaluate(q, t)
             dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else None
         return Point(q, t, Q, p, s, terms, grad, hess, dgdt)

@@ -63,19 +63,22 @@ class Stepper:
         evaluator.checked_sample(self.t)  # the evaluation's sample (Evaluator.sample keeps it)
         self.pt = self._start_point()
         self._check_on_path(self.pt, "the starting configuration")
-        mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
         try:
             lam = self._check_start(self.pt)
         except SingularityError as err:  # a TrackingError with its cause and a one-point record
-            raise singular_start(evaluator, self.q, self.t, str(err), mode=mode) from err
+            raise singular_start(evaluator, self.q, self.t, str(err), mode=self._mode_name()) from err
         if evaluator.path.period is not None and dt > evaluator.path.period:
-            raise step_too_long(evaluator, self.q, self.t, dt, mode=mode)
+            raise step_too_long(evaluator, self.q, self.t, dt, mode=self._mode_name())
         if evaluator.index is None:
             self.lam = np.zeros(len(self.pt.r))
         else:  # Eqs. (4.11)-(4.12)
             self.lam = lam if lam is not None else multipliers(self.pt.J, self.pt.grad)[0]
         m = len(self.pt.base.r)  # the task's rows (an active constraint row is not in R's workspace)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
+
+    def _mode_name(self) -> str:
+        """``default`` or ``thesis``: the mode a start failure names."""
+        return "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
 
     def _start_point(self) -> Point:
         """The evaluation at the start (q0, t0) that its checks read (and the first step or correction, where full)."""

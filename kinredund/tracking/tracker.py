@@ -226,9 +226,10 @@ class Tracker:
         if not math.isfinite(float(t0)):
             raise OptionError(f"t0 (the starting time [s]) must be finite, got {t0!r}")
         self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
-        ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
         q = robot.check_q(q0, "starting configuration").copy()
-        check_index_at(robot, index, q)  # a wrong length or a malformed custom index: said here, in its words
+        ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
+        # a wrong length or a malformed custom index: said here, in its words; its terms serve the first evaluation
+        ev.keep_index_at(q, check_index_at(robot, index, q))
         limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
         self.limits, constraints = limits, list(constraints or ()) + scene_constraints(robot, scene, clearance,
