@@ -25,6 +25,7 @@ offered (explicit steps have no corrector to hold the bounds): the Tracker refus
 
 from __future__ import annotations
 
+import operator
 import weakref
 from dataclasses import dataclass
 
@@ -130,7 +131,8 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         self.switch_anchor = None  # see step()
         self._sel = None  # the free rows of R (None: all joints free)
         lower, upper = bounds.inside
-        inside = all(a < x < b for a, x, b in zip(lower, q0.tolist(), upper, strict=True))
+        q = q0.tolist()
+        inside = all(map(operator.lt, lower, q)) and all(map(operator.lt, q, upper))
         if not (inside and type(limits) in (JointLimits, type(None))):  # else no joint on a bound or beyond one
             q0 = self._start_inside(q0, evaluator)
         self._init_rows(constraints, q0, qp_solver)

@@ -27,7 +27,10 @@ def max_abs(a: np.ndarray) -> float:
     """max |a_i| of a short vector, as ``float(np.abs(a).max())`` (NaN where an entry is NaN), in Python floats (a
     numpy call costs more on a few entries)."""
     v = a.tolist()
-    return math.nan if any(x != x for x in v) else max(map(abs, v))
+    total = sum(map(abs, v))  # NaN exactly where an entry is NaN (magnitudes: no inf - inf)
+    if total != total:
+        return math.nan
+    return max(map(abs, v))
 
 
 class Stepper:

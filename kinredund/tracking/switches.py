@@ -15,6 +15,8 @@ checked pieces, and where none reaches the end the run stops at the step's start
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 from scipy.optimize import brentq
 
@@ -61,7 +63,8 @@ class SwitchLocation:
         q = self.q
         if self._sel is None:  # no joint on a bound: every joint within its switch limits (the common case)
             lo, hi = self._switch_floats  # (as lists of floats: a numpy call costs more on a few entries)
-            if all(a <= x <= b for a, x, b in zip(lo, q.tolist(), hi, strict=True)):
+            x = q.tolist()
+            if all(map(operator.le, lo, x)) and all(map(operator.le, x, hi)):
                 return self._row_events()
         free = ~self.fixed
         scale = max(1.0, float(np.abs(self.pt.grad).max()))
