@@ -82,12 +82,11 @@ class CompiledStart:
         self.module, self.core, self.fixed = module, None, None
 
     def checks(self, pt) -> tuple[bool, np.ndarray | None]:
-        """The start's rank check and lambda at ``pt`` (the stepper's first evaluation) in the core (``start_checks``:
-        scipy's LAPACK calls of the stepper's rank check and of :func:`~kinredund.tracking.linalg.multipliers`, the
-        same numbers, the GIL released): (J clearly of full rank: sigma_min(J) above 4x the stepper's floor, so that
-        its own check passes too; lambda, or None where the stepper computes it)."""
-        sv, lam = self.module.start_checks(pt.J, pt.grad)
-        return bool(sv[-1] > 4.0 * SIGMA_FLOOR * max(1.0, sv[0])), lam
+        """The start's rank check and lambda at ``pt`` (the stepper's first evaluation) in the core (``start_checks``,
+        the GIL released: scipy's LAPACK calls of :func:`~kinredund.tracking.linalg.multipliers`, the same numbers,
+        and from their QR a bound on sigma_min(J)): (J clearly of full rank: sigma_min(J) certainly above 4x the
+        stepper's floor, so that its own check passes; lambda, or None where the stepper computes it)."""
+        return self.module.start_checks(pt.J, pt.grad, 4.0 * SIGMA_FLOOR)
 
     def __call__(self, stepper: PredictorCorrector) -> bool:
         """Make ``stepper``'s start in the core; False (the stepper's state untouched) where it is Python's."""

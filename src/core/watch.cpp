@@ -280,60 +280,72 @@ nb::tuple exact_arrays(Mat J, Mat M) {
 }
 
 // A run's start checks (kinredund/tracking/stepper.py: Stepper.__init__), with scipy's LAPACK and the GIL released:
-// the singular values of J (_check_rank's dgesvd) and lambda minimising ||grad z + J^T lambda|| by Householder QR
-// (linalg.multipliers, Eqs. 4.11-4.12: dgeqrf on J^T, dormqr, dtrtrs), the calls and arguments of
-// scipy.linalg.lapack's wrappers there, so the same numbers. Returns (sv: min(m, n) values, descending, NaN where
-// dgesvd fails; lambda (m) or None where the Python reference decides: J or grad not finite, m > n, dtrtrs fails,
-// or an entry of lambda not below 1e150 in magnitude (multipliers' finiteness test squares them)).
-nb::tuple start_checks(Mat J, Vec grad) {
+// lambda minimising ||grad z + J^T lambda|| by Householder QR (linalg.multipliers, Eqs. 4.11-4.12: dgeqrf on J^T,
+// dormqr, dtrtrs), the calls and arguments of scipy.linalg.lapack's wrappers there, so the same numbers; and from the
+// same QR (J^T = Y R: R has J's singular values) whether J is clearly of full rank: 1 / ||R^-1||_F <= sigma_min(J)
+// and ||J||_F >= sigma_max(J), so 1 / ||R^-1||_F > floor max(1, ||J||_F) gives sigma_min(J) > floor max(1,
+// sigma_max(J)) (R^-1 by back substitution; the caller's floor carries the margin over the rounding). Returns (clear;
+// lambda (m) or None where the Python reference decides: J or grad not finite, m > n, dtrtrs fails, or an entry of
+// lambda not below 1e150 in magnitude, multipliers' finiteness test squaring them). Not clear: the Python check decides.
+nb::tuple start_checks(Mat J, Vec grad, double floor) {
   const int m = static_cast<int>(J.shape(0)), n = static_cast<int>(J.shape(1));
   if (grad.shape(0) != static_cast<size_t>(n)) throw nb::value_error("grad must have one entry per column of J");
   const Lapack& L = lapack();
   const size_t mn = static_cast<size_t>(m) * n;
-  std::vector<double> sv, lam;
-  bool ok = std::all_of(J.data(), J.data() + mn, [](double x) { return std::isfinite(x); }) &&
-            std::all_of(grad.data(), grad.data() + n, [](double x) { return std::isfinite(x); });
-  {
+  std::vector<double> lam;
+  bool clear = false;
+  const bool ok = std::all_of(J.data(), J.data() + mn, [](double x) { return std::isfinite(x); }) &&
+                  std::all_of(grad.data(), grad.data() + n, [](double x) { return std::isfinite(x); });
+  if (ok && m <= n && m > 0) {
     nb::gil_scoped_release release;  // no Python object below
-    if (!ok || svd_values(L, J.data(), m, n, sv) != 0) sv.assign(std::max(std::min(m, n), 1), std::nan(""));
-    if (ok && m <= n && m > 0) {
-      // dgeqrf(J^T): J^T (n x m) column-major is J's row-major data; scipy's default lwork max(3 m, 1)
-      std::vector<double> A(J.data(), J.data() + mn), tau(m), c(grad.data(), grad.data() + n);
-      int nn = n, mm = m, one = 1, info = 0, lwork = std::max(3 * m, 1);
-      std::vector<double> work(lwork);
-      L.geqrf(&nn, &mm, A.data(), &nn, tau.data(), work.data(), &lwork, &info);
-      // dormqr('L', 'T', qr, tau, grad[:, None], lwork=max(64, m)): Y^T grad
-      int lwork2 = std::max(64, m);
-      std::vector<double> work2(lwork2);
-      char left = 'L', trans = 'T';
-      L.ormqr(&left, &trans, &nn, &one, &mm, A.data(), &nn, tau.data(), c.data(), &nn, work2.data(), &lwork2, &info);
-      // dtrtrs(qr[:m, :m], c[:m, 0]): the upper triangle, copied contiguous (lda m) as scipy's wrapper passes it
-      std::vector<double> R(static_cast<size_t>(m) * m);
-      for (int k = 0; k < m; ++k)
-        for (int i = 0; i < m; ++i) R[static_cast<size_t>(k) * m + i] = A[static_cast<size_t>(k) * n + i];
-      lam.assign(c.begin(), c.begin() + m);
-      char up = 'U', no = 'N';
-      L.trtrs(&up, &no, &no, &mm, &one, R.data(), &mm, lam.data(), &mm, &info);
-      const bool small = std::all_of(lam.begin(), lam.end(), [](double x) { return std::abs(x) < 1e150; });
-      if (info != 0 || !small) {
-        lam.clear();
-      } else {
-        for (double& x : lam) x = -x;  // Eq. (4.12): R lambda = -Y^T grad
+    // dgeqrf(J^T): J^T (n x m) column-major is J's row-major data; scipy's default lwork max(3 m, 1)
+    std::vector<double> A(J.data(), J.data() + mn), tau(m), c(grad.data(), grad.data() + n);
+    int nn = n, mm = m, one = 1, info = 0, lwork = std::max(3 * m, 1);
+    std::vector<double> work(lwork);
+    L.geqrf(&nn, &mm, A.data(), &nn, tau.data(), work.data(), &lwork, &info);
+    // dormqr('L', 'T', qr, tau, grad[:, None], lwork=max(64, m)): Y^T grad
+    int lwork2 = std::max(64, m);
+    std::vector<double> work2(lwork2);
+    char left = 'L', trans = 'T';
+    L.ormqr(&left, &trans, &nn, &one, &mm, A.data(), &nn, tau.data(), c.data(), &nn, work2.data(), &lwork2, &info);
+    // dtrtrs(qr[:m, :m], c[:m, 0]): the upper triangle, copied contiguous (lda m) as scipy's wrapper passes it
+    std::vector<double> R(static_cast<size_t>(m) * m);
+    for (int k = 0; k < m; ++k)
+      for (int i = 0; i < m; ++i) R[static_cast<size_t>(k) * m + i] = A[static_cast<size_t>(k) * n + i];
+    lam.assign(c.begin(), c.begin() + m);
+    char up = 'U', no = 'N';
+    L.trtrs(&up, &no, &no, &mm, &one, R.data(), &mm, lam.data(), &mm, &info);
+    const bool small = std::all_of(lam.begin(), lam.end(), [](double x) { return std::abs(x) < 1e150; });
+    if (info != 0 || !small) {
+      lam.clear();
+    } else {
+      for (double& x : lam) x = -x;  // Eq. (4.12): R lambda = -Y^T grad
+    }
+    // ||R^-1||_F: column k of R^-1 solves R x = e_k (upper triangular: x_i = 0 below k)
+    double inv2 = 0.0, j2 = 0.0;
+    std::vector<double> x(m);
+    for (int k = 0; k < m; ++k) {
+      for (int i = k; i >= 0; --i) {
+        double v = i == k ? 1.0 : 0.0;
+        for (int l = i + 1; l <= k; ++l) v -= R[static_cast<size_t>(l) * m + i] * x[l];
+        x[i] = v / R[static_cast<size_t>(i) * m + i];
+        inv2 += x[i] * x[i];
       }
     }
+    for (size_t k = 0; k < mn; ++k) j2 += J.data()[k] * J.data()[k];
+    clear = std::isfinite(inv2) && inv2 > 0.0 && 1.0 / std::sqrt(inv2) > floor * std::max(1.0, std::sqrt(j2));
   }
-  const size_t ns = sv.size();
   nb::object lam_out = nb::none();
   if (!lam.empty()) lam_out = nb::cast(owned<Out1>(std::move(lam), {static_cast<size_t>(m)}));
-  return nb::make_tuple(owned<Out1>(std::move(sv), {ns}), lam_out);
+  return nb::make_tuple(clear, lam_out);
 }
 
 }  // namespace
 
 void bind_watch(nb::module_& m) {
-  m.def("start_checks", &start_checks, nb::arg("J"), nb::arg("grad"),
-        "A run's start checks with scipy's LAPACK, the GIL released: (J's singular values, lambda by least squares "
-        "or None) - see src/core/watch.cpp.");
+  m.def("start_checks", &start_checks, nb::arg("J"), nb::arg("grad"), nb::arg("floor"),
+        "A run's start checks with scipy's LAPACK, the GIL released: (J clearly of full rank against the floor, "
+        "lambda by least squares or None) - see src/core/watch.cpp.");
   m.def("watch_exact", &exact_arrays, nb::arg("J"), nb::arg("M"),
         "The watch's exact measurement (kinredund.tracking.watch.exact) in Eigen: (sigma_min_J, eig, v, scale).");
   m.def("watch_measure", &measure_arrays, nb::arg("J"), nb::arg("M"), nb::arg("lu"), nb::arg("piv"), nb::arg("free"),
