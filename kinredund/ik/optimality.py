@@ -9,6 +9,7 @@ record's points); :func:`check_index_at` validates an index on a joint vector (t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,7 +89,7 @@ def check_index_at(robot, index, q: np.ndarray) -> tuple[float, np.ndarray, np.n
         raise TaskError(
             f"index gradient/Hessian must have shapes ({n},)/({n}, {n}) for {robot.name}, got {grad.shape}/{H.shape}"
         )
-    if not (np.isfinite(z) and np.all(np.isfinite(grad)) and np.all(np.isfinite(H))):
+    if not (math.isfinite(z) and np.isfinite(grad).all() and np.isfinite(H).all()):
         raise TaskError("the index returned non-finite values at the seed")
     return z, grad, H
 

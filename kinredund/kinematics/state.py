@@ -69,6 +69,15 @@ class Kinematics:
         T = pin.updateFramePlacement(self.model, self.data, self.frame_id).homogeneous  # a fresh 4x4 array
         return T[:3, :3], T[:3, 3], _rows(J, self.model.nv)  # Eq. (2.16)
 
+    def jacobian_joints(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Q, p, K) by :meth:`jacobian_hessian`'s passes without the Hessian: its K bit for bit (:meth:`jacobian`'s
+        one pass rounds K otherwise in the last bits), for a caller that needs no dK now and the same numbers."""
+        model, data, fid = self.model, self.data, self.frame_id
+        pin.computeJointJacobians(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        T = M.homogeneous  # a fresh 4x4 array
+        return T[:3, :3], T[:3, 3], _rows(pin.getFrameJacobian(model, data, fid, _LWA), model.nv)
+
     def jacobian_derivative(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(Q, p, K, dK) with dK[a, i, k] = dK[a, i]/dtheta_k, the third-rank tensor of Eqs. (4.38)-(4.41)."""
         Q, p, K, dk = self.jacobian_hessian(q)

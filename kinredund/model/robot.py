@@ -15,6 +15,8 @@ Threads: a :class:`Robot` may be shared between threads. Its model is never modi
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -132,8 +134,11 @@ class Robot:
 
     @property
     def joint_names(self) -> list[str]:
-        """Joint names in the order of q."""
-        return list(self.model.names)[1:]
+        """Joint names in the order of q (a new list; read from the model once per model)."""
+        kept = self.__dict__.get("_joint_names")
+        if kept is None or kept[0] is not self.model:
+            kept = self._joint_names = (self.model, tuple(self.model.names)[1:])
+        return list(kept[1])
 
     def with_task(self, task: str) -> Robot:
         """The same robot with another task kind (a new workspace; the model is shared).
@@ -167,6 +172,9 @@ class Robot:
     # -- validation -------------------------------------------------------------------------------
     def check_q(self, q, what: str = "joint vector") -> np.ndarray:
         """Return q as a float array of length nq, or raise :class:`JointVectorError`."""
+        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (self.model.nq,) \
+                and sum(map(abs, q.tolist())) < math.inf:  # the common case (check_joint_vector returns q itself)
+            return q
         return check_joint_vector(q, self.nq, self.name, what)
 
     # -- kinematics (validated wrappers over the kinematics layer) --------------------------------

@@ -75,18 +75,35 @@ class Path:
                             f"(p, v of 3 entries, Q 3x3 and omega 3 at every time or at none): {err}") from err
 
     def __call__(self, t: float) -> PathSample:
-        s = self.sample(t)
-        # one dot product per array: finite iff every entry is finite and below ~1e154 (its square overflows)
-        with np.errstate(over="ignore", invalid="ignore"):
-            total = float(s.p @ s.p) + float(s.v @ s.v)
-            if s.Q is not None:
-                total += float(s.Q.ravel() @ s.Q.ravel()) + float(s.omega @ s.omega)
-        if not math.isfinite(total):
-            names = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None]
-            bad = [name for name in names if not np.all(np.isfinite(getattr(s, name)))]
-            if bad:
-                raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
-            big = ", ".join(f"|{name}| = {float(np.abs(getattr(s, name)).max()):.3g}" for name in names)
-            raise PathError(f"the path gives values too large for any robot at t = {t:.6g} s ({big}; their squares "
-                            "overflow)", t=t)
-        return s
+        return checked(self.sample(t), t)
+
+
+#: a sample whose entries' magnitudes sum to below this passes :func:`checked` without its dot products (the
+#: squares of its at most 18 entries then sum to below 1e301: no overflow)
+SMALL_SUM = 1e150
+
+
+def checked(s: PathSample, t: float) -> PathSample:
+    """``s``, the path's sample at t [s], if its entries are finite and their squares do not overflow, else
+    PathError saying which field and when (what calling a path checks)."""
+    p, v, Q, omega = s.p, s.v, s.Q, s.omega
+    if type(p) is np.ndarray and type(v) is np.ndarray and (Q is None or (type(Q) is np.ndarray and
+                                                                         type(omega) is np.ndarray)):
+        entries = p.tolist() + v.tolist() if Q is None else p.tolist() + v.tolist() + Q.ravel().tolist() + \
+            omega.tolist()
+        if sum(map(abs, entries)) < SMALL_SUM:  # the common case in Python floats (a numpy call costs more); NaN fails
+            return s
+    # one dot product per array: finite iff every entry is finite and below ~1e154 (its square overflows)
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = float(s.p @ s.p) + float(s.v @ s.v)
+        if s.Q is not None:
+            total += float(s.Q.ravel() @ s.Q.ravel()) + float(s.omega @ s.omega)
+    if not math.isfinite(total):
+        names = [name for name in ("p", "v", "Q", "omega") if getattr(s, name) is not None]
+        bad = [name for name in names if not np.all(np.isfinite(getattr(s, name)))]
+        if bad:
+            raise PathError(f"the path gives non-finite {', '.join(bad)} at t = {t:.6g} s", t=t)
+        big = ", ".join(f"|{name}| = {float(np.abs(getattr(s, name)).max()):.3g}" for name in names)
+        raise PathError(f"the path gives values too large for any robot at t = {t:.6g} s ({big}; their squares "
+                        "overflow)", t=t)
+    return s

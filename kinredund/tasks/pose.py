@@ -262,7 +262,7 @@ class PoseTask(Task):
     def branch_error(self, Q, Q_d):
         """The end frame turned by pi/2 or more from Q_d (tr(Q_d^T Q) <= 1), where the augmented residual's
         half-turn zeros lie (module docstring)."""
-        tr = float(np.sum(Q * Q_d))  # tr(Q_d^T Q)
+        tr = float((Q * Q_d).sum())  # tr(Q_d^T Q) (np.sum's reduction, without its Python wrapper)
         if tr > 1.0:
             return ""
         angle = math.degrees(math.acos(max(-1.0, min(1.0, 0.5 * (tr - 1.0)))))

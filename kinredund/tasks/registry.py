@@ -25,6 +25,10 @@ def get_task(task: str | Task) -> Task:
     Raises:
         ChoiceError: an unknown name (lists the known kinds).
     """
+    if type(task) is str:  # the common case first (Task is an ABC: its isinstance costs more than the lookup)
+        found = TASKS.get(task)
+        if found is not None:
+            return found
     if isinstance(task, Task):
         return task
     found = TASKS.get(task) if isinstance(task, str) else None

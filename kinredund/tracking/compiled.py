@@ -139,7 +139,9 @@ def compiled_start(backend: str | None, stepper_class: type, ev, mode: str, sche
     if backend == "python" or unsupported_problem(stepper_class, ev, mode, scheme):
         return None
     core = load_core()
-    return None if core is None or not hasattr(core, "start_run") else CompiledStart(core)
+    if core is None or not (hasattr(core, "start_run") and hasattr(core, "start_checks")):
+        return None
+    return CompiledStart(core)
 
 
 def attach(tracker, backend: str | None, start: CompiledStart | None = None) -> str:
@@ -150,6 +152,8 @@ def attach(tracker, backend: str | None, start: CompiledStart | None = None) -> 
         OptionError: ``backend="compiled"`` where the core cannot run the problem or cannot be loaded.
         ChoiceError: an unknown backend.
     """
+    if start is not None:  # compiled_start checked the backend, the problem and the core for this stepper's class
+        return _compiled(tracker, start.module, start)
     backend, forced = check_backend(backend)
     if backend == "python":
         return "python"
@@ -165,6 +169,10 @@ def attach(tracker, backend: str | None, start: CompiledStart | None = None) -> 
                               "kinredund with pin[build] and nanobind beside pin, or use backend='python'")
         _warn_once()
         return "python"
+    return _compiled(tracker, core, start)
+
+
+def _compiled(tracker, core, start: CompiledStart | None) -> str:
     tracker.compiled = CompiledStep(tracker.stepper, core, start)
     tracker.step = tracker.compiled.step
     return "compiled"

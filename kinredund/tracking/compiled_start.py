@@ -20,9 +20,12 @@ from kinredund.indices import TimeVaryingReference
 from kinredund.tracking.ahead import NO_OMEGA, NO_Q
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.predictor_corrector import PredictorCorrector
+from kinredund.tracking.watch import SIGMA_FLOOR
 
 #: the task kinds' codes in the core (src/core/step.cpp)
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
+_EMPTY = np.zeros(0)  # no weights, no bounds, no reference (read-only: shared)
+_EMPTY.flags.writeable = False
 
 
 def make_step_core(stepper: PredictorCorrector, core):
@@ -37,8 +40,8 @@ def make_step_core(stepper: PredictorCorrector, core):
     else:
         weights, reference = index.weights, index.reference
     limited = getattr(stepper, "lo", None) is not None
-    lo_tol, hi_tol = stepper.switch_limits if limited else (np.zeros(0), np.zeros(0))
-    hermite = [np.zeros(0) if w is None else np.asarray(w, float) for w in stepper.hermite]
+    lo_tol, hi_tol = stepper.switch_limits if limited else (_EMPTY, _EMPTY)
+    hermite = [_EMPTY if w is None else w for w in stepper.hermite]  # (float arrays: PredictorCorrector's)
     return core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
                          ev.formulation == "velocity", np.asarray(weights, float), np.asarray(reference, float),
                          isinstance(index, TimeVaryingReference), stepper.tol, stepper.dt, hermite, lo_tol, hi_tol)
@@ -78,10 +81,18 @@ class CompiledStart:
     def __init__(self, module):
         self.module, self.core, self.fixed = module, None, None
 
+    def checks(self, pt) -> tuple[bool, np.ndarray | None]:
+        """The start's rank check and lambda at ``pt`` (the stepper's first evaluation) in the core (``start_checks``,
+        the GIL released: scipy's LAPACK calls of :func:`~kinredund.tracking.linalg.multipliers`, the same numbers,
+        and from their QR a bound on sigma_min(J)): (J clearly of full rank: sigma_min(J) certainly above 4x the
+        stepper's floor, so that its own check passes; lambda, or None where the stepper computes it)."""
+        return self.module.start_checks(pt.J, pt.grad, 4.0 * SIGMA_FLOOR)
+
     def __call__(self, stepper: PredictorCorrector) -> bool:
         """Make ``stepper``'s start in the core; False (the stepper's state untouched) where it is Python's."""
         core = self.core = make_step_core(stepper, self.module)
-        if getattr(stepper, "any_active", False):
+        active = getattr(stepper, "any_active", False)
+        if active:
             fixed, side, bound = stepper.active_set()
             core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
             self.fixed = fixed
@@ -93,7 +104,7 @@ class CompiledStart:
         if isinstance(index, TimeVaryingReference):
             ref, rate = np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
         else:
-            ref = rate = np.zeros(0)
+            ref = rate = _EMPTY
         got = self.module.start_run(core, sample.p, sample.v, Q, omega, ref, rate,
                                     np.concatenate([stepper.q, stepper.lam]))
         if type(got) is int:
@@ -105,7 +116,7 @@ class CompiledStart:
         M = out[sM].reshape(n, n)
         point = CompiledPoint(stepper.ev, out, t, sample, pt.basis, (slices, (n, m)))
         label = None
-        if getattr(stepper, "any_active", False):
+        if active:
             label = stepper.reduced_label(M, point.J, int(out[slices[9]][0]))
         stepper.take_start(out[sy], out[ssol], point, M, float(out[-2]), label=label, mu=out[slices[8]],
                            exact=exact)

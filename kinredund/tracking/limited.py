@@ -25,10 +25,15 @@ offered (explicit steps have no corrector to hold the bounds): the Tracker refus
 
 from __future__ import annotations
 
+import operator
+import weakref
+from dataclasses import dataclass
+
 import numpy as np
 
 from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.constraints.joint_limits import JointLimits
 from kinredund.tracking.failure import watched_at
 from kinredund.tracking.linalg import classify, lu_solve
 from kinredund.tracking.point import Evaluator, Point
@@ -40,6 +45,56 @@ from kinredund.tracking.switches import SwitchLocation
 #: a joint within this distance of its bound at the start counts as on it [rad or m]; a start outside
 #: the limits by at most this much is put on the bound
 ON_BOUND = 1e-10
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """What the stepper derives from its limits' ``bounds()`` alone, made once per limits object and shared by its
+    runs and threads (read-only arrays, (n,)): ``lo``, ``hi`` per joint [rad or m] (-inf, +inf where unbounded);
+    ``lo_tol``, ``hi_tol`` beyond which a free joint is a switch (rounding below 1e-13 is not), and ``switch``, the
+    two as lists of floats; ``inside``: (lower, upper) as floats, strictly between which a start has no joint on or
+    beyond a bound (``ON_BOUND``); ``free``: (fixed, side, mu) of a start with every joint free (zeros)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    lo_tol: np.ndarray
+    hi_tol: np.ndarray
+    switch: tuple
+    inside: tuple
+    free: tuple
+
+
+_BOUNDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # limits -> (its bounds() arrays, n, Bounds)
+
+
+def limit_bounds(limits: Constraint | None, n: int) -> Bounds:
+    """The :class:`Bounds` of ``limits`` (None: no bound) for n joints, kept per limits object while its ``bounds()``
+    arrays stay the same objects (a JointLimits is not changed after it is made: :func:`~kinredund.tracking.tracker.
+    robot_limits`)."""
+    got = None if limits is None else limits.bounds()
+    try:
+        kept = _BOUNDS.get(limits) if limits is not None else None
+    except TypeError:  # an unhashable constraint: made afresh
+        kept = None
+    if kept is not None and kept[1] == n:
+        (joint, side, bound), now = kept[0], got
+        if joint is now[0] and side is now[1] and bound is now[2]:
+            return kept[2]
+    lo, hi = np.full(n, -np.inf), np.full(n, np.inf)
+    if got is not None:  # the bounds through the base class: side (theta_joint - bound) >= 0
+        joint, side, bound = got
+        lo[joint[side > 0]], hi[joint[side < 0]] = bound[side > 0], bound[side < 0]
+    lo_tol, hi_tol = lo - 1e-13, hi + 1e-13
+    made = Bounds(lo, hi, lo_tol, hi_tol, (lo_tol.tolist(), hi_tol.tolist()),
+                  ((lo + ON_BOUND).tolist(), (hi - ON_BOUND).tolist()), (np.zeros(n, bool), np.zeros(n), np.zeros(n)))
+    for a in (made.lo, made.hi, made.lo_tol, made.hi_tol, *made.free):
+        a.flags.writeable = False
+    if limits is not None:
+        try:
+            _BOUNDS[limits] = (got, n, made)
+        except TypeError:
+            pass
+    return made
 
 
 class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector):
@@ -65,27 +120,29 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         self.limits = limits
         n = evaluator.n
         self._m = evaluator.robot.task_dim
-        self.joint_names = list(evaluator.robot.joint_names)
-        self.lo, self.hi = np.full(n, -np.inf), np.full(n, np.inf)
-        if limits is not None:  # the bounds through the base class: side (theta_joint - bound) >= 0
-            joint, side, bound = limits.bounds()
-            self.lo[joint[side > 0]], self.hi[joint[side < 0]] = bound[side > 0], bound[side < 0]
+        self.joint_names = evaluator.robot.joint_names
+        bounds = limit_bounds(limits, n)
+        self.lo, self.hi = bounds.lo, bounds.hi
         # a free joint beyond its bound by more than 1e-13 rad is a switch (rounding below that is not)
-        self._lo_tol, self._hi_tol = self.lo - 1e-13, self.hi + 1e-13
-        self.fixed, self.side = np.zeros(n, bool), np.zeros(n)
-        self.mu = self._no_mu = np.zeros(n)
-        self._no_mu.flags.writeable = False
+        self._lo_tol, self._hi_tol, self._switch_floats = bounds.lo_tol, bounds.hi_tol, bounds.switch
+        self.fixed, self.side, self._no_mu = bounds.free  # read-only: a switch replaces them (_fix, _free)
+        self.mu = self._no_mu
         self.switches: tuple[dict, ...] = ()
         self.switch_anchor = None  # see step()
         self._sel = None  # the free rows of R (None: all joints free)
-        q0 = self._start_inside(q0, evaluator)
+        lower, upper = bounds.inside
+        q = q0.tolist()
+        inside = all(map(operator.lt, lower, q)) and all(map(operator.lt, q, upper))
+        if not (inside and type(limits) in (JointLimits, type(None))):  # else no joint on a bound or beyond one
+            q0 = self._start_inside(q0, evaluator)
         self._init_rows(constraints, q0, qp_solver)
-        for i in np.flatnonzero(q0 <= self.lo + ON_BOUND):
-            self._fix(i, +1.0)
-        for i in np.flatnonzero(q0 >= self.hi - ON_BOUND):
-            self._fix(i, -1.0)
-        self._update_sel()  # rows on their constraint at the start are active too
-        q0 = np.where(self.fixed, np.where(self.side > 0, self.lo, self.hi), q0)
+        if not (inside and not self.rows):  # (inside with no row on its constraint: every joint free, _sel None)
+            for i in np.flatnonzero(q0 <= self.lo + ON_BOUND):
+                self._fix(i, +1.0)
+            for i in np.flatnonzero(q0 >= self.hi - ON_BOUND):
+                self._fix(i, -1.0)
+            self._update_sel()  # rows on their constraint at the start are active too
+            q0 = np.where(self.fixed, np.where(self.side > 0, self.lo, self.hi), q0)
         super().__init__(evaluator, q0, dt, **kwargs)
         self._settle_start()
 

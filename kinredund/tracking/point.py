@@ -13,6 +13,7 @@ import numpy as np
 from kinredund.indices import Index
 from kinredund.model.robot import Robot
 from kinredund.paths import Path
+from kinredund.paths.base import checked
 from kinredund.tasks import get_task, task_terms
 
 
@@ -70,6 +71,12 @@ class Evaluator:
         self.n = robot.nq
         self._cache_t, self._cache = None, None
         self._zeros, self._zeros2 = np.zeros(self.n), np.zeros((self.n, self.n))
+        self._index_at = None  # (q, grad z, Hess z) at t = 0 for the first evaluation there (keep_index_at)
+
+    def keep_index_at(self, q: np.ndarray, terms: tuple | None) -> None:
+        """The index's (z, grad z, Hess z) at q and t = 0 (:func:`~kinredund.ik.solve.check_index_at`'s): the first
+        evaluation at this q (the same array) and t = 0 takes them instead of evaluating the index again."""
+        self._index_at = None if terms is None else (q, terms[1], terms[2])
 
     def sample(self, t: float):
         """The path sample at t, cached (the corrector evaluates the same time several times).
@@ -85,6 +92,10 @@ class Evaluator:
     def check_sample(self, t: float) -> None:
         """Raise PathError if the path's sample at t is not finite (says when)."""
         self.path(t)
+
+    def checked_sample(self, t: float):
+        """:meth:`sample` at t, checked as :meth:`check_sample` checks it (one sampling of the path for both)."""
+        return checked(self.sample(t), t)
 
     def branch_error(self, pt: Point) -> str:
         """Why pt, where the task residual vanishes, is not on the path's branch ("" where it is):
@@ -106,10 +117,27 @@ class Evaluator:
             Q, p, K, dk = kin.jacobian_hessian(q)
         else:
             (Q, p, K), dk = kin.jacobian(q), None
+        return self._point(q, t, s, Q, p, K, dk)
+
+    def start_point(self, q: np.ndarray, t: float) -> Point:
+        """The :class:`Point` at (q, t) without dK (no :meth:`Point.system`) whose J is :meth:`point`'s bit for bit
+        (:meth:`~kinredund.kinematics.state.Kinematics.jacobian_joints`): what a compiled start's checks and lambda
+        read (the core evaluates afresh)."""
+        Q, p, K = self.robot.kinematics.jacobian_joints(q)
+        return self._point(q, t, self.sample(t), Q, p, K, None)
+
+    def _point(self, q, t, s, Q, p, K, dk) -> Point:
+        """The task and index terms at (q, t) from the kinematics there (``dk`` None: without dK)."""
         terms = task_terms(self.task, self.formulation, Q, p, K, dk, s)
         if self.index is None:
             grad, hess, dgdt = self._zeros, self._zeros2, self._zeros
         else:
-            _, grad, hess = self.index.evaluate(q, t)
+            kept = self._index_at
+            if kept is not None:  # (once: the first evaluation)
+                self._index_at = None
+            if kept is not None and kept[0] is q and t == 0.0:
+                _, grad, hess = kept
+            else:
+                _, grad, hess = self.index.evaluate(q, t)
             dgdt = self.index.time_derivative_of_gradient(q, t) if self.index.time_varying else None
         return Point(q, t, Q, p, s, terms, grad, hess, dgdt)

@@ -12,6 +12,7 @@ and the velocity form (``velocity``: K, lambda*, M* = Hess z + Lambda*, Eqs. 4.3
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -30,6 +31,17 @@ from kinredund.tracking.stepper import Stepper
 PREDICTOR_POINTS = 3
 
 
+@functools.lru_cache(maxsize=64)
+def predictor_weights(dt: float) -> tuple:
+    """(None, then the weights of the Hermite extrapolation through 2, ..., PREDICTOR_POINTS points:
+    :func:`~kinredund.tracking.linalg.hermite_weights`) for the time step dt [s]: made once per dt, read-only, and
+    shared by the runs with that step."""
+    weights = [hermite_weights(dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
+    for w in weights:
+        w.flags.writeable = False
+    return (None, *weights)
+
+
 class PredictorCorrector(Stepper):
     """The default mode's stepper (augmented or velocity form): Hermite predictor, Newton corrector.
 
@@ -41,18 +53,20 @@ class PredictorCorrector(Stepper):
     :class:`~kinredund.errors.TrackingError`); ``strict=False`` is the plain predictor-corrector step.
     ``start``: called with the stepper where it would correct its start and solve for the rates; where it returns
     True it made them itself (the compiled core's :class:`~kinredund.tracking.compiled_start.CompiledStart`, through
-    :meth:`take_start`), else this stepper does.
+    :meth:`take_start`), else this stepper does; its ``checks`` make the start's rank check and lambda where J is
+    clearly of full rank (:meth:`_check_start`).
     """
 
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, start=None, **kwargs):
+        self._start = start  # (its start checks run in the base class's __init__: _check_start)
         super().__init__(evaluator, q0, dt, **kwargs)
         self.symmetric = evaluator.formulation == "augmented"
-        self._hermite = [None] + [hermite_weights(self.dt, k + 1) for k in range(1, PREDICTOR_POINTS)]
+        self._hermite = predictor_weights(self.dt)
         self.control = None
         self.start_measure = None  # the watch's exact measurement at the start where take_start gave it
         try:
             if start is None or not start(self):  # the compiled core's start (take_start), else this one
-                self._newton(self.pt)  # put the start exactly on the optimal manifold
+                self._newton(self.pt if start is None else None)  # exactly onto the optimal manifold (Eq. 4.5)
                 self._rates()
             if strict and evaluator.index is not None:
                 self.control = StepControl(self)
@@ -67,6 +81,23 @@ class PredictorCorrector(Stepper):
                 raise
             evaluator.check_sample(self.t0)  # a non-finite path sample says so itself
             raise start_failure(self, q0, err) from err
+
+    def _start_point(self) -> Point:
+        """With a compiled start, the evaluation without dK that its checks read (the core evaluates afresh; a start
+        left to Python evaluates again, the same numbers): :meth:`Evaluator.start_point`."""
+        if self._start is None:
+            return super()._start_point()
+        return self.ev.start_point(self.q, self.t)
+
+    def _check_start(self, pt: Point) -> np.ndarray | None:
+        """The start's rank check and lambda, by the compiled start where there is one (``checks``: the same
+        LAPACK calls with the GIL released), else :meth:`Stepper._check_start`."""
+        if self._start is None:
+            return super()._check_start(pt)
+        clear, lam = self._start.checks(pt)
+        if not clear:  # near the floor (or not finite): the Python check decides, and names a singularity
+            self._check_rank(pt)
+        return lam
 
     def step(self) -> None:
         """One step; with ``strict``, under the step control (:mod:`kinredund.tracking.step_control`)."""
@@ -96,9 +127,10 @@ class PredictorCorrector(Stepper):
         self.t = self.t0 + k * self.dt
 
     @property
-    def hermite(self) -> list:
+    def hermite(self) -> tuple:
         """The predictor's weights: entry k (k >= 1) those of the Hermite extrapolation through k + 1 points (of
-        (y, ydot) pairs, oldest first; :func:`~kinredund.tracking.linalg.hermite_weights`), entry 0 None (Euler)."""
+        (y, ydot) pairs, oldest first; :func:`~kinredund.tracking.linalg.hermite_weights`; read-only), entry 0 None
+        (Euler)."""
         return self._hermite
 
     def accept(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, q_pred: np.ndarray, rcond: float,

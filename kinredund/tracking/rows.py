@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinredund.errors import OptionError, TrackingError, check_choice
 from kinredund.tracking.constraints.base import Constraint
 from kinredund.tracking.linalg import cholesky_ok
 from kinredund.tracking.point import Point
@@ -115,17 +116,19 @@ class GeneralRows:
     """
 
     def _init_rows(self, constraints, q0: np.ndarray, qp_solver: str) -> None:
-        from kinredund.errors import OptionError, TrackingError, check_choice
-
         check_choice("QP solver of the rate QP", qp_solver, QP_SOLVERS)
         self.qp_solver = qp_solver
         self.general = list(constraints)
-        if self.general:
-            import qpsolvers
+        self._smallest = (None, 0.0)  # (q, the smallest c there) from a compiled check (:meth:`keep_smallest`)
+        if not self.general:  # no rows: none active, and no values to keep
+            self.row_pairs, self.rows = [], ()
+            self._vals_key, self._vals, self._prev_key, self._prev_vals = q0, np.zeros(0), None, None
+            return
+        import qpsolvers
 
-            if qp_solver not in qpsolvers.available_solvers:
-                raise OptionError(f"the QP solver {qp_solver!r} is not installed (qpsolvers has "
-                                  f"{', '.join(qpsolvers.available_solvers)}; e.g. pip install daqp)")
+        if qp_solver not in qpsolvers.available_solvers:
+            raise OptionError(f"the QP solver {qp_solver!r} is not installed (qpsolvers has "
+                              f"{', '.join(qpsolvers.available_solvers)}; e.g. pip install daqp)")
         for c in self.general:
             if not isinstance(c, Constraint) or c.bounds() is not None:
                 raise OptionError(f"constraints must be general-row Constraints (e.g. kr.SphereClearance); joint "
@@ -133,7 +136,6 @@ class GeneralRows:
         self.row_pairs = [(ci, ri) for ci, c in enumerate(self.general) for ri in range(c.size)]
         self._vals_key, self._vals = None, None
         self._prev_key, self._prev_vals = None, None  # and the values before them (:meth:`_row_values`)
-        self._smallest = (None, 0.0)  # (q, the smallest c there) from a compiled check (:meth:`keep_smallest`)
         values = self._row_values(q0)
         bad = np.flatnonzero(values < -1e-10)
         if bad.size:

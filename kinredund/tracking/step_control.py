@@ -95,7 +95,7 @@ class StepControl:
         self._searched = None  # (start, end) of the last sub-step searched for a switch without one (_switch_inside)
         self._stuck = 0  # switches found in a row at one time (_moved)
         s = stepper
-        fixed = getattr(s, "fixed", None)
+        fixed = s.fixed if getattr(s, "any_active", False) else None  # (no joint held: as no mask, without asking it)
         if s.start_measure is None:
             sigma, eig = self.watch.measure(s.pt.J, s.M, s.lu, fixed)
         else:  # the compiled start's exact measurement (Watch.measure's first is exact: no vector yet)

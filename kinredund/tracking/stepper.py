@@ -23,6 +23,16 @@ from kinredund.tracking.state import StepState, apply, capture
 from kinredund.tracking.watch import SIGMA_FLOOR
 
 
+def max_abs(a: np.ndarray) -> float:
+    """max |a_i| of a short vector, as ``float(np.abs(a).max())`` (NaN where an entry is NaN), in Python floats (a
+    numpy call costs more on a few entries)."""
+    v = a.tolist()
+    total = sum(map(abs, v))  # NaN exactly where an entry is NaN (magnitudes: no inf - inf)
+    if total != total:
+        return math.nan
+    return max(map(abs, v))
+
+
 class Stepper:
     """One run's state, advanced by :meth:`step`; the start is checked on the path and regular.
 
@@ -53,19 +63,35 @@ class Stepper:
         self.y = self.yd = self.lu = self.rcond = None
         self.prev: list[np.ndarray] = []
         self.label: str | None = None
-        evaluator.check_sample(self.t)
-        self.pt = self.evaluate(self.q, self.t)
+        evaluator.checked_sample(self.t)  # the evaluation's sample (Evaluator.sample keeps it)
+        self.pt = self._start_point()
         self._check_on_path(self.pt, "the starting configuration")
-        mode = "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
         try:
-            self._check_rank(self.pt)
+            lam = self._check_start(self.pt)
         except SingularityError as err:  # a TrackingError with its cause and a one-point record
-            raise singular_start(evaluator, self.q, self.t, str(err), mode=mode) from err
+            raise singular_start(evaluator, self.q, self.t, str(err), mode=self._mode_name()) from err
         if evaluator.path.period is not None and dt > evaluator.path.period:
-            raise step_too_long(evaluator, self.q, self.t, dt, mode=mode)
-        self.lam = multipliers(self.pt.J, self.pt.grad)[0] if evaluator.index is not None else np.zeros(len(self.pt.r))
+            raise step_too_long(evaluator, self.q, self.t, dt, mode=self._mode_name())
+        if evaluator.index is None:
+            self.lam = np.zeros(len(self.pt.r))
+        else:  # Eqs. (4.11)-(4.12)
+            self.lam = lam if lam is not None else multipliers(self.pt.J, self.pt.grad)[0]
         m = len(self.pt.base.r)  # the task's rows (an active constraint row is not in R's workspace)
         self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
+
+    def _mode_name(self) -> str:
+        """``default`` or ``thesis``: the mode a start failure names."""
+        return "default" if hasattr(self, "plain_step") or getattr(self, "project", False) else "thesis"
+
+    def _start_point(self) -> Point:
+        """The evaluation at the start (q0, t0) that its checks read (and the first step or correction, where full)."""
+        return self.evaluate(self.q, self.t)
+
+    def _check_start(self, pt: Point) -> np.ndarray | None:
+        """:meth:`_check_rank` at the start; returns lambda there where it was computed with the check (the same
+        numbers as :func:`~kinredund.tracking.linalg.multipliers`), else None (the stepper computes it)."""
+        self._check_rank(pt)
+        return None
 
     @property
     def state(self) -> StepState:
@@ -137,11 +163,11 @@ class Stepper:
     def _check_on_path(self, pt: Point, what: str, limit: float | None = None) -> None:
         """Raise PathError if pt is farther than ``limit`` (default 1e-6 of the path's scale) from the path, or
         on a spurious zero of the task residual (:meth:`~kinredund.tasks.Task.branch_error`)."""
-        err = float(np.abs(pt.r).max())
-        scale = max(1.0, float(np.abs(pt.sample.p).max()))
+        err = max_abs(pt.r)
+        scale = max(1.0, max_abs(pt.sample.p))
         if limit is None:
             limit = 1e-6 * scale
-        if not np.isfinite(err) or err > limit:
+        if not math.isfinite(err) or err > limit:
             raise PathError(
                 f"{what} is {err:.3g} away from the path at t = {pt.t:.6g} s (allowed {limit:.3g}); "
                 "the path may leave the workspace, or the steps are too coarse", t=pt.t, q=pt.q)

@@ -15,6 +15,8 @@ checked pieces, and where none reaches the end the run stops at the step's start
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 from scipy.optimize import brentq
 
@@ -59,8 +61,10 @@ class SwitchLocation:
         """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``);
         (row, ``row_reach``/``row_release``) of the general rows."""
         q = self.q
-        if self._sel is None:  # no joint on a bound: one comparison per side (the common case)
-            if not ((q < self._lo_tol).any() or (q > self._hi_tol).any()):
+        if self._sel is None:  # no joint on a bound: every joint within its switch limits (the common case)
+            lo, hi = self._switch_floats  # (as lists of floats: a numpy call costs more on a few entries)
+            x = q.tolist()
+            if all(map(operator.le, lo, x)) and all(map(operator.le, x, hi)):
                 return self._row_events()
         free = ~self.fixed
         scale = max(1.0, float(np.abs(self.pt.grad).max()))

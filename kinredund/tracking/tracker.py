@@ -24,6 +24,7 @@ is for thesis mode only.
 
 from __future__ import annotations
 
+import functools
 import math
 import weakref
 
@@ -73,6 +74,43 @@ def check_gain(gain) -> float:
         raise OptionError(f"liegeois_gain (the gradient-projection gain k [1/s]) must be a finite number >= 0; "
                           f"got {gain!r}")
     return float(gain)
+
+
+def check_options(scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, project_start, strict) -> tuple:
+    """The tracker's scalar options checked, in this order, with their defaults filled in: (linear_solver,
+    qp_backend, tol, gain, project_start, strict).
+
+    Raises:
+        ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range.
+    """
+    check_choice("scheme", scheme, SCHEMES)
+    check_choice("mode", mode, MODES)
+    linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
+    check_choice("linear solver", linear_solver, LINEAR_SOLVERS)
+    qp_backend = qp_backend or ("proxsuite" if mode == "thesis" else "kkt")
+    check_choice("QP backend", qp_backend, QP_BACKENDS)
+    if mode == "default":  # it solves with R's LU factors, which its corrector needs
+        check_choice("QP backend of mode='default' (proxsuite is for mode='thesis')", qp_backend, ("kkt",))
+    tol, gain = check_tolerance(tol), check_gain(liegeois_gain)
+    project_start, strict = check_flag(project_start, "project_start"), check_flag(strict, "strict")
+    return linear_solver, qp_backend, tol, gain, project_start, strict
+
+
+_check_options_cached = functools.lru_cache(maxsize=64, typed=True)(check_options)
+
+
+def checked_options(*options) -> tuple:
+    """:func:`check_options`, its answer kept per distinct options (by value and type: ``1`` is not ``True``) and
+    shared by the runs that ask again (a failed check is not kept: it raises each time). A gain of zero is checked
+    afresh (0.0 and -0.0 are one key, and the gain is returned as given)."""
+    gain = options[5]
+    if isinstance(gain, (int, float, np.number)) and gain != 0:
+        try:
+            return _check_options_cached(*options)
+        except TypeError as err:  # an unhashable option (e.g. an array): checked afresh, where it raises if wrong
+            if "unhashable" not in str(err):
+                raise
+    return check_options(*options)
 
 
 def _from_stepper(name: str, doc: str) -> property:
@@ -172,16 +210,8 @@ class Tracker:
                  limits: bool | JointLimits | None = None, project_start: bool = False, strict: bool = True,
                  constraints=None, qp_solver: str = "proxqp", scene=None, clearance: float | None = None,
                  self_clearance: float | bool | None = None, backend: str | None = None):
-        check_choice("scheme", scheme, SCHEMES)
-        check_choice("mode", mode, MODES)
-        linear_solver = linear_solver or ("thesis" if mode == "thesis" else "auto")
-        check_choice("linear solver", linear_solver, LINEAR_SOLVERS)
-        qp_backend = qp_backend or ("proxsuite" if mode == "thesis" else "kkt")
-        check_choice("QP backend", qp_backend, QP_BACKENDS)
-        if mode == "default":  # it solves with R's LU factors, which its corrector needs
-            check_choice("QP backend of mode='default' (proxsuite is for mode='thesis')", qp_backend, ("kkt",))
-        tol, gain = check_tolerance(tol), check_gain(liegeois_gain)
-        project_start, strict = check_flag(project_start, "project_start"), check_flag(strict, "strict")
+        linear_solver, qp_backend, tol, gain, project_start, strict = checked_options(
+            scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, project_start, strict)
         if get_task(robot.task).has_orientation and not path.has_orientation:
             raise PathError(f"a {robot.task} task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
@@ -191,13 +221,15 @@ class Tracker:
                               f"got {type(index).__name__}")
         if not isinstance(path, Path):
             raise OptionError(f"path must be a kinredund.paths.Path, got {type(path).__name__}")
-        dt = check_positive(dt, "the time step [s]", PathError)
+        if not (type(dt) is float and 0.0 < dt < math.inf):  # (a positive finite float is check_positive's own)
+            dt = check_positive(dt, "the time step [s]", PathError)
         if not math.isfinite(float(t0)):
             raise OptionError(f"t0 (the starting time [s]) must be finite, got {t0!r}")
         self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
-        ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
         q = robot.check_q(q0, "starting configuration").copy()
-        check_index_at(robot, index, q)  # a wrong length or a malformed custom index: said here, in its words
+        ev = Evaluator(robot, path, index, "velocity" if scheme == "velocity" else "augmented")
+        # a wrong length or a malformed custom index: said here, in its words; its terms serve the first evaluation
+        ev.keep_index_at(q, check_index_at(robot, index, q))
         limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
         self.limits, constraints = limits, list(constraints or ()) + scene_constraints(robot, scene, clearance,

@@ -41,6 +41,14 @@ Model model_from_python(nb::handle obj) {
   return Model(ex());
 }
 
+// The C++ Model of a Python `pin.Model`, not copied: valid while the Python object lives (the caller keeps it).
+const Model& model_ref_from_python(nb::handle obj) {
+  bp::object o{bp::handle<>(bp::borrowed(obj.ptr()))};
+  bp::extract<Model&> ex(o);
+  if (!ex.check()) throw nb::type_error("expected a pinocchio.Model (pin.Model)");
+  return ex();
+}
+
 // The kinematics of one frame: placement, LOCAL_WORLD_ALIGNED Jacobian and kinematic Hessian.
 class Kinematics {
  public:

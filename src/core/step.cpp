@@ -39,7 +39,7 @@ namespace nb = nanobind;
 
 namespace kinredund {
 
-pinocchio::Model model_from_python(nb::handle obj);  // module.cpp
+const pinocchio::Model& model_ref_from_python(nb::handle obj);  // module.cpp
 
 namespace {
 
@@ -76,7 +76,8 @@ class StepCore {
  public:
   StepCore(nb::handle model, int frame_id, int task, bool velocity, CRef weights, CRef reference, bool time_varying,
            double tol, double dt, std::vector<VectorXd> hermite, CRef lo_tol, CRef hi_tol)
-      : model_(model_from_python(model)), data_(model_), fid_(frame_id), task_(task), velocity_(velocity),
+      : model_obj_(nb::borrow(model)), model_(model_ref_from_python(model)), fid_(frame_id), task_(task),
+        velocity_(velocity),
         w_(weights), ref_(reference), time_varying_(time_varying), tol_(tol), dt_(dt), hermite_(std::move(hermite)),
         lo_(lo_tol), hi_(hi_tol) {
     n_ = model_.nv;
@@ -385,8 +386,9 @@ class StepCore {
       }
     }
     // the pose at the corrected joints (the record's: Recorder)
-    pinocchio::forwardKinematics(model_, data_, q);
-    const auto& oMf = pinocchio::updateFramePlacement(model_, data_, fid_);
+    pinocchio::Data& data = this->data();
+    pinocchio::forwardKinematics(model_, data, q);
+    const auto& oMf = pinocchio::updateFramePlacement(model_, data, fid_);
     // one buffer (one array for Python to slice: small arrays would each be copied through numpy):
     // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), Q (9, row-major) and p (3) at the
     //  corrected joints, the evaluation's point (n: q_pred with the held joints on their bounds), the bound
@@ -475,14 +477,15 @@ class StepCore {
 
   // Point.__init__ / Evaluator.point: kinematics, task terms, index terms at q (with the Hessian: need_dJ)
   void evaluate(const Eigen::Ref<const VectorXd>& q, bool need_dJ) {
+    pinocchio::Data& data = this->data();
     if (need_dJ) {
-      frame_jacobian_hessian(model_, data_, fid_, q, J6_, H_);  // frame.hpp (shared with the compiled IK)
+      frame_jacobian_hessian(model_, data, fid_, q, J6_, H_);  // frame.hpp (shared with the compiled IK)
     } else {
       J6_.setZero();
-      pinocchio::computeFrameJacobian(model_, data_, q, fid_, pinocchio::LOCAL_WORLD_ALIGNED, J6_);
-      pinocchio::updateFramePlacement(model_, data_, fid_);
+      pinocchio::computeFrameJacobian(model_, data, q, fid_, pinocchio::LOCAL_WORLD_ALIGNED, J6_);
+      pinocchio::updateFramePlacement(model_, data, fid_);
     }
-    const auto& oMf = data_.oMf[fid_];
+    const auto& oMf = data.oMf[fid_];
     Q_ = oMf.rotation();
     p_ = oMf.translation();
     K_.topRows(3) = J6_.bottomRows(3);  // thesis rows [omega; v] (Eq. 2.16)
@@ -818,8 +821,17 @@ class StepCore {
     return false;
   }
 
-  pinocchio::Model model_;
-  pinocchio::Data data_;
+  // Pinocchio's workspace, made on first use (inside the GIL-free calls: start_run, a step), not with the StepCore
+  pinocchio::Data& data() {
+    if (!data_) data_ = std::make_unique<pinocchio::Data>(model_);
+    return *data_;
+  }
+
+  // the robot's pin.Model itself, not a copy (a run's set-up holds the GIL: a copy per run serialised the threads):
+  // a Robot's model is never modified (kinredund/model/robot.py), and model_obj_ keeps it alive while it is used
+  nb::object model_obj_;
+  const pinocchio::Model& model_;
+  std::unique_ptr<pinocchio::Data> data_;
   pinocchio::FrameIndex fid_;
   int task_;
   bool velocity_;

@@ -38,10 +38,17 @@ using gesvd_t = void (*)(char*, char*, int*, int*, double*, int*, double*, doubl
 using gesdd_t = void (*)(char*, int*, int*, double*, int*, double*, double*, int*, double*, int*, double*, int*, int*,
                          int*);
 
+using geqrf_t = void (*)(int*, int*, double*, int*, double*, double*, int*, int*);
+using ormqr_t = void (*)(char*, char*, int*, int*, int*, double*, int*, double*, double*, int*, double*, int*, int*);
+using trtrs_t = void (*)(char*, char*, char*, int*, int*, double*, int*, double*, int*, int*);
+
 struct Lapack {
   getrs_t getrs = nullptr;
   gesvd_t gesvd = nullptr;
   gesdd_t gesdd = nullptr;
+  geqrf_t geqrf = nullptr;
+  ormqr_t ormqr = nullptr;
+  trtrs_t trtrs = nullptr;
 };
 
 void* capsule_pointer(nb::handle capi, const char* name) {
@@ -58,9 +65,27 @@ const Lapack& lapack() {
     nb::object capi = nb::module_::import_("scipy.linalg.cython_lapack").attr("__pyx_capi__");
     L.gesvd = reinterpret_cast<gesvd_t>(capsule_pointer(capi, "dgesvd"));
     L.gesdd = reinterpret_cast<gesdd_t>(capsule_pointer(capi, "dgesdd"));
-    L.getrs = reinterpret_cast<getrs_t>(capsule_pointer(capi, "dgetrs"));
+    L.geqrf = reinterpret_cast<geqrf_t>(capsule_pointer(capi, "dgeqrf"));
+    L.ormqr = reinterpret_cast<ormqr_t>(capsule_pointer(capi, "dormqr"));
+    L.trtrs = reinterpret_cast<trtrs_t>(capsule_pointer(capi, "dtrtrs"));
+    L.getrs = reinterpret_cast<getrs_t>(capsule_pointer(capi, "dgetrs"));  // (last: set means all are)
   }
   return L;
+}
+
+// The singular values of J (m x n, row-major) by dgesvd('N', 'N') on a column-major copy with scipy's default lwork
+// (scipy.linalg.lapack.dgesvd(J, compute_uv=0, full_matrices=0)): min(m, n) of them into sv, descending; info.
+int svd_values(const Lapack& L, const double* J, int m, int n, std::vector<double>& sv) {
+  int mm = m, nn = n, minmn = std::min(m, n), lda = std::max(1, m), ldu = 1, ldvt = 1, info = 0;
+  int lwork = std::max({3 * minmn + std::max(m, n), 5 * minmn, 1});
+  std::vector<double> Jc(static_cast<size_t>(m) * n), work(lwork), uu1(1), vt1(1);
+  sv.assign(std::max(minmn, 1), 0.0);
+  for (int i = 0; i < m; ++i)
+    for (int k = 0; k < n; ++k) Jc[static_cast<size_t>(k) * m + i] = J[static_cast<size_t>(i) * n + k];
+  char jn = 'N';
+  L.gesvd(&jn, &jn, &mm, &nn, Jc.data(), &lda, sv.data(), uu1.data(), &ldu, vt1.data(), &ldvt, work.data(), &lwork,
+          &info);
+  return info;
 }
 
 using Vec = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
@@ -191,14 +216,9 @@ bool watch_inverse(const double* J, const double* M, const double* lu, const int
     }
   }
   // dgesvd('N', 'N') on J (column-major copy, scipy's default lwork)
-  int mm = m, nn = nf, minmn = std::min(m, nf), lda = std::max(1, m), ldu = 1, ldvt = 1;
-  int lwork = std::max({3 * minmn + std::max(m, nf), 5 * minmn, 1});
-  std::vector<double> Jc(mn), sv(std::max(minmn, 1)), work(lwork), uu1(1), vt1(1);
-  for (int i = 0; i < m; ++i)
-    for (int k = 0; k < nf; ++k) Jc[static_cast<size_t>(k) * m + i] = J[static_cast<size_t>(i) * nf + k];
-  char jn = 'N';
-  L.gesvd(&jn, &jn, &mm, &nn, Jc.data(), &lda, sv.data(), uu1.data(), &ldu, vt1.data(), &ldvt, work.data(), &lwork,
-          &info);
+  std::vector<double> sv;
+  const int minmn = std::min(m, nf);
+  info = svd_values(L, J, m, nf, sv);
   out.sigma = info == 0 ? sv[minmn - 1] : std::nan("");
   out.sigma_max = info == 0 ? sv[0] : std::nan("");
   out.fresh = true;
@@ -259,9 +279,73 @@ nb::tuple exact_arrays(Mat J, Mat M) {
   return nb::make_tuple(e.sigma, e.eig, owned<Out1>(std::move(e.v), {static_cast<size_t>(nf)}), e.scale);
 }
 
+// A run's start checks (kinredund/tracking/stepper.py: Stepper.__init__), with scipy's LAPACK and the GIL released:
+// lambda minimising ||grad z + J^T lambda|| by Householder QR (linalg.multipliers, Eqs. 4.11-4.12: dgeqrf on J^T,
+// dormqr, dtrtrs), the calls and arguments of scipy.linalg.lapack's wrappers there, so the same numbers; and from the
+// same QR (J^T = Y R: R has J's singular values) whether J is clearly of full rank: 1 / ||R^-1||_F <= sigma_min(J)
+// and ||J||_F >= sigma_max(J), so 1 / ||R^-1||_F > floor max(1, ||J||_F) gives sigma_min(J) > floor max(1,
+// sigma_max(J)) (R^-1 by back substitution; the caller's floor carries the margin over the rounding). Returns (clear;
+// lambda (m) or None where the Python reference decides: J or grad not finite, m > n, dtrtrs fails, or an entry of
+// lambda not below 1e150 in magnitude, multipliers' finiteness test squaring them). Not clear: the Python check decides.
+nb::tuple start_checks(Mat J, Vec grad, double floor) {
+  const int m = static_cast<int>(J.shape(0)), n = static_cast<int>(J.shape(1));
+  if (grad.shape(0) != static_cast<size_t>(n)) throw nb::value_error("grad must have one entry per column of J");
+  const Lapack& L = lapack();
+  const size_t mn = static_cast<size_t>(m) * n;
+  std::vector<double> lam;
+  bool clear = false;
+  const bool ok = std::all_of(J.data(), J.data() + mn, [](double x) { return std::isfinite(x); }) &&
+                  std::all_of(grad.data(), grad.data() + n, [](double x) { return std::isfinite(x); });
+  if (ok && m <= n && m > 0) {
+    nb::gil_scoped_release release;  // no Python object below
+    // dgeqrf(J^T): J^T (n x m) column-major is J's row-major data; scipy's default lwork max(3 m, 1)
+    std::vector<double> A(J.data(), J.data() + mn), tau(m), c(grad.data(), grad.data() + n);
+    int nn = n, mm = m, one = 1, info = 0, lwork = std::max(3 * m, 1);
+    std::vector<double> work(lwork);
+    L.geqrf(&nn, &mm, A.data(), &nn, tau.data(), work.data(), &lwork, &info);
+    // dormqr('L', 'T', qr, tau, grad[:, None], lwork=max(64, m)): Y^T grad
+    int lwork2 = std::max(64, m);
+    std::vector<double> work2(lwork2);
+    char left = 'L', trans = 'T';
+    L.ormqr(&left, &trans, &nn, &one, &mm, A.data(), &nn, tau.data(), c.data(), &nn, work2.data(), &lwork2, &info);
+    // dtrtrs(qr[:m, :m], c[:m, 0]): the upper triangle, copied contiguous (lda m) as scipy's wrapper passes it
+    std::vector<double> R(static_cast<size_t>(m) * m);
+    for (int k = 0; k < m; ++k)
+      for (int i = 0; i < m; ++i) R[static_cast<size_t>(k) * m + i] = A[static_cast<size_t>(k) * n + i];
+    lam.assign(c.begin(), c.begin() + m);
+    char up = 'U', no = 'N';
+    L.trtrs(&up, &no, &no, &mm, &one, R.data(), &mm, lam.data(), &mm, &info);
+    const bool small = std::all_of(lam.begin(), lam.end(), [](double x) { return std::abs(x) < 1e150; });
+    if (info != 0 || !small) {
+      lam.clear();
+    } else {
+      for (double& x : lam) x = -x;  // Eq. (4.12): R lambda = -Y^T grad
+    }
+    // ||R^-1||_F: column k of R^-1 solves R x = e_k (upper triangular: x_i = 0 below k)
+    double inv2 = 0.0, j2 = 0.0;
+    std::vector<double> x(m);
+    for (int k = 0; k < m; ++k) {
+      for (int i = k; i >= 0; --i) {
+        double v = i == k ? 1.0 : 0.0;
+        for (int l = i + 1; l <= k; ++l) v -= R[static_cast<size_t>(l) * m + i] * x[l];
+        x[i] = v / R[static_cast<size_t>(i) * m + i];
+        inv2 += x[i] * x[i];
+      }
+    }
+    for (size_t k = 0; k < mn; ++k) j2 += J.data()[k] * J.data()[k];
+    clear = std::isfinite(inv2) && inv2 > 0.0 && 1.0 / std::sqrt(inv2) > floor * std::max(1.0, std::sqrt(j2));
+  }
+  nb::object lam_out = nb::none();
+  if (!lam.empty()) lam_out = nb::cast(owned<Out1>(std::move(lam), {static_cast<size_t>(m)}));
+  return nb::make_tuple(clear, lam_out);
+}
+
 }  // namespace
 
 void bind_watch(nb::module_& m) {
+  m.def("start_checks", &start_checks, nb::arg("J"), nb::arg("grad"), nb::arg("floor"),
+        "A run's start checks with scipy's LAPACK, the GIL released: (J clearly of full rank against the floor, "
+        "lambda by least squares or None) - see src/core/watch.cpp.");
   m.def("watch_exact", &exact_arrays, nb::arg("J"), nb::arg("M"),
         "The watch's exact measurement (kinredund.tracking.watch.exact) in Eigen: (sigma_min_J, eig, v, scale).");
   m.def("watch_measure", &measure_arrays, nb::arg("J"), nb::arg("M"), nb::arg("lu"), nb::arg("piv"), nb::arg("free"),
