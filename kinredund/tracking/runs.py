@@ -187,7 +187,7 @@ class Runs:
                 if watch.crossed(sigma, eig, scale=values[3]) is not None:
                     return e, self.core.WATCH_DUE  # measured again from its row there (CompiledStep.accept)
                 watch.keep_exact(J, *values)
-            watch.push(times[e], sigma, eig, fixed)
+            watch.push(times[e], sigma, eig, None if free is None else fixed)  # (None: no joint fixed, as push reads)
             # Watch.ahead is None before safe_before: the steps from the first at or after it (the times ascend)
             for j in range(bisect.bisect_left(times, watch.safe_before, e + 1, end), end):
                 if watch.ahead(times[j]) is not None:
