@@ -174,11 +174,12 @@ def test_sample_many_is_sample_at_each_time(name):
 
 
 def test_the_core_s_cosines_and_sines_are_math_s(monkeypatch):
-    """The circle's samples taken together get their cosines and sines from the compiled core (``_core.cos_sin``),
-    which calls the C functions that ``math.cos`` and ``math.sin`` call: the same floats to the bit (the signs of
-    zeros too) at angles over 600 decades, near multiples of pi / 2 and at the extremes; where an angle is not finite
-    it writes nothing and says so, and ``math`` takes them (it raises on +-inf, as :meth:`Circle.sample` would).
-    Without the core a circle's samples are the same."""
+    """A circle's samples taken together come from the compiled core (``_core.circle_samples``, whose cosines and
+    sines ``_core.cos_sin`` gives the other paths): the C functions that ``math.cos`` and ``math.sin`` call, so the
+    same floats to the bit (the signs of zeros too) at angles over 600 decades, near multiples of pi / 2 and at the
+    extremes; where an angle is not finite they write nothing and say so, and ``math`` takes them (it raises on
+    +-inf, as :meth:`Circle.sample` does). Without the core every circle's samples are the same numbers (numpy's
+    route)."""
     from kinredund.paths import analytic
 
     core = analytic._CORE
@@ -202,9 +203,20 @@ def test_the_core_s_cosines_and_sines_are_math_s(monkeypatch):
         analytic._cos_sin(np.array([0.5, np.inf]))
     with pytest.raises(ValueError, match=r"c and s must have 3 entries"):
         core.cos_sin(np.zeros(3), np.empty(2), np.empty(3))
-    path, times = PATHS["circle_roll"](), rng.uniform(-3.0, 12.0, 50).tolist()
-    with_core = path.sample_many(times)
+    circles = [PATHS[name]() for name in ("circle_plane", "circle_frenet_tilted", "circle_frenet_x", "circle_roll")]
+    circles.append(Circle((0.4, 0.1, 0.6), 0.1, 0.2, orientation=_tilted_q0()))
+    times = rng.uniform(-3.0, 12.0, 50).tolist()
+    with_core = [path.sample_many(times) for path in circles]
+    for path in circles:
+        with pytest.raises(ValueError, match="math domain error"):  # as path.sample(inf) raises
+            path.sample_many([0.0, math.inf])
+    with pytest.raises(ValueError, match=r"P must have shape \(2, 3\)"):
+        path = circles[0]
+        core.circle_samples(np.zeros(2), 0.0, 1.0, path._plane_rows, path._center, 1.0, 1.0, 0, np.zeros((0, 0)),
+                            0.0, np.empty((3, 3)), np.empty((2, 3)), np.empty((0, 9)), np.empty((0, 3)))
     monkeypatch.setattr(analytic, "_CORE", None)
-    without = path.sample_many(times)
-    for field in ("p", "v", "Q", "omega"):
-        assert getattr(with_core, field).tobytes() == getattr(without, field).tobytes(), field
+    for path, got in zip(circles, with_core, strict=True):
+        want = path.sample_many(times)
+        for field in ("p", "v", "Q", "omega"):
+            a, b = getattr(got, field), getattr(want, field)
+            assert (a is None) == (b is None) and (a is None or a.tobytes() == b.tobytes()), (path, field)

@@ -49,11 +49,14 @@ def _frame(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return e1, np.cross(n, e1), n
 
 
-def _column(v: np.ndarray) -> np.ndarray:
-    """A read-only (3, 1) copy of a 3-vector."""
-    out = np.array(v, float).reshape(3, 1)
+def _read_only(values) -> np.ndarray:
+    """``values`` as a new float array that cannot be written."""
+    out = np.array(values, float)
     out.flags.writeable = False
     return out
+
+
+_NO_Q0 = _read_only(np.zeros((0, 0)))  # circle_samples' Q0 of a circle without a constant orientation
 
 
 @dataclass(frozen=True)
@@ -98,9 +101,9 @@ class Circle(Path):
         object.__setattr__(self, "center", c)
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
-        # the same numbers as (3, 1) columns for sample_many (read-only: a path is shared between runs and threads)
-        object.__setattr__(self, "_plane_columns", tuple(_column(e) for e in (e1, e2, n)))
-        object.__setattr__(self, "_center_column", _column(c))
+        # the same numbers as arrays for sample_many (read-only: a path is shared between runs and threads)
+        object.__setattr__(self, "_plane_rows", _read_only(self._plane_floats))
+        object.__setattr__(self, "_center", _read_only(self._center_floats))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
         _real(self, "circle", "start_angle", "roll_amplitude")  # [rad]
         if not isinstance(self.frenet, (bool, np.bool_)):
@@ -112,7 +115,7 @@ class Circle(Path):
                                 f"frenet=True; got {Q0.tolist()}")
             object.__setattr__(self, "orientation", Q0)
             object.__setattr__(self, "_orientation_floats", tuple(tuple(row) for row in Q0.tolist()))
-            object.__setattr__(self, "_orientation_columns", tuple(_column(Q0[:, j]) for j in range(3)))
+            object.__setattr__(self, "_orientation_rows", _read_only(self._orientation_floats))
         object.__setattr__(self, "has_orientation", bool(self.frenet) or self.orientation is not None)
 
     def sample(self, t: float) -> PathSample:
@@ -149,20 +152,34 @@ class Circle(Path):
 
 
     def sample_many(self, times: list[float]) -> Samples:
-        """:meth:`sample` at each of ``times`` [s], computed together: the same operations on numpy arrays (the
-        sines and cosines by ``math``'s functions, as :meth:`sample` takes them; each entry the one product or sum
-        that :meth:`sample` makes of it), so the same numbers at a fraction of the cost (``Samples.sample(k)`` makes
-        the k-th :class:`PathSample` from the rows where it is asked for). The fields are computed component by
-        component over all times (row i of a transposed view: the i-th entry at each time), written into the
-        stacked rows."""
+        """:meth:`sample` at each of ``times`` [s], computed together: the same operations, entry by entry, so the
+        same numbers at a fraction of the cost (``Samples.sample(k)`` makes the k-th :class:`PathSample` from the
+        rows where it is asked for). In one call of the compiled core where it is installed
+        (``_core.circle_samples``, ``src/core/paths.cpp``), else, and where an angle is not finite, on numpy arrays
+        (:meth:`_sample_arrays`)."""
         t = np.asarray(times, float)
+        if _CORE is not None:
+            k, kind = len(t), 1 if self.frenet else 0 if self.orientation is None else 2
+            rows = 0 if kind == 0 else k  # (Q and omega only with orientation)
+            P, V, Q, omega = np.empty((k, 3)), np.empty((k, 3)), np.empty((rows, 3, 3)), np.empty((rows, 3))
+            Q0 = _NO_Q0 if kind != 2 else self.orientation if self.roll_amplitude == 0.0 else self._orientation_rows
+            if _CORE.circle_samples(t, self.start_angle, self.speed / self.radius, self._plane_rows, self._center,
+                                    self.radius, self.speed, kind, np.ascontiguousarray(Q0, float),
+                                    self.roll_amplitude, P, V, Q.reshape(rows, 9), omega):
+                return Samples(P, V) if kind == 0 else Samples(P, V, Q, omega)
+        return self._sample_arrays(t)
+
+    def _sample_arrays(self, t: np.ndarray) -> Samples:
+        """:meth:`sample_many` on numpy arrays (the sines and cosines by ``math``'s functions, as :meth:`sample`
+        takes them; each entry the one product or sum that :meth:`sample` makes of it), component by component over
+        all times (row i of a transposed view: the i-th entry at each time), written into the stacked rows."""
         k = len(t)
         w = self.speed / self.radius
         c, s = _cos_sin(self.start_angle + w * t)
-        e1, e2, n = self._plane_columns  # (3, 1) each
+        e1, e2, n = self._plane_rows[:, :, None]  # (3, 1) columns
         en, et = e1 * c + e2 * s, e2 * c - e1 * s  # (3, k): e_n = c e1 + s e2 (outward), e_t = c e2 - s e1
         P, V = np.empty((k, 3)), np.empty((k, 3))
-        np.add(self._center_column, self.radius * en, out=P.T)
+        np.add(self._center[:, None], self.radius * en, out=P.T)
         np.multiply(self.speed, et, out=V.T)
         if self.orientation is None and not self.frenet:
             return Samples(P, V)
@@ -177,7 +194,7 @@ class Circle(Path):
             return Samples(P, V, Q, omega)
         cw, sw = _cos_sin(w * t)
         ca, sa = _cos_sin(self.roll_amplitude * sw)
-        x, y, z = self._orientation_columns  # Q_0's columns, (3, 1) each
+        x, y, z = self._orientation_rows.T[:, :, None]  # Q_0's columns, (3, 1) each
         # Q = Q_0 Rz(ang): the first two columns turn by ang, the third (the roll axis) stays
         np.add(x * ca, y * sa, out=columns[0])
         np.subtract(y * ca, x * sa, out=columns[1])
@@ -201,12 +218,13 @@ def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _compiled_core():
-    """The compiled core ``kinredund._core`` where it is installed with ``cos_sin``, else None."""
+    """The compiled core ``kinredund._core`` where it is installed with ``cos_sin`` and ``circle_samples``, else
+    None."""
     try:
         import kinredund._core as core
     except ImportError:
         return None
-    return core if hasattr(core, "cos_sin") else None
+    return core if hasattr(core, "circle_samples") else None
 
 
 _CORE = _compiled_core()

@@ -1,11 +1,11 @@
 // kinredund._core: the compiled core (issue 28). The Python package works without it (Python stepper).
 #include "distances.hpp"
 #include "loop.hpp"
+#include "paths.hpp"
 
 #include <boost/python.hpp>
 #include <nanobind/nanobind.h>
 #include <nanobind/eigen/dense.h>
-#include <nanobind/ndarray.h>
 #include <nanobind/stl/tuple.h>
 
 #include <pinocchio/algorithm/frames.hpp>
@@ -15,7 +15,6 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 
-#include <cmath>
 #include <stdexcept>
 #include <string>
 
@@ -81,29 +80,6 @@ class Kinematics {
   MatrixXd J_;
 };
 
-using Angles = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using Values = nb::ndarray<double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-
-// cos and sin of each angle into c and s by the C library's cos and sin, called through pointers as Python's math.cos
-// and math.sin call them (the same functions, so the same numbers; the compiler can neither fuse the pair into one
-// sincos nor vectorise them): kinredund/paths/analytic.py's _cos_sin samples a block of a path's times with it.
-// Returns false, with nothing written, where an angle is not finite (math.cos raises on +-inf: the caller's route).
-bool cos_sin(const Angles& a, Values c, Values s) {
-  const size_t k = a.shape(0);
-  if (c.shape(0) != k || s.shape(0) != k)
-    throw nb::value_error(("c and s must have " + std::to_string(k) + " entries, as the angles").c_str());
-  const double* x = a.data();
-  for (size_t i = 0; i < k; ++i)
-    if (!std::isfinite(x[i])) return false;
-  double (*volatile cos_of)(double) = &::cos;
-  double (*volatile sin_of)(double) = &::sin;
-  double* cv = c.data();
-  double* sv = s.data();
-  for (size_t i = 0; i < k; ++i) cv[i] = cos_of(x[i]);
-  for (size_t i = 0; i < k; ++i) sv[i] = sin_of(x[i]);
-  return true;
-}
-
 }  // namespace kinredund
 
 NB_MODULE(_core, m) {
@@ -114,12 +90,10 @@ NB_MODULE(_core, m) {
       .def_prop_ro("nq", &kinredund::Kinematics::nq)
       .def_prop_ro("nv", &kinredund::Kinematics::nv)
       .def("jacobian_hessian", &kinredund::Kinematics::jacobian_hessian, nb::arg("q"));
-  m.def("cos_sin", &kinredund::cos_sin, nb::arg("angles"), nb::arg("c"), nb::arg("s"),
-        "cos and sin of each angle into c and s by math.cos's and math.sin's C functions; False where one is not "
-        "finite (see src/core/module.cpp).");
   kinredund::bind_step(m);
   kinredund::bind_ik(m);
   kinredund::bind_distances(m);
   kinredund::bind_loop(m);
   kinredund::bind_watch(m);
+  kinredund::bind_paths(m);
 }
