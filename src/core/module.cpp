@@ -2,6 +2,7 @@
 #include "distances.hpp"
 #include "loop.hpp"
 #include "paths.hpp"
+#include "record_checks.hpp"
 
 #include <boost/python.hpp>
 #include <nanobind/nanobind.h>
@@ -96,4 +97,5 @@ NB_MODULE(_core, m) {
   kinredund::bind_loop(m);
   kinredund::bind_watch(m);
   kinredund::bind_paths(m);
+  kinredund::bind_record_checks(m);
 }
