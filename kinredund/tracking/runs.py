@@ -217,8 +217,8 @@ class Runs:
     def _sample(self, j0: int, count: int) -> tuple:
         """(j0, Samples, times, the core's arrays) of steps j0 .. j0 + count - 1 (Samples None where unusable)."""
         s = self.s
-        t = step_time_array(s.t0, s.dt, j0, count)
-        times = t.tolist()
+        clock = step_time_array(s.t0, s.dt, j0, count)
+        times = clock.tolist()
         at = sample_block(s.ev.path, times)  # Evaluator.sample's samples, computed together where the path can
         if at is None or (self.oriented and at.Q is None):
             return j0, None, times, ()
@@ -231,7 +231,7 @@ class Runs:
             index = s.ev.index
             ref = np.array([index.reference(t) for t in times], float)
             rate = np.array([index.rate(t) for t in times], float)
-        return j0, at, times, (t, at.p, at.v, Q, omega, ref, rate)
+        return j0, at, times, (clock, at.p, at.v, Q, omega, ref, rate)
 
     def _commit(self, out: np.ndarray, at, i: int, times: list[float], smallest: np.ndarray | None) -> None:
         """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it);
