@@ -5,7 +5,7 @@ steps, each recorded. On the compiled backend (:mod:`kinredund.tracking.compiled
 what Python knows before them - no joint on a bound, no crossing the watch could predict before
 :attr:`~kinredund.tracking.watch.Watch.safe_before` - are taken by the core's ``run_steps``
 (``src/core/loop.cpp``): Python samples the path at all their times first (:meth:`~kinredund.paths.Path.sample_many`,
-which a circle computes together), and a time-varying reference, then
+which a circle computes together, in one call of the core: ``src/core/paths.cpp``), and a time-varying reference, then
 one C++ call steps through them with the GIL released (threads running other tasks compute meanwhile:
 :func:`~kinredund.tracking.many.track_many`) and writes each step's output row (the layout of ``StepCore.step``)
 into one array (the path sampled :data:`GRID` steps ahead). The rows go to the record in one call
