@@ -272,6 +272,8 @@ def check_positive(value, what: str, error: type[KinredundError] = TaskError) ->
 
 def check_count(value, minimum: int, what: str, error: type[KinredundError] = TaskError) -> int:
     """Return ``value`` as an int if it is an integer (not a bool, not a float) >= ``minimum``, else raise."""
+    if type(value) is int and value >= minimum:  # the common case, without the abstract class's check below
+        return value
     from numbers import Integral
 
     if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:

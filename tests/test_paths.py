@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -169,3 +171,52 @@ def test_sample_many_is_sample_at_each_time(name):
         scale = max(1.0, float(np.abs(want).max()))
         assert np.abs(got - want).max() <= 1e-15 * scale, field
         assert np.all([np.array_equal(getattr(many.sample(k), field), got[k]) for k in range(len(times))])
+
+
+def test_the_core_s_cosines_and_sines_are_math_s(monkeypatch):
+    """A circle's samples taken together come from the compiled core (``_core.circle_samples``, whose cosines and
+    sines ``_core.cos_sin`` gives the other paths): the C functions that ``math.cos`` and ``math.sin`` call, so the
+    same floats to the bit (the signs of zeros too) at angles over 600 decades, near multiples of pi / 2 and at the
+    extremes; where an angle is not finite they write nothing and say so, and ``math`` takes them (it raises on
+    +-inf, as :meth:`Circle.sample` does). Without the core every circle's samples are the same numbers (numpy's
+    route)."""
+    from kinredund.paths import analytic
+
+    core = analytic._CORE
+    if core is None:
+        pytest.skip("the compiled core is not built")
+    rng = np.random.default_rng(3)
+    a = np.concatenate([rng.uniform(-10.0, 10.0, 2000), rng.uniform(-1e6, 1e6, 2000),
+                        10.0 ** rng.uniform(-300.0, 300.0, 2000) * rng.choice([-1.0, 1.0], 2000),
+                        np.pi / 2 * np.arange(-50, 51), [0.0, -0.0, 5e-324, -1.7e308]])
+    c, s = np.empty(len(a)), np.empty(len(a))
+    assert core.cos_sin(a, c, s)
+    assert c.tobytes() == np.array([math.cos(x) for x in a]).tobytes()
+    assert s.tobytes() == np.array([math.sin(x) for x in a]).tobytes()
+    for bad in (np.inf, -np.inf, np.nan):
+        c[:2] = s[:2] = 7.0
+        assert not core.cos_sin(np.array([0.5, bad]), c[:2], s[:2])
+        assert (c[:2] == 7.0).all() and (s[:2] == 7.0).all()
+    cn, sn = analytic._cos_sin(np.array([0.5, np.nan]))
+    assert cn[0] == math.cos(0.5) and sn[0] == math.sin(0.5) and np.isnan(cn[1]) and np.isnan(sn[1])
+    with pytest.raises(ValueError, match="math domain error"):
+        analytic._cos_sin(np.array([0.5, np.inf]))
+    with pytest.raises(ValueError, match=r"c and s must have 3 entries"):
+        core.cos_sin(np.zeros(3), np.empty(2), np.empty(3))
+    circles = [PATHS[name]() for name in ("circle_plane", "circle_frenet_tilted", "circle_frenet_x", "circle_roll")]
+    circles.append(Circle((0.4, 0.1, 0.6), 0.1, 0.2, orientation=_tilted_q0()))
+    times = rng.uniform(-3.0, 12.0, 50).tolist()
+    with_core = [path.sample_many(times) for path in circles]
+    for path in circles:
+        with pytest.raises(ValueError, match="math domain error"):  # as path.sample(inf) raises
+            path.sample_many([0.0, math.inf])
+    with pytest.raises(ValueError, match=r"P must have shape \(2, 3\)"):
+        path = circles[0]
+        core.circle_samples(np.zeros(2), 0.0, 1.0, path._plane_rows, path._center, 1.0, 1.0, 0, np.zeros((0, 0)),
+                            0.0, np.empty((3, 3)), np.empty((2, 3)), np.empty((0, 9)), np.empty((0, 3)))
+    monkeypatch.setattr(analytic, "_CORE", None)
+    for path, got in zip(circles, with_core, strict=True):
+        want = path.sample_many(times)
+        for field in ("p", "v", "Q", "omega"):
+            a, b = getattr(got, field), getattr(want, field)
+            assert (a is None) == (b is None) and (a is None or a.tobytes() == b.tobytes()), (path, field)

@@ -236,3 +236,42 @@ def test_the_burst_check_s_median_is_numpy_s_to_the_bit():
             d = rng.random(length) * 10.0 ** rng.uniform(-10.0, 0.0, length)
             assert median(d) == float(np.median(d)), length
     assert median(np.array([1.0, 3.0, 2.0, 10.0])) == 2.5
+
+
+def test_the_core_s_burst_candidate_is_numpy_s(monkeypatch):
+    """burst_candidate by the compiled core (``_core.burst_candidate``) and by numpy (largest_steps, argmax,
+    median) name the same step, or none, on records of odd and even lengths with a spike, with ties, with a step
+    just above and just below BURST_RATIO times the median, and with a NaN (no burst); and largest_steps is the
+    largest absolute joint change of each step."""
+    from kinredund.tracking import record_checks
+    from kinredund.tracking.compiled import load_core
+
+    if load_core() is None or not hasattr(load_core(), "burst_candidate"):
+        pytest.skip("the compiled core is not built")
+    rng = np.random.default_rng(28)
+    records = []
+    for rows in (9, 10, 60, 201, 202):
+        for joints in (1, 7):
+            q = np.cumsum(rng.normal(0.0, 0.01, (rows, joints)), axis=0)
+            spiked = q.copy()
+            spiked[rows // 2:] += 0.5 * rng.choice([-1.0, 1.0], joints)  # one step 50x the others
+            records += [q, spiked]
+    steady = np.outer(np.arange(20.0), [0.01, -0.02])  # every step the same: ties, no burst
+    edge = steady.copy()
+    d0 = float(np.median(record_checks.largest_steps(steady)))
+    for factor in (10.0 * (1 + 1e-12), 10.0 * (1 - 1e-12)):  # just over and just under BURST_RATIO times the median
+        bumped = edge.copy()
+        bumped[12:, 1] -= factor * d0 - d0
+        records.append(bumped)
+    with_nan = records[3].copy()
+    with_nan[4, 0] = np.nan
+    records += [steady, with_nan]
+    core_says = [record_checks.burst_candidate(q) for q in records]
+    monkeypatch.setattr(record_checks, "load_core", lambda: None)
+    numpy_says = [record_checks.burst_candidate(q) for q in records]
+    assert core_says == numpy_says
+    assert None in core_says and any(k is not None for k in core_says)
+    assert core_says[-4] == 11 and core_says[-3] is None and core_says[-2] is None and core_says[-1] is None
+    q = records[1]
+    want = [max(abs(q[k + 1, j] - q[k, j]) for j in range(q.shape[1])) for k in range(len(q) - 1)]
+    assert record_checks.largest_steps(q).tolist() == want

@@ -110,7 +110,8 @@ def test_a_run_through_the_watch_stops_where_single_steps_stop(monkeypatch):
 
     monkeypatch.setattr(runs.Runs, "_verdicts", seen)
     for floor, branch in ((0.0, "cut"), (1.5, "rejected")):
-        monkeypatch.setattr(watch.Watch, "crossed", lambda w, s, e, f=floor: "kinematic" if s < f else crossed(w, s, e))
+        monkeypatch.setattr(watch.Watch, "crossed",
+                            lambda w, s, e, scale=None, f=floor: "kinematic" if s < f else crossed(w, s, e, scale))
         stops = []
         for stepping in (runs.one_by_one, runs.stepping):
             monkeypatch.setattr(run, "stepping", stepping)
@@ -398,7 +399,8 @@ def test_a_rejected_inverse_iteration_measurement_in_a_run_is_handed_back_as_one
         return kept, why
 
     monkeypatch.setattr(runs.Runs, "_verdicts", seen)
-    monkeypatch.setattr(watch.Watch, "crossed", lambda w, s, e: "fold" if w.core_measured >= 5 else crossed(w, s, e))
+    monkeypatch.setattr(watch.Watch, "crossed",
+                        lambda w, s, e, scale=None: "fold" if w.core_measured >= 5 else crossed(w, s, e, scale))
     a = tracked(monkeypatch, "panda_pose_circle", False, loops=1)
     b = tracked(monkeypatch, "panda_pose_circle", True, loops=1)
     assert compiled.WATCH_REJECTS in verdicts

@@ -49,6 +49,16 @@ def _frame(normal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return e1, np.cross(n, e1), n
 
 
+def _read_only(values) -> np.ndarray:
+    """``values`` as a new float array that cannot be written."""
+    out = np.array(values, float)
+    out.flags.writeable = False
+    return out
+
+
+_NO_Q0 = _read_only(np.zeros((0, 0)))  # circle_samples' Q0 of a circle without a constant orientation
+
+
 @dataclass(frozen=True)
 class Circle(Path):
     """A circle of ``radius`` about ``center``, traced counter-clockwise about ``normal`` at ``speed``.
@@ -91,6 +101,9 @@ class Circle(Path):
         object.__setattr__(self, "center", c)
         object.__setattr__(self, "_plane_floats", (tuple(e1.tolist()), tuple(e2.tolist()), tuple(n.tolist())))
         object.__setattr__(self, "_center_floats", tuple(c.tolist()))
+        # the same numbers as arrays for sample_many (read-only: a path is shared between runs and threads)
+        object.__setattr__(self, "_plane_rows", _read_only(self._plane_floats))
+        object.__setattr__(self, "_center", _read_only(self._center_floats))
         object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
         _real(self, "circle", "start_angle", "roll_amplitude")  # [rad]
         if not isinstance(self.frenet, (bool, np.bool_)):
@@ -102,6 +115,7 @@ class Circle(Path):
                                 f"frenet=True; got {Q0.tolist()}")
             object.__setattr__(self, "orientation", Q0)
             object.__setattr__(self, "_orientation_floats", tuple(tuple(row) for row in Q0.tolist()))
+            object.__setattr__(self, "_orientation_rows", _read_only(self._orientation_floats))
         object.__setattr__(self, "has_orientation", bool(self.frenet) or self.orientation is not None)
 
     def sample(self, t: float) -> PathSample:
@@ -138,43 +152,82 @@ class Circle(Path):
 
 
     def sample_many(self, times: list[float]) -> Samples:
-        """:meth:`sample` at each of ``times`` [s], computed together: the same operations on numpy arrays (the
-        sines and cosines by ``math``, as :meth:`sample` takes them), so the same numbers at a fraction of the cost
-        (``Samples.sample(k)`` makes the k-th :class:`PathSample` from the rows where it is asked for)."""
+        """:meth:`sample` at each of ``times`` [s], computed together: the same operations, entry by entry, so the
+        same numbers at a fraction of the cost (``Samples.sample(k)`` makes the k-th :class:`PathSample` from the
+        rows where it is asked for). In one call of the compiled core where it is installed
+        (``_core.circle_samples``, ``src/core/paths.cpp``), else, and where an angle is not finite, on numpy arrays
+        (:meth:`_sample_arrays`)."""
         t = np.asarray(times, float)
+        if _CORE is not None:
+            k, kind = len(t), 1 if self.frenet else 0 if self.orientation is None else 2
+            rows = 0 if kind == 0 else k  # (Q and omega only with orientation)
+            P, V, Q, omega = np.empty((k, 3)), np.empty((k, 3)), np.empty((rows, 3, 3)), np.empty((rows, 3))
+            Q0 = _NO_Q0 if kind != 2 else self.orientation if self.roll_amplitude == 0.0 else self._orientation_rows
+            if _CORE.circle_samples(t, self.start_angle, self.speed / self.radius, self._plane_rows, self._center,
+                                    self.radius, self.speed, kind, np.ascontiguousarray(Q0, float),
+                                    self.roll_amplitude, P, V, Q.reshape(rows, 9), omega):
+                return Samples(P, V) if kind == 0 else Samples(P, V, Q, omega)
+        return self._sample_arrays(t)
+
+    def _sample_arrays(self, t: np.ndarray) -> Samples:
+        """:meth:`sample_many` on numpy arrays (the sines and cosines by ``math``'s functions, as :meth:`sample`
+        takes them; each entry the one product or sum that :meth:`sample` makes of it), component by component over
+        all times (row i of a transposed view: the i-th entry at each time), written into the stacked rows."""
         k = len(t)
         w = self.speed / self.radius
         c, s = _cos_sin(self.start_angle + w * t)
-        (e1x, e1y, e1z), (e2x, e2y, e2z), (n0, n1, n2) = self._plane_floats
-        en = (c * e1x + s * e2x, c * e1y + s * e2y, c * e1z + s * e2z)
-        et = (c * e2x - s * e1x, c * e2y - s * e1y, c * e2z - s * e1z)
-        rad, sp = self.radius, self.speed
+        e1, e2, n = self._plane_rows[:, :, None]  # (3, 1) columns
+        en, et = e1 * c + e2 * s, e2 * c - e1 * s  # (3, k): e_n = c e1 + s e2 (outward), e_t = c e2 - s e1
         P, V = np.empty((k, 3)), np.empty((k, 3))
-        for i, ci in enumerate(self._center_floats):
-            P[:, i], V[:, i] = ci + rad * en[i], sp * et[i]
-        Q, omega = np.empty((k, 3, 3)), np.empty((k, 3))
-        if self.orientation is not None:
-            if self.roll_amplitude == 0.0:
-                Q[:], omega[:] = self.orientation, 0.0
-                return Samples(P, V, Q, omega)
-            cw, sw = _cos_sin(w * t)
-            ca, sa = _cos_sin(self.roll_amplitude * sw)
-            rate = self.roll_amplitude * w * cw
-            for i, (x, y, z) in enumerate(self._orientation_floats):
-                Q[:, i, 0], Q[:, i, 1], Q[:, i, 2] = ca * x + sa * y, ca * y - sa * x, z
-                omega[:, i] = rate * z
-            return Samples(P, V, Q, omega)
-        if not self.frenet:
+        np.add(self._center[:, None], self.radius * en, out=P.T)
+        np.multiply(self.speed, et, out=V.T)
+        if self.orientation is None and not self.frenet:
             return Samples(P, V)
-        for i, ni in enumerate((n0, n1, n2)):
-            Q[:, i, 0], Q[:, i, 1], Q[:, i, 2], omega[:, i] = en[i], et[i], ni, w * ni
+        Q, omega = np.empty((k, 3, 3)), np.empty((k, 3))
+        columns = Q.transpose(2, 1, 0)  # columns[j][i] = Q[:, i, j]
+        if self.frenet:
+            columns[0], columns[1], columns[2] = en, et, n  # Eq. (4.47): [e_n, e_t, e_n x e_t], e_n x e_t = n
+            omega[:] = w * n[:, 0]  # Eq. (4.48): turns about n at beta-dot
+            return Samples(P, V, Q, omega)
+        if self.roll_amplitude == 0.0:
+            Q[:], omega[:] = self.orientation, 0.0
+            return Samples(P, V, Q, omega)
+        cw, sw = _cos_sin(w * t)
+        ca, sa = _cos_sin(self.roll_amplitude * sw)
+        x, y, z = self._orientation_rows.T[:, :, None]  # Q_0's columns, (3, 1) each
+        # Q = Q_0 Rz(ang): the first two columns turn by ang, the third (the roll axis) stays
+        np.add(x * ca, y * sa, out=columns[0])
+        np.subtract(y * ca, x * sa, out=columns[1])
+        columns[2] = z
+        np.multiply(z, self.roll_amplitude * w * cw, out=omega.T)  # about Q_0's z axis
         return Samples(P, V, Q, omega)
 
 
 def _cos_sin(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(cos, sin) of each angle [rad] by ``math`` (numpy's vectorised ones may round differently)."""
-    a, k = angles.tolist(), len(angles)
+    """(cos, sin) of each angle [rad] by ``math``'s functions (numpy's vectorised ones may round differently): in one
+    call of the compiled core where it is installed (``_core.cos_sin``: the C functions that ``math.cos`` and
+    ``math.sin`` call, the same numbers), else, and where an angle is not finite (``math.cos`` raises on +-inf), by
+    ``math`` itself."""
+    k = len(angles)
+    if _CORE is not None:
+        c, s = np.empty(k), np.empty(k)
+        if _CORE.cos_sin(np.ascontiguousarray(angles, float), c, s):
+            return c, s
+    a = angles.tolist()
     return np.fromiter(map(math.cos, a), float, k), np.fromiter(map(math.sin, a), float, k)
+
+
+def _compiled_core():
+    """The compiled core ``kinredund._core`` where it is installed with ``cos_sin`` and ``circle_samples``, else
+    None."""
+    try:
+        import kinredund._core as core
+    except ImportError:
+        return None
+    return core if hasattr(core, "circle_samples") else None
+
+
+_CORE = _compiled_core()
 
 
 @dataclass(frozen=True)

@@ -65,8 +65,14 @@ class SamplesAhead:
 
 def step_times(t0: float, dt: float, first: int, count: int) -> list[float]:
     """The requested times t0 + k dt [s] of steps k = first, ..., first + count - 1 (the clock of
-    :class:`~kinredund.tracking.stepper.Stepper`: no accumulated rounding)."""
-    return [t0 + k * dt for k in range(first, first + count)]
+    :class:`~kinredund.tracking.stepper.Stepper`: no accumulated rounding), as floats."""
+    return step_time_array(t0, dt, first, count).tolist()
+
+
+def step_time_array(t0: float, dt: float, first: int, count: int) -> np.ndarray:
+    """:func:`step_times` as an array: each entry the one product k dt (k exact as a float) and the one sum that
+    the stepper's ``t0 + k * dt`` makes, so the same floats."""
+    return t0 + np.arange(first, first + count) * dt
 
 
 def sample_block(path: Path, times: list[float]):

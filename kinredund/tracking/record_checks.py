@@ -19,6 +19,7 @@ from collections.abc import Callable
 import numpy as np
 
 from kinredund.errors import KinredundError, OptionError
+from kinredund.tracking.compiled import load_core
 from kinredund.trajectory import LOOP_CLOSURE_TOL, RecordWarning, Trajectory
 
 #: a step whose largest joint change is more than this many times the run's median step is a burst
@@ -59,15 +60,23 @@ def say_open_loop(traj: Trajectory, scheme: str, mode: str) -> None:
 
 
 def largest_steps(q: np.ndarray) -> np.ndarray:
-    """The largest joint change of each step of a record, max_j |q[k+1, j] - q[k, j]| [rad or m]."""
-    return np.abs(np.diff(q, axis=0)).max(axis=1)
+    """The largest joint change of each step of a record, max_j |q[k+1, j] - q[k, j]| [rad or m] (by joint rows: a
+    maximum over a record's few joints, row by row, costs more than over its steps)."""
+    qT = np.ascontiguousarray(q.T)
+    d = qT[:, 1:] - qT[:, :-1]
+    return np.abs(d, out=d).max(axis=0)
 
 
 def burst_candidate(q: np.ndarray) -> int | None:
     """The step (its index k: from row k to k + 1) whose largest joint change is more than
-    :data:`BURST_RATIO` times the run's median one, the largest such; None where there is none."""
+    :data:`BURST_RATIO` times the run's median one, the largest such; None where there is none. By the compiled core
+    where it is installed (``_core.burst_candidate``: the same arithmetic), else by numpy."""
     if len(q) < MIN_STEPS + 1:
         return None
+    core = load_core()
+    if core is not None and hasattr(core, "burst_candidate"):  # the same step in one call (src/core/record_checks.cpp)
+        k = core.burst_candidate(np.ascontiguousarray(q, float), BURST_RATIO)
+        return None if k < 0 else k
     d = largest_steps(q)
     k = int(np.argmax(d))
     return k if d[k] > BURST_RATIO * median(d) else None

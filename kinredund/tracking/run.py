@@ -122,7 +122,7 @@ def _run(robot: Robot, path: Path, index: Index | None, q0, span: dict, options:
     advance = stepping(tracker, rec)  # runs of compiled steps in one call where it can (tracking/runs.py)
     info = {"robot_name": loadable_name(robot), "scheme": scheme, "mode": mode, "period": path.period,
             "meta": dict(meta or {}, dt=dt, steps=total, backend=tracker.backend,
-                         velocity_limit=[float(v) for v in robot.model.velocityLimit])}  # Trajectory.speed_over_limits
+                         velocity_limit=robot.model.velocityLimit.tolist())}  # Trajectory.speed_over_limits
     try:
         done = 0
         while done < total:

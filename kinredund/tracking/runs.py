@@ -5,7 +5,7 @@ steps, each recorded. On the compiled backend (:mod:`kinredund.tracking.compiled
 what Python knows before them - no joint on a bound, no crossing the watch could predict before
 :attr:`~kinredund.tracking.watch.Watch.safe_before` - are taken by the core's ``run_steps``
 (``src/core/loop.cpp``): Python samples the path at all their times first (:meth:`~kinredund.paths.Path.sample_many`,
-which a circle computes together), and a time-varying reference, then
+which a circle computes together, in one call of the core: ``src/core/paths.cpp``), and a time-varying reference, then
 one C++ call steps through them with the GIL released (threads running other tasks compute meanwhile:
 :func:`~kinredund.tracking.many.track_many`) and writes each step's output row (the layout of ``StepCore.step``)
 into one array (the path sampled :data:`GRID` steps ahead). The rows go to the record in one call
@@ -50,10 +50,10 @@ import bisect
 import numpy as np
 
 from kinredund.tasks import get_task
-from kinredund.tracking.ahead import sample_block, step_times
+from kinredund.tracking.ahead import sample_block, step_time_array
 from kinredund.tracking.compiled import WATCH_REJECTS, load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
-from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR, free_columns
+from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 
 #: the path is sampled for this many steps ahead in one call (Path.sample_many), or for the rest of the run
 GRID = 256
@@ -133,8 +133,8 @@ class Runs:
         if c.rows:  # the core's check of each step (StepCore.step_guarded's), its smallest row value written here
             smallest = np.empty(K)
             guard = (s.t, smallest)
-        done, status, exact, measured = self.core.run_steps(c.core, np.asarray(times), *arrays, s.y, s.yd, s.prev,
-                                                            s.qdot, speed2, ctl is not None, watch, out, guard)
+        done, status, exact, measured = self.core.run_steps(c.core, *arrays, s.y, s.yd, s.prev, s.qdot, speed2,
+                                                            ctl is not None, watch, out, guard)
         if exact:
             done, status = self._verdicts(out, times, done, status, exact, measured)
         if done:
@@ -167,22 +167,27 @@ class Runs:
         watch, fixed = self.ctl.watch, getattr(self.s, "fixed", None)
         n, m, _ = self.c.shapes
         sJ = self.c.slices[3]
+        free = None if fixed is None or not fixed.any() else np.flatnonzero(~fixed)  # free_columns's, once a run
         ends = [e + 1 for e in exact[1:]] + [done + (status != 0)]  # to the next measured step, or the step after
         for e, end, values in zip(exact, ends, measured, strict=True):
-            saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
-            J = free_columns(out[e, sJ].reshape(m, n), fixed)
-            inverse = len(values) == 6  # (sigma, eig, u, fresh, sigma_max, scale): the inverse iteration's, not exact
-            if inverse:  # Watch.measure's with the core (StepCore.watch_measure): a fresh sigma's J the reference
+            J = out[e, sJ].reshape(m, n)
+            if free is not None:
+                J = J[:, free]
+            if len(values) == 6:  # (sigma, eig, u, fresh, sigma_max, scale): the inverse iteration's, not exact
+                saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
+                # Watch.measure's with the core (StepCore.watch_measure): a fresh sigma's J the reference
                 sigma, eig = watch.took(*values[:5], J.copy() if values[3] else None, values[5])
-            else:
-                sigma, eig = watch.keep_exact(J, *values)
-            if watch.crossed(sigma, eig) is not None:
-                watch.load(saved)
-                # the core's factors are a later step's now: a rejected inverse-iteration step is handed back as
-                # CompiledStep.accept hands it back after measuring it (from the state before it); an exact one is
-                # measured again there (from its row)
-                return e, WATCH_REJECTS if inverse else self.core.WATCH_DUE
-            watch.push(times[e], sigma, eig, fixed)
+                if watch.crossed(sigma, eig) is not None:
+                    watch.load(saved)
+                    # the core's factors are a later step's now: handed back as CompiledStep.accept hands it back
+                    # after measuring it (from the state before it)
+                    return e, WATCH_REJECTS
+            else:  # judged with the fold floor's scale it brings (keep_exact's), kept where it passes
+                sigma, eig = values[0], values[1]
+                if watch.crossed(sigma, eig, scale=values[3]) is not None:
+                    return e, self.core.WATCH_DUE  # measured again from its row there (CompiledStep.accept)
+                watch.keep_exact(J, *values)
+            watch.push(times[e], sigma, eig, None if free is None else fixed)  # (None: no joint fixed, as push reads)
             # Watch.ahead is None before safe_before: the steps from the first at or after it (the times ascend)
             for j in range(bisect.bisect_left(times, watch.safe_before, e + 1, end), end):
                 if watch.ahead(times[j]) is not None:
@@ -190,11 +195,11 @@ class Runs:
         return done, status
 
     def _window(self, K: int, count: int):
-        """(times, the Samples, the offset of the next step in them, (p, v, Q, omega, ref, rate) of the next K steps
-        as the core's arrays), sampled ahead (:data:`GRID` steps or the ``count`` left) where the last grid ends; or
-        None where the samples do not stack or a task with orientation has none. A run that would go past the end
-        of the samples taken ahead is cut there where at least :data:`REFILL` of them are left (a run handed back
-        every few steps would otherwise sample GRID steps ahead at every start)."""
+        """(times, the Samples, the offset of the next step in them, (t, p, v, Q, omega, ref, rate) of the next K
+        steps as the core's arrays), sampled ahead (:data:`GRID` steps or the ``count`` left) where the last grid
+        ends; or None where the samples do not stack or a task with orientation has none. A run that would go past
+        the end of the samples taken ahead is cut there where at least :data:`REFILL` of them are left (a run handed
+        back every few steps would otherwise sample GRID steps ahead at every start)."""
         j0 = self.s.k + 1
         if self.grid is not None and self.grid[0] <= j0:
             left = self.grid[0] + len(self.grid[2]) - j0
@@ -212,7 +217,8 @@ class Runs:
     def _sample(self, j0: int, count: int) -> tuple:
         """(j0, Samples, times, the core's arrays) of steps j0 .. j0 + count - 1 (Samples None where unusable)."""
         s = self.s
-        times = step_times(s.t0, s.dt, j0, count)
+        clock = step_time_array(s.t0, s.dt, j0, count)
+        times = clock.tolist()
         at = sample_block(s.ev.path, times)  # Evaluator.sample's samples, computed together where the path can
         if at is None or (self.oriented and at.Q is None):
             return j0, None, times, ()
@@ -225,7 +231,7 @@ class Runs:
             index = s.ev.index
             ref = np.array([index.reference(t) for t in times], float)
             rate = np.array([index.rate(t) for t in times], float)
-        return j0, at, times, (at.p, at.v, Q, omega, ref, rate)
+        return j0, at, times, (clock, at.p, at.v, Q, omega, ref, rate)
 
     def _commit(self, out: np.ndarray, at, i: int, times: list[float], smallest: np.ndarray | None) -> None:
         """The run's rows as the record's and the last as the stepper's state (as one-by-one steps leave it);

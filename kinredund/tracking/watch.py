@@ -303,9 +303,12 @@ class Watch:
         """(kinematic floor, fold floor): values at or below them count as crossed."""
         return SIGMA_FLOOR * max(1.0, self.sigma_max), EIG_FLOOR * self.scale
 
-    def crossed(self, sigma: float, eig: float) -> str | None:
-        """``kinematic``, ``fold`` or None: which quantity (if any) is at or below its floor."""
+    def crossed(self, sigma: float, eig: float, scale: float | None = None) -> str | None:
+        """``kinematic``, ``fold`` or None: which quantity (if any) is at or below its floor; ``scale``: the fold
+        floor's scale of an exact measurement not yet kept (:meth:`keep_exact` makes it :attr:`scale`)."""
         fs, fe = self.floors()
+        if scale is not None:
+            fe = EIG_FLOOR * scale
         if not sigma > fs:  # "not >": NaN counts as crossed
             return "kinematic"
         if not eig > fe:

@@ -1,6 +1,8 @@
 // kinredund._core: the compiled core (issue 28). The Python package works without it (Python stepper).
 #include "distances.hpp"
 #include "loop.hpp"
+#include "paths.hpp"
+#include "record_checks.hpp"
 
 #include <boost/python.hpp>
 #include <nanobind/nanobind.h>
@@ -102,4 +104,6 @@ NB_MODULE(_core, m) {
   kinredund::bind_distances(m);
   kinredund::bind_loop(m);
   kinredund::bind_watch(m);
+  kinredund::bind_paths(m);
+  kinredund::bind_record_checks(m);
 }
