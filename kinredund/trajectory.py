@@ -4,10 +4,12 @@ A :class:`Trajectory` is a frozen record of arrays. Plots, playback, the CLI's `
 the benchmarks read it; nothing downstream recomputes the kinematics it holds. :meth:`Trajectory.checked`
 is the one validation of a record (shapes, finite values, increasing times): reading a JSON file, the
 plots and the playback all go through it. The diagnostics of a tracking run (``solver``, ``m_eigs``,
-``m_null_eigs``, ``normality_residual``) may be handed over as :class:`Deferred` values: they are computed
-on first read (together, by whoever made the record) and are then plain values; pickling, copying,
-comparing and writing a record read them first. :func:`write_json` (used by ``save_json``) writes strict JSON
-through a temporary file and a rename, so a failed run never leaves a half-written file.
+``m_null_eigs``, ``normality_residual``) and its per-point figures that the run itself does not read (``lam``,
+the task's errors, ``active_bounds``, ``bound_multipliers``, ``limit_margins``) may be handed over as
+:class:`Deferred` values: they are computed on first read (together, by whoever made the record) and are
+then plain values; pickling, copying, comparing and writing a record read them first. :func:`write_json` (used
+by ``save_json``) writes strict JSON through a temporary file and a rename, so a failed run never leaves a
+half-written file.
 
 JSON schema (``docs/schema.md`` has the full list): top-level keys are the field names below; arrays
 become (nested) lists; ``meta`` is a free-form dict (example name, obstacle, parameters).
@@ -161,20 +163,20 @@ class Trajectory:
     scheme: str = "augmented"
     mode: str = "default"
     solver: tuple[str, ...] = _DeferrableField(())
-    lam: np.ndarray | None = None
+    lam: np.ndarray | None = _DeferrableField(None)
     m_eigs: np.ndarray | None = _DeferrableField(None)
     m_null_eigs: np.ndarray | None = _DeferrableField(None)
-    position_error: np.ndarray | None = None
-    trace_error: np.ndarray | None = None
-    vect_error: np.ndarray | None = None
-    axis_error: np.ndarray | None = None
+    position_error: np.ndarray | None = _DeferrableField(None)
+    trace_error: np.ndarray | None = _DeferrableField(None)
+    vect_error: np.ndarray | None = _DeferrableField(None)
+    axis_error: np.ndarray | None = _DeferrableField(None)
     normality_residual: np.ndarray | None = _DeferrableField(None)
     loop_drift: np.ndarray | None = None
     loop_period: float | None = None
     meta: dict = field(default_factory=dict)
-    active_bounds: np.ndarray | None = None
-    bound_multipliers: np.ndarray | None = None
-    limit_margins: np.ndarray | None = None
+    active_bounds: np.ndarray | None = _DeferrableField(None)
+    bound_multipliers: np.ndarray | None = _DeferrableField(None)
+    limit_margins: np.ndarray | None = _DeferrableField(None)
     switch_times: np.ndarray | None = None
     qdot: np.ndarray | None = None
     qddot: np.ndarray | None = None
