@@ -17,7 +17,7 @@ become (nested) lists; ``meta`` is a free-form dict (example name, obstacle, par
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -156,10 +156,10 @@ class Trajectory:
 
     robot: str
     task: str
-    t: np.ndarray
+    t: np.ndarray = _DeferrableField(MISSING)  # (required: MISSING is the dataclass's "no default")
     q: np.ndarray
-    p: np.ndarray
-    p_desired: np.ndarray
+    p: np.ndarray = _DeferrableField(MISSING)
+    p_desired: np.ndarray = _DeferrableField(MISSING)
     scheme: str = "augmented"
     mode: str = "default"
     solver: tuple[str, ...] = _DeferrableField(())
@@ -177,9 +177,28 @@ class Trajectory:
     active_bounds: np.ndarray | None = _DeferrableField(None)
     bound_multipliers: np.ndarray | None = _DeferrableField(None)
     limit_margins: np.ndarray | None = _DeferrableField(None)
-    switch_times: np.ndarray | None = None
+    switch_times: np.ndarray | None = _DeferrableField(None)
     qdot: np.ndarray | None = None
     qddot: np.ndarray | None = None
+
+    @classmethod
+    def assemble(cls, **values) -> Trajectory:
+        """``Trajectory(**values)`` made in one step rather than field by field (the recorder makes one per
+        ``track()`` run, where a frozen dataclass's ``__init__`` costs several times as much): the same record.
+
+        Raises:
+            TypeError: a name that is not a field, or a required field (``robot``, ``task``, ``t``, ``q``, ``p``,
+                ``p_desired``) missing, as ``Trajectory(**values)`` would.
+        """
+        if not _REQUIRED <= values.keys() <= _FIELDS:
+            raise TypeError(f"Trajectory fields missing: {sorted(_REQUIRED - values.keys())}, not fields: "
+                            f"{sorted(values.keys() - _FIELDS)}")
+        obj = object.__new__(cls)
+        kept = obj.__dict__  # where __init__ and the deferrable fields keep the values
+        kept.update(_DEFAULTS)  # (in the fields' order, as __init__ sets them)
+        kept["meta"] = {}
+        kept.update(values)
+        return obj
 
     def __getstate__(self) -> dict:
         """Every field's value, :class:`Deferred` ones computed (a pickled record holds no callables)."""
@@ -341,6 +360,13 @@ class Trajectory:
     def load_json(cls, path: str | Path) -> Trajectory:
         """Read a record written by :meth:`save_json`."""
         return cls.from_json_dict(read_json_object(path))
+
+
+#: for Trajectory.assemble: the fields, those without a default, and every field's default in the fields' order
+#: (MISSING for those without; ``meta``'s factory makes a new dict in assemble)
+_FIELDS = frozenset(f.name for f in fields(Trajectory))
+_REQUIRED = frozenset(f.name for f in fields(Trajectory) if f.default is MISSING and f.default_factory is MISSING)
+_DEFAULTS = {f.name: f.default for f in fields(Trajectory)}
 
 
 def _speed_figures(fastest) -> dict:

@@ -106,86 +106,71 @@ class Recorder:
     def __len__(self) -> int:
         return len(self.t)
 
-    def _limits_meta(self, meta: dict) -> np.ndarray:
-        """The limits' record in ``meta`` (switches, speeds against the limits); returns the switch times [s] (the
-        active sets, bound multipliers and margins are :class:`PerPoint`'s)."""
+    def _limits_meta(self, meta: dict) -> None:
+        """The limits' record in ``meta``: switches, speeds against the limits (the active sets, bound multipliers,
+        margins and switch times are :class:`PerPoint`'s)."""
         s = self.stepper
-        vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float)
-        fastest = np.abs(self.qdot.array().T, order="C").max(axis=1)  # (a joint's speeds in a row: a fast max)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            worst = float(np.where(vmax > 0, fastest / vmax, np.inf).max())  # (inf or NaN: not all finite)
-        meta.update(switches=list(s.switches), joint_speed_max=fastest.tolist(), velocity_limit=vmax.tolist(),
-                    speed_over_velocity_limit_max=worst if math.isfinite(worst) else None,
+        vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float).tolist()
+        fastest = np.abs(self.qdot.array().T, order="C").max(axis=1).tolist()  # (a joint's speeds in a row)
+        ratio = [f / v if v > 0 else math.inf for f, v in zip(fastest, vmax, strict=True)]  # (a few joints: floats)
+        meta.update(switches=list(s.switches), joint_speed_max=fastest, velocity_limit=vmax,
+                    speed_over_velocity_limit_max=max(ratio) if all(map(math.isfinite, ratio)) else None,
                     limit_margin=s.limits.margin)
-        return np.array([w["t"] for w in s.switches], dtype=float)
 
-    def _evaluate(self, q: np.ndarray, oriented: bool):
-        """(p (k, 3), p_d (k, 3), Q's blocks, Q_d's blocks (None where the task has no orientation: ``oriented``),
-        {k: J} where the step's own evaluation was made at recorded point k): the pose afresh at the other recorded
-        joints (K there is left to :class:`Diagnostics`). A run's rows (:class:`PoseRows`) are the blocks they are,
-        the points recorded one by one in between a block each; Q and Q_d are stacked (:func:`stacked`) only where
-        read."""
-        kin = self.stepper.ev.robot.kinematics
-        blocks, single, own = [], [], {}
-
-        def close() -> None:  # the points recorded one by one since the last block, as one block
-            if single:
-                Q, p, p_d, Q_d = zip(*single, strict=True)
-                blocks.append((np.array(Q), np.array(p), np.array(p_d), np.array(Q_d) if oriented else None))
-                single.clear()
-
+    def _poses(self) -> tuple[list, dict]:
+        """(the recorded poses, {k: J} where the step's own evaluation was made at recorded point k): a run's rows
+        (:class:`PoseRows`) as they are, a point recorded one by one as (Q, p, the path sample), (Q, p) None where
+        the step has no pose at the recorded joints (:func:`stack_poses` evaluates it there on first read)."""
+        poses, own = [], {}
         k = 0
         for item in self.points:
             if isinstance(item, PoseRows):  # the rows of a run (add_rows)
-                close()
-                blocks.append((item.Q, item.p, item.p_d, item.Q_d))
+                poses.append(item)
                 k += len(item.p)
                 continue
             if hasattr(item, "terms"):
-                (Q, p), own[k], sample = (item.Q, item.p), item.J, item.sample
+                own[k] = item.J
+                poses.append((item.Q, item.p, item.sample))
             elif hasattr(item, "pose"):
-                (Q, p), sample = item.pose, item.sample
+                poses.append((*item.pose, item.sample))
             else:
-                (Q, p), sample = kin.pose(q[k]), item
-            single.append((Q, p, sample.p, sample.Q))
+                poses.append((None, None, item))
             k += 1
-        close()
-        p, p_d = (np.concatenate([b[j] for b in blocks]) for j in (1, 2))
-        return p, p_d, [b[0] for b in blocks], [b[3] for b in blocks] if oriented else None, own
+        return poses, own
 
     def trajectory(self, *, robot_name: str, scheme: str, mode: str, loops: int | None, steps_per_loop: int | None,
                    period: float | None, meta: dict) -> Trajectory:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
         task = get_task(s.ev.task)
-        t, q = np.array(self.t), self.q.array()
-        p, p_d, Q, Q_d, own = self._evaluate(q, task.has_orientation)
-        index = s.ev.index  # grad z now: the index is the caller's object, the record must not follow it
-        grad = np.zeros_like(q) if index is None else index.gradients_many(q, t)
-        q_kept = q.copy()  # (the record's q is the caller's to change before the deferred values are read)
-        lim = self.limited
-        per = PerPoint(task, Q, p.copy(), Q_d, p_d.copy(), q_kept, self.lam.snapshot(), s.pt.basis,
-                       s.limits if lim else None, self.active.snapshot() if lim else None,
-                       self.mu.snapshot() if lim else None)
-        diag = Diagnostics(self, t.copy(), q_kept, grad, own, Q_d)
+        q = self.q.array()
+        index = s.ev.index  # grad z now, unless the index cannot change: it is the caller's object, the record must
+        fixed = index is None or index.fixed  # not follow later changes to it (Index.fixed)
+        grad = None if fixed else index.gradients_many(q, np.array(self.t))
+        poses, own = self._poses()
+        q_kept, lim = q.copy(), self.limited  # (the record's q is the caller's to change before the rest is read)
+        per = PerPoint(task, list(self.t), poses, q_kept, s.ev.robot, self.lam.snapshot(), s.pt.basis,
+                       (s.limits, self.active.snapshot(), self.mu.snapshot(), [w["t"] for w in s.switches]) if lim
+                       else None)
+        diag = Diagnostics(self, q_kept, grad, index if fixed else None, own, per)
         eigs = diag.eigenvalues
         solver = diag.deferred("solver") if self.pending else tuple(self.solver)
         drift = None if loops is None else loop_drifts(q, steps_per_loop, loops, s.ev.robot.revolute)
-        switch_times = self._limits_meta(meta) if lim else None
+        if lim:
+            self._limits_meta(meta)
         if self.rows is not None:  # the general constraints' record (issue 27): per point, and the switches
             meta.update(switches=list(s.switches), constraints={
                 "names": s.row_names(range(len(s.row_pairs))), "min_value": [r[0] for r in self.rows],
                 "active": [list(r[1]) for r in self.rows], "multipliers": [r[2].tolist() for r in self.rows]})
-        held = {name: per.deferred(name) for name in ("active_bounds", "bound_multipliers", "limit_margins")} if lim \
-            else {}
-        return Trajectory(
-            **held, robot=robot_name, task=task.name, t=t, q=q, p=p, p_desired=p_d, scheme=scheme, mode=mode,
-            solver=solver, lam=per.deferred("lam"), m_eigs=diag.deferred("m_eigs") if eigs else None,
-            m_null_eigs=diag.deferred("m_null_eigs") if eigs else None,
+        held = {name: per.deferred(name) for name in LIMITS_FIELDS} if lim else {}
+        return Trajectory.assemble(
+            **held, robot=robot_name, task=task.name, t=per.deferred("t"), q=q, p=per.deferred("p"),
+            p_desired=per.deferred("p_d"),
+            scheme=scheme, mode=mode, solver=solver, lam=per.deferred("lam"), m_eigs=diag.deferred("m_eigs") if eigs
+            else None, m_null_eigs=diag.deferred("m_null_eigs") if eigs else None,
             position_error=per.deferred("position_error"), trace_error=per.deferred("trace_error"),
             vect_error=per.deferred("vect_error"), axis_error=per.deferred("axis_error"),
-            normality_residual=diag.deferred("normality_residual"), loop_drift=drift, loop_period=period,
-            switch_times=switch_times, meta=meta)
+            normality_residual=diag.deferred("normality_residual"), loop_drift=drift, loop_period=period, meta=meta)
 
 
 class Column:
@@ -235,7 +220,7 @@ class Column:
         blocks = self._blocks
         if len(blocks) == 1:
             return np.array(blocks[0])
-        return np.concatenate([b if isinstance(b, np.ndarray) else np.array(b) for b in blocks])  # (one copy each)
+        return np.concatenate(blocks)  # (a list of rows taken as np.array takes it)
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         out = self.array()
@@ -276,26 +261,60 @@ class Once:
         return Deferred(lambda: self._compute()[name])
 
 
-def stacked(blocks: list | None) -> np.ndarray | None:
-    """Blocks of rows as one array (None: None)."""
-    return None if blocks is None else np.concatenate(blocks)
+def stack_poses(poses: list, q: np.ndarray, robot, oriented: bool) -> dict:
+    """The poses of :meth:`Recorder._poses` stacked: Q (k, 3, 3), p (k, 3) at the recorded joints ``q`` (evaluated
+    there where the step had none), the path's p_d (k, 3) and Q_d (k, 3, 3), None where the task has no orientation
+    (``oriented``)."""
+    Qs, ps, p_ds, Q_ds = [], [], [], []
+    k = 0
+    for item in poses:
+        if isinstance(item, PoseRows):
+            Qs.append(item.Q)
+            ps.append(item.p)
+            p_ds.append(item.p_d)
+            Q_ds.append(item.Q_d)
+            k += len(item.p)
+            continue
+        Q, p, sample = item
+        if Q is None:
+            Q, p = robot.kinematics.pose(q[k])
+        Qs.append(np.asarray(Q)[None])
+        ps.append(np.asarray(p)[None])
+        p_ds.append(np.asarray(sample.p)[None])
+        Q_ds.append(np.asarray(sample.Q)[None] if oriented else None)
+        k += 1
+    return {"Q": np.concatenate(Qs), "p": np.concatenate(ps), "p_d": np.concatenate(p_ds),
+            "Q_d": np.concatenate(Q_ds) if oriented else None}
+
+
+#: the limits' fields of a record (:class:`PerPoint`'s)
+LIMITS_FIELDS = ("active_bounds", "bound_multipliers", "limit_margins", "switch_times")
 
 
 class PerPoint(Once):
     """A run's per-point fields that ``track()`` itself does not read, stacked and computed on the first read of
-    any: the multipliers lambda (in the closure 7-vector's coordinates for the augmented pose task: U lambda), the
-    task's errors (:meth:`kinredund.tasks.Task.errors_many`; zeros for the trace and vect errors of a task that does
-    not hold them, None for its axis error) and, with limits, the active bounds, their multipliers and the margins
-    to the limits (:meth:`~kinredund.tracking.constraints.joint_limits.JointLimits.margins`, 1e10 where a joint has
-    none; a JointLimits is not changed after it is made).
+    any: the times, the poses reached and asked for (:func:`stack_poses`: p, p_d, and Q, Q_d for the task's errors and
+    :class:`Diagnostics`), the multipliers lambda (in the closure 7-vector's coordinates for the augmented pose
+    task: U lambda), the task's errors (:meth:`kinredund.tasks.Task.errors_many`; zeros for the trace and vect
+    errors of a task that does not hold them, None for its axis error) and, with limits, the active bounds, their
+    multipliers, the margins to the limits
+    (:meth:`~kinredund.tracking.constraints.joint_limits.JointLimits.margins`, 1e10 where a joint has none; a
+    JointLimits is not changed after it is made) and the switch times.
 
-    Args: the task; Q's blocks, p (k, 3), Q_d's blocks (None without orientation), p_d, q (k, n): arrays nobody
-    changes (copies of the record's); lambda's :class:`Column` and the basis U (None: lambda as it is); with limits,
-    the run's JointLimits and the active bounds' and multipliers' Columns (else None).
+    Args: the task; the times [s] (a list of its own); the poses (:meth:`Recorder._poses`: the steppers never
+    change a recorded point's arrays in place); q (k, n), a copy of the record's; the robot; lambda's
+    :class:`Column` and the basis U (None: lambda as it is); with limits, (the run's JointLimits, the active
+    bounds' and multipliers' Columns, the switch times [s]), else None.
     """
 
-    def _run(self, task, Q, p, Q_d, p_d, q, lam, basis, limits, active, mu) -> dict:
-        out = task.errors_many(stacked(Q), p, stacked(Q_d), p_d)
+    def values(self) -> dict:
+        """All of them (computed on the first call)."""
+        return self._compute()
+
+    def _run(self, task, t, poses, q, robot, lam, basis, limits) -> dict:
+        out = stack_poses(poses, q, robot, task.has_orientation)
+        out["t"], p = np.array(t), out["p"]
+        out.update(task.errors_many(out["Q"], p, out["Q_d"], out["p_d"]))
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
         out.setdefault("trace_error", zeros)
         out.setdefault("vect_error", zeros)
@@ -303,8 +322,9 @@ class PerPoint(Once):
         lam = lam.array()
         out["lam"] = lam if basis is None else lam @ basis.T
         if limits is not None:
+            bounds, active, mu, switches = limits
             out.update(active_bounds=active.array(), bound_multipliers=mu.array(),
-                       limit_margins=np.minimum(limits.margins(q), 1e10))
+                       limit_margins=np.minimum(bounds.margins(q), 1e10), switch_times=np.array(switches, dtype=float))
         return out
 
 
@@ -319,17 +339,20 @@ class Diagnostics(Once):
     robot for its kinematics (:class:`Once`).
     """
 
-    def __init__(self, rec: Recorder, t: np.ndarray, q: np.ndarray, grad: np.ndarray, own: dict,
-                 Q_d: np.ndarray | None):
+    def __init__(self, rec: Recorder, q: np.ndarray, grad: np.ndarray | None, index, own: dict, per: PerPoint):
         s = rec.stepper
         self.eigenvalues = rec.diagnostics and not rec.M_missing
-        # t and q: copies (the record's are the caller's to change); M and J: the recorder's rows so far (the
-        # steppers never change them in place), stacked when first read
-        super().__init__(t, q, grad, own, Q_d, s.ev.robot, s.ev.task, rec.M.snapshot(), rec.J_step.snapshot(),
+        # q: a copy (the record's is the caller's to change); grad z, or None: then from the index, one that cannot
+        # change (Index.fixed), or zero without one; M and J: the recorder's rows so far (the steppers never change
+        # them in place), stacked when first read; t and Q_d: the per-point fields'
+        super().__init__(q, grad, index, own, per, s.ev.robot, s.ev.task, rec.M.snapshot(), rec.J_step.snapshot(),
                          list(rec.solver), s.linear_solver, s.symmetric)
 
-    def _run(self, t, q, grad, own, Q_d, robot, task_name, Ms, J_pending, solver, rule, symmetric) -> dict:
-        kin, task, Q_d = robot.kinematics, get_task(task_name), stacked(Q_d)
+    def _run(self, q, grad, index, own, per, robot, task_name, Ms, J_pending, solver, rule, symmetric) -> dict:
+        kin, task = robot.kinematics, get_task(task_name)
+        t, Q_d = per.values()["t"], per.values()["Q_d"]
+        if grad is None:
+            grad = np.zeros_like(q) if index is None else index.gradients_many(q, t)
         pending = [k for k, v in enumerate(solver) if v is None]
         M = Ms.array() if self.eigenvalues else None
         M_pending = None if M is not None or not pending else [Ms.rows()[k] for k in pending]
