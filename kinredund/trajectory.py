@@ -77,7 +77,8 @@ class RecordWarning(UserWarning):
 
 
 class Deferred:
-    """A field value computed on first read: ``compute()`` returns it, and the record keeps the result.
+    """A field value computed on first read: ``compute()`` returns it, and the record keeps the result. A
+    subclass may stand for several fields of a record at once (:meth:`value_for` then gets each by its name).
 
     The tracker's recorder hands its diagnostics over this way, so that ``track()`` costs little more
     than its steps and a caller who never reads them never pays for them.
@@ -87,6 +88,10 @@ class Deferred:
 
     def __init__(self, compute):
         self.compute = compute
+
+    def value_for(self, name: str):
+        """The value of the record's field ``name``: ``compute()``'s."""
+        return self.compute()
 
 
 class _DeferrableField:
@@ -107,7 +112,7 @@ class _DeferrableField:
         except KeyError:  # not set yet (a bare object.__new__): what getattr and hasattr expect
             raise AttributeError(f"{type(obj).__name__!r} object has no attribute {self.name!r}") from None
         if isinstance(value, Deferred):
-            value = value.compute()
+            value = value.value_for(self.name)
             obj.__dict__[self.name] = value
         return value
 

@@ -154,7 +154,7 @@ class Recorder:
                        else None)
         diag = Diagnostics(self, q_kept, grad, index if fixed else None, own, per)
         eigs = diag.eigenvalues
-        solver = diag.deferred("solver") if self.pending else tuple(self.solver)
+        solver = diag if self.pending else tuple(self.solver)
         drift = None if loops is None else loop_drifts(q, steps_per_loop, loops, s.ev.robot.revolute)
         if lim:
             self._limits_meta(meta)
@@ -162,15 +162,11 @@ class Recorder:
             meta.update(switches=list(s.switches), constraints={
                 "names": s.row_names(range(len(s.row_pairs))), "min_value": [r[0] for r in self.rows],
                 "active": [list(r[1]) for r in self.rows], "multipliers": [r[2].tolist() for r in self.rows]})
-        held = {name: per.deferred(name) for name in LIMITS_FIELDS} if lim else {}
+        # the deferred groups stand for their fields (Deferred.value_for)
         return Trajectory.assemble(
-            **held, robot=robot_name, task=task.name, t=per.deferred("t"), q=q, p=per.deferred("p"),
-            p_desired=per.deferred("p_d"),
-            scheme=scheme, mode=mode, solver=solver, lam=per.deferred("lam"), m_eigs=diag.deferred("m_eigs") if eigs
-            else None, m_null_eigs=diag.deferred("m_null_eigs") if eigs else None,
-            position_error=per.deferred("position_error"), trace_error=per.deferred("trace_error"),
-            vect_error=per.deferred("vect_error"), axis_error=per.deferred("axis_error"),
-            normality_residual=diag.deferred("normality_residual"), loop_drift=drift, loop_period=period, meta=meta)
+            **dict.fromkeys(PER_POINT + (LIMITS_FIELDS if lim else ()), per), robot=robot_name, task=task.name, q=q,
+            scheme=scheme, mode=mode, solver=solver, m_eigs=diag if eigs else None, m_null_eigs=diag if eigs else None,
+            normality_residual=diag, loop_drift=drift, loop_period=period, meta=meta)
 
 
 class Column:
@@ -237,9 +233,11 @@ class PoseRows:
         self.Q, self.p, self.p_d, self.Q_d = Q, p, p_d, Q_d
 
 
-class Once:
-    """Values computed together on the first read of any of them (:meth:`deferred`), then kept: until then it holds
-    its inputs, and drops them once computed. Safe to read from several threads (one computes, the others wait)."""
+class Once(Deferred):
+    """Values computed together on the first read of any of them, then kept: a
+    :class:`~kinredund.trajectory.Deferred` that stands for each of its fields of a record (:meth:`value_for`).
+    Until then it holds its inputs, and drops them once computed. Safe to read from several threads (one
+    computes, the others wait)."""
 
     def __init__(self, *inputs):
         self._inputs = inputs
@@ -256,15 +254,14 @@ class Once:
     def _run(self, *inputs) -> dict:
         raise NotImplementedError
 
-    def deferred(self, name: str) -> Deferred:
-        """The value ``name`` as a :class:`~kinredund.trajectory.Deferred` record field."""
-        return Deferred(lambda: self._compute()[name])
+    def value_for(self, name: str):
+        return self._compute()[name]
 
 
 def stack_poses(poses: list, q: np.ndarray, robot, oriented: bool) -> dict:
     """The poses of :meth:`Recorder._poses` stacked: Q (k, 3, 3), p (k, 3) at the recorded joints ``q`` (evaluated
-    there where the step had none), the path's p_d (k, 3) and Q_d (k, 3, 3), None where the task has no orientation
-    (``oriented``)."""
+    there where the step had none), the path's p_desired (k, 3) and Q_d (k, 3, 3), None where the task has no
+    orientation (``oriented``)."""
     Qs, ps, p_ds, Q_ds = [], [], [], []
     k = 0
     for item in poses:
@@ -283,23 +280,24 @@ def stack_poses(poses: list, q: np.ndarray, robot, oriented: bool) -> dict:
         p_ds.append(np.asarray(sample.p)[None])
         Q_ds.append(np.asarray(sample.Q)[None] if oriented else None)
         k += 1
-    return {"Q": np.concatenate(Qs), "p": np.concatenate(ps), "p_d": np.concatenate(p_ds),
+    return {"Q": np.concatenate(Qs), "p": np.concatenate(ps), "p_desired": np.concatenate(p_ds),
             "Q_d": np.concatenate(Q_ds) if oriented else None}
 
 
-#: the limits' fields of a record (:class:`PerPoint`'s)
+#: the fields of a record :class:`PerPoint` stands for, and those of a run with limits
+PER_POINT = ("t", "p", "p_desired", "lam", "position_error", "trace_error", "vect_error", "axis_error")
 LIMITS_FIELDS = ("active_bounds", "bound_multipliers", "limit_margins", "switch_times")
 
 
 class PerPoint(Once):
-    """A run's per-point fields that ``track()`` itself does not read, stacked and computed on the first read of
-    any: the times, the poses reached and asked for (:func:`stack_poses`: p, p_d, and Q, Q_d for the task's errors and
-    :class:`Diagnostics`), the multipliers lambda (in the closure 7-vector's coordinates for the augmented pose
-    task: U lambda), the task's errors (:meth:`kinredund.tasks.Task.errors_many`; zeros for the trace and vect
-    errors of a task that does not hold them, None for its axis error) and, with limits, the active bounds, their
-    multipliers, the margins to the limits
-    (:meth:`~kinredund.tracking.constraints.joint_limits.JointLimits.margins`, 1e10 where a joint has none; a
-    JointLimits is not changed after it is made) and the switch times.
+    """A run's per-point fields that ``track()`` itself does not read (:data:`PER_POINT`, with limits
+    :data:`LIMITS_FIELDS`), stacked and computed on the first read of any: the times; the poses reached and asked
+    for (:func:`stack_poses`: p, p_desired, and Q, Q_d for the task's errors and :class:`Diagnostics`); the
+    multipliers lambda (in the closure 7-vector's coordinates for the augmented pose task: U lambda); the task's
+    errors (:meth:`kinredund.tasks.Task.errors_many`; zeros for the trace and vect errors of a task that does not
+    hold them, None for its axis error); with limits, the active bounds, their multipliers, the margins to the
+    limits (:meth:`~kinredund.tracking.constraints.joint_limits.JointLimits.margins`, 1e10 where a joint has none;
+    a JointLimits is not changed after it is made) and the switch times.
 
     Args: the task; the times [s] (a list of its own); the poses (:meth:`Recorder._poses`: the steppers never
     change a recorded point's arrays in place); q (k, n), a copy of the record's; the robot; lambda's
@@ -314,7 +312,7 @@ class PerPoint(Once):
     def _run(self, task, t, poses, q, robot, lam, basis, limits) -> dict:
         out = stack_poses(poses, q, robot, task.has_orientation)
         out["t"], p = np.array(t), out["p"]
-        out.update(task.errors_many(out["Q"], p, out["Q_d"], out["p_d"]))
+        out.update(task.errors_many(out["Q"], p, out["Q_d"], out["p_desired"]))
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
         out.setdefault("trace_error", zeros)
         out.setdefault("vect_error", zeros)
