@@ -96,8 +96,9 @@ class Recorder:
         else:
             self.solver += held[0]
         if self.limited:
-            self.active.extend(np.repeat((self._free if held is None else held[1])[None], k, axis=0))
-            self.mu.extend(np.repeat(self.stepper.mu[None], k, axis=0) if held is None else held[2])
+            # (the same row k times: rows by reference, stacked when read)
+            self.active.extend([self._free if held is None else held[1]] * k)
+            self.mu.extend([self.stepper.mu] * k if held is None else held[2])
             self.qdot.extend(qdot)
         if self.rows is not None:  # (row_record's with no row active: no multipliers)
             active, none = self.stepper.rows, np.zeros(0)
@@ -172,7 +173,7 @@ class Recorder:
 class Column:
     """One recorded vector field (q, lambda, the rates, the bound multipliers): rows added one by one
     (:meth:`append`, the stepper's arrays, kept by reference) or as a run's block (:meth:`extend`: a 2-D array of
-    rows), stacked into one array when read (:meth:`array`: a new array, the rows' values)."""
+    rows, or a list of rows), stacked into one array when read (:meth:`array`: a new array, the rows' values)."""
 
     __slots__ = ("_blocks", "_rows", "_count")
 
@@ -185,7 +186,7 @@ class Column:
         self._rows.append(row)
         self._count += 1
 
-    def extend(self, block: np.ndarray) -> None:
+    def extend(self, block: np.ndarray | list) -> None:
         self._flush()
         self._blocks.append(block)
         self._count += len(block)
