@@ -149,11 +149,11 @@ class Recorder:
         fixed = index is None or index.fixed  # not follow later changes to it (Index.fixed)
         grad = None if fixed else index.gradients_many(q, np.array(self.t))
         poses, own = self._poses()
-        q_kept, lim = q.copy(), self.limited  # (the record's q is the caller's to change before the rest is read)
-        per = PerPoint(task, list(self.t), poses, q_kept, s.ev.robot, self.lam.snapshot(), s.pt.basis,
+        lim = self.limited  # (the record's q is the caller's to change before the rest is read: q's rows again)
+        per = PerPoint(task, list(self.t), poses, self.q.snapshot(), s.ev.robot, self.lam.snapshot(), s.pt.basis,
                        (s.limits, self.active.snapshot(), self.mu.snapshot(), [w["t"] for w in s.switches]) if lim
                        else None)
-        diag = Diagnostics(self, q_kept, grad, index if fixed else None, own, per)
+        diag = Diagnostics(self, grad, index if fixed else None, own, per)
         eigs = diag.eigenvalues
         solver = diag if self.pending else tuple(self.solver)
         drift = None if loops is None else loop_drifts(q, steps_per_loop, loops, s.ev.robot.revolute)
@@ -301,7 +301,7 @@ class PerPoint(Once):
     a JointLimits is not changed after it is made) and the switch times.
 
     Args: the task; the times [s] (a list of its own); the poses (:meth:`Recorder._poses`: the steppers never
-    change a recorded point's arrays in place); q (k, n), a copy of the record's; the robot; lambda's
+    change a recorded point's arrays in place); q's :class:`Column`; the robot; lambda's
     :class:`Column` and the basis U (None: lambda as it is); with limits, (the run's JointLimits, the active
     bounds' and multipliers' Columns, the switch times [s]), else None.
     """
@@ -311,7 +311,9 @@ class PerPoint(Once):
         return self._compute()
 
     def _run(self, task, t, poses, q, robot, lam, basis, limits) -> dict:
+        q = q.array()
         out = stack_poses(poses, q, robot, task.has_orientation)
+        out["q_run"] = q  # (:class:`Diagnostics`')
         out["t"], p = np.array(t), out["p"]
         out.update(task.errors_many(out["Q"], p, out["Q_d"], out["p_desired"]))
         zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
@@ -338,18 +340,18 @@ class Diagnostics(Once):
     robot for its kinematics (:class:`Once`).
     """
 
-    def __init__(self, rec: Recorder, q: np.ndarray, grad: np.ndarray | None, index, own: dict, per: PerPoint):
+    def __init__(self, rec: Recorder, grad: np.ndarray | None, index, own: dict, per: PerPoint):
         s = rec.stepper
         self.eigenvalues = rec.diagnostics and not rec.M_missing
-        # q: a copy (the record's is the caller's to change); grad z, or None: then from the index, one that cannot
-        # change (Index.fixed), or zero without one; M and J: the recorder's rows so far (the steppers never change
-        # them in place), stacked when first read; t and Q_d: the per-point fields'
-        super().__init__(q, grad, index, own, per, s.ev.robot, s.ev.task, rec.M.snapshot(), rec.J_step.snapshot(),
+        # grad z, or None: then from the index, one that cannot change (Index.fixed), or zero without one; M and J:
+        # the recorder's rows so far (the steppers never change them in place), stacked when first read; t, q and
+        # Q_d: the per-point fields' (their own: the record's are the caller's to change)
+        super().__init__(grad, index, own, per, s.ev.robot, s.ev.task, rec.M.snapshot(), rec.J_step.snapshot(),
                          list(rec.solver), s.linear_solver, s.symmetric)
 
-    def _run(self, q, grad, index, own, per, robot, task_name, Ms, J_pending, solver, rule, symmetric) -> dict:
+    def _run(self, grad, index, own, per, robot, task_name, Ms, J_pending, solver, rule, symmetric) -> dict:
         kin, task = robot.kinematics, get_task(task_name)
-        t, Q_d = per.values()["t"], per.values()["Q_d"]
+        t, q, Q_d = (per.values()[name] for name in ("t", "q_run", "Q_d"))
         if grad is None:
             grad = np.zeros_like(q) if index is None else index.gradients_many(q, t)
         pending = [k for k, v in enumerate(solver) if v is None]
