@@ -33,7 +33,8 @@ class Index:
     #: True when the index depends on time (then :meth:`time_derivative_of_gradient` is used)
     time_varying: bool = False
     #: True when nothing about the index can change after it is made (frozen, with read-only arrays of its own):
-    #: a tracking record may then compute grad z from it when first read rather than at the run's end
+    #: a tracking record may then compute grad z from it when first read rather than at the run's end (a subclass
+    #: of such an index that adds state it can change sets it back to False)
     fixed = False
 
     def evaluate(self, theta: np.ndarray, t: float = 0.0) -> tuple[float, np.ndarray, np.ndarray]:
