@@ -32,6 +32,10 @@ class Index:
 
     #: True when the index depends on time (then :meth:`time_derivative_of_gradient` is used)
     time_varying: bool = False
+    #: True when nothing about the index can change after it is made (frozen, with read-only arrays of its own):
+    #: a tracking record may then compute grad z from it when first read rather than at the run's end (a subclass
+    #: of such an index that adds state it can change sets it back to False)
+    fixed = False
 
     def evaluate(self, theta: np.ndarray, t: float = 0.0) -> tuple[float, np.ndarray, np.ndarray]:
         """(z, grad z, Hess z) at theta and time t."""
@@ -70,6 +74,7 @@ class JointDeviation(Index):
 
     reference: np.ndarray
     weights: np.ndarray | None = None
+    fixed = True  # (frozen; its reference and weights are read-only copies: Index.fixed)
 
     def __post_init__(self) -> None:
         # copies, read-only: the index (and every record made with it) must not change when the caller

@@ -4,10 +4,12 @@ A :class:`Trajectory` is a frozen record of arrays. Plots, playback, the CLI's `
 the benchmarks read it; nothing downstream recomputes the kinematics it holds. :meth:`Trajectory.checked`
 is the one validation of a record (shapes, finite values, increasing times): reading a JSON file, the
 plots and the playback all go through it. The diagnostics of a tracking run (``solver``, ``m_eigs``,
-``m_null_eigs``, ``normality_residual``) may be handed over as :class:`Deferred` values: they are computed
-on first read (together, by whoever made the record) and are then plain values; pickling, copying,
-comparing and writing a record read them first. :func:`write_json` (used by ``save_json``) writes strict JSON
-through a temporary file and a rename, so a failed run never leaves a half-written file.
+``m_null_eigs``, ``normality_residual``) and its per-point figures that the run itself does not read (``lam``,
+the task's errors, ``active_bounds``, ``bound_multipliers``, ``limit_margins``) may be handed over as
+:class:`Deferred` values: they are computed on first read (together, by whoever made the record) and are
+then plain values; pickling, copying, comparing and writing a record read them first. :func:`write_json` (used
+by ``save_json``) writes strict JSON through a temporary file and a rename, so a failed run never leaves a
+half-written file.
 
 JSON schema (``docs/schema.md`` has the full list): top-level keys are the field names below; arrays
 become (nested) lists; ``meta`` is a free-form dict (example name, obstacle, parameters).
@@ -15,7 +17,7 @@ become (nested) lists; ``meta`` is a free-form dict (example name, obstacle, par
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +77,8 @@ class RecordWarning(UserWarning):
 
 
 class Deferred:
-    """A field value computed on first read: ``compute()`` returns it, and the record keeps the result.
+    """A field value computed on first read: ``compute()`` returns it, and the record keeps the result. A
+    subclass may stand for several fields of a record at once (:meth:`value_for` then gets each by its name).
 
     The tracker's recorder hands its diagnostics over this way, so that ``track()`` costs little more
     than its steps and a caller who never reads them never pays for them.
@@ -85,6 +88,10 @@ class Deferred:
 
     def __init__(self, compute):
         self.compute = compute
+
+    def value_for(self, name: str):
+        """The value of the record's field ``name``: ``compute()``'s."""
+        return self.compute()
 
 
 class _DeferrableField:
@@ -105,7 +112,7 @@ class _DeferrableField:
         except KeyError:  # not set yet (a bare object.__new__): what getattr and hasattr expect
             raise AttributeError(f"{type(obj).__name__!r} object has no attribute {self.name!r}") from None
         if isinstance(value, Deferred):
-            value = value.compute()
+            value = value.value_for(self.name)
             obj.__dict__[self.name] = value
         return value
 
@@ -154,30 +161,49 @@ class Trajectory:
 
     robot: str
     task: str
-    t: np.ndarray
+    t: np.ndarray = _DeferrableField(MISSING)  # (required: MISSING is the dataclass's "no default")
     q: np.ndarray
-    p: np.ndarray
-    p_desired: np.ndarray
+    p: np.ndarray = _DeferrableField(MISSING)
+    p_desired: np.ndarray = _DeferrableField(MISSING)
     scheme: str = "augmented"
     mode: str = "default"
     solver: tuple[str, ...] = _DeferrableField(())
-    lam: np.ndarray | None = None
+    lam: np.ndarray | None = _DeferrableField(None)
     m_eigs: np.ndarray | None = _DeferrableField(None)
     m_null_eigs: np.ndarray | None = _DeferrableField(None)
-    position_error: np.ndarray | None = None
-    trace_error: np.ndarray | None = None
-    vect_error: np.ndarray | None = None
-    axis_error: np.ndarray | None = None
+    position_error: np.ndarray | None = _DeferrableField(None)
+    trace_error: np.ndarray | None = _DeferrableField(None)
+    vect_error: np.ndarray | None = _DeferrableField(None)
+    axis_error: np.ndarray | None = _DeferrableField(None)
     normality_residual: np.ndarray | None = _DeferrableField(None)
     loop_drift: np.ndarray | None = None
     loop_period: float | None = None
     meta: dict = field(default_factory=dict)
-    active_bounds: np.ndarray | None = None
-    bound_multipliers: np.ndarray | None = None
-    limit_margins: np.ndarray | None = None
-    switch_times: np.ndarray | None = None
+    active_bounds: np.ndarray | None = _DeferrableField(None)
+    bound_multipliers: np.ndarray | None = _DeferrableField(None)
+    limit_margins: np.ndarray | None = _DeferrableField(None)
+    switch_times: np.ndarray | None = _DeferrableField(None)
     qdot: np.ndarray | None = None
     qddot: np.ndarray | None = None
+
+    @classmethod
+    def assemble(cls, **values) -> Trajectory:
+        """``Trajectory(**values)`` made in one step rather than field by field (the recorder makes one per
+        ``track()`` run, where a frozen dataclass's ``__init__`` costs several times as much): the same record.
+
+        Raises:
+            TypeError: a name that is not a field, or a required field (``robot``, ``task``, ``t``, ``q``, ``p``,
+                ``p_desired``) missing, as ``Trajectory(**values)`` would.
+        """
+        if not _REQUIRED <= values.keys() <= _FIELDS:
+            raise TypeError(f"Trajectory fields missing: {sorted(_REQUIRED - values.keys())}, not fields: "
+                            f"{sorted(values.keys() - _FIELDS)}")
+        obj = object.__new__(cls)
+        kept = obj.__dict__  # where __init__ and the deferrable fields keep the values
+        kept.update(_DEFAULTS)  # (in the fields' order, as __init__ sets them)
+        kept["meta"] = {}
+        kept.update(values)
+        return obj
 
     def __getstate__(self) -> dict:
         """Every field's value, :class:`Deferred` ones computed (a pickled record holds no callables)."""
@@ -339,6 +365,13 @@ class Trajectory:
     def load_json(cls, path: str | Path) -> Trajectory:
         """Read a record written by :meth:`save_json`."""
         return cls.from_json_dict(read_json_object(path))
+
+
+#: for Trajectory.assemble: the fields, those without a default, and every field's default in the fields' order
+#: (MISSING for those without; ``meta``'s factory makes a new dict in assemble)
+_FIELDS = frozenset(f.name for f in fields(Trajectory))
+_REQUIRED = frozenset(f.name for f in fields(Trajectory) if f.default is MISSING and f.default_factory is MISSING)
+_DEFAULTS = {f.name: f.default for f in fields(Trajectory)}
 
 
 def _speed_figures(fastest) -> dict:

@@ -245,37 +245,91 @@ def test_a_record_does_not_follow_its_inputs_after_the_run():
     array here), or the record's own q, before they are read changes nothing; and JointDeviation keeps
     its own read-only copy of the reference."""
     r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
-    want = track(r, path, index, q0, steps_per_loop=40).normality_residual
+    ref = track(r, path, index, q0, steps_per_loop=40)
+    want = ref.normality_residual
     tr = track(r, path, index, q0, steps_per_loop=40)
     q0 += 0.2  # the caller reuses its array (e.g. to warm-start the next run)
     tr.q[:] += 0.1
     assert np.abs(tr.normality_residual - want).max() < 1e-15 and want.max() < 1e-9
     assert not index.reference.flags.writeable and np.abs(index.reference - (q0 - 0.2)).max() < 1e-15
+    # the deferred per-point fields too (the same code on the same inputs: bit for bit)
+    for name in ("t", "p", "p_desired", "position_error", "vect_error", "lam", "limit_margins", "active_bounds"):
+        assert np.array_equal(getattr(tr, name), getattr(ref, name)), name
+
+
+def test_an_index_that_can_change_is_read_at_the_run_end():
+    """grad z of an index that may change after the run (a CustomIndex over the caller's array) is taken at the
+    run's end: changing the array before the record's diagnostics are read changes nothing. Only an index that
+    cannot change (Index.fixed: JointDeviation, frozen with read-only copies) is read when they are."""
+    from kinredund.indices import CustomIndex, Index, JointDeviation
+
+    r, path, _, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    ref = r.home.copy()
+    index = CustomIndex(lambda q: 0.5 * float((q - ref) @ (q - ref)), lambda q: q - ref, lambda q: np.eye(7))
+    want = track(r, path, index, q0, steps_per_loop=40).normality_residual
+    tr = track(r, path, index, q0, steps_per_loop=40)
+    ref += 0.3  # the index's z changes: a record read now must not follow it
+    assert np.array_equal(tr.normality_residual, want)
+    assert not index.fixed and not Index.fixed and JointDeviation(q0).fixed
+
+
+def test_the_deferred_per_point_fields_against_a_fresh_evaluation():
+    """The fields track() does not read are computed on first read (PerPoint) and equal an independent
+    evaluation: the times k dt, the pose at the recorded joints (forward kinematics), the path's, the task's errors
+    from them, the margins to the limits, the switch times of meta; lambda as U lambda (the closure 7-vector's)."""
+    from kinredund.tracking.tracker import robot_limits
+    from kinredund.trajectory import Deferred
+
+    r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
+    tr = track(r, path, index, q0, steps_per_loop=60)
+    names = ("t", "p", "p_desired", "lam", "position_error", "trace_error", "vect_error", "axis_error",
+             "active_bounds", "bound_multipliers", "limit_margins", "switch_times")
+    assert all(isinstance(tr.__dict__[n], Deferred) for n in names)  # not computed by track()
+    dt = path.period / 60
+    assert np.abs(tr.t - dt * np.arange(61)).max() < 1e-15
+    lim = robot_limits(r)
+    for k in range(0, 61, 6):
+        Q, p = r.kinematics.pose(tr.q[k])
+        s = path(tr.t[k])
+        assert np.abs(tr.p[k] - p).max() < 1e-12 and np.abs(tr.p_desired[k] - s.p).max() < 1e-12
+        assert abs(tr.position_error[k] - np.linalg.norm(p - s.p)) < 1e-12
+        assert abs(tr.trace_error[k] - abs(np.trace(Q) - np.trace(s.Q))) < 1e-12
+        margins = np.minimum(tr.q[k] - lim.lower, lim.upper - tr.q[k])
+        assert np.abs(tr.limit_margins[k] - np.minimum(margins, 1e10)).max() < 1e-15
+    assert tr.axis_error is None and tr.lam.shape == (61, 7) and tr.active_bounds.shape == (61, 7)
+    assert list(tr.switch_times) == [w["t"] for w in tr.meta["switches"]]
+    assert isinstance(tr.__dict__["p"], np.ndarray)  # kept once read
 
 
 def test_deferred_diagnostics_read_from_several_threads():
-    """Threads reading one record's diagnostics at once all get the same values, computed once."""
+    """Threads reading one record's deferred fields at once all get the same values, each group (the diagnostics,
+    the per-point fields) computed once."""
     from concurrent.futures import ThreadPoolExecutor
 
     from kinredund.tracking import recorder
 
     r, path, index, q0 = panda_circle(wrist_amplitude=np.radians(15))
-    calls, run = [], recorder.Diagnostics._run
+    calls, runs = [], {kind: kind._run for kind in (recorder.Diagnostics, recorder.PerPoint)}
 
-    def counted(self, *args):
-        calls.append(1)
-        return run(self, *args)
+    def counted(kind):
+        def run(self, *args):
+            calls.append(kind)
+            return runs[kind](self, *args)
+        return run
 
-    recorder.Diagnostics._run = counted
+    for kind in runs:
+        kind._run = counted(kind)
     try:
         records = [track(r, path, index, q0, steps_per_loop=20) for _ in range(4)]
-        names = ("solver", "m_eigs", "m_null_eigs", "normality_residual") * 4
+        names = ("solver", "m_eigs", "position_error", "normality_residual", "p", "lam") * 4
         with ThreadPoolExecutor(8) as pool:
             got = list(pool.map(lambda a: getattr(records[a[0]], a[1]), [(k, n) for k in range(4) for n in names]))
     finally:
-        recorder.Diagnostics._run = run
-    assert len(calls) == 4  # once per record
-    assert all(got[16 * k + 3] is records[k].normality_residual for k in range(4))
+        for kind, run in runs.items():
+            kind._run = run
+    assert sorted(calls, key=id) == sorted(list(runs) * 4, key=id)  # each group once per record
+    assert all(got[24 * k + 3] is records[k].normality_residual for k in range(4))
+    assert all(got[24 * k + 4] is records[k].p for k in range(4))
 
 
 def test_a_bare_record_object_has_no_diagnostics_attribute():
@@ -283,3 +337,37 @@ def test_a_bare_record_object_has_no_diagnostics_attribute():
 
     bare = object.__new__(Trajectory)
     assert not hasattr(bare, "solver") and getattr(bare, "m_eigs", "absent") == "absent"
+
+
+def test_assemble_makes_the_record_the_dataclass_makes():
+    """Trajectory.assemble (the recorder's one-step construction) gives the record Trajectory(**values) gives:
+    the same values in the same order, the defaults (a new meta dict each), and a TypeError for a missing or an
+    unknown field."""
+    from kinredund.trajectory import Deferred, Trajectory
+
+    q = np.zeros((3, 2))
+    values = {"robot": "planar3", "task": "planar", "t": np.arange(3.0), "q": q, "p": np.zeros((3, 3)),
+              "p_desired": Deferred(lambda: np.ones((3, 3))), "lam": q, "loop_period": 2.0}
+    a, b = Trajectory(**values), Trajectory.assemble(**values)
+    assert list(a.__dict__) == list(b.__dict__) and all(a.__dict__[k] is b.__dict__[k] for k in values)
+    assert b.p_desired.sum() == 9.0 and b.mode == "default" and b.solver == () and b.qdot is None
+    assert b.meta == {} and b.meta is not Trajectory.assemble(**values).meta
+    with pytest.raises(TypeError, match="missing: \\['q'\\]"):
+        Trajectory.assemble(**{k: v for k, v in values.items() if k != "q"})
+    with pytest.raises(TypeError, match="not fields: \\['speed'\\]"):
+        Trajectory.assemble(**values, speed=1.0)
+
+
+def test_loop_drifts_are_joint_drift_per_loop():
+    """angles.loop_drifts (one pass over the loops) is joint_drift at each loop's end, bit for bit (the same
+    arithmetic), revolute joints compared modulo 2 pi across the wrap, a prismatic one as it is."""
+    from kinredund.kinematics.angles import joint_drift, loop_drifts
+
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-4.0, 4.0, size=(3 * 7 + 1, 3))
+    q[7, 0] = q[0, 0] + 2 * np.pi - 1e-3  # a turn and a bit: a drift of 1e-3 rad
+    revolute = np.array([True, True, False])
+    got = loop_drifts(q, 7, 3, revolute)
+    assert got.shape == (3,) and got.dtype == float
+    assert list(got) == [joint_drift(q[0], q[7 * (i + 1)], revolute) for i in range(3)]
+    assert loop_drifts(q, 7, 0, revolute).shape == (0,)

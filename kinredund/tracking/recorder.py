@@ -1,26 +1,29 @@
 """The record of a tracking run: per step what the stepper reached, diagnostics computed when read.
 
 :class:`Recorder` keeps, per recorded point, only what the stepper already has (t, q, lambda, M, the
-step's J and path sample, its evaluation where it was made at the recorded point). At the end,
-:meth:`Recorder.trajectory` evaluates the pose afresh where needed (the default mode's evaluation is at
-the predicted point: there the pose at the corrected joints), computes the task's errors
-(:meth:`kinredund.tasks.Task.errors_many`) and grad z at every recorded point
-(:meth:`kinredund.indices.Index.gradients_many`: the index is the caller's object, the record must not
-follow later changes to it). The diagnostics - the normality residual ||(1 - J^+ J) grad z|| (Eq. 4.5,
-with K afresh at the corrected joints), the solver labels of
-Theorem 2 and, with ``diagnostics``, the eigenvalues of M and of its projection on the null space of J -
-are handed to the record as :class:`~kinredund.trajectory.Deferred` values: :class:`Diagnostics`
-computes them all in a few batched numpy calls on the first read of any of them. ``track()`` then costs
-little more than its steps (``benchmarks/resolved_rate.py``: ``track_over_step``).
+step's J and path sample, its evaluation where it was made at the recorded point; a run of steps' rows as
+the blocks they are). At the end, :meth:`Recorder.trajectory` makes what ``track()`` itself reads or must
+fix now: t, q, the pose (afresh where needed: the default mode's evaluation is at the predicted point, there
+the pose at the corrected joints), the loop drift, the speeds against the limits (``meta``) and grad z at
+every recorded point (:meth:`kinredund.indices.Index.gradients_many`: the index is the caller's object, the
+record must not follow later changes to it). The rest is handed to the record as
+:class:`~kinredund.trajectory.Deferred` values, each group computed on the first read of any of it:
+:class:`PerPoint` stacks lambda, the active bounds and their multipliers and computes the task's errors
+(:meth:`kinredund.tasks.Task.errors_many`) and the limit margins; :class:`Diagnostics` computes the normality
+residual ||(1 - J^+ J) grad z|| (Eq. 4.5, with K afresh at the corrected joints), the solver labels of
+Theorem 2 and, with ``diagnostics``, the eigenvalues of M and of its projection on the null space of J, in a
+few batched numpy calls. ``track()`` then costs little more than its steps (``benchmarks/resolved_rate.py``:
+``track_over_step``), and holds the GIL little after them (``track_many``'s threads).
 """
 
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
 
-from kinredund.kinematics.angles import joint_drift
+from kinredund.kinematics.angles import loop_drifts
 from kinredund.tasks import get_task
 from kinredund.tracking.linalg import eigs_many, labels_many, normality_many, null_space_bases, null_space_eigs_many
 from kinredund.tracking.stepper import Stepper
@@ -32,8 +35,11 @@ class Recorder:
 
     def __init__(self, stepper: Stepper, diagnostics: bool = True):
         self.stepper, self.diagnostics = stepper, diagnostics
-        self.t, self.solver, self.M, self.J_step, self.points = [], [], [], [], []
-        self.q, self.lam = Column(), Column()
+        self.t, self.solver, self.points = [], [], []
+        self.q, self.lam, self.M = Column(), Column(), Column()
+        self.J_step = Column()  # the step's J at the points whose solver label is pending (None), in order
+        self.pending = 0  # how many those are
+        self.M_missing = False  # a point without M (the baselines): no eigenvalues
         self.limited = getattr(stepper, "limits", None) is not None
         self.active, self.mu, self.qdot = Column(), Column(), Column()
         self._free = np.zeros(stepper.n, dtype=int) if self.limited else None  # the active bounds with none held
@@ -54,7 +60,10 @@ class Recorder:
         self.lam.append(s.task_lam)  # in the closure 7-vector's coordinates at the end (lam_full, batched)
         self.solver.append(None if pending else s.solver)
         self.M.append(s.M)
-        self.J_step.append(pt.J if pending else None)
+        self.M_missing = self.M_missing or s.M is None
+        if pending:
+            self.J_step.append(pt.J)
+            self.pending += 1
         # the step's own evaluation where it was made at the recorded point, else the path sample (with the pose
         # at the recorded joints where the step has it: a compiled step's RecordedPose)
         self.points.append(pt if pt.q is s.q and pt.t == s.t else getattr(pt, "recorded", pt.sample))
@@ -78,117 +87,93 @@ class Recorder:
         self.t += t
         self.q.extend(q)
         self.lam.extend(lam)
-        self.M += list(M)
+        self.M.extend(M)
         self.points.append(PoseRows(*pose, *desired))
         if held is None:
             self.solver += [None] * k
-            self.J_step += list(J)
+            self.J_step.extend(J)
+            self.pending += k
         else:
             self.solver += held[0]
-            self.J_step += [None] * k
         if self.limited:
-            self.active.extend(np.repeat((self._free if held is None else held[1])[None], k, axis=0))
-            self.mu.extend(np.repeat(self.stepper.mu[None], k, axis=0) if held is None else held[2])
+            # (the same row k times: rows by reference, stacked when read)
+            self.active.extend([self._free if held is None else held[1]] * k)
+            self.mu.extend([self.stepper.mu] * k if held is None else held[2])
             self.qdot.extend(qdot)
         if self.rows is not None:  # (row_record's with no row active: no multipliers)
             active, none = self.stepper.rows, np.zeros(0)
             self.rows += [(v, active, none) for v in smallest]
 
-    def _lam_full(self) -> np.ndarray:
-        """lambda per point in the closure 7-vector's coordinates (augmented pose task: U lambda), else lambda."""
-        lam = self.lam.array()
-        basis = self.stepper.pt.basis
-        return lam if basis is None else lam @ basis.T
-
     def __len__(self) -> int:
         return len(self.t)
 
-    def _limits_record(self, q: np.ndarray, meta: dict) -> dict:
-        """The limits' record: active sets, bound multipliers, margins, switches, speeds against the limits."""
+    def _limits_meta(self, meta: dict) -> None:
+        """The limits' record in ``meta``: switches, speeds against the limits (the active sets, bound multipliers,
+        margins and switch times are :class:`PerPoint`'s)."""
         s = self.stepper
-        lim = s.limits
-        speeds = np.abs(self.qdot.array())
-        vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float)
-        fastest = speeds.max(axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(vmax > 0, fastest / vmax, np.inf)
-        meta.update(switches=list(s.switches), joint_speed_max=fastest.tolist(), velocity_limit=vmax.tolist(),
-                    speed_over_velocity_limit_max=float(np.max(ratio)) if np.all(np.isfinite(ratio)) else None,
-                    limit_margin=lim.margin)
-        return {"active_bounds": self.active.array(),
-                "bound_multipliers": self.mu.array(), "limit_margins": np.minimum(lim.margins(q), 1e10),
-                "switch_times": np.array([w["t"] for w in s.switches], dtype=float)}
+        vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float).tolist()
+        fastest = np.abs(self.qdot.array().T, order="C").max(axis=1).tolist()  # (a joint's speeds in a row)
+        ratio = [f / v if v > 0 else math.inf for f, v in zip(fastest, vmax, strict=True)]  # (a few joints: floats)
+        meta.update(switches=list(s.switches), joint_speed_max=fastest, velocity_limit=vmax,
+                    speed_over_velocity_limit_max=max(ratio) if all(map(math.isfinite, ratio)) else None,
+                    limit_margin=s.limits.margin)
 
-    def _evaluate(self, q: np.ndarray, oriented: bool):
-        """(Q (k, 3, 3), p (k, 3), {k: J} where the step's own evaluation was made at recorded point k, p_d (k, 3),
-        Q_d (k, 3, 3), None where the task has no orientation (``oriented``)): the pose afresh at the other
-        recorded joints (K there is left to :class:`Diagnostics`). A run's rows (:class:`PoseRows`) are stacked as
-        the blocks they are, the points recorded one by one in between a block each."""
-        kin = self.stepper.ev.robot.kinematics
-        blocks, single, own = [], [], {}
-
-        def close() -> None:  # the points recorded one by one since the last block, as one block
-            if single:
-                Q, p, p_d, Q_d = zip(*single, strict=True)
-                blocks.append((np.array(Q), np.array(p), np.array(p_d), np.array(Q_d) if oriented else None))
-                single.clear()
-
+    def _poses(self) -> tuple[list, dict]:
+        """(the recorded poses, {k: J} where the step's own evaluation was made at recorded point k): a run's rows
+        (:class:`PoseRows`) as they are, a point recorded one by one as (Q, p, the path sample), (Q, p) None where
+        the step has no pose at the recorded joints (:func:`stack_poses` evaluates it there on first read)."""
+        poses, own = [], {}
         k = 0
         for item in self.points:
             if isinstance(item, PoseRows):  # the rows of a run (add_rows)
-                close()
-                blocks.append((item.Q, item.p, item.p_d, item.Q_d))
+                poses.append(item)
                 k += len(item.p)
                 continue
             if hasattr(item, "terms"):
-                (Q, p), own[k], sample = (item.Q, item.p), item.J, item.sample
+                own[k] = item.J
+                poses.append((item.Q, item.p, item.sample))
             elif hasattr(item, "pose"):
-                (Q, p), sample = item.pose, item.sample
+                poses.append((*item.pose, item.sample))
             else:
-                (Q, p), sample = kin.pose(q[k]), item
-            single.append((Q, p, sample.p, sample.Q))
+                poses.append((None, None, item))
             k += 1
-        close()
-        Q, p, p_d = (np.concatenate([b[j] for b in blocks]) for j in range(3))
-        return Q, p, own, p_d, np.concatenate([b[3] for b in blocks]) if oriented else None
+        return poses, own
 
     def trajectory(self, *, robot_name: str, scheme: str, mode: str, loops: int | None, steps_per_loop: int | None,
                    period: float | None, meta: dict) -> Trajectory:
         """The :class:`~kinredund.trajectory.Trajectory` of the run (``loops``: the loop drift per loop)."""
         s = self.stepper
         task = get_task(s.ev.task)
-        t, q = np.array(self.t), self.q.array()
-        Q, p, own, p_d, Q_d = self._evaluate(q, task.has_orientation)
-        errors = task.errors_many(Q, p, Q_d, p_d)
-        zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
-        index = s.ev.index  # grad z now: the index is the caller's object, the record must not follow it
-        grad = np.zeros_like(q) if index is None else index.gradients_many(q, t)
-        diag = Diagnostics(self, t, q, grad, own, Q_d)
+        q = self.q.array()
+        index = s.ev.index  # grad z now, unless the index cannot change: it is the caller's object, the record must
+        fixed = index is None or index.fixed  # not follow later changes to it (Index.fixed)
+        grad = None if fixed else index.gradients_many(q, np.array(self.t))
+        poses, own = self._poses()
+        lim = self.limited  # (the record's q is the caller's to change before the rest is read: q's rows again)
+        per = PerPoint(task, list(self.t), poses, self.q.snapshot(), s.ev.robot, self.lam.snapshot(), s.pt.basis,
+                       (s.limits, self.active.snapshot(), self.mu.snapshot(), [w["t"] for w in s.switches]) if lim
+                       else None)
+        diag = Diagnostics(self, grad, index if fixed else None, own, per)
         eigs = diag.eigenvalues
-        solver = Deferred(diag.solver) if diag.pending else tuple(self.solver)
-        drift = None
-        if loops is not None:
-            drift = np.array([joint_drift(q[0], q[(i + 1) * steps_per_loop], s.ev.robot.revolute)
-                              for i in range(loops)])
-        extra = self._limits_record(q, meta) if self.limited else {}
+        solver = diag if self.pending else tuple(self.solver)
+        drift = None if loops is None else loop_drifts(q, steps_per_loop, loops, s.ev.robot.revolute)
+        if lim:
+            self._limits_meta(meta)
         if self.rows is not None:  # the general constraints' record (issue 27): per point, and the switches
             meta.update(switches=list(s.switches), constraints={
                 "names": s.row_names(range(len(s.row_pairs))), "min_value": [r[0] for r in self.rows],
                 "active": [list(r[1]) for r in self.rows], "multipliers": [r[2].tolist() for r in self.rows]})
-        return Trajectory(
-            **extra, robot=robot_name, task=task.name, t=t, q=q, p=p, p_desired=p_d, scheme=scheme,
-            mode=mode,
-            solver=solver, lam=self._lam_full(), m_eigs=Deferred(diag.m_eigs) if eigs else None,
-            m_null_eigs=Deferred(diag.m_null_eigs) if eigs else None,
-            position_error=errors["position_error"], trace_error=errors.get("trace_error", zeros),
-            vect_error=errors.get("vect_error", zeros), axis_error=errors.get("axis_error"),
-            normality_residual=Deferred(diag.normality_residual), loop_drift=drift, loop_period=period, meta=meta)
+        # the deferred groups stand for their fields (Deferred.value_for)
+        return Trajectory.assemble(
+            **dict.fromkeys(PER_POINT + (LIMITS_FIELDS if lim else ()), per), robot=robot_name, task=task.name, q=q,
+            scheme=scheme, mode=mode, solver=solver, m_eigs=diag if eigs else None, m_null_eigs=diag if eigs else None,
+            normality_residual=diag, loop_drift=drift, loop_period=period, meta=meta)
 
 
 class Column:
     """One recorded vector field (q, lambda, the rates, the bound multipliers): rows added one by one
     (:meth:`append`, the stepper's arrays, kept by reference) or as a run's block (:meth:`extend`: a 2-D array of
-    rows), stacked into one array when read (:meth:`array`: a new array, the rows' values)."""
+    rows, or a list of rows), stacked into one array when read (:meth:`array`: a new array, the rows' values)."""
 
     __slots__ = ("_blocks", "_rows", "_count")
 
@@ -201,7 +186,7 @@ class Column:
         self._rows.append(row)
         self._count += 1
 
-    def extend(self, block: np.ndarray) -> None:
+    def extend(self, block: np.ndarray | list) -> None:
         self._flush()
         self._blocks.append(block)
         self._count += len(block)
@@ -214,13 +199,25 @@ class Column:
     def __len__(self) -> int:
         return self._count
 
+    def snapshot(self) -> Column:
+        """The rows so far, as a Column of their own (rows added to this one later are not in it)."""
+        self._flush()
+        out = Column()
+        out._blocks, out._count = list(self._blocks), self._count
+        return out
+
+    def rows(self) -> list:
+        """The rows, one by one (a block's as views)."""
+        self._flush()
+        return [row for b in self._blocks for row in b]
+
     def array(self) -> np.ndarray:
         """The rows stacked (k, width)."""
         self._flush()
         blocks = self._blocks
         if len(blocks) == 1:
             return np.array(blocks[0])
-        return np.concatenate([b if isinstance(b, np.ndarray) else np.array(b) for b in blocks])  # (one copy each)
+        return np.concatenate(blocks)  # (a list of rows taken as np.array takes it)
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         out = self.array()
@@ -237,27 +234,14 @@ class PoseRows:
         self.Q, self.p, self.p_d, self.Q_d = Q, p, p_d, Q_d
 
 
-class Diagnostics:
-    """A run's diagnostics, computed together on the first call of any of them, then kept.
+class Once(Deferred):
+    """Values computed together on the first read of any of them, then kept: a
+    :class:`~kinredund.trajectory.Deferred` that stands for each of its fields of a record (:meth:`value_for`).
+    Until then it holds its inputs, and drops them once computed. Safe to read from several threads (one
+    computes, the others wait)."""
 
-    The normality residual ||Z^T grad z|| (Eq. 4.5, Z a null-space basis of J; J's rows afresh at each
-    corrected point the step did not evaluate, grad z as the recorder computed it), with ``diagnostics``
-    the eigenvalues of M and of Z^T M Z (Theorem 2), and the solver labels the steps left pending
-    (:func:`labels_many`, which the eigenvalues make cheap). Until then it holds the run's arrays
-    (about 1 KiB per point on a 7-axis arm; M and the step's J per point, stacked when first read) and the
-    robot for its kinematics; it drops them once computed. Safe to read from several threads (one computes,
-    the others wait).
-    """
-
-    def __init__(self, rec: Recorder, t: np.ndarray, q: np.ndarray, grad: np.ndarray, own: dict,
-                 Q_d: np.ndarray | None):
-        s = rec.stepper
-        self.pending = [k for k, v in enumerate(rec.solver) if v is None]
-        self.eigenvalues = rec.diagnostics and all(M is not None for M in rec.M)
-        # copies (the record's t and q are the caller's to change); M and J per step are stacked when first read
-        # (the steppers never change them in place)
-        self._inputs = (t.copy(), q.copy(), grad, own, Q_d, s.ev.robot, s.ev.task, list(rec.M), list(rec.J_step),
-                        list(rec.solver), s.linear_solver, s.symmetric)
+    def __init__(self, *inputs):
+        self._inputs = inputs
         self._out = None
         self._lock = threading.Lock()
 
@@ -268,11 +252,111 @@ class Diagnostics:
                 self._inputs = None
             return self._out
 
-    def _run(self, t, q, grad, own, Q_d, robot, task_name, Ms, Js_step, solver, rule, symmetric) -> dict:
+    def _run(self, *inputs) -> dict:
+        raise NotImplementedError
+
+    def value_for(self, name: str):
+        return self._compute()[name]
+
+
+def stack_poses(poses: list, q: np.ndarray, robot, oriented: bool) -> dict:
+    """The poses of :meth:`Recorder._poses` stacked: Q (k, 3, 3), p (k, 3) at the recorded joints ``q`` (evaluated
+    there where the step had none), the path's p_desired (k, 3) and Q_d (k, 3, 3), None where the task has no
+    orientation (``oriented``)."""
+    Qs, ps, p_ds, Q_ds = [], [], [], []
+    k = 0
+    for item in poses:
+        if isinstance(item, PoseRows):
+            Qs.append(item.Q)
+            ps.append(item.p)
+            p_ds.append(item.p_d)
+            Q_ds.append(item.Q_d)
+            k += len(item.p)
+            continue
+        Q, p, sample = item
+        if Q is None:
+            Q, p = robot.kinematics.pose(q[k])
+        Qs.append(np.asarray(Q)[None])
+        ps.append(np.asarray(p)[None])
+        p_ds.append(np.asarray(sample.p)[None])
+        Q_ds.append(np.asarray(sample.Q)[None] if oriented else None)
+        k += 1
+    return {"Q": np.concatenate(Qs), "p": np.concatenate(ps), "p_desired": np.concatenate(p_ds),
+            "Q_d": np.concatenate(Q_ds) if oriented else None}
+
+
+#: the fields of a record :class:`PerPoint` stands for, and those of a run with limits
+PER_POINT = ("t", "p", "p_desired", "lam", "position_error", "trace_error", "vect_error", "axis_error")
+LIMITS_FIELDS = ("active_bounds", "bound_multipliers", "limit_margins", "switch_times")
+
+
+class PerPoint(Once):
+    """A run's per-point fields that ``track()`` itself does not read (:data:`PER_POINT`, with limits
+    :data:`LIMITS_FIELDS`), stacked and computed on the first read of any: the times; the poses reached and asked
+    for (:func:`stack_poses`: p, p_desired, and Q, Q_d for the task's errors and :class:`Diagnostics`); the
+    multipliers lambda (in the closure 7-vector's coordinates for the augmented pose task: U lambda); the task's
+    errors (:meth:`kinredund.tasks.Task.errors_many`; zeros for the trace and vect errors of a task that does not
+    hold them, None for its axis error); with limits, the active bounds, their multipliers, the margins to the
+    limits (:meth:`~kinredund.tracking.constraints.joint_limits.JointLimits.margins`, 1e10 where a joint has none;
+    a JointLimits is not changed after it is made) and the switch times.
+
+    Args: the task; the times [s] (a list of its own); the poses (:meth:`Recorder._poses`: the steppers never
+    change a recorded point's arrays in place); q's :class:`Column`; the robot; lambda's
+    :class:`Column` and the basis U (None: lambda as it is); with limits, (the run's JointLimits, the active
+    bounds' and multipliers' Columns, the switch times [s]), else None.
+    """
+
+    def values(self) -> dict:
+        """All of them (computed on the first call)."""
+        return self._compute()
+
+    def _run(self, task, t, poses, q, robot, lam, basis, limits) -> dict:
+        q = q.array()
+        out = stack_poses(poses, q, robot, task.has_orientation)
+        out["q_run"] = q  # (:class:`Diagnostics`')
+        out["t"], p = np.array(t), out["p"]
+        out.update(task.errors_many(out["Q"], p, out["Q_d"], out["p_desired"]))
+        zeros = np.zeros(len(p))  # the trace and vect errors of tasks that do not hold them, as always recorded
+        out.setdefault("trace_error", zeros)
+        out.setdefault("vect_error", zeros)
+        out.setdefault("axis_error", None)
+        lam = lam.array()
+        out["lam"] = lam if basis is None else lam @ basis.T
+        if limits is not None:
+            bounds, active, mu, switches = limits
+            out.update(active_bounds=active.array(), bound_multipliers=mu.array(),
+                       limit_margins=np.minimum(bounds.margins(q), 1e10), switch_times=np.array(switches, dtype=float))
+        return out
+
+
+class Diagnostics(Once):
+    """A run's diagnostics, computed together on the first read of any of them, then kept.
+
+    The normality residual ||Z^T grad z|| (Eq. 4.5, Z a null-space basis of J; J's rows afresh at each
+    corrected point the step did not evaluate, grad z as the recorder computed it), with ``diagnostics``
+    the eigenvalues of M and of Z^T M Z (Theorem 2), and the solver labels the steps left pending
+    (:func:`labels_many`, which the eigenvalues make cheap). Until then it holds the run's arrays
+    (about 1 KiB per point on a 7-axis arm; M and the step's J per point, stacked when first read) and the
+    robot for its kinematics (:class:`Once`).
+    """
+
+    def __init__(self, rec: Recorder, grad: np.ndarray | None, index, own: dict, per: PerPoint):
+        s = rec.stepper
+        self.eigenvalues = rec.diagnostics and not rec.M_missing
+        # grad z, or None: then from the index, one that cannot change (Index.fixed), or zero without one; M and J:
+        # the recorder's rows so far (the steppers never change them in place), stacked when first read; t, q and
+        # Q_d: the per-point fields' (their own: the record's are the caller's to change)
+        super().__init__(grad, index, own, per, s.ev.robot, s.ev.task, rec.M.snapshot(), rec.J_step.snapshot(),
+                         list(rec.solver), s.linear_solver, s.symmetric)
+
+    def _run(self, grad, index, own, per, robot, task_name, Ms, J_pending, solver, rule, symmetric) -> dict:
         kin, task = robot.kinematics, get_task(task_name)
-        M = np.array(Ms) if self.eigenvalues else None
-        M_pending = None if M is not None or not self.pending else np.array([Ms[k] for k in self.pending])
-        J_pending = np.array([Js_step[k] for k in self.pending]) if self.pending else None
+        t, q, Q_d = (per.values()[name] for name in ("t", "q_run", "Q_d"))
+        if grad is None:
+            grad = np.zeros_like(q) if index is None else index.gradients_many(q, t)
+        pending = [k for k, v in enumerate(solver) if v is None]
+        M = Ms.array() if self.eigenvalues else None
+        M_pending = None if M is not None or not pending else [Ms.rows()[k] for k in pending]
         Js = []
         for k in range(len(t)):
             if k in own:
@@ -288,27 +372,15 @@ class Diagnostics:
         if M is not None:
             out["m_eigs"], out["m_null_eigs"] = eigs_many(M), null_space_eigs_many(M, J, Z)
         labels = list(solver)
-        if self.pending:
+        if pending:
             # the labels' (M, J) are the step's (at its predicted point, within the corrector's step of
             # the recorded one): the eigenvalues decide where they are clearly signed, classify elsewhere
-            k = self.pending
+            k = pending
             eig = None if out["m_eigs"] is None else out["m_eigs"][k]
             eig_null = None if out["m_null_eigs"] is None else out["m_null_eigs"][k]
-            Ms = M[k] if M is not None else M_pending
-            for i, label in zip(k, labels_many(list(Ms), list(J_pending), rule, symmetric, eig, eig_null),
+            Ms = list(M[k]) if M is not None else M_pending
+            for i, label in zip(k, labels_many(Ms, list(J_pending.array()), rule, symmetric, eig, eig_null),
                                 strict=True):
                 labels[i] = label
         out["solver"] = tuple(labels)
         return out
-
-    def normality_residual(self) -> np.ndarray:
-        return self._compute()["normality_residual"]
-
-    def m_eigs(self) -> np.ndarray | None:
-        return self._compute()["m_eigs"]
-
-    def m_null_eigs(self) -> np.ndarray | None:
-        return self._compute()["m_null_eigs"]
-
-    def solver(self) -> tuple[str, ...]:
-        return self._compute()["solver"]
