@@ -305,7 +305,7 @@ class Watch:
 
     def crossed(self, sigma: float, eig: float, scale: float | None = None) -> str | None:
         """``kinematic``, ``fold`` or None: which quantity (if any) is at or below its floor; ``scale``: the fold
-        floor's scale of an exact measurement not yet kept (:meth:`keep_exact` makes it :attr:`scale`)."""
+        floor's scale of an exact measurement not yet kept (:meth:`keep_exact` makes it the watch's ``scale``)."""
         fs, fe = self.floors()
         if scale is not None:
             fe = EIG_FLOOR * scale
