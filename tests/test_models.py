@@ -89,7 +89,10 @@ def test_random_hd_arms_load_identically_through_urdf(table, seed):
     assert np.abs(d1.oMf[direct.getFrameId(EE_FRAME)].homogeneous - T_ref).max() < 1e-12
     assert np.abs(d2.oMf[via_urdf.getFrameId(EE_FRAME)].homogeneous - T_ref).max() < 1e-12
     ydf.update_cfg({f"joint_{i + 1}": q[i] for i in range(table.n)})
-    assert np.abs(ydf.get_transform(EE_FRAME, "base_link") - T_ref).max() < 1e-12
+    # yourdfpy's origins (trimesh's compose_matrix) take rpy angles below ~1e-8 as zero (a Hypothesis draw with
+    # theta0 = 2.5e-12 moved its frame by 2.5e-12): its FK is compared where no angle is that small but nonzero
+    if not any(0.0 < abs(x) < 1e-6 for x in (*table.alpha, *table.theta0)):
+        assert np.abs(ydf.get_transform(EE_FRAME, "base_link") - T_ref).max() < 1e-12
 
 
 @pytest.mark.parametrize(
