@@ -78,10 +78,14 @@ def gil_free_share(jobs: list, options: dict) -> tuple[float, float]:
     return spent[0] / total, 1e3 * (total - spent[0]) / len(jobs)
 
 
-def _track_all(jobs: list, options: dict) -> int:
-    """Track each job in this process (a worker of :func:`process_rate`); the number that ran to the end."""
+_FORKED_JOBS: list = []  # the problems, inherited by :func:`process_rate`'s forked workers (not pickled per call)
+
+
+def _track_all(which: list, options: dict) -> int:
+    """Track the jobs numbered ``which`` in this process (a worker of :func:`process_rate`); the number that ran to
+    the end."""
     done = 0
-    for job in jobs:
+    for job in (_FORKED_JOBS[i] for i in which):
         try:
             track(*job, **options)
             done += 1
@@ -92,11 +96,13 @@ def _track_all(jobs: list, options: dict) -> int:
 
 def process_rate(jobs: list, options: dict, repeat: int) -> float:
     """Runs per second with the problems split between two worker processes (forked, warmed up; no GIL shared):
-    the ceiling that threads could reach on this machine. The records are not sent back (only counts)."""
+    the ceiling that threads could reach on this machine. The problems are inherited through the fork and the
+    records are not sent back (only counts), so no robot or record is pickled in the timed calls."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    halves = [jobs[0::2], jobs[1::2]]
+    _FORKED_JOBS[:] = jobs  # before the fork: the workers inherit the problems and get only their numbers
+    halves = [list(range(0, len(jobs), 2)), list(range(1, len(jobs), 2))]
     rates = []
     with ProcessPoolExecutor(2, mp_context=mp.get_context("fork")) as pool:
         list(pool.map(_track_all, halves, [options] * 2))  # each worker's first runs (imports, caches)

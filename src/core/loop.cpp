@@ -27,6 +27,7 @@
 #include <string>
 #include <vector>
 
+#include "arrays.hpp"
 #include "distances.hpp"
 #include "step.hpp"
 #include "watch.hpp"
@@ -37,23 +38,19 @@ namespace kinredund {
 
 namespace {
 
-using Rows = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using Vec = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using Sink = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using Small = nb::ndarray<double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
 
 // The status of a step the watch measures (after step.cpp's codes, RELEASE = 11 among them, and the driver's 8-13).
 constexpr int WATCH_DUE = 20;
 // The status of a step the scene's row check does not clear (its row and its smallest row value written).
 constexpr int GUARD_DUE = 21;
 
-void check_rows(const Rows& a, size_t k, size_t width, const char* name) {
+void check_rows(const InMat& a, size_t k, size_t width, const char* name) {
   if (a.shape(0) != k || a.shape(1) != width)
     throw nb::value_error((std::string(name) + " must have shape (" + std::to_string(k) + ", " +
                            std::to_string(width) + ")").c_str());
 }
 
-const double* vector_of(const Vec& a, size_t size, const char* name) {
+const double* vector_of(const InVec& a, size_t size, const char* name) {
   if (a.shape(0) != size)
     throw nb::value_error((std::string(name) + " must have " + std::to_string(size) + " entries").c_str());
   return a.data();
@@ -81,8 +78,8 @@ struct Inverse {
 Inverse inverse_of(const nb::tuple& watch, int m, int nf) {
   Inverse s;
   if (nb::len(watch) < 11 || watch[7].is_none()) return s;
-  const Vec v = nb::cast<Vec>(watch[7]);
-  const Rows ref = nb::cast<Rows>(watch[8]);
+  const InVec v = nb::cast<InVec>(watch[7]);
+  const InMat ref = nb::cast<InMat>(watch[8]);
   s.on = true;
   s.v.assign(v.data(), v.data() + v.shape(0));
   if (ref.shape(0) == static_cast<size_t>(m) && ref.shape(1) == static_cast<size_t>(nf))
@@ -102,9 +99,9 @@ Inverse inverse_of(const nb::tuple& watch, int m, int nf) {
 // (watch_exact's), (sigma_min_J, eig, u, fresh, sigma_max or None, scale or None) where by the inverse iteration
 // (watch_measure's, but J)): status 0 after all K steps (or after the first step the watch measures, with a guard),
 // else that of step ``done`` (WATCH_DUE, GUARD_DUE: its row is written).
-nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows omega, Rows ref, Rows rate, Vec y0,
-                    Vec yd0, nb::list prev_list, Vec qdot0, double speed2, bool check_jump, nb::tuple watch,
-                    Sink out, nb::object guard_arg) {
+nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InMat omega, InMat ref, InMat rate,
+                    InVec y0, InVec yd0, nb::list prev_list, InVec qdot0, double speed2, bool check_jump, nb::tuple watch,
+                    OutMat out, nb::object guard_arg) {
   StepCore& core = step_core(core_obj);
   int n, m, row;
   step_core_sizes(core, n, m, row);
@@ -126,10 +123,10 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
                            " entries").c_str());
   const size_t np_ = nb::len(prev_list);
   if (np_ % 2 || np_ > 4) throw nb::value_error("prev: (y, ydot) pairs, at most two");
-  std::vector<Vec> keep(np_);  // the arrays stay alive while their pointers are used
+  std::vector<InVec> keep(np_);  // the arrays stay alive while their pointers are used
   std::vector<const double*> prev(np_);
   for (size_t j = 0; j < np_; ++j) {
-    keep[j] = nb::cast<Vec>(prev_list[j]);
+    keep[j] = nb::cast<InVec>(prev_list[j]);
     prev[j] = vector_of(keep[j], N, "prev entries");
   }
   const double* y = vector_of(y0, N, "y");
@@ -141,14 +138,14 @@ nb::tuple run_steps(nb::handle core_obj, Vec t, Rows p, Rows v, Rows Q, Rows ome
   if (gate.every < 1) throw nb::value_error("the watch's exact interval must be >= 1");
   RowGuard* guard = nullptr;
   double t_start = 0.0;
-  Small smallest;  // (kept alive while its pointer is used)
+  OutVec smallest;  // (kept alive while its pointer is used)
   if (!guard_arg.is_none()) {
     guard = step_core_guard(core);
     if (guard == nullptr) throw nb::value_error("guard: the StepCore holds no row guard (StepCore.set_guard)");
     nb::tuple g = nb::cast<nb::tuple>(guard_arg);
     if (nb::len(g) != 2) throw nb::value_error("guard: (the run's start time, the array of smallest values)");
     t_start = nb::cast<double>(g[0]);
-    smallest = nb::cast<Small>(g[1]);
+    smallest = nb::cast<OutVec>(g[1]);
     if (smallest.shape(0) < K)
       throw nb::value_error(("guard: the smallest values' array needs at least " + std::to_string(K) +
                              " entries").c_str());

@@ -10,6 +10,8 @@
 // where math.cos raises on +-inf as Circle.sample does.
 #include "paths.hpp"
 
+#include "arrays.hpp"
+
 #include <nanobind/ndarray.h>
 
 #include <cmath>
@@ -21,10 +23,6 @@ namespace kinredund {
 
 namespace {
 
-using Vec = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using Mat = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using Values = nb::ndarray<double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using Rows = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 double (*volatile cos_of)(double) = &::cos;
 double (*volatile sin_of)(double) = &::sin;
@@ -36,7 +34,7 @@ void check_shape(size_t rows, size_t cols, size_t want_rows, size_t want_cols, c
 }
 
 // cos and sin of each angle into c and s; false, nothing written, where an angle is not finite.
-bool cos_sin(const Vec& a, Values c, Values s) {
+bool cos_sin(const InVec& a, OutVec c, OutVec s) {
   const size_t k = a.shape(0);
   if (c.shape(0) != k || s.shape(0) != k)
     throw nb::value_error(("c and s must have " + std::to_string(k) + " entries, as the angles").c_str());
@@ -54,8 +52,8 @@ bool cos_sin(const Vec& a, Values c, Values s) {
 // 3x3) and omega (k, 3) (else (0, 9) and (0, 3), not written). ``plane``: the rows e1, e2, n; ``w`` = speed / radius;
 // ``kind``: 0 position only, 1 the Frenet frame (Eqs. 4.47-4.48), 2 the orientation Q0 turned by roll sin(w t) about
 // its z axis. False where an angle is not finite (rows partly written: the caller drops them).
-bool circle_samples(const Vec& t, double start, double w, const Mat& plane, const Vec& center, double radius,
-                    double speed, int kind, const Mat& Q0, double roll, Rows P, Rows V, Rows Q, Rows omega) {
+bool circle_samples(const InVec& t, double start, double w, const InMat& plane, const InVec& center, double radius,
+                    double speed, int kind, const InMat& Q0, double roll, OutMat P, OutMat V, OutMat Q, OutMat omega) {
   const size_t k = t.shape(0);
   if (kind < 0 || kind > 2) throw nb::value_error("kind must be 0 (position), 1 (Frenet) or 2 (orientation)");
   check_shape(plane.shape(0), plane.shape(1), 3, 3, "plane");
