@@ -69,6 +69,7 @@ import numpy as np
 from kinredund.errors import KinredundError, OptionError, check_backend
 from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
+from kinredund.tracking.compiled_correct import CoreCorrector
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.compiled_start import TASK_CODES, CompiledStart, make_step_core, row_slices
 from kinredund.tracking.predictor_corrector import PredictorCorrector
@@ -224,6 +225,8 @@ class CompiledStep:
         self.layout = (self.slices, (n, m))  # what a CompiledPoint reads its fields with
         self.steps = self.held_steps = 0
         self.handed_back: dict[str, int] = {}
+        if limited and stepper.qp_backend == "kkt" and hasattr(core.StepCore, "correct"):  # (proxsuite: the rates
+            stepper.corrector = CoreCorrector(stepper, core)  # of _correct's fallback are its QP's, not R's LU)
         if stepper.control is not None and hasattr(core, "watch_exact"):  # the exact measurements the runs' own
             stepper.control.watch.use_core(core)
 

@@ -114,6 +114,10 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
     """
 
     state_class = ConstrainedState
+    #: the corrector solve made elsewhere, called first by :meth:`_correct` with no general row active (a callable
+    #: of the prediction y returning True where it made the solve; the compiled backend's
+    #: :class:`~kinredund.tracking.compiled_correct.CoreCorrector`), or None: this stepper's own
+    corrector = None
 
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, limits: Constraint | None = None,
                  constraints=(), qp_solver: str = "proxqp", **kwargs):
@@ -239,6 +243,12 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         super().accept(y, yd, pt, M, q_pred, rcond, label)
         self.mu = self._no_mu if self._sel is None else mu
 
+    def take_corrected(self, y, yd, pt, M, lu, rcond, label=None, mu=None, **_) -> None:
+        """:meth:`PredictorCorrector.take_corrected`, and the bound multipliers ``mu`` (n,) at the corrected point
+        where a joint is on a bound (else none), as :meth:`_correct` leaves them."""
+        super().take_corrected(y, yd, pt, M, lu, rcond, label)
+        self.mu = self._no_mu if self._sel is None else mu
+
     def take_start(self, y, yd, pt, M, rcond, label=None, exact=None, mu=None, **_) -> None:
         """:meth:`PredictorCorrector.take_start`, and the bound multipliers ``mu`` (n,) at the start where a joint
         is on a bound (else none)."""
@@ -291,6 +301,8 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         return F
 
     def _correct(self, y: np.ndarray) -> None:
+        if self.corrector is not None and not self.rows and self.corrector(y):
+            return  # the compiled core's solve (kinredund.tracking.compiled_correct), as below
         if self._sel is not None:
             y = y.copy()
             y[: self.n][self.fixed] = self._bound_values()[self.fixed]

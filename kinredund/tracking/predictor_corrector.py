@@ -154,6 +154,16 @@ class PredictorCorrector(Stepper):
         self._take(y, yd, pt, M, rcond, label)
         self.start_measure = exact
 
+    def take_corrected(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, lu, rcond: float,
+                       label: str | None = None, **_) -> None:
+        """Take a corrector solve made elsewhere (the compiled core: :mod:`kinredund.tracking.compiled_correct`) as
+        :meth:`_correct` leaves the state: the corrected ``y`` = [q; lambda] and its rates ``yd``, the evaluation
+        ``pt`` and M there, R's LU factors ``lu`` = (lu, piv) in LAPACK's layout and their condition estimate
+        ``rcond``; ``label``: the step's solver label, if known (the caller clears the predictor's history where the
+        solve needed the fallback)."""
+        self._take(y, yd, pt, M, rcond, label)
+        self.lu = lu
+
     def _take(self, y, yd, pt, M, rcond, label) -> None:
         n = self.n
         self.q, self.lam, self.y, self.yd = y[:n], y[n:], y, yd

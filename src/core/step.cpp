@@ -232,6 +232,31 @@ class StepCore {
     return nb::make_tuple(numpy_of(std::move(out)), nb::make_tuple(e.sigma, e.eig, v, e.scale));
   }
 
+  // PredictorCorrector._correct (LimitedPredictorCorrector's, on the reduced system where joints are held) at the
+  // time of the sample from the prediction y = [q; lambda], with the GIL released (correct_at): the corrected point,
+  // its rates and the bound multipliers there, without advance()'s LIMIT, RELEASE and JUMP verdicts (the Python
+  // stepper, which calls it through kinredund/tracking/compiled_correct.py, judges those). Returns (the output row
+  // of step(), restarted: the chord iterations failed and the fallback (_newton, _rates) made the point, R's LU
+  // factors in LAPACK's layout (column-major), their 0-based pivots (int32)) or the status code that leaves the
+  // corrector to Python (which then runs it from the same inputs: the core touched no Python state).
+  nb::object correct(double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t, CRef y) {
+    (void)t;  // (the sample is at t)
+    if (y.size() != n_ + m_) throw nb::value_error("y must have n + m entries");
+    set_sample(sp, sv, sQ, somega);
+    set_reference(ref_t, rate_t);
+    std::unique_ptr<VectorXd> out(new VectorXd(output_size()));
+    bool restarted = false;
+    int st;
+    {
+      nb::gil_scoped_release release;  // no Python object below
+      st = correct_at(y, *out, restarted);
+    }
+    if (st != OK) return nb::int_(st);
+    MatrixXd lu = lu_;
+    VectorXi piv = ipiv_;
+    return nb::make_tuple(numpy_of(std::move(out)), restarted, lu, piv);
+  }
+
  private:
   // start(): PredictorCorrector._newton (rounds of chord iterations, each with R factorised afresh at its first
   // iterate, at most 7 rounds of at most 8 updates) and _rates (LimitedPredictorCorrector's on the reduced system,
@@ -285,27 +310,119 @@ class StepCore {
       for (int i = 0; i < n; ++i)
         if (held_[i]) mu[i] = side_[i] * g[i];
     }
+    // no prediction: the corrected joints as the predicted and evaluated ones, the pose of this evaluation
+    write_row(out, y, sol, M, y.head(n), y.head(n), mu, sol.head(n).dot(sol.head(n)), false);
+    return OK;
+  }
+
+  // _correct's corrector, shared by advance() and correct_at(): the held joints set on their bounds in the
+  // prediction yp (LimitedPredictorCorrector._correct), one evaluation there with dK, R's LU (Eq. 4.24), the rates
+  // sol, the Newton update and, where it is not small, the chord iterations with fresh residuals; yc: the corrected
+  // point. M: the evaluation's (its J and M kept for the watch: Jw_, Mw_); grad_scale: switches._events' scale.
+  int corrector(VectorXd& yp, VectorXd& yc, VectorXd& sol, RowMatrixXd& M, double& grad_scale) {
+    const int n = n_, N = n_ + m_;
+    if (any_held_)
+      for (int i = 0; i < n; ++i)
+        if (held_[i]) yp[i] = bound_[i];
+    evaluate(yp.head(n), true);
+    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+    const VectorXd lam = yp.tail(m_);
+    VectorXd top;
+    system(lam, M, top);
+    Jw_ = J_;  // the step's J and M (at the predicted point: the chord iterations evaluate afresh)
+    Mw_ = M;
+    grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());
+    const int st = factor(M);
+    if (st != OK) return st;
+    sol.resize(N);
+    sol << top, xdot_;
+    solve(sol);  // Eq. (4.24)
+    if (!std::isfinite(sol.dot(sol))) return NOT_FINITE;
+    VectorXd F = residual(lam);
+    const double tol = tol_ * std::max(1.0, std::sqrt(grad_.dot(grad_)));
+    yc = yp;
+    if (!(F.dot(F) <= tol * tol)) {
+      VectorXd d = F;
+      solve(d);
+      yc = yp - d;
+      if (!(d.dot(d) <= tol)) return chord(yc, tol);
+    }
+    return OK;
+  }
+
+  // LimitedPredictorCorrector._update_mu at the corrected point yc (an evaluation without dK): mu (n, 0 where free)
+  int bound_multipliers(const VectorXd& yc, VectorXd& mu) {
+    const int n = n_;
+    mu = VectorXd::Zero(n);
+    if (!any_held_) return OK;
+    evaluate(yc.head(n), false);
+    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+    const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
+    for (int i = 0; i < n; ++i)
+      if (held_[i]) mu[i] = side_[i] * g[i];
+    return OK;
+  }
+
+  // One buffer (one array for Python to slice: small arrays would each be copied through numpy), the layout of
+  // row_slices (kinredund/tracking/compiled_start.py): [y (N), sol (N), M (n*n, row-major), J (m*n, row-major: the
+  // evaluation's, Jw_), q_pred (n), Q (9, row-major) and p (3) at the corrected joints (forward kinematics there
+  // with ``fk``, else the last evaluation's, made there), the evaluation's point qe (n: q_pred with the held joints
+  // on their bounds), the bound multipliers mu (n, 0 where free), the label verdict (1: label_code), rcond, speed2]
+  // (output_size()); R's factors stay here (factors()).
+  void write_row(VectorXd& out, const VectorXd& y, const VectorXd& sol, const RowMatrixXd& M, CRef q_pred, CRef qe,
+                 const VectorXd& mu, double speed2, bool fk) {
+    const int n = n_, N = n_ + m_;
     if (out.size() != output_size()) out.resize(output_size());
-    double* o = out.data();  // advance()'s layout
+    double* o = out.data();
     Eigen::Map<VectorXd>(o, N) = y;
     Eigen::Map<VectorXd>(o + N, N) = sol;
     o += 2 * N;
     Eigen::Map<RowMatrixXd>(o, n, n) = M;
     o += n * n;
-    Eigen::Map<RowMatrixXd>(o, m_, n) = J_;
+    Eigen::Map<RowMatrixXd>(o, m_, n) = Jw_;
     o += m_ * n;
-    Eigen::Map<VectorXd>(o, n) = y.head(n);  // no prediction: the corrected joints
+    Eigen::Map<VectorXd>(o, n) = q_pred;
     o += n;
-    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Qc(o);  // the pose of this evaluation
-    Qc = Q_;
+    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Qc(o);
     Eigen::Map<Vector3d> pc(o + 9);
-    pc = p_;
+    if (fk) {
+      pinocchio::Data& data = this->data();
+      pinocchio::forwardKinematics(model_, data, y.head(n));
+      const auto& oMf = pinocchio::updateFramePlacement(model_, data, fid_);
+      Qc = oMf.rotation();
+      pc = oMf.translation();
+    } else {
+      Qc = Q_;
+      pc = p_;
+    }
     o += 12;
-    Eigen::Map<VectorXd>(o, n) = y.head(n);
+    Eigen::Map<VectorXd>(o, n) = qe;
     Eigen::Map<VectorXd>(o + n, n) = mu;
     o[2 * n] = any_held_ && !velocity_ ? label_code(M) : 0.0;
     o[2 * n + 1] = rcond_;
-    o[2 * n + 2] = sol.head(n).dot(sol.head(n));
+    o[2 * n + 2] = speed2;
+  }
+
+  // PredictorCorrector._correct (with LimitedPredictorCorrector's wrapper) at the sample's time from the prediction
+  // y: the corrector (corrector()); where its chord iterations fail, the fallback from the prediction (the held
+  // joints on their bounds): _newton, then _rates, which start_at() makes (``restarted``: the caller clears the
+  // predictor's history); the bound multipliers at the corrected point. No LIMIT, RELEASE or JUMP verdict: the
+  // caller judges those. Fills out (advance()'s layout) or returns the status.
+  int correct_at(CRef y, VectorXd& out, bool& restarted) {
+    const int n = n_;
+    VectorXd yp = y, yc, sol, mu;
+    RowMatrixXd M;
+    double grad_scale;
+    restarted = false;
+    int st = corrector(yp, yc, sol, M, grad_scale);
+    if (st == CHORD_FAILED) {
+      restarted = true;
+      return start_at(yp, out);
+    }
+    if (st != OK) return st;
+    st = bound_multipliers(yc, mu);
+    if (st != OK) return st;
+    write_row(out, yc, sol, M, y.head(n), yp.head(n), mu, sol.head(n).dot(sol.head(n)), true);
     return OK;
   }
 
@@ -326,53 +443,20 @@ class StepCore {
       for (size_t j = 0; j < np_; ++j) yp += w[j] * Eigen::Map<const VectorXd>(prev[j], N);
       yp += w[np_] * y + w[np_ + 1] * yd;
     }
-    VectorXd q_pred = yp.head(n);
-    if (any_held_)  // LimitedPredictorCorrector._correct: the held joints on their bounds
-      for (int i = 0; i < n; ++i)
-        if (held_[i]) yp[i] = bound_[i];
-    // _correct: one evaluation at the predicted point gives R, the rates and the Newton update
-    evaluate(yp.head(n), true);
-    if (task_ == POSE && velocity_ && !log_ok_) return (LOG_NEAR_PI);
-    VectorXd lam = yp.tail(m_);
+    const VectorXd q_pred = yp.head(n);
+    VectorXd yc, sol, mu;
     RowMatrixXd M;
-    VectorXd top;
-    system(lam, M, top);
-    // the step's J (at the predicted point: the chord iterations evaluate afresh) goes to the output now
-    Eigen::Map<RowMatrixXd>(out.data() + 2 * N + n * n, m_, n) = J_;
-    Jw_ = J_;  // the step's J and M, which the watch measures (watch_measure)
-    Mw_ = M;
-    const double grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());  // switches._events' scale
-    int st = factor(M);
-    if (st != OK) return (st);
-    VectorXd sol(N);
-    sol << top, xdot_;
-    solve(sol);
-    if (!std::isfinite(sol.dot(sol))) return (NOT_FINITE);
-    VectorXd F = residual(lam);
-    const double tol = tol_ * std::max(1.0, std::sqrt(grad_.dot(grad_)));
-    VectorXd yc = yp;
-    if (!(F.dot(F) <= tol * tol)) {
-      VectorXd d = F;
-      solve(d);
-      yc = yp - d;
-      if (!(d.dot(d) <= tol)) {
-        if (!chord(yc, tol)) return (CHORD_FAILED);
-      }
-    }
+    double grad_scale;
+    int st = corrector(yp, yc, sol, M, grad_scale);  // _correct (the held joints on their bounds in yp)
+    if (st != OK) return st;
     const auto q = yc.head(n);
     // a free joint beyond its bound (a held one is on it exactly)
     if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return (LIMIT);
-    VectorXd mu = VectorXd::Zero(n);
-    if (any_held_) {  // LimitedPredictorCorrector._update_mu: at the corrected point, without dK
-      evaluate(q, false);
-      if (task_ == POSE && velocity_ && !log_ok_) return (LOG_NEAR_PI);
-      const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
+    st = bound_multipliers(yc, mu);
+    if (st != OK) return st;
+    if (any_held_)
       for (int i = 0; i < n; ++i)
-        if (held_[i]) {
-          mu[i] = side_[i] * g[i];
-          if (mu[i] < -1e-12 * grad_scale) return (RELEASE);  // switches._events: a bound to release
-        }
-    }
+        if (held_[i] && mu[i] < -1e-12 * grad_scale) return (RELEASE);  // switches._events: a bound to release
     const auto qd1 = sol.head(n);
     const double speed2 = qd1.dot(qd1);
     if (check_jump) {  // step_control.StepControl._attempt on a whole step
@@ -385,34 +469,7 @@ class StepCore {
         if (!(miss2 <= 0.25 * 0.25 * scale2 + 1e-24)) return (JUMP);
       }
     }
-    // the pose at the corrected joints (the record's: Recorder)
-    pinocchio::Data& data = this->data();
-    pinocchio::forwardKinematics(model_, data, q);
-    const auto& oMf = pinocchio::updateFramePlacement(model_, data, fid_);
-    // one buffer (one array for Python to slice: small arrays would each be copied through numpy):
-    // [y (N), sol (N), M (n*n, row-major), J (m*n, row-major), q_pred (n), Q (9, row-major) and p (3) at the
-    //  corrected joints, the evaluation's point (n: q_pred with the held joints on their bounds), the bound
-    //  multipliers mu (n, 0 where free), the label verdict (1: label_code), rcond, speed2] (output_size());
-    //  R's factors stay here (factors())
-    double* o = out.data();
-    Eigen::Map<VectorXd>(o, N) = yc;
-    Eigen::Map<VectorXd>(o + N, N) = sol;
-    o += 2 * N;
-    Eigen::Map<RowMatrixXd>(o, n, n) = M;
-    o += n * n;
-    o += m_ * n;  // J: written above
-    Eigen::Map<VectorXd>(o, n) = q_pred;
-    o += n;
-    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Qc(o);
-    Qc = oMf.rotation();
-    Eigen::Map<Vector3d> pc(o + 9);
-    pc = oMf.translation();
-    o += 12;
-    Eigen::Map<VectorXd>(o, n) = yp.head(n);  // the evaluation's point (the predicted one, held joints on bounds)
-    Eigen::Map<VectorXd>(o + n, n) = mu;
-    o[2 * n] = any_held_ && !velocity_ ? label_code(M) : 0.0;
-    o[2 * n + 1] = rcond_;
-    o[2 * n + 2] = speed2;
+    write_row(out, yc, sol, M, q_pred, yp.head(n), mu, speed2, true);  // the pose at the corrected joints
     return OK;
   }
 
@@ -808,17 +865,18 @@ class StepCore {
     return lo > margin ? 1 : lo < -margin ? -1 : 0;
   }
 
-  // PredictorCorrector._chord with fresh residuals (need_dJ=False), R's factors kept
-  bool chord(VectorXd& y, double tol) {
+  // PredictorCorrector._chord with fresh residuals (need_dJ=False), R's factors kept: OK (converged),
+  // CHORD_FAILED, or LOG_NEAR_PI at an iterate
+  int chord(VectorXd& y, double tol) {
     for (int it = 0; it < 8; ++it) {
       evaluate(y.head(n_), false);
-      if (task_ == POSE && velocity_ && !log_ok_) return false;
+      if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
       VectorXd F = residual(y.tail(m_));
-      if (F.dot(F) <= tol * tol) return true;
+      if (F.dot(F) <= tol * tol) return OK;
       solve(F);
       y -= F;
     }
-    return false;
+    return CHORD_FAILED;
   }
 
   // Pinocchio's workspace, made on first use (inside the GIL-free calls: start_run, a step), not with the StepCore
@@ -929,6 +987,8 @@ void bind_step(nb::module_& m) {
       .def("set_guard", &StepCore::set_guard, nb::arg("guard").none())
       .def("set_active", &StepCore::set_active, nb::arg("free"), nb::arg("bound"), nb::arg("side"))
       .def("factors", &StepCore::factors)
+      .def("correct", &StepCore::correct, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
+           nb::arg("ref"), nb::arg("rate"), nb::arg("y"))
       .def("watch_measure", &StepCore::watch_measure, nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"),
            nb::arg("gate"))
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),

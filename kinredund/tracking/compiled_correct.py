@@ -1,0 +1,86 @@
+"""The Python stepper's corrector in the compiled core (issue 28): :class:`CoreCorrector`.
+
+On the compiled backend (:mod:`kinredund.tracking.compiled`) the steps the core does not take are the Python
+stepper's: a bound reached or released, a chord that failed, a jump, the watch's rejections; within them the
+switching-time location (:mod:`kinredund.tracking.switches`: Brent's method, each evaluation a corrector solve)
+and the sub-steps of the step control. Each of those corrector solves
+(:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector._correct` with the limited stepper's wrapper,
+:mod:`kinredund.tracking.limited`) is the core's ``StepCore.correct`` (``src/core/step.cpp``, the GIL released): from
+the prediction, the held joints set on their bounds, one evaluation with dK, R's LU factors, the rates of
+Eq. (4.24), the Newton update and the chord iterations, where those fail the fallback of ``_correct`` (``_newton``
+from the prediction and ``_rates``, the core's start route; the predictor's history cleared), and the bound
+multipliers at the corrected point. The stepper stays independent of the core: :class:`CoreCorrector` is an
+optional ``corrector`` that :class:`~kinredund.tracking.compiled.CompiledStep` installs on a limited stepper, whose
+``_correct`` calls it first with no general row active (their extended system stays Python's). It holds a StepCore
+of its own (the compiled step's keeps its last step's factors for the watch's measurement), gives it the stepper's
+active set, samples the path (and a time-varying reference) at the stepper's time and takes the core's result as
+``_correct`` leaves it (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_corrected`: q,
+lambda, their rates, M, the evaluation as a :class:`~kinredund.tracking.compiled_point.CompiledPoint`, the label of
+the reduced system where joints are held, R's LU factors and condition estimate, the bound multipliers). A solve
+the core cannot make ordinarily (a singular or ill-conditioned R, non-finite rates, a fallback that fails too) is
+Python's own ``_correct`` from the same inputs: every error, its message and its cause stay the Python stepper's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinredund.indices import TimeVaryingReference
+from kinredund.tracking.ahead import NO_OMEGA, NO_Q
+from kinredund.tracking.compiled_point import CompiledPoint
+from kinredund.tracking.compiled_start import make_step_core, row_slices
+
+_EMPTY = np.zeros(0)
+_EMPTY.flags.writeable = False
+
+
+class CoreCorrector:
+    """A limited stepper's corrector solve in the core (see the module docstring); ``stepper.corrector``.
+
+    Attributes:
+        used: the solves the core made; declined: those it left to Python (a status other than OK).
+    """
+
+    def __init__(self, stepper, module):
+        self.stepper, self.module = stepper, module
+        self.core = None  # made on the first solve (a run without a handed-back step makes none)
+        self._fixed = None  # the active set the core holds (the stepper's ``fixed``)
+        self.time_varying = isinstance(stepper.ev.index, TimeVaryingReference)
+        n, m = stepper.n, len(stepper.task_lam)
+        self.n, self.layout = n, (row_slices(n, m), (n, m))
+        self._basis = stepper.pt.basis
+        self.used = self.declined = 0
+
+    def __call__(self, y: np.ndarray) -> bool:
+        """The stepper's corrector at its time t from the prediction ``y`` = [q; lambda]; False (the stepper
+        untouched) where the core leaves it to Python."""
+        s = self.stepper
+        if self.core is None:
+            self.core = make_step_core(s, self.module)
+        if s.fixed is not self._fixed:  # a switch replaces ``fixed``: the core's active set follows
+            fixed, side, bound = s.active_set()
+            self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
+            self._fixed = fixed
+        t = s.t
+        sample = s.ev.sample(t)
+        Q = NO_Q if sample.Q is None else sample.Q
+        omega = NO_OMEGA if sample.omega is None else sample.omega
+        if self.time_varying:
+            index = s.ev.index
+            ref, rate = np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
+        else:
+            ref = rate = _EMPTY
+        got = self.core.correct(t, sample.p, sample.v, Q, omega, ref, rate, y)
+        if type(got) is int:
+            self.declined += 1
+            return False
+        out, restarted, lu, piv = got
+        if restarted:  # the predictor missed (PredictorCorrector._correct's fallback): restart it with Euler
+            s.prev.clear()
+        sl, n = self.layout[0], self.n
+        M = out[sl[2]].reshape(n, n)
+        pt = CompiledPoint(s.ev, out, t, sample, self._basis, self.layout)
+        label = s.reduced_label(M, pt.J, int(out[sl[9]][0])) if s.any_active else None
+        s.take_corrected(out[sl[0]], out[sl[1]], pt, M, (lu, piv), float(out[-2]), label=label, mu=out[sl[8]])
+        self.used += 1
+        return True
