@@ -54,6 +54,18 @@ class CoreCorrector:
     def __call__(self, y: np.ndarray) -> bool:
         """The stepper's corrector at its time t from the prediction ``y`` = [q; lambda]; False (the stepper
         untouched) where the core leaves it to Python."""
+        return self._solve(y, False)
+
+    def settle(self) -> bool:
+        """:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector._newton` from the stepper's point at
+        its time t, then ``_rates`` there (after a switch of the active set): the core's route of ``_correct``'s
+        fallback; False (the stepper untouched) where the core leaves them to Python, or with general rows (a run
+        with a scene: its stops' diagnosis, a bisection of witness points near parallel faces, follows the rounding
+        of the switch's point, and the two backends' stops name the same words)."""
+        s = self.stepper
+        return not s.row_pairs and self._solve(np.concatenate([s.q, s.lam]), True)
+
+    def _solve(self, y: np.ndarray, newton: bool) -> bool:
         s = self.stepper
         if self.core is None:
             self.core = make_step_core(s, self.module)
@@ -70,12 +82,12 @@ class CoreCorrector:
             ref, rate = np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
         else:
             ref = rate = _EMPTY
-        got = self.core.correct(t, sample.p, sample.v, Q, omega, ref, rate, y)
+        got = self.core.correct(t, sample.p, sample.v, Q, omega, ref, rate, y, newton)
         if type(got) is int:
             self.declined += 1
             return False
         out, restarted, lu, piv = got
-        if restarted:  # the predictor missed (PredictorCorrector._correct's fallback): restart it with Euler
+        if restarted and not newton:  # the predictor missed (PredictorCorrector._correct's fallback): Euler next
             s.prev.clear()
         sl, n = self.layout[0], self.n
         M = out[sl[2]].reshape(n, n)

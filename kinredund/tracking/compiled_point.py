@@ -26,7 +26,7 @@ class RecordedPose:
 class CompiledPoint(Point):
     """The step's evaluation as the core left it (its output row ``out``): t and the basis set, q (the predicted
     point), J, the path sample and ``recorded`` (the :class:`RecordedPose` at the corrected joints) read from the
-    row on first use; the rest (pose, task and index terms, :meth:`~kinredund.tracking.point.Point.system`) is
+    row on first use, grad z from the index alone (:meth:`~kinredund.tracking.point.Evaluator.gradient`); the rest (pose, task and index terms, :meth:`~kinredund.tracking.point.Point.system`) is
     evaluated in Python at (q, t) on first use. A step whose point nobody reads makes none of them.
 
     Args:
@@ -36,11 +36,11 @@ class CompiledPoint(Point):
 
     # q, J, sample and recorded: properties over slots of their own (an unset one None), read at every recorded
     # step: a property costs less than __getattr__ after a missed slot (Recorder.add reads all four)
-    __slots__ = ("_ev", "_out", "_layout", "_ahead", "_q", "_J", "_sample", "_recorded")
+    __slots__ = ("_ev", "_out", "_layout", "_ahead", "_q", "_J", "_sample", "_recorded", "_grad")
 
     def __init__(self, ev, out, t, sample, basis, layout, ahead=None):
         self._ev, self._out, self.t, self.basis, self._layout, self._ahead = ev, out, t, basis, layout, ahead
-        self._sample, self._q, self._J, self._recorded = sample, None, None, None
+        self._sample, self._q, self._J, self._recorded, self._grad = sample, None, None, None, None
 
     @property
     def q(self) -> np.ndarray:
@@ -62,6 +62,16 @@ class CompiledPoint(Point):
     @J.setter
     def J(self, value) -> None:
         self._J = value
+
+    @property
+    def grad(self) -> np.ndarray:  # (the switch search's scale, switches._events: the index alone, not the point)
+        if self._grad is None:
+            self._grad = self._ev.gradient(self.q, self.t)
+        return self._grad
+
+    @grad.setter
+    def grad(self, value) -> None:
+        self._grad = value
 
     @property
     def sample(self):

@@ -114,10 +114,6 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
     """
 
     state_class = ConstrainedState
-    #: the corrector solve made elsewhere, called first by :meth:`_correct` with no general row active (a callable
-    #: of the prediction y returning True where it made the solve; the compiled backend's
-    #: :class:`~kinredund.tracking.compiled_correct.CoreCorrector`), or None: this stepper's own
-    corrector = None
 
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, *, limits: Constraint | None = None,
                  constraints=(), qp_solver: str = "proxqp", **kwargs):
@@ -160,8 +156,7 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
             joint, kind = min(events, key=lambda e: self._watch(*e))
             self._apply_switch(joint, kind)
             self.prev.clear()
-            self._newton()
-            self._rates()
+            self._newton_rates()
         raise TrackingError("no constrained optimum within the joint limits and constraints was found at the start",
                             cause=self._cause(), t=self.t, q=None, watched=self._watched())
 
@@ -301,7 +296,7 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         return F
 
     def _correct(self, y: np.ndarray) -> None:
-        if self.corrector is not None and not self.rows and self.corrector(y):
+        if self.corrector is not None and not self.rows and self.corrector(y):  # (PredictorCorrector.corrector)
             return  # the compiled core's solve (kinredund.tracking.compiled_correct), as below
         if self._sel is not None:
             y = y.copy()

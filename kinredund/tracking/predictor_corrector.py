@@ -57,6 +57,11 @@ class PredictorCorrector(Stepper):
     clearly of full rank (:meth:`_check_start`).
     """
 
+    #: the corrector solves made elsewhere, or None (this stepper's own): the compiled backend's
+    #: :class:`~kinredund.tracking.compiled_correct.CoreCorrector`, which the limited stepper's ``_correct`` calls
+    #: first with the prediction (True: it made the solve) and :meth:`_newton_rates` with none (``settle``)
+    corrector = None
+
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, start=None, **kwargs):
         self._start = start  # (its start checks run in the base class's __init__: _check_start)
         super().__init__(evaluator, q0, dt, **kwargs)
@@ -217,6 +222,13 @@ class PredictorCorrector(Stepper):
         raise PathError(
             f"the corrector did not converge at t = {self.t:.6g} s: the path leaves the workspace or crosses a "
             "singularity", t=self.t, q=self.q)
+
+    def _newton_rates(self) -> None:
+        """:meth:`_newton` from the current point, then :meth:`_rates` (the :attr:`corrector`'s ``settle`` where it
+        makes them)."""
+        if self.corrector is None or not self.corrector.settle():
+            self._newton()
+            self._rates()
 
     def _correct(self, y: np.ndarray) -> None:
         """Corrector at self.t from the predicted y = [q; lambda], then the rates for the next step.

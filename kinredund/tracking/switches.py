@@ -371,8 +371,7 @@ class SwitchLocation:
             entry = {"joint": joint, "name": self.joint_names[joint], "bound": "lower" if side > 0 else "upper"}
         self.switches += ({"t": float(self.t), **entry, "kind": what, "q": self.q.tolist()},)
         self.prev.clear()  # the optimal path has a kink here: the predictor starts afresh
-        self._newton()
-        self._rates()
+        self._newton_rates()
         self._check_direction(joint, kind, side)
 
     def _check_direction(self, joint: int, kind: str, side: float) -> None:
@@ -396,8 +395,7 @@ class SwitchLocation:
             self._fix(joint, side)
         else:
             self._free(joint)
-        self._newton()
-        self._rates()
+        self._newton_rates()
 
     def _qp_keeps_bound(self, joint: int, side: float) -> bool:
         """The rate QP at a weakly active bound (:func:`~kinredund.tracking.linalg.bound_rate_qp`) over the

@@ -238,8 +238,11 @@ class StepCore {
   // stepper, which calls it through kinredund/tracking/compiled_correct.py, judges those). Returns (the output row
   // of step(), restarted: the chord iterations failed and the fallback (_newton, _rates) made the point, R's LU
   // factors in LAPACK's layout (column-major), their 0-based pivots (int32)) or the status code that leaves the
-  // corrector to Python (which then runs it from the same inputs: the core touched no Python state).
-  nb::object correct(double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t, CRef y) {
+  // corrector to Python (which then runs it from the same inputs: the core touched no Python state). ``newton``:
+  // no prediction, the fallback's route from y itself (_newton, then _rates: start_at; restarted True), as after a
+  // switch of the active set (kinredund/tracking/switches.py).
+  nb::object correct(double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t, CRef y,
+                     bool newton) {
     (void)t;  // (the sample is at t)
     if (y.size() != n_ + m_) throw nb::value_error("y must have n + m entries");
     set_sample(sp, sv, sQ, somega);
@@ -249,7 +252,8 @@ class StepCore {
     int st;
     {
       nb::gil_scoped_release release;  // no Python object below
-      st = correct_at(y, *out, restarted);
+      restarted = newton;
+      st = newton ? start_at(y, *out) : correct_at(y, *out, restarted);
     }
     if (st != OK) return nb::int_(st);
     MatrixXd lu = lu_;
@@ -988,7 +992,7 @@ void bind_step(nb::module_& m) {
       .def("set_active", &StepCore::set_active, nb::arg("free"), nb::arg("bound"), nb::arg("side"))
       .def("factors", &StepCore::factors)
       .def("correct", &StepCore::correct, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
-           nb::arg("ref"), nb::arg("rate"), nb::arg("y"))
+           nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("newton") = false)
       .def("watch_measure", &StepCore::watch_measure, nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"),
            nb::arg("gate"))
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
