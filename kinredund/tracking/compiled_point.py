@@ -26,8 +26,9 @@ class RecordedPose:
 class CompiledPoint(Point):
     """The step's evaluation as the core left it (its output row ``out``): t and the basis set, q (the predicted
     point), J, the path sample and ``recorded`` (the :class:`RecordedPose` at the corrected joints) read from the
-    row on first use, grad z from the index alone (:meth:`~kinredund.tracking.point.Evaluator.gradient`); the rest (pose, task and index terms, :meth:`~kinredund.tracking.point.Point.system`) is
-    evaluated in Python at (q, t) on first use. A step whose point nobody reads makes none of them.
+    row on first use, grad z from the index alone (:meth:`~kinredund.tracking.point.Evaluator.gradient`); the
+    rest (pose, task and index terms, :meth:`~kinredund.tracking.point.Point.system`) is evaluated in Python at
+    (q, t) on first use. A step whose point nobody reads makes none of them.
 
     Args:
         layout: (the slices of ``out``'s fields, (n, m)): ``CompiledStep.layout``.
