@@ -28,7 +28,10 @@ handed to the Python reference from the same state (the stepper's, untouched unt
 back with the watch's where the watch rejects the step): a step the watch predicts trouble within or
 rejects, a switch (a bound reached or released: located by the Python stepper's Brent search), a jump, a
 corrector that needs fresh factorisations, a singular R, a failure. Those steps are the Python stepper's own, so
-events happen at the same times with the same causes.
+events happen at the same times with the same causes; their corrector solves (the step's, the sub-steps', each
+evaluation of the switching-time search, the correction after a switch) are the core's again where no general row
+is active (:mod:`kinredund.tracking.compiled_correct`: the stepper's ``corrector``, which runs Python's own solve
+from the same inputs where the core declines one).
 
 With general inequality rows (``constraints=``, ``scene=``: :mod:`kinredund.tracking.rows`) the run is a hybrid:
 a step with a row active is the Python stepper's (the extended system of :class:`~kinredund.tracking.rows.RowPoint`

@@ -1,7 +1,8 @@
 """The point a compiled step leaves (issue 28): :class:`CompiledPoint`, read from the core's output row on first use.
 
 :mod:`kinredund.tracking.compiled` takes the default mode's ordinary step in C++ and hands the stepper the step's
-evaluation as a :class:`CompiledPoint` over the core's output row: the fields a step is read for (q, J, the path
+evaluation (and a corrector solve's in the core: :mod:`kinredund.tracking.compiled_correct`) as a
+:class:`CompiledPoint` over the core's output row: the fields a step is read for (q, J, the path
 sample, the pose at the corrected joints for the record: :class:`RecordedPose`) are read from the row where someone
 asks for them, the rest evaluated in Python (:meth:`~kinredund.tracking.point.Evaluator.point`) on first use.
 """

@@ -5,9 +5,10 @@ within it: a free joint beyond its bound or a multiplier below zero (:mod:`kinre
 inactive general row below zero or an active row's multiplier below zero (:mod:`kinredund.tracking.rows`), or a
 row that dips below zero inside the step and comes back (``GeneralRows._row_dips``). It solves for the
 switching time on the corrected path (Brent's method on the joint's margin, the row's value or the multiplier,
-each evaluation a corrector solve at that time), steps to it, changes the active set there and steps on to the
-end of the step. After a switch strict complementarity is checked: a reached bound's multiplier grows, a
-released joint moves inward; where the LU route cannot tell (a rate ~0) the rate QP decides which set continues.
+each evaluation a corrector solve at that time: on the compiled backend the core's, the stepper's ``corrector``),
+steps to it, changes the active set there and steps on to the end of the step. After a switch strict
+complementarity is checked: a reached bound's multiplier grows, a released joint moves inward; where the LU route
+cannot tell (a rate ~0) the rate QP decides which set continues.
 The step's end is then measured exactly (the step control watched the step with the active set it started with):
 where it is no strict minimum of the problem with the new active set, the path is followed again from the switch in
 checked pieces, and where none reaches the end the run stops at the step's start.

@@ -10,7 +10,9 @@
 // Anything not ordinary returns a status code and the Python reference takes the step from the same state.
 // The run's start (start_run: PredictorCorrector.__init__'s corrector onto the optimum, then the rates and the
 // watch's first, exact measurement) runs here too, with the GIL released; a start that is not ordinary is the
-// Python reference's likewise (it then names the failure).
+// Python reference's likewise (it then names the failure). The Python stepper's own corrector solves (a handed-back
+// step's, a sub-step's, the switching-time search's: kinredund/tracking/compiled_correct.py) run here as well
+// (correct: advance()'s corrector without its verdicts, the fallback through start_at).
 #include "distances.hpp"
 #include "frame.hpp"
 #include "step.hpp"
