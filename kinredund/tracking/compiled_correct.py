@@ -38,7 +38,8 @@ class CoreCorrector:
     """A limited stepper's corrector solve in the core (see the module docstring); ``stepper.corrector``.
 
     Attributes:
-        used: the solves the core made; declined: those it left to Python (a status other than OK).
+        used: the solves the core made; declined: those it left to Python (a status other than OK); restarts: the
+            solves (of ``used``) whose chord iterations failed, made by the fallback (fresh factorisations).
     """
 
     def __init__(self, stepper, module):
@@ -49,7 +50,7 @@ class CoreCorrector:
         n, m = stepper.n, len(stepper.task_lam)
         self.n, self.layout = n, (row_slices(n, m), (n, m))
         self._basis = stepper.pt.basis
-        self.used = self.declined = 0
+        self.used = self.declined = self.restarts = 0
 
     def __call__(self, y: np.ndarray) -> bool:
         """The stepper's corrector at its time t from the prediction ``y`` = [q; lambda]; False (the stepper
@@ -89,6 +90,7 @@ class CoreCorrector:
         out, restarted, lu, piv = got
         if restarted and not newton:  # the predictor missed (PredictorCorrector._correct's fallback): Euler next
             s.prev.clear()
+            self.restarts += 1
         sl, n = self.layout[0], self.n
         M = out[sl[2]].reshape(n, n)
         pt = CompiledPoint(s.ev, out, t, sample, self._basis, self.layout)
