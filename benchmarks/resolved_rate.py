@@ -103,6 +103,12 @@ KEYS = {
     "switching_step_python_us": "switching_step_us on the Python stepper (backend='python')",
     "switching_held_step_python_us": "switching_held_step_us on the Python stepper",
     "switching_steps_with_switch": "steps of that loop with a switch in them",
+    "switching_loop_ms": "CPU time (thread_time) of one loop of SWITCHING_CIRCLE by Tracker.step() on the default "
+                         "backend: the median of 5 loops after a first one",
+    "switching_handed_back_ms": "of that loop, the CPU time of the steps the compiled core hands back to the Python "
+                                "stepper (CompiledStep.hand_back: the switches, the chords that failed after them; "
+                                "their corrector solves in the core, compiled_correct.py); NaN on the Python backend",
+    "switching_handed_back_steps": "the steps handed back per loop (median)",
     "switching_qp_share": "share of that loop's step time spent in the rate QP (proxsuite, only at a switch "
                           "the LU route cannot decide), from a second run of the loop under cProfile",
     "in_turn_us": "the default steps (augmented, velocity) and pink's QP step timed in turn, one step each per "
@@ -271,6 +277,7 @@ def bench(name: str, steps: int) -> dict:
             out["limits_python_over_pink"] = turn["step_limits_python_us"] / turn["pink_limits_step_us"]
             out["limits_compiled_over_python"] = turn["step_limits_us"] / turn["step_limits_python_us"]
         out.update(switching_figures())
+        out.update(switching_loop_figures())
         out.update({f"{k[:-3]}_python_us": v for k, v in switching_figures("python", share=False).items()
                     if k in ("switching_step_us", "switching_held_step_us")})
         out.update(scene_figures(robot, path, index, q0, dt, steps))
@@ -349,6 +356,40 @@ def switching_figures(backend: str | None = None, share: bool = True) -> dict:
     if share:
         out["switching_qp_share"] = _qp_share(backend, 200)
     return out
+
+
+def switching_loop_figures(loops: int = 5) -> dict:
+    """Whole loops of :data:`SWITCHING_CIRCLE` on the default backend (CPU time, thread_time: less shaken by a busy
+    machine than the single steps' wall times) and the share of the steps handed back to the Python stepper."""
+    import time
+
+    tracker = _switching_tracker(None)
+    compiled = getattr(tracker, "compiled", None)
+    spent = [0.0, 0]
+    if compiled is not None:
+        hand_back = compiled.hand_back
+
+        def timed(status):
+            t0 = time.thread_time()
+            hand_back(status)
+            spent[0] += time.thread_time() - t0
+            spent[1] += 1
+
+        compiled.hand_back = timed
+    for _ in range(200):  # the first loop: the set-up's first calls
+        tracker.step()
+    loop, back, count = [], [], []
+    for _ in range(loops):
+        spent[:] = [0.0, 0]
+        t0 = time.thread_time()
+        for _ in range(200):
+            tracker.step()
+        loop.append(time.thread_time() - t0)
+        back.append(spent[0])
+        count.append(spent[1])
+    return {"switching_loop_ms": float(np.median(loop) * 1e3),
+            "switching_handed_back_ms": float(np.median(back) * 1e3) if compiled is not None else float("nan"),
+            "switching_handed_back_steps": float(np.median(count)) if compiled is not None else float("nan")}
 
 
 #: five obstacles around the Panda circle's workspace (name, shape, size or radius [m], position [m]): clear of
@@ -672,7 +713,9 @@ def main() -> None:
               f"{panda['switching_step_mean_us']:.3g} us ({panda['switching_steps_with_switch']} steps with a switch), "
               f"{100 * panda['switching_qp_share']:.2g} % of the time in the rate QP; with joint 4 held "
               f"{panda['switching_held_step_us']:.3g} us (the Python stepper "
-              f"{panda['switching_held_step_python_us']:.3g} us)")
+              f"{panda['switching_held_step_python_us']:.3g} us); a whole loop {panda['switching_loop_ms']:.3g} ms "
+              f"(CPU), of which {panda['switching_handed_back_ms']:.3g} ms in the "
+              f"{panda['switching_handed_back_steps']:.0f} steps handed back to the Python stepper")
     print_scene(panda)
     for name, r in results.items():
         print(f"{name}: track() {r['track_step_us']:.3g} us per step against Tracker.step() {r['tracker_step_us']:.3g} "

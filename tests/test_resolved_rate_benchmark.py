@@ -31,6 +31,12 @@ def test_panda_figures_and_plot(tmp_path):
     assert part["total"] >= max(v for k, v in part.items() if k != "total")
     from kinredund.tracking import compiled, recorder, run, tracker
 
+    # on the compiled backend the handed-back steps (a switch reached, one released, at the least) are part of the
+    # loop's time
+    if compiled.load_core() is not None:
+        assert res["switching_handed_back_steps"] >= 2
+        assert 0.0 < res["switching_handed_back_ms"] < res["switching_loop_ms"]
+
     assert run.Tracker is tracker.Tracker and "add" in recorder.Recorder.__dict__
     assert compiled.CompiledStep.step.__qualname__ == "CompiledStep.step"
     if importlib.util.find_spec("pink") is not None:
