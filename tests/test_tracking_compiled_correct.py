@@ -81,8 +81,8 @@ def _assert_same(core: dict, python: dict, what: str) -> None:
     ("xarm7_circle", "augmented", 4), ("xarm7_circle", "velocity", 4), ("ur5_axis", "augmented", 0),
     ("ur5_axis", "velocity", 0), ("planar_time_varying", "augmented", 4)])
 def test_the_core_s_correct_is_python_s(name, scheme, holds):
-    """From random states along the run (random joints held on their bounds, random predictions: Euler steps of
-    random length, perturbed), the core's solve and Python's ``_correct`` give the same point, rates, multipliers,
+    """From states along the run (some with the free joint nearest a bound held on it, as a switch leaves them;
+    random predictions: Euler steps of random length, perturbed), the core's solve and Python's ``_correct`` give the same point, rates, multipliers,
     label and factors; long Euler steps make the chord iterations fail, so the fallback (a fresh Newton from the
     prediction, the rates there, the predictor's history cleared) is compared too. ``holds``: the solves with a
     joint held at the least (the UR5's axis task has one degree of redundancy: a joint held leaves J_F square,
