@@ -82,11 +82,11 @@ def _assert_same(core: dict, python: dict, what: str) -> None:
     ("ur5_axis", "velocity", 0), ("planar_time_varying", "augmented", 4)])
 def test_the_core_s_correct_is_python_s(name, scheme, holds):
     """From states along the run (some with the free joint nearest a bound held on it, as a switch leaves them;
-    random predictions: Euler steps of random length, perturbed), the core's solve and Python's ``_correct`` give the same point, rates, multipliers,
-    label and factors; long Euler steps make the chord iterations fail, so the fallback (a fresh Newton from the
-    prediction, the rates there, the predictor's history cleared) is compared too. ``holds``: the solves with a
-    joint held at the least (the UR5's axis task has one degree of redundancy: a joint held leaves J_F square,
-    and from these states both routes fail the same way)."""
+    random predictions: Euler steps of random length, perturbed), the core's solve and Python's ``_correct`` give
+    the same point, rates, multipliers, label and factors; long Euler steps make the chord iterations fail, so the
+    fallback (a fresh Newton from the prediction, the rates there, the predictor's history cleared) is compared
+    too. ``holds``: the solves with a joint held at the least (the UR5's axis task has one degree of redundancy: a
+    joint held leaves J_F square, and from these states both routes fail the same way)."""
     r, path, index, q0 = problem(name)
     dt = path.period / 100
     tracker = Tracker(r, path, index, q0, dt, scheme=scheme, backend="compiled", limits=True)
