@@ -229,6 +229,29 @@ class Workspace:
         d, n, pa, pb = self.distances(ks)
         return ks, d, n, pa, pb, (self.rows(ks, n) if rows else None)
 
+    def differences(self, q: np.ndarray, limit: float, ks, weights, step: float) -> np.ndarray | None:
+        """sum_i w_i Hess d_i (n, n) [m/rad^2] of pairs ``ks`` (repeats allowed) at q by central differences of
+        their rows (step ``step``), symmetrised: column j is sum_i w_i (G_i(q + step e_j) - G_i(q - step e_j)) /
+        (2 step), each G_i as :meth:`query` (``limit``, rows) gives it at that point, zero for a pair beyond
+        ``limit`` there; one call of the compiled core (``DistanceQuery.differences``), which computes only
+        those pairs. None where the queries run in Python, or the model has other positions than velocities.
+
+        Raises:
+            GeometryError: a pair index out of range, not one weight per pair, a step not > 0 or a limit < 0.
+        """
+        if self._core is None or self.model.nq != self.model.nv:
+            return None
+        ks, w = np.asarray(ks), np.asarray(weights, dtype=float)
+        npairs = len(self.first)
+        if ks.ndim != 1 or not (np.issubdtype(ks.dtype, np.integer) or not len(ks)) or \
+                (len(ks) and not (ks.min() >= 0 and ks.max() < npairs)):
+            raise GeometryError(f"pairs must be pair indices 0..{npairs - 1}, got {ks.tolist()}")
+        if w.shape != ks.shape or not np.isfinite(w).all():
+            raise GeometryError(f"weights must be one finite number per pair ({len(ks)}), got {w.tolist()}")
+        if not (np.isfinite(step) and step > 0 and limit >= 0):
+            raise GeometryError(f"the step must be > 0 and the limit >= 0 [m], got {step!r} and {limit!r}")
+        return self._core.differences(q, float(limit), ks.astype(np.int64), w, float(step))
+
     def place(self, q: np.ndarray) -> None:
         """Forward kinematics and every object's world pose at q."""
         pin.updateGeometryPlacements(self.model, self.data, self.geometry, self.gdata, q)

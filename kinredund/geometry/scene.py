@@ -402,6 +402,14 @@ class Scene:
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), influence, np.zeros(0, int), n, pa, pb)
         return DistanceRows(self._names_of(ks), d, G, influence, np.asarray(ks), n, pa, pb)
 
+    def distance_differences(self, q, pairs, weights, influence: float, step: float) -> np.ndarray | None:
+        """sum_k w_k Hess d_k [m/rad^2] (n, n) over ``pairs`` (positions in :attr:`pairs`) at q: central
+        differences (step ``step``) of their :meth:`distance_rows` rows at ``influence``, symmetrised, in one call
+        of the compiled core, which computes only those pairs at each point
+        (:meth:`~kinredund.geometry.engine.Workspace.differences`); None where the queries run in Python."""
+        q, influence = self._q(q), self._influence(influence)
+        return self.workspace().differences(q, influence, pairs, weights, step)
+
     def distance_curvature(self, q, rows: DistanceRows, weights) -> np.ndarray:
         """sum_k w_k n_k^T (Hess p_b - Hess p_a) [m/rad^2] (n, n): the second-order term of the distance rows
         ``rows`` (from :meth:`distance_rows` at the same q), the witness points held fixed to their bodies.

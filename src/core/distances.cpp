@@ -181,6 +181,46 @@ class DistanceQuery {
     return ks.size();
   }
 
+  // sum_i w_i Hess d_i over pairs ks (repeats allowed) by central differences of their rows, symmetrised [m/rad^2]:
+  // column j is sum_i w_i (G_i(q + eps e_j) - G_i(q - eps e_j)) / (2 eps), then 0.5 (H + H^T) - the differences of
+  // kinredund.tracking.constraints.base.Constraint.curvature over the rows of SceneClearance._query, each G_i
+  // computed as query(q +- eps e_j, limit, rows=True) computes it (placements, the pair's broadphase test at
+  // `limit`, its exact distance, unit normal and row), for pair ks[i] alone; a pair beyond `limit` there gives a
+  // zero row, as it is zero in that constraint's G. The objects are left placed at q - eps e_{nv-1}.
+  RowMatrixXd differences(const Eigen::Ref<const VectorXd>& q, double limit, const Eigen::Ref<const VectorXl>& ks,
+                          const Eigen::Ref<const VectorXd>& w, double eps) {
+    check_q(q);
+    const Eigen::Index nv = model_.nv, m = ks.size();
+    if (model_.nq != nv) throw nb::value_error("differences needs a model with as many positions as velocities");
+    if (!(limit >= 0.0) || !(eps > 0.0) || !std::isfinite(eps))
+      throw nb::value_error("limit must be a distance >= 0 [m] and eps a finite step > 0");
+    if (w.size() != m)
+      throw nb::value_error(("one weight per pair expected (" + str(static_cast<std::size_t>(m)) + "), got " +
+                             str(static_cast<std::size_t>(w.size()))).c_str());
+    for (Eigen::Index i = 0; i < m; ++i)
+      if (ks[i] < 0 || static_cast<std::size_t>(ks[i]) >= first_.size())
+        throw nb::value_error(("pair " + std::to_string(ks[i]) + " is not a pair index (0.." +
+                               str(first_.size() - 1) + ")").c_str());
+    RowMatrixXd H(nv, nv);
+    nb::gil_scoped_release release;
+    RowMatrixXd plus(m, nv), minus(m, nv);
+    VectorXd e = VectorXd::Zero(nv), at(nv);
+    for (Eigen::Index j = 0; j < nv; ++j) {
+      e[j] = eps;
+      at = q + e;  // (as numpy's q + e: every entry, so a -0.0 becomes 0.0 alike)
+      pair_rows(at, limit, ks, plus);
+      at = q - e;
+      pair_rows(at, limit, ks, minus);
+      e[j] = 0.0;
+      for (Eigen::Index c = 0; c < nv; ++c) {  // w @ (G+ - G-) / (2 eps), summed in row order
+        double sum = 0.0;
+        for (Eigen::Index i = 0; i < m; ++i) sum += w[i] * (plus(i, c) - minus(i, c));
+        H(c, j) = sum / (2 * eps);
+      }
+    }
+    return 0.5 * (H + H.transpose());
+  }
+
   // For RowGuard, query's steps one pair at a time: `place` the objects at q (the joints and the bounding spheres;
   // the objects' own poses, which only coal reads, before the first `distance`), then per pair whether it is `near`
   // (query's broadphase at `limit` [m]) and its signed `distance` [m]
@@ -336,19 +376,42 @@ class DistanceQuery {
   // data.J after the placements' forward kinematics
   void distance_rows(const std::vector<std::int64_t>& ks, OutMap& o) {
     pinocchio::computeJointJacobians(model_, data_);
-    const auto& J = data_.J;  // 6 x nv, [v; omega] in world axes
     const Eigen::Index nv = model_.nv;
     for (std::size_t r = 0; r < ks.size(); ++r) {
       const auto i = static_cast<Eigen::Index>(r);
-      auto G = o.block(i, kColumns, 1, nv);
-      G.setZero();
-      const Vector3 n = o.block<1, 3>(i, 1).transpose();
-      const Vector3 ma = o.block<1, 3>(i, 4).transpose().cross(n), mb = o.block<1, 3>(i, 7).transpose().cross(n);
-      const std::size_t k = static_cast<std::size_t>(ks[r]);
-      for (int c : columns_[joints_[first_[k]]])
-        G(0, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
-      for (int c : columns_[joints_[second_[k]]])
-        G(0, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
+      row(static_cast<std::size_t>(ks[r]), o.block<1, 3>(i, 1).transpose(), o.block<1, 3>(i, 4).transpose(),
+          o.block<1, 3>(i, 7).transpose(), o.block(i, kColumns, 1, nv));
+    }
+  }
+
+  // pair k's row n^T (J_b(p_b) - J_a(p_a)) [m/rad] into G (1 x nv), from data.J (computeJointJacobians done)
+  template <typename Row>
+  void row(std::size_t k, const Vector3& n, const Vector3& pa, const Vector3& pb, Row&& G) const {
+    const auto& J = data_.J;  // 6 x nv, [v; omega] in world axes
+    G.setZero();
+    const Vector3 ma = pa.cross(n), mb = pb.cross(n);
+    for (int c : columns_[joints_[first_[k]]]) G(0, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
+    for (int c : columns_[joints_[second_[k]]]) G(0, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
+  }
+
+  // the rows of pairs ks at q into G (one per entry of ks), as query(q, limit, rows=True) computes each (zero for a
+  // pair beyond `limit`): the objects placed at q, each near pair's exact distance, unit normal and row
+  void pair_rows(const VectorXd& q, double limit, const Eigen::Ref<const VectorXl>& ks, RowMatrixXd& G) {
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    place_spheres();
+    bool jacobians = false;
+    for (Eigen::Index i = 0; i < ks.size(); ++i) {
+      const auto k = static_cast<std::size_t>(ks[i]);
+      if (!near(k, limit)) {
+        G.row(i).setZero();
+        continue;
+      }
+      const auto& res = pinocchio::computeDistance(gm_, gd_, k);
+      const Vector3 &pa = res.nearest_points[0], &pb = res.nearest_points[1];
+      const Vector3 n = unit_normal(res.min_distance, res.normal, pa, pb);
+      if (!jacobians) pinocchio::computeJointJacobians(model_, data_);
+      jacobians = true;
+      row(k, n, pa, pb, G.row(i));
     }
   }
 
@@ -647,7 +710,9 @@ void bind_distances(nb::module_& m) {
            nb::arg("centres"), nb::arg("radii"), nb::arg("first"), nb::arg("second"))
       .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"),
            nb::arg("index").noconvert(), nb::arg("out").noconvert())  // written in place: never a converted copy
-      .def("closest", &DistanceQuery::closest, nb::arg("q"));
+      .def("closest", &DistanceQuery::closest, nb::arg("q"))
+      .def("differences", &DistanceQuery::differences, nb::arg("q"), nb::arg("limit"), nb::arg("pairs"),
+           nb::arg("weights"), nb::arg("eps"));
   nb::class_<RowGuard>(m, "RowGuard", "The compiled driver's check of a step for a scene's row switch (issue 27).")
       .def(nb::init<DistanceQuery&, const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXd>&, double,
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),

@@ -33,6 +33,9 @@ import abc
 
 import numpy as np
 
+#: the step [rad or m] of :meth:`Constraint.curvature`'s central differences
+DIFFERENCE_STEP = 1e-6
+
 
 class Constraint(abc.ABC):
     """Inequalities c(theta) >= 0 on the joints [rad or m]; ``size`` of them."""
@@ -78,12 +81,12 @@ class Constraint(abc.ABC):
     def curvature(self, q: np.ndarray, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """sum_i w_i Hess c_i(q) over the inequalities ``rows`` (n, n): their share of M in the system.
 
-        The default takes central differences of :meth:`gradients` (step 1e-6; O(1e-10) relative error);
-        a subclass with analytic second derivatives overrides it (the corrector's rate of convergence
-        depends on it, its result does not).
+        The default takes central differences of :meth:`gradients` (step :data:`DIFFERENCE_STEP`; O(1e-10)
+        relative error); a subclass with analytic second derivatives overrides it (the corrector's rate of
+        convergence depends on it, its result does not).
         """
         q = np.asarray(q, float)
-        n, eps = len(q), 1e-6
+        n, eps = len(q), DIFFERENCE_STEP
         H = np.empty((n, n))
         for k in range(n):
             e = np.zeros(n)

@@ -30,8 +30,9 @@ step's end, kept and lowered row by row, computed afresh at or below :data:`SKIP
 above :data:`SKIP_MARGIN` its lower bounds are its own, not the Python stepper's.
 
 The curvature term (the rows' share of M in the system, :meth:`SceneClearance.curvature`) is by default
-taken by central differences of the rows (``curvature="differences"``: 2n queries of the near pairs, made
-only while a row is active), the true Hessian of the distance where it is twice differentiable. The
+taken by central differences of the rows (``curvature="differences"``: the active rows' pairs at 2n points,
+made only while a row is active; one call of the compiled core where the queries are compiled, else 2n queries of
+the near pairs), the true Hessian of the distance where it is twice differentiable. The
 alternative ``curvature="witness"`` holds the witness points fixed to their bodies: sum_k w_k n_k^T
 (Hess p_b - Hess p_a) from the kinematics layer's point Hessians (``Scene.distance_curvature``). It ignores
 the surfaces' curvature at the witness points and the turning of the normal, so it is exact between flat
@@ -70,7 +71,7 @@ import numpy as np
 from kinredund.errors import OptionError, check_choice
 from kinredund.geometry.polytopes import vertex_corner, vertex_piece
 from kinredund.geometry.scene import Scene
-from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.constraints.base import DIFFERENCE_STEP, Constraint
 
 #: how :meth:`SceneClearance.curvature` is taken (class docstring)
 CURVATURES = ("differences", "witness")
@@ -176,8 +177,7 @@ class SceneClearance(Constraint):
         rows, c (size,), G (size, n) or None) at q; G only where ``rows`` (a values-only query skips the
         Jacobians and the record). Kept for the last q of this thread, by the bytes of q (the stepper asks for
         values, rows and curvature at one q; equal bytes are equal values, so a kept answer is never stale)."""
-        if self.scene.pairs is not self._scene_pairs:
-            raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
+        self._check_scene()
         q = np.asarray(q, float)
         key = q.tobytes()
         last = self._local.__dict__.get("last")
@@ -208,6 +208,10 @@ class SceneClearance(Constraint):
             out = (None, None, None, c, None)
         self._local.last = (key, q.copy(), out)
         return out
+
+    def _check_scene(self) -> None:
+        if self.scene.pairs is not self._scene_pairs:
+            raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
 
     def _boxed(self, q: np.ndarray) -> bool:
         """Is q where the motion bound holds (no prismatic joint slid beyond its limits' extent)?"""
@@ -251,9 +255,24 @@ class SceneClearance(Constraint):
         """sum_i w_i Hess c_i over ``rows``: central differences of the rows (``curvature="differences"``,
         the true Hessian where the distance is twice differentiable), or ``"witness"``: sum_i w_i n_i^T
         (Hess p_b - Hess p_a), the witness points fixed to their bodies (the surfaces' curvature left out:
-        module docstring); rows beyond the influence contribute nothing."""
+        module docstring); rows beyond the influence contribute nothing.
+
+        The differences are :meth:`Constraint.curvature`'s of :meth:`gradients`; where the scene's queries are
+        compiled they are one call of the core (``Scene.distance_differences``) that computes only the pairs of
+        ``rows`` at each point, each row as the full query computes it (the same numbers, summed in another
+        order), and leaves this thread's last query (at q) kept.
+
+        Raises:
+            OptionError: a row out of range, or the scene changed after the constraint was made.
+        """
         if self.curvature_mode == "differences":
-            return super().curvature(q, w, rows)
+            rows, w = np.asarray(rows, int), np.asarray(w, float)
+            if len(rows) and not (rows.min() >= 0 and rows.max() < len(self.index)):
+                raise OptionError(f"rows must be rows 0..{len(self.index) - 1} of the scene's pairs, got "
+                                  f"{rows.tolist()}")
+            self._check_scene()  # (the compiled differences compute the scene's pairs directly)
+            H = self.scene.distance_differences(q, self.index[rows], w, self.influence, DIFFERENCE_STEP)
+            return super().curvature(q, w, rows) if H is None else H
         rec, mine, here, _, _ = self._query(q)
         weight = np.zeros(len(rec.pairs))
         pos = {int(r): int(k) for r, k in zip(here, mine, strict=True)}
