@@ -155,12 +155,19 @@ class DistanceQuery {
   // The pairs within `limit` [m] at q (all pairs when None) into `index` (their indices) and row by row into
   // `out`: [d [m], unit normal (3), p_first (3), p_second (3) [m]] and, with `rows`, G's row (nv) [m/rad];
   // returns how many. The caller's arrays (at least one row per pair): numpy arrays made in Python cost a
-  // fraction of those returned from here.
+  // fraction of those returned from here. `only` (None: every pair): the pairs to consider, increasing indices;
+  // each pair's numbers are the same as without it (a pair's distance and row do not depend on the others).
   std::size_t query(const Eigen::Ref<const VectorXd>& q, std::optional<double> limit, bool rows, IndexArray index,
-                    OutArray out) {
+                    OutArray out, std::optional<Eigen::Ref<const VectorXl>> only) {
     check_q(q);
     if (limit && !(*limit >= 0.0))
       throw nb::value_error(("limit must be a distance >= 0 [m] or None, got " + std::to_string(*limit)).c_str());
+    if (only)
+      for (Eigen::Index i = 0; i < only->size(); ++i)
+        if ((*only)[i] < 0 || static_cast<std::size_t>((*only)[i]) >= first_.size() ||
+            (i > 0 && (*only)[i] <= (*only)[i - 1]))
+          throw nb::value_error(("only must be increasing pair indices 0.." + str(first_.size() - 1) + ", got " +
+                                 std::to_string((*only)[i]) + " at " + str(static_cast<std::size_t>(i))).c_str());
     const std::size_t npairs = first_.size(), width = kColumns + (rows ? static_cast<std::size_t>(model_.nv) : 0);
     if (index.shape(0) < npairs || out.shape(0) < npairs || out.shape(1) != width)
       throw nb::value_error(("index (>= " + str(npairs) + ",) and out (>= " + str(npairs) + ", " + str(width) +
@@ -170,10 +177,20 @@ class DistanceQuery {
     std::vector<std::int64_t>& ks = ks_;
     ks.clear();
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
-    if (limit)
-      near_pairs(*limit, ks);
-    else
+    if (limit) {
+      place_spheres();
+      if (only) {
+        for (Eigen::Index i = 0; i < only->size(); ++i)
+          if (near(static_cast<std::size_t>((*only)[i]), *limit)) ks.push_back((*only)[i]);
+      } else {
+        for (std::size_t k = 0; k < npairs; ++k)
+          if (near(k, *limit)) ks.push_back(static_cast<std::int64_t>(k));
+      }
+    } else if (only) {
+      ks.assign(only->data(), only->data() + only->size());
+    } else {
       for (std::size_t k = 0; k < npairs; ++k) ks.push_back(static_cast<std::int64_t>(k));
+    }
     OutMap o(out.data(), static_cast<Eigen::Index>(npairs), static_cast<Eigen::Index>(width));
     exact(ks, o);
     if (rows) distance_rows(ks, o);
@@ -181,27 +198,25 @@ class DistanceQuery {
     return ks.size();
   }
 
-  // sum_i w_i Hess d_i over pairs ks (repeats allowed) by central differences of their rows, symmetrised [m/rad^2]:
-  // column j is sum_i w_i (G_i(q + eps e_j) - G_i(q - eps e_j)) / (2 eps), then 0.5 (H + H^T) - the differences of
-  // kinredund.tracking.constraints.base.Constraint.curvature over the rows of SceneClearance._query, each G_i
-  // computed as query(q +- eps e_j, limit, rows=True) computes it (placements, the pair's broadphase test at
-  // `limit`, its exact distance, unit normal and row), for pair ks[i] alone; a pair beyond `limit` there gives a
-  // zero row, as it is zero in that constraint's G. The objects are left placed at q - eps e_{nv-1}.
+  // The central differences of pairs ks' rows (repeats allowed) at q [m/rad]: block j (rows j m .. j m + m - 1, m =
+  // ks.size()) holds G_i(q + eps e_j) - G_i(q - eps e_j) for i = 0..m-1, from which Python takes the weighted sum
+  // and the symmetric part exactly as kinredund.tracking.constraints.base.Constraint.curvature does from the rows
+  // of SceneClearance._query (the same numbers). Each G_i is computed as query(q +- eps e_j, limit, rows=True)
+  // computes it (placements, the pair's broadphase test at `limit`, its exact distance, unit normal and row), for
+  // pair ks[i] alone; a pair beyond `limit` there gives a zero row, as it is zero in that constraint's G. The
+  // objects are left placed at q - eps e_{nv-1}.
   RowMatrixXd differences(const Eigen::Ref<const VectorXd>& q, double limit, const Eigen::Ref<const VectorXl>& ks,
-                          const Eigen::Ref<const VectorXd>& w, double eps) {
+                          double eps) {
     check_q(q);
     const Eigen::Index nv = model_.nv, m = ks.size();
     if (model_.nq != nv) throw nb::value_error("differences needs a model with as many positions as velocities");
     if (!(limit >= 0.0) || !(eps > 0.0) || !std::isfinite(eps))
       throw nb::value_error("limit must be a distance >= 0 [m] and eps a finite step > 0");
-    if (w.size() != m)
-      throw nb::value_error(("one weight per pair expected (" + str(static_cast<std::size_t>(m)) + "), got " +
-                             str(static_cast<std::size_t>(w.size()))).c_str());
     for (Eigen::Index i = 0; i < m; ++i)
       if (ks[i] < 0 || static_cast<std::size_t>(ks[i]) >= first_.size())
         throw nb::value_error(("pair " + std::to_string(ks[i]) + " is not a pair index (0.." +
                                str(first_.size() - 1) + ")").c_str());
-    RowMatrixXd H(nv, nv);
+    RowMatrixXd D(nv * m, nv);
     nb::gil_scoped_release release;
     RowMatrixXd plus(m, nv), minus(m, nv);
     VectorXd e = VectorXd::Zero(nv), at(nv);
@@ -212,13 +227,9 @@ class DistanceQuery {
       at = q - e;
       pair_rows(at, limit, ks, minus);
       e[j] = 0.0;
-      for (Eigen::Index c = 0; c < nv; ++c) {  // w @ (G+ - G-) / (2 eps), summed in row order
-        double sum = 0.0;
-        for (Eigen::Index i = 0; i < m; ++i) sum += w[i] * (plus(i, c) - minus(i, c));
-        H(c, j) = sum / (2 * eps);
-      }
+      D.middleRows(j * m, m) = plus - minus;
     }
-    return 0.5 * (H + H.transpose());
+    return D;
   }
 
   // For RowGuard, query's steps one pair at a time: `place` the objects at q (the joints and the bounding spheres;
@@ -331,13 +342,6 @@ class DistanceQuery {
     const Eigen::Index a = first_[k], b = second_[k];
     const double reach = outer_radii_[a] + outer_radii_[b] + limit + kSphereSlack;
     return (outer_world_.row(a) - outer_world_.row(b)).squaredNorm() > reach * reach;
-  }
-
-  // the pairs with a sphere pair whose gap is within `limit` [m] (engine.Workspace.near_pairs)
-  void near_pairs(double limit, std::vector<std::int64_t>& ks) {
-    place_spheres();
-    for (std::size_t k = 0; k < first_.size(); ++k)
-      if (near(k, limit)) ks.push_back(static_cast<std::int64_t>(k));
   }
 
   // the least gap between pair k's bounding spheres less the slack (engine.Workspace.lower_bounds)
@@ -709,10 +713,11 @@ void bind_distances(nb::module_& m) {
            nb::arg("model"), nb::arg("data"), nb::arg("geometry"), nb::arg("gdata"), nb::arg("joints"),
            nb::arg("centres"), nb::arg("radii"), nb::arg("first"), nb::arg("second"))
       .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"),
-           nb::arg("index").noconvert(), nb::arg("out").noconvert())  // written in place: never a converted copy
+           nb::arg("index").noconvert(), nb::arg("out").noconvert(),  // written in place: never a converted copy
+           nb::arg("only").none() = nb::none())
       .def("closest", &DistanceQuery::closest, nb::arg("q"))
       .def("differences", &DistanceQuery::differences, nb::arg("q"), nb::arg("limit"), nb::arg("pairs"),
-           nb::arg("weights"), nb::arg("eps"));
+           nb::arg("eps"));
   nb::class_<RowGuard>(m, "RowGuard", "The compiled driver's check of a step for a scene's row switch (issue 27).")
       .def(nb::init<DistanceQuery&, const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXd>&, double,
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),

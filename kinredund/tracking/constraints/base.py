@@ -37,6 +37,17 @@ import numpy as np
 DIFFERENCE_STEP = 1e-6
 
 
+def weighted_differences(w: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """sum_i w_i Hess c_i (n, n) from the central differences D (n, rows, n) of the rows' gradients, D[k] =
+    G(q + h e_k) - G(q - h e_k) with h = :data:`DIFFERENCE_STEP`: column k is w @ D[k] / (2 h), then the symmetric
+    part (:meth:`Constraint.curvature`; the compiled scene rows' differences are summed here too, the same way)."""
+    n = len(D)
+    H = np.empty((n, n))
+    for k in range(n):
+        H[:, k] = w @ D[k] / (2 * DIFFERENCE_STEP)
+    return 0.5 * (H + H.T)
+
+
 class Constraint(abc.ABC):
     """Inequalities c(theta) >= 0 on the joints [rad or m]; ``size`` of them."""
 
@@ -87,12 +98,12 @@ class Constraint(abc.ABC):
         """
         q = np.asarray(q, float)
         n, eps = len(q), DIFFERENCE_STEP
-        H = np.empty((n, n))
+        D = np.empty((n, len(rows), n))
         for k in range(n):
             e = np.zeros(n)
             e[k] = eps
-            H[:, k] = w @ (self.gradients(q + e)[rows] - self.gradients(q - e)[rows]) / (2 * eps)
-        return 0.5 * (H + H.T)
+            D[k] = self.gradients(q + e)[rows] - self.gradients(q - e)[rows]
+        return weighted_differences(w, D)
 
     def segment_lower_bounds(self, q0: np.ndarray, q1: np.ndarray, c0: np.ndarray, c1: np.ndarray,
                              move: np.ndarray) -> np.ndarray | None:

@@ -71,7 +71,7 @@ import numpy as np
 from kinredund.errors import OptionError, check_choice
 from kinredund.geometry.polytopes import vertex_corner, vertex_piece
 from kinredund.geometry.scene import Scene
-from kinredund.tracking.constraints.base import DIFFERENCE_STEP, Constraint
+from kinredund.tracking.constraints.base import DIFFERENCE_STEP, Constraint, weighted_differences
 
 #: how :meth:`SceneClearance.curvature` is taken (class docstring)
 CURVATURES = ("differences", "witness")
@@ -137,6 +137,8 @@ class SceneClearance(Constraint):
             raise OptionError("the scene checks no pair (add an object, or check the robot's own pairs with "
                               "self_clearance=...)")
         self.index, self.clearances = np.array(index), np.array(clear)
+        # the pairs its queries compute (None: every pair of the scene): the others are no row here
+        self._only = None if len(index) == len(self._scene_pairs) else self.index.astype(np.int64)
         self.pairs = tuple(self._scene_pairs[k] for k in index)
         self._row = np.full(len(self._scene_pairs), -1)
         self._row[self.index] = np.arange(len(index))
@@ -173,10 +175,11 @@ class SceneClearance(Constraint):
         return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
 
     def _query(self, q: np.ndarray, rows: bool = True) -> tuple:
-        """(the scene's record within the influence (None for values only), its entries that are rows here, their
-        rows, c (size,), G (size, n) or None) at q; G only where ``rows`` (a values-only query skips the
-        Jacobians and the record). Kept for the last q of this thread, by the bytes of q (the stepper asks for
-        values, rows and curvature at one q; equal bytes are equal values, so a kept answer is never stale)."""
+        """(the scene's record of this constraint's pairs within the influence (None for values only; the scene's
+        other pairs are not computed), its entries that are rows here, their rows, c (size,), G (size, n) or None)
+        at q; G only where ``rows`` (a values-only query skips the Jacobians and the record). Kept for the last q of
+        this thread, by the bytes of q (the stepper asks for values, rows and curvature at one q; equal bytes are
+        equal values, so a kept answer is never stale)."""
         self._check_scene()
         q = np.asarray(q, float)
         key = q.tobytes()
@@ -191,7 +194,7 @@ class SceneClearance(Constraint):
                     return (None, None, None, lower, None)
         c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
         if rows:
-            rec = self.scene.distance_rows(q, self.influence)
+            rec = self.scene.distance_rows(q, self.influence, self._only)
             keep = self._row[rec.index]
             mine = np.flatnonzero(keep >= 0)
             here = keep[mine]
@@ -200,7 +203,7 @@ class SceneClearance(Constraint):
             G[here] = rec.G[mine]
             out = (rec, mine, here, c, G)
         else:  # the values alone: the pairs' positions and distances (no record, no names)
-            index, d = self.scene.pair_distances(q, self.influence)
+            index, d = self.scene.pair_distances(q, self.influence, self._only)
             keep = self._row[index]
             mine = keep >= 0
             here = keep[mine]
@@ -259,8 +262,9 @@ class SceneClearance(Constraint):
 
         The differences are :meth:`Constraint.curvature`'s of :meth:`gradients`; where the scene's queries are
         compiled they are one call of the core (``Scene.distance_differences``) that computes only the pairs of
-        ``rows`` at each point, each row as the full query computes it (the same numbers, summed in another
-        order), and leaves this thread's last query (at q) kept.
+        ``rows`` at each point, each row as the full query computes it, summed as :meth:`Constraint.curvature` sums
+        them (:func:`~kinredund.tracking.constraints.base.weighted_differences`): the same numbers; it leaves this
+        thread's last query (at q) kept.
 
         Raises:
             OptionError: a row out of range, or the scene changed after the constraint was made.
@@ -271,8 +275,8 @@ class SceneClearance(Constraint):
                 raise OptionError(f"rows must be rows 0..{len(self.index) - 1} of the scene's pairs, got "
                                   f"{rows.tolist()}")
             self._check_scene()  # (the compiled differences compute the scene's pairs directly)
-            H = self.scene.distance_differences(q, self.index[rows], w, self.influence, DIFFERENCE_STEP)
-            return super().curvature(q, w, rows) if H is None else H
+            D = self.scene.distance_differences(q, self.index[rows], self.influence, DIFFERENCE_STEP)
+            return super().curvature(q, w, rows) if D is None else weighted_differences(w, D)
         rec, mine, here, _, _ = self._query(q)
         weight = np.zeros(len(rec.pairs))
         pos = {int(r): int(k) for r, k in zip(here, mine, strict=True)}
