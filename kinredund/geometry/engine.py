@@ -259,14 +259,14 @@ class Workspace:
         if self._core is None or self.model.nq != self.model.nv:
             return None
         ks = np.asarray(ks)
-        npairs = len(self.first)
-        if ks.ndim != 1 or (len(ks) and not (np.issubdtype(ks.dtype, np.integer) and ks.min() >= 0
-                                             and ks.max() < npairs)):
-            raise GeometryError(f"pairs must be pair indices 0..{npairs - 1}, got {ks.tolist()}")
-        if not (np.isfinite(step) and step > 0 and limit >= 0):
-            raise GeometryError(f"the step must be > 0 and the limit >= 0 [m], got {step!r} and {limit!r}")
+        if ks.ndim != 1 or (len(ks) and ks.dtype.kind not in "iu"):
+            raise GeometryError(f"pairs must be pair indices 0..{len(self.first) - 1}, got {ks.tolist()}")
+        try:  # (the indices, step and limit are checked there: no cost here on the hot path)
+            D = self._core.differences(q, float(limit), ks.astype(np.int64, copy=False), float(step))
+        except ValueError as e:
+            raise GeometryError(str(e)) from None
         n = self.model.nv
-        return self._core.differences(q, float(limit), ks.astype(np.int64), float(step)).reshape(n, len(ks), n)
+        return D.reshape(n, len(ks), n)
 
     def place(self, q: np.ndarray) -> None:
         """Forward kinematics and every object's world pose at q."""

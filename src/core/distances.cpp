@@ -211,7 +211,8 @@ class DistanceQuery {
     const Eigen::Index nv = model_.nv, m = ks.size();
     if (model_.nq != nv) throw nb::value_error("differences needs a model with as many positions as velocities");
     if (!(limit >= 0.0) || !(eps > 0.0) || !std::isfinite(eps))
-      throw nb::value_error("limit must be a distance >= 0 [m] and eps a finite step > 0");
+      throw nb::value_error(("limit must be a distance >= 0 [m] and eps a finite step > 0, got " +
+                             std::to_string(limit) + " and " + std::to_string(eps)).c_str());
     for (Eigen::Index i = 0; i < m; ++i)
       if (ks[i] < 0 || static_cast<std::size_t>(ks[i]) >= first_.size())
         throw nb::value_error(("pair " + std::to_string(ks[i]) + " is not a pair index (0.." +

@@ -40,8 +40,12 @@ DIFFERENCE_STEP = 1e-6
 def weighted_differences(w: np.ndarray, D: np.ndarray) -> np.ndarray:
     """sum_i w_i Hess c_i (n, n) from the central differences D (n, rows, n) of the rows' gradients, D[k] =
     G(q + h e_k) - G(q - h e_k) with h = :data:`DIFFERENCE_STEP`: column k is w @ D[k] / (2 h), then the symmetric
-    part (:meth:`Constraint.curvature`; the compiled scene rows' differences are summed here too, the same way)."""
+    part (:meth:`Constraint.curvature`; the compiled scene rows' differences are summed here too, the same way).
+    One row (the common case) in one product: w @ D[k] is then w_0 D[k, 0], the same numbers."""
     n = len(D)
+    if D.shape[1] == 1:
+        H = (w[0] * D[:, 0, :]).T / (2 * DIFFERENCE_STEP)
+        return 0.5 * (H + H.T)
     H = np.empty((n, n))
     for k in range(n):
         H[:, k] = w @ D[k] / (2 * DIFFERENCE_STEP)

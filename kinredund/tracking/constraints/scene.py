@@ -77,6 +77,8 @@ from kinredund.tracking.constraints.base import DIFFERENCE_STEP, Constraint, wei
 CURVATURES = ("differences", "witness")
 #: a values-only query is skipped while every row's lower bound stays above this [m] (class docstring)
 SKIP_MARGIN = 0.005
+#: how many exact answers :meth:`SceneClearance._query` keeps per thread (the last q's, by their bytes)
+KEPT_QUERIES = 8
 #: the default broadphase reach beyond the largest clearance [m]
 INFLUENCE_MARGIN = 0.05
 #: a pair's witness points that move by more than JUMP [m] across a joint move of at most JUMP_STEP [rad]
@@ -179,7 +181,10 @@ class SceneClearance(Constraint):
         other pairs are not computed), its entries that are rows here, their rows, c (size,), G (size, n) or None)
         at q; G only where ``rows`` (a values-only query skips the Jacobians and the record). Kept for the last q of
         this thread, by the bytes of q (the stepper asks for values, rows and curvature at one q; equal bytes are
-        equal values, so a kept answer is never stale)."""
+        equal values, so a kept answer is never stale), which the lowered values start from; and the last
+        :data:`KEPT_QUERIES` exact answers kept the same way (the stepper comes back to a point after trying
+        others: a step's start, a corrector's iterate), each a query's numbers, so whether one is kept changes
+        no value."""
         self._check_scene()
         q = np.asarray(q, float)
         key = q.tobytes()
@@ -192,6 +197,11 @@ class SceneClearance(Constraint):
                 lower = last[2][3] - self._bound @ np.abs(q - last[1])
                 if lower.min() > SKIP_MARGIN:
                     return (None, None, None, lower, None)
+        kept = self._local.__dict__.setdefault("kept", {})
+        out = kept.get(key)
+        if out is not None and (out[4] is not None or not rows):
+            self._local.last = (key, q.copy(), out)
+            return out
         c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
         if rows:
             rec = self.scene.distance_rows(q, self.influence, self._only)
@@ -209,6 +219,9 @@ class SceneClearance(Constraint):
             here = keep[mine]
             c[here] = d[mine] - self.clearances[here]
             out = (None, None, None, c, None)
+        kept[key] = out
+        if len(kept) > KEPT_QUERIES:
+            del kept[next(iter(kept))]  # the oldest
         self._local.last = (key, q.copy(), out)
         return out
 
