@@ -374,8 +374,7 @@ class Scene:
 
     def pair_distances(self, q, influence: float | None = None, only=None) -> tuple[np.ndarray, np.ndarray]:
         """(the pairs' positions in :attr:`pairs`, their signed distances [m]): :meth:`distances` without the
-        record (names, witness points), for a caller that takes values at every step (a constraint's); ``only``:
-        the pairs to consider, as in :meth:`distance_rows`."""
+        record (names, witness points), for a caller that takes values at every step (``only``: distance_rows')."""
         ks, d, *_ = self.workspace().query(self._q(q), self._influence(influence), only=only)
         return ks, d
 
@@ -395,23 +394,14 @@ class Scene:
     def distance_rows(self, q, influence: float | None = None, only=None) -> DistanceRows:
         """Distances d [m] and rows G [m/rad] with d_dot = G q_dot, for the pairs within ``influence`` [m].
 
-        ``G[k] = n_k^T (J_b(p_b) - J_a(p_a))`` at the witness points (``kinredund.geometry.engine``). ``only``:
-        the pairs to consider (increasing positions in :attr:`pairs`, int64), or None for every pair (a pair's
-        numbers are the same either way: the others are left out, not computed).
+        ``G[k] = n_k^T (J_b(p_b) - J_a(p_a))`` at the witness points (``kinredund.geometry.engine``); ``only``:
+        the pairs to consider (increasing positions in :attr:`pairs`, int64; None: all), the others not computed.
         """
         q, influence = self._q(q), self._influence(influence)
         ks, d, n, pa, pb, G = self.workspace().query(q, influence, rows=True, only=only)
         if not len(ks):
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), influence, np.zeros(0, int), n, pa, pb)
         return DistanceRows(self._names_of(ks), d, G, influence, np.asarray(ks), n, pa, pb)
-
-    def distance_differences(self, q, pairs, influence: float, step: float) -> np.ndarray | None:
-        """The central differences (step ``step``) of the :meth:`distance_rows` rows (at ``influence``) of
-        ``pairs`` (positions in :attr:`pairs`) at q, shape (n, len(pairs), n) [m/rad]: D[j, i] = G_i(q + step e_j) -
-        G_i(q - step e_j), in one call of the compiled core that computes only those pairs at each point
-        (:meth:`~kinredund.geometry.engine.Workspace.differences`); None where the queries run in Python."""
-        q, influence = self._q(q), self._influence(influence)
-        return self.workspace().differences(q, influence, pairs, step)
 
     def distance_curvature(self, q, rows: DistanceRows, weights) -> np.ndarray:
         """sum_k w_k n_k^T (Hess p_b - Hess p_a) [m/rad^2] (n, n): the second-order term of the distance rows

@@ -274,21 +274,24 @@ class SceneClearance(Constraint):
         module docstring); rows beyond the influence contribute nothing.
 
         The differences are :meth:`Constraint.curvature`'s of :meth:`gradients`; where the scene's queries are
-        compiled they are one call of the core (``Scene.distance_differences``) that computes only the pairs of
+        compiled they are one call of the core (``Workspace.differences``) that computes only the pairs of
         ``rows`` at each point, each row as the full query computes it, summed as :meth:`Constraint.curvature` sums
         them (:func:`~kinredund.tracking.constraints.base.weighted_differences`): the same numbers; it leaves this
         thread's last query (at q) kept.
 
         Raises:
-            OptionError: a row out of range, or the scene changed after the constraint was made.
+            OptionError: a row out of range, not one weight per row, or the scene changed after the constraint was
+                made.
         """
         if self.curvature_mode == "differences":
             rows, w = np.asarray(rows, int), np.asarray(w, float)
-            if len(rows) and not (rows.min() >= 0 and rows.max() < len(self.index)):
-                raise OptionError(f"rows must be rows 0..{len(self.index) - 1} of the scene's pairs, got "
-                                  f"{rows.tolist()}")
+            if rows.ndim != 1 or w.shape != rows.shape or (len(rows) and not (rows.min() >= 0
+                                                                       and rows.max() < len(self.index))):
+                raise OptionError(f"rows must be rows 0..{len(self.index) - 1} of the scene's pairs and w one weight "
+                                  f"per row, got rows {rows.tolist()} and w {w.tolist()}")
             self._check_scene()  # (the compiled differences compute the scene's pairs directly)
-            D = self.scene.distance_differences(q, self.index[rows], self.influence, DIFFERENCE_STEP)
+            D = self.scene.workspace().differences(np.asarray(q, float), self.influence, self.index[rows],
+                                                   DIFFERENCE_STEP)
             return super().curvature(q, w, rows) if D is None else weighted_differences(w, D)
         rec, mine, here, _, _ = self._query(q)
         weight = np.zeros(len(rec.pairs))
