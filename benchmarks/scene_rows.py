@@ -26,34 +26,21 @@ import time
 
 import numpy as np
 from _bench import parser, print_table, write_json
+from clearance_peers import elbow_case
 
 import kinredund
-from kinredund.indices import JointDeviation
-from kinredund.paths import Circle
 from kinredund.tracking import Tracker
 
-#: panda_elbow_circle (tests/test_tracking_limits.py): the end point's configuration, plane normal, start direction
-#: and radius [m] of the circle; the ball's centre and radius [m] and the clearance [m] (tests/test_tracking_scene.py)
-CIRCLE = ([0.5981, -1.2209, -0.1932, -2.5949, -0.0485, 1.3779, 1.2498], [0.4405, -0.8901, 0.117],
-          [0.8409, 0.3634, -0.401], 0.1333)
+#: the ball's centre and radius [m] and the clearance [m] of panda_elbow_ball (tests/test_tracking_scene.py)
 BALL, CLEARANCE = ([-0.3178, 0.2255, 0.3518], 0.05), 0.02
 
 
 def setup():
-    """(robot, path, index, q0, scene) of panda_elbow_ball (as tests/test_tracking_limits.circle_case makes it)."""
-    r = kinredund.load_robot("panda", task="position")
-    qs, n, ax, rad = (np.array(v, float) for v in CIRCLE)
-    n /= np.linalg.norm(n)
-    ax -= (ax @ n) * n
-    ax /= np.linalg.norm(ax)
-    p = r.fk(qs)[:3, 3]
-    path = Circle(p - rad * ax, float(rad), 0.1, normal=tuple(n), axis_x=tuple(ax))
-    index = JointDeviation(r.home.copy())
-    free = kinredund.solve_ik(r, p, index, q0=qs)
-    q0 = kinredund.solve_ik(r, p, index, q0=free.q, bounds=True).q
-    scene = kinredund.Scene(r)
+    """(robot, path, index, q0, scene) of panda_elbow_ball: clearance_peers' circle (panda_elbow_circle) and a ball."""
+    robot, path, index, q0, _ = elbow_case()
+    scene = kinredund.Scene(robot)
     scene.add_sphere("ball", BALL[1], BALL[0])
-    return r, path, index, q0, scene
+    return robot, path, index, q0, scene
 
 
 def one_round(case, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
