@@ -16,8 +16,9 @@ J(p) = J_v - [p]_x J_omega over the joints that move the body, from Pinocchio's 
 where the witness points are unique (smooth shapes, or polytopes away from parallel faces); the rates are
 checked against central differences in the tests.
 
-Compiled: where the compiled core (``kinredund._core``) is importable, :meth:`Workspace.query` and
-:meth:`Workspace.closest` run in one C++ call (``_core.DistanceQuery``, src/core/distances.cpp) on this
+Compiled: where the compiled core (``kinredund._core``) is importable, :meth:`Workspace.query`,
+:meth:`Workspace.closest` and :meth:`Workspace.differences` (the central differences of some pairs' rows) run in one
+C++ call (``_core.DistanceQuery``, src/core/distances.cpp) on this
 workspace's own Pinocchio objects: the same Pinocchio and coal calls with the same requests, so the same
 distances, witness points, normals and rows (to rounding); without the core, the Python path below.
 """

@@ -7,7 +7,9 @@
 //   Python Workspace sets them: signed distances, GJK tolerance, no warm start);
 // - unit normals by the rules of engine.unit_normals;
 // - the distance rows G[k] = n^T (J_b(p_b) - J_a(p_a)) from the world-frame joint Jacobians data.J, each body's
-//   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega.
+//   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega;
+// - the central differences of given pairs' rows (DistanceQuery::differences, for SceneClearance.curvature): the
+//   steps above for those pairs alone at q +- eps e_j.
 // The model, data, geometry model and geometry data are the Python Workspace's own objects (Boost.Python),
 // referenced, not copied: after a query they hold what the Python path would leave in them (a RowGuard's checks,
 // on a workspace of their own, may leave the objects' poses behind the joints': DistanceQuery::place).
