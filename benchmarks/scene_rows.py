@@ -1,4 +1,4 @@
-"""A step with a scene's row active (issue 28): the tracker's step while the stepper holds a distance row.
+"""A tracker step with a scene's distance row active: the step while the stepper holds a clearance row.
 
     python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N]
 
