@@ -16,8 +16,9 @@ J(p) = J_v - [p]_x J_omega over the joints that move the body, from Pinocchio's 
 where the witness points are unique (smooth shapes, or polytopes away from parallel faces); the rates are
 checked against central differences in the tests.
 
-Compiled: where the compiled core (``kinredund._core``) is importable, :meth:`Workspace.query` and
-:meth:`Workspace.closest` run in one C++ call (``_core.DistanceQuery``, src/core/distances.cpp) on this
+Compiled: where the compiled core (``kinredund._core``) is importable, :meth:`Workspace.query`,
+:meth:`Workspace.closest` and :meth:`Workspace.differences` (the central differences of some pairs' rows) run in one
+C++ call (``_core.DistanceQuery``, src/core/distances.cpp) on this
 workspace's own Pinocchio objects: the same Pinocchio and coal calls with the same requests, so the same
 distances, witness points, normals and rows (to rounding); without the core, the Python path below.
 """
@@ -211,23 +212,62 @@ class Workspace:
                 raise OptionError(f"the row guard's {what} must be >= 0 and {top}, got {a.tolist()}")
         return _CORE.RowGuard(self._core, rows, clearances, float(influence), bound, extent, float(tol), float(skip))
 
-    def query(self, q: np.ndarray, limit: float | None, rows: bool = False):
+    def query(self, q: np.ndarray, limit: float | None, rows: bool = False, only: np.ndarray | None = None):
         """(pairs, signed distances [m], unit normals, p_first, p_second [m], rows G [m/rad] or None) at q: the
         pairs (indices, shape (k,)) within ``limit`` [m] by the broadphase (:meth:`near_pairs`; every pair when
-        None), their :meth:`distances` and, with ``rows``, their :meth:`rows` (shape (k, nv)).
+        None), their :meth:`distances` and, with ``rows``, their :meth:`rows` (shape (k, nv)). ``only``: the
+        pairs to consider (increasing indices, int64), or None for every pair; a pair's numbers do not depend on
+        which others are computed.
 
         One call of the compiled core where it is used, else :meth:`place`, :meth:`near_pairs`, :meth:`distances`
         and :meth:`rows` in turn.
+
+        Raises:
+            GeometryError: ``only`` not increasing pair indices; in the compiled core also a q of another length
+                or a limit < 0 or NaN.
         """
         if self._core is not None:  # the arrays made here, filled there: row r = [d, n, p_a, p_b, G row]
             index, out = np.empty(len(self.first), dtype=np.int64), np.empty((len(self.first), self._width[rows]))
-            k = self._core.query(q, limit, rows, index, out)
+            try:
+                k = self._core.query(q, limit, rows, index, out, only)
+            except ValueError as e:  # (checked there: no cost here on the hot path)
+                raise GeometryError(str(e)) from None
             P = out[:k].copy()  # (a record kept from each query then holds k rows, not one per pair)
             return index[:k].copy(), P[:, 0], P[:, 1:4], P[:, 4:7], P[:, 7:10], (P[:, 10:] if rows else None)
+        if only is not None:
+            only = np.asarray(only)
+            if only.ndim != 1 or (len(only) and not (np.issubdtype(only.dtype, np.integer) and only.min() >= 0
+                                                     and only.max() < len(self.first) and np.all(np.diff(only) > 0))):
+                raise GeometryError(f"only must be increasing pair indices 0..{len(self.first) - 1}, got "
+                                    f"{only.tolist()}")
         self.place(q)
         ks = np.arange(len(self.first)) if limit is None else self.near_pairs(limit)
+        if only is not None:
+            ks = np.intersect1d(ks, only, assume_unique=True)
         d, n, pa, pb = self.distances(ks)
         return ks, d, n, pa, pb, (self.rows(ks, n) if rows else None)
+
+    def differences(self, q: np.ndarray, limit: float, ks, step: float) -> np.ndarray | None:
+        """The central differences of the rows of pairs ``ks`` (repeats allowed) at q, shape (n, len(ks), n)
+        [m/rad]: D[j, i] = G_i(q + step e_j) - G_i(q - step e_j), each G_i as :meth:`query` (``limit``, rows) gives
+        it at that point, zero for a pair beyond ``limit`` there; one call of the compiled core
+        (``DistanceQuery.differences``), which computes only those pairs. None where the queries run in Python, or
+        the model has other positions than velocities.
+
+        Raises:
+            GeometryError: a pair index out of range, a step not > 0 or a limit < 0.
+        """
+        if self._core is None or self.model.nq != self.model.nv:
+            return None
+        ks = np.asarray(ks)
+        if ks.ndim != 1 or (len(ks) and ks.dtype.kind not in "iu"):
+            raise GeometryError(f"pairs must be pair indices 0..{len(self.first) - 1}, got {ks.tolist()}")
+        try:  # (the indices, step and limit are checked there: no cost here on the hot path)
+            D = self._core.differences(q, float(limit), ks.astype(np.int64, copy=False), float(step))
+        except ValueError as e:
+            raise GeometryError(str(e)) from None
+        n = self.model.nv
+        return D.reshape(n, len(ks), n)
 
     def place(self, q: np.ndarray) -> None:
         """Forward kinematics and every object's world pose at q."""

@@ -372,10 +372,10 @@ class Scene:
         ks, d, n, pa, pb, _ = self.workspace().query(q, influence)
         return Distances(q.copy(), self._names_of(ks), d, pa, pb, n, influence, len(self._pair_names))
 
-    def pair_distances(self, q, influence: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def pair_distances(self, q, influence: float | None = None, only=None) -> tuple[np.ndarray, np.ndarray]:
         """(the pairs' positions in :attr:`pairs`, their signed distances [m]): :meth:`distances` without the
-        record (names, witness points), for a caller that takes values at every step (a constraint's)."""
-        ks, d, *_ = self.workspace().query(self._q(q), self._influence(influence))
+        record (names, witness points), for a caller that takes values at every step (``only``: distance_rows')."""
+        ks, d, *_ = self.workspace().query(self._q(q), self._influence(influence), only=only)
         return ks, d
 
     def min_distance(self, q) -> float:
@@ -391,13 +391,14 @@ class Scene:
         k, d = self.workspace().closest(self._q(q))
         return self._pair_names[k], float(d)
 
-    def distance_rows(self, q, influence: float | None = None) -> DistanceRows:
+    def distance_rows(self, q, influence: float | None = None, only=None) -> DistanceRows:
         """Distances d [m] and rows G [m/rad] with d_dot = G q_dot, for the pairs within ``influence`` [m].
 
-        ``G[k] = n_k^T (J_b(p_b) - J_a(p_a))`` at the witness points (``kinredund.geometry.engine``).
+        ``G[k] = n_k^T (J_b(p_b) - J_a(p_a))`` at the witness points (``kinredund.geometry.engine``); ``only``:
+        the pairs to consider (increasing positions in :attr:`pairs`, int64; None: all), the others not computed.
         """
         q, influence = self._q(q), self._influence(influence)
-        ks, d, n, pa, pb, G = self.workspace().query(q, influence, rows=True)
+        ks, d, n, pa, pb, G = self.workspace().query(q, influence, rows=True, only=only)
         if not len(ks):
             return DistanceRows((), d, np.zeros((0, self.robot.nq)), influence, np.zeros(0, int), n, pa, pb)
         return DistanceRows(self._names_of(ks), d, G, influence, np.asarray(ks), n, pa, pb)

@@ -7,7 +7,9 @@
 //   Python Workspace sets them: signed distances, GJK tolerance, no warm start);
 // - unit normals by the rules of engine.unit_normals;
 // - the distance rows G[k] = n^T (J_b(p_b) - J_a(p_a)) from the world-frame joint Jacobians data.J, each body's
-//   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega.
+//   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega;
+// - the central differences of given pairs' rows (DistanceQuery::differences, for SceneClearance.curvature): the
+//   steps above for those pairs alone at q +- eps e_j.
 // The model, data, geometry model and geometry data are the Python Workspace's own objects (Boost.Python),
 // referenced, not copied: after a query they hold what the Python path would leave in them (a RowGuard's checks,
 // on a workspace of their own, may leave the objects' poses behind the joints': DistanceQuery::place).
@@ -155,12 +157,19 @@ class DistanceQuery {
   // The pairs within `limit` [m] at q (all pairs when None) into `index` (their indices) and row by row into
   // `out`: [d [m], unit normal (3), p_first (3), p_second (3) [m]] and, with `rows`, G's row (nv) [m/rad];
   // returns how many. The caller's arrays (at least one row per pair): numpy arrays made in Python cost a
-  // fraction of those returned from here.
+  // fraction of those returned from here. `only` (None: every pair): the pairs to consider, increasing indices;
+  // each pair's numbers are the same as without it (a pair's distance and row do not depend on the others).
   std::size_t query(const Eigen::Ref<const VectorXd>& q, std::optional<double> limit, bool rows, IndexArray index,
-                    OutArray out) {
+                    OutArray out, std::optional<Eigen::Ref<const VectorXl>> only) {
     check_q(q);
     if (limit && !(*limit >= 0.0))
       throw nb::value_error(("limit must be a distance >= 0 [m] or None, got " + std::to_string(*limit)).c_str());
+    if (only)
+      for (Eigen::Index i = 0; i < only->size(); ++i)
+        if ((*only)[i] < 0 || static_cast<std::size_t>((*only)[i]) >= first_.size() ||
+            (i > 0 && (*only)[i] <= (*only)[i - 1]))
+          throw nb::value_error(("only must be increasing pair indices 0.." + str(first_.size() - 1) + ", got " +
+                                 std::to_string((*only)[i]) + " at " + str(static_cast<std::size_t>(i))).c_str());
     const std::size_t npairs = first_.size(), width = kColumns + (rows ? static_cast<std::size_t>(model_.nv) : 0);
     if (index.shape(0) < npairs || out.shape(0) < npairs || out.shape(1) != width)
       throw nb::value_error(("index (>= " + str(npairs) + ",) and out (>= " + str(npairs) + ", " + str(width) +
@@ -170,15 +179,60 @@ class DistanceQuery {
     std::vector<std::int64_t>& ks = ks_;
     ks.clear();
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
-    if (limit)
-      near_pairs(*limit, ks);
-    else
+    if (limit) {
+      place_spheres();
+      if (only) {
+        for (Eigen::Index i = 0; i < only->size(); ++i)
+          if (near(static_cast<std::size_t>((*only)[i]), *limit)) ks.push_back((*only)[i]);
+      } else {
+        for (std::size_t k = 0; k < npairs; ++k)
+          if (near(k, *limit)) ks.push_back(static_cast<std::int64_t>(k));
+      }
+    } else if (only) {
+      ks.assign(only->data(), only->data() + only->size());
+    } else {
       for (std::size_t k = 0; k < npairs; ++k) ks.push_back(static_cast<std::int64_t>(k));
+    }
     OutMap o(out.data(), static_cast<Eigen::Index>(npairs), static_cast<Eigen::Index>(width));
     exact(ks, o);
     if (rows) distance_rows(ks, o);
     std::copy(ks.begin(), ks.end(), index.data());
     return ks.size();
+  }
+
+  // The central differences of pairs ks' rows (repeats allowed) at q [m/rad]: block j (rows j m .. j m + m - 1, m =
+  // ks.size()) holds G_i(q + eps e_j) - G_i(q - eps e_j) for i = 0..m-1, from which Python takes the weighted sum
+  // and the symmetric part exactly as kinredund.tracking.constraints.base.Constraint.curvature does from the rows
+  // of SceneClearance._query (the same numbers). Each G_i is computed as query(q +- eps e_j, limit, rows=True)
+  // computes it (placements, the pair's broadphase test at `limit`, its exact distance, unit normal and row), for
+  // pair ks[i] alone; a pair beyond `limit` there gives a zero row, as it is zero in that constraint's G. The
+  // objects are left placed at q - eps e_{nv-1}.
+  RowMatrixXd differences(const Eigen::Ref<const VectorXd>& q, double limit, const Eigen::Ref<const VectorXl>& ks,
+                          double eps) {
+    check_q(q);
+    const Eigen::Index nv = model_.nv, m = ks.size();
+    if (model_.nq != nv) throw nb::value_error("differences needs a model with as many positions as velocities");
+    if (!(limit >= 0.0) || !(eps > 0.0) || !std::isfinite(eps))
+      throw nb::value_error(("limit must be a distance >= 0 [m] and eps a finite step > 0, got " +
+                             std::to_string(limit) + " and " + std::to_string(eps)).c_str());
+    for (Eigen::Index i = 0; i < m; ++i)
+      if (ks[i] < 0 || static_cast<std::size_t>(ks[i]) >= first_.size())
+        throw nb::value_error(("pair " + std::to_string(ks[i]) + " is not a pair index (0.." +
+                               str(first_.size() - 1) + ")").c_str());
+    RowMatrixXd D(nv * m, nv);
+    nb::gil_scoped_release release;
+    RowMatrixXd plus(m, nv), minus(m, nv);
+    VectorXd e = VectorXd::Zero(nv), at(nv);
+    for (Eigen::Index j = 0; j < nv; ++j) {
+      e[j] = eps;
+      at = q + e;  // (as numpy's q + e: every entry, so a -0.0 becomes 0.0 alike)
+      pair_rows(at, limit, ks, plus);
+      at = q - e;
+      pair_rows(at, limit, ks, minus);
+      e[j] = 0.0;
+      D.middleRows(j * m, m) = plus - minus;
+    }
+    return D;
   }
 
   // For RowGuard, query's steps one pair at a time: `place` the objects at q (the joints and the bounding spheres;
@@ -293,13 +347,6 @@ class DistanceQuery {
     return (outer_world_.row(a) - outer_world_.row(b)).squaredNorm() > reach * reach;
   }
 
-  // the pairs with a sphere pair whose gap is within `limit` [m] (engine.Workspace.near_pairs)
-  void near_pairs(double limit, std::vector<std::int64_t>& ks) {
-    place_spheres();
-    for (std::size_t k = 0; k < first_.size(); ++k)
-      if (near(k, limit)) ks.push_back(static_cast<std::int64_t>(k));
-  }
-
   // the least gap between pair k's bounding spheres less the slack (engine.Workspace.lower_bounds)
   // the gap between the spheres around pair k's objects less the slack: a lower bound on its distance too, below
   // lower_bound(k) (each object's bounding spheres lie within its outer sphere)
@@ -336,19 +383,42 @@ class DistanceQuery {
   // data.J after the placements' forward kinematics
   void distance_rows(const std::vector<std::int64_t>& ks, OutMap& o) {
     pinocchio::computeJointJacobians(model_, data_);
-    const auto& J = data_.J;  // 6 x nv, [v; omega] in world axes
     const Eigen::Index nv = model_.nv;
     for (std::size_t r = 0; r < ks.size(); ++r) {
       const auto i = static_cast<Eigen::Index>(r);
-      auto G = o.block(i, kColumns, 1, nv);
-      G.setZero();
-      const Vector3 n = o.block<1, 3>(i, 1).transpose();
-      const Vector3 ma = o.block<1, 3>(i, 4).transpose().cross(n), mb = o.block<1, 3>(i, 7).transpose().cross(n);
-      const std::size_t k = static_cast<std::size_t>(ks[r]);
-      for (int c : columns_[joints_[first_[k]]])
-        G(0, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
-      for (int c : columns_[joints_[second_[k]]])
-        G(0, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
+      row(static_cast<std::size_t>(ks[r]), o.block<1, 3>(i, 1).transpose(), o.block<1, 3>(i, 4).transpose(),
+          o.block<1, 3>(i, 7).transpose(), o.block(i, kColumns, 1, nv));
+    }
+  }
+
+  // pair k's row n^T (J_b(p_b) - J_a(p_a)) [m/rad] into G (1 x nv), from data.J (computeJointJacobians done)
+  template <typename Row>
+  void row(std::size_t k, const Vector3& n, const Vector3& pa, const Vector3& pb, Row&& G) const {
+    const auto& J = data_.J;  // 6 x nv, [v; omega] in world axes
+    G.setZero();
+    const Vector3 ma = pa.cross(n), mb = pb.cross(n);
+    for (int c : columns_[joints_[first_[k]]]) G(0, c) -= n.dot(J.col(c).head<3>()) + ma.dot(J.col(c).tail<3>());
+    for (int c : columns_[joints_[second_[k]]]) G(0, c) += n.dot(J.col(c).head<3>()) + mb.dot(J.col(c).tail<3>());
+  }
+
+  // the rows of pairs ks at q into G (one per entry of ks), as query(q, limit, rows=True) computes each (zero for a
+  // pair beyond `limit`): the objects placed at q, each near pair's exact distance, unit normal and row
+  void pair_rows(const VectorXd& q, double limit, const Eigen::Ref<const VectorXl>& ks, RowMatrixXd& G) {
+    pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
+    place_spheres();
+    bool jacobians = false;
+    for (Eigen::Index i = 0; i < ks.size(); ++i) {
+      const auto k = static_cast<std::size_t>(ks[i]);
+      if (!near(k, limit)) {
+        G.row(i).setZero();
+        continue;
+      }
+      const auto& res = pinocchio::computeDistance(gm_, gd_, k);
+      const Vector3 &pa = res.nearest_points[0], &pb = res.nearest_points[1];
+      const Vector3 n = unit_normal(res.min_distance, res.normal, pa, pb);
+      if (!jacobians) pinocchio::computeJointJacobians(model_, data_);
+      jacobians = true;
+      row(k, n, pa, pb, G.row(i));
     }
   }
 
@@ -646,8 +716,11 @@ void bind_distances(nb::module_& m) {
            nb::arg("model"), nb::arg("data"), nb::arg("geometry"), nb::arg("gdata"), nb::arg("joints"),
            nb::arg("centres"), nb::arg("radii"), nb::arg("first"), nb::arg("second"))
       .def("query", &DistanceQuery::query, nb::arg("q"), nb::arg("limit").none(), nb::arg("rows"),
-           nb::arg("index").noconvert(), nb::arg("out").noconvert())  // written in place: never a converted copy
-      .def("closest", &DistanceQuery::closest, nb::arg("q"));
+           nb::arg("index").noconvert(), nb::arg("out").noconvert(),  // written in place: never a converted copy
+           nb::arg("only").none() = nb::none())
+      .def("closest", &DistanceQuery::closest, nb::arg("q"))
+      .def("differences", &DistanceQuery::differences, nb::arg("q"), nb::arg("limit"), nb::arg("pairs"),
+           nb::arg("eps"));
   nb::class_<RowGuard>(m, "RowGuard", "The compiled driver's check of a step for a scene's row switch (issue 27).")
       .def(nb::init<DistanceQuery&, const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXd>&, double,
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),

@@ -33,6 +33,24 @@ import abc
 
 import numpy as np
 
+#: the step [rad or m] of :meth:`Constraint.curvature`'s central differences
+DIFFERENCE_STEP = 1e-6
+
+
+def weighted_differences(w: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """sum_i w_i Hess c_i (n, n) from the central differences D (n, rows, n) of the rows' gradients, D[k] =
+    G(q + h e_k) - G(q - h e_k) with h = :data:`DIFFERENCE_STEP`: column k is w @ D[k] / (2 h), then the symmetric
+    part (:meth:`Constraint.curvature`; the compiled scene rows' differences are summed here too, the same way).
+    One row (the common case) in one product: w @ D[k] is then w_0 D[k, 0], the same numbers."""
+    n = len(D)
+    if D.shape[1] == 1:
+        H = (w[0] * D[:, 0, :]).T / (2 * DIFFERENCE_STEP)
+        return 0.5 * (H + H.T)
+    H = np.empty((n, n))
+    for k in range(n):
+        H[:, k] = w @ D[k] / (2 * DIFFERENCE_STEP)
+    return 0.5 * (H + H.T)
+
 
 class Constraint(abc.ABC):
     """Inequalities c(theta) >= 0 on the joints [rad or m]; ``size`` of them."""
@@ -78,18 +96,18 @@ class Constraint(abc.ABC):
     def curvature(self, q: np.ndarray, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """sum_i w_i Hess c_i(q) over the inequalities ``rows`` (n, n): their share of M in the system.
 
-        The default takes central differences of :meth:`gradients` (step 1e-6; O(1e-10) relative error);
-        a subclass with analytic second derivatives overrides it (the corrector's rate of convergence
-        depends on it, its result does not).
+        The default takes central differences of :meth:`gradients` (step :data:`DIFFERENCE_STEP`; O(1e-10)
+        relative error); a subclass with analytic second derivatives overrides it (the corrector's rate of
+        convergence depends on it, its result does not).
         """
         q = np.asarray(q, float)
-        n, eps = len(q), 1e-6
-        H = np.empty((n, n))
+        n, eps = len(q), DIFFERENCE_STEP
+        D = np.empty((n, len(rows), n))
         for k in range(n):
             e = np.zeros(n)
             e[k] = eps
-            H[:, k] = w @ (self.gradients(q + e)[rows] - self.gradients(q - e)[rows]) / (2 * eps)
-        return 0.5 * (H + H.T)
+            D[k] = self.gradients(q + e)[rows] - self.gradients(q - e)[rows]
+        return weighted_differences(w, D)
 
     def segment_lower_bounds(self, q0: np.ndarray, q1: np.ndarray, c0: np.ndarray, c1: np.ndarray,
                              move: np.ndarray) -> np.ndarray | None:

@@ -30,8 +30,9 @@ step's end, kept and lowered row by row, computed afresh at or below :data:`SKIP
 above :data:`SKIP_MARGIN` its lower bounds are its own, not the Python stepper's.
 
 The curvature term (the rows' share of M in the system, :meth:`SceneClearance.curvature`) is by default
-taken by central differences of the rows (``curvature="differences"``: 2n queries of the near pairs, made
-only while a row is active), the true Hessian of the distance where it is twice differentiable. The
+taken by central differences of the rows (``curvature="differences"``: the active rows' pairs at 2n points,
+made only while a row is active; one call of the compiled core where the queries are compiled, else 2n queries of
+the near pairs), the true Hessian of the distance where it is twice differentiable. The
 alternative ``curvature="witness"`` holds the witness points fixed to their bodies: sum_k w_k n_k^T
 (Hess p_b - Hess p_a) from the kinematics layer's point Hessians (``Scene.distance_curvature``). It ignores
 the surfaces' curvature at the witness points and the turning of the normal, so it is exact between flat
@@ -70,12 +71,14 @@ import numpy as np
 from kinredund.errors import OptionError, check_choice
 from kinredund.geometry.polytopes import vertex_corner, vertex_piece
 from kinredund.geometry.scene import Scene
-from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.constraints.base import DIFFERENCE_STEP, Constraint, weighted_differences
 
 #: how :meth:`SceneClearance.curvature` is taken (class docstring)
 CURVATURES = ("differences", "witness")
 #: a values-only query is skipped while every row's lower bound stays above this [m] (class docstring)
 SKIP_MARGIN = 0.005
+#: how many exact answers :meth:`SceneClearance._query` keeps per thread (the last q's, by their bytes)
+KEPT_QUERIES = 8
 #: the default broadphase reach beyond the largest clearance [m]
 INFLUENCE_MARGIN = 0.05
 #: a pair's witness points that move by more than JUMP [m] across a joint move of at most JUMP_STEP [rad]
@@ -136,6 +139,8 @@ class SceneClearance(Constraint):
             raise OptionError("the scene checks no pair (add an object, or check the robot's own pairs with "
                               "self_clearance=...)")
         self.index, self.clearances = np.array(index), np.array(clear)
+        # the pairs its queries compute (None: every pair of the scene): the others are no row here
+        self._only = None if len(index) == len(self._scene_pairs) else self.index.astype(np.int64)
         self.pairs = tuple(self._scene_pairs[k] for k in index)
         self._row = np.full(len(self._scene_pairs), -1)
         self._row[self.index] = np.arange(len(index))
@@ -172,12 +177,15 @@ class SceneClearance(Constraint):
         return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
 
     def _query(self, q: np.ndarray, rows: bool = True) -> tuple:
-        """(the scene's record within the influence (None for values only), its entries that are rows here, their
-        rows, c (size,), G (size, n) or None) at q; G only where ``rows`` (a values-only query skips the
-        Jacobians and the record). Kept for the last q of this thread, by the bytes of q (the stepper asks for
-        values, rows and curvature at one q; equal bytes are equal values, so a kept answer is never stale)."""
-        if self.scene.pairs is not self._scene_pairs:
-            raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
+        """(the scene's record of this constraint's pairs within the influence (None for values only; the scene's
+        other pairs are not computed), its entries that are rows here, their rows, c (size,), G (size, n) or None)
+        at q; G only where ``rows`` (a values-only query skips the Jacobians and the record). Kept for the last q of
+        this thread, by the bytes of q (the stepper asks for values, rows and curvature at one q; equal bytes are
+        equal values, so a kept answer is never stale), which the lowered values start from; and the last
+        :data:`KEPT_QUERIES` exact answers kept the same way (the stepper comes back to a point after trying
+        others: a step's start, a corrector's iterate), each a query's numbers, so whether one is kept changes
+        no value."""
+        self._check_scene()
         q = np.asarray(q, float)
         key = q.tobytes()
         last = self._local.__dict__.get("last")
@@ -189,9 +197,14 @@ class SceneClearance(Constraint):
                 lower = last[2][3] - self._bound @ np.abs(q - last[1])
                 if lower.min() > SKIP_MARGIN:
                     return (None, None, None, lower, None)
+        kept = self._local.__dict__.setdefault("kept", {})
+        out = kept.get(key)
+        if out is not None and (out[4] is not None or not rows):
+            self._local.last = (key, q.copy(), out)
+            return out
         c = self.influence - self.clearances  # the lower bound of the pairs beyond the influence
         if rows:
-            rec = self.scene.distance_rows(q, self.influence)
+            rec = self.scene.distance_rows(q, self.influence, self._only)
             keep = self._row[rec.index]
             mine = np.flatnonzero(keep >= 0)
             here = keep[mine]
@@ -200,14 +213,21 @@ class SceneClearance(Constraint):
             G[here] = rec.G[mine]
             out = (rec, mine, here, c, G)
         else:  # the values alone: the pairs' positions and distances (no record, no names)
-            index, d = self.scene.pair_distances(q, self.influence)
+            index, d = self.scene.pair_distances(q, self.influence, self._only)
             keep = self._row[index]
             mine = keep >= 0
             here = keep[mine]
             c[here] = d[mine] - self.clearances[here]
             out = (None, None, None, c, None)
+        kept[key] = out
+        if len(kept) > KEPT_QUERIES:
+            del kept[next(iter(kept))]  # the oldest
         self._local.last = (key, q.copy(), out)
         return out
+
+    def _check_scene(self) -> None:
+        if self.scene.pairs is not self._scene_pairs:
+            raise OptionError("the scene was changed after its SceneClearance was made: make a new one")
 
     def _boxed(self, q: np.ndarray) -> bool:
         """Is q where the motion bound holds (no prismatic joint slid beyond its limits' extent)?"""
@@ -251,9 +271,28 @@ class SceneClearance(Constraint):
         """sum_i w_i Hess c_i over ``rows``: central differences of the rows (``curvature="differences"``,
         the true Hessian where the distance is twice differentiable), or ``"witness"``: sum_i w_i n_i^T
         (Hess p_b - Hess p_a), the witness points fixed to their bodies (the surfaces' curvature left out:
-        module docstring); rows beyond the influence contribute nothing."""
+        module docstring); rows beyond the influence contribute nothing.
+
+        The differences are :meth:`Constraint.curvature`'s of :meth:`gradients`; where the scene's queries are
+        compiled they are one call of the core (``Workspace.differences``) that computes only the pairs of
+        ``rows`` at each point, each row as the full query computes it, summed as :meth:`Constraint.curvature` sums
+        them (:func:`~kinredund.tracking.constraints.base.weighted_differences`): the same numbers; it leaves this
+        thread's last query (at q) kept.
+
+        Raises:
+            OptionError: a row out of range, not one weight per row, or the scene changed after the constraint was
+                made.
+        """
         if self.curvature_mode == "differences":
-            return super().curvature(q, w, rows)
+            rows, w = np.asarray(rows, int), np.asarray(w, float)
+            if rows.ndim != 1 or w.shape != rows.shape or (len(rows) and not (rows.min() >= 0
+                                                                       and rows.max() < len(self.index))):
+                raise OptionError(f"rows must be rows 0..{len(self.index) - 1} of the scene's pairs and w one weight "
+                                  f"per row, got rows {rows.tolist()} and w {w.tolist()}")
+            self._check_scene()  # (the compiled differences compute the scene's pairs directly)
+            D = self.scene.workspace().differences(np.asarray(q, float), self.influence, self.index[rows],
+                                                   DIFFERENCE_STEP)
+            return super().curvature(q, w, rows) if D is None else weighted_differences(w, D)
         rec, mine, here, _, _ = self._query(q)
         weight = np.zeros(len(rec.pairs))
         pos = {int(r): int(k) for r, k in zip(here, mine, strict=True)}

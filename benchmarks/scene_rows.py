@@ -1,0 +1,84 @@
+"""A tracker step with a scene's distance row active: the step while the stepper holds a clearance row.
+
+    python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N]
+
+The case is tests/test_tracking_scene.py's ``panda_elbow_ball``: test_tracking_limits's ``panda_elbow_circle`` (a
+13.3 cm circle on the Panda, z = 1/2 ||q - q_home||^2, the bounded optimum at its start) with a 5 cm sphere where the
+free optimum's upper arm passes, held at 2 cm (``Tracker(..., scene=, clearance=0.02, self_clearance=False)``: the
+robot's own pairs unchecked), dt = T / 200. Per round a fresh tracker takes ``--steps`` steps (default 400: two
+loops, the ball's row met and left in each), each timed on its own (perf_counter) and sorted by whether a general row
+was active after it (``stepper.rows``). Figures, medians over the rounds of each round's median [us]:
+
+- ``scene_active_step_us``: a step with a row active (on the compiled backend these are the Python stepper's:
+  compiled.py hands them back; the rows' curvature by central differences, ``SceneClearance.curvature``);
+- ``scene_active_step_cpu_us``: the same in this thread's CPU time (``time.thread_time``: not the time the scheduler
+  gives other processes on a loaded machine);
+- ``scene_free_step_us``: a step with none (the core's step and its row check);
+- ``scene_active_steps``: how many steps of a round had a row active.
+
+It runs on whichever kinredund is installed, so the figure of an older build is had by running this file with that
+build's Python (the issue's before/after: run the two in turn, a few times each).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from _bench import parser, print_table, write_json
+from clearance_peers import elbow_case
+
+import kinredund
+from kinredund.tracking import Tracker
+
+#: the ball's centre and radius [m] and the clearance [m] of panda_elbow_ball (tests/test_tracking_scene.py)
+BALL, CLEARANCE = ([-0.3178, 0.2255, 0.3518], 0.05), 0.02
+
+
+def setup():
+    """(robot, path, index, q0, scene) of panda_elbow_ball: clearance_peers' circle (panda_elbow_circle) and a ball."""
+    robot, path, index, q0, _ = elbow_case()
+    scene = kinredund.Scene(robot)
+    scene.add_sphere("ball", BALL[1], BALL[0])
+    return robot, path, index, q0, scene
+
+
+def one_round(case, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(step times [s], this thread's CPU time per step [s], row active after each, backend) of a fresh tracker's
+    ``steps`` steps."""
+    r, path, index, q0, scene = case
+    tr = Tracker(r, path, index, q0, path.period / 200, scene=scene, clearance=CLEARANCE, self_clearance=False)
+    times, cpu, active = np.empty(steps), np.empty(steps), np.zeros(steps, bool)
+    for k in range(steps):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        tr.step()
+        times[k], cpu[k] = time.perf_counter() - t0, time.thread_time() - c0
+        active[k] = bool(tr.stepper.rows)
+    return times, cpu, active, tr.backend
+
+
+def main() -> None:
+    p = parser(__doc__.splitlines()[0])
+    p.add_argument("--rounds", type=int, default=5, help="fresh trackers to time (default 5)")
+    p.add_argument("--steps", type=int, default=400, help="steps per round (default 400)")
+    args = p.parse_args()
+    rounds, steps = (1, 120) if args.smoke else (args.rounds, args.steps)
+    case = setup()
+    one_round(case, 20)  # warm-up: imports, the scene's workspace, the core's first calls
+    active_us, active_cpu_us, free_us, counts = [], [], [], []
+    for _ in range(rounds):
+        times, cpu, active, backend = one_round(case, steps)
+        counts.append(int(active.sum()))
+        active_us.append(1e6 * float(np.median(times[active])) if active.any() else float("nan"))
+        active_cpu_us.append(1e6 * float(np.median(cpu[active])) if active.any() else float("nan"))
+        free_us.append(1e6 * float(np.median(times[~active])))
+    out = {"scene_active_step_us": float(np.median(active_us)),
+           "scene_active_step_cpu_us": float(np.median(active_cpu_us)), "scene_free_step_us": float(np.median(free_us)),
+           "scene_active_steps": int(np.median(counts)), "backend": backend, "rounds": rounds, "steps": steps,
+           "active_step_us_per_round": active_us}
+    print_table([[k, v] for k, v in out.items() if k != "active_step_us_per_round"], ["figure", "value"])
+    write_json(args.json, out)
+
+
+if __name__ == "__main__":
+    main()
