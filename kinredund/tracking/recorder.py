@@ -180,7 +180,7 @@ def record_extremes(q: np.ndarray, qdot: np.ndarray | None, revolute: np.ndarray
     """(the loop drifts (loops,) [rad or m]: :func:`~kinredund.kinematics.angles.loop_drifts`, None for an open run
     (``loops`` None); each joint's largest |qdot| [rad/s] over the run's points, as floats, None without ``qdot``), in
     one call of the compiled core where it is installed (``_core.record_extremes``, ``src/core/record_checks.cpp``: the
-    same numbers, with the GIL released), else by numpy. ``q``, ``qdot``: float (N, n) arrays, C-contiguous."""
+    same numbers), else by numpy. ``q``, ``qdot``: float (N, n) arrays, C-contiguous."""
     core = load_core()
     if core is not None and hasattr(core, "record_extremes"):
         n = q.shape[1]

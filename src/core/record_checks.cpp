@@ -3,8 +3,9 @@
 // over a record's few joints, row by row, cost more than the check). The same numbers as numpy's: the differences,
 // their absolute values and maxima are exact; the median is the middle value or the mean (a + b) / 2 of the middle
 // two, as record_checks.median takes it. And the record's loop drifts and each joint's fastest rate
-// (kinredund/tracking/recorder.py: Recorder.trajectory), numpy's numbers (see record_extremes). Both with the GIL
-// released: they touch no Python object, and track_many's threads record their runs meanwhile.
+// (kinredund/tracking/recorder.py: Recorder.trajectory), numpy's numbers (see record_extremes). Both keep the GIL:
+// they take a few microseconds, less than handing the GIL to another of track_many's threads and waiting to get it
+// back (each release is a hand-over where another thread waits for it).
 #include "record_checks.hpp"
 
 #include "arrays.hpp"
@@ -29,7 +30,6 @@ using Joints = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::
 long burst_candidate(const Joints& q, double ratio) {
   const size_t rows = q.shape(0), n = q.shape(1);
   if (rows < 2 || n < 1) throw nb::value_error("q must have at least 2 rows and 1 column");
-  nb::gil_scoped_release release;  // no Python object below
   const size_t steps = rows - 1;
   std::vector<double> d(steps);
   const double* a = q.data();
@@ -81,7 +81,6 @@ void record_extremes(const Joints& q, const Joints& qdot, const Mask& revolute, 
     throw nb::value_error("q must have more than loops x steps_per_loop rows");
   if (qdot.shape(0) > 0 && (qdot.shape(1) != n || fastest.shape(0) != n))
     throw nb::value_error("qdot and fastest must have q's columns");
-  nb::gil_scoped_release release;  // no Python object below
   const double pi = M_PI, two_pi = 2.0 * M_PI;
   const double* a = q.data();
   const bool* rev = revolute.data();
