@@ -445,3 +445,24 @@ def test_runs_leave_the_watch_as_single_steps_leave_it(monkeypatch):
         single.step()
     assert any(x[0] == "run" and x[2] == compiled.load_core().AHEAD for x in events), events
     assert_same_watch(single.stepper.control.watch, batched.stepper.control.watch)
+
+
+def test_track_many_in_threads_records_what_single_steps_record(monkeypatch):
+    """track_many on two threads, whose runs take the watch's verdicts in the core with the GIL released (the Panda
+    pose circle's inverse-iteration measurements kept in runs, the planar arm's run cut by a predicted crossing and
+    its stop, a bound reached and left on the Panda elbow circle), gives each problem's record or stop of single
+    steps in one thread, bit for bit."""
+    from kinredund.tracking import track_many
+
+    problems = [problem("panda_pose_circle"), planar_reach_case(), problem("panda_elbow_circle")] * 2
+    many = track_many(problems, threads=2, backend="compiled")
+    monkeypatch.setattr(run, "stepping", runs.one_by_one)
+    for got, p in zip(many, problems, strict=True):
+        try:
+            alone = run.track(*p, backend="compiled")
+        except TrackingError as err:
+            assert isinstance(got, TrackingError) and (got.cause, got.t) == (err.cause, err.t)
+            assert_identical(err.partial, got.partial, "partial.")
+            continue
+        assert_identical(alone, got)
+        assert alone.meta == got.meta
