@@ -278,14 +278,14 @@ def test_the_core_s_burst_candidate_is_numpy_s(monkeypatch):
 
 
 def test_the_core_s_record_extremes_are_numpy_s_to_the_bit(monkeypatch):
-    """Recorder's loop drifts and fastest rates by the compiled core (``_core.record_extremes``) and by numpy
+    """The record's loop drifts and fastest rates by the compiled core (``_core.record_extremes``) and by numpy
     (loop_drifts, the largest |qdot| per joint) are the same floats (compared as bytes) on records of one to three
     loops with revolute and prismatic joints, differences that wrap past +-pi by many turns, that sit exactly on
     +-pi and on zero, and a NaN (numpy's max then gives NaN: so does the core); open runs and runs without rates
     give None."""
-    from kinredund.tracking import recorder
+    from kinredund.tracking import record_checks
 
-    if recorder.load_core() is None or not hasattr(recorder.load_core(), "record_extremes"):
+    if record_checks.load_core() is None or not hasattr(record_checks.load_core(), "record_extremes"):
         pytest.skip("the compiled core is not built")
     rng = np.random.default_rng(28)
     cases = []
@@ -302,9 +302,9 @@ def test_the_core_s_record_extremes_are_numpy_s_to_the_bit(monkeypatch):
     with_nan[0][200, 3] = with_nan[1][17, 2] = np.nan
     cases.append((*with_nan, np.ones(7, bool), 200, 1))
     cases.append((cases[1][0], None, cases[1][2], None, None))  # an open run without rates
-    core_says = [recorder.record_extremes(*case) for case in cases]
-    monkeypatch.setattr(recorder, "load_core", lambda: None)
-    numpy_says = [recorder.record_extremes(*case) for case in cases]
+    core_says = [record_checks.record_extremes(*case) for case in cases]
+    monkeypatch.setattr(record_checks, "load_core", lambda: None)
+    numpy_says = [record_checks.record_extremes(*case) for case in cases]
     for (drift, fast), (want_drift, want_fast) in zip(core_says, numpy_says, strict=True):
         assert (drift is None) == (want_drift is None) and (fast is None) == (want_fast is None)
         if drift is not None:

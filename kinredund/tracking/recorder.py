@@ -23,10 +23,9 @@ import threading
 
 import numpy as np
 
-from kinredund.kinematics.angles import loop_drifts
 from kinredund.tasks import get_task
-from kinredund.tracking.compiled import load_core
 from kinredund.tracking.linalg import eigs_many, labels_many, normality_many, null_space_bases, null_space_eigs_many
+from kinredund.tracking.record_checks import record_extremes
 from kinredund.tracking.stepper import Stepper
 from kinredund.trajectory import Deferred, Trajectory
 
@@ -110,9 +109,9 @@ class Recorder:
 
     def _limits_meta(self, meta: dict, fastest: list[float]) -> None:
         """The limits' record in ``meta``: switches, speeds against the limits (``fastest``: each joint's largest
-        |qdot| [rad/s], :func:`record_extremes`; the active sets, bound multipliers, margins and switch times are
-        :class:`PerPoint`'s). The velocity limits are ``meta``'s where the run put them there (``track()``: read
-        once per run), else the robot's."""
+        |qdot| [rad/s], :func:`~kinredund.tracking.record_checks.record_extremes`; the active sets, bound
+        multipliers, margins and switch times are :class:`PerPoint`'s). The velocity limits are ``meta``'s where the
+        run put them there (``track()``: read once per run), else the robot's."""
         s = self.stepper
         vmax = meta.get("velocity_limit")
         if vmax is None:
@@ -173,43 +172,6 @@ class Recorder:
             **dict.fromkeys(PER_POINT + (LIMITS_FIELDS if lim else ()), per), robot=robot_name, task=task.name, q=q,
             scheme=scheme, mode=mode, solver=solver, m_eigs=diag if eigs else None, m_null_eigs=diag if eigs else None,
             normality_residual=diag, loop_drift=drift, loop_period=period, meta=meta)
-
-
-def record_extremes(q: np.ndarray, qdot: np.ndarray | None, revolute: np.ndarray, steps_per_loop: int | None,
-                    loops: int | None) -> tuple[np.ndarray | None, list[float] | None]:
-    """(the loop drifts (loops,) [rad or m]: :func:`~kinredund.kinematics.angles.loop_drifts`, None for an open run
-    (``loops`` None); each joint's largest |qdot| [rad/s] over the run's points, as floats, None without ``qdot``), in
-    one call of the compiled core where it is installed (``_core.record_extremes``, ``src/core/record_checks.cpp``: the
-    same numbers), else by numpy. ``q``, ``qdot``: float (N, n) arrays, C-contiguous."""
-    core = load_core()
-    if core is not None and hasattr(core, "record_extremes"):
-        n = q.shape[1]
-        drift, fastest = np.empty(0 if loops is None else loops), np.empty(n)
-        core.record_extremes(q, _NO_RATES[n] if qdot is None else qdot, _revolute(revolute),
-                             0 if loops is None else steps_per_loop, drift, fastest)
-        return None if loops is None else drift, None if qdot is None else fastest.tolist()
-    drift = None if loops is None else loop_drifts(q, steps_per_loop, loops, revolute)
-    fastest = None if qdot is None else np.abs(qdot.T, order="C").max(axis=1).tolist()  # (a joint's speeds in a row)
-    return drift, fastest
-
-
-class _NoRates(dict):
-    """(0, n) arrays by n, made once each (read-only: shared)."""
-
-    def __missing__(self, n: int) -> np.ndarray:
-        out = self[n] = np.zeros((0, n))
-        out.flags.writeable = False
-        return out
-
-
-_NO_RATES = _NoRates()
-
-
-def _revolute(revolute) -> np.ndarray:
-    """The robot's revolute mask as the core takes it (a C-contiguous bool array; the robot's own where it is one)."""
-    if type(revolute) is np.ndarray and revolute.dtype == bool and revolute.flags.c_contiguous:
-        return revolute
-    return np.ascontiguousarray(revolute, dtype=bool)
 
 
 class Column:
