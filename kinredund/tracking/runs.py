@@ -97,6 +97,9 @@ class Runs:
         self.oriented = get_task(s.ev.task).has_orientation  # the core reads Q and omega
         self.none = np.zeros((0, 3)), np.zeros((0, 9)), np.zeros((0, s.n))
         self.grid = None  # (the first step's number, the Samples, the core's arrays) of the steps sampled ahead
+        # Path.computes_together (the driver's samples ahead asked it of this path): sampled GRID steps ahead, the
+        # times as an array (the path's own sample_many takes one); a caller's path gets the run's times as floats
+        self.together = compiled.ahead.own
 
     def _ordinary(self, count: int) -> int:
         """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
@@ -164,7 +167,7 @@ class Runs:
             if left >= min(K, REFILL):
                 K = min(K, left)
         if self.grid is None or not self.grid[0] <= j0 <= j0 + K <= self.grid[0] + len(self.grid[2]):
-            ahead = min(count, GRID) if self.s.ev.path.computes_together() else K  # a caller's path: no further
+            ahead = min(count, GRID) if self.together else K  # a caller's path: no further
             self.grid = self._sample(j0, max(K, ahead))
         first, at, times, arrays = self.grid
         if at is None:
@@ -177,7 +180,8 @@ class Runs:
         s = self.s
         clock = step_time_array(s.t0, s.dt, j0, count)
         times = clock.tolist()
-        at = sample_block(s.ev.path, times)  # Evaluator.sample's samples, computed together where the path can
+        # Evaluator.sample's samples, computed together where the path can
+        at = sample_block(s.ev.path, clock if self.together else times)
         if at is None or (self.oriented and at.Q is None):
             return j0, None, times, ()
         no3, no9, non = self.none
