@@ -466,3 +466,28 @@ def test_track_many_in_threads_records_what_single_steps_record(monkeypatch):
             continue
         assert_identical(alone, got)
         assert alone.meta == got.meta
+
+
+def test_a_run_leaves_no_cyclic_garbage():
+    """track() unlinks its stepper from its step control once the run is recorded (the one reference cycle of a
+    run without a switch; a switch's Brent search leaves its closures' own): a finished run's objects (the benchmark
+    circle of benchmarks/many.py), and a stopped one's, are freed by reference counting, none left for the cyclic
+    garbage collector, whose collections held the GIL ~25 us per run (track_many's threads)."""
+    import gc
+
+    from kinredund.problems import panda_circle
+
+    case = panda_circle(wrist_amplitude=0.1)
+    run.track(*case, backend="compiled")
+    gc.collect()
+    gc.disable()
+    try:
+        traj = run.track(*case, backend="compiled")
+        try:
+            run.track(*planar_reach_case(), backend="compiled", steps_per_loop=200)
+        except TrackingError as err:
+            stopped = err.partial
+        assert gc.collect() == 0
+    finally:
+        gc.enable()
+    assert len(traj.q) == 201 and stopped is not None and len(stopped.q) > 1
