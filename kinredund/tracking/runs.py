@@ -38,9 +38,9 @@ active where the rows have the core's compiled check (``CompiledStep.guard``, :m
 writes each step's smallest row value (``RowGuard.smallest``: the record's, as ``keep_smallest`` keeps it); the first
 step it does not clear is handed over with its verdict (``GUARD_DUE``:
 :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, whose search for a switch decides), and a guarded run ends at
-the first step the watch measures, exactly or by its inverse iteration (the watch's verdict may drop the rows after it,
-and the check's kept values cannot be taken back), so the check runs on exactly the steps, with the same arrays, that
-single steps check. A step
+the first step the watch measures, exactly or by its inverse iteration (as when the watch's verdicts were taken after
+the run, which could drop the rows after it while the check's kept values could not be taken back), so the check runs
+on exactly the steps, with the same arrays, that single steps check. A step
 with a row active is the Python stepper's, one at a time. Like
 :mod:`~kinredund.tracking.compiled`, it reads only the stepper's and the step control's public interface.
 """

@@ -17,8 +17,9 @@
 // it, as StepCore.step_guarded checks a single step (RowGuard.clear on the same arrays, its smallest row value at the
 // step's end written out): the run ends at the first step the check does not clear (GUARD_DUE, its row written: the
 // caller's stepper searches it for a switch), and after the first step the watch measures, exactly or by the inverse
-// iteration (the watch's verdict, taken after the run, may drop the rows after it, and the guard's kept values
-// cannot be taken back).
+// iteration (as when the watch's verdicts were taken after the run, which could drop the rows after it while the
+// guard's kept values could not be taken back; the verdicts are the run's now, but guarded runs were left as they
+// were).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
