@@ -38,7 +38,7 @@ def problems(count: int) -> list:
     return [panda_circle(wrist_amplitude=float(np.radians(2.0 * k))) for k in range(count)]
 
 
-#: the core's calls that release the GIL for the whole of their work: the runs' start, its checks and their runs of steps
+#: the core's calls that release the GIL for the whole of their work: the runs' start, its checks, their runs of steps
 GIL_FREE = ("start_run", "start_checks", "run_steps")
 
 
