@@ -491,3 +491,36 @@ def test_a_run_leaves_no_cyclic_garbage():
     finally:
         gc.enable()
     assert len(traj.q) == 201 and stopped is not None and len(stopped.q) > 1
+
+
+def test_record_columns_and_step_times_are_numpy_s():
+    """Column.array stacks a record's rows as np.concatenate (np.array for one list of rows) does, bit for bit, dtype
+    and shape (rows of vectors and of matrices, blocks of rows and lists of rows, one block, ints), in copies below
+    numpy's 500-entry threshold for releasing the GIL; step_time_array's clock is t0 + np.arange(first, first + count)
+    dt, the same floats, within and beyond its table of step numbers."""
+    from kinredund.tracking.ahead import step_time_array
+    from kinredund.tracking.recorder import COPY_ELEMENTS, Column
+
+    rng = np.random.default_rng(28)
+    for shape, dtype in (((7,), float), ((7, 7), float), ((3,), int)):
+        column, blocks = Column(), []
+        for size in (1, 200, 3, 120):
+            rows = rng.normal(size=(size, *shape)).astype(dtype)
+            if size < 10:  # rows appended one by one (a list), else a run's block (a strided view, as the core's)
+                for row in rows:
+                    column.append(row)
+                blocks.append(list(rows))
+            else:
+                wide = np.zeros((size, 2 * int(np.prod(shape))), dtype)
+                block = wide[:, ::2].reshape(size, *shape)
+                block[...] = rows
+                column.extend(block)
+                blocks.append(block)
+        got, want = column.array(), np.concatenate(blocks)
+        assert got.dtype == want.dtype and got.shape == want.shape and got.tobytes() == want.tobytes()
+        single = Column()
+        single.extend(blocks[1])
+        assert single.array().tobytes() == np.array(blocks[1]).tobytes() and COPY_ELEMENTS <= 500
+    for t0, dt, first, count in ((0.0, 0.1, 1, 200), (2.5, 1e-3, 12345, 256), (0.0, np.pi / 100, 7, 300)):
+        want = t0 + np.arange(first, first + count) * dt
+        assert step_time_array(t0, dt, first, count).tobytes() == want.tobytes()

@@ -174,6 +174,12 @@ class Recorder:
             normality_residual=diag, loop_drift=drift, loop_period=period, meta=meta)
 
 
+#: numpy releases the GIL for a copy of more than 500 entries (``NPY_BEGIN_THREADS_THRESHOLDED``): a record's columns
+#: are copied in pieces of at most this many, so that stacking them does not hand the GIL to another of track_many's
+#: threads, which this one would then wait for (each such hand-over costs it the other's Python stretch)
+COPY_ELEMENTS = 500
+
+
 class Column:
     """One recorded vector field (q, lambda, the rates, the bound multipliers): rows added one by one
     (:meth:`append`, the stepper's arrays, kept by reference) or as a run's block (:meth:`extend`: a 2-D array of
@@ -216,12 +222,22 @@ class Column:
         return [row for b in self._blocks for row in b]
 
     def array(self) -> np.ndarray:
-        """The rows stacked (k, width)."""
+        """The rows stacked (k, width): ``np.concatenate``'s array, copied in pieces of at most :data:`COPY_ELEMENTS`
+        entries."""
         self._flush()
         blocks = self._blocks
-        if len(blocks) == 1:
-            return np.array(blocks[0])
-        return np.concatenate(blocks)  # (a list of rows taken as np.array takes it)
+        if not blocks or (len(blocks) == 1 and type(blocks[0]) is list):
+            return np.concatenate(blocks) if not blocks else np.array(blocks[0])
+        parts = [np.asarray(b) for b in blocks]  # (a list of rows taken as np.array takes it)
+        out = np.empty((self._count, *parts[0].shape[1:]), np.result_type(*parts))
+        rows = max(1, COPY_ELEMENTS // max(1, out[0].size))
+        k = 0
+        for part in parts:
+            for a in range(0, len(part), rows):
+                piece = part[a:a + rows]
+                out[k:k + len(piece)] = piece
+                k += len(piece)
+        return out
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         out = self.array()
