@@ -524,3 +524,27 @@ def test_record_columns_and_step_times_are_numpy_s():
     for t0, dt, first, count in ((0.0, 0.1, 1, 200), (2.5, 1e-3, 12345, 256), (0.0, np.pi / 100, 7, 300)):
         want = t0 + np.arange(first, first + count) * dt
         assert step_time_array(t0, dt, first, count).tobytes() == want.tobytes()
+
+
+def test_track_many_raises_the_first_bad_problem_s_error_after_every_run(monkeypatch):
+    """track_many's threads (the caller one of them, each taking the next problem) give the records in the problems'
+    order and, where a run raises an error of bad input, raise the first such problem's error (as
+    ThreadPoolExecutor.map did) once every run has ended: the runs after it were made too."""
+    from kinredund.errors import JointVectorError
+    from kinredund.tracking import many, track_many
+
+    good = problem("panda_wrist15")
+    worse, bad = (*good[:3], np.zeros(2)), (*good[:3], np.zeros(3))
+    ran, inner = [], run.track
+
+    def counted(*args, **kwargs):
+        ran.append(len(args[3]))
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(many, "track", counted)
+    with pytest.raises(JointVectorError, match=r"got \(3,\)"):
+        track_many([good, bad, good, worse, good], threads=2, loops=1, steps_per_loop=20)
+    assert sorted(ran) == [2, 3, 7, 7, 7]
+    alone = inner(*good, loops=1, steps_per_loop=20)
+    for traj in track_many([good, good, good], threads=3, loops=1, steps_per_loop=20):
+        assert_identical(alone, traj)
