@@ -10,11 +10,12 @@ times ``track_many(problems, threads=1)`` and ``threads=2`` in turn; the figures
 rounds of runs per second, and the speed-up (2 threads over 1: at most 2 on 2 cores, less where others load
 the machine). The compiled core makes each run's start (the correction onto the optimum, the rates, the watch's
 first measurement: ``start_run``) and runs the ordinary steps in runs (:mod:`kinredund.tracking.runs`; the watch's
-measurements inside them), each one C++ call with the GIL released; the rest (the rest of each run's set-up,
-the path samples, the watch's verdicts, the record, the steps it hands back) holds it.
+measurements and verdicts inside them), each one C++ call with the GIL released, as are the start's checks; the rest
+(the rest of each run's set-up, the path's samples, the record, the steps it hands back) holds it.
 The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
 a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in those calls of the
-core (C++, the GIL released; numpy's LAPACK calls release it as well), which bounds the speed-up on two threads.
+core (C++, the GIL released: :data:`GIL_FREE`; numpy's LAPACK calls release it as well), which bounds the
+speed-up on two threads.
 ``--processes`` also times the problems split between two worker processes, which share no GIL: the ceiling
 threads could reach on this machine. On a shared machine the speed-up moves with the others' load
 (``parallel capacity`` in ``benchmarks/sweep.py``).
@@ -37,15 +38,16 @@ def problems(count: int) -> list:
     return [panda_circle(wrist_amplitude=float(np.radians(2.0 * k))) for k in range(count)]
 
 
-#: the core's calls that release the GIL for the whole of their work: the runs' start and their runs of steps
-GIL_FREE = ("start_run", "run_steps")
+#: the core's calls that release the GIL for the whole of their work: the runs' start, its checks, their runs of steps
+GIL_FREE = ("start_run", "start_checks", "run_steps")
 
 
 def gil_free_share(jobs: list, options: dict) -> tuple[float, float]:
     """(share, GIL-held ms per run): the share of the runs' CPU time (one by one, this thread's:
     ``time.thread_time``, which other processes' load does not count) spent in the core's calls of :data:`GIL_FREE`
     (the start: its correction, rates and first watch measurement; the runs of steps, with the watch's
-    measurements), where the GIL is released, and the rest of a run's CPU time [ms], which holds the GIL. With a
+    measurements and their verdicts; the start's checks), where the GIL is released, and the rest of a run's CPU
+    time [ms], which holds the GIL. With a
     GIL-held share g the speed-up on two threads is at most min(2, 1 / g); in practice less, as two threads rarely
     take turns without waiting for each other."""
     import kinredund._core as core

@@ -275,3 +275,42 @@ def test_the_core_s_burst_candidate_is_numpy_s(monkeypatch):
     q = records[1]
     want = [max(abs(q[k + 1, j] - q[k, j]) for j in range(q.shape[1])) for k in range(len(q) - 1)]
     assert record_checks.largest_steps(q).tolist() == want
+
+
+def test_the_core_s_record_extremes_are_numpy_s_to_the_bit(monkeypatch):
+    """The record's loop drifts and fastest rates by the compiled core (``_core.record_extremes``) and by numpy
+    (loop_drifts, the largest |qdot| per joint) are the same floats (compared as bytes) on records of one to three
+    loops with revolute and prismatic joints, differences that wrap past +-pi by many turns, that sit exactly on
+    +-pi and on zero, and a NaN (numpy's max then gives NaN: so does the core); open runs and runs without rates
+    give None."""
+    from kinredund.tracking import record_checks
+
+    if record_checks.load_core() is None or not hasattr(record_checks.load_core(), "record_extremes"):
+        pytest.skip("the compiled core is not built")
+    rng = np.random.default_rng(28)
+    cases = []
+    for loops, spl, joints in ((1, 200, 7), (2, 8, 3), (3, 5, 1)):
+        rows = loops * spl + 1 + rng.integers(0, 3)
+        q = rng.normal(0.0, 1.0, (rows, joints)) * 10.0 ** rng.uniform(-3.0, 2.0, joints)
+        qdot = rng.normal(0.0, 3.0, (rows, joints))
+        cases.append((q, qdot, rng.random(joints) < 0.7, spl, loops))
+    q = np.zeros((9, 4))
+    q[0] = [0.5, -0.5, 1.0, 0.0]
+    q[8] = q[0] + np.array([np.pi, -np.pi, 7.0 * np.pi, 0.0])  # on +-pi, many turns, no change
+    cases.append((q, -q, np.ones(4, bool), 8, 1))
+    with_nan = cases[0][0].copy(), cases[0][1].copy()
+    with_nan[0][200, 3] = with_nan[1][17, 2] = np.nan
+    cases.append((*with_nan, np.ones(7, bool), 200, 1))
+    cases.append((cases[1][0], None, cases[1][2], None, None))  # an open run without rates
+    core_says = [record_checks.record_extremes(*case) for case in cases]
+    monkeypatch.setattr(record_checks, "load_core", lambda: None)
+    numpy_says = [record_checks.record_extremes(*case) for case in cases]
+    for (drift, fast), (want_drift, want_fast) in zip(core_says, numpy_says, strict=True):
+        assert (drift is None) == (want_drift is None) and (fast is None) == (want_fast is None)
+        if drift is not None:
+            assert drift.dtype == want_drift.dtype and drift.tobytes() == want_drift.tobytes()
+        if fast is not None:
+            assert np.array(fast).tobytes() == np.array(want_fast).tobytes()
+    assert np.isnan(core_says[-2][0][0]) and np.isnan(core_says[-2][1][2]) and not np.isnan(core_says[-2][1][3])
+    assert core_says[-1] == (None, None)
+    assert core_says[-3][0][0] == np.pi  # the largest wrapped change: -pi wraps to -pi (|.| = pi), 7 pi to -pi

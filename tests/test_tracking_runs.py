@@ -92,38 +92,65 @@ def test_a_stop_in_a_run_is_the_same_stop(monkeypatch):
     assert_identical(a.partial, b.partial, "partial.")
 
 
-def test_a_run_through_the_watch_stops_where_single_steps_stop(monkeypatch):
-    """A planar arm stretched towards its reach (sigma_min(J) -> 0 at T/2): the watch's measurements inside a run
-    predict the crossing (the run is cut before the step it predicts into) and, with the watch made to call
-    sigma_min(J) < 1.5 crossed, reject a measured step inside a run (:meth:`CompiledStep.accept` takes it and hands
-    it back): the same stop, partial record and counters as single steps, each branch reached."""
+def planar_reach_case():
+    """A planar arm stretched towards its reach (sigma_min(J) -> 0 at T/2, where the run stops)."""
     arm = load_robot("planar3r")
     path = Circle(np.array([5.0, 0.0, 0.0]), 1.0, 1.0, start_angle=np.pi)
     index = minimum_norm(3)
-    q0 = solve_ik(arm, path(0.0).p[:2], index, starts=12, seed=0).q
-    verdicts, inner, crossed = [], runs.Runs._verdicts, watch.Watch.crossed
+    return arm, path, index, solve_ik(arm, path(0.0).p[:2], index, starts=12, seed=0).q
 
-    def seen(self, out, times, done, status, exact, measured):
-        kept, why = inner(self, out, times, done, status, exact, measured)
-        verdicts.append("cut" if why == -1 else "rejected" if kept in exact else "kept")
-        return kept, why
 
-    monkeypatch.setattr(runs.Runs, "_verdicts", seen)
-    for floor, branch in ((0.0, "cut"), (1.5, "rejected")):
-        monkeypatch.setattr(watch.Watch, "crossed",
-                            lambda w, s, e, scale=None, f=floor: "kinematic" if s < f else crossed(w, s, e, scale))
-        stops = []
-        for stepping in (runs.one_by_one, runs.stepping):
-            monkeypatch.setattr(run, "stepping", stepping)
-            with pytest.raises(TrackingError) as info:
-                run.track(arm, path, index, q0, backend="compiled", steps_per_loop=200)
-            stops.append(info.value)
-        a, b = stops
-        assert (b.cause, b.t) == (a.cause, a.t) == ("kinematic_singularity", b.t)
+def watched_runs(monkeypatch) -> list:
+    """What happens to the compiled steps from now on, in order: ("run", steps done, status, measurements kept) per
+    call of the core's run_steps, ("back", status) per step handed to the Python stepper."""
+    core, events = compiled.load_core(), []
+    inner, hand_back = core.run_steps, compiled.CompiledStep.hand_back
+
+    def counting(*args):
+        done, status, kept = inner(*args)
+        events.append(("run", done, status, 0 if kept is None else kept[-1]))
+        return done, status, kept
+
+    def back(self, status):
+        events.append(("back", status))
+        return hand_back(self, status)
+
+    monkeypatch.setattr(core, "run_steps", counting)
+    monkeypatch.setattr(compiled.CompiledStep, "hand_back", back)
+    return events
+
+
+def stops_both_ways(monkeypatch, case) -> tuple:
+    """(the stop one step at a time, the stop in runs) of track() on ``case``, each a TrackingError."""
+    stops = []
+    for stepping in (runs.one_by_one, runs.stepping):
+        monkeypatch.setattr(run, "stepping", stepping)
+        with pytest.raises(TrackingError) as info:
+            run.track(*case, backend="compiled", steps_per_loop=200)
+        stops.append(info.value)
+    return tuple(stops)
+
+
+def test_a_run_through_the_watch_stops_where_single_steps_stop(monkeypatch):
+    """The planar arm stretched towards its reach: the watch's verdicts inside a run (the core's WatchHistory) predict
+    the crossing (the run is cut before the step it predicts into: AHEAD, then handed back as ``watch_ahead``) and,
+    with the fold floor raised to just under the reduced Hessian's value at an exactly measured step inside a run
+    (EIG_FLOOR 0.129257, its scale ~3.84: the eigenvalue falls slower there than the prediction from the last two
+    measurements, which lets the run reach that step), reject it there (WATCH_DUE; CompiledStep.accept measures it
+    again and hands it back): the same stop, partial record and counters as single steps, each branch reached."""
+    case, core = planar_reach_case(), compiled.load_core()
+    for floor, branch in ((watch.EIG_FLOOR, "cut"), (0.129257, "rejected")):
+        monkeypatch.setattr(watch, "EIG_FLOOR", floor)
+        events = watched_runs(monkeypatch)
+        a, b = stops_both_ways(monkeypatch, case)
+        assert (b.cause, b.t) == (a.cause, a.t)
+        assert a.cause == {"cut": "kinematic_singularity", "rejected": "fold"}[branch]
         assert_identical(a.partial, b.partial, "partial.")
         assert a.partial.meta == b.partial.meta
-        assert branch in verdicts
-        verdicts.clear()
+        seen = {"cut" if x[0] == "run" and x[2] == core.AHEAD and y == ("back", 8) else
+                "rejected" if x[0] == "run" and x[2] == core.WATCH_DUE and y == ("back", compiled.WATCH_REJECTS)
+                else None for x, y in zip(events, events[1:], strict=False)}
+        assert branch in seen, events
 
 
 def single_and_runs(r, path, index, q0, dt: float, steps: int, **options) -> tuple:
@@ -308,14 +335,14 @@ def scene_case(name: str):
 
 
 def counted_runs(monkeypatch) -> list:
-    """Per call of the core's run_steps from now on: (steps done, status, steps measured exactly, guarded)."""
+    """Per call of the core's run_steps from now on: (steps done, status, measurements kept, guarded)."""
     core = compiled.load_core()
     calls, inner = [], core.run_steps
 
     def counting(*args):
-        done, status, exact, measured = inner(*args)
-        calls.append((done, status, len(exact), args[-1] is not None))
-        return done, status, exact, measured
+        done, status, kept = inner(*args)
+        calls.append((done, status, 0 if kept is None else kept[-1], args[-1] is not None))
+        return done, status, kept
 
     monkeypatch.setattr(core, "run_steps", counting)
     return calls
@@ -386,26 +413,138 @@ def test_a_stop_in_a_scene_run_is_the_same_stop(monkeypatch):
     assert a.partial.meta == b.partial.meta
 
 
-def test_a_rejected_inverse_iteration_measurement_in_a_run_is_handed_back_as_one_by_one(monkeypatch):
-    """A step the watch measures by its inverse iteration inside a run and rejects (made to reject the fifth such
-    measurement on the Panda pose circle, where every held step is measured) is handed back as
-    :meth:`CompiledStep.accept` hands it back one by one (the core holds a later step's factors by then): the same
-    record or stop, and the same counters, as single steps."""
-    verdicts, inner, crossed = [], runs.Runs._verdicts, watch.Watch.crossed
+def assert_same_watch(a, b) -> None:
+    """Two watches in the same state, bit for bit: histories, floors' scales, the prediction, the inverse iteration's
+    vector and reference, the gate and the count of the core's measurements."""
+    for key in ("times", "eig", "sigma_times", "sigma", "sigma_max", "scale", "safe_before", "gate", "core_measured",
+                "_fresh", "_sigma_ref", "_key", "_exact_at"):
+        assert getattr(b, key) == getattr(a, key), key
+    for key in ("_v", "_J_ref"):
+        np.testing.assert_array_equal(getattr(b, key), getattr(a, key), err_msg=key)
 
-    def seen(self, *args):
-        kept, why = inner(self, *args)
-        verdicts.append(why)
-        return kept, why
 
-    monkeypatch.setattr(runs.Runs, "_verdicts", seen)
-    monkeypatch.setattr(watch.Watch, "crossed",
-                        lambda w, s, e, scale=None: "fold" if w.core_measured >= 5 else crossed(w, s, e, scale))
-    a = tracked(monkeypatch, "panda_pose_circle", False, loops=1)
-    b = tracked(monkeypatch, "panda_pose_circle", True, loops=1)
-    assert compiled.WATCH_REJECTS in verdicts
-    if isinstance(a, TrackingError):
-        assert isinstance(b, TrackingError) and (b.cause, b.t) == (a.cause, a.t)
-        a, b = a.partial, b.partial
-    assert_identical(a, b)
-    assert a.meta == b.meta
+def test_runs_leave_the_watch_as_single_steps_leave_it(monkeypatch):
+    """The watch's verdicts taken in the core's runs (WatchHistory: the crossing tests, the measurements kept, the
+    history and its prediction; Watch.take_run) leave the watch in the state single steps leave it, bit for bit: on
+    the Panda pose circle, whose held steps are measured by the inverse iteration inside the runs (core_measured
+    grows in runs), and on the planar arm stretched towards its reach, a run cut by a predicted crossing (AHEAD)."""
+    events = watched_runs(monkeypatch)
+    path, single, batched, *_ = side_by_side("panda_pose_circle", lambda held: None)
+    assert_same_watch(single.stepper.control.watch, batched.stepper.control.watch)
+    assert any(x[0] == "run" and x[3] >= 2 for x in events)  # measurements kept inside runs
+    assert batched.stepper.control.watch.core_measured > 20
+    arm, path, index, q0 = planar_reach_case()
+    dt = path.period / 200
+    single = Tracker(arm, path, index, q0, dt, backend="compiled")
+    batched = Tracker(arm, path, index, q0, dt, backend="compiled")
+    advance, done = runs.stepping(batched, Recorder(batched.stepper)), 0
+    events.clear()
+    while done < 95:  # before the stop (t = T/2: step 100), past the first cut (AHEAD)
+        done += advance(95 - done)
+    for _ in range(done):
+        single.step()
+    assert any(x[0] == "run" and x[2] == compiled.load_core().AHEAD for x in events), events
+    assert_same_watch(single.stepper.control.watch, batched.stepper.control.watch)
+
+
+def test_track_many_in_threads_records_what_single_steps_record(monkeypatch):
+    """track_many on two threads, whose runs take the watch's verdicts in the core with the GIL released (the Panda
+    pose circle's inverse-iteration measurements kept in runs, the planar arm's run cut by a predicted crossing and
+    its stop, a bound reached and left on the Panda elbow circle), gives each problem's record or stop of single
+    steps in one thread, bit for bit."""
+    from kinredund.tracking import track_many
+
+    problems = [problem("panda_pose_circle"), planar_reach_case(), problem("panda_elbow_circle")] * 2
+    many = track_many(problems, threads=2, backend="compiled")
+    monkeypatch.setattr(run, "stepping", runs.one_by_one)
+    for got, p in zip(many, problems, strict=True):
+        try:
+            alone = run.track(*p, backend="compiled")
+        except TrackingError as err:
+            assert isinstance(got, TrackingError) and (got.cause, got.t) == (err.cause, err.t)
+            assert_identical(err.partial, got.partial, "partial.")
+            continue
+        assert_identical(alone, got)
+        assert alone.meta == got.meta
+
+
+def test_a_run_leaves_no_cyclic_garbage():
+    """track() unlinks its stepper from its step control once the run is recorded (the one reference cycle of a
+    run without a switch; a switch's Brent search leaves its closures' own): a finished run's objects (the benchmark
+    circle of benchmarks/many.py), and a stopped one's, are freed by reference counting, none left for the cyclic
+    garbage collector, whose collections held the GIL ~25 us per run (track_many's threads)."""
+    import gc
+
+    from kinredund.problems import panda_circle
+
+    case = panda_circle(wrist_amplitude=0.1)
+    run.track(*case, backend="compiled")
+    gc.collect()
+    gc.disable()
+    try:
+        traj = run.track(*case, backend="compiled")
+        try:
+            run.track(*planar_reach_case(), backend="compiled", steps_per_loop=200)
+        except TrackingError as err:
+            stopped = err.partial
+        assert gc.collect() == 0
+    finally:
+        gc.enable()
+    assert len(traj.q) == 201 and stopped is not None and len(stopped.q) > 1
+
+
+def test_record_columns_and_step_times_are_numpy_s():
+    """Column.array stacks a record's rows as np.concatenate (np.array for one list of rows) does, bit for bit, dtype
+    and shape (rows of vectors and of matrices, blocks of rows and lists of rows, one block, ints), in copies below
+    numpy's 500-entry threshold for releasing the GIL; step_time_array's clock is t0 + np.arange(first, first + count)
+    dt, the same floats, within and beyond its table of step numbers."""
+    from kinredund.tracking.ahead import step_time_array
+    from kinredund.tracking.recorder import COPY_ELEMENTS, Column
+
+    rng = np.random.default_rng(28)
+    for shape, dtype in (((7,), float), ((7, 7), float), ((3,), int)):
+        column, blocks = Column(), []
+        for size in (1, 200, 3, 120):
+            rows = rng.normal(size=(size, *shape)).astype(dtype)
+            if size < 10:  # rows appended one by one (a list), else a run's block (a strided view, as the core's)
+                for row in rows:
+                    column.append(row)
+                blocks.append(list(rows))
+            else:
+                wide = np.zeros((size, 2 * int(np.prod(shape))), dtype)
+                block = wide[:, ::2].reshape(size, *shape)
+                block[...] = rows
+                column.extend(block)
+                blocks.append(block)
+        got, want = column.array(), np.concatenate(blocks)
+        assert got.dtype == want.dtype and got.shape == want.shape and got.tobytes() == want.tobytes()
+        single = Column()
+        single.extend(blocks[1])
+        assert single.array().tobytes() == np.array(blocks[1]).tobytes() and COPY_ELEMENTS <= 500
+    for t0, dt, first, count in ((0.0, 0.1, 1, 200), (2.5, 1e-3, 12345, 256), (0.0, np.pi / 100, 7, 300)):
+        want = t0 + np.arange(first, first + count) * dt
+        assert step_time_array(t0, dt, first, count).tobytes() == want.tobytes()
+
+
+def test_track_many_raises_the_first_bad_problem_s_error_after_every_run(monkeypatch):
+    """track_many's threads (the caller one of them, each taking the next problem) give the records in the problems'
+    order and, where a run raises an error of bad input, raise the first such problem's error (as
+    ThreadPoolExecutor.map did) once every run has ended: the runs after it were made too."""
+    from kinredund.errors import JointVectorError
+    from kinredund.tracking import many, track_many
+
+    good = problem("panda_wrist15")
+    worse, bad = (*good[:3], np.zeros(2)), (*good[:3], np.zeros(3))
+    ran, inner = [], run.track
+
+    def counted(*args, **kwargs):
+        ran.append(len(args[3]))
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(many, "track", counted)
+    with pytest.raises(JointVectorError, match=r"got \(3,\)"):
+        track_many([good, bad, good, worse, good], threads=2, loops=1, steps_per_loop=20)
+    assert sorted(ran) == [2, 3, 7, 7, 7]
+    alone = inner(*good, loops=1, steps_per_loop=20)
+    for traj in track_many([good, good, good], threads=3, loops=1, steps_per_loop=20):
+        assert_identical(alone, traj)

@@ -96,6 +96,8 @@ class CompiledStart:
             fixed, side, bound = stepper.active_set()
             core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
             self.fixed = fixed
+        else:  # a new StepCore holds every joint free: the limited stepper's ``fixed`` as it is (none held), so that
+            self.fixed = getattr(stepper, "fixed", None)  # CompiledStep.sync_active has nothing to give the core
         pt, t = stepper.pt, stepper.t
         sample = pt.sample
         Q = NO_Q if sample.Q is None else sample.Q

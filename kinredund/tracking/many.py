@@ -4,19 +4,22 @@ problem, in threads.
 Each run is independent and deterministic (its own stepper, its own compiled core and, per thread, its own
 kinematics workspace: ``Robot.kinematics``), so the results equal the runs made one by one. On the compiled
 backend ``track()`` advances in runs of ordinary steps, each one C++ call with the GIL released
-(:mod:`kinredund.tracking.runs`; the watch's measurements inside them), and so is each run's start (the
+(:mod:`kinredund.tracking.runs`; the watch's measurements and verdicts inside them), and so is each run's start (the
 correction onto the optimum, the rates and the watch's first measurement:
 :class:`~kinredund.tracking.compiled_start.CompiledStart`), so threads overlap those. The rest of each run's set-up (the
 :class:`~kinredund.tracking.tracker.Tracker`'s checks and the start's first evaluation, in Python), the path samples,
-the watch's verdicts after each run, the steps handed back to the Python stepper and the record's end hold the GIL,
-which bounds the speed-up on two threads (``python benchmarks/many.py``: runs per second on 1 and 2 threads, and
-the share in the core's GIL-free calls).
+the steps handed back to the Python stepper and the record's end hold the GIL, which bounds the speed-up on two
+threads (``python benchmarks/many.py``: runs per second on 1 and 2 threads, and the share in the core's GIL-free
+calls). Every other release of the GIL in a run is a point where another thread takes it and this one then waits for
+it: the threads take the problems one after another themselves (the calling thread one of them), with no future per
+problem for a waiting caller to wake up at.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
-from concurrent.futures import ThreadPoolExecutor
+import threading
 
 from kinredund.errors import OptionError, TrackingError, check_count
 from kinredund.tracking.compiled import load_core
@@ -55,5 +58,31 @@ def track_many(problems, *, threads: int | None = None, **options) -> list:
 
     if workers <= 1 or len(jobs) <= 1:
         return [one(job) for job in jobs]
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(one, jobs))
+    return _in_threads(one, jobs, workers)
+
+
+def _in_threads(one, jobs: list, workers: int) -> list:
+    """``[one(job) for job in jobs]`` computed by ``workers`` threads, the calling thread one of them: each takes the
+    next job not yet taken until none is left. Where ``one`` raises, the first such job's error (in the jobs' order)
+    is raised once all have run, as ``ThreadPoolExecutor.map`` raises it. (No future per job: the caller, waiting on
+    each job's future in turn, took the GIL from the workers at every job's end.)"""
+    results, failed, taken = [None] * len(jobs), {}, itertools.count()
+
+    def work() -> None:
+        for k in iter(taken.__next__, None):  # (itertools.count's next is atomic: each job is taken once)
+            if k >= len(jobs):
+                return
+            try:
+                results[k] = one(jobs[k])
+            except BaseException as err:  # re-raised in the caller below, as map re-raises it
+                failed[k] = err
+
+    helpers = [threading.Thread(target=work, daemon=True) for _ in range(workers - 1)]
+    for thread in helpers:
+        thread.start()
+    work()
+    for thread in helpers:
+        thread.join()
+    if failed:
+        raise failed[min(failed)]
+    return results

@@ -8,6 +8,9 @@ success. :func:`kinredund.tracking.track` calls these on every record:
   square-root point where a joint bound releases and the bounded optimum is not strongly stable, or a
   near-singularity), never passed as an ordinary step.
 
+The record's loop drifts and fastest rates, which these and the speed checks read, are :func:`record_extremes`'s
+(:meth:`kinredund.tracking.recorder.Recorder.trajectory` calls it once per record).
+
 Each puts its message in the record's ``meta`` and warns (:class:`~kinredund.trajectory.RecordWarning`).
 """
 
@@ -19,6 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 from kinredund.errors import KinredundError, OptionError
+from kinredund.kinematics.angles import loop_drifts
 from kinredund.tracking.compiled import load_core
 from kinredund.trajectory import LOOP_CLOSURE_TOL, RecordWarning, Trajectory
 
@@ -123,3 +127,40 @@ def say_rate_burst(traj: Trajectory, refined: Callable[[], Trajectory]) -> None:
                f"a square-root point, 1 at a jump): {kind}; no time law keeps this motion within speed limits")
     traj.meta["rate_burst"] = why
     warnings.warn(why, RecordWarning, stacklevel=3)
+
+
+def record_extremes(q: np.ndarray, qdot: np.ndarray | None, revolute: np.ndarray, steps_per_loop: int | None,
+                    loops: int | None) -> tuple[np.ndarray | None, list[float] | None]:
+    """(the loop drifts (loops,) [rad or m]: :func:`~kinredund.kinematics.angles.loop_drifts`, None for an open run
+    (``loops`` None); each joint's largest |qdot| [rad/s] over the run's points, as floats, None without ``qdot``), in
+    one call of the compiled core where it is installed (``_core.record_extremes``, ``src/core/record_checks.cpp``: the
+    same numbers), else by numpy. ``q``, ``qdot``: float (N, n) arrays, C-contiguous."""
+    core = load_core()
+    if core is not None and hasattr(core, "record_extremes"):
+        n = q.shape[1]
+        drift, fastest = np.empty(0 if loops is None else loops), np.empty(n)
+        core.record_extremes(q, _NO_RATES[n] if qdot is None else qdot, _revolute(revolute),
+                             0 if loops is None else steps_per_loop, drift, fastest)
+        return None if loops is None else drift, None if qdot is None else fastest.tolist()
+    drift = None if loops is None else loop_drifts(q, steps_per_loop, loops, revolute)
+    fastest = None if qdot is None else np.abs(qdot.T, order="C").max(axis=1).tolist()  # (a joint's speeds in a row)
+    return drift, fastest
+
+
+class _NoRates(dict):
+    """(0, n) arrays by n, made once each (read-only: shared)."""
+
+    def __missing__(self, n: int) -> np.ndarray:
+        out = self[n] = np.zeros((0, n))
+        out.flags.writeable = False
+        return out
+
+
+_NO_RATES = _NoRates()
+
+
+def _revolute(revolute) -> np.ndarray:
+    """The robot's revolute mask as the core takes it (a C-contiguous bool array; the robot's own where it is one)."""
+    if type(revolute) is np.ndarray and revolute.dtype == bool and revolute.flags.c_contiguous:
+        return revolute
+    return np.ascontiguousarray(revolute, dtype=bool)

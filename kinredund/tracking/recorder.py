@@ -23,9 +23,9 @@ import threading
 
 import numpy as np
 
-from kinredund.kinematics.angles import loop_drifts
 from kinredund.tasks import get_task
 from kinredund.tracking.linalg import eigs_many, labels_many, normality_many, null_space_bases, null_space_eigs_many
+from kinredund.tracking.record_checks import record_extremes
 from kinredund.tracking.stepper import Stepper
 from kinredund.trajectory import Deferred, Trajectory
 
@@ -107,12 +107,15 @@ class Recorder:
     def __len__(self) -> int:
         return len(self.t)
 
-    def _limits_meta(self, meta: dict) -> None:
-        """The limits' record in ``meta``: switches, speeds against the limits (the active sets, bound multipliers,
-        margins and switch times are :class:`PerPoint`'s)."""
+    def _limits_meta(self, meta: dict, fastest: list[float]) -> None:
+        """The limits' record in ``meta``: switches, speeds against the limits (``fastest``: each joint's largest
+        |qdot| [rad/s], :func:`~kinredund.tracking.record_checks.record_extremes`; the active sets, bound
+        multipliers, margins and switch times are :class:`PerPoint`'s). The velocity limits are ``meta``'s where the
+        run put them there (``track()``: read once per run), else the robot's."""
         s = self.stepper
-        vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float).tolist()
-        fastest = np.abs(self.qdot.array().T, order="C").max(axis=1).tolist()  # (a joint's speeds in a row)
+        vmax = meta.get("velocity_limit")
+        if vmax is None:
+            vmax = np.asarray(s.ev.robot.model.velocityLimit, dtype=float).tolist()
         ratio = [f / v if v > 0 else math.inf for f, v in zip(fastest, vmax, strict=True)]  # (a few joints: floats)
         meta.update(switches=list(s.switches), joint_speed_max=fastest, velocity_limit=vmax,
                     speed_over_velocity_limit_max=max(ratio) if all(map(math.isfinite, ratio)) else None,
@@ -156,9 +159,10 @@ class Recorder:
         diag = Diagnostics(self, grad, index if fixed else None, own, per)
         eigs = diag.eigenvalues
         solver = diag if self.pending else tuple(self.solver)
-        drift = None if loops is None else loop_drifts(q, steps_per_loop, loops, s.ev.robot.revolute)
+        drift, fastest = record_extremes(q, self.qdot.array() if lim else None, s.ev.robot.revolute, steps_per_loop,
+                                         loops)
         if lim:
-            self._limits_meta(meta)
+            self._limits_meta(meta, fastest)
         if self.rows is not None:  # the general constraints' record (issue 27): per point, and the switches
             meta.update(switches=list(s.switches), constraints={
                 "names": s.row_names(range(len(s.row_pairs))), "min_value": [r[0] for r in self.rows],
@@ -168,6 +172,12 @@ class Recorder:
             **dict.fromkeys(PER_POINT + (LIMITS_FIELDS if lim else ()), per), robot=robot_name, task=task.name, q=q,
             scheme=scheme, mode=mode, solver=solver, m_eigs=diag if eigs else None, m_null_eigs=diag if eigs else None,
             normality_residual=diag, loop_drift=drift, loop_period=period, meta=meta)
+
+
+#: numpy releases the GIL for a copy of more than 500 entries (``NPY_BEGIN_THREADS_THRESHOLDED``): a record's columns
+#: are copied in pieces of at most this many, so that stacking them does not hand the GIL to another of track_many's
+#: threads, which this one would then wait for (each such hand-over costs it the other's Python stretch)
+COPY_ELEMENTS = 500
 
 
 class Column:
@@ -212,12 +222,22 @@ class Column:
         return [row for b in self._blocks for row in b]
 
     def array(self) -> np.ndarray:
-        """The rows stacked (k, width)."""
+        """The rows stacked (k, width): ``np.concatenate``'s array, copied in pieces of at most :data:`COPY_ELEMENTS`
+        entries."""
         self._flush()
         blocks = self._blocks
-        if len(blocks) == 1:
-            return np.array(blocks[0])
-        return np.concatenate(blocks)  # (a list of rows taken as np.array takes it)
+        if not blocks or (len(blocks) == 1 and type(blocks[0]) is list):
+            return np.concatenate(blocks) if not blocks else np.array(blocks[0])
+        parts = [np.asarray(b) for b in blocks]  # (a list of rows taken as np.array takes it)
+        out = np.empty((self._count, *parts[0].shape[1:]), np.result_type(*parts))
+        rows = max(1, COPY_ELEMENTS // max(1, out[0].size))
+        k = 0
+        for part in parts:
+            for a in range(0, len(part), rows):
+                piece = part[a:a + rows]
+                out[k:k + len(piece)] = piece
+                k += len(piece)
+        return out
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         out = self.array()

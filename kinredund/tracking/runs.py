@@ -19,13 +19,15 @@ step's R factors where R's condition drops (``watch_inverse``: the routine of th
 ``StepCore.watch_measure``, the watch's vector and reference J carried from one measurement to the next,
 :attr:`~kinredund.tracking.watch.Watch.iteration`), both in the run (a measurement that is not one of these, the
 Python watch's exact fallback, ends the run there: its row is finished in Python,
-:meth:`~kinredund.tracking.compiled.CompiledStep.accept`). After the run Python takes the watch's verdicts on them in
-order, as the step control does one by one (the measurement kept, the crossing test and history), and keeps the rows
-up to the first measured step the watch rejects (an exact one then goes through
-:meth:`~kinredund.tracking.compiled.CompiledStep.accept` as one by one, which hands it back; one of the inverse
-iteration, whose factors the core no longer holds, is handed back as ``accept`` hands it back) or the first step
-its new prediction (:meth:`~kinredund.tracking.watch.Watch.ahead`) does not let through (left to the next call,
-which hands it back); the core's rows after it are dropped. Every step is the
+:meth:`~kinredund.tracking.compiled.CompiledStep.accept`). The run takes the watch's verdicts on them in order, as
+the step control does one by one (the crossing test, the measurement kept, the history and its prediction:
+``src/core/watch.cpp``'s WatchHistory, the Python watch's operations on the same floats, with the GIL released;
+:meth:`~kinredund.tracking.watch.Watch.history` hands it the watch's state, which
+:meth:`~kinredund.tracking.watch.Watch.take_run` takes back), and ends at the first measured step the watch rejects
+(an exact one then goes through :meth:`~kinredund.tracking.compiled.CompiledStep.accept` as one by one, which
+measures it again and hands it back; one of the inverse iteration is handed back as ``accept`` hands it back) or
+before the first step its new prediction (:meth:`~kinredund.tracking.watch.Watch.ahead`) does not let through (left
+to the next call, which hands it back). Every step is the
 one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the same operations: the record
 and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Runs go on through steps with
 joints held on their bounds (the core's reduced system, the active set it was given: ``StepCore.set_active``); the
@@ -36,22 +38,20 @@ active where the rows have the core's compiled check (``CompiledStep.guard``, :m
 writes each step's smallest row value (``RowGuard.smallest``: the record's, as ``keep_smallest`` keeps it); the first
 step it does not clear is handed over with its verdict (``GUARD_DUE``:
 :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, whose search for a switch decides), and a guarded run ends at
-the first step the watch measures, exactly or by its inverse iteration (the watch's verdict may drop the rows after it,
-and the check's kept values cannot be taken back), so the check runs on exactly the steps, with the same arrays, that
-single steps check. A step
+the first step the watch measures, exactly or by its inverse iteration (as when the watch's verdicts were taken after
+the run, which could drop the rows after it while the check's kept values could not be taken back), so the check runs
+on exactly the steps, with the same arrays, that single steps check. A step
 with a row active is the Python stepper's, one at a time. Like
 :mod:`~kinredund.tracking.compiled`, it reads only the stepper's and the step control's public interface.
 """
 
 from __future__ import annotations
 
-import bisect
-
 import numpy as np
 
 from kinredund.tasks import get_task
 from kinredund.tracking.ahead import sample_block, step_time_array
-from kinredund.tracking.compiled import WATCH_REJECTS, load_core
+from kinredund.tracking.compiled import load_core
 from kinredund.tracking.predictor_corrector import PREDICTOR_POINTS
 from kinredund.tracking.watch import EXACT_EVERY, RCOND_DROP, RCOND_NEAR
 
@@ -97,6 +97,9 @@ class Runs:
         self.oriented = get_task(s.ev.task).has_orientation  # the core reads Q and omega
         self.none = np.zeros((0, 3)), np.zeros((0, 9)), np.zeros((0, s.n))
         self.grid = None  # (the first step's number, the Samples, the core's arrays) of the steps sampled ahead
+        # Path.computes_together (the driver's samples ahead asked it of this path): sampled GRID steps ahead, the
+        # times as an array (the path's own sample_many takes one); a caller's path gets the run's times as floats
+        self.together = compiled.ahead.own
 
     def _ordinary(self, count: int) -> int:
         """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
@@ -122,21 +125,22 @@ class Runs:
         times, at, i, arrays = window
         K = len(times)  # (a run ends where the samples taken ahead end: _window)
         out = np.empty((K, int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
+        fixed = getattr(s, "fixed", None)
         if ctl is None:
             watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY, False), 0.0
-        else:  # on through the steps the watch measures (their verdicts below, after the run)
+        else:  # on through the steps the watch measures, its verdicts taken in the run (Watch.history)
             watch, speed2 = (True, RCOND_NEAR, RCOND_DROP, *ctl.watch.gate, EXACT_EVERY, True,
-                             *ctl.watch.iteration), ctl.speed2
+                             *ctl.watch.iteration, ctl.watch.history(fixed)), ctl.speed2
         if c.limited:
             c.sync_active()  # a release taken by the Python stepper: the core holds none now
         smallest = guard = None
         if c.rows:  # the core's check of each step (StepCore.step_guarded's), its smallest row value written here
             smallest = np.empty(K)
             guard = (s.t, smallest)
-        done, status, exact, measured = self.core.run_steps(c.core, *arrays, s.y, s.yd, s.prev, s.qdot, speed2,
-                                                            ctl is not None, watch, out, guard)
-        if exact:
-            done, status = self._verdicts(out, times, done, status, exact, measured)
+        done, status, kept = self.core.run_steps(c.core, *arrays, s.y, s.yd, s.prev, s.qdot, speed2, ctl is not None,
+                                                 watch, out, guard)
+        if kept is not None:  # the watch after the measurements the run kept (their verdicts: the core's)
+            ctl.watch.take_run(kept, fixed)
         if done:
             self._commit(out[:done], at, i, times[:done], smallest)
         checked = {}  # the check's verdict on the step handed over (it ran: a step is checked once)
@@ -151,49 +155,6 @@ class Runs:
         rec.add()
         return done + 1
 
-    def _verdicts(self, out: np.ndarray, times: list[float], done: int, status: int, exact: list[int],
-                  measured: list[tuple]) -> tuple:
-        """The watch's measurements of the run's measured steps ``exact`` (``measured``: the core's, in the run, on the
-        free joints' J and M of their rows: Watch.measure's exact branch,
-        :meth:`~kinredund.tracking.watch.Watch.keep_exact`, or its inverse iteration with the core,
-        :meth:`~kinredund.tracking.watch.Watch.took`), then :meth:`~kinredund.tracking.watch.Watch.crossed` and
-        :meth:`~kinredund.tracking.watch.Watch.push`, as
-        :meth:`~kinredund.tracking.step_control.StepControl.watch_point` takes them one by one) and the
-        prediction before each later step (``Watch.ahead``, as :meth:`~kinredund.tracking.compiled.CompiledStep.step`
-        checks it): (the rows kept, the status of the step after them: WATCH_DUE for an exactly measured step the
-        watch rejects, which :meth:`~kinredund.tracking.compiled.CompiledStep.accept` then takes and hands back as one
-        by one, WATCH_REJECTS for one of the inverse iteration, handed back; -1 for a step predicted into trouble,
-        left to the next call)."""
-        watch, fixed = self.ctl.watch, getattr(self.s, "fixed", None)
-        n, m, _ = self.c.shapes
-        sJ = self.c.slices[3]
-        free = None if fixed is None or not fixed.any() else np.flatnonzero(~fixed)  # free_columns's, once a run
-        ends = [e + 1 for e in exact[1:]] + [done + (status != 0)]  # to the next measured step, or the step after
-        for e, end, values in zip(exact, ends, measured, strict=True):
-            J = out[e, sJ].reshape(m, n)
-            if free is not None:
-                J = J[:, free]
-            if len(values) == 6:  # (sigma, eig, u, fresh, sigma_max, scale): the inverse iteration's, not exact
-                saved = watch.save()  # a rejected step leaves the watch as it was before it (CompiledStep.accept)
-                # Watch.measure's with the core (StepCore.watch_measure): a fresh sigma's J the reference
-                sigma, eig = watch.took(*values[:5], J.copy() if values[3] else None, values[5])
-                if watch.crossed(sigma, eig) is not None:
-                    watch.load(saved)
-                    # the core's factors are a later step's now: handed back as CompiledStep.accept hands it back
-                    # after measuring it (from the state before it)
-                    return e, WATCH_REJECTS
-            else:  # judged with the fold floor's scale it brings (keep_exact's), kept where it passes
-                sigma, eig = values[0], values[1]
-                if watch.crossed(sigma, eig, scale=values[3]) is not None:
-                    return e, self.core.WATCH_DUE  # measured again from its row there (CompiledStep.accept)
-                watch.keep_exact(J, *values)
-            watch.push(times[e], sigma, eig, None if free is None else fixed)  # (None: no joint fixed, as push reads)
-            # Watch.ahead is None before safe_before: the steps from the first at or after it (the times ascend)
-            for j in range(bisect.bisect_left(times, watch.safe_before, e + 1, end), end):
-                if watch.ahead(times[j]) is not None:
-                    return j, -1
-        return done, status
-
     def _window(self, K: int, count: int):
         """(times, the Samples, the offset of the next step in them, (t, p, v, Q, omega, ref, rate) of the next K
         steps as the core's arrays), sampled ahead (:data:`GRID` steps or the ``count`` left) where the last grid
@@ -206,7 +167,7 @@ class Runs:
             if left >= min(K, REFILL):
                 K = min(K, left)
         if self.grid is None or not self.grid[0] <= j0 <= j0 + K <= self.grid[0] + len(self.grid[2]):
-            ahead = min(count, GRID) if self.s.ev.path.computes_together() else K  # a caller's path: no further
+            ahead = min(count, GRID) if self.together else K  # a caller's path: no further
             self.grid = self._sample(j0, max(K, ahead))
         first, at, times, arrays = self.grid
         if at is None:
@@ -219,7 +180,8 @@ class Runs:
         s = self.s
         clock = step_time_array(s.t0, s.dt, j0, count)
         times = clock.tolist()
-        at = sample_block(s.ev.path, times)  # Evaluator.sample's samples, computed together where the path can
+        # Evaluator.sample's samples, computed together where the path can
+        at = sample_block(s.ev.path, clock if self.together else times)
         if at is None or (self.oriented and at.Q is None):
             return j0, None, times, ()
         no3, no9, non = self.none

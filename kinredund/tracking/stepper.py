@@ -77,7 +77,9 @@ class Stepper:
         else:  # Eqs. (4.11)-(4.12)
             self.lam = lam if lam is not None else multipliers(self.pt.J, self.pt.grad)[0]
         m = len(self.pt.base.r)  # the task's rows (an active constraint row is not in R's workspace)
-        self._R = np.zeros((self.n + m, self.n + m))  # the workspace of R, Eq. (4.24)
+        # the workspace of R, Eq. (4.24) (np.full: np.zeros of 1 KiB or more releases the GIL around its calloc,
+        # handing it to another of track_many's threads, which this one then waits for)
+        self._R = np.full((self.n + m, self.n + m), 0.0)
 
     def _mode_name(self) -> str:
         """``default`` or ``thesis``: the mode a start failure names."""

@@ -230,6 +230,28 @@ class Watch:
             self.scale = scale
         return sigma, eig
 
+    def history(self, fixed: np.ndarray | None) -> tuple:
+        """(times, eig, sigma_times, sigma, sigma_max, scale, :attr:`safe_before`, whether the next :meth:`push` with
+        ``fixed`` starts the history afresh, :data:`SIGMA_FLOOR`, :data:`EIG_FLOOR`): what a run of steps takes the
+        watch's verdicts with in the core (``run_steps``, ``src/core/watch.cpp``'s WatchHistory: :meth:`crossed`,
+        :meth:`push`, :meth:`ahead`; :mod:`kinredund.tracking.runs`), then hands back to :meth:`take_run`."""
+        return (self.times, self.eig, self.sigma_times, self.sigma, self.sigma_max, self.scale, self._safe,
+                _key(fixed) != self._key, SIGMA_FLOOR, EIG_FLOOR)
+
+    def take_run(self, state: tuple, fixed: np.ndarray | None) -> None:
+        """The watch after a run of steps whose measurements the core kept, with their verdicts and pushes
+        (``run_steps``'s state, the active set ``fixed`` throughout): the histories, the floors' scales,
+        :attr:`safe_before`, the vector v, the reference J and sigma_min(J) there where a measurement made a new one,
+        whether the newest sigma_min(J) was afresh, how many of them were the inverse iteration's (:meth:`took`) and
+        how many were kept: as :meth:`keep_exact` or :meth:`took` and then :meth:`push` leave it after each."""
+        times, eig, sigma_times, sigma, self.sigma_max, self.scale, self._safe, self._v, J_ref, sigma_ref, \
+            self._fresh, by_core, _ = state
+        self.times[:], self.eig[:], self.sigma_times[:], self.sigma[:] = times, eig, sigma_times, sigma
+        if J_ref is not None:
+            self._J_ref, self._sigma_ref = J_ref, sigma_ref
+        self.core_measured += by_core
+        self._key, self._exact_at = _key(fixed), None
+
     def refresh(self, t: float, J: np.ndarray, M: np.ndarray, fixed: np.ndarray | None = None) -> None:
         """Measure exactly at t and push it (before a prediction is acted on: the history may be stale)."""
         if self._exact_at == t:
@@ -289,7 +311,7 @@ class Watch:
         the null space changed at a switching time and the history starts afresh (the quantities jump
         there: a secant across the switch would predict a crossing that is not there).
         """
-        key = None if fixed is None or not fixed.any() else fixed.tobytes()
+        key = _key(fixed)
         if key != self._key:
             self.reset()
             self._key = key
@@ -332,6 +354,11 @@ class Watch:
         when = self.crossings()
         kind = min(when, key=when.get)  # dicts keep their order: kinematic first in a tie
         return kind if when[kind] <= t_next else None
+
+
+def _key(fixed: np.ndarray | None) -> bytes | None:
+    """The active set's key of a history (None: no joint fixed)."""
+    return None if fixed is None or not fixed.any() else fixed.tobytes()
 
 
 def _keep(times: list[float], t: float, values: list[float], v: float) -> None:

@@ -17,12 +17,14 @@
 // it, as StepCore.step_guarded checks a single step (RowGuard.clear on the same arrays, its smallest row value at the
 // step's end written out): the run ends at the first step the check does not clear (GUARD_DUE, its row written: the
 // caller's stepper searches it for a switch), and after the first step the watch measures, exactly or by the inverse
-// iteration (the watch's verdict, taken after the run, may drop the rows after it, and the guard's kept values
-// cannot be taken back).
+// iteration (as when the watch's verdicts were taken after the run, which could drop the rows after it while the
+// guard's kept values could not be taken back; the verdicts are the run's now, but guarded runs were left as they
+// were).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
 
 #include <string>
 #include <vector>
@@ -43,6 +45,12 @@ namespace {
 constexpr int WATCH_DUE = 20;
 // The status of a step the scene's row check does not clear (its row and its smallest row value written).
 constexpr int GUARD_DUE = 21;
+// The status of a step measured by the inverse iteration whose measurement the watch rejects (compiled.py's
+// WATCH_REJECTS: the caller hands it back, its row not kept).
+constexpr int WATCH_REJECTS = 9;
+// The status of a step the watch predicts a crossing within (Watch.ahead, after a measurement of the run): not taken,
+// left to the caller's next call (which hands it back).
+constexpr int AHEAD = -1;
 
 void check_rows(const InMat& a, size_t k, size_t width, const char* name) {
   if (a.shape(0) != k || a.shape(1) != width)
@@ -89,16 +97,46 @@ Inverse inverse_of(const nb::tuple& watch, int m, int nf) {
   return s;
 }
 
+// The watch's history and floors (the watch tuple's 12th entry: (times, eig, sigma_times, sigma, sigma_max, scale,
+// safe_before, reset, SIGMA_FLOOR, EIG_FLOOR), Watch's), whose verdicts the run takes.
+WatchHistory history_of(const nb::tuple& watch) {
+  WatchHistory h;
+  const nb::tuple w = nb::cast<nb::tuple>(watch[11]);
+  h.times = nb::cast<std::vector<double>>(w[0]);
+  h.eig = nb::cast<std::vector<double>>(w[1]);
+  h.sigma_times = nb::cast<std::vector<double>>(w[2]);
+  h.sigma = nb::cast<std::vector<double>>(w[3]);
+  h.sigma_max = nb::cast<double>(w[4]);
+  h.scale = nb::cast<double>(w[5]);
+  h.safe = nb::cast<double>(w[6]);
+  h.reset = nb::cast<bool>(w[7]);
+  h.sigma_floor = nb::cast<double>(w[8]);
+  h.eig_floor = nb::cast<double>(w[9]);
+  return h;
+}
+
+nb::ndarray<nb::numpy, double> array_of(const std::vector<double>& a, size_t rows, size_t cols) {
+  auto* buf = new std::vector<double>(a);
+  nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<std::vector<double>*>(p); });
+  const size_t shape[2] = {rows, cols};
+  return nb::ndarray<nb::numpy, double>(buf->data(), cols ? 2 : 1, shape, owner);
+}
+
 }  // namespace
 
 // run(core, t (K), p, v (K x 3), Q (K x 9 or 0 x 9), omega (K x 3 or 0 x 3), ref, rate (K x n or 0 x n), y, yd,
 //     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every[, through[,
-//     v or None, J_ref, sigma_ref, gate]]), out, guard (None, or (the time of the run's start [s], smallest: an array
-//     of >= K entries that receives each checked step's RowGuard.smallest))) -> (steps done, status, the indices of
-// the steps passed through that the watch measures, their measurements: (sigma_min_J, eig, v, scale) where exact
-// (watch_exact's), (sigma_min_J, eig, u, fresh, sigma_max or None, scale or None) where by the inverse iteration
-// (watch_measure's, but J)): status 0 after all K steps (or after the first step the watch measures, with a guard),
-// else that of step ``done`` (WATCH_DUE, GUARD_DUE: its row is written).
+//     v or None, J_ref, sigma_ref, gate, history]]), out, guard (None, or (the time of the run's start [s], smallest:
+//     an array of >= K entries that receives each checked step's RowGuard.smallest))) -> (steps done, status, the
+// watch's state after the run's measurements or None where it kept none). The watch's verdicts on its measurements
+// are taken in the run, as the step control takes them one by one (Watch.crossed, then Watch.keep_exact or
+// Watch.took, Watch.push; the history's: WatchHistory, watch.cpp): an exact measurement the watch rejects ends the run
+// there with WATCH_DUE (its row written: the caller measures it again from its row, CompiledStep.accept, and hands it
+// back), one of the inverse iteration with WATCH_REJECTS (handed back), and after a measurement a step predicted into
+// a crossing (Watch.ahead) ends it with AHEAD, before that step. The state: (times, eig, sigma_times, sigma,
+// sigma_max, scale, safe_before, v, J_ref (m x nf) or None where unchanged, sigma_ref, fresh, the measurements of the
+// inverse iteration among them (Watch.core_measured), the measurements kept). Status 0 after all K steps (or after the first step the watch
+// measures, with a guard), else that of step ``done`` (WATCH_DUE, GUARD_DUE: its row is written).
 nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InMat omega, InMat ref, InMat rate,
                     InVec y0, InVec yd0, nb::list prev_list, InVec qdot0, double speed2, bool check_jump, nb::tuple watch,
                     OutMat out, nb::object guard_arg) {
@@ -152,13 +190,13 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
   }
   size_t done = 0;
   int status = 0;
-  std::vector<size_t> measured;
-  std::vector<ExactMeasure> measures;
-  std::vector<InverseMeasure> inverses;  // (where a measurement is the inverse iteration's: measures' entry unused)
-  std::vector<bool> by_inverse;
   int nf = 0;
   const int* free = step_core_free(core, nf);
   Inverse inv = inverse_of(watch, m, nf);
+  if (gate.on && nb::len(watch) < 12) throw nb::value_error("watch: the history (its 12th entry) is needed");
+  WatchHistory hist = gate.on ? history_of(watch) : WatchHistory();
+  size_t kept = 0, by_inverse = 0;  // measurements kept; of them, the inverse iteration's
+  bool new_ref = false;  // a measurement kept made its J the reference
   if (inv.on) watch_lapack();  // (with the GIL: its first call loads scipy's LAPACK)
   std::vector<double> Jr(static_cast<size_t>(m) * nf), Mr(static_cast<size_t>(nf) * nf);
   const size_t oM = 2 * N, oJ = oM + static_cast<size_t>(n) * n;  // M (n x n) and J (m x n) in the row
@@ -166,6 +204,10 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
     nb::gil_scoped_release release;  // no Python object below: runs in threads compute in parallel
     for (; done < K; ++done) {
       const size_t k = done;
+      if (kept && hist.ahead(t.data()[k])) {  // CompiledStep.step's Watch.ahead (before safe_before: none)
+        status = AHEAD;
+        break;
+      }
       StepInput in{p.data() + 3 * k, v.data() + 3 * k, oriented ? Q.data() + 9 * k : nullptr,
                    oriented ? omega.data() + 3 * k : nullptr, varying ? ref.data() + n * k : nullptr,
                    varying ? rate.data() + n * k : nullptr};
@@ -195,34 +237,50 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
         for (int a = 0; a < nf; ++a)
           for (int b = 0; b < nf; ++b)
             Mr[static_cast<size_t>(a) * nf + b] = o[oM + static_cast<size_t>(free[a]) * n + free[b]];
-        measures.emplace_back();
-        inverses.emplace_back();
+        double sigma = 0.0, eig = 0.0;
         if (exact) {
-          watch_exact(Jr.data(), Mr.data(), m, nf, measures.back());
-          inv.v = measures.back().v;  // Watch.keep_exact: the vector and the reference J
+          ExactMeasure e;
+          watch_exact(Jr.data(), Mr.data(), m, nf, e);
+          if (hist.crossed(e.sigma, e.eig, hist.sigma_max, e.scale)) {  // measured again from its row by the caller
+            status = WATCH_DUE;
+            break;
+          }
+          inv.v = e.v;  // Watch.keep_exact: the vector, the reference J, the fold floor's scale
           inv.J_ref = Jr;
-          inv.sigma_ref = measures.back().sigma;
+          inv.sigma_ref = e.sigma;
+          hist.scale = e.scale;
+          hist.fresh = new_ref = true;
+          sigma = e.sigma, eig = e.eig;
         } else {
           int N_lu = 0;
           const int* piv = nullptr;
           const double* lu = step_core_factors(core, piv, N_lu);
-          InverseMeasure& r = inverses.back();
+          InverseMeasure r;
           if (N_lu != nf + m || !watch_inverse(Jr.data(), Mr.data(), lu, piv, nf, m, inv.v.data(),
                                                 inv.J_ref.empty() ? nullptr : inv.J_ref.data(), inv.sigma_ref,
                                                 inv.gate, r)) {
-            measures.pop_back();  // the exact branch's: this step is the caller's (WATCH_DUE)
-            inverses.pop_back();
-            status = WATCH_DUE;
+            status = WATCH_DUE;  // the exact branch's: this step is the caller's
+            break;
+          }
+          // Watch.took's floors (sigma_max where dgesvd gave it, the scale where J is square), then its verdict
+          const double s_max = r.fresh && !r.square ? r.sigma_max : hist.sigma_max;
+          const double scale = r.square ? r.scale : hist.scale;
+          if (hist.crossed(r.sigma, r.eig, s_max, scale)) {  // the watch as it was before it: handed back
+            status = WATCH_REJECTS;
             break;
           }
           inv.v = r.u;  // Watch.took
           if (r.fresh) {
             inv.J_ref = Jr;
             inv.sigma_ref = r.sigma;
+            new_ref = true;
           }
+          hist.sigma_max = s_max, hist.scale = scale, hist.fresh = r.fresh;
+          sigma = r.sigma, eig = r.eig;
+          ++by_inverse;
         }
-        measured.push_back(k);
-        by_inverse.push_back(!exact);
+        hist.push(t.data()[k], sigma, eig);
+        ++kept;
         if (guard != nullptr) {  // the run ends here (the file's comment)
           ++done;
           break;
@@ -242,26 +300,18 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
       }
     }
   }
-  nb::list exact, values;
-  for (size_t j = 0; j < measured.size(); ++j) {
-    exact.append(measured[j]);
-    ExactMeasure& e = measures[j];
-    InverseMeasure& r = inverses[j];
-    auto* buf = new std::vector<double>(std::move(by_inverse[j] ? r.u : e.v));
-    nb::capsule owner(buf, [](void* p) noexcept { delete static_cast<std::vector<double>*>(p); });
-    nb::ndarray<nb::numpy, double, nb::ndim<1>> v(buf->data(), {static_cast<size_t>(nf)}, owner);
-    if (by_inverse[j])
-      values.append(nb::make_tuple(r.sigma, r.eig, v, r.fresh, r.fresh && !r.square ? nb::cast(r.sigma_max) : nb::none(),
-                                   r.square ? nb::cast(r.scale) : nb::none()));
-    else
-      values.append(nb::make_tuple(e.sigma, e.eig, v, e.scale));
-  }
-  return nb::make_tuple(done, status, exact, values);
+  if (!kept) return nb::make_tuple(done, status, nb::none());
+  const nb::object J_ref = new_ref ? nb::cast(array_of(inv.J_ref, m, nf)) : nb::none();
+  nb::tuple state = nb::make_tuple(nb::cast(hist.times), nb::cast(hist.eig), nb::cast(hist.sigma_times),
+                                   nb::cast(hist.sigma), hist.sigma_max, hist.scale, hist.safe,
+                                   array_of(inv.v, inv.v.size(), 0), J_ref, inv.sigma_ref, hist.fresh, by_inverse, kept);
+  return nb::make_tuple(done, status, state);
 }
 
 void bind_loop(nb::module_& m) {
   m.attr("WATCH_DUE") = WATCH_DUE;
   m.attr("GUARD_DUE") = GUARD_DUE;
+  m.attr("AHEAD") = AHEAD;
   m.def("run_steps", &run_steps, nb::arg("core"), nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"),
         nb::arg("omega"), nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"), nb::arg("prev"),
         nb::arg("qdot0"), nb::arg("speed2"), nb::arg("check_jump"), nb::arg("watch"), nb::arg("out"),

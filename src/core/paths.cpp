@@ -1,7 +1,8 @@
 // A path's samples at many times in one call (issue 28): kinredund/paths/analytic.py's sample_many of the circle
 // (Circle.sample's operations, entry by entry: the same numbers) and the cosines and sines of the other paths. The
-// runs of steps (kinredund/tracking/runs.py) sample the path ahead once per run with the GIL held; numpy's calls on
-// rows of three cost more than the sampling itself.
+// runs of steps (kinredund/tracking/runs.py) sample the path ahead once per run with the GIL held (a run's 200 samples
+// take ~20 us: releasing the GIL there hands it to another of track_many's threads, which this one then waits for,
+// and two threads ran slower so: benchmarks/many.py); numpy's calls on rows of three cost more than the sampling.
 //
 // The same numbers as Python's: cos and sin are the C library's, called through pointers as math.cos and math.sin
 // call them (the compiler can neither fuse a pair into one sincos nor vectorise them), and each product and sum is

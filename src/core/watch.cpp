@@ -22,6 +22,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -341,6 +342,58 @@ nb::tuple start_checks(Mat J, Vec grad, double floor) {
 }
 
 }  // namespace
+
+// WatchHistory (watch.hpp): kinredund.tracking.watch's _keep, _crossing_time, Watch.floors, crossed and push.
+namespace {
+
+// watch._keep: (t, v) as the newest of at most two; a second value at the same time replaces the newest
+void keep(std::vector<double>& times, double t, std::vector<double>& values, double v) {
+  if (!times.empty() && times.back() == t) {
+    values.back() = v;
+    return;
+  }
+  times.push_back(t);
+  values.push_back(v);
+  if (times.size() > 2) {
+    times.erase(times.begin());
+    values.erase(values.begin());
+  }
+}
+
+// watch._crossing_time: when v or v^2, extrapolated linearly from its last two values, reaches ``floor`` (-inf at or
+// below it or NaN, +inf where v does not decrease); min(a, b) as Python's, b where b < a, else a
+double crossing_time(const std::vector<double>& times, const std::vector<double>& values, double floor) {
+  const double inf = std::numeric_limits<double>::infinity();
+  if (values.empty()) return inf;
+  const double v1 = values.back();
+  if (!(v1 > floor)) return -inf;
+  if (values.size() < 2) return inf;
+  const double v0 = values[values.size() - 2], t0 = times[times.size() - 2], t1 = times.back();
+  if (!(v1 < v0 && t1 > t0)) return inf;
+  const double slope = (v1 - v0) / (t1 - t0), slope2 = (v1 * v1 - v0 * v0) / (t1 - t0);
+  const double a = t1 + (floor - v1) / slope, b = t1 + (floor * floor - v1 * v1) / slope2;
+  return b < a ? b : a;
+}
+
+}  // namespace
+
+double WatchHistory::kinematic_floor(double s_max) const { return sigma_floor * (s_max > 1.0 ? s_max : 1.0); }
+
+bool WatchHistory::crossed(double s, double e, double s_max, double fold_scale) const {
+  return !(s > kinematic_floor(s_max)) || !(e > eig_floor * fold_scale);
+}
+
+void WatchHistory::push(double t, double s, double e) {
+  if (reset) {  // Watch.reset: the history starts afresh
+    times.clear(), eig.clear(), sigma_times.clear(), sigma.clear();
+    reset = false;
+  }
+  if (fresh || sigma.empty()) keep(sigma_times, t, sigma, s);
+  keep(times, t, eig, e);
+  const double kinematic = crossing_time(sigma_times, sigma, kinematic_floor(sigma_max));
+  const double fold = crossing_time(times, eig, eig_floor * scale);
+  safe = fold < kinematic ? fold : kinematic;  // min(crossings().values()): the first where neither is smaller
+}
 
 void bind_watch(nb::module_& m) {
   m.def("start_checks", &start_checks, nb::arg("J"), nb::arg("grad"), nb::arg("floor"),

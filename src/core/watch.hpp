@@ -48,6 +48,26 @@ struct ExactMeasure {
 // J (m x nf, row-major), M (nf x nf, row-major).
 void watch_exact(const double* J, const double* M, int m, int nf, ExactMeasure& out);
 
+// The watch's verdicts and history (kinredund.tracking.watch.Watch: crossed, push, crossings, ahead), for runs of
+// steps that take them in the run (loop.cpp) with the GIL released: the same operations on the same doubles, so the
+// same verdicts and the same history as the Python watch's. ``sigma_floor``, ``eig_floor``: SIGMA_FLOOR, EIG_FLOOR.
+struct WatchHistory {
+  std::vector<double> times, eig, sigma_times, sigma;  // the last two measurements (oldest first), as Watch keeps them
+  double sigma_max = 1.0, scale = 1.0, safe = 0.0, sigma_floor = 0.0, eig_floor = 0.0;
+  bool fresh = true;   // the newest sigma_min(J) was computed afresh (Watch._fresh)
+  bool reset = false;  // the first push starts the history afresh (the active set differs from the history's)
+  // Watch.floors's kinematic floor: SIGMA_FLOOR max(1, sigma_max)
+  double kinematic_floor(double s_max) const;
+  // Watch.crossed with the kinematic floor's sigma_max and the fold floor's scale given: a quantity at or below its
+  // floor (NaN counts as crossed)
+  bool crossed(double s, double e, double s_max, double fold_scale) const;
+  // Watch.push(t, s, e) without a change of the active set (past the first push's ``reset``), and the earliest
+  // predicted crossing (``safe``, Watch.safe_before) after it
+  void push(double t, double s, double e);
+  // Watch.ahead(t) is not None: a crossing predicted by t (the earliest, ``safe``, at or before it)
+  bool ahead(double t) const { return safe <= t; }
+};
+
 // Binds watch_measure on arrays into the module (for tests: any J, M and factors).
 void bind_watch(nanobind::module_& m);
 
