@@ -143,10 +143,13 @@ def _run(robot: Robot, path: Path, index: Index | None, q0, span: dict, options:
 
 
 def _unlink(tracker: Tracker) -> None:
-    """The run's stepper lets go of its step control once the run is recorded (the two refer to each other: left as
-    they are, each run's objects - its stepper, evaluations, rows - wait for the cyclic garbage collector, whose
-    collections every few tens of runs cost ~25 us per run, GIL held; unlinked, they go when the run ends, in its
-    thread). Nothing reads the stepper after the run: the record holds what it needs of it."""
+    """The run's stepper lets go of its step control and of its compiled corrector once the run is recorded (each
+    refers back to the stepper: left as they are, each run's objects - its stepper, evaluations, rows - wait for the
+    cyclic garbage collector, whose collections every few tens of runs cost ~25 us per run, GIL held; unlinked, they
+    go when the run ends, in its thread). Nothing reads the stepper after the run: the record holds what it needs of
+    it."""
     stepper = tracker.stepper
     if getattr(stepper, "control", None) is not None:  # (the default mode's strict steppers have one)
         stepper.control = None
+    if getattr(stepper, "corrector", None) is not None:  # (kinredund.tracking.compiled_correct.CoreCorrector)
+        stepper.corrector = None
