@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from kinredund.errors import PathError
+from kinredund.indices import TimeVaryingReference
 from kinredund.paths import Path
 
 #: the most steps sampled in one call of Path.sample_many
@@ -19,6 +20,23 @@ BLOCK = 64
 MIN_BLOCK = 16
 #: the core's Q and omega of a sample without orientation (src/core/step.cpp reads them for oriented tasks only)
 NO_Q, NO_OMEGA = np.zeros((0, 0)), np.zeros(3)
+#: no weights, no bounds, no reference: the core's empty argument (read-only: shared)
+EMPTY = np.zeros(0)
+for _constant in (NO_Q, NO_OMEGA, EMPTY):
+    _constant.flags.writeable = False
+
+
+def core_orientation(sample) -> tuple[np.ndarray, np.ndarray]:
+    """The sample's Q and omega as the core reads them: :data:`NO_Q` and :data:`NO_OMEGA` where it has none."""
+    return (NO_Q if sample.Q is None else sample.Q), (NO_OMEGA if sample.omega is None else sample.omega)
+
+
+def core_reference(index, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """A time-varying reference's value and rate at t [s] as float arrays for the core; :data:`EMPTY` twice for
+    an index whose reference is fixed (the core's weights and reference are its own then)."""
+    if isinstance(index, TimeVaryingReference):
+        return np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
+    return EMPTY, EMPTY
 
 
 class SamplesAhead:

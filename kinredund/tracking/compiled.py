@@ -71,7 +71,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError, OptionError, check_backend
 from kinredund.indices import JointDeviation, TimeVaryingReference
-from kinredund.tracking.ahead import NO_OMEGA, NO_Q, SamplesAhead
+from kinredund.tracking.ahead import EMPTY, SamplesAhead, core_orientation, core_reference
 from kinredund.tracking.compiled_correct import CoreCorrector
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.compiled_start import TASK_CODES, CompiledStart, make_step_core, row_slices
@@ -221,7 +221,7 @@ class CompiledStep:
             self.core.set_guard(self.guard.compiled)
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
-        self._empty = np.zeros(0)
+        self._no_reference = (EMPTY, EMPTY)
         m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)
         self.slices = row_slices(n, m)
         self.shapes = (n, m, n + m)
@@ -260,16 +260,11 @@ class CompiledStep:
         if at is None:  # sampled here (a path not sampled ahead)
             sample = s.ev.sample(t_to)
             p, v = sample.p, sample.v
-            Q = NO_Q if sample.Q is None else sample.Q
-            omega = NO_OMEGA if sample.omega is None else sample.omega
+            Q, omega = core_orientation(sample)
         else:  # the PathSample itself is made only where the step's point is read (CompiledPoint)
             sample = None
             p, v, Q, omega = ahead.rows[row]
-        if self.time_varying:
-            index = s.ev.index
-            ref, rate = np.asarray(index.reference(t_to), float), np.asarray(index.rate(t_to), float)
-        else:
-            ref = rate = self._empty
+        ref, rate = core_reference(s.ev.index, t_to) if self.time_varying else self._no_reference
         args = (t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot, 0.0 if ctl is None else ctl.speed2,
                 ctl is not None)
         cleared = smallest = None

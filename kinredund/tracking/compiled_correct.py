@@ -25,13 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinredund.indices import TimeVaryingReference
-from kinredund.tracking.ahead import NO_OMEGA, NO_Q
+from kinredund.tracking.ahead import core_orientation, core_reference
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.compiled_start import make_step_core, row_slices
-
-_EMPTY = np.zeros(0)
-_EMPTY.flags.writeable = False
 
 
 class CoreCorrector:
@@ -46,7 +42,6 @@ class CoreCorrector:
         self.stepper, self.module = stepper, module
         self.core = None  # made on the first solve (a run without a handed-back step makes none)
         self._fixed = None  # the active set the core holds (the stepper's ``fixed``)
-        self.time_varying = isinstance(stepper.ev.index, TimeVaryingReference)
         n, m = stepper.n, len(stepper.task_lam)
         self.n, self.layout = n, (row_slices(n, m), (n, m))
         self._basis = stepper.pt.basis
@@ -76,13 +71,8 @@ class CoreCorrector:
             self._fixed = fixed
         t = s.t
         sample = s.ev.sample(t)
-        Q = NO_Q if sample.Q is None else sample.Q
-        omega = NO_OMEGA if sample.omega is None else sample.omega
-        if self.time_varying:
-            index = s.ev.index
-            ref, rate = np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
-        else:
-            ref = rate = _EMPTY
+        Q, omega = core_orientation(sample)
+        ref, rate = core_reference(s.ev.index, t)
         got = self.core.correct(t, sample.p, sample.v, Q, omega, ref, rate, y, newton)
         if type(got) is int:
             self.declined += 1

@@ -17,15 +17,13 @@ import functools
 import numpy as np
 
 from kinredund.indices import TimeVaryingReference
-from kinredund.tracking.ahead import NO_OMEGA, NO_Q
+from kinredund.tracking.ahead import EMPTY, core_orientation, core_reference
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.watch import SIGMA_FLOOR
 
 #: the task kinds' codes in the core (src/core/step.cpp)
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
-_EMPTY = np.zeros(0)  # no weights, no bounds, no reference (read-only: shared)
-_EMPTY.flags.writeable = False
 
 
 def make_step_core(stepper: PredictorCorrector, core):
@@ -40,8 +38,8 @@ def make_step_core(stepper: PredictorCorrector, core):
     else:
         weights, reference = index.weights, index.reference
     limited = getattr(stepper, "lo", None) is not None
-    lo_tol, hi_tol = stepper.switch_limits if limited else (_EMPTY, _EMPTY)
-    hermite = [_EMPTY if w is None else w for w in stepper.hermite]  # (float arrays: PredictorCorrector's)
+    lo_tol, hi_tol = stepper.switch_limits if limited else (EMPTY, EMPTY)
+    hermite = [EMPTY if w is None else w for w in stepper.hermite]  # (float arrays: PredictorCorrector's)
     return core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
                          ev.formulation == "velocity", np.asarray(weights, float), np.asarray(reference, float),
                          isinstance(index, TimeVaryingReference), stepper.tol, stepper.dt, hermite, lo_tol, hi_tol)
@@ -100,13 +98,8 @@ class CompiledStart:
             self.fixed = getattr(stepper, "fixed", None)  # CompiledStep.sync_active has nothing to give the core
         pt, t = stepper.pt, stepper.t
         sample = pt.sample
-        Q = NO_Q if sample.Q is None else sample.Q
-        omega = NO_OMEGA if sample.omega is None else sample.omega
-        index = stepper.ev.index
-        if isinstance(index, TimeVaryingReference):
-            ref, rate = np.asarray(index.reference(t), float), np.asarray(index.rate(t), float)
-        else:
-            ref = rate = _EMPTY
+        Q, omega = core_orientation(sample)
+        ref, rate = core_reference(stepper.ev.index, t)
         got = self.module.start_run(core, sample.p, sample.v, Q, omega, ref, rate,
                                     np.concatenate([stepper.q, stepper.lam]))
         if type(got) is int:
