@@ -75,8 +75,18 @@ def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 20
     ends where the gradient J^T r or the step is negligible. Where the path point is reachable the
     residual falls to rounding level (quadratic convergence near a regular solution); where it is not, it
     stays at the distance the arm cannot close (the workspace boundary's Gauss-Newton minimum).
+
+    Where the compiled core is installed and runs the problem (the augmented form, nq = nv), the same iteration
+    runs there (``StepCore.residual_min``, the GIL released; the same operations on r and J to rounding, whichever
+    backend tracked), else in Python with the evaluator's points.
     """
     q = np.array(q, float)
+    core = _residual_core(ev)
+    if core is not None:
+        s = ev.sample(t)
+        res, q_min = core.residual_min(q, s.p, s.v, _NO_Q if s.Q is None else s.Q,
+                                       _NO_OMEGA if s.omega is None else s.omega, max_iter)
+        return float(res), q_min
     pt = ev.point(q, t, need_dJ=False)
     f = float(pt.r @ pt.r)
     mu = 1e-3
@@ -98,6 +108,26 @@ def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 20
             if mu > 1e12:
                 break
     return math.sqrt(f), q
+
+
+_NO_Q, _NO_OMEGA = np.zeros((0, 0)), np.zeros(0)  # (a task without orientation: StepCore's empty Q and omega)
+
+
+def _residual_core(ev: Evaluator):
+    """A ``StepCore`` of ``ev``'s robot and task for :func:`task_residual_min` (its index terms unused), or None where
+    the compiled core is not installed or cannot run it (another formulation than augmented, nq != nv)."""
+    from kinredund.tracking.compiled import load_core
+    from kinredund.tracking.compiled_start import TASK_CODES
+    from kinredund.tracking.predictor_corrector import predictor_weights
+
+    core = load_core()
+    model = ev.robot.model
+    if core is None or ev.formulation != "augmented" or model.nq != model.nv or ev.task not in TASK_CODES:
+        return None
+    n = model.nv
+    hermite = [np.zeros(0) if w is None else w for w in predictor_weights(1.0)]
+    return core.StepCore(model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task], False, np.ones(n), np.zeros(n), False,
+                         1e-12, 1.0, hermite, np.zeros(0), np.zeros(0))
 
 
 def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: int = 0) -> tuple[bool, float, float]:

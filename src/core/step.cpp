@@ -31,6 +31,7 @@
 #include <pinocchio/multibody/model.hpp>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 
 #include <cmath>
 #include <memory>
@@ -501,6 +502,46 @@ class StepCore {
     const bool ref = J_ref.rows() == m_ && J_ref.cols() == nf;
     return kinredund::watch_measure(Jr.data(), Mr.data(), lu_.data(), ipiv_.data(), nf, m_, v.data(),
                                     ref ? J_ref.data() : nullptr, sigma_ref, gate);
+  }
+
+  // failure.task_residual_min (kinredund/tracking/failure.py) operation by operation, with the GIL released: at the
+  // time of the sample (p, v, Q, omega), from q0, Levenberg-Marquardt on 1/2 |r|^2 of the task alone (r and J of the
+  // augmented form, without dK), at most max_iter iterations: (min |r| [m], the configuration reaching it). The
+  // stop's diagnosis calls it (out_of_reach: up to 13 starts at each time looked at), the GIL-held Python part of a
+  // failing run that cost most of a sweep's tracking.
+  nb::tuple residual_min(CRef q0, CRef sp, CRef sv, Mat3 sQ, CRef somega, int max_iter) {
+    if (q0.size() != n_) throw nb::value_error("q must have n entries");
+    if (velocity_) throw nb::value_error("residual_min needs a StepCore of the augmented form");
+    set_sample(sp, sv, sQ, somega);
+    VectorXd q = q0;
+    double f;
+    {
+      nb::gil_scoped_release release;  // no Python object below
+      evaluate(q, false);
+      RowMatrixXd J = J_;
+      VectorXd r = r_;
+      f = r.dot(r);
+      double mu = 1e-3;
+      const Eigen::Index n = n_;
+      for (int it = 0; it < max_iter; ++it) {
+        const VectorXd g = J.transpose() * r;
+        if (!std::isfinite(f) || g.dot(g) <= 1e-30 || f <= 1e-30) break;
+        MatrixXd A = J.transpose() * J;
+        A += mu * MatrixXd::Identity(n, n);  // J^T J + mu I
+        const VectorXd dq = A.partialPivLu().solve(-g);  // (numpy's solve: LU with partial pivoting)
+        const VectorXd trial = q + dq;
+        evaluate(trial, false);
+        const double f_new = r_.dot(r_);
+        if (f_new < f) {
+          q = trial, J = J_, r = r_, f = f_new, mu = std::max(mu / 3.0, 1e-12);
+          if (dq.dot(dq) <= 1e-28) break;
+        } else {
+          mu *= 4.0;
+          if (mu > 1e12) break;
+        }
+      }
+    }
+    return nb::make_tuple(std::sqrt(f), q);
   }
 
   // The evaluation at q (t of the last step's sample): (r, J, xdot, grad, Lambda+Hess (M) for lam, top) - for tests.
@@ -997,6 +1038,8 @@ void bind_step(nb::module_& m) {
            nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("newton") = false)
       .def("watch_measure", &StepCore::watch_measure, nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"),
            nb::arg("gate"))
+      .def("residual_min", &StepCore::residual_min, nb::arg("q"), nb::arg("p"), nb::arg("v"), nb::arg("Q"),
+           nb::arg("omega"), nb::arg("max_iter"))
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
            nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"));
   m.def("start_run", [](StepCore& core, CRef p, CRef v, Mat3 Q, CRef omega, CRef ref, CRef rate, CRef y0) {
