@@ -473,16 +473,19 @@ def test_track_many_in_threads_records_what_single_steps_record(monkeypatch):
 _CYCLIC_GARBAGE_RUN = """
 import collections, gc, sys
 sys.path.insert(0, sys.argv[1])
+from test_tracking_compiled import problem
 from test_tracking_runs import planar_reach_case
 from kinredund.errors import TrackingError
 from kinredund.problems import panda_circle
 from kinredund.tracking import run
-case = panda_circle(wrist_amplitude=0.1)
+case, switching = panda_circle(wrist_amplitude=0.1), problem("panda_elbow_circle")
 run.track(*case, backend="compiled")
+run.track(*switching, backend="compiled")
 gc.collect()
 gc.disable()
 gc.set_debug(gc.DEBUG_SAVEALL)
 traj = run.track(*case, backend="compiled")
+run.track(*switching, backend="compiled")
 stopped = None
 try:
     run.track(*planar_reach_case(), backend="compiled", steps_per_loop=200)
@@ -498,11 +501,12 @@ gc.enable()
 
 
 def test_a_run_leaves_no_cyclic_garbage():
-    """track() unlinks its stepper from its step control once the run is recorded (the one reference cycle of a
-    run without a switch; a switch's Brent search leaves its closures' own): a finished run's objects (the benchmark
-    circle of benchmarks/many.py), and a stopped one's, are freed by reference counting, none left for the cyclic
-    garbage collector, whose collections held the GIL ~25 us per run (track_many's threads). Measured in a fresh
-    interpreter, where no other thread makes garbage of its own meanwhile."""
+    """track() unlinks its stepper from its step control once the run is recorded (a run's one reference cycle), and
+    the switch search's Brent method is kinredund.tracking.roots' (scipy's brentq left its function for the collector):
+    a finished run's objects (the benchmark circle of benchmarks/many.py), a run's with two bound switches, and a
+    stopped one's, are freed by reference counting, none left for the cyclic garbage collector, whose collections
+    held the GIL ~25 us per run (track_many's threads). Measured in a fresh interpreter, where no other thread makes
+    garbage of its own meanwhile."""
     import subprocess
     import sys
 

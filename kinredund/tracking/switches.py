@@ -19,11 +19,11 @@ from __future__ import annotations
 import operator
 
 import numpy as np
-from scipy.optimize import brentq
 
 from kinredund.errors import KinredundError, PathError, SingularityError
 from kinredund.tracking.failure import constraints_dependent, on_branch
 from kinredund.tracking.linalg import bound_rate_qp
+from kinredund.tracking.roots import brent_root
 from kinredund.tracking.rows import ROW_TOL
 from kinredund.tracking.state import ConstrainedState
 from kinredund.tracking.step_control import MAX_HALVINGS
@@ -141,7 +141,7 @@ class SwitchLocation:
                 return np.inf  # not an event of its own
             t_end = below
         try:
-            return float(brentq(phi, t_start, t_end, xtol=SWITCH_XTOL, rtol=4 * np.finfo(float).eps, maxiter=100))
+            return brent_root(phi, t_start, t_end, SWITCH_XTOL, 4 * np.finfo(float).eps)
         except (ValueError, RuntimeError, KinredundError) as err:
             self.state = snap
             raise self._failure("switch_not_resolved", f"the switch of {self._event_name(joint, kind)} "
