@@ -66,6 +66,15 @@ def test_the_jump_is_the_least_of_two_vertex_pieces():
     assert seen == {0, 1}  # both pieces lowest in turn
     assert vertex_corner(sc, 0, swept(0.0), swept(1e-4)) == (1, 5, 7)
     assert vertex_corner(sc, 0, swept(0.0), swept(1e-5)) is None  # the same vertex: no corner between
+    # decided by the vertices' own distances, not coal's witness points (anywhere along a parallel edge): the same
+    # answer from configurations a few ulps apart, and about the parallel point itself
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        ulps = rng.integers(-4, 5, size=(2, 7)) * np.spacing(swept(0.0))
+        assert vertex_corner(sc, 0, swept(0.0) + ulps[0], swept(1e-4) + ulps[1]) == (1, 5, 7)
+    crossing = next(d for d in np.linspace(0.0, 1e-4, 201) if vertex_piece(sc, 0, 1, 7, swept(d))[0]
+                    < vertex_piece(sc, 0, 1, 5, swept(d))[0])
+    assert vertex_corner(sc, 0, swept(crossing - 1e-6), swept(crossing + 1e-6)) == (1, 5, 7)
 
 
 @pytest.mark.parametrize("dq5", [0.0, 1e-4])

@@ -573,3 +573,19 @@ def test_track_many_raises_the_first_bad_problem_s_error_after_every_run(monkeyp
     alone = inner(*good, loops=1, steps_per_loop=20)
     for traj in track_many([good, good, good], threads=3, loops=1, steps_per_loop=20):
         assert_identical(alone, traj)
+
+
+@pytest.mark.parametrize("backend", ["compiled", "python"])
+def test_a_start_within_the_tolerance_is_polished_so_the_loop_closes(backend):
+    """The start takes one Newton update even where F is within the corrector's tolerance (an IK answer): a start
+    1e-13 rad off the corrected one (F within tol, so that without the update the run starts there and every loop
+    ends 1e-13 away from it) is moved onto the manifold, and two loops close to rounding (~5e-16 here; bar 1e-14)."""
+    from kinredund.problems import panda_circle
+
+    r, path, index, q0 = panda_circle(wrist_amplitude=0.1)
+    exact = np.asarray(run.track(r, path, index, q0, backend=backend, loops=1).q[0])
+    off = np.random.default_rng(3).normal(size=7)
+    start = exact + 1e-13 * off / np.abs(off).max()
+    q = np.asarray(run.track(r, path, index, start, backend=backend, loops=2).q)
+    assert np.abs(q[0] - start).max() > 5e-14  # moved
+    assert np.abs(q[-1] - q[0]).max() <= 1e-14 and np.abs(q[len(q) // 2] - q[0]).max() <= 1e-14

@@ -114,24 +114,37 @@ def vertex_piece(scene, k: int, side: int, i: int, q) -> tuple[float, np.ndarray
     return float(psi[0]), ws.rows(np.array([k]), n[None], np.vstack([pa, pb]))[0]
 
 
+#: a vertex is at the pair's distance within this [m] (vertex_corner)
+VERTEX_TOL = 1e-7
+
+
+def nearest_vertex(objects, side: int, d: float) -> int | None:
+    """The vertex of ``objects[side]`` (a :func:`placed_pair` of two polytopes) nearest the other object, where its
+    distance is the pair's distance ``d`` [m] to :data:`VERTEX_TOL`; None where every vertex is farther (the pair's
+    distance realised on an edge's or a face's interior alone). Decided by the vertices' own distances (coal's
+    distance of each vertex as a point; :func:`vertex_lower_bounds` rule out the far ones), not by the pair's witness
+    points, which near a parallel edge or face coal may put anywhere along it."""
+    which = np.flatnonzero(vertex_lower_bounds(objects, side) <= d + VERTEX_TOL)
+    if not len(which):
+        return None
+    psi = vertex_distances(objects, side, which)[0]
+    best = int(np.argmin(psi))
+    return int(which[best]) if psi[best] <= d + VERTEX_TOL else None
+
+
 def vertex_corner(scene, k: int, before, after) -> tuple[int, int, int] | None:
-    """(side, i, j) where pair k's witness point on its object ``side`` is vertex i at configuration ``before`` and
-    vertex j != i at ``after`` (to 1e-7 m): the two ends of an edge or face of that polytope lying parallel to the
-    other object between the two (its distance the least of the two vertex pieces there); None otherwise (not two
-    polytopes, or a witness point not at a vertex)."""
+    """(side, i, j) where the vertex of pair k's object ``side`` nearest the other object, at the pair's distance
+    (:func:`nearest_vertex`), is vertex i at configuration ``before`` and vertex j != i at ``after``: the two ends of an
+    edge or face of that polytope lying parallel to the other object between the two (its distance the least of the
+    two vertex pieces there); None otherwise (not two polytopes, or no such change of vertex)."""
     ends = []
     for q in (before, after):
         rec = scene.distances(q)
         objects = placed_pair(scene, k)
         if objects[0][0] is None or objects[1][0] is None:
             return None
-        pair = scene.pairs[k]
-        r = rec.index(*pair)
-        at = []
-        for side, w in ((0, rec.point_a[r]), (1, rec.point_b[r])):
-            gap = np.linalg.norm(objects[side][0][0] - w, axis=1)
-            at.append(int(np.argmin(gap)) if gap.min() < 1e-7 else None)
-        ends.append(at)
+        d = float(rec.distance[rec.index(*scene.pairs[k])])
+        ends.append([nearest_vertex(objects, side, d) for side in (0, 1)])
     for side in (0, 1):
         i, j = ends[0][side], ends[1][side]
         if i is not None and j is not None and i != j:

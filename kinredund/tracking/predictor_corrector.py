@@ -71,7 +71,10 @@ class PredictorCorrector(Stepper):
         self.start_measure = None  # the watch's exact measurement at the start where take_start gave it
         try:
             if start is None or not start(self):  # the compiled core's start (take_start), else this one
-                self._newton(self.pt if start is None else None)  # exactly onto the optimal manifold (Eq. 4.5)
+                # exactly onto the optimal manifold (Eq. 4.5), one Newton update at least: a start within the
+                # corrector's tolerance (an IK answer) would else stay up to tol / sigma_min(R) off the point the
+                # run comes back to after a loop, and a closed path would not close to rounding
+                self._newton(self.pt if start is None else None, polish=True)
                 self._rates()
             if strict and evaluator.index is not None:
                 self.control = StepControl(self)
@@ -200,11 +203,13 @@ class PredictorCorrector(Stepper):
         """The corrector's tolerance on ||F||_2, scaled by the gradient: tol max(1, ||grad z||)."""
         return self.tol * max(1.0, math.sqrt(float(pt.grad @ pt.grad)))
 
-    def _newton(self, pt: Point | None = None, max_fresh: int = 6) -> None:
+    def _newton(self, pt: Point | None = None, max_fresh: int = 6, polish: bool = False) -> None:
         """Corrector onto F(theta, lambda) = [grad z + J^T lambda; r] = 0 at self.t from (self.q, self.lam).
 
         Rounds of chord iterations (:meth:`_chord`), each with R factorised afresh at its first iterate;
-        ``pt`` is the full evaluation at the current point when the caller has it.
+        ``pt`` is the full evaluation at the current point when the caller has it. ``polish``: the first round
+        makes its first update even where F is already within the tolerance (a Newton update, R being factorised
+        there: the point then lies on the manifold to rounding; the run's start).
         """
         n = self.n
         y = np.concatenate([self.q, self.lam])
@@ -212,7 +217,8 @@ class PredictorCorrector(Stepper):
             if pt is None:
                 pt = self.evaluate(y[:n], self.t)
             lu = self._factor(pt, pt.system(y[n:])[0])
-            y, ok = self._chord(y, lu, self._tol(pt), F=self._residual(pt, y[n:]))
+            y, ok = self._chord(y, lu, self._tol(pt), F=self._residual(pt, y[n:]), polish=polish)
+            polish = False
             if ok:
                 self.q, self.lam = y[:n], y[n:]
                 return
@@ -270,18 +276,19 @@ class PredictorCorrector(Stepper):
         self.qdot, self.lamdot, self.label, self.M, self.pt = sol[:n], sol[n:], None, M, pt
 
     def _chord(self, y: np.ndarray, lu, tol: float, F: np.ndarray | None = None,
-               max_iter: int = 8) -> tuple[np.ndarray, bool]:
+               max_iter: int = 8, polish: bool = False) -> tuple[np.ndarray, bool]:
         """Chord iterations on F with fresh residuals and R's factors kept: (last iterate, converged).
 
         The factors belong to another point, so the iteration converges only linearly: it ends on the
         residual itself (||F|| <= tol), never on the size of the update. ``F``: the residual at ``y``
-        if the caller has it. A non-finite path sample is reported (PathError) when it fails.
+        if the caller has it. ``polish``: the first update is made whatever F (:meth:`_newton`). A non-finite path
+        sample is reported (PathError) when it fails.
         """
         n = self.n
-        for _ in range(max_iter):
+        for k in range(max_iter):
             if F is None:
                 F = self._residual(self.evaluate(y[:n], self.t, need_dJ=False), y[n:])
-            if float(F @ F) <= tol * tol:
+            if float(F @ F) <= tol * tol and not (polish and k == 0):
                 return y, True
             y = y - self._solve(lu, F)
             F = None

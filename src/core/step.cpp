@@ -217,7 +217,7 @@ class StepCore {
     int st;
     {
       nb::gil_scoped_release release;  // no Python object below: the starts of runs in threads overlap
-      st = start_at(y0, *out);
+      st = start_at(y0, *out, true);
       if (st == OK) {
         const int nf = static_cast<int>(free_.size()), n = n_;
         RowMatrixXd Jr(m_, nf), Mr(nf, nf);  // Watch.reduce: the free joints' columns of J, rows and columns of M
@@ -256,7 +256,7 @@ class StepCore {
     {
       nb::gil_scoped_release release;  // no Python object below
       restarted = newton;
-      st = newton ? start_at(y, *out) : correct_at(y, *out, restarted);
+      st = newton ? start_at(y, *out, false) : correct_at(y, *out, restarted);
     }
     if (st != OK) return nb::int_(st);
     MatrixXd lu = lu_;
@@ -267,8 +267,9 @@ class StepCore {
  private:
   // start(): PredictorCorrector._newton (rounds of chord iterations, each with R factorised afresh at its first
   // iterate, at most 7 rounds of at most 8 updates) and _rates (LimitedPredictorCorrector's on the reduced system,
-  // _update_mu at the corrected point); fills out (start()'s row) or returns the status.
-  int start_at(CRef y0, VectorXd& out) {
+  // _update_mu at the corrected point); fills out (start()'s row) or returns the status. ``polish`` (the run's start:
+  // _newton's polish): the first round's first update is made even where F is within the tolerance.
+  int start_at(CRef y0, VectorXd& out, bool polish) {
     const int n = n_, N = n_ + m_;
     VectorXd y = y0;
     RowMatrixXd M;
@@ -288,7 +289,7 @@ class StepCore {
           if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
           F = residual(y.tail(m_));
         }
-        if (F.dot(F) <= tol * tol) {
+        if (F.dot(F) <= tol * tol && !(polish && round == 0 && it == 0)) {
           ok = true;
           break;
         }
@@ -424,7 +425,7 @@ class StepCore {
     int st = corrector(yp, yc, sol, M, grad_scale);
     if (st == CHORD_FAILED) {
       restarted = true;
-      return start_at(yp, out);
+      return start_at(yp, out, false);
     }
     if (st != OK) return st;
     st = bound_multipliers(yc, mu);
