@@ -88,17 +88,18 @@ class PinkBarrier:
         return self.t, np.array(self.conf.q)
 
 
-def figures(robot, path, sphere, q0, ts, qs, steps_per_loop: int) -> dict:
+def figures(robot, path, sphere, ts, qs, steps_per_loop: int) -> dict:
     """Figures of a recorded run (``ts``, ``qs`` from t = 0 at every step).
 
     Returns:
         ``clearance`` (per point [m]), ``clearance_min`` [m], ``drift`` (max |q(kT) - q(0)| after each
-        completed loop k [rad], revolute joints modulo 2 pi), ``position_error_max`` [m].
+        completed loop k [rad], revolute joints modulo 2 pi; q(0) the record's first point: the tracker's start
+        corrected onto the optimum, up to the IK's tolerance from the q0 it was given), ``position_error_max`` [m].
     """
     qs = np.asarray(qs, float)
     c = np.array([sphere.values(q)[0] for q in qs])
     err = [np.linalg.norm(robot.fk(q)[:3, 3] - path(t).p) for t, q in zip(ts, qs, strict=True)]
     loops = (len(qs) - 1) // steps_per_loop
-    drift = [joint_drift(q0, qs[(k + 1) * steps_per_loop], robot.revolute) for k in range(loops)]
+    drift = [joint_drift(qs[0], qs[(k + 1) * steps_per_loop], robot.revolute) for k in range(loops)]
     return {"clearance": c.tolist(), "clearance_min": float(c.min()), "drift": drift,
             "position_error_max": float(max(err))}

@@ -108,7 +108,7 @@ def run(loops: int = 20, methods=METHODS, steps_per_loop: int = STEPS_PER_LOOP) 
     out = {}
     for m in runners:
         ts, qs = zip(*rec[m], strict=True)
-        res = figures(robot, path, sphere, q0, ts, qs, steps_per_loop)
+        res = figures(robot, path, sphere, ts, qs, steps_per_loop)
         res.update(summary_us(times[m]) if times[m] else {}, t=list(ts))
         if m in failed:
             res["failed"] = failed[m]

@@ -158,7 +158,7 @@ def run_ours(robot, path, index, q0, sphere, loops: int, steps: int) -> dict:
         return out
     except KinredundError as err:
         return {"completed": False, "cause": type(err).__name__, "message": str(err)[:200]}
-    f = figures(robot, path, sphere, q0, tr.t, tr.q, steps)
+    f = figures(robot, path, sphere, tr.t, tr.q, steps)
     held = f["clearance_min"] >= -HOLD_TOL and max(f["drift"]) <= CLOSURE_TOL
     return {"completed": True, "held_and_closed": bool(held), **_short(f)}
 
@@ -173,7 +173,7 @@ def run_pink(robot, path, index, q0, sphere, loops: int, steps: int, safe_gain: 
             return {"completed": False, "cause": type(err).__name__, "message": str(err)[:200]}
         rec.append(runner.state())
     ts, qs = zip(*rec, strict=True)
-    f = figures(robot, path, sphere, q0, ts, qs, steps)
+    f = figures(robot, path, sphere, ts, qs, steps)
     return {"completed": f["position_error_max"] <= PINK_TRACK_TOL, "cause": "" if f["position_error_max"]
             <= PINK_TRACK_TOL else "off_path", **_short(f)}
 
