@@ -21,6 +21,7 @@ from kinredund.errors import PathError, SingularityError, TrackingError
 from kinredund.kinematics import closure
 from kinredund.model.robot import Robot
 from kinredund.tasks import get_task
+from kinredund.tracking.ahead import EMPTY, core_orientation
 from kinredund.tracking.point import Evaluator
 from kinredund.tracking.watch import SIGMA_FLOOR, exact, reduce
 from kinredund.trajectory import Trajectory
@@ -84,8 +85,7 @@ def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 20
     core = _residual_core(ev)
     if core is not None:
         s = ev.sample(t)
-        res, q_min = core.residual_min(q, s.p, s.v, _NO_Q if s.Q is None else s.Q,
-                                       _NO_OMEGA if s.omega is None else s.omega, max_iter)
+        res, q_min = core.residual_min(q, s.p, s.v, *core_orientation(s), max_iter)
         return float(res), q_min
     pt = ev.point(q, t, need_dJ=False)
     f = float(pt.r @ pt.r)
@@ -110,9 +110,6 @@ def task_residual_min(ev: Evaluator, q: np.ndarray, t: float, max_iter: int = 20
     return math.sqrt(f), q
 
 
-_NO_Q, _NO_OMEGA = np.zeros((0, 0)), np.zeros(0)  # (a task without orientation: StepCore's empty Q and omega)
-
-
 def _residual_core(ev: Evaluator):
     """A ``StepCore`` of ``ev``'s robot and task for :func:`task_residual_min` (its index terms unused), or None where
     the compiled core is not installed or cannot run it (another formulation than augmented, nq != nv)."""
@@ -125,9 +122,9 @@ def _residual_core(ev: Evaluator):
     if core is None or ev.formulation != "augmented" or model.nq != model.nv or ev.task not in TASK_CODES:
         return None
     n = model.nv
-    hermite = [np.zeros(0) if w is None else w for w in predictor_weights(1.0)]
+    hermite = [EMPTY if w is None else w for w in predictor_weights(1.0)]
     return core.StepCore(model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task], False, np.ones(n), np.zeros(n), False,
-                         1e-12, 1.0, hermite, np.zeros(0), np.zeros(0))
+                         1e-12, 1.0, hermite, EMPTY, EMPTY)
 
 
 def out_of_reach(ev: Evaluator, q: np.ndarray, times, restarts: int = 12, seed: int = 0) -> tuple[bool, float, float]:
