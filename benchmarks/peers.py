@@ -159,7 +159,7 @@ def _make(method, robot, path, index, q0, dt):
     return _RTB(robot, path, q0, dt)
 
 
-def _evaluate(robot, path, index, q0, ts, qs, loops, steps_per_loop) -> dict:
+def _evaluate(robot, path, index, ts, qs, loops, steps_per_loop) -> dict:
     """Tracking errors, normality residuals and the drift per loop of a recorded joint path."""
     kin = robot.kinematics
     pos, ori, normal = [], [], []
@@ -171,7 +171,7 @@ def _evaluate(robot, path, index, q0, ts, qs, loops, steps_per_loop) -> dict:
         normal.append(multipliers(K, index.evaluate(q, t)[1])[1])  # min ||grad z + K^T lambda||, Eqs. (4.33)-(4.34)
     return {"position_error_max": float(max(pos)), "orientation_error_max": float(max(ori)),
             "normality_residual_max": float(max(normal)),
-            "drift": [joint_drift(q0, qs[(i + 1) * steps_per_loop], robot.revolute) for i in range(loops)]}
+            "drift": [joint_drift(qs[0], qs[(i + 1) * steps_per_loop], robot.revolute) for i in range(loops)]}
 
 
 def run(loops: int = 20, variants=tuple(VARIANTS), methods=METHODS, steps_per_loop: int = STEPS_PER_LOOP) -> dict:
@@ -207,7 +207,7 @@ def run(loops: int = 20, variants=tuple(VARIANTS), methods=METHODS, steps_per_lo
             ts, qs = zip(*rec[m], strict=True)
             stats = summary_us(times[m])
             res[m] = {"step_us_median": stats["median_us"], "step_us_p95": stats["p95_us"],
-                      **_evaluate(robot, path, index, q0, ts, qs, loops, steps_per_loop)}
+                      **_evaluate(robot, path, index, ts, qs, loops, steps_per_loop)}
         out[variant] = res
     return {"variants": out, "skipped": skipped,
             "settings": {"robot": "panda", "loops": loops, "steps_per_loop": steps_per_loop,

@@ -64,7 +64,7 @@ def test_normality_residual_is_the_null_space_part_of_the_gradient():
     rng = np.random.default_rng(3)
     qs = [q0 + 0.3 * rng.standard_normal(robot.nq) for _ in range(2 * 3 + 1)]
     ts = [0.1 * k for k in range(len(qs))]
-    got = peers._evaluate(robot, path, index, q0, ts, qs, loops=3, steps_per_loop=2)["normality_residual_max"]
+    got = peers._evaluate(robot, path, index, ts, qs, loops=3, steps_per_loop=2)["normality_residual_max"]
     expected = 0.0
     for t, q in zip(ts, qs, strict=True):
         K = robot.velocity_jacobian(q)

@@ -485,7 +485,7 @@ gc.collect()
 gc.disable()
 gc.set_debug(gc.DEBUG_SAVEALL)
 traj = run.track(*case, backend="compiled")
-run.track(*switching, backend="compiled")
+switched = len(run.track(*switching, backend="compiled").meta["switches"])
 stopped = None
 try:
     run.track(*planar_reach_case(), backend="compiled", steps_per_loop=200)
@@ -493,7 +493,7 @@ except TrackingError as err:
     stopped = err.partial
 found = gc.collect()
 kinds = collections.Counter(type(o).__qualname__ for o in gc.garbage).most_common(8)
-print(found, len(traj.q), -1 if stopped is None else len(stopped.q), kinds)
+print(found, len(traj.q), -1 if stopped is None else len(stopped.q), switched, kinds)
 gc.set_debug(0)
 gc.garbage.clear()
 gc.enable()
@@ -513,9 +513,9 @@ def test_a_run_leaves_no_cyclic_garbage():
     done = subprocess.run([sys.executable, "-P", "-c", _CYCLIC_GARBAGE_RUN, os.path.dirname(__file__)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
-    found, steps, stopped_steps, kinds = done.stdout.strip().split(" ", 3)
+    found, steps, stopped_steps, switched, kinds = done.stdout.strip().split(" ", 4)
     assert int(found) == 0, f"{found} objects left for the cyclic collector: {kinds}"
-    assert int(steps) == 201 and int(stopped_steps) > 1
+    assert int(steps) == 201 and int(stopped_steps) > 1 and int(switched) >= 2
 
 
 def test_record_columns_and_step_times_are_numpy_s():

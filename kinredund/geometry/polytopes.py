@@ -105,7 +105,8 @@ def vertex_distances(objects, side: int, which) -> tuple[np.ndarray, np.ndarray,
 def vertex_piece(scene, k: int, side: int, i: int, q) -> tuple[float, np.ndarray]:
     """(psi [m], its row (n,) [m/rad]): the distance of vertex i of pair k's object ``side`` (0 its first, 1 its
     second: ``scene.pairs[k]``) to the pair's other object at q, and its rate n^T (J_b(p_b) - J_a(p_a)) with the
-    nearest points (coal, the vertex as a sphere of radius 0). The vertex must be outside the other object."""
+    nearest points (coal, the vertex as a sphere of radius 0). The vertex must be outside the other object (the row's
+    normal is the unit vector between the two points)."""
     q = scene.distances(q).q  # (validated) places this thread's workspace at q
     psi, pa, pb = vertex_distances(placed_pair(scene, k), side, [i])
     n = (pb[0] - pa[0]) / np.linalg.norm(pb[0] - pa[0])

@@ -24,6 +24,7 @@ NO_Q, NO_OMEGA = np.zeros((0, 0)), np.zeros(3)
 EMPTY = np.zeros(0)
 for _constant in (NO_Q, NO_OMEGA, EMPTY):
     _constant.flags.writeable = False
+del _constant
 
 
 def core_orientation(sample) -> tuple[np.ndarray, np.ndarray]:

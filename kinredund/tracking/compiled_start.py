@@ -26,6 +26,12 @@ from kinredund.tracking.watch import SIGMA_FLOOR
 TASK_CODES = {"planar": 0, "position": 1, "pose": 2, "axis": 3}
 
 
+def core_hermite(weights) -> list:
+    """The predictor's Hermite weights (:func:`~kinredund.tracking.predictor_corrector.predictor_weights`: None,
+    then float arrays) as the core takes them: :data:`~kinredund.tracking.ahead.EMPTY` for None."""
+    return [EMPTY if w is None else w for w in weights]
+
+
 def make_step_core(stepper: PredictorCorrector, core):
     """The core's ``StepCore`` of ``stepper``'s problem (its robot, task, index, tolerance, time step, predictor
     weights and the limits' switch bounds): made once the stepper has set these, before its start."""
@@ -39,7 +45,7 @@ def make_step_core(stepper: PredictorCorrector, core):
         weights, reference = index.weights, index.reference
     limited = getattr(stepper, "lo", None) is not None
     lo_tol, hi_tol = stepper.switch_limits if limited else (EMPTY, EMPTY)
-    hermite = [EMPTY if w is None else w for w in stepper.hermite]  # (float arrays: PredictorCorrector's)
+    hermite = core_hermite(stepper.hermite)
     return core.StepCore(ev.robot.model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task],
                          ev.formulation == "velocity", np.asarray(weights, float), np.asarray(reference, float),
                          isinstance(index, TimeVaryingReference), stepper.tol, stepper.dt, hermite, lo_tol, hi_tol)

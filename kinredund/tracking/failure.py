@@ -114,7 +114,7 @@ def _residual_core(ev: Evaluator):
     """A ``StepCore`` of ``ev``'s robot and task for :func:`task_residual_min` (its index terms unused), or None where
     the compiled core is not installed or cannot run it (another formulation than augmented, nq != nv)."""
     from kinredund.tracking.compiled import load_core
-    from kinredund.tracking.compiled_start import TASK_CODES
+    from kinredund.tracking.compiled_start import TASK_CODES, core_hermite
     from kinredund.tracking.predictor_corrector import predictor_weights
 
     core = load_core()
@@ -122,7 +122,7 @@ def _residual_core(ev: Evaluator):
     if core is None or ev.formulation != "augmented" or model.nq != model.nv or ev.task not in TASK_CODES:
         return None
     n = model.nv
-    hermite = [EMPTY if w is None else w for w in predictor_weights(1.0)]
+    hermite = core_hermite(predictor_weights(1.0))
     return core.StepCore(model, int(ev.robot.ee_frame_id), TASK_CODES[ev.task], False, np.ones(n), np.zeros(n), False,
                          1e-12, 1.0, hermite, EMPTY, EMPTY)
 

@@ -13,13 +13,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-
-class RootBracketError(ValueError):
-    """f has the same sign at both ends of the interval (or is not a number at one of them)."""
+from kinredund.errors import KinredundError, OptionError, SolverError
 
 
-class RootConvergenceError(RuntimeError):
-    """The bracket did not shrink to the tolerance within the allowed evaluations."""
+class RootBracketError(KinredundError, ValueError):
+    """f has the same sign at both ends of the interval, or is not a number (NaN) where it is evaluated."""
+
+
+class RootConvergenceError(SolverError):
+    """The bracket did not shrink to the tolerance within the allowed iterations."""
 
 
 def _value(f: Callable[[float], float], x: float) -> float:
@@ -33,23 +35,27 @@ def brent_root(f: Callable[[float], float], a: float, b: float, xtol: float, rto
                maxiter: int = 100) -> float:
     """The zero of ``f`` within [a, b], where f(a) and f(b) differ in sign (or one is zero), to within
     ``xtol + rtol |x|`` (both > 0). f is called with floats and returns a float; it is evaluated at a, then b, then
-    once per iteration. Raises :class:`RootBracketError` (a ValueError) where f(a) f(b) > 0 or f is NaN, and
-    :class:`RootConvergenceError` (a RuntimeError) after ``maxiter`` iterations."""
+    once per iteration. Signs are compared as signs (as brentq's ``signbit``), not by the sign of a product, which
+    underflows for tiny values. Raises :class:`RootBracketError` where f(a) and f(b) have the same sign or f is NaN,
+    :class:`RootConvergenceError` after ``maxiter`` iterations and :class:`~kinredund.errors.OptionError` for a
+    tolerance <= 0 (all :class:`~kinredund.errors.KinredundError`; the first a ValueError, the second a
+    RuntimeError)."""
     if not (xtol > 0.0 and rtol > 0.0):
-        raise ValueError(f"brent_root: xtol and rtol must be > 0, got xtol={xtol!r}, rtol={rtol!r}")
+        raise OptionError(f"brent_root: xtol and rtol must be > 0, got xtol={xtol!r}, rtol={rtol!r}")
     x_prev, x = float(a), float(b)
     f_prev, fx = _value(f, x_prev), _value(f, x)
-    if f_prev * fx > 0.0:
-        raise RootBracketError(f"f has the same sign at both ends: f({x_prev!r}) = {f_prev!r}, f({x!r}) = {fx!r}")
     if f_prev == 0.0:
         return x_prev
     if fx == 0.0:
         return x
+    if math.copysign(1.0, f_prev) == math.copysign(1.0, fx):
+        raise RootBracketError(f"f has the same sign at both ends: f({x_prev!r}) = {f_prev!r}, f({x!r}) = {fx!r}")
     # x: the latest estimate; x_far: the other end of the bracket; x_prev: the estimate before x
     x_far = f_far = 0.0
     step_before = step = 0.0
     for _ in range(maxiter):
-        if f_prev * fx < 0.0:  # the root lies between x_prev and x: x_prev becomes the far end
+        if f_prev != 0.0 and fx != 0.0 and math.copysign(1.0, f_prev) != math.copysign(1.0, fx):
+            # the root lies between x_prev and x: x_prev becomes the far end
             x_far, f_far = x_prev, f_prev
             step_before = step = x - x_prev
         if abs(f_far) < abs(fx):  # keep the smaller |f| at x
@@ -58,7 +64,7 @@ def brent_root(f: Callable[[float], float], a: float, b: float, xtol: float, rto
         half_tol = (xtol + rtol * abs(x)) / 2
         half_bracket = (x_far - x) / 2
         if fx == 0.0 or abs(half_bracket) < half_tol:
-            return x
+            return float(x)
         bisect = True
         if abs(step_before) > half_tol and abs(fx) < abs(f_prev):
             if x_prev == x_far:  # secant through x_prev and x
@@ -74,5 +80,6 @@ def brent_root(f: Callable[[float], float], a: float, b: float, xtol: float, rto
         x_prev, f_prev = x, fx
         x += step if abs(step) > half_tol else (half_tol if half_bracket > 0 else -half_tol)
         fx = _value(f, x)
-    raise RootConvergenceError(f"no root to within {xtol:g} + {rtol:g}|x| after {maxiter} iterations (last x = {x!r}, "
-                           f"f = {fx!r}, bracket [{min(x, x_far)!r}, {max(x, x_far)!r}])")
+    raise RootConvergenceError(f"no root to within {xtol:g} + {rtol:g}|x| after {maxiter} iterations (last x = "
+                               f"{float(x)!r}, f = {float(fx)!r}, bracket [{float(min(x, x_far))!r}, "
+                               f"{float(max(x, x_far))!r}])")

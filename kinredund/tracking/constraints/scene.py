@@ -52,8 +52,9 @@ it: the corrector, switching between the pieces, does not converge and the stric
 run (``collision``); :meth:`SceneClearance.discontinuities` finds the jump (bisection of the witness points)
 and the stop's message says so (measured on the Panda's hulls, panda_elbow_circle: the right finger's pad
 against panda_link2's hull, witness points jumping 1.5 cm across 5e-5 rad of joint 5), naming the corner where
-the witness points are polytope vertices either side: the two vertices whose distances to the other object are
-the two pieces (:mod:`kinredund.geometry.polytopes`; there the finger box's edge, vertices 5 and 7).
+the polytope's vertex nearest the other object changes between either side (decided by the vertices' own distances,
+not by the witness points): the two vertices whose distances to the other object are the two pieces
+(:mod:`kinredund.geometry.polytopes`; there the finger box's edge, vertices 5 and 7).
 
 Holding such a corner needs one row per piece (the vertex pieces dist(v, B) of the parallel feature's ends, and
 edge-edge pieces), and a pair's pieces that change as the contact moves over the hulls' facets (a vertex piece
@@ -358,9 +359,9 @@ class _SceneGuard:
 
 
 def _corner_note(one: Scene, pair: tuple[str, str], a: np.ndarray, b: np.ndarray) -> str:
-    """What the corner between a and b is, where the witness points are polytope vertices either side (the two ends
-    of a parallel edge or face: :func:`~kinredund.geometry.polytopes.vertex_corner`), with the two vertex pieces'
-    distances and how far apart their rates are at the midpoint; '' otherwise."""
+    """What the corner between a and b is, where a polytope's vertex nearest the other object changes between either
+    side (the two ends of a parallel edge or face: :func:`~kinredund.geometry.polytopes.vertex_corner`), with the
+    two vertex pieces' distances and how far apart their rates are at the midpoint; '' otherwise."""
     step = 1e-6 * (b - a) / np.abs(b - a).max()  # 1e-6 rad either side: clear of the parallel point itself
     corner = vertex_corner(one, 0, a - step, b + step)
     if corner is None:
