@@ -281,15 +281,23 @@ class PredictorCorrector(Stepper):
 
         The factors belong to another point, so the iteration converges only linearly: it ends on the
         residual itself (||F|| <= tol), never on the size of the update. ``F``: the residual at ``y``
-        if the caller has it. ``polish``: the first update is made whatever F (:meth:`_newton`). A non-finite path
-        sample is reported (PathError) when it fails.
+        if the caller has it. ``polish``: the first update is made whatever F (:meth:`_newton`); from a point already
+        within the tolerance it ends the iteration where it is small (|d|^2 <= tol, as in :meth:`_correct`). A
+        non-finite path sample is reported (PathError) when it fails.
         """
         n = self.n
         for k in range(max_iter):
             if F is None:
                 F = self._residual(self.evaluate(y[:n], self.t, need_dJ=False), y[n:])
-            if float(F @ F) <= tol * tol and not (polish and k == 0):
-                return y, True
+            if float(F @ F) <= tol * tol:
+                if not (polish and k == 0):
+                    return y, True
+                d = self._solve(lu, F)  # polish: one Newton update from a point already within tol
+                y = y - d
+                if float(d @ d) <= tol:  # _correct's criterion: an error of order tol^2 (quadratic convergence)
+                    return y, True
+                F = None
+                continue
             y = y - self._solve(lu, F)
             F = None
         self.ev.check_sample(self.t)  # a non-finite path sample says so itself

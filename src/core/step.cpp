@@ -289,9 +289,18 @@ class StepCore {
           if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
           F = residual(y.tail(m_));
         }
-        if (F.dot(F) <= tol * tol && !(polish && round == 0 && it == 0)) {
-          ok = true;
-          break;
+        if (F.dot(F) <= tol * tol) {
+          if (!(polish && round == 0 && it == 0)) {
+            ok = true;
+            break;
+          }
+          solve(F);  // polish: one Newton update from a point already within tol (F becomes the update d)
+          y -= F;
+          if (F.dot(F) <= tol) {  // corrector()'s criterion: an error of order tol^2
+            ok = true;
+            break;
+          }
+          continue;
         }
         solve(F);
         y -= F;
