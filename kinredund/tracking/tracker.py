@@ -148,7 +148,8 @@ class Tracker:
         path: the path; pose tasks need a path with orientation.
         index: the performance index z (required for ``augmented``/``velocity``/``liegeois``).
         q0: the starting configuration (on the path; for the optimal schemes, at the constrained
-            minimum - see :func:`kinredund.ik.solve_ik`; the default mode corrects it onto the optimum).
+            minimum - see :func:`kinredund.ik.solve_ik`; the default mode corrects it onto the optimum, with one
+            Newton update at least, so the record's first point may differ from q0 by the IK's tolerance).
         dt: the time step [s].
         scheme, mode: see the module docstring.
         linear_solver: the rule of :func:`~kinredund.tracking.linalg.classify`: ``auto`` (default mode's
