@@ -159,7 +159,7 @@ def test_a_self_pair_that_cannot_be_held_stops_the_same_way():
 def test_the_corner_of_a_self_pair_is_named_whatever_the_rounding(monkeypatch):
     """The stop's corner note (constraints.scene._corner_note -> polytopes.vertex_corner) names the same two vertices
     from configurations a few ulps from the stop's (coal's witness points, anywhere along the parallel edge there,
-    named none in 2 of 10 such draws before the vertices' own distances decided)."""
+    named none in 3 of these 10 draws before the vertices' own distances decided)."""
     import kinredund.tracking.constraints.scene as constraint_scene
     from kinredund.geometry.polytopes import vertex_corner
 
