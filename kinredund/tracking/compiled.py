@@ -71,7 +71,7 @@ import numpy as np
 
 from kinredund.errors import KinredundError, OptionError, check_backend
 from kinredund.indices import JointDeviation, TimeVaryingReference
-from kinredund.tracking.ahead import EMPTY, SamplesAhead, core_orientation, core_reference
+from kinredund.tracking.ahead import SamplesAhead, core_orientation, core_reference
 from kinredund.tracking.compiled_correct import CoreCorrector
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.compiled_start import TASK_CODES, CompiledStart, make_step_core, row_slices
@@ -221,7 +221,6 @@ class CompiledStep:
             self.core.set_guard(self.guard.compiled)
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
-        self._no_reference = (EMPTY, EMPTY)
         m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)
         self.slices = row_slices(n, m)
         self.shapes = (n, m, n + m)
@@ -264,7 +263,7 @@ class CompiledStep:
         else:  # the PathSample itself is made only where the step's point is read (CompiledPoint)
             sample = None
             p, v, Q, omega = ahead.rows[row]
-        ref, rate = core_reference(s.ev.index, t_to) if self.time_varying else self._no_reference
+        ref, rate = core_reference(s.ev.index, t_to)
         args = (t_to, p, v, Q, omega, ref, rate, s.y, s.yd, s.prev, s.qdot, 0.0 if ctl is None else ctl.speed2,
                 ctl is not None)
         cleared = smallest = None
