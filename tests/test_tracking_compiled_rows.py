@@ -212,3 +212,84 @@ def test_random_circles_among_random_objects_are_the_python_runs(name, seed):
     assert_same_record(a, b)
     assert_same_rows(a, b)
 
+
+
+# -- a scene's rows held in the core (kinredund.tracking.compiled_rows) -----------------------------------------------
+
+def scene_tracker(backend, scheme="augmented", **kw):
+    """A Tracker on test_tracking_scene's elbow ball (its row met and left twice a loop), 200 steps a loop."""
+    r, path, index, q0, sc = scene_setup("panda_elbow_ball")
+    return Tracker(r, path, index, q0, path.period / 200, backend=backend, scheme=scheme, scene=sc,
+                   clearance=CLEARANCE, self_clearance=False, **kw)
+
+
+def test_the_core_evaluates_the_extended_system_of_a_held_row():
+    """StepCore.set_rows: r, J, xdot, grad, M (with the row's curvature sum w Hess c by central differences) and top
+    against RowPoint's at points near the ball, for random multipliers."""
+    from kinredund.tracking.constraints.base import DIFFERENCE_STEP
+    from kinredund.tracking.rows import row_point
+
+    tr = scene_tracker("compiled")
+    s = tr.stepper
+    while not s.rows:
+        tr.step()
+    row = s.row_pairs[s.rows[0]][1]
+    core = tr.compiled.core
+    assert tr.compiled.held is not None and core.held_rows == 0  # (the core is given the rows at its next step)
+    core.set_rows(np.array([row], dtype=np.int64), DIFFERENCE_STEP)
+    assert core.held_rows == 1 and core.m == len(s.task_lam) + 1
+    rng = np.random.default_rng(2)
+    eps = np.finfo(float).eps
+    for _ in range(3):
+        q = s.q + rng.normal(0.0, 1e-3, s.n)
+        lam = rng.normal(0.0, 1.0, core.m)
+        sample = s.ev.sample(s.t)
+        got = core.evaluate(q, lam, sample.p, sample.v, np.zeros((0, 0)), np.zeros(3), np.zeros(0), np.zeros(0))
+        pt = row_point(s.ev.point(q, s.t), s.general, [(0, row)])
+        M, top = pt.system(lam)
+        assert pt.J.shape == (core.m, s.n) and got[1].shape == pt.J.shape
+        for x, y in zip(got, (pt.r, pt.J, pt.xdot, pt.grad, M, top), strict=True):
+            # the task's terms as test_the_core_evaluates_the_python_terms; the curvature's differences divide the
+            # gradients' rounding (64 eps |G|) by 2 h, times |w|
+            bar = 64 * eps * max(1.0, np.abs(y).max()) + abs(lam[-1]) * 64 * eps * max(1.0, np.abs(pt.J).max()) / \
+                DIFFERENCE_STEP
+            np.testing.assert_allclose(x, y, rtol=0, atol=bar)
+
+
+@pytest.mark.parametrize("options", [{}, {"scheme": "velocity"}, {"strict": False}])
+def test_steps_with_a_scene_row_held_are_the_cores_and_agree_one_by_one(options):
+    """Ten loops stepped in turn: the joints to Q_BAR and the multipliers (the row's too) to rounding at every step,
+    the rows held and the switches the same; the core took every step with the row held but those its own tests
+    hand back (a held row's multiplier turning negative: row_release) and those around the switches."""
+    a, b = scene_tracker("python", **options), scene_tracker("compiled", **options)
+    for _ in range(2000):
+        a.step()
+        b.step()
+        assert b.t == a.t and b.stepper.rows == a.stepper.rows
+        np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
+        # lambda and w: the task's and the row's multipliers [N-ish], solved from the same system (1e-12 relative)
+        np.testing.assert_allclose(b.stepper.lam, a.stepper.lam, rtol=0,
+                                   atol=1e-12 * max(1.0, np.abs(a.stepper.lam).max()))
+    assert [w["t"] for w in b.stepper.switches] == pytest.approx([w["t"] for w in a.stepper.switches], abs=SWITCH_BAR)
+    c = b.compiled
+    back = c.handed_back
+    assert len(a.stepper.switches) >= 20 and "row_active" not in back and back.get("row_release", 0) >= 5
+    assert c.row_steps > 300 and c.steps + sum(back.values()) == 2000
+
+
+def test_a_held_row_stays_pythons_where_the_core_cannot_make_its_step():
+    """The witness curvature is not the core's: its steps with a row held are handed back (reason row_active), and
+    stepped in turn they are the Python backend's."""
+    from kinredund.tracking import SceneClearance
+
+    r, path, index, q0, sc = scene_setup("panda_elbow_ball")
+    witness = {"constraints": [SceneClearance(sc, clearance=CLEARANCE, self_clearance=None, curvature="witness")]}
+    a, b = (Tracker(r, path, index, q0, path.period / 200, backend=x, **witness) for x in ("python", "compiled"))
+    assert b.compiled.held is None
+    held = 0
+    for _ in range(120):
+        held += bool(b.stepper.rows)
+        a.step()
+        b.step()
+        np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
+    assert held >= 5 and b.compiled.handed_back["row_active"] == held and b.compiled.row_steps == 0

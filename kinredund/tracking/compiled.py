@@ -34,15 +34,17 @@ is active (:mod:`kinredund.tracking.compiled_correct`: the stepper's ``corrector
 from the same inputs where the core declines one).
 
 With general inequality rows (``constraints=``, ``scene=``: :mod:`kinredund.tracking.rows`) the run is a hybrid:
-a step with a row active is the Python stepper's (the extended system of :class:`~kinredund.tracking.rows.RowPoint`
-is not compiled); a step with none active is taken in C++ and then checked by the stepper's own search for a
-switch within it (``pending_switches``: an event at its end, a row below zero there, a row dipping below zero
-inside it), the call the Python step makes after its own step. Where it finds one, the step is dropped (the
-state put back) and handed to the Python stepper (reason ``rows``), which locates the switch itself. Where the
-rows' constraint has a compiled check (:meth:`~kinredund.tracking.constraints.base.Constraint.row_guard`: a
-scene's, ``src/core/distances.cpp``), that check runs first, before the step is applied: where it rules out a
-switch (every row above -ROW_TOL at the end and none able to dip below it inside, by the constraint's lower
-bounds) the step is taken without the search, else the search decides as above. The core holds the check
+a step with a row active is the Python stepper's unless the rows are a scene's, which the core holds too
+(:mod:`kinredund.tracking.compiled_rows`: the extended system of :class:`~kinredund.tracking.rows.RowPoint` in
+C++; reason ``row_release`` where a held row's multiplier turns negative). A step taken in C++ is then checked by
+the stepper's own search for a switch within it (``pending_switches``: an event at its end, a row below zero
+there, a row dipping below zero inside it), the call the Python step makes after its own step. Where it finds
+one, the step is dropped (the state put back) and handed to the Python stepper (reason ``rows``), which locates
+the switch itself. Where the rows' constraint has a compiled check
+(:meth:`~kinredund.tracking.constraints.base.Constraint.row_guard`: a scene's, ``src/core/distances.cpp``), that
+check runs first, before the step is applied: where it rules out a switch (every row above -ROW_TOL at the end and
+none able to dip below it inside, by the constraint's lower bounds; the rows held left out, as the search leaves
+them out) the step is taken without the search, else the search decides as above. The core holds the check
 (``StepCore.set_guard``) and runs it in the same call as its step (``StepCore.step_guarded``: the row, the
 verdict and the rows' smallest value at the step's end), so the check costs no call from Python of its own, and a
 step kept hands that value to the stepper for the record (``keep_smallest``: the record's smallest row value there
@@ -74,14 +76,16 @@ from kinredund.indices import JointDeviation, TimeVaryingReference
 from kinredund.tracking.ahead import SamplesAhead, core_orientation, core_reference
 from kinredund.tracking.compiled_correct import CoreCorrector
 from kinredund.tracking.compiled_point import CompiledPoint
+from kinredund.tracking.compiled_rows import held_rows
 from kinredund.tracking.compiled_start import TASK_CODES, CompiledStart, make_step_core, row_slices
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
 
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
 STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
-          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 11: "release", 12: "row_active", 13: "rows"}
-#: the driver's own reasons (codes the core does not return): a general row is active (its steps stay Python's);
+          7: "log_near_pi", 8: "watch_ahead", 9: "watch_rejects", 11: "release", 12: "row_active", 13: "rows",
+          14: "row_release"}
+#: the driver's own reasons (codes the core does not return): a general row is active and the core does not hold it;
 #: the stepper's row checks find a switch within the compiled step (a row reached or dipping below zero)
 ROW_ACTIVE, ROWS = 12, 13
 #: the watch's measurement of a core's step crossed a floor: the step is handed back (:mod:`kinredund.tracking.runs`)
@@ -198,7 +202,10 @@ class CompiledStep:
     Attributes:
         stepper: the Python stepper (its state is the run's state, as with the Python backend).
         steps, handed_back: steps taken in C++, and the steps handed back by reason (:data:`STATUS`).
-        held_steps: of the steps taken in C++, those with a joint held on its bound.
+        held_steps: of the steps taken in C++, those on the reduced route (a joint held on its bound, or a row held).
+        row_steps: of the steps taken in C++, those with a general row held.
+        held: the rows held in the core (:class:`~kinredund.tracking.compiled_rows.HeldRows`), or None: the steps
+            with a row active are the Python stepper's.
         guard: the rows' compiled check of a step (the constraint's ``row_guard``, held by the core:
             ``StepCore.set_guard``), or None.
     """
@@ -225,7 +232,8 @@ class CompiledStep:
         self.slices = row_slices(n, m)
         self.shapes = (n, m, n + m)
         self.layout = (self.slices, (n, m))  # what a CompiledPoint reads its fields with
-        self.steps = self.held_steps = 0
+        self.held = held_rows(stepper, self.core, self.guard, m)  # the steps with a row active in the core too
+        self.steps = self.held_steps = self.row_steps = 0
         self.handed_back: dict[str, int] = {}
         if limited and stepper.qp_backend == "kkt" and hasattr(core.StepCore, "correct"):  # (proxsuite: the rates
             stepper.corrector = CoreCorrector(stepper, core)  # of _correct's fallback are its QP's, not R's LU)
@@ -244,12 +252,14 @@ class CompiledStep:
         ctl = s.control
         k = s.k + 1
         t_to = s.t0 + k * s.dt
-        if self.rows and s.rows:  # a general row active: the extended system is the Python stepper's
+        if self.rows and s.rows and self.held is None:  # a general row active, its extended system Python's
             return self.hand_back(ROW_ACTIVE)
         if ctl is not None and ctl.watch.ahead(t_to) is not None:
             return self.hand_back(8)
         if self.limited and s.fixed is not self._fixed:
             self.sync_active()
+        if self.held is not None:
+            self.held.sync()
         ahead = self.ahead
         row = k - ahead.first
         if not 0 <= row < ahead.count:
@@ -269,8 +279,8 @@ class CompiledStep:
         cleared = smallest = None
         if self.guard is None:
             out = self.core.step(*args)
-        else:  # the step and the scene's check of it in one call (h < 0: no check, not cleared)
-            guard = self.guard
+        else:  # the step and the scene's check of it in one call (h < 0: no check, not cleared; the rows held
+            guard = self.guard  # are left out of it, as the stepper's search leaves them out)
             h = t_to - s.t if s.qdot is not None and guard.valid() else -1.0
             out = self.core.step_guarded(h, *args)
             if type(out) is not int:
@@ -293,11 +303,14 @@ class CompiledStep:
         s = self.stepper
         ctl = s.control
         rcond = float(out[-2])
-        if ctl is not None and (not self.rows or cleared) and ctl.watch.passes(rcond):  # nothing to check
+        # with a row held the watch's verdict is taken as the Python step takes it (watch_point: its inertia test
+        # of R reads the factors, StepControl._indefinite), measured or not
+        held = self.rows and bool(s.rows)
+        if ctl is not None and not held and (not self.rows or cleared) and ctl.watch.passes(rcond):  # nothing to check
             self.apply(out, sample, t_to, rcond, ahead, smallest)
             ctl.speed2 = float(out[-1])
             return None
-        measured = ctl is not None and ctl.watch.due_next(rcond)
+        measured = ctl is not None and (held or ctl.watch.due_next(rcond))
         if cleared is None and self.rows:
             cleared = self._clear(out, t_to)
         look = self.rows and not cleared  # the stepper's search for a row switch is needed
@@ -323,7 +336,7 @@ class CompiledStep:
         """Does the compiled row check rule out a switch within the core's step ``out`` to ``t_to``, before it is
         applied? False where there is no such check, or no rate at the step's start (the first step)."""
         s = self.stepper
-        if self.guard is None or s.qdot is None:
+        if self.guard is None or s.qdot is None or s.rows:  # (with rows held the core's call has checked)
             return False
         n, (sy, ssol) = self.n, self.slices[:2]
         return self.guard.clear(s.q, out[sy][:n], s.qdot, out[ssol][:n], t_to - s.t)
@@ -347,6 +360,7 @@ class CompiledStep:
             self.stepper.state = saved[0]
         self.steps -= 1
         self.held_steps -= self.limited and self.stepper.any_active
+        self.row_steps -= self.rows and bool(self.stepper.rows)
         return self.hand_back(status)
 
     def sync_active(self) -> None:
@@ -364,16 +378,24 @@ class CompiledStep:
         ``sample``, ``ahead``: the path sample at ``t_to``; ``smallest``: the rows' least value there, where the
         compiled check has it (see :meth:`accept`; a step put back later leaves it with a q no longer current)."""
         s = self.stepper
-        sy, ssol, sM, _, sq, _, _, _, s_mu, s_label = self.slices
+        held = self.rows and bool(s.rows)
+        slices = self.held.layout[0] if held else self.slices
+        sy, ssol, sM, _, sq, _, _, _, s_mu, s_label = slices
         n = self.n
         M = out[sM].reshape(n, n)
-        pt = CompiledPoint(s.ev, out, t_to, sample, self._basis, self.layout, ahead)
+        if held:  # the extended evaluation (the rows held at this step) where more than J is read
+            pt = self.held.point(out, t_to, sample, self._basis, ahead)
+        else:
+            pt = CompiledPoint(s.ev, out, t_to, sample, self._basis, self.layout, ahead)
         if self.limited and s.any_active:  # joints held: the reduced system's label, the bound multipliers
             label = s.reduced_label(M, pt.J, int(out[s_label][0]))
             s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu])
             self.held_steps += 1
         else:
             s.accept(out[sy], out[ssol], pt, M, out[sq], rcond)
+        self.row_steps += held
+        if held and s.control is not None:  # R's factors for the step control's inertia test
+            s.lu = self.held.factors()
         if smallest is not None and smallest == smallest:  # (NaN: the check stopped before its values)
             s.keep_smallest(smallest)
         self.steps += 1

@@ -100,3 +100,33 @@ class CompiledPoint(Point):
         for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
             setattr(self, key, getattr(full, key))
         return getattr(self, name)
+
+
+class CompiledRowPoint(CompiledPoint):
+    """A compiled step's point with general rows held (:mod:`kinredund.tracking.rows`): J is the core's extended one
+    ([J; G], m + the rows' count rows: ``layout``), and the rest, :meth:`system` included, is the extended evaluation
+    ``evaluate(q, t)`` gives (a :class:`~kinredund.tracking.rows.RowPoint` with the rows held at the step) on first
+    use, as the Python stepper's point of that step would have them."""
+
+    __slots__ = ("_evaluate", "_full")
+
+    def __init__(self, evaluate, ev, out, t, sample, basis, layout, ahead=None):
+        super().__init__(ev, out, t, sample, basis, layout, ahead)
+        self._evaluate, self._full = evaluate, None
+
+    def _extended(self) -> Point:
+        if self._full is None:
+            self._full = self._evaluate(self.q, self.t)
+        return self._full
+
+    def __getattr__(self, name):  # an unset slot of the rest: the extended evaluation fills them all
+        if name not in Point.__slots__:
+            raise AttributeError(name)
+        full = self._extended()
+        for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
+            setattr(self, key, getattr(full, key))
+        return getattr(self, name)
+
+    def system(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The extended evaluation's (M with the rows' curvature, top)."""
+        return self._extended().system(lam)

@@ -133,6 +133,8 @@ class Runs:
                              *ctl.watch.iteration, ctl.watch.history(fixed)), ctl.speed2
         if c.limited:
             c.sync_active()  # a release taken by the Python stepper: the core holds none now
+        if c.held is not None:
+            c.held.sync()  # likewise a row's release: the run's steps hold no row
         smallest = guard = None
         if c.rows:  # the core's check of each step (StepCore.step_guarded's), its smallest row value written here
             smallest = np.empty(K)

@@ -221,6 +221,16 @@ class DistanceQuery {
                                str(first_.size() - 1) + ")").c_str());
     RowMatrixXd D(nv * m, nv);
     nb::gil_scoped_release release;
+    differences_at(q, limit, ks, eps, D);
+    return D;
+  }
+
+  // differences() on checked arguments into D (nv m x nv), touching no Python object (the core's step calls it with
+  // the GIL released: RowGuard::differences_at).
+  void differences_at(const Eigen::Ref<const VectorXd>& q, double limit, const Eigen::Ref<const VectorXl>& ks,
+                      double eps, RowMatrixXd& D) {
+    const Eigen::Index nv = model_.nv, m = ks.size();
+    D.resize(nv * m, nv);
     RowMatrixXd plus(m, nv), minus(m, nv);
     VectorXd e = VectorXd::Zero(nv), at(nv);
     for (Eigen::Index j = 0; j < nv; ++j) {
@@ -232,7 +242,17 @@ class DistanceQuery {
       e[j] = 0.0;
       D.middleRows(j * m, m) = plus - minus;
     }
-    return D;
+  }
+
+  // The signed distances d [m] and rows G (one per entry of ks) of pairs ks at q, as query(q, limit, rows=True)
+  // computes each, touching no Python object: near[i] 0 where pair ks[i] is beyond `limit` there (d[i] not written,
+  // G's row zero). The core's step with rows held calls it (RowGuard::rows_at).
+  void pairs_at(const Eigen::Ref<const VectorXd>& q, double limit, const Eigen::Ref<const VectorXl>& ks, VectorXd& d,
+                std::vector<char>& near, RowMatrixXd& G) {
+    d.resize(ks.size());
+    near.assign(static_cast<std::size_t>(ks.size()), 0);
+    G.resize(ks.size(), model_.nv);
+    pair_rows(q, limit, ks, G, d.data(), near.data());
   }
 
   // For RowGuard, query's steps one pair at a time: `place` the objects at q (the joints and the bounding spheres;
@@ -403,7 +423,9 @@ class DistanceQuery {
 
   // the rows of pairs ks at q into G (one per entry of ks), as query(q, limit, rows=True) computes each (zero for a
   // pair beyond `limit`): the objects placed at q, each near pair's exact distance, unit normal and row
-  void pair_rows(const VectorXd& q, double limit, const Eigen::Ref<const VectorXl>& ks, RowMatrixXd& G) {
+  // (and, where given, d[i] the distance and near[i] 1 for each pair within `limit`)
+  void pair_rows(const Eigen::Ref<const VectorXd>& q, double limit, const Eigen::Ref<const VectorXl>& ks,
+                 RowMatrixXd& G, double* d = nullptr, char* near_out = nullptr) {
     pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_, q);
     place_spheres();
     bool jacobians = false;
@@ -416,6 +438,7 @@ class DistanceQuery {
       const auto& res = pinocchio::computeDistance(gm_, gd_, k);
       const Vector3 &pa = res.nearest_points[0], &pb = res.nearest_points[1];
       const Vector3 n = unit_normal(res.min_distance, res.normal, pa, pb);
+      if (d != nullptr) d[i] = res.min_distance, near_out[i] = 1;
       if (!jacobians) pinocchio::computeJointJacobians(model_, data_);
       jacobians = true;
       row(k, n, pa, pb, G.row(i));
@@ -502,6 +525,34 @@ class RowGuard {
   }
 
   Eigen::Index nv() const { return bound_.cols(); }
+  Eigen::Index size() const { return clearances_.size(); }
+  // row r's pair in the query (-1: a row no pair gives)
+  std::int64_t pair_of(Eigen::Index r) const { return pair_of_row_[static_cast<std::size_t>(r)]; }
+
+  // For the core's step with rows held (step.cpp): rows `ks_rows`' values c and gradients G at q as
+  // SceneClearance._query gives them (the rows of query(q, influence, rows=True): d - clearance within the influence,
+  // influence - clearance and a zero row beyond it). Every row has a pair (StepCore.set_rows checks). No Python
+  // object touched; the kept values of the checks are not changed (a check places the objects itself).
+  void rows_at(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, VectorXd& c, RowMatrixXd& G) {
+    const Eigen::Index a = ks_rows.size();
+    pairs_.resize(a);
+    for (Eigen::Index i = 0; i < a; ++i) pairs_[i] = pair_of_row_[static_cast<std::size_t>(ks_rows[i])];
+    query_.pairs_at(q, influence_, pairs_, d_, near_, G);
+    c.resize(a);
+    for (Eigen::Index i = 0; i < a; ++i) {
+      const double clear = clearances_[ks_rows[i]];
+      c[i] = near_[static_cast<std::size_t>(i)] ? d_[i] - clear : influence_ - clear;
+    }
+  }
+
+  // The central differences of rows `ks_rows`' gradients at q (DistanceQuery::differences on their pairs at the
+  // influence, step eps: SceneClearance.curvature's), no Python object touched.
+  void differences_at(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, double eps, RowMatrixXd& D) {
+    const Eigen::Index a = ks_rows.size();
+    pairs_.resize(a);
+    for (Eigen::Index i = 0; i < a; ++i) pairs_[i] = pair_of_row_[static_cast<std::size_t>(ks_rows[i])];
+    query_.differences_at(q, influence_, pairs_, eps, D);
+  }
 
   // The Python binding: sizes checked, then clear_at with the GIL released.
   bool clear(const Eigen::Ref<const VectorXd>& q0, const Eigen::Ref<const VectorXd>& q1,
@@ -513,11 +564,16 @@ class RowGuard {
     return clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h);
   }
 
-  // The check itself on raw arrays of nv entries (no Python object touched).
-  bool clear_at(const double* q0p, const double* q1p, const double* v0p, const double* v1p, double h) {
+  // The check itself on raw arrays of nv entries (no Python object touched). `held`: rows held during the step
+  // (the stepper's active rows, on their zero), left out of both tests as the stepper's search leaves them out
+  // (GeneralRows._row_events' reach and SwitchLocation._row_dips); null: none.
+  bool clear_at(const double* q0p, const double* q1p, const double* v0p, const double* v1p, double h,
+                const VectorXl* held = nullptr) {
     const auto start = std::chrono::steady_clock::now();
+    held_ = held != nullptr && held->size() > 0 ? held : nullptr;
     const bool out = check(Eigen::Map<const VectorXd>(q0p, nv()), Eigen::Map<const VectorXd>(q1p, nv()),
                            Eigen::Map<const VectorXd>(v0p, nv()), Eigen::Map<const VectorXd>(v1p, nv()), h);
+    held_ = nullptr;
     seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return out;
   }
@@ -538,7 +594,7 @@ class RowGuard {
     if (!(h >= 0.0) || !boxed(q0) || !boxed(q1) || !v0.allFinite() || !v1.allFinite()) return false;
     values_at(q1, c1_, true);
     smallest_ = c1_.minCoeff();
-    const bool reached = !(c1_.minCoeff() >= -tol_);
+    const bool reached = !(least(c1_) >= -tol_);
     if (have_end_ && q0 == q_end_)
       c0_ = c_end_;
     else  // a step from elsewhere (the first, or after a step of the Python stepper's): exact
@@ -549,8 +605,22 @@ class RowGuard {
     if (reached) return false;
     move_ = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) +
             0.25 * h * (v1 - v0).cwiseAbs();
-    if (0.5 * (c0_ + c1_ - top_ * move_.sum()).minCoeff() >= -tol_) return true;  // B_r move <= max(B_r) sum(move)
-    return 0.5 * (c0_ + c1_ - bound_ * move_).minCoeff() >= -tol_;
+    if (0.5 * least(c0_ + c1_ - top_ * move_.sum()) >= -tol_) return true;  // B_r move <= max(B_r) sum(move)
+    return 0.5 * least(c0_ + c1_ - bound_ * move_) >= -tol_;
+  }
+
+  // the least entry of a row vector but the held rows' (check: they are left out of its tests)
+  double least(const VectorXd& v) const {
+    if (held_ == nullptr) return v.minCoeff();
+    double out = std::numeric_limits<double>::infinity();
+    for (Eigen::Index r = 0; r < v.size(); ++r) {
+      bool skip = false;
+      for (Eigen::Index i = 0; i < held_->size(); ++i) skip = skip || (*held_)[i] == r;
+      if (skip) continue;
+      if (std::isnan(v[r])) return v[r];  // (the test then fails)
+      out = std::min(out, v[r]);
+    }
+    return out;
   }
 
   bool boxed(const Eigen::Ref<const VectorXd>& q) const {
@@ -690,6 +760,10 @@ class RowGuard {
   long distances_ = 0;    // exact distances computed
   long placements_ = 0;   // placements of the objects (forward kinematics and the bounding spheres)
   std::vector<long> computed_;  // per row, the times its value was needed afresh
+  const VectorXl* held_ = nullptr;  // during clear_at: the rows left out of its tests (null: none)
+  VectorXl pairs_;              // rows_at, differences_at: the rows' pairs
+  VectorXd d_;                  // rows_at: their distances
+  std::vector<char> near_;      // rows_at: within the influence
 };
 
 RowGuard& row_guard(nb::handle obj) {
@@ -700,11 +774,25 @@ RowGuard& row_guard(nb::handle obj) {
 Eigen::Index row_guard_nv(const RowGuard& guard) { return guard.nv(); }
 
 bool row_guard_clear(RowGuard& guard, const double* q0, const double* q1, const double* v0, const double* v1,
-                     double h) {
-  return guard.clear_at(q0, q1, v0, v1, h);
+                     double h, const RowIndices* held) {
+  return guard.clear_at(q0, q1, v0, v1, h, held);
 }
 
 double row_guard_smallest(const RowGuard& guard) { return guard.smallest(); }
+
+Eigen::Index row_guard_size(const RowGuard& guard) { return guard.size(); }
+
+bool row_guard_has_pair(const RowGuard& guard, Eigen::Index row) { return guard.pair_of(row) >= 0; }
+
+void row_guard_rows(RowGuard& guard, const Eigen::Ref<const Eigen::VectorXd>& q, const RowIndices& rows,
+                    Eigen::VectorXd& c, RowMajorMatrix& G) {
+  guard.rows_at(q, rows, c, G);
+}
+
+void row_guard_differences(RowGuard& guard, const Eigen::Ref<const Eigen::VectorXd>& q, const RowIndices& rows,
+                           double eps, RowMajorMatrix& D) {
+  guard.differences_at(q, rows, eps, D);
+}
 
 
 void bind_distances(nb::module_& m) {

@@ -60,7 +60,7 @@ using Mat3 = nb::ndarray<const double, nb::ndim<2>, nb::device::cpu>;  // any st
 enum Task { PLANAR = 0, POSITION = 1, POSE = 2, AXIS = 3 };
 // Why a step is handed back to the Python reference.
 constexpr int OK = 0, FACTOR_SINGULAR = 1, RCOND_LOW = 2, NOT_FINITE = 3, CHORD_FAILED = 4, JUMP = 5, LIMIT = 6,
-              LOG_NEAR_PI = 7, RELEASE = 11;
+              LOG_NEAR_PI = 7, RELEASE = 11, ROW_RELEASE = 14;
 
 struct Sample {
   Vector3d p, v, omega;
@@ -87,7 +87,7 @@ class StepCore {
     if (model_.nq != n_) throw nb::value_error("the compiled step needs nq == nv (revolute and prismatic joints)");
     if (frame_id < 0 || frame_id >= static_cast<int>(model_.nframes)) throw nb::value_error("frame id out of range");
     if (task < PLANAR || task > AXIS) throw nb::value_error("unknown task code");
-    m_ = task == PLANAR ? 2 : task == POSITION ? 3 : task == POSE ? 6 : 5;
+    m_ = mt_ = task == PLANAR ? 2 : task == POSITION ? 3 : task == POSE ? 6 : 5;
     if (w_.size() != n_ || ref_.size() != n_) throw nb::value_error("weights and reference must have n entries");
     limited_ = lo_.size() == n_;
     for (size_t k = 1; k < hermite_.size(); ++k)  // the predictor's weights through k + 1 points (linalg.py)
@@ -113,7 +113,7 @@ class StepCore {
   // bound values (n, read at the held joints) and the sides (n: +1 at a lower bound, -1 at an upper one, 0 free).
   void set_active(const Eigen::Ref<const VectorXi>& free, CRef bound, CRef side) {
     if (bound.size() != n_ || side.size() != n_) throw nb::value_error("bound and side must have n entries");
-    if (free.size() < m_ || free.size() > n_) throw nb::value_error("free: between m and n joint numbers");
+    if (free.size() < mt_ || free.size() > n_) throw nb::value_error("free: between m and n joint numbers");
     for (Eigen::Index k = 0; k < free.size(); ++k)
       if (free[k] < 0 || free[k] >= n_ || (k > 0 && free[k] <= free[k - 1]))
         throw nb::value_error("free: ascending joint numbers in [0, n)");
@@ -147,7 +147,28 @@ class StepCore {
       guard_ = &g;
     }
     guard_obj_ = guard;  // keeps the guard (and its distance query) alive while it is used
+    rows_.resize(0);
+    na_ = 0;
+    m_ = mt_;
   }
+
+  // The general rows held (issue 27: GeneralRows.rows, kinredund/tracking/rows.py): the guard's rows `rows` (its
+  // scene's SceneClearance rows, each with a pair) appended to the task's equations, lam = [lambda; w], and their
+  // curvature sum_i w_i Hess c_i (central differences with step eps: SceneClearance.curvature) added to M, as
+  // RowPoint extends the evaluation; the step then has m = the task's + len(rows) multipliers. Empty: none.
+  void set_rows(const Eigen::Ref<const RowIndices>& rows, double eps) {
+    if (rows.size() > 0 && guard_ == nullptr) throw nb::value_error("rows need the guard that computes them");
+    if (!(eps > 0.0) || !std::isfinite(eps)) throw nb::value_error("eps must be a finite step > 0");
+    for (Eigen::Index i = 0; i < rows.size(); ++i)
+      if (rows[i] < 0 || rows[i] >= row_guard_size(*guard_) || !row_guard_has_pair(*guard_, rows[i]))
+        throw nb::value_error("rows: the guard's rows (each with a pair)");
+    rows_ = rows;
+    eps_ = eps;
+    na_ = static_cast<int>(rows.size());
+    m_ = mt_ + na_;
+  }
+  // the number of rows held (set_rows)
+  int held_rows() const { return na_; }
 
   // step() and, after an ordinary step, the guard's check of it (RowGuard.clear from the step's start y[:n] with
   // rates qdot0 to its end, h [s] long; h < 0 or no guard: not cleared): the status code, or (array, cleared,
@@ -186,7 +207,7 @@ class StepCore {
       nb::gil_scoped_release release;  // the step touches no Python object: trackers in threads step in parallel
       st = advance(y, yd, prevp, qdot0, speed2_prev, check_jump, *out);
       if (st == OK && cleared != nullptr && guard_ != nullptr && h >= 0.0)  // [q; lam] and its rates lead the row
-        *cleared = row_guard_clear(*guard_, y.data(), out->data(), qdot0.data(), out->data() + N, h);
+        *cleared = row_guard_clear(*guard_, y.data(), out->data(), qdot0.data(), out->data() + N, h, &rows_);
     }
     if (st != OK) return nb::int_(st);
     return numpy_of(std::move(out));
@@ -415,7 +436,7 @@ class StepCore {
     o += 12;
     Eigen::Map<VectorXd>(o, n) = qe;
     Eigen::Map<VectorXd>(o + n, n) = mu;
-    o[2 * n] = any_held_ && !velocity_ ? label_code(M) : 0.0;
+    o[2 * n] = (any_held_ || na_ > 0) && !velocity_ ? label_code(M) : 0.0;  // (rows held: the reduced route's label)
     o[2 * n + 1] = rcond_;
     o[2 * n + 2] = speed2;
   }
@@ -466,14 +487,45 @@ class StepCore {
     double grad_scale;
     int st = corrector(yp, yc, sol, M, grad_scale);  // _correct (the held joints on their bounds in yp)
     if (st != OK) return st;
+    bool rerated = false;
+    if (na_ > 0) {  // rows held: GeneralRows._rates_stale, the rates afresh at a corrected point far from yp's
+      const VectorXd d = yc.head(n) - yp.head(n);
+      if (d.dot(d) > 1e-16) {
+        evaluate(yc.head(n), true);  // (LimitedPredictorCorrector._rates)
+        if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+        VectorXd top;
+        system(yc.tail(m_), M, top);
+        Jw_ = J_;  // the step's evaluation is now the corrected point's (the watch's too)
+        Mw_ = M;
+        grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());
+        st = factor(M);
+        if (st != OK) return st;
+        sol.resize(N);
+        sol << top, xdot_;
+        solve(sol);  // Eq. (4.24)
+        if (!std::isfinite(sol.dot(sol))) return NOT_FINITE;
+        rerated = true;
+      }
+    }
     const auto q = yc.head(n);
     // a free joint beyond its bound (a held one is on it exactly)
     if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return (LIMIT);
-    st = bound_multipliers(yc, mu);
-    if (st != OK) return st;
+    if (rerated) {  // _update_mu at the rates' evaluation (the corrected point's)
+      mu = VectorXd::Zero(n);
+      if (any_held_) {
+        const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
+        for (int i = 0; i < n; ++i)
+          if (held_[i]) mu[i] = side_[i] * g[i];
+      }
+    } else {
+      st = bound_multipliers(yc, mu);
+      if (st != OK) return st;
+    }
     if (any_held_)
       for (int i = 0; i < n; ++i)
-        if (held_[i] && mu[i] < -1e-12 * grad_scale) return (RELEASE);  // switches._events: a bound to release
+        if (held_[i] && mu[i] < -1e-12 * grad_scale) return (RELEASE);
+    for (int i = 0; i < na_; ++i)  // GeneralRows._row_events: a held row's multiplier nu = -w below zero
+      if (-yc[n + mt_ + i] < -1e-12 * grad_scale) return ROW_RELEASE;  // switches._events: a bound to release
     const auto qd1 = sol.head(n);
     const double speed2 = qd1.dot(qd1);
     if (check_jump) {  // step_control.StepControl._attempt on a whole step
@@ -486,7 +538,8 @@ class StepCore {
         if (!(miss2 <= 0.25 * 0.25 * scale2 + 1e-24)) return (JUMP);
       }
     }
-    write_row(out, yc, sol, M, q_pred, yp.head(n), mu, speed2, true);  // the pose at the corrected joints
+    // the pose at the corrected joints; the evaluation's point: the corrected one where the rates were made afresh
+    write_row(out, yc, sol, M, q_pred, rerated ? VectorXd(yc.head(n)) : VectorXd(yp.head(n)), mu, speed2, true);
     return OK;
   }
 
@@ -522,6 +575,7 @@ class StepCore {
   nb::tuple residual_min(CRef q0, CRef sp, CRef sv, Mat3 sQ, CRef somega, int max_iter) {
     if (q0.size() != n_) throw nb::value_error("q must have n entries");
     if (velocity_) throw nb::value_error("residual_min needs a StepCore of the augmented form");
+    if (na_ > 0) throw nb::value_error("residual_min is the task's alone: a StepCore without rows held");
     set_sample(sp, sv, sQ, somega);
     VectorXd q = q0;
     double f;
@@ -610,13 +664,40 @@ class StepCore {
     } else {
       grad_ = w_.cwiseProduct(q - ref_);  // Eq. (4.45)
     }
+    if (na_ > 0) {  // RowPoint: the rows held under the task's, r = [r; c], J = [J; G], xdot = [xdot; 0]
+      qe_ = q;
+      row_guard_rows(*guard_, qe_, rows_, c_, G_);
+      r_.conservativeResize(m_);
+      r_.tail(na_) = c_;
+      J_.conservativeResize(m_, n_);
+      J_.bottomRows(na_) = G_;
+      xdot_.conservativeResize(m_);
+      xdot_.tail(na_).setZero();
+    }
+  }
+
+  // RowPoint.system's share of the rows held: M += sym(H), H[:, k] = w^T D[k] / (2 eps) with D the central
+  // differences of their gradients at the evaluation's q (kinredund.tracking.constraints.base.weighted_differences)
+  void add_curvature(const VectorXd& w, RowMatrixXd& M) {
+    row_guard_differences(*guard_, qe_, rows_, eps_, D_);
+    const int n = n_, a = na_;
+    const double h2 = 2.0 * eps_;
+    RowMatrixXd H(n, n);
+    for (int k = 0; k < n; ++k)
+      for (int i = 0; i < n; ++i) {
+        double s = w[0] * D_(k * a, i);
+        for (int r = 1; r < a; ++r) s += w[r] * D_(k * a + r, i);
+        H(i, k) = s / h2;
+      }
+    for (int i = 0; i < n; ++i)
+      for (int k = 0; k < n; ++k) M(i, k) += 0.5 * (H(i, k) + H(k, i));
   }
 
   // TaskTerms of each kind (r, J, xdot and what system() needs)
   void task_terms() {
     const int n = n_;
     if (task_ == PLANAR || task_ == POSITION) {  // tasks/position.py PointTerms
-      const int k = m_;
+      const int k = mt_;
       r_ = p_.head(k) - s_.p.head(k);
       J_ = K_.block(3, 0, k, n);
       xdot_ = s_.v.head(k);
@@ -672,14 +753,15 @@ class StepCore {
   void contract(const Eigen::Matrix<double, 6, 1>& mu, RowMatrixXd& out) const { contract_hessian(H_, n_, mu, out); }
 
   // Point.system: (M, top) of Eq. (4.24) for lam
-  void system(const VectorXd& lam, RowMatrixXd& M, VectorXd& top) {
+  void system(const VectorXd& lam_all, RowMatrixXd& M, VectorXd& top) {
     const int n = n_;
+    const VectorXd lam = lam_all.head(mt_);  // the task's lambda (the rows' w after it: add_curvature)
     Eigen::Matrix<double, 6, 1> mu = Eigen::Matrix<double, 6, 1>::Zero();
     RowMatrixXd Lam;
     VectorXd extra;  // (dJ/dt)^T lam where J depends on time
     bool has_extra = false;
     if (task_ == PLANAR || task_ == POSITION) {
-      for (int j = 0; j < m_; ++j) mu[j] = lam[j];  // rows 3.. of K are Pinocchio's 0..
+      for (int j = 0; j < mt_; ++j) mu[j] = lam[j];  // rows 3.. of K are Pinocchio's 0..
       contract(mu, Lam);  // Eq. (4.20)
     } else if (task_ == POSE && velocity_) {
       mu << lam.tail(3), lam.head(3);
@@ -727,6 +809,7 @@ class StepCore {
     }
     M = Lam;
     M.diagonal() += w_;  // Hess z = diag(w) (Eqs. 4.45, 6.25) + Lambda (Eq. 4.23)
+    if (na_ > 0) add_curvature(lam_all.tail(na_), M);  // the rows' share (rows.py: Eqs. 4.23, 4.24 extended)
     if (time_varying_) {
       VectorXd dgdt = -w_.cwiseProduct(tv_rate_);  // Eq. (6.27)
       top = has_extra ? VectorXd(-dgdt - extra) : VectorXd(-dgdt);
@@ -961,7 +1044,14 @@ class StepCore {
   VectorXd bound_, side_;
   std::vector<char> held_;
   bool any_held_ = false;
-  int n_ = 0, m_ = 0;
+  int n_ = 0, m_ = 0, mt_ = 0;  // joints, multipliers (the task's and the rows held), the task's dimension
+  // the general rows held (set_rows): the guard's rows, their number, the differences' step; the evaluation's q and
+  // the rows' values, gradients and differences there
+  RowIndices rows_;
+  int na_ = 0;
+  double eps_ = 1e-6;
+  VectorXd qe_, c_;
+  RowMatrixXd G_, D_;
   // the evaluation
   Sample s_;
   MatrixXd J6_;
@@ -1042,6 +1132,8 @@ void bind_step(nb::module_& m) {
            nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("yd"),
            nb::arg("prev"), nb::arg("qdot0"), nb::arg("speed2"), nb::arg("check_jump"))
       .def("set_guard", &StepCore::set_guard, nb::arg("guard").none())
+      .def("set_rows", &StepCore::set_rows, nb::arg("rows"), nb::arg("eps"))
+      .def_prop_ro("held_rows", &StepCore::held_rows)
       .def("set_active", &StepCore::set_active, nb::arg("free"), nb::arg("bound"), nb::arg("side"))
       .def("factors", &StepCore::factors)
       .def("correct", &StepCore::correct, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),

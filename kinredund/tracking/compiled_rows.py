@@ -1,0 +1,79 @@
+"""A scene's general rows held in the compiled step (issues 27, 28): the steps with a row active in C++ as well.
+
+With rows active the stepper runs the extended system of :mod:`kinredund.tracking.rows` (the rows' equations
+under the task's, lam = [lambda; w], their curvature in M). Where the rows are a scene's
+(:class:`~kinredund.tracking.constraints.scene.SceneClearance`, whose compiled check the core already holds:
+``StepCore.set_guard``), the core extends its own evaluation the same way (``StepCore.set_rows``,
+``src/core/step.cpp``): the rows' values and gradients from the check's distance query as ``SceneClearance._query``
+gives them, their curvature sum_i w_i Hess c_i by the central differences of ``SceneClearance.curvature``
+(``curvature="differences"``, the default), the rates afresh at a corrected point far from the prediction
+(``GeneralRows._rates_stale``), and after the step the search's tests: a held row's multiplier below zero (status
+``row_release``) and, in the check (``RowGuard``), every other row's reach and dip with the held rows left out, as
+``pending_switches`` leaves them out. A step the check does not clear is searched by the stepper itself, as one
+with no row held. :class:`HeldRows` gives the core the rows held and reads its output with them.
+
+Where the curvature is taken another way (``curvature="witness"``), or the rows are not one scene's, the steps with a
+row held stay the Python stepper's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kinredund.tracking.compiled_point import CompiledRowPoint
+from kinredund.tracking.compiled_start import row_slices
+from kinredund.tracking.constraints.base import DIFFERENCE_STEP
+from kinredund.tracking.rows import row_point
+
+
+def held_rows(stepper, core, guard, m: int) -> HeldRows | None:
+    """The :class:`HeldRows` of ``stepper`` (task dimension m) on ``core``, or None where its steps with a row held
+    stay Python's (see the module docstring; ``guard``: the compiled driver's check, the constraint's ``row_guard``)."""
+    general = getattr(stepper, "general", [])
+    if guard is None or len(general) != 1 or not hasattr(core, "set_rows"):
+        return None
+    if getattr(general[0], "curvature_mode", None) != "differences":
+        return None
+    return HeldRows(stepper, core, m)
+
+
+class HeldRows:
+    """The rows the core holds (the stepper's ``rows``) and the layout of its output row with them.
+
+    Attributes:
+        rows: the rows the core holds (the stepper's numbers); ``layout``: (the output row's slices, a
+            :class:`~kinredund.tracking.compiled_point.CompiledPoint`'s layout) with them.
+    """
+
+    def __init__(self, stepper, core, m: int):
+        self.stepper, self.core, self.n, self.m = stepper, core, stepper.n, m
+        self.rows = ()
+        sl = row_slices(self.n, m)
+        self.layout = (sl, (sl, (self.n, m)))
+        self._extend = None
+
+    def sync(self) -> None:
+        """Give the core the stepper's rows held where they changed (a switch replaces the ``rows`` tuple)."""
+        s = self.stepper
+        rows = s.rows
+        if rows == self.rows:
+            return
+        pairs = [s.row_pairs[f] for f in rows]
+        self.core.set_rows(np.array([ri for _, ri in pairs], dtype=np.int64), DIFFERENCE_STEP)
+        self.rows = rows
+        m = self.m + len(rows)
+        sl = row_slices(self.n, m)
+        self.layout = (sl, (sl, (self.n, m)))
+        general, ev = s.general, s.ev
+        self._extend = lambda q, t: row_point(ev.point(q, t), general, pairs)  # RowPoint with these rows
+
+    def point(self, out: np.ndarray, t: float, sample, basis, ahead) -> CompiledRowPoint:
+        """The step's point from the core's output row ``out`` with the rows held (its extended J; the rest the
+        extended evaluation's on first use)."""
+        return CompiledRowPoint(self._extend, self.stepper.ev, out, t, sample, basis, self.layout[1], ahead)
+
+    def factors(self) -> tuple[np.ndarray, np.ndarray]:
+        """R's LU factors of the core's last step and their 0-based pivots (the step control's inertia test of a step
+        with a row held, ``StepControl._indefinite``, reads them; so does the watch where the core does not measure)."""
+        lu, piv = self.core.factors()
+        return lu, piv.astype(np.int32)
