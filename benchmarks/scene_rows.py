@@ -1,20 +1,24 @@
 """A tracker step with a scene's distance row active: the step while the stepper holds a clearance row.
 
-    python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N]
+    python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N] [--backends compiled,python]
 
 The case is tests/test_tracking_scene.py's ``panda_elbow_ball``: test_tracking_limits's ``panda_elbow_circle`` (a
 13.3 cm circle on the Panda, z = 1/2 ||q - q_home||^2, the bounded optimum at its start) with a 5 cm sphere where the
 free optimum's upper arm passes, held at 2 cm (``Tracker(..., scene=, clearance=0.02, self_clearance=False)``: the
 robot's own pairs unchecked), dt = T / 200. Per round a fresh tracker takes ``--steps`` steps (default 400: two
 loops, the ball's row met and left in each), each timed on its own (perf_counter) and sorted by whether a general row
-was active after it (``stepper.rows``). Figures, medians over the rounds of each round's median [us]:
+was active after it (``stepper.rows``), the rounds of the backends in turn (``--backends``, the first one's figures
+unsuffixed). Figures, medians over the rounds of each round's median [us]:
 
-- ``scene_active_step_us``: a step with a row active (on the compiled backend these are the Python stepper's:
-  compiled.py hands them back; the rows' curvature by central differences, ``SceneClearance.curvature``);
+- ``scene_active_step_us``: a step with a row active (on the compiled backend the core's, the scene's rows held in
+  it: ``kinredund/tracking/compiled_rows.py``; the rows' curvature by central differences,
+  ``SceneClearance.curvature``);
 - ``scene_active_step_cpu_us``: the same in this thread's CPU time (``time.thread_time``: not the time the scheduler
   gives other processes on a loaded machine);
 - ``scene_free_step_us``: a step with none (the core's step and its row check);
-- ``scene_active_steps``: how many steps of a round had a row active.
+- ``scene_active_steps``: how many steps of a round had a row active;
+- ``scene_active_step_us_python`` etc.: the same of the other backend, and ``active_ratio``, the second backend's
+  row-active step over the first's.
 
 It runs on whichever kinredund is installed, so the figure of an older build is had by running this file with that
 build's Python (the issue's before/after: run the two in turn, a few times each).
@@ -43,11 +47,12 @@ def setup():
     return robot, path, index, q0, scene
 
 
-def one_round(case, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+def one_round(case, steps: int, backend: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """(step times [s], this thread's CPU time per step [s], row active after each, backend) of a fresh tracker's
     ``steps`` steps."""
     r, path, index, q0, scene = case
-    tr = Tracker(r, path, index, q0, path.period / 200, scene=scene, clearance=CLEARANCE, self_clearance=False)
+    tr = Tracker(r, path, index, q0, path.period / 200, scene=scene, clearance=CLEARANCE, self_clearance=False,
+                 backend=backend)
     times, cpu, active = np.empty(steps), np.empty(steps), np.zeros(steps, bool)
     for k in range(steps):
         t0, c0 = time.perf_counter(), time.thread_time()
@@ -61,21 +66,36 @@ def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--rounds", type=int, default=5, help="fresh trackers to time (default 5)")
     p.add_argument("--steps", type=int, default=400, help="steps per round (default 400)")
+    p.add_argument("--backends", default="compiled,python",
+                   help="the tracker backends to time, comma-separated, each round in turn (default compiled,python; "
+                        "the first one's figures unsuffixed)")
     args = p.parse_args()
     rounds, steps = (1, 120) if args.smoke else (args.rounds, args.steps)
+    backends = [b.strip() for b in args.backends.split(",") if b.strip()]
     case = setup()
-    one_round(case, 20)  # warm-up: imports, the scene's workspace, the core's first calls
-    active_us, active_cpu_us, free_us, counts = [], [], [], []
+    for b in backends:
+        one_round(case, 20, b)  # warm-up: imports, the scene's workspace, the core's first calls
+    per = {b: ([], [], [], []) for b in backends}  # active, active cpu, free [us], row-active counts
+    ran = {}
     for _ in range(rounds):
-        times, cpu, active, backend = one_round(case, steps)
-        counts.append(int(active.sum()))
-        active_us.append(1e6 * float(np.median(times[active])) if active.any() else float("nan"))
-        active_cpu_us.append(1e6 * float(np.median(cpu[active])) if active.any() else float("nan"))
-        free_us.append(1e6 * float(np.median(times[~active])))
-    out = {"scene_active_step_us": float(np.median(active_us)),
-           "scene_active_step_cpu_us": float(np.median(active_cpu_us)), "scene_free_step_us": float(np.median(free_us)),
-           "scene_active_steps": int(np.median(counts)), "backend": backend, "rounds": rounds, "steps": steps,
-           "active_step_us_per_round": active_us}
+        for b in backends:
+            times, cpu, active, ran[b] = one_round(case, steps, b)
+            active_us, active_cpu_us, free_us, counts = per[b]
+            counts.append(int(active.sum()))
+            active_us.append(1e6 * float(np.median(times[active])) if active.any() else float("nan"))
+            active_cpu_us.append(1e6 * float(np.median(cpu[active])) if active.any() else float("nan"))
+            free_us.append(1e6 * float(np.median(times[~active])))
+    out = {}
+    for i, b in enumerate(backends):
+        tail = "" if i == 0 else f"_{b}"
+        active_us, active_cpu_us, free_us, counts = per[b]
+        out |= {f"scene_active_step_us{tail}": float(np.median(active_us)),
+                f"scene_active_step_cpu_us{tail}": float(np.median(active_cpu_us)),
+                f"scene_free_step_us{tail}": float(np.median(free_us)),
+                f"scene_active_steps{tail}": int(np.median(counts)), f"backend{tail}": ran[b]}
+    if len(backends) > 1:
+        out["active_ratio"] = out[f"scene_active_step_us_{backends[1]}"] / out["scene_active_step_us"]
+    out |= {"rounds": rounds, "steps": steps, "active_step_us_per_round": per[backends[0]][0]}
     print_table([[k, v] for k, v in out.items() if k != "active_step_us_per_round"], ["figure", "value"])
     write_json(args.json, out)
 
