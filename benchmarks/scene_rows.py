@@ -17,8 +17,10 @@ unsuffixed). Figures, medians over the rounds of each round's median [us]:
   gives other processes on a loaded machine);
 - ``scene_free_step_us``: a step with none (the core's step and its row check);
 - ``scene_active_steps``: how many steps of a round had a row active;
+- ``scene_track_ms``: ``track()`` of ``--steps`` / 200 loops on the case [ms] (switches included: their location is
+  the Python stepper's, its corrector solves the core's);
 - ``scene_active_step_us_python`` etc.: the same of the other backend, and ``active_ratio``, the second backend's
-  row-active step over the first's.
+  row-active step over the first's, and ``track_ratio``, the same of ``track()``.
 
 It runs on whichever kinredund is installed, so the figure of an older build is had by running this file with that
 build's Python (the issue's before/after: run the two in turn, a few times each).
@@ -33,7 +35,7 @@ from _bench import parser, print_table, write_json
 from clearance_peers import elbow_case
 
 import kinredund
-from kinredund.tracking import Tracker
+from kinredund.tracking import Tracker, track
 
 #: the ball's centre and radius [m] and the clearance [m] of panda_elbow_ball (tests/test_tracking_scene.py)
 BALL, CLEARANCE = ([-0.3178, 0.2255, 0.3518], 0.05), 0.02
@@ -75,12 +77,17 @@ def main() -> None:
     case = setup()
     for b in backends:
         one_round(case, 20, b)  # warm-up: imports, the scene's workspace, the core's first calls
-    per = {b: ([], [], [], []) for b in backends}  # active, active cpu, free [us], row-active counts
+    per = {b: ([], [], [], [], []) for b in backends}  # active, active cpu, free [us], row-active counts, track [ms]
+    r, path, index, q0, scene = case
     ran = {}
     for _ in range(rounds):
         for b in backends:
             times, cpu, active, ran[b] = one_round(case, steps, b)
-            active_us, active_cpu_us, free_us, counts = per[b]
+            active_us, active_cpu_us, free_us, counts, track_ms = per[b]
+            t0 = time.perf_counter()
+            track(r, path, index, q0, loops=max(1, steps // 200), steps_per_loop=200, scene=scene, clearance=CLEARANCE,
+                  self_clearance=False, backend=b)
+            track_ms.append(1e3 * (time.perf_counter() - t0))
             counts.append(int(active.sum()))
             active_us.append(1e6 * float(np.median(times[active])) if active.any() else float("nan"))
             active_cpu_us.append(1e6 * float(np.median(cpu[active])) if active.any() else float("nan"))
@@ -88,13 +95,15 @@ def main() -> None:
     out = {}
     for i, b in enumerate(backends):
         tail = "" if i == 0 else f"_{b}"
-        active_us, active_cpu_us, free_us, counts = per[b]
-        out |= {f"scene_active_step_us{tail}": float(np.median(active_us)),
+        active_us, active_cpu_us, free_us, counts, track_ms = per[b]
+        out |= {f"scene_track_ms{tail}": float(np.median(track_ms)),
+                f"scene_active_step_us{tail}": float(np.median(active_us)),
                 f"scene_active_step_cpu_us{tail}": float(np.median(active_cpu_us)),
                 f"scene_free_step_us{tail}": float(np.median(free_us)),
                 f"scene_active_steps{tail}": int(np.median(counts)), f"backend{tail}": ran[b]}
     if len(backends) > 1:
         out["active_ratio"] = out[f"scene_active_step_us_{backends[1]}"] / out["scene_active_step_us"]
+        out["track_ratio"] = out[f"scene_track_ms_{backends[1]}"] / out["scene_track_ms"]
     out |= {"rounds": rounds, "steps": steps, "active_step_us_per_round": per[backends[0]][0]}
     print_table([[k, v] for k, v in out.items() if k != "active_step_us_per_round"], ["figure", "value"])
     write_json(args.json, out)

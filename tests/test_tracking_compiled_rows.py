@@ -260,7 +260,8 @@ def test_the_core_evaluates_the_extended_system_of_a_held_row():
 def test_steps_with_a_scene_row_held_are_the_cores_and_agree_one_by_one(options):
     """Ten loops stepped in turn: the joints to Q_BAR and the multipliers (the row's too) to rounding at every step,
     the rows held and the switches the same; the core took every step with the row held but those its own tests
-    hand back (a held row's multiplier turning negative: row_release) and those around the switches."""
+    hand back (a held row's multiplier turning negative: row_release) and those around the switches, and the
+    corrector solves of those (the switching-time search's) with the row held too."""
     a, b = scene_tracker("python", **options), scene_tracker("compiled", **options)
     for _ in range(2000):
         a.step()
@@ -275,6 +276,7 @@ def test_steps_with_a_scene_row_held_are_the_cores_and_agree_one_by_one(options)
     back = c.handed_back
     assert len(a.stepper.switches) >= 20 and "row_active" not in back and back.get("row_release", 0) >= 5
     assert c.row_steps > 300 and c.steps + sum(back.values()) == 2000
+    assert b.stepper.corrector.row_solves >= 20
 
 
 def test_a_held_row_stays_pythons_where_the_core_cannot_make_its_step():

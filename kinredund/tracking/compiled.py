@@ -236,7 +236,8 @@ class CompiledStep:
         self.steps = self.held_steps = self.row_steps = 0
         self.handed_back: dict[str, int] = {}
         if limited and stepper.qp_backend == "kkt" and hasattr(core.StepCore, "correct"):  # (proxsuite: the rates
-            stepper.corrector = CoreCorrector(stepper, core)  # of _correct's fallback are its QP's, not R's LU)
+            # of _correct's fallback are its QP's, not R's LU); where the rows are held here, it holds them too
+            stepper.corrector = CoreCorrector(stepper, core, None if self.held is None else self.guard.compiled)
         if stepper.control is not None and hasattr(core, "watch_exact"):  # the exact measurements the runs' own
             stepper.control.watch.use_core(core)
 

@@ -11,7 +11,9 @@ Eq. (4.24), the Newton update and the chord iterations, where those fail the fal
 from the prediction and ``_rates``, the core's start route; the predictor's history cleared), and the bound
 multipliers at the corrected point. The stepper stays independent of the core: :class:`CoreCorrector` is an
 optional ``corrector`` that :class:`~kinredund.tracking.compiled.CompiledStep` installs on a limited stepper, whose
-``_correct`` calls it first with no general row active (their extended system stays Python's). It holds a StepCore
+``_correct`` calls it first. With a general row active it solves where the compiled step holds the rows too (a
+scene's: :mod:`kinredund.tracking.compiled_rows`, the same extended system and the rates afresh where the corrector
+ends far from the prediction), else it declines (the extended system then stays Python's). It holds a StepCore
 of its own (the compiled step's keeps its last step's factors for the watch's measurement), gives it the stepper's
 active set, samples the path (and a time-varying reference) at the stepper's time and takes the core's result as
 ``_correct`` leaves it (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_corrected`: q,
@@ -27,6 +29,7 @@ import numpy as np
 
 from kinredund.tracking.ahead import core_orientation, core_reference
 from kinredund.tracking.compiled_point import CompiledPoint
+from kinredund.tracking.compiled_rows import HeldRows
 from kinredund.tracking.compiled_start import make_step_core, row_slices
 
 
@@ -35,17 +38,19 @@ class CoreCorrector:
 
     Attributes:
         used: the solves the core made; declined: those it left to Python (a status other than OK); restarts: the
-            solves (of ``used``) whose chord iterations failed, made by the fallback (fresh factorisations).
+            solves (of ``used``) whose chord iterations failed, made by the fallback (fresh factorisations);
+            row_solves: those (of ``used``) with general rows held.
     """
 
-    def __init__(self, stepper, module):
-        self.stepper, self.module = stepper, module
+    def __init__(self, stepper, module, guard=None):
+        self.stepper, self.module, self._guard = stepper, module, guard  # guard: the compiled step's RowGuard, with
+        self.held = None  # which the core holds the rows (HeldRows, made with the core); None: rows are Python's
         self.core = None  # made on the first solve (a run without a handed-back step makes none)
         self._fixed = None  # the active set the core holds (the stepper's ``fixed``)
         n, m = stepper.n, len(stepper.task_lam)
         self.n, self.layout = n, (row_slices(n, m), (n, m))
         self._basis = stepper.pt.basis
-        self.used = self.declined = self.restarts = 0
+        self.used = self.declined = self.restarts = self.row_solves = 0
 
     def __call__(self, y: np.ndarray) -> bool:
         """The stepper's corrector at its time t from the prediction ``y`` = [q; lambda]; False (the stepper
@@ -63,8 +68,15 @@ class CoreCorrector:
 
     def _solve(self, y: np.ndarray, newton: bool) -> bool:
         s = self.stepper
+        if s.rows and self._guard is None:  # a row active whose extended system the core does not make
+            return False
         if self.core is None:
             self.core = make_step_core(s, self.module)
+            if self._guard is not None:
+                self.core.set_guard(self._guard)
+                self.held = HeldRows(s, self.core, len(s.task_lam))
+        if self.held is not None:
+            self.held.sync()  # the rows active now (a switch replaces the ``rows`` tuple)
         if s.fixed is not self._fixed:  # a switch replaces ``fixed``: the core's active set follows
             fixed, side, bound = s.active_set()
             self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
@@ -81,10 +93,16 @@ class CoreCorrector:
         if restarted and not newton:  # the predictor missed (PredictorCorrector._correct's fallback): Euler next
             s.prev.clear()
             self.restarts += 1
-        sl, n = self.layout[0], self.n
+        n = self.n
+        if s.rows:  # the extended evaluation's point (its J with the rows')
+            sl = self.held.layout[0]
+            pt = self.held.point(out, t, sample, self._basis, None)
+        else:
+            sl = self.layout[0]
+            pt = CompiledPoint(s.ev, out, t, sample, self._basis, self.layout)
         M = out[sl[2]].reshape(n, n)
-        pt = CompiledPoint(s.ev, out, t, sample, self._basis, self.layout)
         label = s.reduced_label(M, pt.J, int(out[sl[9]][0])) if s.any_active else None
         s.take_corrected(out[sl[0]], out[sl[1]], pt, M, (lu, piv), float(out[-2]), label=label, mu=out[sl[8]])
         self.used += 1
+        self.row_solves += bool(s.rows)
         return True

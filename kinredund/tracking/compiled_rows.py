@@ -12,8 +12,9 @@ gives them, their curvature sum_i w_i Hess c_i by the central differences of ``S
 ``pending_switches`` leaves them out. A step the check does not clear is searched by the stepper itself, as one
 with no row held. :class:`HeldRows` gives the core the rows held and reads its output with them.
 
-Where the curvature is taken another way (``curvature="witness"``), or the rows are not one scene's, the steps with a
-row held stay the Python stepper's.
+Where the curvature is taken another way (``curvature="witness"``), or the rows are not one plain
+``SceneClearance``'s (a :class:`~kinredund.tracking.constraints.clearance.SphereClearance`, a ``CornerClearance``, two
+constraints: no compiled check, ``row_guard``), the steps with a row held stay the Python stepper's.
 """
 
 from __future__ import annotations

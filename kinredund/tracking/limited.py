@@ -296,8 +296,8 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         return F
 
     def _correct(self, y: np.ndarray) -> None:
-        if self.corrector is not None and not self.rows and self.corrector(y):  # (PredictorCorrector.corrector)
-            return  # the compiled core's solve (kinredund.tracking.compiled_correct), as below
+        if self.corrector is not None and self.corrector(y):  # (PredictorCorrector.corrector)
+            return  # the compiled core's solve (kinredund.tracking.compiled_correct), as below (the rows' too)
         if self._sel is not None:
             y = y.copy()
             y[: self.n][self.fixed] = self._bound_values()[self.fixed]

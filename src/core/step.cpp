@@ -458,9 +458,51 @@ class StepCore {
       return start_at(yp, out, false);
     }
     if (st != OK) return st;
-    st = bound_multipliers(yc, mu);
+    bool rerated = false;
+    st = rerate(yp, yc, sol, M, grad_scale, rerated);
     if (st != OK) return st;
-    write_row(out, yc, sol, M, y.head(n), yp.head(n), mu, sol.head(n).dot(sol.head(n)), true);
+    st = rerated ? evaluated_multipliers(yc, mu) : bound_multipliers(yc, mu);
+    if (st != OK) return st;
+    write_row(out, yc, sol, M, y.head(n), rerated ? VectorXd(yc.head(n)) : VectorXd(yp.head(n)), mu,
+              sol.head(n).dot(sol.head(n)), true);
+    return OK;
+  }
+
+  // With rows held, GeneralRows._rates_stale after the corrector: where it ended farther than 1e-8 from the
+  // prediction yp, the rates afresh at the corrected point yc (LimitedPredictorCorrector._rates: one evaluation with
+  // dK, R's LU, Eq. 4.24), which becomes the step's evaluation (its J and M the watch's; grad_scale its own).
+  int rerate(const VectorXd& yp, const VectorXd& yc, VectorXd& sol, RowMatrixXd& M, double& grad_scale,
+             bool& rerated) {
+    const int n = n_;
+    rerated = false;
+    if (na_ == 0) return OK;
+    const VectorXd d = yc.head(n) - yp.head(n);
+    if (!(d.dot(d) > 1e-16)) return OK;
+    evaluate(yc.head(n), true);
+    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+    VectorXd top;
+    system(yc.tail(m_), M, top);
+    Jw_ = J_;
+    Mw_ = M;
+    grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());
+    const int st = factor(M);
+    if (st != OK) return st;
+    sol.resize(n + m_);
+    sol << top, xdot_;
+    solve(sol);  // Eq. (4.24)
+    if (!std::isfinite(sol.dot(sol))) return NOT_FINITE;
+    rerated = true;
+    return OK;
+  }
+
+  // _update_mu at the last evaluation, made at yc (rerate's): mu (n, 0 where free)
+  int evaluated_multipliers(const VectorXd& yc, VectorXd& mu) const {
+    const int n = n_;
+    mu = VectorXd::Zero(n);
+    if (!any_held_) return OK;
+    const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
+    for (int i = 0; i < n; ++i)
+      if (held_[i]) mu[i] = side_[i] * g[i];
     return OK;
   }
 
@@ -488,39 +530,13 @@ class StepCore {
     int st = corrector(yp, yc, sol, M, grad_scale);  // _correct (the held joints on their bounds in yp)
     if (st != OK) return st;
     bool rerated = false;
-    if (na_ > 0) {  // rows held: GeneralRows._rates_stale, the rates afresh at a corrected point far from yp's
-      const VectorXd d = yc.head(n) - yp.head(n);
-      if (d.dot(d) > 1e-16) {
-        evaluate(yc.head(n), true);  // (LimitedPredictorCorrector._rates)
-        if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
-        VectorXd top;
-        system(yc.tail(m_), M, top);
-        Jw_ = J_;  // the step's evaluation is now the corrected point's (the watch's too)
-        Mw_ = M;
-        grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());
-        st = factor(M);
-        if (st != OK) return st;
-        sol.resize(N);
-        sol << top, xdot_;
-        solve(sol);  // Eq. (4.24)
-        if (!std::isfinite(sol.dot(sol))) return NOT_FINITE;
-        rerated = true;
-      }
-    }
+    st = rerate(yp, yc, sol, M, grad_scale, rerated);
+    if (st != OK) return st;
     const auto q = yc.head(n);
     // a free joint beyond its bound (a held one is on it exactly)
     if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return (LIMIT);
-    if (rerated) {  // _update_mu at the rates' evaluation (the corrected point's)
-      mu = VectorXd::Zero(n);
-      if (any_held_) {
-        const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
-        for (int i = 0; i < n; ++i)
-          if (held_[i]) mu[i] = side_[i] * g[i];
-      }
-    } else {
-      st = bound_multipliers(yc, mu);
-      if (st != OK) return st;
-    }
+    st = rerated ? evaluated_multipliers(yc, mu) : bound_multipliers(yc, mu);
+    if (st != OK) return st;
     if (any_held_)
       for (int i = 0; i < n; ++i)
         if (held_[i] && mu[i] < -1e-12 * grad_scale) return (RELEASE);
