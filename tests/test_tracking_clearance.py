@@ -305,6 +305,24 @@ def test_random_spheres_are_held_and_closed_or_stop_named_clear_and_on_the_path(
     assert tr.loop_drift.max() <= 1e-10 and tr.position_error.max() <= 1e-10
 
 
+@pytest.mark.parametrize("solver", ["proxqp", "daqp"])
+def test_row_rate_qp_has_no_solution_where_M_is_indefinite_on_the_null_space(solver):
+    """M with a negative eigenvalue on the null space of A (no rho makes sym(M) + rho A^T A positive definite): the
+    QP is unbounded along that direction, so there is no rate to report (None), whichever solver; the convexified
+    matrix is checked first (the solver is not called)."""
+    pytest.importorskip(solver if solver == "daqp" else "proxsuite")
+    rng = np.random.default_rng(5)
+    n = 7
+    A, g, top, b = rng.normal(size=(4, n)), rng.normal(size=n), rng.normal(size=n), rng.normal(size=4)
+    Z = np.linalg.svd(A)[2][4:].T  # an orthonormal basis of A's null space (n x 3)
+    B = rng.normal(size=(n, n))
+    M = B @ B.T + np.eye(n) - 30.0 * np.outer(Z[:, 0], Z[:, 0])  # Z^T M Z indefinite
+    assert np.linalg.eigvalsh(Z.T @ M @ Z).min() < -1.0
+    assert row_rate_qp(M, top, A, b, g, solver) is None
+    M = B @ B.T + np.eye(n)  # the same QP, convex: a rate
+    assert row_rate_qp(M, top, A, b, g, solver) is not None
+
+
 @pytest.mark.parametrize("seed", range(8))
 def test_row_rate_qp_agrees_with_the_kkt_system_of_its_active_set(seed):
     """The rate QP at a weakly active row (qpsolvers, proxqp) against the equality-constrained KKT solve of the

@@ -86,14 +86,21 @@ def row_rate_qp(M: np.ndarray, top: np.ndarray, A: np.ndarray, b: np.ndarray, g:
     Eq. (4.24)'s rates as a QP (Theorem 2, Eq. 4.28) over the free joints, with the task and the other
     active rows as equalities (``A``, ``b``) and the row's rate as the inequality. M is replaced by sym(M)
     + rho A^T A where it is not positive definite (the same minimiser on A v = b). Solved through
-    qpsolvers (``proxqp`` or ``daqp``) to 1e-12. Returns (g^T v, the row's multiplier >= 0), or None.
+    qpsolvers (``proxqp`` or ``daqp``) to 1e-12. Returns (g^T v, the row's multiplier >= 0), or None: no
+    solution, also without calling the solver where no rho up to 1e12 makes that matrix positive definite (M is
+    then not positive definite on the null space of A, Finsler's lemma: the QP is unbounded along a direction of
+    negative curvature, which the inequality cannot bound in both senses; proxqp spent 0.6 s in its iterations on
+    one such QP of a random obstacle task before it gave up, and daqp returned a point).
     """
     import qpsolvers
 
     Ms = 0.5 * (M + M.T)
-    H, rho = Ms, 1.0
-    while not cholesky_ok(H) and rho < 1e12:
+    H, rho, convex = Ms, 1.0, cholesky_ok(Ms)
+    while not convex and rho < 1e12:
         H, rho = Ms + rho * A.T @ A, rho * 4.0
+        convex = cholesky_ok(H)
+    if not convex:
+        return None
     problem = qpsolvers.Problem(H, -top, G=-g[None, :], h=np.zeros(1), A=A, b=b)
     options = {"eps_abs": 1e-12, "eps_rel": 0.0} if solver == "proxqp" else {}
     sol = qpsolvers.solve_problem(problem, solver=solver, **options)
