@@ -5,13 +5,14 @@ subclass, :mod:`kinredund.tracking.limited`) whose common step is done by the co
 (``src/core/step.cpp``): the Hermite predictor, the evaluation (Pinocchio's kinematics and kinematic Hessian,
 the task terms of every task kind in both forms, the index terms of
 :class:`~kinredund.indices.JointDeviation` and :class:`~kinredund.indices.TimeVaryingReference`), R of
-Eq. (4.24) with its LU factors (LAPACK's algorithm and layout) and LAPACK's condition estimate, the rates,
-the Newton update and the chord iterations, then the checks that make the step ordinary: no free joint beyond a
-bound, no multiplier of a joint held on its bound below zero, no jump (the step control's check,
-:mod:`kinredund.tracking.step_control`). With joints on their bounds it runs on the reduced system of
-:mod:`kinredund.tracking.limited` (the held joints' columns removed from R, their residual rows the bound
-multipliers') and returns the bound multipliers at the corrected point. Python samples the path (in blocks of
-steps ahead where the path computes its samples together: :mod:`kinredund.tracking.ahead`) and a time-varying
+Eq. (4.24) with its LU factors (LAPACK's algorithm and layout) and LAPACK's condition estimate, the rates, the Newton
+update and the chord iterations, then the checks that make the step ordinary: no free joint beyond a bound, no
+multiplier of a joint held on its bound below zero (nor of a general row held:
+:mod:`kinredund.tracking.compiled_rows`), no jump (the step control's check, :mod:`kinredund.tracking.step_control`).
+With joints on their bounds it runs on the reduced system of :mod:`kinredund.tracking.limited` (the held joints'
+columns removed from R, their residual rows the bound multipliers') and returns the bound multipliers at the
+corrected point. Python samples the path (in blocks of steps ahead where the path computes its samples together:
+:mod:`kinredund.tracking.ahead`) and a time-varying
 reference and passes them in; the active set goes to the core when it changes. The step's point
 (:class:`~kinredund.tracking.compiled_point.CompiledPoint`) reads the core's output row only where someone asks for
 it. The run's start is the core's too (:mod:`kinredund.tracking.compiled_start`): :func:`compiled_start` gives the
@@ -30,8 +31,8 @@ rejects, a switch (a bound reached or released: located by the Python stepper's 
 corrector that needs fresh factorisations, a singular R, a failure. Those steps are the Python stepper's own, so
 events happen at the same times with the same causes; their corrector solves (the step's, the sub-steps', each
 evaluation of the switching-time search, the correction after a switch) are the core's again where no general row
-is active (:mod:`kinredund.tracking.compiled_correct`: the stepper's ``corrector``, which runs Python's own solve
-from the same inputs where the core declines one).
+is active or the core holds the rows (:mod:`kinredund.tracking.compiled_correct`: the stepper's ``corrector``, which
+runs Python's own solve from the same inputs where the core declines one).
 
 With general inequality rows (``constraints=``, ``scene=``: :mod:`kinredund.tracking.rows`) the run is a hybrid:
 a step with a row active is the Python stepper's unless the rows are a scene's, which the core holds too
@@ -237,7 +238,7 @@ class CompiledStep:
         self.handed_back: dict[str, int] = {}
         if limited and stepper.qp_backend == "kkt" and hasattr(core.StepCore, "correct"):  # (proxsuite: the rates
             # of _correct's fallback are its QP's, not R's LU); where the rows are held here, it holds them too
-            stepper.corrector = CoreCorrector(stepper, core, None if self.held is None else self.guard.compiled)
+            stepper.corrector = CoreCorrector(stepper, core, None if self.held is None else self.guard)
         if stepper.control is not None and hasattr(core, "watch_exact"):  # the exact measurements the runs' own
             stepper.control.watch.use_core(core)
 
@@ -253,7 +254,7 @@ class CompiledStep:
         ctl = s.control
         k = s.k + 1
         t_to = s.t0 + k * s.dt
-        if self.rows and s.rows and self.held is None:  # a general row active, its extended system Python's
+        if self.rows and s.rows and (self.held is None or not self.held.valid()):  # a row active, in Python
             return self.hand_back(ROW_ACTIVE)
         if ctl is not None and ctl.watch.ahead(t_to) is not None:
             return self.hand_back(8)
@@ -390,13 +391,12 @@ class CompiledStep:
             pt = CompiledPoint(s.ev, out, t_to, sample, self._basis, self.layout, ahead)
         if self.limited and s.any_active:  # joints held: the reduced system's label, the bound multipliers
             label = s.reduced_label(M, pt.J, int(out[s_label][0]))
-            s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu])
+            lu = self.held.factors() if held and s.control is not None else None  # (the step control's inertia test)
+            s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu], lu=lu)
             self.held_steps += 1
         else:
             s.accept(out[sy], out[ssol], pt, M, out[sq], rcond)
         self.row_steps += held
-        if held and s.control is not None:  # R's factors for the step control's inertia test
-            s.lu = self.held.factors()
         if smallest is not None and smallest == smallest:  # (NaN: the check stopped before its values)
             s.keep_smallest(smallest)
         self.steps += 1

@@ -43,8 +43,8 @@ class CoreCorrector:
     """
 
     def __init__(self, stepper, module, guard=None):
-        self.stepper, self.module, self._guard = stepper, module, guard  # guard: the compiled step's RowGuard, with
-        self.held = None  # which the core holds the rows (HeldRows, made with the core); None: rows are Python's
+        self.stepper, self.module, self._guard = stepper, module, guard  # guard: the compiled step's row check,
+        self.held = None  # with which the core holds the rows (HeldRows, made with the core); None: rows are Python's
         self.core = None  # made on the first solve (a run without a handed-back step makes none)
         self._fixed = None  # the active set the core holds (the stepper's ``fixed``)
         n, m = stepper.n, len(stepper.task_lam)
@@ -68,13 +68,13 @@ class CoreCorrector:
 
     def _solve(self, y: np.ndarray, newton: bool) -> bool:
         s = self.stepper
-        if s.rows and self._guard is None:  # a row active whose extended system the core does not make
+        if s.rows and (self._guard is None or not self._guard.valid()):  # a row active the core does not hold
             return False
         if self.core is None:
             self.core = make_step_core(s, self.module)
             if self._guard is not None:
-                self.core.set_guard(self._guard)
-                self.held = HeldRows(s, self.core, len(s.task_lam))
+                self.core.set_guard(self._guard.compiled)
+                self.held = HeldRows(s, self.core, self._guard, len(s.task_lam))
         if self.held is not None:
             self.held.sync()  # the rows active now (a switch replaces the ``rows`` tuple)
         if s.fixed is not self._fixed:  # a switch replaces ``fixed``: the core's active set follows

@@ -96,10 +96,14 @@ class CompiledPoint(Point):
     def __getattr__(self, name):  # an unset slot of the rest: the full evaluation fills them all
         if name not in Point.__slots__:  # (also an instance without its own slots: a copy)
             raise AttributeError(name)
-        full = self._ev.point(self.q, self.t, sample=self.sample)
+        full = self._full_point()
         for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
             setattr(self, key, getattr(full, key))
         return getattr(self, name)
+
+    def _full_point(self) -> Point:
+        """The evaluation the unread fields come from: the Python evaluator's at (q, t)."""
+        return self._ev.point(self.q, self.t, sample=self.sample)
 
 
 class CompiledRowPoint(CompiledPoint):
@@ -114,19 +118,12 @@ class CompiledRowPoint(CompiledPoint):
         super().__init__(ev, out, t, sample, basis, layout, ahead)
         self._evaluate, self._full = evaluate, None
 
-    def _extended(self) -> Point:
+    def _full_point(self) -> Point:
+        """The extended evaluation at (q, t), made once."""
         if self._full is None:
             self._full = self._evaluate(self.q, self.t)
         return self._full
 
-    def __getattr__(self, name):  # an unset slot of the rest: the extended evaluation fills them all
-        if name not in Point.__slots__:
-            raise AttributeError(name)
-        full = self._extended()
-        for key in ("Q", "p", "terms", "r", "xdot", "grad", "hess", "dgrad_dt"):
-            setattr(self, key, getattr(full, key))
-        return getattr(self, name)
-
     def system(self, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The extended evaluation's (M with the rows' curvature, top)."""
-        return self._extended().system(lam)
+        return self._full_point().system(lam)

@@ -30,12 +30,9 @@ from kinredund.tracking.rows import row_point
 def held_rows(stepper, core, guard, m: int) -> HeldRows | None:
     """The :class:`HeldRows` of ``stepper`` (task dimension m) on ``core``, or None where its steps with a row held
     stay Python's (see the module docstring; ``guard``: the compiled driver's check, the constraint's ``row_guard``)."""
-    general = getattr(stepper, "general", [])
-    if guard is None or len(general) != 1 or not hasattr(core, "set_rows"):
+    if guard is None or not getattr(guard, "holds", False) or not hasattr(core, "set_rows"):
         return None
-    if getattr(general[0], "curvature_mode", None) != "differences":
-        return None
-    return HeldRows(stepper, core, m)
+    return HeldRows(stepper, core, guard, m)
 
 
 class HeldRows:
@@ -46,12 +43,17 @@ class HeldRows:
             :class:`~kinredund.tracking.compiled_point.CompiledPoint`'s layout) with them.
     """
 
-    def __init__(self, stepper, core, m: int):
-        self.stepper, self.core, self.n, self.m = stepper, core, stepper.n, m
+    def __init__(self, stepper, core, guard, m: int):
+        self.stepper, self.core, self.guard, self.n, self.m = stepper, core, guard, stepper.n, m
         self.rows = ()
         sl = row_slices(self.n, m)
         self.layout = (sl, (sl, (self.n, m)))
         self._extend = None
+
+    def valid(self) -> bool:
+        """Is the scene still the one the rows were made for? (After a change the constraint's queries raise: the
+        Python stepper's step meets that error.)"""
+        return self.guard.valid()
 
     def sync(self) -> None:
         """Give the core the stepper's rows held where they changed (a switch replaces the ``rows`` tuple)."""

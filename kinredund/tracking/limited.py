@@ -232,10 +232,10 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         F = self._free_idx
         return classify(M[np.ix_(F, F)], J[:, F], self.linear_solver, symmetric=self.symmetric)
 
-    def accept(self, y, yd, pt, M, q_pred, rcond, label=None, mu=None, **_) -> None:
+    def accept(self, y, yd, pt, M, q_pred, rcond, label=None, mu=None, lu=None, **_) -> None:
         """:meth:`PredictorCorrector.accept`, and the bound multipliers ``mu`` (n,) at the new point where a
         joint is on a bound (else none)."""
-        super().accept(y, yd, pt, M, q_pred, rcond, label)
+        super().accept(y, yd, pt, M, q_pred, rcond, label, lu)
         self.mu = self._no_mu if self._sel is None else mu
 
     def take_corrected(self, y, yd, pt, M, lu, rcond, label=None, mu=None, **_) -> None:

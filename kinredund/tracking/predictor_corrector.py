@@ -142,15 +142,16 @@ class PredictorCorrector(Stepper):
         return self._hermite
 
     def accept(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, q_pred: np.ndarray, rcond: float,
-               label: str | None = None, **_) -> None:
+               label: str | None = None, lu=None, **_) -> None:
         """Take a whole step computed elsewhere (the compiled core, :mod:`kinredund.tracking.compiled`) as this
         stepper's own, leaving the state as :meth:`plain_step` leaves it: the predictor's history, the clock
         (t0 + (k + 1) dt), the corrected ``y`` = [q; lambda] and its rates ``yd``, the step's evaluation ``pt``
         and M there, the predicted joints ``q_pred`` and R's condition estimate ``rcond`` (its factors ``lu``
-        are None: the caller sets them where they are needed). ``label``: the step's solver label, if known."""
+        are None unless given: ``lu`` = (lu, piv) in LAPACK's layout). ``label``: the step's solver label, if known."""
         self._advance()
         self.q_pred = q_pred
         self._take(y, yd, pt, M, rcond, label)
+        self.lu = lu
 
     def take_start(self, y: np.ndarray, yd: np.ndarray, pt: Point, M: np.ndarray, rcond: float,
                    label: str | None = None, exact: tuple | None = None, **_) -> None:

@@ -41,7 +41,8 @@ step it does not clear is handed over with its verdict (``GUARD_DUE``:
 the first step the watch measures, exactly or by its inverse iteration (as when the watch's verdicts were taken after
 the run, which could drop the rows after it while the check's kept values could not be taken back), so the check runs
 on exactly the steps, with the same arrays, that single steps check. A step
-with a row active is the Python stepper's, one at a time. Like
+with a row active is taken one at a time (``CompiledStep.step``: the core's where it holds the rows, else the Python
+stepper's); a run holds no row (the core refuses one: ``run_steps``). Like
 :mod:`~kinredund.tracking.compiled`, it reads only the stepper's and the step control's public interface.
 """
 
@@ -105,7 +106,7 @@ class Runs:
         """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
         s, ctl = self.s, self.ctl
         if self.c.rows and (s.rows or s.qdot is None or not self.c.guard.valid()):
-            return 1  # a row active (the Python stepper's step), or the step cannot be checked (CompiledStep.step's)
+            return 1  # a row active, or the step cannot be checked in the run: CompiledStep.step's single step
         K = min(count, MAX_RUN)
         if ctl is not None:
             t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before

@@ -190,7 +190,8 @@ class StepControl:
         return None
 
     def _indefinite(self) -> bool:
-        """With general rows active (steps the Python stepper takes): does the inertia of R (Eq. 4.24) from its LU
+        """With general rows active (the Python stepper's steps and the compiled ones that hold the rows: both give
+        R's factors): does the inertia of R (Eq. 4.24) from its LU
         factors say Z^T M Z has an odd number of negative eigenvalues? R = [[M, A^T], [A, 0]] on the free joints, A
         of full row rank r (the task's rows and the active rows'), has det R = (-1)^r det(Z^T M Z) times a positive
         number, so sign(det R) is (-1)^r exactly where the count of negative eigenvalues of the reduced Hessian is

@@ -467,8 +467,8 @@ class DistanceQuery {
 
 }  // namespace
 
-// The compiled driver's check of a step taken with no general row active (kinredund/tracking/compiled.py, issue
-// 27): can a row of a SceneClearance (c_k = d_k - clearance_k, the pairs beyond the influence at their lower bound
+// The compiled driver's check of a step (kinredund/tracking/compiled.py, issue 27; the rows held during the step,
+// where the core holds some, left out: clear_at's `held`): can a row of a SceneClearance (c_k = d_k - clearance_k, the pairs beyond the influence at their lower bound
 // influence - clearance_k) be below -tol at the step's end (GeneralRows._row_events) or dip below it inside the step
 // (the first test of SwitchLocation._row_dips)? The rows' values are lower bounds of the values that test takes
 // from exact distances (SceneClearance.values of a fresh constraint), kept row by row (B the scene's motion bound,

@@ -141,6 +141,8 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
                     InVec y0, InVec yd0, nb::list prev_list, InVec qdot0, double speed2, bool check_jump, nb::tuple watch,
                     OutMat out, nb::object guard_arg) {
   StepCore& core = step_core(core_obj);
+  if (step_core_held_rows(core) > 0)  // (a step with a row held is CompiledStep.step's: its search is Python's)
+    throw nb::value_error("run_steps: the core holds general rows (StepCore.set_rows); a run takes none");
   int n, m, row;
   step_core_sizes(core, n, m, row);
   const size_t N = static_cast<size_t>(n + m), K = t.shape(0);

@@ -539,9 +539,9 @@ class StepCore {
     if (st != OK) return st;
     if (any_held_)
       for (int i = 0; i < n; ++i)
-        if (held_[i] && mu[i] < -1e-12 * grad_scale) return (RELEASE);
+        if (held_[i] && mu[i] < -1e-12 * grad_scale) return (RELEASE);  // switches._events: a bound to release
     for (int i = 0; i < na_; ++i)  // GeneralRows._row_events: a held row's multiplier nu = -w below zero
-      if (-yc[n + mt_ + i] < -1e-12 * grad_scale) return ROW_RELEASE;  // switches._events: a bound to release
+      if (-yc[n + mt_ + i] < -1e-12 * grad_scale) return ROW_RELEASE;
     const auto qd1 = sol.head(n);
     const double speed2 = qd1.dot(qd1);
     if (check_jump) {  // step_control.StepControl._attempt on a whole step
@@ -999,7 +999,7 @@ class StepCore {
     MatrixXd Ms(nf, nf), JF(m_, nf);
     for (int b = 0; b < nf; ++b) {
       for (int a = 0; a < nf; ++a) Ms(a, b) = 0.5 * (M(free_[a], free_[b]) + M(free_[b], free_[a]));
-      JF.col(b) = J_.col(free_[b]).transpose();
+      JF.col(b) = Jw_.col(free_[b]).transpose();  // the step's J, M's (reduced_label(M, pt.J))
     }
     const double scale = std::max(1.0, Ms.cwiseAbs().maxCoeff());
     const MatrixXd JtJ = JF.transpose() * JF;
@@ -1102,6 +1102,8 @@ const int* step_core_free(const StepCore& c, int& nf) {
 }
 
 RowGuard* step_core_guard(const StepCore& c) { return c.guard_; }
+
+int step_core_held_rows(const StepCore& c) { return c.held_rows(); }
 
 const double* step_core_factors(const StepCore& c, const int*& piv, int& N) {
   N = static_cast<int>(c.lu_.rows());

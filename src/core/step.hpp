@@ -21,6 +21,8 @@ struct StepInput {
 StepCore& step_core(nanobind::handle obj);
 // (n, m, the length of one step's output row: StepCore.step's array).
 void step_core_sizes(const StepCore& core, int& n, int& m, int& row);
+// The number of general rows the core holds (StepCore.set_rows; m counts them).
+int step_core_held_rows(const StepCore& core);
 // The row check that step_guarded runs after a step (StepCore.set_guard; distances.hpp), or null: none.
 class RowGuard;
 RowGuard* step_core_guard(const StepCore& core);

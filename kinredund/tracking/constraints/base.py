@@ -124,7 +124,8 @@ class Constraint(abc.ABC):
     def row_guard(self, tol: float):
         """A compiled check that a step holds no switch of these rows (``clear(q0, q1, v0, v1, h)``: none reached
         below -``tol`` [m] at q1, none able to dip below it between; :mod:`kinredund.tracking.compiled`), or None:
-        the default, where the stepper's own search checks every step."""
+        the default, where the stepper's own search checks every step. Its ``holds``: whether the compiled core
+        can hold the rows too, as the stepper's extended system (:mod:`kinredund.tracking.compiled_rows`)."""
         return None
 
     def representative(self, q: np.ndarray, row: int) -> int:

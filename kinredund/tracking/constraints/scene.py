@@ -258,7 +258,8 @@ class SceneClearance(Constraint):
             return None
         guard = self.scene.workspace(own=True).row_guard(self._row, self.clearances, self.influence, self._bound,
                                                          self._extent, tol, SKIP_MARGIN)
-        return None if guard is None else _SceneGuard(guard, self.scene, self._scene_pairs)
+        return None if guard is None else _SceneGuard(guard, self.scene, self._scene_pairs,
+                                                      self.curvature_mode == "differences")
 
     def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         out = self._query(q)
@@ -343,10 +344,13 @@ class _SceneGuard:
     """:meth:`SceneClearance.row_guard`'s check for the scene as it was when the constraint was made: after a change
     of the scene it clears no step (the stepper's search then meets :meth:`SceneClearance._query`'s error)."""
 
-    __slots__ = ("compiled", "_scene", "_pairs")
+    __slots__ = ("compiled", "holds", "_scene", "_pairs")
 
-    def __init__(self, guard, scene: Scene, pairs: tuple):
+    def __init__(self, guard, scene: Scene, pairs: tuple, holds: bool):
         self.compiled, self._scene, self._pairs = guard, scene, pairs  # compiled: the kinredund._core.RowGuard
+        # can the core hold the rows too (their values, gradients and curvature as SceneClearance's: the central
+        # differences, curvature="differences"; kinredund.tracking.compiled_rows)?
+        self.holds = holds
 
     def valid(self) -> bool:
         """Is the scene still the one the check was made for? (The core's step runs ``compiled`` itself:
