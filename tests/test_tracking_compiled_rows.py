@@ -327,6 +327,7 @@ def test_a_run_of_steps_refuses_a_core_holding_rows():
     """A run of steps (src/core/loop.cpp) has no switch search of its own for held rows: the core refuses to run with
     rows held (tracking/runs.py gives it none), before it reads any other argument."""
     import kinredund._core as core_module
+
     from kinredund.tracking.constraints.base import DIFFERENCE_STEP
 
     tr = scene_tracker("compiled")
