@@ -468,10 +468,11 @@ class DistanceQuery {
 }  // namespace
 
 // The compiled driver's check of a step (kinredund/tracking/compiled.py, issue 27; the rows held during the step,
-// where the core holds some, left out: clear_at's `held`): can a row of a SceneClearance (c_k = d_k - clearance_k, the pairs beyond the influence at their lower bound
-// influence - clearance_k) be below -tol at the step's end (GeneralRows._row_events) or dip below it inside the step
-// (the first test of SwitchLocation._row_dips)? The rows' values are lower bounds of the values that test takes
-// from exact distances (SceneClearance.values of a fresh constraint), kept row by row (B the scene's motion bound,
+// where the core holds some, left out: clear_at's `held`): can a row of a SceneClearance (c_k = d_k - clearance_k,
+// the pairs beyond the influence at their lower bound influence - clearance_k) be below -tol at the step's end
+// (GeneralRows._row_events) or dip below it inside the step (the first test of SwitchLocation._row_dips)? The rows'
+// values are lower bounds of the values that test takes from exact distances (SceneClearance.values of a fresh
+// constraint), kept row by row (B the scene's motion bound,
 // valid where no prismatic joint is beyond its extent: every point of the pair's objects, and of their bounding
 // spheres, moves by at most B_k |dq| relative to the other):
 // - row k's exact value c_k(q_k) is kept with its point q_k; at q, c_k(q) >= c_k(q_k) - B_k |q - q_k|;
@@ -535,9 +536,7 @@ class RowGuard {
   // object touched; the kept values of the checks are not changed (a check places the objects itself).
   void rows_at(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, VectorXd& c, RowMatrixXd& G) {
     const Eigen::Index a = ks_rows.size();
-    pairs_.resize(a);
-    for (Eigen::Index i = 0; i < a; ++i) pairs_[i] = pair_of_row_[static_cast<std::size_t>(ks_rows[i])];
-    query_.pairs_at(q, influence_, pairs_, d_, near_, G);
+    query_.pairs_at(q, influence_, pairs_of(ks_rows), d_, near_, G);
     c.resize(a);
     for (Eigen::Index i = 0; i < a; ++i) {
       const double clear = clearances_[ks_rows[i]];
@@ -548,10 +547,14 @@ class RowGuard {
   // The central differences of rows `ks_rows`' gradients at q (DistanceQuery::differences on their pairs at the
   // influence, step eps: SceneClearance.curvature's), no Python object touched.
   void differences_at(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, double eps, RowMatrixXd& D) {
-    const Eigen::Index a = ks_rows.size();
-    pairs_.resize(a);
-    for (Eigen::Index i = 0; i < a; ++i) pairs_[i] = pair_of_row_[static_cast<std::size_t>(ks_rows[i])];
-    query_.differences_at(q, influence_, pairs_, eps, D);
+    query_.differences_at(q, influence_, pairs_of(ks_rows), eps, D);
+  }
+
+  // the pairs of rows ks_rows (into pairs_)
+  const VectorXl& pairs_of(const VectorXl& ks_rows) {
+    pairs_.resize(ks_rows.size());
+    for (Eigen::Index i = 0; i < ks_rows.size(); ++i) pairs_[i] = pair_of_row_[static_cast<std::size_t>(ks_rows[i])];
+    return pairs_;
   }
 
   // The Python binding: sizes checked, then clear_at with the GIL released.

@@ -291,7 +291,7 @@ class StepCore {
   // _update_mu at the corrected point); fills out (start()'s row) or returns the status. ``polish`` (the run's start:
   // _newton's polish): the first round's first update is made even where F is within the tolerance.
   int start_at(CRef y0, VectorXd& out, bool polish) {
-    const int n = n_, N = n_ + m_;
+    const int n = n_;
     VectorXd y = y0;
     RowMatrixXd M;
     VectorXd top;
@@ -329,25 +329,10 @@ class StepCore {
       if (!ok && !std::isfinite(y.dot(y))) break;
     }
     if (!ok) return CHORD_FAILED;
-    // _rates: one evaluation at the corrected point, R's LU, Eq. (4.24) for the rates
-    evaluate(y.head(n), true);
-    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
-    const VectorXd lam = y.tail(m_);
-    system(lam, M, top);
-    const int st = factor(M);
+    VectorXd sol, mu;
+    const int st = rates_at(y, M, sol);  // _rates at the corrected point
     if (st != OK) return st;
-    VectorXd sol(N);
-    sol << top, xdot_;
-    solve(sol);
-    if (!std::isfinite(sol.dot(sol))) return NOT_FINITE;
-    Jw_ = J_;  // the point's J and M, which the watch measures (watch_measure)
-    Mw_ = M;
-    VectorXd mu = VectorXd::Zero(n);
-    if (any_held_) {  // _update_mu: mu_i = s_i (grad z + J^T lambda)_i at the same evaluation
-      const VectorXd g = grad_ + J_.transpose() * lam;
-      for (int i = 0; i < n; ++i)
-        if (held_[i]) mu[i] = side_[i] * g[i];
-    }
+    evaluated_multipliers(y, mu);
     // no prediction: the corrected joints as the predicted and evaluated ones, the pose of this evaluation
     write_row(out, y, sol, M, y.head(n), y.head(n), mu, sol.head(n).dot(sol.head(n)), false);
     return OK;
@@ -390,15 +375,40 @@ class StepCore {
 
   // LimitedPredictorCorrector._update_mu at the corrected point yc (an evaluation without dK): mu (n, 0 where free)
   int bound_multipliers(const VectorXd& yc, VectorXd& mu) {
+    if (any_held_) {
+      evaluate(yc.head(n_), false);
+      if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+    }
+    evaluated_multipliers(yc, mu);
+    return OK;
+  }
+
+  // _update_mu at the last evaluation, made at y's joints: mu_i = s_i (grad z + J^T lambda)_i on the held joints
+  // (n, 0 where free)
+  void evaluated_multipliers(const VectorXd& y, VectorXd& mu) const {
     const int n = n_;
     mu = VectorXd::Zero(n);
-    if (!any_held_) return OK;
-    evaluate(yc.head(n), false);
-    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
-    const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
+    if (!any_held_) return;
+    const VectorXd g = grad_ + J_.transpose() * y.tail(m_);
     for (int i = 0; i < n; ++i)
       if (held_[i]) mu[i] = side_[i] * g[i];
-    return OK;
+  }
+
+  // _rates at y = [q; lambda]: one evaluation with dK, R's LU, Eq. (4.24) for the rates sol; the evaluation's J and M
+  // become the step's (the watch measures them: watch_measure)
+  int rates_at(const VectorXd& y, RowMatrixXd& M, VectorXd& sol) {
+    evaluate(y.head(n_), true);
+    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
+    VectorXd top;
+    system(y.tail(m_), M, top);
+    Jw_ = J_;
+    Mw_ = M;
+    const int st = factor(M);
+    if (st != OK) return st;
+    sol.resize(n_ + m_);
+    sol << top, xdot_;
+    solve(sol);  // Eq. (4.24)
+    return std::isfinite(sol.dot(sol)) ? OK : NOT_FINITE;
   }
 
   // One buffer (one array for Python to slice: small arrays would each be copied through numpy), the layout of
@@ -461,8 +471,10 @@ class StepCore {
     bool rerated = false;
     st = rerate(yp, yc, sol, M, grad_scale, rerated);
     if (st != OK) return st;
-    st = rerated ? evaluated_multipliers(yc, mu) : bound_multipliers(yc, mu);
-    if (st != OK) return st;
+    if (rerated)
+      evaluated_multipliers(yc, mu);
+    else if ((st = bound_multipliers(yc, mu)) != OK)
+      return st;
     write_row(out, yc, sol, M, y.head(n), rerated ? VectorXd(yc.head(n)) : VectorXd(yp.head(n)), mu,
               sol.head(n).dot(sol.head(n)), true);
     return OK;
@@ -473,36 +485,14 @@ class StepCore {
   // dK, R's LU, Eq. 4.24), which becomes the step's evaluation (its J and M the watch's; grad_scale its own).
   int rerate(const VectorXd& yp, const VectorXd& yc, VectorXd& sol, RowMatrixXd& M, double& grad_scale,
              bool& rerated) {
-    const int n = n_;
     rerated = false;
     if (na_ == 0) return OK;
-    const VectorXd d = yc.head(n) - yp.head(n);
+    const VectorXd d = yc.head(n_) - yp.head(n_);
     if (!(d.dot(d) > 1e-16)) return OK;
-    evaluate(yc.head(n), true);
-    if (task_ == POSE && velocity_ && !log_ok_) return LOG_NEAR_PI;
-    VectorXd top;
-    system(yc.tail(m_), M, top);
-    Jw_ = J_;
-    Mw_ = M;
-    grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());
-    const int st = factor(M);
+    const int st = rates_at(yc, M, sol);
     if (st != OK) return st;
-    sol.resize(n + m_);
-    sol << top, xdot_;
-    solve(sol);  // Eq. (4.24)
-    if (!std::isfinite(sol.dot(sol))) return NOT_FINITE;
+    grad_scale = std::max(1.0, grad_.cwiseAbs().maxCoeff());
     rerated = true;
-    return OK;
-  }
-
-  // _update_mu at the last evaluation, made at yc (rerate's): mu (n, 0 where free)
-  int evaluated_multipliers(const VectorXd& yc, VectorXd& mu) const {
-    const int n = n_;
-    mu = VectorXd::Zero(n);
-    if (!any_held_) return OK;
-    const VectorXd g = grad_ + J_.transpose() * yc.tail(m_);
-    for (int i = 0; i < n; ++i)
-      if (held_[i]) mu[i] = side_[i] * g[i];
     return OK;
   }
 
@@ -535,8 +525,10 @@ class StepCore {
     const auto q = yc.head(n);
     // a free joint beyond its bound (a held one is on it exactly)
     if (limited_ && ((q.array() < lo_.array()).any() || (q.array() > hi_.array()).any())) return (LIMIT);
-    st = rerated ? evaluated_multipliers(yc, mu) : bound_multipliers(yc, mu);
-    if (st != OK) return st;
+    if (rerated)
+      evaluated_multipliers(yc, mu);
+    else if ((st = bound_multipliers(yc, mu)) != OK)
+      return st;
     if (any_held_)
       for (int i = 0; i < n; ++i)
         if (held_[i] && mu[i] < -1e-12 * grad_scale) return (RELEASE);  // switches._events: a bound to release
