@@ -39,16 +39,14 @@ class HeldRows:
     """The rows the core holds (the stepper's ``rows``) and the layout of its output row with them.
 
     Attributes:
-        rows: the rows the core holds (the stepper's numbers); ``layout``: (the output row's slices, a
-            :class:`~kinredund.tracking.compiled_point.CompiledPoint`'s layout) with them.
+        rows: the rows the core holds (the stepper's numbers); ``layout``: a
+            :class:`~kinredund.tracking.compiled_point.CompiledPoint`'s layout of the output row with them (its
+            slices, (n, m)), set where the rows are given to the core.
     """
 
     def __init__(self, stepper, core, guard, m: int):
         self.stepper, self.core, self.guard, self.n, self.m = stepper, core, guard, stepper.n, m
-        self.rows = ()
-        sl = row_slices(self.n, m)
-        self.layout = (sl, (sl, (self.n, m)))
-        self._extend = None
+        self.rows, self.layout, self._extend = (), None, None
 
     def valid(self) -> bool:
         """Is the scene still the one the rows were made for? (After a change the constraint's queries raise: the
@@ -65,15 +63,14 @@ class HeldRows:
         self.core.set_rows(np.array([ri for _, ri in pairs], dtype=np.int64), DIFFERENCE_STEP)
         self.rows = rows
         m = self.m + len(rows)
-        sl = row_slices(self.n, m)
-        self.layout = (sl, (sl, (self.n, m)))
+        self.layout = (row_slices(self.n, m), (self.n, m))
         general, ev = s.general, s.ev
         self._extend = lambda q, t: row_point(ev.point(q, t), general, pairs)  # RowPoint with these rows
 
     def point(self, out: np.ndarray, t: float, sample, basis, ahead) -> CompiledRowPoint:
         """The step's point from the core's output row ``out`` with the rows held (its extended J; the rest the
         extended evaluation's on first use)."""
-        return CompiledRowPoint(self._extend, self.stepper.ev, out, t, sample, basis, self.layout[1], ahead)
+        return CompiledRowPoint(self._extend, self.stepper.ev, out, t, sample, basis, self.layout, ahead)
 
     def factors(self) -> tuple[np.ndarray, np.ndarray]:
         """R's LU factors of the core's last step and their 0-based pivots (the step control's inertia test of a step
