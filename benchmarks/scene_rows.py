@@ -1,6 +1,6 @@
 """A tracker step with a scene's distance row active: the step while the stepper holds a clearance row.
 
-    python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N] [--backends compiled,python]
+    python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N] [--backends compiled,python,...]
 
 The case is tests/test_tracking_scene.py's ``panda_elbow_ball``: test_tracking_limits's ``panda_elbow_circle`` (a
 13.3 cm circle on the Panda, z = 1/2 ||q - q_home||^2, the bounded optimum at its start) with a 5 cm sphere where the
@@ -8,7 +8,9 @@ free optimum's upper arm passes, held at 2 cm (``Tracker(..., scene=, clearance=
 robot's own pairs unchecked), dt = T / 200. Per round a fresh tracker takes ``--steps`` steps (default 400: two
 loops, the ball's row met and left in each), each timed on its own (perf_counter) and sorted by whether a general row
 was active after it (``stepper.rows``), the rounds of the backends in turn (``--backends``, the first one's figures
-unsuffixed). Figures, medians over the rounds of each round's median [us]:
+unsuffixed). Besides ``compiled`` and ``python``, the backend ``compiled-rows-in-python`` is the compiled one with
+the scene's rows left to the Python stepper, as before the core held them (``kinredund.tracking.compiled.held_rows``
+patched to give None for those rounds). Figures, medians over the rounds of each round's median [us]:
 
 - ``scene_active_step_us``: a step with a row active (on the compiled backend the core's, the scene's rows held in
   it: ``kinredund/tracking/compiled_rows.py``; the rows' curvature by central differences,
@@ -20,7 +22,9 @@ unsuffixed). Figures, medians over the rounds of each round's median [us]:
 - ``scene_track_ms``: ``track()`` of ``--steps`` / 200 loops on the case [ms] (switches included: their location is
   the Python stepper's, its corrector solves the core's);
 - ``scene_active_step_us_python`` etc.: the same of the other backend, and ``active_ratio``, the second backend's
-  row-active step over the first's, and ``track_ratio``, the same of ``track()``.
+  row-active step over the first's, and ``track_ratio``, the same of ``track()``;
+- ``agreement_q_max``: the compiled and the Python backend stepped in turn over ``--steps`` steps, the largest joint
+  difference after a step [rad].
 
 It runs on whichever kinredund is installed, so the figure of an older build is had by running this file with that
 build's Python (the issue's before/after: run the two in turn, a few times each).
@@ -28,6 +32,7 @@ build's Python (the issue's before/after: run the two in turn, a few times each)
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -35,7 +40,7 @@ from _bench import parser, print_table, write_json
 from clearance_peers import elbow_case
 
 import kinredund
-from kinredund.tracking import Tracker, track
+from kinredund.tracking import Tracker, compiled, track
 
 #: the ball's centre and radius [m] and the clearance [m] of panda_elbow_ball (tests/test_tracking_scene.py)
 BALL, CLEARANCE = ([-0.3178, 0.2255, 0.3518], 0.05), 0.02
@@ -49,19 +54,54 @@ def setup():
     return robot, path, index, q0, scene
 
 
-def one_round(case, steps: int, backend: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """(step times [s], this thread's CPU time per step [s], row active after each, backend) of a fresh tracker's
-    ``steps`` steps."""
+#: the pseudo-backend of the compiled step with the scene's rows left to the Python stepper (module docstring)
+ROWS_IN_PYTHON = "compiled-rows-in-python"
+
+
+@contextlib.contextmanager
+def backend_of(name: str):
+    """The Tracker backend of ``name`` (``compiled`` for :data:`ROWS_IN_PYTHON`, with the held rows switched off
+    while the block runs)."""
+    if name != ROWS_IN_PYTHON:
+        yield name
+        return
+    held_rows = compiled.held_rows
+    compiled.held_rows = lambda *args: None
+    try:
+        yield "compiled"
+    finally:
+        compiled.held_rows = held_rows
+
+
+def tracker(case, backend: str | None) -> Tracker:
     r, path, index, q0, scene = case
-    tr = Tracker(r, path, index, q0, path.period / 200, scene=scene, clearance=CLEARANCE, self_clearance=False,
-                 backend=backend)
-    times, cpu, active = np.empty(steps), np.empty(steps), np.zeros(steps, bool)
-    for k in range(steps):
-        t0, c0 = time.perf_counter(), time.thread_time()
-        tr.step()
-        times[k], cpu[k] = time.perf_counter() - t0, time.thread_time() - c0
-        active[k] = bool(tr.stepper.rows)
-    return times, cpu, active, tr.backend
+    return Tracker(r, path, index, q0, path.period / 200, scene=scene, clearance=CLEARANCE, self_clearance=False,
+                   backend=backend)
+
+
+def one_round(case, steps: int, backend: str = "compiled") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(step times [s], this thread's CPU time per step [s], row active after each) of a fresh tracker's ``steps``
+    steps on ``backend`` (a Tracker backend or :data:`ROWS_IN_PYTHON`)."""
+    with backend_of(backend) as name:
+        tr = tracker(case, name)
+        times, cpu, active = np.empty(steps), np.empty(steps), np.zeros(steps, bool)
+        for k in range(steps):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            tr.step()
+            times[k], cpu[k] = time.perf_counter() - t0, time.thread_time() - c0
+            active[k] = bool(tr.stepper.rows)
+    return times, cpu, active
+
+
+def agreement(case, steps: int) -> float:
+    """The largest joint difference [rad] between the compiled and the Python backend stepped in turn."""
+    a, b = tracker(case, "compiled"), tracker(case, "python")
+    worst = 0.0
+    for _ in range(steps):
+        a.step()
+        b.step()
+        worst = max(worst, float(np.abs(a.q - b.q).max()))
+    return worst
 
 
 def main() -> None:
@@ -79,15 +119,15 @@ def main() -> None:
         one_round(case, 20, b)  # warm-up: imports, the scene's workspace, the core's first calls
     per = {b: ([], [], [], [], []) for b in backends}  # active, active cpu, free [us], row-active counts, track [ms]
     r, path, index, q0, scene = case
-    ran = {}
     for _ in range(rounds):
         for b in backends:
-            times, cpu, active, ran[b] = one_round(case, steps, b)
+            times, cpu, active = one_round(case, steps, b)
             active_us, active_cpu_us, free_us, counts, track_ms = per[b]
-            t0 = time.perf_counter()
-            track(r, path, index, q0, loops=max(1, steps // 200), steps_per_loop=200, scene=scene, clearance=CLEARANCE,
-                  self_clearance=False, backend=b)
-            track_ms.append(1e3 * (time.perf_counter() - t0))
+            with backend_of(b) as name:
+                t0 = time.perf_counter()
+                track(r, path, index, q0, loops=max(1, steps // 200), steps_per_loop=200, scene=scene,
+                      clearance=CLEARANCE, self_clearance=False, backend=name)
+                track_ms.append(1e3 * (time.perf_counter() - t0))
             counts.append(int(active.sum()))
             active_us.append(1e6 * float(np.median(times[active])) if active.any() else float("nan"))
             active_cpu_us.append(1e6 * float(np.median(cpu[active])) if active.any() else float("nan"))
@@ -100,11 +140,12 @@ def main() -> None:
                 f"scene_active_step_us{tail}": float(np.median(active_us)),
                 f"scene_active_step_cpu_us{tail}": float(np.median(active_cpu_us)),
                 f"scene_free_step_us{tail}": float(np.median(free_us)),
-                f"scene_active_steps{tail}": int(np.median(counts)), f"backend{tail}": ran[b]}
+                f"scene_active_steps{tail}": int(np.median(counts)), f"backend{tail}": b}
     if len(backends) > 1:
         out["active_ratio"] = out[f"scene_active_step_us_{backends[1]}"] / out["scene_active_step_us"]
         out["track_ratio"] = out[f"scene_track_ms_{backends[1]}"] / out["scene_track_ms"]
-    out |= {"rounds": rounds, "steps": steps, "active_step_us_per_round": per[backends[0]][0]}
+    out |= {"agreement_q_max": agreement(case, steps), "rounds": rounds, "steps": steps,
+            "active_step_us_per_round": per[backends[0]][0]}
     print_table([[k, v] for k, v in out.items() if k != "active_step_us_per_round"], ["figure", "value"])
     write_json(args.json, out)
 

@@ -307,8 +307,9 @@ def test_random_spheres_are_held_and_closed_or_stop_named_clear_and_on_the_path(
 
 def test_row_rate_qp_has_no_solution_where_M_is_indefinite_on_the_null_space(monkeypatch):
     """M with a negative eigenvalue on the null space of A (no rho makes sym(M) + rho A^T A positive definite): the
-    QP is unbounded along that direction, so there is no rate to report (None), and the solver is not asked (proxqp
-    iterated 0.6 s on one such QP before giving up, daqp returned a point); the same QP made convex has a rate."""
+    QP is unbounded along that direction, so there is no rate to report (None), and the solver is not asked
+    (proxqp iterated to its limit on one such QP before giving up, daqp returned a point); the same QP made convex
+    has a rate."""
     import qpsolvers
 
     rng = np.random.default_rng(5)

@@ -89,7 +89,7 @@ def row_rate_qp(M: np.ndarray, top: np.ndarray, A: np.ndarray, b: np.ndarray, g:
     qpsolvers (``proxqp`` or ``daqp``) to 1e-12. Returns (g^T v, the row's multiplier >= 0), or None: no
     solution, also without calling the solver where no rho up to 1e12 makes that matrix positive definite (M is
     then not positive definite on the null space of A, Finsler's lemma: the QP is unbounded along a direction of
-    negative curvature, which the inequality cannot bound in both senses; proxqp spent 0.6 s in its iterations on
+    negative curvature, which the inequality cannot bound in both senses; proxqp iterated to its limit on
     one such QP of a random obstacle task before it gave up, and daqp returned a point).
     """
     import qpsolvers
