@@ -1,16 +1,21 @@
-"""A tracker step with a scene's distance row active: the step while the stepper holds a clearance row.
+"""A tracker step with a clearance row active: the step while the stepper holds a scene's or a sphere's row.
 
     python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N] [--backends compiled,python,...]
+                                    [--case ball|sphere]
 
-The case is tests/test_tracking_scene.py's ``panda_elbow_ball``: test_tracking_limits's ``panda_elbow_circle`` (a
-13.3 cm circle on the Panda, z = 1/2 ||q - q_home||^2, the bounded optimum at its start) with a 5 cm sphere where the
-free optimum's upper arm passes, held at 2 cm (``Tracker(..., scene=, clearance=0.02, self_clearance=False)``: the
-robot's own pairs unchecked), dt = T / 200. Per round a fresh tracker takes ``--steps`` steps (default 400: two
+The case (``--case``, default ``ball``) is tests/test_tracking_scene.py's ``panda_elbow_ball``:
+test_tracking_limits's ``panda_elbow_circle`` (a 13.3 cm circle on the Panda, z = 1/2 ||q - q_home||^2, the bounded
+optimum at its start) with a 5 cm sphere where the free optimum's upper arm passes, held at 2 cm (``Tracker(...,
+scene=, clearance=0.02, self_clearance=False)``: the robot's own pairs unchecked), dt = T / 200; or ``sphere``,
+clearance_peers.py's: the same circle with the origin of ``panda_link4`` kept out of a 0.1 m sphere
+(``constraints=[SphereClearance(...)]``, tests/test_tracking_clearance.py's ``panda_elbow_sphere``). Per round a fresh tracker takes ``--steps`` steps (default 400: two
 loops, the ball's row met and left in each), each timed on its own (perf_counter) and sorted by whether a general row
 was active after it (``stepper.rows``), the rounds of the backends in turn (``--backends``, the first one's figures
 unsuffixed). Besides ``compiled`` and ``python``, the backend ``compiled-rows-in-python`` is the compiled one with
-the scene's rows left to the Python stepper, as before the core held them (``kinredund.tracking.compiled.held_rows``
-patched to give None for those rounds). Figures, medians over the rounds of each round's median [us]:
+the rows held left to the Python stepper, as before the core held them (``kinredund.tracking.compiled.held_rows``
+patched to give None for those rounds), and ``compiled-no-check`` the compiled one without the constraint's compiled
+check (its ``row_guard`` patched to give None: every step searched for a switch by the Python stepper, and the steps
+with a row held its own, as a sphere's were before ``FrameRows``). Figures, medians over the rounds of each round's median [us]:
 
 - ``scene_active_step_us``: a step with a row active (on the compiled backend the core's, the scene's rows held in
   it: ``kinredund/tracking/compiled_rows.py``; the rows' curvature by central differences,
@@ -40,43 +45,57 @@ from _bench import parser, print_table, write_json
 from clearance_peers import elbow_case
 
 import kinredund
-from kinredund.tracking import Tracker, compiled, track
+from kinredund.tracking import SceneClearance, SphereClearance, Tracker, compiled, track
 
 #: the ball's centre and radius [m] and the clearance [m] of panda_elbow_ball (tests/test_tracking_scene.py)
 BALL, CLEARANCE = ([-0.3178, 0.2255, 0.3518], 0.05), 0.02
 
 
-def setup():
-    """(robot, path, index, q0, scene) of panda_elbow_ball: clearance_peers' circle (panda_elbow_circle) and a ball."""
-    robot, path, index, q0, _ = elbow_case()
+def setup(kind: str = "ball"):
+    """(robot, path, index, q0, the tracker's options for the rows) of ``kind``: panda_elbow_ball (clearance_peers'
+    circle, panda_elbow_circle, and a ball in a scene) or panda_elbow_sphere (clearance_peers' own case)."""
+    robot, path, index, q0, sphere = elbow_case()
+    if kind == "sphere":
+        return robot, path, index, q0, {"constraints": [sphere]}
     scene = kinredund.Scene(robot)
     scene.add_sphere("ball", BALL[1], BALL[0])
-    return robot, path, index, q0, scene
+    return robot, path, index, q0, {"scene": scene, "clearance": CLEARANCE, "self_clearance": False}
 
 
-#: the pseudo-backend of the compiled step with the scene's rows left to the Python stepper (module docstring)
-ROWS_IN_PYTHON = "compiled-rows-in-python"
+#: the pseudo-backends (module docstring): the compiled step with the rows held left to the Python stepper, and
+#: without the constraint's compiled check
+ROWS_IN_PYTHON, NO_CHECK = "compiled-rows-in-python", "compiled-no-check"
 
 
 @contextlib.contextmanager
 def backend_of(name: str):
-    """The Tracker backend of ``name`` (``compiled`` for :data:`ROWS_IN_PYTHON`, with the held rows switched off
-    while the block runs)."""
-    if name != ROWS_IN_PYTHON:
+    """The Tracker backend of ``name`` (``compiled`` for the pseudo-backends, with what they switch off patched while
+    the block runs)."""
+    if name not in (ROWS_IN_PYTHON, NO_CHECK):
         yield name
         return
-    held_rows = compiled.held_rows
-    compiled.held_rows = lambda *args: None
-    try:
+    with contextlib.ExitStack() as patches:
+        if name == ROWS_IN_PYTHON:
+            patches.enter_context(_patched(compiled, "held_rows", lambda *args: None))
+        else:
+            for cls in (SceneClearance, SphereClearance):
+                patches.enter_context(_patched(cls, "row_guard", lambda self, tol: None))
         yield "compiled"
+
+
+@contextlib.contextmanager
+def _patched(owner, name: str, value):
+    old = getattr(owner, name)
+    setattr(owner, name, value)
+    try:
+        yield
     finally:
-        compiled.held_rows = held_rows
+        setattr(owner, name, old)
 
 
 def tracker(case, backend: str | None) -> Tracker:
-    r, path, index, q0, scene = case
-    return Tracker(r, path, index, q0, path.period / 200, scene=scene, clearance=CLEARANCE, self_clearance=False,
-                   backend=backend)
+    r, path, index, q0, rows = case
+    return Tracker(r, path, index, q0, path.period / 200, backend=backend, **rows)
 
 
 def one_round(case, steps: int, backend: str = "compiled") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -108,25 +127,25 @@ def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--rounds", type=int, default=5, help="fresh trackers to time (default 5)")
     p.add_argument("--steps", type=int, default=400, help="steps per round (default 400)")
+    p.add_argument("--case", choices=("ball", "sphere"), default="ball", help="the rows' case (default ball)")
     p.add_argument("--backends", default="compiled,python",
                    help="the tracker backends to time, comma-separated, each round in turn (default compiled,python; "
                         "the first one's figures unsuffixed)")
     args = p.parse_args()
     rounds, steps = (1, 120) if args.smoke else (args.rounds, args.steps)
     backends = [b.strip() for b in args.backends.split(",") if b.strip()]
-    case = setup()
+    case = setup(args.case)
     for b in backends:
         one_round(case, 20, b)  # warm-up: imports, the scene's workspace, the core's first calls
     per = {b: ([], [], [], [], []) for b in backends}  # active, active cpu, free [us], row-active counts, track [ms]
-    r, path, index, q0, scene = case
+    r, path, index, q0, rows = case
     for _ in range(rounds):
         for b in backends:
             times, cpu, active = one_round(case, steps, b)
             active_us, active_cpu_us, free_us, counts, track_ms = per[b]
             with backend_of(b) as name:
                 t0 = time.perf_counter()
-                track(r, path, index, q0, loops=max(1, steps // 200), steps_per_loop=200, scene=scene,
-                      clearance=CLEARANCE, self_clearance=False, backend=name)
+                track(r, path, index, q0, loops=max(1, steps // 200), steps_per_loop=200, backend=name, **rows)
                 track_ms.append(1e3 * (time.perf_counter() - t0))
             counts.append(int(active.sum()))
             active_us.append(1e6 * float(np.median(times[active])) if active.any() else float("nan"))
@@ -144,7 +163,7 @@ def main() -> None:
     if len(backends) > 1:
         out["active_ratio"] = out[f"scene_active_step_us_{backends[1]}"] / out["scene_active_step_us"]
         out["track_ratio"] = out[f"scene_track_ms_{backends[1]}"] / out["scene_track_ms"]
-    out |= {"agreement_q_max": agreement(case, steps), "rounds": rounds, "steps": steps,
+    out |= {"agreement_q_max": agreement(case, steps), "case": args.case, "rounds": rounds, "steps": steps,
             "active_step_us_per_round": per[backends[0]][0]}
     print_table([[k, v] for k, v in out.items() if k != "active_step_us_per_round"], ["figure", "value"])
     write_json(args.json, out)

@@ -31,7 +31,7 @@ from test_tracking_self_clearance import setup as self_setup
 
 from kinredund.errors import TrackingError
 from kinredund.geometry import Scene
-from kinredund.tracking import SphereClearance, Tracker, compiled, track
+from kinredund.tracking import PlaneClearance, SphereClearance, Tracker, compiled, track
 
 pytestmark = pytest.mark.skipif(compiled.load_core() is None, reason="the compiled core is not built")
 
@@ -120,9 +120,11 @@ def test_a_scene_ball_held_is_the_python_run():
 
 def test_the_core_takes_the_steps_with_no_row_active():
     """Stepped one by one: every step agrees, and the core took all but the steps with the row active and those
-    its check handed back (a row reached within them)."""
+    the search handed back (a row reached within them). Two constraints (the sphere and a plane far below) have no
+    compiled check, so the hybrid routes run: the steps with the sphere's row active are the Python stepper's."""
     r, path, index, q0, c = sphere("panda_elbow_sphere")
-    cs = stepped(r, path, index, q0, 200, constraints=[c])
+    floor = PlaneClearance(r, "panda_link4", [0.0, 0.0, -2.0], [0.0, 0.0, 1.0])
+    cs = stepped(r, path, index, q0, 200, constraints=[c, floor])
     back = cs.handed_back
     assert back.get("row_active", 0) > 10 and back.get("rows", 0) >= 1  # both hybrid routes ran
     assert cs.steps > 100 and cs.steps > back["row_active"]  # most steps are the core's
@@ -277,15 +279,12 @@ def test_the_core_evaluates_the_extended_system_of_a_held_row(task_kind, form):
             np.testing.assert_allclose(x, y, rtol=0, atol=64 * eps * max(1.0, np.abs(y).max()))
 
 
-@pytest.mark.parametrize("options", [{}, {"scheme": "velocity"}, {"strict": False}])
-def test_steps_with_a_scene_row_held_are_the_cores_and_agree_one_by_one(options):
-    """Ten loops stepped in turn: the joints to Q_BAR and the multipliers (the row's too) to rounding at every step,
-    the rows held and the switches the same; the core took every step with the row held but those its own tests
-    hand back (a held row's multiplier turning negative: row_release) and those around the switches, and the
-    corrector solves of those (the switching-time search's) with the row held too."""
-    a, b = scene_tracker("python", **options), scene_tracker("compiled", **options)
+def agree_in_turn(a, b, steps: int) -> None:
+    """Trackers a (python) and b (compiled) stepped in turn ``steps`` times: the joints to Q_BAR and the multipliers
+    (the rows' too) to rounding at every step, the rows held the same, and at a step with a row held the record's
+    fields; the switching times to SWITCH_BAR at the end."""
     sa, sb = a.stepper, b.stepper
-    for _ in range(2000):
+    for _ in range(steps):
         a.step()
         b.step()
         assert b.t == a.t and sb.rows == sa.rows
@@ -297,7 +296,17 @@ def test_steps_with_a_scene_row_held_are_the_cores_and_agree_one_by_one(options)
             np.testing.assert_allclose(sb.mu, sa.mu, rtol=0, atol=FIELD_BAR)  # near the clearance either way)
             assert sb.rcond == pytest.approx(sa.rcond, rel=FIELD_BAR)
             assert sb.row_record()[0] == pytest.approx(sa.row_record()[0], abs=Q_BAR)
-    assert [w["t"] for w in b.stepper.switches] == pytest.approx([w["t"] for w in a.stepper.switches], abs=SWITCH_BAR)
+    assert [w["t"] for w in sb.switches] == pytest.approx([w["t"] for w in sa.switches], abs=SWITCH_BAR)
+
+
+@pytest.mark.parametrize("options", [{}, {"scheme": "velocity"}, {"strict": False}])
+def test_steps_with_a_scene_row_held_are_the_cores_and_agree_one_by_one(options):
+    """Ten loops stepped in turn: the joints to Q_BAR and the multipliers (the row's too) to rounding at every step,
+    the rows held and the switches the same; the core took every step with the row held but those its own tests
+    hand back (a held row's multiplier turning negative: row_release) and those around the switches, and the
+    corrector solves of those (the switching-time search's) with the row held too."""
+    a, b = scene_tracker("python", **options), scene_tracker("compiled", **options)
+    agree_in_turn(a, b, 2000)
     c = b.compiled
     back = c.handed_back
     assert len(a.stepper.switches) >= 20 and "row_active" not in back and back.get("row_release", 0) >= 5

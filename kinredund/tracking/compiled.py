@@ -35,14 +35,15 @@ is active or the core holds the rows (:mod:`kinredund.tracking.compiled_correct`
 runs Python's own solve from the same inputs where the core declines one).
 
 With general inequality rows (``constraints=``, ``scene=``: :mod:`kinredund.tracking.rows`) the run is a hybrid:
-a step with a row active is the Python stepper's unless the rows are a scene's, which the core holds too
-(:mod:`kinredund.tracking.compiled_rows`: the extended system of :class:`~kinredund.tracking.rows.RowPoint` in
-C++; reason ``row_release`` where a held row's multiplier turns negative). A step taken in C++ is then checked by
+a step with a row active is the Python stepper's unless the core holds the rows too (a scene's, a sphere's or a
+plane's: :mod:`kinredund.tracking.compiled_rows`, the extended system of :class:`~kinredund.tracking.rows.RowPoint`
+in C++; reason ``row_release`` where a held row's multiplier turns negative). A step taken in C++ is then checked by
 the stepper's own search for a switch within it (``pending_switches``: an event at its end, a row below zero
 there, a row dipping below zero inside it), the call the Python step makes after its own step. Where it finds
 one, the step is dropped (the state put back) and handed to the Python stepper (reason ``rows``), which locates
 the switch itself. Where the rows' constraint has a compiled check
-(:meth:`~kinredund.tracking.constraints.base.Constraint.row_guard`: a scene's, ``src/core/distances.cpp``), that
+(:meth:`~kinredund.tracking.constraints.base.Constraint.row_guard`: a scene's, ``src/core/distances.cpp``; a frame
+clearance's, ``src/core/frame_rows.cpp``), that
 check runs first, before the step is applied: where it rules out a switch (every row above -ROW_TOL at the end and
 none able to dip below it inside, by the constraint's lower bounds; the rows held left out, as the search leaves
 them out) the step is taken without the search, else the search decides as above. The core holds the check

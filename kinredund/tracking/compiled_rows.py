@@ -1,20 +1,23 @@
-"""A scene's general rows held in the compiled step (issues 27, 28): the steps with a row active in C++ as well.
+"""General rows held in the compiled step (issues 27, 28): the steps with a row active in C++ as well.
 
 With rows active the stepper runs the extended system of :mod:`kinredund.tracking.rows` (the rows' equations
-under the task's, lam = [lambda; w], their curvature in M). Where the rows are a scene's
-(:class:`~kinredund.tracking.constraints.scene.SceneClearance`, whose compiled check the core already holds:
-``StepCore.set_guard``), the core extends its own evaluation the same way (``StepCore.set_rows``,
-``src/core/step.cpp``): the rows' values and gradients from the check's distance query as ``SceneClearance._query``
-gives them, their curvature sum_i w_i Hess c_i by the central differences of ``SceneClearance.curvature``
-(``curvature="differences"``, the default), the rates afresh at a corrected point far from the prediction
-(``GeneralRows._rates_stale``), and after the step the search's tests: a held row's multiplier below zero (status
-``row_release``) and, in the check (``RowGuard``), every other row's reach and dip with the held rows left out, as
-``pending_switches`` leaves them out. A step the check does not clear is searched by the stepper itself, as one
-with no row held. :class:`HeldRows` gives the core the rows held and reads its output with them.
+under the task's, lam = [lambda; w], their curvature in M). Where the rows' constraint has a compiled check that
+holds them too (``row_guard``, whose ``holds``: a scene's
+:class:`~kinredund.tracking.constraints.scene.SceneClearance`, ``RowGuard`` in ``src/core/distances.cpp``; a
+:class:`~kinredund.tracking.constraints.clearance.SphereClearance` or ``PlaneClearance``, ``FrameRows`` in
+``src/core/frame_rows.cpp``), which the core already holds (``StepCore.set_guard``), the core extends its own
+evaluation the same way (``StepCore.set_rows``, ``src/core/step.cpp``): the rows' values and gradients as the
+constraint's ``rows_at`` gives them, their curvature sum_i w_i Hess c_i as its ``curvature`` gives it (a scene's
+central differences, ``curvature="differences"``, the default; a frame clearance's analytic one), the rates afresh
+at a corrected point far from the prediction (``GeneralRows._rates_stale``), and after the step the search's tests:
+a held row's multiplier below zero (status ``row_release``) and, in the check, every other row's reach and dip with
+the held rows left out, as ``pending_switches`` leaves them out. A step the check does not clear is searched by the
+stepper itself, as one with no row held. :class:`HeldRows` gives the core the rows held and reads its output with
+them.
 
-Where the curvature is taken another way (``curvature="witness"``), or the rows are not one plain
-``SceneClearance``'s (a :class:`~kinredund.tracking.constraints.clearance.SphereClearance`, a ``CornerClearance``, two
-constraints: no compiled check, ``row_guard``), the steps with a row held stay the Python stepper's.
+Where a scene's curvature is taken another way (``curvature="witness"``), or the rows have no compiled check (a
+``CornerClearance``, two or more constraints: ``row_guard`` None), the steps with a row held stay the Python
+stepper's.
 """
 
 from __future__ import annotations
@@ -49,8 +52,8 @@ class HeldRows:
         self.rows, self.layout, self._extend = (), None, None
 
     def valid(self) -> bool:
-        """Is the scene still the one the rows were made for? (After a change the constraint's queries raise: the
-        Python stepper's step meets that error.)"""
+        """Does the check still describe the rows (a scene's: the scene unchanged; after a change the constraint's
+        queries raise, and the Python stepper's step meets that error)?"""
         return self.guard.valid()
 
     def sync(self) -> None:

@@ -32,10 +32,10 @@ one :meth:`~kinredund.tracking.compiled.CompiledStep.step` would take, with the 
 and the state equal those of one-by-one steps (``tests/test_tracking_runs.py``). Runs go on through steps with
 joints held on their bounds (the core's reduced system, the active set it was given: ``StepCore.set_active``); the
 active set changes only at a step the core hands back (a bound reached or released, whose switch the Python stepper
-locates), so it is the same throughout a run. With a scene's general rows (issue 27) runs take the steps with no row
+locates), so it is the same throughout a run. With general rows (issue 27) runs take the steps with no row
 active where the rows have the core's compiled check (``CompiledStep.guard``, :mod:`kinredund.tracking.compiled`, which
 ``StepCore.step_guarded`` runs after a single step): the run calls it after each step, as that single step does, and
-writes each step's smallest row value (``RowGuard.smallest``: the record's, as ``keep_smallest`` keeps it); the first
+writes each step's smallest row value (the check's ``smallest``: the record's, as ``keep_smallest`` keeps it); the first
 step it does not clear is handed over with its verdict (``GUARD_DUE``:
 :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, whose search for a switch decides), and a guarded run ends at
 the first step the watch measures, exactly or by its inverse iteration (as when the watch's verdicts were taken after

@@ -14,6 +14,7 @@
 // referenced, not copied: after a query they hold what the Python path would leave in them (a RowGuard's checks,
 // on a workspace of their own, may leave the objects' poses behind the joints': DistanceQuery::place).
 #include "distances.hpp"
+#include "rows.hpp"
 
 #include <boost/python.hpp>
 #include <nanobind/eigen/dense.h>
@@ -226,7 +227,7 @@ class DistanceQuery {
   }
 
   // differences() on checked arguments into D (nv m x nv), touching no Python object (the core's step calls it with
-  // the GIL released: RowGuard::differences_at).
+  // the GIL released: RowGuard::add_curvature).
   void differences_at(const Eigen::Ref<const VectorXd>& q, double limit, const Eigen::Ref<const VectorXl>& ks,
                       double eps, RowMatrixXd& D) {
     const Eigen::Index nv = model_.nv, m = ks.size();
@@ -490,7 +491,7 @@ class DistanceQuery {
 // h max(|v0|, |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would
 // find nothing). False (look in Python) otherwise, and for a q outside the box of the bound or not finite. The
 // core's step calls it directly where it holds the guard (StepCore.set_guard, step.cpp): row_guard_clear.
-class RowGuard {
+class RowGuard : public RowSource {
  public:
   RowGuard(DistanceQuery& query, const Eigen::Ref<const VectorXl>& row_of_pair, const Eigen::Ref<const VectorXd>& clearances,
            double influence, const Eigen::Ref<const RowMatrixXd>& bound, const Eigen::Ref<const VectorXd>& extent,
@@ -525,8 +526,9 @@ class RowGuard {
     move_.resize(nv);
   }
 
-  Eigen::Index nv() const { return bound_.cols(); }
-  Eigen::Index size() const { return clearances_.size(); }
+  Eigen::Index nv() const override { return bound_.cols(); }
+  Eigen::Index size() const override { return clearances_.size(); }
+  bool holdable(Eigen::Index r) const override { return pair_of(r) >= 0; }
   // row r's pair in the query (-1: a row no pair gives)
   std::int64_t pair_of(Eigen::Index r) const { return pair_of_row_[static_cast<std::size_t>(r)]; }
 
@@ -534,7 +536,7 @@ class RowGuard {
   // SceneClearance._query gives them (the rows of query(q, influence, rows=True): d - clearance within the influence,
   // influence - clearance and a zero row beyond it). Every row has a pair (StepCore.set_rows checks). No Python
   // object touched; the kept values of the checks are not changed (a check places the objects itself).
-  void rows_at(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, VectorXd& c, RowMatrixXd& G) {
+  void rows_at(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, VectorXd& c, RowMatrixXd& G) override {
     const Eigen::Index a = ks_rows.size();
     query_.pairs_at(q, influence_, pairs_of(ks_rows), d_, near_, G);
     c.resize(a);
@@ -544,10 +546,23 @@ class RowGuard {
     }
   }
 
-  // The central differences of rows `ks_rows`' gradients at q (DistanceQuery::differences on their pairs at the
-  // influence, step eps: SceneClearance.curvature's), no Python object touched.
-  void differences_at(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, double eps, RowMatrixXd& D) {
-    query_.differences_at(q, influence_, pairs_of(ks_rows), eps, D);
+  // M += sym(H), H[:, k] = w^T D[k] / (2 eps) with D the central differences of rows `ks_rows`' gradients at q
+  // (DistanceQuery::differences on their pairs at the influence, step eps: SceneClearance.curvature's, summed as
+  // kinredund.tracking.constraints.base.weighted_differences sums them), no Python object touched.
+  void add_curvature(const Eigen::Ref<const VectorXd>& q, const VectorXl& ks_rows, const VectorXd& w, double eps,
+                     RowMatrixXd& M) override {
+    query_.differences_at(q, influence_, pairs_of(ks_rows), eps, D_);
+    const Eigen::Index n = nv(), a = ks_rows.size();
+    const double h2 = 2.0 * eps;
+    H_.resize(n, n);
+    for (Eigen::Index k = 0; k < n; ++k)
+      for (Eigen::Index i = 0; i < n; ++i) {
+        double s = w[0] * D_(k * a, i);
+        for (Eigen::Index r = 1; r < a; ++r) s += w[r] * D_(k * a + r, i);
+        H_(i, k) = s / h2;
+      }
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (Eigen::Index k = 0; k < n; ++k) M(i, k) += 0.5 * (H_(i, k) + H_(k, i));
   }
 
   // the pairs of rows ks_rows (into pairs_)
@@ -564,14 +579,14 @@ class RowGuard {
     if (q0.size() != nv || q1.size() != nv || v0.size() != nv || v1.size() != nv)
       throw nb::value_error(("q0, q1, v0, v1 must have " + str(nv) + " entries").c_str());
     nb::gil_scoped_release release;
-    return clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h);
+    return clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h, nullptr);
   }
 
   // The check itself on raw arrays of nv entries (no Python object touched). `held`: rows held during the step
   // (the stepper's active rows, on their zero), left out of both tests as the stepper's search leaves them out
   // (GeneralRows._row_events' reach and SwitchLocation._row_dips); null: none.
   bool clear_at(const double* q0p, const double* q1p, const double* v0p, const double* v1p, double h,
-                const VectorXl* held = nullptr) {
+                const VectorXl* held) override {
     const auto start = std::chrono::steady_clock::now();
     held_ = held != nullptr && held->size() > 0 ? held : nullptr;
     const bool out = check(Eigen::Map<const VectorXd>(q0p, nv()), Eigen::Map<const VectorXd>(q1p, nv()),
@@ -585,7 +600,7 @@ class RowGuard {
   // the smallest row value at the last check's end q1 [m] (NaN where that check stopped before its values): exact
   // where it is at or below skip (the smallest row is then computed afresh or kept exact), else a lower bound above
   // skip - SceneClearance.values' guarantee, so the record's smallest value per point needs no query of its own
-  double smallest() const { return smallest_; }
+  double smallest() const override { return smallest_; }
   long distances() const { return distances_; }
   long placements() const { return placements_; }
   const std::vector<long>& computed() const { return computed_; }
@@ -606,25 +621,13 @@ class RowGuard {
     c_end_ = c1_;
     have_end_ = true;
     if (reached) return false;
-    move_ = (q1 - q0).cwiseAbs().cwiseMax(h * v0.cwiseAbs().cwiseMax(v1.cwiseAbs())) +
-            0.25 * h * (v1 - v0).cwiseAbs();
+    segment_move(q0, q1, v0, v1, h, move_);
     if (0.5 * least(c0_ + c1_ - top_ * move_.sum()) >= -tol_) return true;  // B_r move <= max(B_r) sum(move)
     return 0.5 * least(c0_ + c1_ - bound_ * move_) >= -tol_;
   }
 
   // the least entry of a row vector but the held rows' (check: they are left out of its tests)
-  double least(const VectorXd& v) const {
-    if (held_ == nullptr) return v.minCoeff();
-    double out = std::numeric_limits<double>::infinity();
-    for (Eigen::Index r = 0; r < v.size(); ++r) {
-      bool skip = false;
-      for (Eigen::Index i = 0; i < held_->size(); ++i) skip = skip || (*held_)[i] == r;
-      if (skip) continue;
-      if (std::isnan(v[r])) return v[r];  // (the test then fails)
-      out = std::min(out, v[r]);
-    }
-    return out;
-  }
+  double least(const VectorXd& v) const { return least_but(v, held_); }
 
   bool boxed(const Eigen::Ref<const VectorXd>& q) const {
     return q.allFinite() && (q.cwiseAbs().array() <= extent_.array()).all();
@@ -767,36 +770,17 @@ class RowGuard {
   VectorXl pairs_;              // rows_at, differences_at: the rows' pairs
   VectorXd d_;                  // rows_at: their distances
   std::vector<char> near_;      // rows_at: within the influence
+  RowMatrixXd D_, H_;           // add_curvature: the differences, the weighted sum
 };
 
-RowGuard& row_guard(nb::handle obj) {
-  if (!nb::isinstance<RowGuard>(obj)) throw nb::type_error("expected a kinredund._core.RowGuard");
-  return *nb::inst_ptr<RowGuard>(obj);
+RowSource& row_source(nb::handle obj) {
+  if (!nb::isinstance<RowSource>(obj)) throw nb::type_error("expected a kinredund._core.RowGuard or FrameRows");
+  return nb::cast<RowSource&>(obj);
 }
 
-Eigen::Index row_guard_nv(const RowGuard& guard) { return guard.nv(); }
-
-bool row_guard_clear(RowGuard& guard, const double* q0, const double* q1, const double* v0, const double* v1,
-                     double h, const RowIndices* held) {
-  return guard.clear_at(q0, q1, v0, v1, h, held);
+void bind_row_source(nb::module_& m) {
+  nb::class_<RowSource>(m, "RowSource", "A constraint's rows as the core's step holds them (issues 27, 28).");
 }
-
-double row_guard_smallest(const RowGuard& guard) { return guard.smallest(); }
-
-Eigen::Index row_guard_size(const RowGuard& guard) { return guard.size(); }
-
-bool row_guard_has_pair(const RowGuard& guard, Eigen::Index row) { return guard.pair_of(row) >= 0; }
-
-void row_guard_rows(RowGuard& guard, const Eigen::Ref<const Eigen::VectorXd>& q, const RowIndices& rows,
-                    Eigen::VectorXd& c, RowMajorMatrix& G) {
-  guard.rows_at(q, rows, c, G);
-}
-
-void row_guard_differences(RowGuard& guard, const Eigen::Ref<const Eigen::VectorXd>& q, const RowIndices& rows,
-                           double eps, RowMajorMatrix& D) {
-  guard.differences_at(q, rows, eps, D);
-}
-
 
 void bind_distances(nb::module_& m) {
   nb::class_<DistanceQuery>(m, "DistanceQuery",
@@ -812,7 +796,7 @@ void bind_distances(nb::module_& m) {
       .def("closest", &DistanceQuery::closest, nb::arg("q"))
       .def("differences", &DistanceQuery::differences, nb::arg("q"), nb::arg("limit"), nb::arg("pairs"),
            nb::arg("eps"));
-  nb::class_<RowGuard>(m, "RowGuard", "The compiled driver's check of a step for a scene's row switch (issue 27).")
+  nb::class_<RowGuard, RowSource>(m, "RowGuard", "The compiled driver's check of a step for a scene's row switch (issue 27).")
       .def(nb::init<DistanceQuery&, const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXd>&, double,
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),
            nb::arg("query"), nb::arg("row_of_pair"), nb::arg("clearances"), nb::arg("influence"), nb::arg("bound"),

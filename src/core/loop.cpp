@@ -13,11 +13,11 @@
 // routine of StepCore.watch_measure, which the single steps call), the state carried from measurement to measurement
 // as the watch carries it (Watch.took, Watch.keep_exact); where that measurement is not watch_measure's (v of another
 // size, u not finite: the Python watch's exact branch) the run ends there as without it.
-// With a scene's row check (``guard``: the StepCore's RowGuard, StepCore.set_guard) each step is checked right after
-// it, as StepCore.step_guarded checks a single step (RowGuard.clear on the same arrays, its smallest row value at the
-// step's end written out): the run ends at the first step the check does not clear (GUARD_DUE, its row written: the
-// caller's stepper searches it for a switch), and after the first step the watch measures, exactly or by the inverse
-// iteration (as when the watch's verdicts were taken after the run, which could drop the rows after it while the
+// With a row check (``guard``: the StepCore's RowSource, a scene's RowGuard or a frame's FrameRows: StepCore.set_guard)
+// each step is checked right after it, as StepCore.step_guarded checks a single step (its clear_at on the same
+// arrays, its smallest row value at the step's end written out): the run ends at the first step the check does not
+// clear (GUARD_DUE, its row written: the caller's stepper searches it for a switch), and after the first step the
+// watch measures, exactly or by the inverse iteration (as when the watch's verdicts were taken after the run, which could drop the rows after it while the
 // guard's kept values could not be taken back; the verdicts are the run's now, but guarded runs were left as they
 // were).
 #include "loop.hpp"
@@ -30,7 +30,7 @@
 #include <vector>
 
 #include "arrays.hpp"
-#include "distances.hpp"
+#include "rows.hpp"
 #include "step.hpp"
 #include "watch.hpp"
 
@@ -127,7 +127,7 @@ nb::ndarray<nb::numpy, double> array_of(const std::vector<double>& a, size_t row
 // run(core, t (K), p, v (K x 3), Q (K x 9 or 0 x 9), omega (K x 3 or 0 x 3), ref, rate (K x n or 0 x n), y, yd,
 //     prev (list of arrays), qdot0, speed2, check_jump, watch (on, near, drop, last rcond, count, every[, through[,
 //     v or None, J_ref, sigma_ref, gate, history]]), out, guard (None, or (the time of the run's start [s], smallest:
-//     an array of >= K entries that receives each checked step's RowGuard.smallest))) -> (steps done, status, the
+//     an array of >= K entries that receives each checked step's guard smallest))) -> (steps done, status, the
 // watch's state after the run's measurements or None where it kept none). The watch's verdicts on its measurements
 // are taken in the run, as the step control takes them one by one (Watch.crossed, then Watch.keep_exact or
 // Watch.took, Watch.push; the history's: WatchHistory, watch.cpp): an exact measurement the watch rejects ends the run
@@ -176,7 +176,7 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
             nb::cast<double>(watch[3]), nb::cast<long>(watch[4]), nb::cast<long>(watch[5]),
             nb::len(watch) > 6 && nb::cast<bool>(watch[6])};
   if (gate.every < 1) throw nb::value_error("the watch's exact interval must be >= 1");
-  RowGuard* guard = nullptr;
+  RowSource* guard = nullptr;
   double t_start = 0.0;
   OutVec smallest;  // (kept alive while its pointer is used)
   if (!guard_arg.is_none()) {
@@ -218,8 +218,8 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
       if (status != 0) break;
       if (guard != nullptr) {  // StepCore.step_guarded's check: from [q; lam] with rates qd to the row's, h [s] long
         const double h = t.data()[k] - (k ? t.data()[k - 1] : t_start);
-        const bool clear = row_guard_clear(*guard, y, o, qd, o + N, h);
-        smallest.data()[k] = row_guard_smallest(*guard);
+        const bool clear = guard->clear_at(y, o, qd, o + N, h, nullptr);
+        smallest.data()[k] = guard->smallest();
         if (!clear) {
           status = GUARD_DUE;
           break;

@@ -3,6 +3,7 @@
 #include "loop.hpp"
 #include "paths.hpp"
 #include "record_checks.hpp"
+#include "rows.hpp"
 
 #include <boost/python.hpp>
 #include <nanobind/nanobind.h>
@@ -101,7 +102,9 @@ NB_MODULE(_core, m) {
       .def("jacobian_hessian", &kinredund::Kinematics::jacobian_hessian, nb::arg("q"));
   kinredund::bind_step(m);
   kinredund::bind_ik(m);
+  kinredund::bind_row_source(m);
   kinredund::bind_distances(m);
+  kinredund::bind_frame_rows(m);
   kinredund::bind_loop(m);
   kinredund::bind_watch(m);
   kinredund::bind_paths(m);

@@ -13,8 +13,8 @@
 // Python reference's likewise (it then names the failure). The Python stepper's own corrector solves (a handed-back
 // step's, a sub-step's, the switching-time search's: kinredund/tracking/compiled_correct.py) run here as well
 // (correct: advance()'s corrector without its verdicts, the fallback through start_at).
-#include "distances.hpp"
 #include "frame.hpp"
+#include "rows.hpp"
 #include "step.hpp"
 #include "watch.hpp"
 
@@ -71,7 +71,7 @@ struct Sample {
 
 class StepCore {
   friend const int* step_core_free(const StepCore&, int&);
-  friend RowGuard* step_core_guard(const StepCore&);
+  friend RowSource* step_core_guard(const StepCore&);
   friend const double* step_core_factors(const StepCore&, const int*&, int&);
   friend int step_core_advance(StepCore&, const StepInput&, const double*, const double*,
                                const std::vector<const double*>&, const double*, double, bool, double*);
@@ -136,32 +136,33 @@ class StepCore {
                         nullptr, 0.0);
   }
 
-  // The row check of a scene (distances.cpp's RowGuard, issue 27) that step_guarded runs after an ordinary step;
-  // None: none.
+  // The rows' check (rows.hpp's RowSource: a scene's RowGuard, distances.cpp, or a frame's FrameRows,
+  // frame_rows.cpp; issue 27) that step_guarded runs after an ordinary step; None: none.
   void set_guard(nb::object guard) {
     if (guard.is_none()) {
       guard_ = nullptr;
     } else {
-      RowGuard& g = row_guard(guard);
-      if (row_guard_nv(g) != n_) throw nb::value_error("the row guard's arrays must have the step's n entries");
+      RowSource& g = row_source(guard);
+      if (g.nv() != n_) throw nb::value_error("the row guard's arrays must have the step's n entries");
       guard_ = &g;
     }
-    guard_obj_ = guard;  // keeps the guard (and its distance query) alive while it is used
+    guard_obj_ = guard;  // keeps the guard (and what it computes with) alive while it is used
     rows_.resize(0);
     na_ = 0;
     m_ = mt_;
   }
 
-  // The general rows held (issue 27: GeneralRows.rows, kinredund/tracking/rows.py): the guard's rows `rows` (its
-  // scene's SceneClearance rows, each with a pair) appended to the task's equations, lam = [lambda; w], and their
-  // curvature sum_i w_i Hess c_i (central differences with step eps: SceneClearance.curvature) added to M, as
-  // RowPoint extends the evaluation; the step then has m = the task's + len(rows) multipliers. Empty: none.
+  // The general rows held (issue 27: GeneralRows.rows, kinredund/tracking/rows.py): the guard's rows `rows` (each
+  // one it can hold: a scene's with a pair) appended to the task's equations, lam = [lambda; w], and their
+  // curvature sum_i w_i Hess c_i (the guard's: SceneClearance.curvature's central differences with step eps, or a
+  // frame clearance's analytic one) added to M, as RowPoint extends the evaluation; the step then has m = the
+  // task's + len(rows) multipliers. Empty: none.
   void set_rows(const Eigen::Ref<const RowIndices>& rows, double eps) {
     if (rows.size() > 0 && guard_ == nullptr) throw nb::value_error("rows need the guard that computes them");
     if (!(eps > 0.0) || !std::isfinite(eps)) throw nb::value_error("eps must be a finite step > 0");
     for (Eigen::Index i = 0; i < rows.size(); ++i)
-      if (rows[i] < 0 || rows[i] >= row_guard_size(*guard_) || !row_guard_has_pair(*guard_, rows[i]))
-        throw nb::value_error("rows: the guard's rows (each with a pair)");
+      if (rows[i] < 0 || rows[i] >= guard_->size() || !guard_->holdable(rows[i]))
+        throw nb::value_error("rows: the guard's rows (each one it can hold)");
     rows_ = rows;
     eps_ = eps;
     na_ = static_cast<int>(rows.size());
@@ -170,9 +171,9 @@ class StepCore {
   // the number of rows held (set_rows)
   int held_rows() const { return na_; }
 
-  // step() and, after an ordinary step, the guard's check of it (RowGuard.clear from the step's start y[:n] with
+  // step() and, after an ordinary step, the guard's check of it (its clear_at from the step's start y[:n] with
   // rates qdot0 to its end, h [s] long; h < 0 or no guard: not cleared): the status code, or (array, cleared,
-  // smallest), smallest the guard's least row value at the step's end (RowGuard.smallest; NaN where it did not run).
+  // smallest), smallest the guard's least row value at the step's end (its smallest; NaN where it did not run).
   nb::object step_guarded(double h, double t, CRef sp, CRef sv, Mat3 sQ, CRef somega, CRef ref_t, CRef rate_t,
                           CRef y, CRef yd, nb::list prev_list, CRef qdot0, double speed2_prev, bool check_jump) {
     bool cleared = false;
@@ -180,7 +181,7 @@ class StepCore {
                                   check_jump, &cleared, h);
     if (nb::isinstance<nb::int_>(out)) return out;
     const bool ran = guard_ != nullptr && h >= 0.0;  // (step_checked ran the guard on every ordinary step then)
-    return nb::make_tuple(out, cleared, ran ? row_guard_smallest(*guard_) : std::numeric_limits<double>::quiet_NaN());
+    return nb::make_tuple(out, cleared, ran ? guard_->smallest() : std::numeric_limits<double>::quiet_NaN());
   }
 
  private:
@@ -207,7 +208,7 @@ class StepCore {
       nb::gil_scoped_release release;  // the step touches no Python object: trackers in threads step in parallel
       st = advance(y, yd, prevp, qdot0, speed2_prev, check_jump, *out);
       if (st == OK && cleared != nullptr && guard_ != nullptr && h >= 0.0)  // [q; lam] and its rates lead the row
-        *cleared = row_guard_clear(*guard_, y.data(), out->data(), qdot0.data(), out->data() + N, h, &rows_);
+        *cleared = guard_->clear_at(y.data(), out->data(), qdot0.data(), out->data() + N, h, &rows_);
     }
     if (st != OK) return nb::int_(st);
     return numpy_of(std::move(out));
@@ -674,7 +675,7 @@ class StepCore {
     }
     if (na_ > 0) {  // RowPoint: the rows held under the task's, r = [r; c], J = [J; G], xdot = [xdot; 0]
       qe_ = q;
-      row_guard_rows(*guard_, qe_, rows_, c_, G_);
+      guard_->rows_at(qe_, rows_, c_, G_);
       r_.conservativeResize(m_);
       r_.tail(na_) = c_;
       J_.conservativeResize(m_, n_);
@@ -684,22 +685,8 @@ class StepCore {
     }
   }
 
-  // RowPoint.system's share of the rows held: M += sym(H), H[:, k] = w^T D[k] / (2 eps) with D the central
-  // differences of their gradients at the evaluation's q (kinredund.tracking.constraints.base.weighted_differences)
-  void add_curvature(const VectorXd& w, RowMatrixXd& M) {
-    row_guard_differences(*guard_, qe_, rows_, eps_, D_);
-    const int n = n_, a = na_;
-    const double h2 = 2.0 * eps_;
-    RowMatrixXd H(n, n);
-    for (int k = 0; k < n; ++k)
-      for (int i = 0; i < n; ++i) {
-        double s = w[0] * D_(k * a, i);
-        for (int r = 1; r < a; ++r) s += w[r] * D_(k * a + r, i);
-        H(i, k) = s / h2;
-      }
-    for (int i = 0; i < n; ++i)
-      for (int k = 0; k < n; ++k) M(i, k) += 0.5 * (H(i, k) + H(k, i));
-  }
+  // RowPoint.system's share of the rows held: M += sum_i w_i Hess c_i at the evaluation's q (the guard's)
+  void add_curvature(const VectorXd& w, RowMatrixXd& M) { guard_->add_curvature(qe_, rows_, w, eps_, M); }
 
   // TaskTerms of each kind (r, J, xdot and what system() needs)
   void task_terms() {
@@ -1059,7 +1046,7 @@ class StepCore {
   int na_ = 0;
   double eps_ = 1e-6;
   VectorXd qe_, c_;
-  RowMatrixXd G_, D_;
+  RowMatrixXd G_;
   // the evaluation
   Sample s_;
   MatrixXd J6_;
@@ -1074,7 +1061,7 @@ class StepCore {
   MatrixXd R_, lu_;
   VectorXi ipiv_;
   double rcond_ = 0.0;
-  RowGuard* guard_ = nullptr;  // set_guard's (held by guard_obj_)
+  RowSource* guard_ = nullptr;  // set_guard's (held by guard_obj_)
   nb::object guard_obj_;
 };
 
@@ -1093,7 +1080,7 @@ const int* step_core_free(const StepCore& c, int& nf) {
   return c.free_.data();
 }
 
-RowGuard* step_core_guard(const StepCore& c) { return c.guard_; }
+RowSource* step_core_guard(const StepCore& c) { return c.guard_; }
 
 int step_core_held_rows(const StepCore& c) { return c.held_rows(); }
 

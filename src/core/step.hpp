@@ -23,9 +23,9 @@ StepCore& step_core(nanobind::handle obj);
 void step_core_sizes(const StepCore& core, int& n, int& m, int& row);
 // The number of general rows the core holds (StepCore.set_rows; m counts them).
 int step_core_held_rows(const StepCore& core);
-// The row check that step_guarded runs after a step (StepCore.set_guard; distances.hpp), or null: none.
-class RowGuard;
-RowGuard* step_core_guard(const StepCore& core);
+// The row check that step_guarded runs after a step (StepCore.set_guard; rows.hpp), or null: none.
+class RowSource;
+RowSource* step_core_guard(const StepCore& core);
 // The free joints' numbers (ascending; all n where no joint is held: StepCore.set_active), nf of them.
 const int* step_core_free(const StepCore& core, int& nf);
 // R's LU factors of the last step (N x N column-major, LAPACK's layout) and their 0-based pivots (StepCore.factors).

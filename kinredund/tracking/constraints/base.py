@@ -52,6 +52,27 @@ def weighted_differences(w: np.ndarray, D: np.ndarray) -> np.ndarray:
     return 0.5 * (H + H.T)
 
 
+class RowCheck:
+    """A constraint's compiled check of a step (:meth:`Constraint.row_guard`'s answer): ``compiled``, the core's
+    ``RowSource`` (a scene's ``kinredund._core.RowGuard``, a frame clearance's ``FrameRows``), which the compiled
+    step holds (``StepCore.set_guard``); ``holds``, whether the core can hold the rows too, as the stepper's extended
+    system (:mod:`kinredund.tracking.compiled_rows`)."""
+
+    __slots__ = ("compiled", "holds")
+
+    def __init__(self, compiled, holds: bool):
+        self.compiled, self.holds = compiled, holds
+
+    def valid(self) -> bool:
+        """Does the check still describe the constraint? (Always, unless a subclass says otherwise; the core's
+        verdict counts only where this holds.)"""
+        return True
+
+    def clear(self, q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float) -> bool:
+        """True where no row can switch within the step from (q0, v0) to (q1, v1), h [s] long (``compiled.clear``)."""
+        return self.valid() and self.compiled.clear(q0, q1, v0, v1, h)
+
+
 class Constraint(abc.ABC):
     """Inequalities c(theta) >= 0 on the joints [rad or m]; ``size`` of them."""
 
@@ -121,11 +142,11 @@ class Constraint(abc.ABC):
         """
         return None
 
-    def row_guard(self, tol: float):
-        """A compiled check that a step holds no switch of these rows (``clear(q0, q1, v0, v1, h)``: none reached
-        below -``tol`` [m] at q1, none able to dip below it between; :mod:`kinredund.tracking.compiled`), or None:
-        the default, where the stepper's own search checks every step. Its ``holds``: whether the compiled core
-        can hold the rows too, as the stepper's extended system (:mod:`kinredund.tracking.compiled_rows`)."""
+    def row_guard(self, tol: float) -> RowCheck | None:
+        """A compiled check that a step holds no switch of these rows (a :class:`RowCheck`: ``clear(q0, q1, v0, v1,
+        h)``, none reached below -``tol`` [m] at q1, none able to dip below it between;
+        :mod:`kinredund.tracking.compiled`), or None: the default, where the stepper's own search checks every
+        step."""
         return None
 
     def representative(self, q: np.ndarray, row: int) -> int:

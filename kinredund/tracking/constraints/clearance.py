@@ -9,6 +9,11 @@ a frame of the robot is kept at ``clearance`` [m] from an obstacle,
 with J_p the frame's translational Jacobian [m/rad]. The curvature terms (their share of M in the
 system) are analytic: sum_a n_a Hess p_a (Pinocchio's kinematic Hessian), plus J_p^T (I - n n^T) J_p /
 ||p_f - center|| for the sphere. A distance row of a collision pair (n^T (J_a - J_b)) plugs in the same way.
+
+Where the compiled core loads, :meth:`_FrameClearance.row_guard` gives the compiled step the same row
+(``kinredund._core.FrameRows``, ``src/core/frame_rows.cpp``: the values, the gradient and the analytic curvature
+above with the same Pinocchio calls, and the test of :meth:`_FrameClearance.segment_lower_bounds`), so that its steps
+are checked for a switch and the row held in C++ (:mod:`kinredund.tracking.compiled_rows`).
 """
 
 from __future__ import annotations
@@ -16,10 +21,14 @@ from __future__ import annotations
 import numpy as np
 
 from kinredund.errors import OptionError
+from kinredund.geometry.engine import compiled_core
 from kinredund.kinematics.state import Kinematics, PerThread
 from kinredund.model.frames import resolve_frame
 from kinredund.model.robot import Robot
-from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.constraints.base import Constraint, RowCheck
+
+#: the codes of the row's kind in ``kinredund._core.FrameRows``
+SPHERE, PLANE = 0, 1
 
 
 def _vector(value, what: str) -> np.ndarray:
@@ -82,6 +91,20 @@ class _FrameClearance(Constraint):
     def gradients(self, q: np.ndarray) -> np.ndarray:
         return self.rows_at(q)[1]
 
+    def _shape(self) -> tuple[int, np.ndarray, np.ndarray, float]:
+        """(kind code, the sphere's centre or the plane's point [m], the plane's unit normal, the radius [m])."""
+        raise NotImplementedError
+
+    def row_guard(self, tol: float) -> RowCheck | None:
+        """The compiled check and row (``kinredund._core.FrameRows``; module docstring), which the core holds too; None
+        where the core is not built, or the model has joints with nq != nv (the core's rows take q as nv entries)."""
+        core, model = compiled_core(), self._kinematics.model
+        if core is None or not hasattr(core, "FrameRows") or model.nq != model.nv:
+            return None
+        kind, point, normal, radius = self._shape()
+        return RowCheck(core.FrameRows(model, self.frame_id, kind, point, normal, radius, self.clearance,
+                                       self._reach, self._extent, float(tol)), holds=True)
+
     def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, p, K = self._kin.jacobian(np.asarray(q, float))
         return self._value(p), (self._normal(p)[0] @ K[3:])[None, :]  # n^T J_p (K's rows: [omega; pdot])
@@ -124,6 +147,9 @@ class SphereClearance(_FrameClearance):
             raise OptionError(f"frame {self.frame} is at the sphere's center: its clearance has no gradient")
         return d / dist, 1.0 / dist
 
+    def _shape(self) -> tuple[int, np.ndarray, np.ndarray, float]:
+        return SPHERE, self.center, np.zeros(3), self.radius
+
     def _value(self, p: np.ndarray) -> np.ndarray:
         d = p - self.center
         return np.array([np.sqrt(d @ d) - self.radius - self.clearance])
@@ -149,6 +175,9 @@ class PlaneClearance(_FrameClearance):
 
     def _normal(self, p: np.ndarray) -> tuple[np.ndarray, float]:
         return self.normal, 0.0
+
+    def _shape(self) -> tuple[int, np.ndarray, np.ndarray, float]:
+        return PLANE, self.origin, self.normal, 0.0
 
     def _value(self, p: np.ndarray) -> np.ndarray:
         return np.array([self.normal @ (p - self.origin) - self.clearance])

@@ -72,7 +72,7 @@ import numpy as np
 from kinredund.errors import OptionError, check_choice
 from kinredund.geometry.polytopes import vertex_corner, vertex_piece
 from kinredund.geometry.scene import Scene
-from kinredund.tracking.constraints.base import DIFFERENCE_STEP, Constraint, weighted_differences
+from kinredund.tracking.constraints.base import DIFFERENCE_STEP, Constraint, RowCheck, weighted_differences
 
 #: how :meth:`SceneClearance.curvature` is taken (class docstring)
 CURVATURES = ("differences", "witness")
@@ -340,26 +340,21 @@ class SceneClearance(Constraint):
         return out
 
 
-class _SceneGuard:
+class _SceneGuard(RowCheck):
     """:meth:`SceneClearance.row_guard`'s check for the scene as it was when the constraint was made: after a change
-    of the scene it clears no step (the stepper's search then meets :meth:`SceneClearance._query`'s error)."""
+    of the scene it clears no step (the stepper's search then meets :meth:`SceneClearance._query`'s error). It holds
+    the rows (``holds``) where their curvature is the central differences (``curvature="differences"``: the core
+    computes those, not the witness form)."""
 
-    __slots__ = ("compiled", "holds", "_scene", "_pairs")
+    __slots__ = ("_scene", "_pairs")
 
     def __init__(self, guard, scene: Scene, pairs: tuple, holds: bool):
-        self.compiled, self._scene, self._pairs = guard, scene, pairs  # compiled: the kinredund._core.RowGuard
-        # can the core hold the rows too (their values, gradients and curvature as SceneClearance's: the central
-        # differences, curvature="differences"; kinredund.tracking.compiled_rows)?
-        self.holds = holds
+        super().__init__(guard, holds)  # compiled: the kinredund._core.RowGuard
+        self._scene, self._pairs = scene, pairs
 
     def valid(self) -> bool:
-        """Is the scene still the one the check was made for? (The core's step runs ``compiled`` itself:
-        ``StepCore.set_guard``; its verdict counts only where this holds.)"""
+        """Is the scene still the one the check was made for?"""
         return self._scene.pairs is self._pairs
-
-    def clear(self, q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float) -> bool:
-        """True where no row can switch within the step (``kinredund._core.RowGuard.clear``)."""
-        return self._scene.pairs is self._pairs and self.compiled.clear(q0, q1, v0, v1, h)
 
 
 def _corner_note(one: Scene, pair: tuple[str, str], a: np.ndarray, b: np.ndarray) -> str:

@@ -1,0 +1,170 @@
+"""A frame clearance's row in the compiled core (issue 28): ``kinredund._core.FrameRows`` (src/core/frame_rows.cpp).
+
+A :class:`~kinredund.tracking.SphereClearance` or :class:`~kinredund.tracking.PlaneClearance` gives the compiled step
+its row (``row_guard``): the core checks each step for a switch of it and holds it as the Python stepper's extended
+system does (:mod:`kinredund.tracking.compiled_rows`). Its value, gradient and curvature are the constraint's own,
+computed with the same Pinocchio calls, so they agree to rounding; its check is the stepper's search's first test
+(``segment_lower_bounds``); stepped in turn, the two backends agree to the issue's 1e-12 rad at every step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_tracking_clearance import CASES
+from test_tracking_compiled import assert_same_record, both
+from test_tracking_compiled_rows import agree_in_turn, assert_same_rows
+from test_tracking_limits import case
+
+from kinredund.model.loader import load_robot
+from kinredund.tracking import PlaneClearance, SphereClearance, Tracker, compiled
+from kinredund.tracking.rows import ROW_TOL
+from kinredund.tracking.switches import segment_move
+
+pytestmark = pytest.mark.skipif(compiled.load_core() is None, reason="the compiled core is not built")
+
+EPS = np.finfo(float).eps
+
+
+def constraints(robot):
+    """A sphere and a plane on the origin of a frame four from the end (an elbow or wrist link)."""
+    frame = robot.model.frames[len(robot.model.frames) - 6].name
+    return [SphereClearance(robot, frame, [0.2, 0.1, 0.4], 0.1, 0.02),
+            PlaneClearance(robot, frame, [0.0, 0.0, 0.1], [0.3, 0.2, 1.0], 0.01)]
+
+
+@pytest.mark.parametrize("name", ["panda", "xarm7", "ur5"])
+def test_the_cores_row_is_the_constraints(name):
+    """FrameRows.rows and .curvature against the constraint's rows_at and curvature at random joints: the same
+    Pinocchio calls and a few dozen operations on numbers of size max(1, |x|) (kind 1 of the tolerance policy)."""
+    robot = load_robot(name, task="position")
+    rng = np.random.default_rng(3)
+    for c in constraints(robot):
+        check = c.row_guard(ROW_TOL)
+        assert check is not None and check.holds and check.valid()
+        sizes = []
+        for _ in range(20):
+            q = rng.uniform(robot.lower, robot.upper)
+            w = rng.normal()
+            (value, G), (pv, pG) = check.compiled.rows(q), c.rows_at(q)
+            H, pH = check.compiled.curvature(q, w), c.curvature(q, np.array([w]), np.array([0]))
+            for x, y in ((value, pv), (G, pG), (H, pH)):
+                assert x.shape == y.shape
+                np.testing.assert_allclose(x, y, rtol=0, atol=64 * EPS * max(1.0, np.abs(y).max()))
+            sizes.append((np.abs(pG).max(), np.abs(pH).max()))
+        assert np.min(np.max(sizes, axis=0)) > 1e-2  # (the comparison is of numbers, not zeros)
+
+
+def test_the_curvature_is_the_gradients_derivative():
+    """w Hess c from the core against central differences of the constraint's gradient (step 1e-6: O(h^2) + the
+    gradient's rounding / h, about 1e-9 relative), so the core's curvature is right, not only Python's twin."""
+    robot = load_robot("panda", task="position")
+    rng = np.random.default_rng(4)
+    h = 1e-6
+    for c in constraints(robot):
+        check = c.row_guard(ROW_TOL)
+        for _ in range(5):
+            q = rng.uniform(robot.lower, robot.upper)
+            H = check.compiled.curvature(q, 1.0)
+            D = np.array([(c.gradients(q + h * e) - c.gradients(q - h * e))[0] / (2 * h) for e in np.eye(len(q))])
+            np.testing.assert_allclose(H, 0.5 * (D + D.T), rtol=0, atol=1e-7 * max(1.0, np.abs(H).max()))
+
+
+def test_the_check_is_the_searchs_test():
+    """FrameRows.clear on random steps is True exactly where the stepper's search has nothing to look at: the row at
+    the end >= -ROW_TOL and its segment_lower_bounds >= -ROW_TOL (both cases drawn: steps near and far from the
+    sphere); a second check from the first's end, with the value kept there, gives a fresh check's verdict."""
+    robot = load_robot("panda", task="position")
+    rng = np.random.default_rng(5)
+    probe = SphereClearance(robot, "panda_link4", np.zeros(3), 1.0)
+    points = np.array([probe.point(q) for q in rng.uniform(robot.lower, robot.upper, (50, 7))])
+    centre = points.mean(axis=0)  # a sphere that holds about half the frame's points inside
+    c = SphereClearance(robot, "panda_link4", centre, float(np.median(np.linalg.norm(points - centre, axis=1))))
+    check = c.row_guard(ROW_TOL)
+    verdicts = []
+    for _ in range(300):
+        q0 = rng.uniform(robot.lower, robot.upper)
+        q1 = q0 + rng.normal(0.0, 0.02, len(q0))
+        v0, v1 = rng.normal(0.0, 0.5, (2, len(q0)))
+        h = 0.02
+        c0, c1 = c.values(q0), c.values(q1)
+        bound = c.segment_lower_bounds(q0, q1, c0, c1, segment_move(q0, q1, v0, v1, h))
+        expected = bool(c1[0] >= -ROW_TOL and bound[0] >= -ROW_TOL)
+        got = check.clear(q0, q1, v0, v1, h)
+        assert got == expected and check.compiled.smallest == pytest.approx(c1[0], abs=64 * EPS)
+        q2 = q1 + (q1 - q0)
+        assert check.clear(q1, q2, v1, v0, h) == c.row_guard(ROW_TOL).clear(q1, q2, v1, v0, h)
+        verdicts.append(got)
+    assert 30 < sum(verdicts) < 270
+    assert not check.clear(q0, q1, v0, v1, -1.0) and np.isnan(check.compiled.smallest)  # a bad step length
+
+
+def test_a_joint_beyond_its_extent_is_never_cleared():
+    """A prismatic joint's reach holds within its limits' extent only: beyond it the check clears no step, as
+    segment_lower_bounds gives the search no bound."""
+    robot = load_robot("panda", task="position")
+    rows = SphereClearance(robot, "panda_link4", [2.0, 0.0, 0.0], 0.1).row_guard(ROW_TOL).compiled
+    import kinredund._core as core
+
+    model = robot.model
+    fid = model.getFrameId("panda_link4")
+    boxed = core.FrameRows(model, fid, 0, np.array([2.0, 0.0, 0.0]), np.zeros(3), 0.1, 0.0, np.ones(7),
+                           np.full(7, 4.0), 1e-9)
+    q = np.zeros(7)
+    assert rows.clear(q, q, q, q, 0.01) and boxed.clear(q, q, q, q, 0.01)
+    q[3] = -5.0
+    assert not boxed.clear(q, q, np.zeros(7), np.zeros(7), 0.01)
+
+
+@pytest.mark.parametrize(("kind", "bad"), [(2, {}), (0, {"radius": 0.0}), (0, {"reach": -np.ones(7)}),
+                                           (0, {"point": np.array([np.nan, 0.0, 0.0])}), (1, {"clearance": -1.0})])
+def test_bad_arguments_are_refused(kind, bad):
+    robot = load_robot("panda", task="position")
+    import kinredund._core as core
+
+    args = {"point": np.zeros(3), "normal": np.array([0.0, 0.0, 1.0]), "radius": 0.1, "clearance": 0.0,
+            "reach": np.ones(7), "extent": np.full(7, np.inf), "tol": 1e-9} | bad
+    with pytest.raises(ValueError):
+        core.FrameRows(robot.model, robot.model.getFrameId("panda_link4"), kind, **args)
+
+
+def sphere_tracker(name, backend, **kw):
+    circle, frame, center, radius = CASES[name]
+    r, path, index, q0 = case(circle)
+    return Tracker(r, path, index, q0, path.period / 200, backend=backend,
+                   constraints=[SphereClearance(r, frame, center, radius)], **kw)
+
+
+@pytest.mark.parametrize(("name", "options"), [("panda_elbow_sphere", {}),
+                                               ("panda_elbow_sphere", {"scheme": "velocity"}),
+                                               ("panda_elbow_sphere", {"strict": False}), ("xarm7_elbow_sphere", {})])
+def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, options):
+    """Five loops stepped in turn (agree_in_turn: the joints to Q_BAR and the multipliers, the row's too, to rounding
+    at every step, the row held and the switches the same); the core took most steps with the row held (none handed
+    back for it as row_active) and the switching-time search's corrector solves with it."""
+    a, b = sphere_tracker(name, "python", **options), sphere_tracker(name, "compiled", **options)
+    assert b.compiled.held is not None
+    agree_in_turn(a, b, 1000)
+    sa, sb = a.stepper, b.stepper
+    c = b.compiled
+    assert len(sa.switches) >= 8 and "row_active" not in c.handed_back
+    assert c.row_steps > 100 and c.steps + sum(c.handed_back.values()) == 1000
+    assert sb.corrector.row_solves >= 8
+
+
+def test_a_plane_held_is_the_python_run():
+    """The Panda's elbow circle with its elbow kept above a tilted plane it would pass below: held and left on both
+    backends, the same record."""
+    circle, frame, _, _ = CASES["panda_elbow_sphere"]
+    r, path, index, q0 = case(circle)
+    probe = PlaneClearance(r, frame, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+    free = Tracker(r, path, index, q0, path.period / 200, backend="python")
+    heights = []
+    for _ in range(200):
+        free.step()
+        heights.append(probe.values(free.q)[0])
+    plane = PlaneClearance(r, frame, [0.0, 0.0, 0.5 * (min(heights) + max(heights))], [0.1, 0.0, 1.0])
+    a, b = both(r, path, index, q0, loops=2, constraints=[plane])
+    assert len(a.meta["switches"]) >= 4 and any(a.meta["constraints"]["active"])
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
