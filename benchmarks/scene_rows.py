@@ -3,23 +3,23 @@
     python benchmarks/scene_rows.py [--json FILE] [--rounds N] [--steps N] [--backends compiled,python,...]
                                     [--case ball|sphere]
 
-The case (``--case``, default ``ball``) is tests/test_tracking_scene.py's ``panda_elbow_ball``:
-test_tracking_limits's ``panda_elbow_circle`` (a 13.3 cm circle on the Panda, z = 1/2 ||q - q_home||^2, the bounded
-optimum at its start) with a 5 cm sphere where the free optimum's upper arm passes, held at 2 cm (``Tracker(...,
-scene=, clearance=0.02, self_clearance=False)``: the robot's own pairs unchecked), dt = T / 200; or ``sphere``,
-clearance_peers.py's: the same circle with the origin of ``panda_link4`` kept out of a 0.1 m sphere
-(``constraints=[SphereClearance(...)]``, tests/test_tracking_clearance.py's ``panda_elbow_sphere``). Per round a fresh tracker takes ``--steps`` steps (default 400: two
-loops, the ball's row met and left in each), each timed on its own (perf_counter) and sorted by whether a general row
+The case (``--case``, default ``ball``) is tests/test_tracking_scene.py's ``panda_elbow_ball``: test_tracking_limits's
+``panda_elbow_circle`` (a 13.3 cm circle on the Panda, z = 1/2 ||q - q_home||^2, the bounded optimum at its start) with
+a 5 cm sphere where the free optimum's upper arm passes, held at 2 cm (``Tracker(..., scene=, clearance=0.02,
+self_clearance=False)``: the robot's own pairs unchecked), dt = T / 200; or ``sphere``, clearance_peers.py's: the same
+circle with the origin of ``panda_link4`` kept out of a 0.1 m sphere (``constraints=[SphereClearance(...)]``,
+tests/test_tracking_clearance.py's ``panda_elbow_sphere``). Per round a fresh tracker takes ``--steps`` steps (default
+400: two loops, the row met and left in each), each timed on its own (perf_counter) and sorted by whether a general row
 was active after it (``stepper.rows``), the rounds of the backends in turn (``--backends``, the first one's figures
-unsuffixed). Besides ``compiled`` and ``python``, the backend ``compiled-rows-in-python`` is the compiled one with
-the rows held left to the Python stepper, as before the core held them (``kinredund.tracking.compiled.held_rows``
-patched to give None for those rounds), and ``compiled-no-check`` the compiled one without the constraint's compiled
-check (its ``row_guard`` patched to give None: every step searched for a switch by the Python stepper, and the steps
-with a row held its own, as a sphere's were before ``FrameRows``). Figures, medians over the rounds of each round's median [us]:
+unsuffixed). Besides ``compiled`` and ``python``, the backend ``compiled-rows-in-python`` is the compiled one with the
+rows held left to the Python stepper, as before the core held them (``kinredund.tracking.compiled.held_rows`` patched to
+give None for those rounds), and ``compiled-no-check`` the compiled one without the constraint's compiled check (its
+``row_guard`` patched to give None: every step searched for a switch by the Python stepper, and the steps with a row
+held its own, as a sphere's were before ``FrameRows``). Figures, medians over the rounds of each round's median [us]:
 
-- ``scene_active_step_us``: a step with a row active (on the compiled backend the core's, the scene's rows held in
-  it: ``kinredund/tracking/compiled_rows.py``; the rows' curvature by central differences,
-  ``SceneClearance.curvature``);
+- ``scene_active_step_us``: a step with a row active (on the compiled backend the core's, the rows held in it:
+  ``kinredund/tracking/compiled_rows.py``; a scene's rows' curvature by central differences,
+  ``SceneClearance.curvature``, a sphere's analytic);
 - ``scene_active_step_cpu_us``: the same in this thread's CPU time (``time.thread_time``: not the time the scheduler
   gives other processes on a loaded machine);
 - ``scene_free_step_us``: a step with none (the core's step and its row check);

@@ -15,6 +15,8 @@ from test_tracking_clearance import CASES
 from test_tracking_compiled import assert_same_record, both
 from test_tracking_compiled_rows import agree_in_turn, assert_same_rows
 from test_tracking_limits import case
+from test_tracking_scene import CLEARANCE as SCENE_CLEARANCE
+from test_tracking_scene import setup as scene_setup
 
 from kinredund.model.loader import load_robot
 from kinredund.tracking import PlaneClearance, SphereClearance, Tracker, compiled
@@ -152,9 +154,10 @@ def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, optio
     assert sb.corrector.row_solves >= 8
 
 
-def test_a_plane_held_is_the_python_run():
-    """The Panda's elbow circle with its elbow kept above a tilted plane it would pass below: held and left on both
-    backends, the same record."""
+def elbow_plane(frac: float):
+    """(robot, path, index, q0, plane): the Panda's elbow circle and a plane tilted 0.1 from level that the elbow's
+    origin, free, passes below for part of the loop (``frac``: the plane's height between the lowest and highest
+    elbow of the free loop)."""
     circle, frame, _, _ = CASES["panda_elbow_sphere"]
     r, path, index, q0 = case(circle)
     probe = PlaneClearance(r, frame, [0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
@@ -163,8 +166,48 @@ def test_a_plane_held_is_the_python_run():
     for _ in range(200):
         free.step()
         heights.append(probe.values(free.q)[0])
-    plane = PlaneClearance(r, frame, [0.0, 0.0, 0.5 * (min(heights) + max(heights))], [0.1, 0.0, 1.0])
+    z = min(heights) + frac * (max(heights) - min(heights))
+    return r, path, index, q0, PlaneClearance(r, frame, [0.0, 0.0, z], [0.1, 0.0, 1.0])
+
+
+def test_a_plane_held_is_the_python_run():
+    """The elbow kept above the plane at mid height: held and left on both backends, the same record."""
+    r, path, index, q0, plane = elbow_plane(0.5)
     a, b = both(r, path, index, q0, loops=2, constraints=[plane])
     assert len(a.meta["switches"]) >= 4 and any(a.meta["constraints"]["active"])
     assert_same_record(a, b)
     assert_same_rows(a, b)
+
+
+def test_two_constraints_held_together_are_the_cores():
+    """The elbow sphere and a plane lower down (both on panda_link4): their checks are one (RowStack, the rows
+    numbered as the stepper numbers them), and both rows are held at once for part of each loop, the sphere's row
+    first. Stepped in turn the backends agree at every step (agree_in_turn), the core taking the steps with both rows
+    held; tracked, the records are the same."""
+    r, path, index, q0, plane = elbow_plane(0.3)
+    circle, frame, center, radius = CASES["panda_elbow_sphere"]
+    both_rows = [SphereClearance(r, frame, center, radius), plane]
+    a, b = (Tracker(r, path, index, q0, path.period / 200, backend=x, constraints=both_rows)
+            for x in ("python", "compiled"))
+    assert type(b.compiled.guard.compiled).__name__ == "RowStack" and b.compiled.held is not None
+    agree_in_turn(a, b, 400)
+    c = b.compiled
+    assert "row_active" not in c.handed_back and c.row_steps > 150
+    ta, tb = both(r, path, index, q0, loops=2, constraints=both_rows)
+    assert sum(len(x) == 2 for x in ta.meta["constraints"]["active"]) > 100
+    assert_same_record(ta, tb)
+    assert_same_rows(ta, tb)
+
+
+def test_a_scene_and_a_sphere_are_one_check_held_in_the_core():
+    """test_tracking_scene's elbow ball (a scene's distance rows) and the elbow sphere (a frame's row) on one tracker:
+    one check of both (RowStack of a RowGuard and a FrameRows), each one's rows held in the core in turn, the two
+    backends agreeing at every step."""
+    r, path, index, q0, sc = scene_setup("panda_elbow_ball")
+    circle, frame, center, radius = CASES["panda_elbow_sphere"]
+    options = {"scene": sc, "clearance": SCENE_CLEARANCE, "self_clearance": False,
+               "constraints": [SphereClearance(r, frame, center, radius)]}
+    a, b = (Tracker(r, path, index, q0, path.period / 200, backend=x, **options) for x in ("python", "compiled"))
+    assert type(b.compiled.guard.compiled).__name__ == "RowStack"
+    agree_in_turn(a, b, 400)
+    assert len(a.stepper.switches) >= 8 and "row_active" not in b.compiled.handed_back and b.compiled.row_steps > 100

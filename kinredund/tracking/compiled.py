@@ -80,6 +80,7 @@ from kinredund.tracking.compiled_correct import CoreCorrector
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.compiled_rows import held_rows
 from kinredund.tracking.compiled_start import TASK_CODES, CompiledStart, make_step_core, row_slices
+from kinredund.tracking.constraints.base import row_check
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
 
@@ -208,8 +209,8 @@ class CompiledStep:
         row_steps: of the steps taken in C++, those with a general row held.
         held: the rows held in the core (:class:`~kinredund.tracking.compiled_rows.HeldRows`), or None: the steps
             with a row active are the Python stepper's.
-        guard: the rows' compiled check of a step (the constraint's ``row_guard``, held by the core:
-            ``StepCore.set_guard``), or None.
+        guard: the rows' compiled check of a step (the constraints' ``row_guard``, stacked by ``row_check``; held by
+            the core: ``StepCore.set_guard``), or None.
     """
 
     def __init__(self, stepper: PredictorCorrector, core, start: CompiledStart | None = None):
@@ -224,8 +225,8 @@ class CompiledStep:
         self._fixed = start.fixed if made else None  # the active set the core holds (the stepper's ``fixed``)
         self.limited = limited
         self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
-        general = getattr(stepper, "general", [])  # one constraint's compiled check of a step, where it has one
-        self.guard = general[0].row_guard(ROW_TOL) if self.rows and len(general) == 1 else None
+        # the constraints' compiled check of a step, where each has one
+        self.guard = row_check(stepper.general, ROW_TOL, core) if self.rows else None
         if self.guard is not None:  # the core runs the check right after its step (StepCore.step_guarded)
             self.core.set_guard(self.guard.compiled)
         self._basis = stepper.pt.basis

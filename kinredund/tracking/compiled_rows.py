@@ -15,9 +15,10 @@ the held rows left out, as ``pending_switches`` leaves them out. A step the chec
 stepper itself, as one with no row held. :class:`HeldRows` gives the core the rows held and reads its output with
 them.
 
-Where a scene's curvature is taken another way (``curvature="witness"``), or the rows have no compiled check (a
-``CornerClearance``, two or more constraints: ``row_guard`` None), the steps with a row held stay the Python
-stepper's.
+Several constraints' checks are one (``RowStack``, ``src/core/row_stack.cpp``: the rows numbered as the stepper numbers
+them, :func:`~kinredund.tracking.constraints.base.row_check`). Where a scene's curvature is taken another way
+(``curvature="witness"``), or a constraint has no compiled check (a ``CornerClearance``: ``row_guard`` None), the
+steps with a row held stay the Python stepper's.
 """
 
 from __future__ import annotations
@@ -62,8 +63,8 @@ class HeldRows:
         rows = s.rows
         if rows == self.rows:
             return
-        pairs = [s.row_pairs[f] for f in rows]
-        self.core.set_rows(np.array([ri for _, ri in pairs], dtype=np.int64), DIFFERENCE_STEP)
+        pairs = [s.row_pairs[f] for f in rows]  # (the check's rows are the stepper's numbers: row_check)
+        self.core.set_rows(np.array(rows, dtype=np.int64), DIFFERENCE_STEP)
         self.rows = rows
         m = self.m + len(rows)
         self.layout = (row_slices(self.n, m), (self.n, m))

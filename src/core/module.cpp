@@ -105,6 +105,7 @@ NB_MODULE(_core, m) {
   kinredund::bind_row_source(m);
   kinredund::bind_distances(m);
   kinredund::bind_frame_rows(m);
+  kinredund::bind_row_stack(m);
   kinredund::bind_loop(m);
   kinredund::bind_watch(m);
   kinredund::bind_paths(m);

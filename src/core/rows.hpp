@@ -1,6 +1,7 @@
 // A constraint's general rows as the core's step sees them (issues 27, 28): the check of a step for a row switch
 // and, for the rows held, their values, gradients and curvature. Two sources implement it: a scene's distance rows
-// (distances.cpp's RowGuard) and a frame origin's clearance of a sphere or a plane (frame_rows.cpp's FrameRows).
+// (distances.cpp's RowGuard) and a frame origin's clearance of a sphere or a plane (frame_rows.cpp's FrameRows);
+// several constraints' rows are one source (row_stack.cpp's RowStack).
 // The step (step.cpp, StepCore.set_guard and set_rows) and its runs (loop.cpp) call them with the GIL released.
 #pragma once
 
@@ -72,5 +73,8 @@ void bind_row_source(nanobind::module_& m);
 
 // Adds the class FrameRows to the module (frame_rows.cpp).
 void bind_frame_rows(nanobind::module_& m);
+
+// Adds the class RowStack to the module (row_stack.cpp).
+void bind_row_stack(nanobind::module_& m);
 
 }  // namespace kinredund

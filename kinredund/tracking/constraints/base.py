@@ -73,6 +73,34 @@ class RowCheck:
         return self.valid() and self.compiled.clear(q0, q1, v0, v1, h)
 
 
+class _StackedCheck(RowCheck):
+    """The checks of several constraints as one (``kinredund._core.RowStack``: their rows numbered in turn, as the
+    stepper numbers them), valid while each is, holding the rows where each can."""
+
+    __slots__ = ("_parts",)
+
+    def __init__(self, compiled, parts: list[RowCheck]):
+        super().__init__(compiled, all(p.holds for p in parts))
+        self._parts = parts
+
+    def valid(self) -> bool:
+        return all(p.valid() for p in self._parts)
+
+
+def row_check(constraints: list, tol: float, core) -> RowCheck | None:
+    """The compiled check of the general rows of ``constraints`` together (each one's :meth:`Constraint.row_guard`;
+    two or more stacked by ``core.RowStack``), or None where one of them has none (the stepper's own search then
+    checks every step) or the core has no ``RowStack``."""
+    checks = [c.row_guard(tol) for c in constraints]
+    if not checks or any(x is None for x in checks):
+        return None
+    if len(checks) == 1:
+        return checks[0]
+    if not hasattr(core, "RowStack"):
+        return None
+    return _StackedCheck(core.RowStack([x.compiled for x in checks]), checks)
+
+
 class Constraint(abc.ABC):
     """Inequalities c(theta) >= 0 on the joints [rad or m]; ``size`` of them."""
 
