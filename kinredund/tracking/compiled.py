@@ -83,6 +83,7 @@ from kinredund.tracking.compiled_start import TASK_CODES, CompiledStart, make_st
 from kinredund.tracking.constraints.base import row_check
 from kinredund.tracking.predictor_corrector import PredictorCorrector
 from kinredund.tracking.rows import ROW_TOL
+from kinredund.tracking.step_control import odd_inertia
 
 #: why the core handed a step back (its status codes), for :attr:`CompiledStep.handed_back`
 STATUS = {1: "factor_singular", 2: "rcond_low", 3: "not_finite", 4: "chord_failed", 5: "jump", 6: "limit",
@@ -307,11 +308,14 @@ class CompiledStep:
         s = self.stepper
         ctl = s.control
         rcond = float(out[-2])
-        # with a row held the watch's verdict is taken as the Python step takes it (watch_point: its inertia test
-        # of R reads the factors, StepControl._indefinite), measured or not
         held = self.rows and bool(s.rows)
-        if ctl is not None and not held and (not self.rows or cleared) and ctl.watch.passes(rcond):  # nothing to check
-            self.apply(out, sample, t_to, rcond, ahead, smallest)
+        lu = self.held.factors() if held and ctl is not None else None  # (the inertia test's: odd_inertia)
+        # nothing to check: the watch's gate passes it and, with a row held, R's inertia says no saddle (what
+        # watch_point, which the Python step calls, would find: StepControl._indefinite on the same factors)
+        if ctl is not None and (not self.rows or cleared) and not ctl.watch.due_next(rcond) and not (
+                held and odd_inertia(*lu, self.n - int(np.count_nonzero(s.fixed)))):
+            ctl.watch.passes(rcond)
+            self.apply(out, sample, t_to, rcond, ahead, smallest, lu)
             ctl.speed2 = float(out[-1])
             return None
         measured = ctl is not None and (held or ctl.watch.due_next(rcond))
@@ -321,7 +325,7 @@ class CompiledStep:
         saved = None
         if measured or look:  # what a rejected step goes back to (the state, the control's speed)
             saved = ctl.snapshot() if ctl is not None else (s.state,)
-        self.apply(out, sample, t_to, rcond, ahead, smallest)
+        self.apply(out, sample, t_to, rcond, ahead, smallest, lu)
         if look and self._switch_within(saved[0]):
             return self._undo(saved, ROWS)
         if not measured:
@@ -376,9 +380,10 @@ class CompiledStep:
         self._fixed = fixed
 
     def apply(self, out: np.ndarray, sample, t_to: float, rcond: float, ahead: tuple | None = None,
-              smallest: float | None = None) -> None:
+              smallest: float | None = None, lu: tuple | None = None) -> None:
         """The core's step as the stepper's new state (:meth:`PredictorCorrector.accept`). R's factors stay in
-        the core (``lu`` None: only the watch's measurement reads them, and the step fetches them for it).
+        the core but with a row held (``lu``: fetched by :meth:`accept` for the step control's inertia test; without
+        one only the watch's measurement reads them, and the step fetches them for it).
         ``sample``, ``ahead``: the path sample at ``t_to``; ``smallest``: the rows' least value there, where the
         compiled check has it (see :meth:`accept`; a step put back later leaves it with a q no longer current)."""
         s = self.stepper
@@ -393,7 +398,6 @@ class CompiledStep:
             pt = CompiledPoint(s.ev, out, t_to, sample, self._basis, self.layout, ahead)
         if self.limited and s.any_active:  # joints held: the reduced system's label, the bound multipliers
             label = s.reduced_label(M, pt.J, int(out[s_label][0]))
-            lu = self.held.factors() if held and s.control is not None else None  # (the step control's inertia test)
             s.accept(out[sy], out[ssol], pt, M, out[sq], rcond, label=label, mu=out[s_mu], lu=lu)
             self.held_steps += 1
         else:

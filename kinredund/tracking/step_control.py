@@ -191,22 +191,15 @@ class StepControl:
 
     def _indefinite(self) -> bool:
         """With general rows active (the Python stepper's steps and the compiled ones that hold the rows: both give
-        R's factors): does the inertia of R (Eq. 4.24) from its LU
-        factors say Z^T M Z has an odd number of negative eigenvalues? R = [[M, A^T], [A, 0]] on the free joints, A
-        of full row rank r (the task's rows and the active rows'), has det R = (-1)^r det(Z^T M Z) times a positive
-        number, so sign(det R) is (-1)^r exactly where the count of negative eigenvalues of the reduced Hessian is
-        even (zero where it is positive definite; one eigenvalue crossing flips it). The watch's gate (R's condition)
-        sees a crossing only near it, and a step over one, where an active row's curvature grows with its
-        multiplier or jumps, went unmeasured: the record held saddle points of the held problem. Free: the signs of
-        U's diagonal and the pivots' swaps."""
+        R's factors): does the inertia of R (Eq. 4.24) say Z^T M Z has an odd number of negative eigenvalues
+        (:func:`odd_inertia`)? The watch's gate (R's condition) sees a crossing only near it, and a step over one,
+        where an active row's curvature grows with its multiplier or jumps, went unmeasured: the record held saddle
+        points of the held problem."""
         s = self.s
         if not getattr(s, "rows", None) or s.lu is None:
             return False
-        lu, piv = s.lu
         fixed = getattr(s, "fixed", None)
-        free = s.n - (0 if fixed is None else int(np.count_nonzero(fixed)))
-        flips = int(np.count_nonzero(np.diag(lu) < 0.0)) + int(np.count_nonzero(piv != np.arange(len(piv))))
-        return (flips - (lu.shape[0] - free)) % 2 == 1
+        return odd_inertia(*s.lu, s.n - (0 if fixed is None else int(np.count_nonzero(fixed))))
 
     def _refreshed_ahead(self, t_next: float) -> str | None:
         """The prediction again after an exact measurement at the current point (the gated history may be old)."""
@@ -358,3 +351,14 @@ class StepControl:
                          substep_reason=str(last).split("; last good point")[0])
         err.watched = dict(err.watched or {}) | extra
         return err
+
+
+def odd_inertia(lu: np.ndarray, piv: np.ndarray, free: int) -> bool:
+    """Does R = [[M, A^T], [A, 0]] on ``free`` joints, A of full row rank r (the task's rows and the active rows'),
+    from its LU factors ``lu`` and 0-based pivots ``piv`` (LAPACK's getrf), have a reduced Hessian Z^T M Z with an
+    odd number of negative eigenvalues? det R = (-1)^r det(Z^T M Z) times a positive number, so sign(det R) is
+    (-1)^r exactly where that count is even (zero where it is positive definite; one eigenvalue crossing flips it).
+    Free: the signs of U's diagonal and the pivots' swaps (:meth:`StepControl._indefinite`; the compiled step's
+    held rows, :mod:`kinredund.tracking.compiled`)."""
+    flips = int(np.count_nonzero(np.diag(lu) < 0.0)) + int(np.count_nonzero(piv != np.arange(len(piv))))
+    return (flips - (lu.shape[0] - free)) % 2 == 1
