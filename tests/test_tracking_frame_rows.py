@@ -211,3 +211,37 @@ def test_a_scene_and_a_sphere_are_one_check_held_in_the_core():
     assert type(b.compiled.guard.compiled).__name__ == "RowStack"
     agree_in_turn(a, b, 400)
     assert len(a.stepper.switches) >= 8 and "row_active" not in b.compiled.handed_back and b.compiled.row_steps > 100
+
+
+def test_a_held_step_with_odd_inertia_is_measured(monkeypatch):
+    """A core's step with a row held skips the step control's watch_point only where the watch's gate passes it and
+    R's inertia is even (odd_inertia on the core's factors: what watch_point's StepControl._indefinite would find).
+    Where the inertia test says odd (forced here), every held step goes to watch_point, which measures it exactly;
+    the run still agrees with the Python stepper's. Unforced, the test on the core's factors is the Python
+    stepper's own at every held step."""
+    from kinredund.tracking.step_control import odd_inertia
+
+    a, b = sphere_tracker("panda_elbow_sphere", "python"), sphere_tracker("panda_elbow_sphere", "compiled")
+    sa, sb = a.stepper, b.stepper
+    checked = 0
+    for _ in range(200):
+        a.step()
+        before = b.compiled.row_steps
+        b.step()
+        if b.compiled.row_steps > before:  # the core's step with the row held: its factors are the step's
+            free = sb.n - int(np.count_nonzero(sb.fixed))
+            assert odd_inertia(*b.compiled.held.factors(), free) == sa.control._indefinite()
+            checked += 1
+    assert checked > 50
+    calls = []
+    monkeypatch.setattr(compiled, "odd_inertia", lambda *args: True)
+    forced = sphere_tracker("panda_elbow_sphere", "compiled")
+    watch_point = forced.stepper.control.watch_point
+    monkeypatch.setattr(forced.stepper.control, "watch_point", lambda *x: calls.append(1) or watch_point(*x))
+    held = 0
+    for _ in range(200):
+        before = forced.compiled.row_steps
+        forced.step()
+        held += forced.compiled.row_steps - before
+    assert held > 50 and len(calls) >= held
+    np.testing.assert_allclose(forced.q, b.q, rtol=0, atol=1e-12)
