@@ -143,7 +143,8 @@ def sphere_tracker(name, backend, **kw):
 def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, options):
     """Five loops stepped in turn (agree_in_turn: the joints to Q_BAR and the multipliers, the row's too, to rounding
     at every step, the row held and the switches the same); the core took most steps with the row held (none handed
-    back for it as row_active) and the switching-time search's corrector solves with it."""
+    back for it as row_active), the switching-time search's corrector solves with it and the Newton solve after each
+    switch (CoreCorrector.settle: a frame's rows settle, RowCheck.settles)."""
     a, b = sphere_tracker(name, "python", **options), sphere_tracker(name, "compiled", **options)
     assert b.compiled.held is not None
     agree_in_turn(a, b, 1000)
@@ -151,7 +152,7 @@ def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, optio
     c = b.compiled
     assert len(sa.switches) >= 8 and "row_active" not in c.handed_back
     assert c.row_steps > 100 and c.steps + sum(c.handed_back.values()) == 1000
-    assert sb.corrector.row_solves >= 8
+    assert sb.corrector.row_solves >= 8 and sb.corrector.settled >= len(sb.switches)  # (the Newton after each switch)
 
 
 def elbow_plane(frac: float):

@@ -1,26 +1,27 @@
 """The Python stepper's corrector in the compiled core (issue 28): :class:`CoreCorrector`.
 
-On the compiled backend (:mod:`kinredund.tracking.compiled`) the steps the core does not take are the Python
-stepper's: a bound reached or released, a chord that failed, a jump, the watch's rejections; within them the
-switching-time location (:mod:`kinredund.tracking.switches`: Brent's method, each evaluation a corrector solve)
-and the sub-steps of the step control. Each of those corrector solves
+On the compiled backend (:mod:`kinredund.tracking.compiled`) the steps the core does not take are the Python stepper's:
+a bound reached or released, a chord that failed, a jump, the watch's rejections; within them the switching-time
+location (:mod:`kinredund.tracking.switches`: Brent's method, each evaluation a corrector solve) and the sub-steps of
+the step control. Each of those corrector solves
 (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector._correct` with the limited stepper's wrapper,
 :mod:`kinredund.tracking.limited`) is the core's ``StepCore.correct`` (``src/core/step.cpp``, the GIL released): from
-the prediction, the held joints set on their bounds, one evaluation with dK, R's LU factors, the rates of
-Eq. (4.24), the Newton update and the chord iterations, where those fail the fallback of ``_correct`` (``_newton``
-from the prediction and ``_rates``, the core's start route; the predictor's history cleared), and the bound
-multipliers at the corrected point. The stepper stays independent of the core: :class:`CoreCorrector` is an
-optional ``corrector`` that :class:`~kinredund.tracking.compiled.CompiledStep` installs on a limited stepper, whose
-``_correct`` calls it first. With a general row active it solves where the compiled step holds the rows too (a
-scene's: :mod:`kinredund.tracking.compiled_rows`, the same extended system and the rates afresh where the corrector
-ends far from the prediction), else it declines (the extended system then stays Python's). It holds a StepCore
-of its own (the compiled step's keeps its last step's factors for the watch's measurement), gives it the stepper's
-active set, samples the path (and a time-varying reference) at the stepper's time and takes the core's result as
-``_correct`` leaves it (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_corrected`: q,
-lambda, their rates, M, the evaluation as a :class:`~kinredund.tracking.compiled_point.CompiledPoint`, the label of
-the reduced system where joints are held, R's LU factors and condition estimate, the bound multipliers). A solve
-the core cannot make ordinarily (a singular or ill-conditioned R, non-finite rates, a fallback that fails too) is
-Python's own ``_correct`` from the same inputs: every error, its message and its cause stay the Python stepper's.
+the prediction, the held joints set on their bounds, one evaluation with dK, R's LU factors, the rates of Eq. (4.24),
+the Newton update and the chord iterations, where those fail the fallback of ``_correct`` (``_newton`` from the
+prediction and ``_rates``, the core's start route; the predictor's history cleared), and the bound multipliers at the
+corrected point. The stepper stays independent of the core: :class:`CoreCorrector` is an optional ``corrector`` that
+:class:`~kinredund.tracking.compiled.CompiledStep` installs on a limited stepper, whose ``_correct`` calls it first.
+With a general row active it solves where the compiled step holds the rows too (a scene's, a sphere's, a plane's:
+:mod:`kinredund.tracking.compiled_rows`, the same extended system and the rates afresh where the corrector ends far from
+the prediction), else it declines (the extended system then stays Python's); the Newton solve after a switch
+(:meth:`CoreCorrector.settle`) where the rows' check settles them too (not a scene's). It holds a StepCore of its own
+(the compiled step's keeps its last step's factors for the watch's measurement), gives it the stepper's active set,
+samples the path (and a time-varying reference) at the stepper's time and takes the core's result as ``_correct`` leaves
+it (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.take_corrected`: q, lambda, their rates, M, the
+evaluation as a :class:`~kinredund.tracking.compiled_point.CompiledPoint`, the label of the reduced system where joints
+are held, R's LU factors and condition estimate, the bound multipliers). A solve the core cannot make ordinarily (a
+singular or ill-conditioned R, non-finite rates, a fallback that fails too) is Python's own ``_correct`` from the same
+inputs: every error, its message and its cause stay the Python stepper's.
 """
 
 from __future__ import annotations
@@ -39,7 +40,8 @@ class CoreCorrector:
     Attributes:
         used: the solves the core made; declined: those it left to Python (a status other than OK); restarts: the
             solves (of ``used``) whose chord iterations failed, made by the fallback (fresh factorisations);
-            row_solves: those (of ``used``) with general rows held.
+            row_solves: those (of ``used``) with general rows held; settled: the Newton solves after a switch
+            (:meth:`settle`) of ``used``.
     """
 
     def __init__(self, stepper, module, guard=None):
@@ -50,7 +52,7 @@ class CoreCorrector:
         n, m = stepper.n, len(stepper.task_lam)
         self.n, self.layout = n, (row_slices(n, m), (n, m))
         self._basis = stepper.pt.basis
-        self.used = self.declined = self.restarts = self.row_solves = 0
+        self.used = self.declined = self.restarts = self.row_solves = self.settled = 0
 
     def __call__(self, y: np.ndarray) -> bool:
         """The stepper's corrector at its time t from the prediction ``y`` = [q; lambda]; False (the stepper
@@ -60,11 +62,16 @@ class CoreCorrector:
     def settle(self) -> bool:
         """:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector._newton` from the stepper's point at
         its time t, then ``_rates`` there (after a switch of the active set): the core's route of ``_correct``'s
-        fallback; False (the stepper untouched) where the core leaves them to Python, or with general rows (a run
-        with a scene: its stops' diagnosis, a bisection of witness points near parallel faces, follows the rounding
-        of the switch's point, and the two backends' stops name the same words)."""
+        fallback; False (the stepper untouched) where the core leaves them to Python, or with general rows whose
+        check does not settle them (a scene's: its stops' diagnosis, a bisection of witness points near parallel
+        faces, follows the rounding of the switch's point, and the two backends' stops name the same words;
+        ``RowCheck.settles``)."""
         s = self.stepper
-        return not s.row_pairs and self._solve(np.concatenate([s.q, s.lam]), True)
+        if s.row_pairs and (self._guard is None or not self._guard.settles):
+            return False
+        made = self._solve(np.concatenate([s.q, s.lam]), True)
+        self.settled += made
+        return made
 
     def _solve(self, y: np.ndarray, newton: bool) -> bool:
         s = self.stepper

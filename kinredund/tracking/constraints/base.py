@@ -56,12 +56,14 @@ class RowCheck:
     """A constraint's compiled check of a step (:meth:`Constraint.row_guard`'s answer): ``compiled``, the core's
     ``RowSource`` (a scene's ``kinredund._core.RowGuard``, a frame clearance's ``FrameRows``), which the compiled
     step holds (``StepCore.set_guard``); ``holds``, whether the core can hold the rows too, as the stepper's extended
-    system (:mod:`kinredund.tracking.compiled_rows`)."""
+    system (:mod:`kinredund.tracking.compiled_rows`); ``settles``, whether the core may make the Newton solve after a
+    switch with them too (``CoreCorrector.settle``: not a scene's, whose stops' diagnosis, a bisection of witness
+    points, follows the rounding of the switch's point, so that the two backends' stops name the same words)."""
 
-    __slots__ = ("compiled", "holds")
+    __slots__ = ("compiled", "holds", "settles")
 
-    def __init__(self, compiled, holds: bool):
-        self.compiled, self.holds = compiled, holds
+    def __init__(self, compiled, holds: bool, settles: bool = True):
+        self.compiled, self.holds, self.settles = compiled, holds, settles
 
     def valid(self) -> bool:
         """Does the check still describe the constraint? (Always, unless a subclass says otherwise; the core's
@@ -80,7 +82,7 @@ class _StackedCheck(RowCheck):
     __slots__ = ("_parts",)
 
     def __init__(self, compiled, parts: list[RowCheck]):
-        super().__init__(compiled, all(p.holds for p in parts))
+        super().__init__(compiled, all(p.holds for p in parts), all(p.settles for p in parts))
         self._parts = parts
 
     def valid(self) -> bool:

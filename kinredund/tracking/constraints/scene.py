@@ -349,7 +349,7 @@ class _SceneGuard(RowCheck):
     __slots__ = ("_scene", "_pairs")
 
     def __init__(self, guard, scene: Scene, pairs: tuple, holds: bool):
-        super().__init__(guard, holds)  # compiled: the kinredund._core.RowGuard
+        super().__init__(guard, holds, settles=False)  # compiled: the kinredund._core.RowGuard
         self._scene, self._pairs = scene, pairs
 
     def valid(self) -> bool:
