@@ -490,7 +490,7 @@ class DistanceQuery {
 // `clear` is true where every c(q1) >= -tol and every (c(q0) + c(q1) - B move) / 2 >= -tol, move = max(|q1 - q0|,
 // h max(|v0|, |v1|)) + h |v1 - v0| / 4: then no row is reached and none can dip (the stepper's own search would
 // find nothing). False (look in Python) otherwise, and for a q outside the box of the bound or not finite. The
-// core's step calls it directly where it holds the guard (StepCore.set_guard, step.cpp): row_guard_clear.
+// core's step calls it directly where it holds the guard (StepCore.set_guard, step.cpp), as a RowSource (rows.hpp).
 class RowGuard : public RowSource {
  public:
   RowGuard(DistanceQuery& query, const Eigen::Ref<const VectorXl>& row_of_pair, const Eigen::Ref<const VectorXd>& clearances,
@@ -774,7 +774,8 @@ class RowGuard : public RowSource {
 };
 
 RowSource& row_source(nb::handle obj) {
-  if (!nb::isinstance<RowSource>(obj)) throw nb::type_error("expected a kinredund._core.RowGuard or FrameRows");
+  if (!nb::isinstance<RowSource>(obj))
+    throw nb::type_error("expected a kinredund._core.RowSource (RowGuard, FrameRows, RowStack)");
   return nb::cast<RowSource&>(obj);
 }
 
@@ -796,7 +797,8 @@ void bind_distances(nb::module_& m) {
       .def("closest", &DistanceQuery::closest, nb::arg("q"))
       .def("differences", &DistanceQuery::differences, nb::arg("q"), nb::arg("limit"), nb::arg("pairs"),
            nb::arg("eps"));
-  nb::class_<RowGuard, RowSource>(m, "RowGuard", "The compiled driver's check of a step for a scene's row switch (issue 27).")
+  nb::class_<RowGuard, RowSource>(m, "RowGuard",
+                                  "The compiled driver's check of a step for a scene's row switch (issue 27).")
       .def(nb::init<DistanceQuery&, const Eigen::Ref<const VectorXl>&, const Eigen::Ref<const VectorXd>&, double,
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),
            nb::arg("query"), nb::arg("row_of_pair"), nb::arg("clearances"), nb::arg("influence"), nb::arg("bound"),

@@ -14,12 +14,12 @@
 // as the watch carries it (Watch.took, Watch.keep_exact); where that measurement is not watch_measure's (v of another
 // size, u not finite: the Python watch's exact branch) the run ends there as without it.
 // With a row check (``guard``: the StepCore's RowSource, a scene's RowGuard or a frame's FrameRows: StepCore.set_guard)
-// each step is checked right after it, as StepCore.step_guarded checks a single step (its clear_at on the same
-// arrays, its smallest row value at the step's end written out): the run ends at the first step the check does not
-// clear (GUARD_DUE, its row written: the caller's stepper searches it for a switch), and after the first step the
-// watch measures, exactly or by the inverse iteration (as when the watch's verdicts were taken after the run, which could drop the rows after it while the
-// guard's kept values could not be taken back; the verdicts are the run's now, but guarded runs were left as they
-// were).
+// each step is checked right after it, as StepCore.step_guarded checks a single step (its clear_at on the same arrays,
+// its smallest row value at the step's end written out): the run ends at the first step the check does not clear
+// (GUARD_DUE, its row written: the caller's stepper searches it for a switch), and after the first step the watch
+// measures, exactly or by the inverse iteration (as when the watch's verdicts were taken after the run, which could
+// drop the rows after it while the guard's kept values could not be taken back; the verdicts are the run's now, but
+// guarded runs were left as they were).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>

@@ -136,8 +136,8 @@ class StepCore {
                         nullptr, 0.0);
   }
 
-  // The rows' check (rows.hpp's RowSource: a scene's RowGuard, distances.cpp, or a frame's FrameRows,
-  // frame_rows.cpp; issue 27) that step_guarded runs after an ordinary step; None: none.
+  // The rows' check (rows.hpp's RowSource: a scene's RowGuard, distances.cpp, a frame's FrameRows, frame_rows.cpp,
+  // or several stacked, row_stack.cpp; issue 27) that step_guarded runs after an ordinary step; None: none.
   void set_guard(nb::object guard) {
     if (guard.is_none()) {
       guard_ = nullptr;
