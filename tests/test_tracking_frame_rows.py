@@ -246,3 +246,29 @@ def test_a_held_step_with_odd_inertia_is_measured(monkeypatch):
         held += forced.compiled.row_steps - before
     assert held > 50 and len(calls) >= held
     np.testing.assert_allclose(forced.q, b.q, rtol=0, atol=1e-12)
+
+
+def test_a_sphere_moved_after_the_tracker_was_made_is_read_afresh():
+    """The core's row is a copy of the constraint's numbers: where the sphere is moved during a run (its centre
+    array changed in place, or replaced), the check is no longer valid, so every step is searched and every held
+    step taken by the Python stepper, which reads the constraint afresh: the two backends still agree step by step,
+    the sphere's new place counted from the step after the move."""
+    trackers = []
+    for backend in ("python", "compiled"):
+        circle, frame, center, radius = CASES["panda_elbow_sphere"]
+        r, path, index, q0 = case(circle)
+        sphere = SphereClearance(r, frame, center, radius)
+        trackers.append((Tracker(r, path, index, q0, path.period / 200, backend=backend, constraints=[sphere]),
+                         sphere))
+    (a, ca), (b, cb) = trackers
+    assert b.compiled.guard.valid()
+    for k in range(300):
+        if k == 60:  # in place on one, replaced on the other: both the same move of 1 cm
+            ca.center[2] += 0.01
+            cb.center = cb.center + np.array([0.0, 0.0, 0.01])
+            assert not b.compiled.guard.valid() and not b.compiled.held.valid()
+        a.step()
+        b.step()
+        assert b.stepper.rows == a.stepper.rows
+        np.testing.assert_allclose(b.q, a.q, rtol=0, atol=1e-12)
+    assert b.compiled.handed_back.get("row_active", 0) > 10  # (the held steps after the move: Python's)

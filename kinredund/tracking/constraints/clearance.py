@@ -102,8 +102,13 @@ class _FrameClearance(Constraint):
         if core is None or not hasattr(core, "FrameRows") or model.nq != model.nv:
             return None
         kind, point, normal, radius = self._shape()
-        return RowCheck(core.FrameRows(model, self.frame_id, kind, point, normal, radius, self.clearance,
-                                       self._reach, self._extent, float(tol)), holds=True)
+        return _FrameCheck(core.FrameRows(model, self.frame_id, kind, point, normal, radius, self.clearance,
+                                          self._reach, self._extent, float(tol)), self)
+
+    def _parameters(self) -> tuple:
+        """What the compiled row copies (:meth:`row_guard`): the shape's numbers and the clearance."""
+        kind, point, normal, radius = self._shape()
+        return kind, *point.tolist(), *normal.tolist(), float(radius), float(self.clearance)
 
     def rows_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, p, K = self._kin.jacobian(np.asarray(q, float))
@@ -184,3 +189,18 @@ class PlaneClearance(_FrameClearance):
 
     def names(self) -> list[str]:
         return [f"{self.frame} above plane ({', '.join(f'{v:.4g}' for v in self.normal)}) by {self.clearance:.4g}"]
+
+
+class _FrameCheck(RowCheck):
+    """:meth:`_FrameClearance.row_guard`'s check while the constraint keeps the numbers it was made with: after a
+    change (its ``center`` moved, say) it clears no step and holds no row, so the Python stepper's search and step,
+    which read the constraint afresh, decide (the core's copy would give another answer silently)."""
+
+    __slots__ = ("_constraint", "_made")
+
+    def __init__(self, compiled, constraint: _FrameClearance):
+        super().__init__(compiled, holds=True)
+        self._constraint, self._made = constraint, constraint._parameters()
+
+    def valid(self) -> bool:
+        return self._constraint._parameters() == self._made
