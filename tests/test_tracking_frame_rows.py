@@ -272,3 +272,24 @@ def test_a_sphere_moved_after_the_tracker_was_made_is_read_afresh():
         assert b.stepper.rows == a.stepper.rows
         np.testing.assert_allclose(b.q, a.q, rtol=0, atol=1e-12)
     assert b.compiled.handed_back.get("row_active", 0) > 10  # (the held steps after the move: Python's)
+
+
+#: a 6 cm sphere where the wrist (the origin of panda_link6) passes 1.5 cm inside it on test_tracking_limits's
+#: panda_pose_circle (a pose task): held and left twice a loop
+POSE_SPHERE = ("panda_link6", [0.10200570290581948, 0.13126014523781432, 0.4633816348018318], 0.06)
+
+
+@pytest.mark.parametrize("scheme", ["augmented", "velocity"])
+def test_a_sphere_held_on_a_pose_task_is_the_python_run(scheme):
+    """The row under a pose task's six equations (m = 6 + 1 with the row held): the same record on both backends,
+    and stepped in turn the same at every step, the core holding the row."""
+    r, path, index, q0 = case("panda_pose_circle")
+    c = SphereClearance(r, *POSE_SPHERE)
+    a, b = both(r, path, index, q0, loops=2, constraints=[c], scheme=scheme)
+    assert len(a.meta["switches"]) >= 4 and sum(map(len, a.meta["constraints"]["active"])) > 50
+    assert_same_record(a, b)
+    assert_same_rows(a, b)
+    ta, tb = (Tracker(r, path, index, q0, path.period / 200, backend=x, constraints=[c], scheme=scheme)
+              for x in ("python", "compiled"))
+    agree_in_turn(ta, tb, 200)
+    assert tb.compiled.row_steps > 20 and "row_active" not in tb.compiled.handed_back
