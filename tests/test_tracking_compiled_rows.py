@@ -338,9 +338,10 @@ def test_a_held_row_stays_pythons_where_the_core_cannot_make_its_step():
     assert held >= 5 and b.compiled.handed_back["row_active"] == held and b.compiled.row_steps == 0
 
 
-def test_a_run_of_steps_refuses_a_core_holding_rows():
-    """A run of steps (src/core/loop.cpp) has no switch search of its own for held rows: the core refuses to run with
-    rows held (tracking/runs.py gives it none), before it reads any other argument."""
+def test_a_run_of_steps_refuses_rows_held_without_their_check():
+    """A run of steps (src/core/loop.cpp) with rows held checks each step for the other rows' switches with the rows'
+    check (the held ones left out): without the check (guard None) the core refuses to run, before it reads any other
+    argument."""
     import kinredund._core as core_module
 
     from kinredund.tracking.constraints.base import DIFFERENCE_STEP
@@ -349,7 +350,7 @@ def test_a_run_of_steps_refuses_a_core_holding_rows():
     core = tr.compiled.core
     core.set_rows(np.array([0], dtype=np.int64), DIFFERENCE_STEP)
     empty, mat = np.zeros(0), np.zeros((0, 3))
-    with pytest.raises(ValueError, match="holds general rows"):
+    with pytest.raises(ValueError, match="a run with rows needs guard"):
         core_module.run_steps(core, empty, mat, mat, np.zeros((0, 9)), mat, np.zeros((0, 7)), np.zeros((0, 7)),
                               empty, empty, [], empty, 0.0, False, (False,), np.zeros((0, 1)), None)
     core.set_rows(np.zeros(0, dtype=np.int64), DIFFERENCE_STEP)

@@ -22,7 +22,7 @@ from kinredund.errors import TrackingError
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import minimum_norm
 from kinredund.paths import Circle, FunctionPath
-from kinredund.tracking import Tracker, compiled, run, runs, watch
+from kinredund.tracking import SphereClearance, Tracker, compiled, run, runs, watch
 from kinredund.tracking.recorder import Recorder
 from kinredund.trajectory import Deferred
 
@@ -320,8 +320,9 @@ def test_one_sampling_of_the_path_ahead_takes_the_blocks_that_stack_and_no_other
 
 
 def scene_case(name: str):
-    """(robot, path, index, q0, track's scene options) of test_tracking_scene's ball met and left by the elbow and
-    test_tracking_self_clearance's hand held off the upper arm (a self pair met and left twice a loop)."""
+    """(robot, path, index, q0, track's scene options) of test_tracking_scene's ball met and left by the elbow,
+    test_tracking_self_clearance's hand held off the upper arm (a self pair met and left twice a loop) and
+    test_tracking_clearance's elbow sphere."""
     from test_tracking_scene import CLEARANCE
     from test_tracking_scene import setup as ball_setup
     from test_tracking_self_clearance import SELF_CLEARANCE
@@ -330,35 +331,48 @@ def scene_case(name: str):
     if name == "ball":
         *problem_, sc = ball_setup("panda_elbow_ball")
         return (*problem_, {"scene": sc, "clearance": CLEARANCE, "self_clearance": False, "steps_per_loop": 400})
+    if name == "sphere":  # test_tracking_clearance's elbow sphere (a frame's row: FrameRows)
+        from test_tracking_clearance import CASES
+        from test_tracking_limits import case
+
+        circle, frame, center, radius = CASES["panda_elbow_sphere"]
+        r, path, index, q0 = case(circle)
+        return r, path, index, q0, {"constraints": [SphereClearance(r, frame, center, radius)]}
     *problem_, sc = self_setup()
     return (*problem_, {"scene": sc, "self_clearance": SELF_CLEARANCE})
 
 
-def counted_runs(monkeypatch) -> list:
-    """Per call of the core's run_steps from now on: (steps done, status, measurements kept, guarded)."""
+def counted_runs(monkeypatch, held: list | None = None) -> list:
+    """Per call of the core's run_steps from now on: (steps done, status, measurements kept, guarded); ``held``
+    receives the steps done by each call with general rows held in the core."""
     core = compiled.load_core()
     calls, inner = [], core.run_steps
 
     def counting(*args):
+        rows = args[0].held_rows
         done, status, kept = inner(*args)
         calls.append((done, status, 0 if kept is None else kept[-1], args[-1] is not None))
+        if held is not None and rows:
+            held.append(done)
         return done, status, kept
 
     monkeypatch.setattr(core, "run_steps", counting)
     return calls
 
 
-@pytest.mark.parametrize("name", ["ball", "self_pair"])
+@pytest.mark.parametrize("name", ["ball", "self_pair", "sphere"])
 def test_a_scene_run_records_the_same_numbers_as_single_guarded_steps(monkeypatch, name):
-    """With a scene the runs check each step with the scene's compiled check in the core's run (RowGuard.clear, as
+    """With a scene (or a sphere) the runs check each step with the rows' compiled check in the core's run (as
     StepCore.step_guarded checks a single step) and hand the first step it does not clear to the stepper's search
-    (GUARD_DUE): the record - the row fields (smallest value per point, active rows, multipliers, switches)
-    included - is that of single guarded steps, bit for bit, and each kind of hand-back is reached."""
+    (GUARD_DUE); they go on with a row held (the core's held rows, the check leaving them out, a step whose R has
+    odd inertia handed over for the watch's exact measurement): the record - the row fields (smallest value per
+    point, active rows, multipliers, switches) included - is that of single guarded steps, bit for bit, and each
+    kind of hand-back is reached."""
     r, path, index, q0, options = scene_case(name)
-    records = []
+    records, held = [], []
     for stepping in (runs.one_by_one, runs.stepping):
         monkeypatch.setattr(run, "stepping", stepping)
-        calls = counted_runs(monkeypatch)
+        calls = counted_runs(monkeypatch, held)
         records.append(run.track(r, path, index, q0, loops=2, backend="compiled", **options))
     a, b = records
     assert_identical(a, b)
@@ -369,6 +383,7 @@ def test_a_scene_run_records_the_same_numbers_as_single_guarded_steps(monkeypatc
     assert core.GUARD_DUE in statuses  # a step the check does not clear: the stepper's search took it
     assert all(guarded for *_, guarded in calls)
     assert sum(done for done, *_ in calls) > len(a.t) // 2  # most steps in runs
+    assert sum(held) > sum(map(bool, a.meta["constraints"]["active"])) // 3  # steps with a row held too
     # a guarded run ends at its step the watch measures exactly (the watch's verdict may drop the rows after it)
     assert all(exact <= 1 for _, _, exact, _ in calls) and max(done for done, *_ in calls) <= watch.EXACT_EVERY
 

@@ -75,14 +75,16 @@ class Recorder:
             self.rows.append(s.row_record())
 
     def add_rows(self, t: list[float], q, lam, M, J, pose, desired, qdot, held: tuple | None = None,
-                 smallest: list[float] | None = None) -> None:
+                 smallest: list[float] | None = None, nu=None) -> None:
         """Record several steps at once (:mod:`kinredund.tracking.runs`): per step its time [s], joints,
         multipliers, M, the step's J (rows of arrays) and rates, ``pose`` (Q (k, 3, 3), p (k, 3)) at the corrected
         joints and ``desired``, the path's (p_d (k, 3), Q_d (k, 3, 3) or None). Without ``held``
         no joint is on a bound (the solver labels pending, the stepper's own multipliers of the bounds, zero, as
         :meth:`add` records); else (the steps' solver labels, the active bounds (n,), the bound multipliers
-        (k, n)), the same active set throughout. With general rows, none active throughout: ``smallest``, the rows'
-        smallest value per step [m] (the compiled check's, as :meth:`add` records it from ``row_record``)."""
+        (k, n)), the same active set throughout. With general rows: ``smallest``, the rows' smallest value per step
+        [m] (the compiled check's, as :meth:`add` records it from ``row_record``), and ``nu`` (k, rows) the
+        multipliers of the stepper's active rows, the same rows throughout (None: none active). ``lam`` and ``J``:
+        the task's (without the rows')."""
         k = len(t)
         self.t += t
         self.q.extend(q)
@@ -100,9 +102,9 @@ class Recorder:
             self.active.extend([self._free if held is None else held[1]] * k)
             self.mu.extend([self.stepper.mu] * k if held is None else held[2])
             self.qdot.extend(qdot)
-        if self.rows is not None:  # (row_record's with no row active: no multipliers)
-            active, none = self.stepper.rows, np.zeros(0)
-            self.rows += [(v, active, none) for v in smallest]
+        if self.rows is not None:  # (row_record's: with no row active, no multipliers)
+            active = self.stepper.rows
+            self.rows += [(v, active, np.zeros(0) if nu is None else nu[j]) for j, v in enumerate(smallest)]
 
     def __len__(self) -> int:
         return len(self.t)

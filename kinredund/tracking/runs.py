@@ -40,9 +40,12 @@ step it does not clear is handed over with its verdict (``GUARD_DUE``:
 :meth:`~kinredund.tracking.compiled.CompiledStep.accept`, whose search for a switch decides), and a guarded run ends at
 the first step the watch measures, exactly or by its inverse iteration (as when the watch's verdicts were taken after
 the run, which could drop the rows after it while the check's kept values could not be taken back), so the check runs
-on exactly the steps, with the same arrays, that single steps check. A step
-with a row active is taken one at a time (``CompiledStep.step``: the core's where it holds the rows, else the Python
-stepper's); a run holds no row (the core refuses one: ``run_steps``). Like
+on exactly the steps, with the same arrays, that single steps check. Where the core holds the rows active
+(:mod:`kinredund.tracking.compiled_rows`) runs go on with them held, the output's layout the held rows' (their
+multipliers recorded per step), the check leaving them out as ``StepCore.step_guarded`` does, a held row's release
+(``row_release``) handed back, and a step whose R has odd inertia handed over for the watch's exact measurement
+(``CompiledStep.accept``: ``odd_inertia``, as a single held step); a row active that the core does not hold is taken
+one step at a time by the Python stepper. Like
 :mod:`~kinredund.tracking.compiled`, it reads only the stepper's and the step control's public interface.
 """
 
@@ -104,9 +107,9 @@ class Runs:
 
     def _ordinary(self, count: int) -> int:
         """How many of the next steps (at most ``count``) are ordinary as far as Python can tell."""
-        s, ctl = self.s, self.ctl
-        if self.c.rows and (s.rows or s.qdot is None or not self.c.guard.valid()):
-            return 1  # a row active, or the step cannot be checked in the run: CompiledStep.step's single step
+        s, ctl, c = self.s, self.ctl, self.c
+        if c.rows and (s.qdot is None or not c.guard.valid() or (s.rows and (c.held is None or not c.held.valid()))):
+            return 1  # the step cannot be checked in the run, or a row active the core does not hold: a single step
         K = min(count, MAX_RUN)
         if ctl is not None:
             t0, k, dt, safe = s.t0, s.k, s.dt, ctl.watch.safe_before
@@ -125,7 +128,10 @@ class Runs:
             return 1
         times, at, i, arrays = window
         K = len(times)  # (a run ends where the samples taken ahead end: _window)
-        out = np.empty((K, int(c.slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
+        if c.held is not None:
+            c.held.sync()  # the rows held now (a switch taken by the Python stepper replaces them)
+        slices = c.held.layout[0] if c.rows and s.rows else c.slices  # (the output's layout with the rows held)
+        out = np.empty((K, int(slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
         fixed = getattr(s, "fixed", None)
         if ctl is None:
             watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY, False), 0.0
@@ -134,8 +140,6 @@ class Runs:
                              *ctl.watch.iteration, ctl.watch.history(fixed)), ctl.speed2
         if c.limited:
             c.sync_active()  # a release taken by the Python stepper: the core holds none now
-        if c.held is not None:
-            c.held.sync()  # likewise a row's release: the run's steps hold no row
         smallest = guard = None
         if c.rows:  # the core's check of each step (StepCore.step_guarded's), its smallest row value written here
             smallest = np.empty(K)
@@ -204,16 +208,19 @@ class Runs:
         value at each step's end (the core's check's, as :meth:`~kinredund.tracking.compiled.CompiledStep.apply`
         keeps it)."""
         c, s, ctl = self.c, self.s, self.ctl
-        sy, ssol, sM, sJ, _, sQ, sp = c.slices[:7]
-        n, m, _ = c.shapes
+        rows = c.rows and bool(s.rows)  # rows held through the run: the output's layout with them
+        slices, (n, m) = c.held.layout if rows else (c.slices, c.shapes[:2])
+        sy, ssol, sM, sJ, _, sQ, sp = slices[:7]
+        mt = c.shapes[1]  # the task's multipliers (the rows' after them)
         K = len(times)
         Y, SOL = out[:, sy], out[:, ssol]
         M, J = out[:, sM].reshape(K, n, n), out[:, sJ].reshape(K, m, n)
-        held = self._held(out, M, J) if c.limited and s.any_active else None
+        held = self._held(out, M, J, slices) if c.limited and s.any_active else None
         if smallest is not None:
             smallest = smallest[:K].tolist()
-        self.rec.add_rows(times, Y[:, :n], Y[:, n:], M, J, (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
-                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n], held, smallest)
+        self.rec.add_rows(times, Y[:, :n], Y[:, n:n + mt], M, J[:, :mt], (out[:, sQ].reshape(K, 3, 3), out[:, sp]),
+                          (at.p[i:i + K], None if at.Q is None else at.Q[i:i + K]), SOL[:, :n], held, smallest,
+                          -Y[:, n + mt:] if rows else None)
         if K > 1:  # the state before the last row: the predictor's history as the steps between carried it
             keep = PREDICTOR_POINTS - 1  # the (y, ydot) pairs the history holds: the rows before them drop out
             hist = [*s.prev, s.y, s.yd]
@@ -224,6 +231,7 @@ class Runs:
             s.k += K - 1
             c.steps += K - 1
             c.held_steps += (K - 1) * (held is not None)
+            c.row_steps += (K - 1) * rows
         last = out[K - 1]
         rcond = float(last[-2])
         c.apply(last, at.sample(i + K - 1), times[-1], rcond, smallest=None if smallest is None else smallest[-1])
@@ -231,11 +239,12 @@ class Runs:
             ctl.watch.passed(K, rcond)
             ctl.speed2 = float(last[-1])
 
-    def _held(self, out: np.ndarray, M: np.ndarray, J: np.ndarray) -> tuple:
-        """(solver labels, active bounds, bound multipliers (K, n)) of a run's rows with joints held on their bounds,
+    def _held(self, out: np.ndarray, M: np.ndarray, J: np.ndarray, slices: tuple) -> tuple:
+        """(solver labels, active bounds, bound multipliers (K, n)) of a run's rows with joints or general rows held,
         as :meth:`~kinredund.tracking.compiled.CompiledStep.apply` gives each step (the reduced system's label from
-        the core's verdict) and :meth:`~kinredund.tracking.recorder.Recorder.add` records it."""
-        s, (*_, s_mu, s_label) = self.s, self.c.slices
+        the core's verdict, on J with the rows held) and :meth:`~kinredund.tracking.recorder.Recorder.add` records
+        it; ``slices``: the output's layout."""
+        s, (*_, s_mu, s_label) = self.s, slices
         codes = out[:, s_label][:, 0].astype(int)
         labels = [s.reduced_label(M[j], J[j], int(codes[j])) for j in range(len(out))]
         return labels, s.active_bounds(), out[:, s_mu]

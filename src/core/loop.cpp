@@ -19,7 +19,10 @@
 // (GUARD_DUE, its row written: the caller's stepper searches it for a switch), and after the first step the watch
 // measures, exactly or by the inverse iteration (as when the watch's verdicts were taken after the run, which could
 // drop the rows after it while the guard's kept values could not be taken back; the verdicts are the run's now, but
-// guarded runs were left as they were).
+// guarded runs were left as they were). With general rows held in the core (StepCore.set_rows) the run goes on with
+// them, the check leaving them out (as step_guarded does), a held row's release ending it with its status (step.cpp's
+// ROW_RELEASE), and a step whose R has odd inertia (odd_inertia: a saddle of the held problem, maybe) ending it as one
+// the watch must measure (WATCH_DUE: the caller measures it exactly, kinredund.tracking.compiled.CompiledStep.accept).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
@@ -51,6 +54,17 @@ constexpr int WATCH_REJECTS = 9;
 // The status of a step the watch predicts a crossing within (Watch.ahead, after a measurement of the run): not taken,
 // left to the caller's next call (which hands it back).
 constexpr int AHEAD = -1;
+
+// Does the step's R have a reduced Hessian with an odd number of negative eigenvalues, by the signs of its LU
+// factors' diagonal and the pivots' swaps (kinredund.tracking.step_control.odd_inertia; nf: the free joints)?
+bool odd_inertia(const StepCore& core, int nf) {
+  int N = 0;
+  const int* piv = nullptr;
+  const double* lu = step_core_factors(core, piv, N);
+  int flips = 0;
+  for (int i = 0; i < N; ++i) flips += (lu[static_cast<size_t>(i) * N + i] < 0.0) + (piv[i] != i);
+  return (flips + N - nf) % 2 == 1;  // the parity of flips - (N - nf)
+}
 
 void check_rows(const InMat& a, size_t k, size_t width, const char* name) {
   if (a.shape(0) != k || a.shape(1) != width)
@@ -141,8 +155,9 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
                     InVec y0, InVec yd0, nb::list prev_list, InVec qdot0, double speed2, bool check_jump, nb::tuple watch,
                     OutMat out, nb::object guard_arg) {
   StepCore& core = step_core(core_obj);
-  if (step_core_held_rows(core) > 0)  // (a step with a row held is CompiledStep.step's: its search is Python's)
-    throw nb::value_error("run_steps: the core holds general rows (StepCore.set_rows); a run takes none");
+  const RowIndicesPtr held = step_core_held_rows(core);  // general rows held through the run (StepCore.set_rows)
+  if (held != nullptr && guard_arg.is_none())
+    throw nb::value_error("run_steps: the core holds general rows (StepCore.set_rows); a run with rows needs guard");
   int n, m, row;
   step_core_sizes(core, n, m, row);
   const size_t N = static_cast<size_t>(n + m), K = t.shape(0);
@@ -218,12 +233,16 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
       if (status != 0) break;
       if (guard != nullptr) {  // StepCore.step_guarded's check: from [q; lam] with rates qd to the row's, h [s] long
         const double h = t.data()[k] - (k ? t.data()[k - 1] : t_start);
-        const bool clear = guard->clear_at(y, o, qd, o + N, h, nullptr);
+        const bool clear = guard->clear_at(y, o, qd, o + N, h, held);  // (the held rows left out)
         smallest.data()[k] = guard->smallest();
         if (!clear) {
           status = GUARD_DUE;
           break;
         }
+      }
+      if (held != nullptr && gate.on && odd_inertia(core, nf)) {  // a saddle of the held problem, maybe:
+        status = WATCH_DUE;  // measured exactly by the caller (CompiledStep.accept: StepControl.watch_point)
+        break;
       }
       const double rcond = o[row - 2];
       if (gate.on && gate.due(rcond)) {

@@ -72,6 +72,7 @@ struct Sample {
 class StepCore {
   friend const int* step_core_free(const StepCore&, int&);
   friend RowSource* step_core_guard(const StepCore&);
+  friend RowIndicesPtr step_core_held_rows(const StepCore&);
   friend const double* step_core_factors(const StepCore&, const int*&, int&);
   friend int step_core_advance(StepCore&, const StepInput&, const double*, const double*,
                                const std::vector<const double*>&, const double*, double, bool, double*);
@@ -1082,7 +1083,7 @@ const int* step_core_free(const StepCore& c, int& nf) {
 
 RowSource* step_core_guard(const StepCore& c) { return c.guard_; }
 
-int step_core_held_rows(const StepCore& c) { return c.held_rows(); }
+RowIndicesPtr step_core_held_rows(const StepCore& c) { return c.na_ > 0 ? &c.rows_ : nullptr; }
 
 const double* step_core_factors(const StepCore& c, const int*& piv, int& N) {
   N = static_cast<int>(c.lu_.rows());

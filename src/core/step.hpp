@@ -3,6 +3,10 @@
 
 #include <nanobind/nanobind.h>
 
+#include <Eigen/Core>
+
+#include <cstdint>
+
 #include <vector>
 
 namespace kinredund {
@@ -21,10 +25,11 @@ struct StepInput {
 StepCore& step_core(nanobind::handle obj);
 // (n, m, the length of one step's output row: StepCore.step's array).
 void step_core_sizes(const StepCore& core, int& n, int& m, int& row);
-// The number of general rows the core holds (StepCore.set_rows; m counts them).
-int step_core_held_rows(const StepCore& core);
-// The row check that step_guarded runs after a step (StepCore.set_guard; rows.hpp), or null: none.
+// The general rows the core holds (StepCore.set_rows; m counts them), or null: none.
 class RowSource;
+using RowIndicesPtr = const Eigen::Matrix<std::int64_t, Eigen::Dynamic, 1>*;
+RowIndicesPtr step_core_held_rows(const StepCore& core);
+// The row check that step_guarded runs after a step (StepCore.set_guard; rows.hpp), or null: none.
 RowSource* step_core_guard(const StepCore& core);
 // The free joints' numbers (ascending; all n where no joint is held: StepCore.set_active), nf of them.
 const int* step_core_free(const StepCore& core, int& nf);
