@@ -118,6 +118,26 @@ def test_a_joint_beyond_its_extent_is_never_cleared():
     assert not boxed.clear(q, q, np.zeros(7), np.zeros(7), 0.01)
 
 
+class Padded(SphereClearance):
+    """A user's sphere held 1 cm further out by its own value (a subclass: FrameRows would compute the base's)."""
+
+    def _value(self, p):
+        return super()._value(p) - 0.01
+
+
+def test_a_subclass_gets_no_compiled_row():
+    """A subclass of SphereClearance has no compiled check (its values may not be FrameRows'), as a SceneClearance
+    subclass has none, so the compiled backend searches and holds its row in Python: the record is the Python run's
+    (with the base's row in the core the compiled run stopped at t = 3.14 s, more than 8 switches in one step)."""
+    circle, frame, center, radius = CASES["panda_elbow_sphere"]
+    r, path, index, q0 = case(circle)
+    c = Padded(r, frame, center, radius)
+    assert c.row_guard(ROW_TOL) is None
+    a, b = both(r, path, index, q0, loops=1, constraints=[c])
+    assert len(a.meta["switches"]) >= 4
+    assert_same_record(a, b)
+
+
 @pytest.mark.parametrize(("kind", "bad"), [(2, {}), (0, {"radius": 0.0}), (0, {"reach": -np.ones(7)}),
                                            (0, {"point": np.array([np.nan, 0.0, 0.0])}), (1, {"clearance": -1.0})])
 def test_bad_arguments_are_refused(kind, bad):

@@ -97,9 +97,12 @@ class _FrameClearance(Constraint):
 
     def row_guard(self, tol: float) -> RowCheck | None:
         """The compiled check and row (``kinredund._core.FrameRows``; module docstring), which the core holds too; None
-        where the core is not built, or the model has joints with nq != nv (the core's rows take q as nv entries)."""
+        where the core is not built, the model has joints with nq != nv (the core's rows take q as nv entries), and for
+        a subclass (its values, rows or bounds may differ from the ones FrameRows computes: it gives its own check, or
+        none; as :meth:`~kinredund.tracking.constraints.scene.SceneClearance.row_guard`)."""
         core, model = compiled_core(), self._kinematics.model
-        if core is None or not hasattr(core, "FrameRows") or model.nq != model.nv:
+        if type(self) not in (SphereClearance, PlaneClearance) or core is None or not hasattr(core, "FrameRows") \
+                or model.nq != model.nv:
             return None
         kind, point, normal, radius = self._shape()
         return _FrameCheck(core.FrameRows(model, self.frame_id, kind, point, normal, radius, self.clearance,
