@@ -303,7 +303,7 @@ class CompiledStep:
         ruled one out (``cleared``: its verdict where the core ran it with the step, None to run it here); the
         watch's measurement where due. Either rejection gives the Python stepper's step, which runs both itself.
         ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it. ``smallest``:
-        the check's least row value at the step's end (``RowGuard.smallest``), handed to the stepper with a step
+        the check's least row value at the step's end (its ``smallest``), handed to the stepper with a step
         it keeps (``keep_smallest``: the record's smallest value there, no query of its own)."""
         s = self.stepper
         ctl = s.control

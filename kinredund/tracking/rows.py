@@ -378,7 +378,7 @@ class GeneralRows:
 
     def keep_smallest(self, value: float) -> None:
         """The smallest c over the general rows at the current q [m] as the compiled check of the step to it computed
-        it (``RowGuard.smallest``: exact at or below the constraint's skip margin, a lower bound above it, as
+        it (its ``smallest``: a scene's exact at or below the constraint's skip margin, a lower bound above it, as
         :meth:`~kinredund.tracking.constraints.base.Constraint.values` may be), for :meth:`row_record` at this q."""
         self._smallest = (self.q, value)
 

@@ -49,7 +49,7 @@ _DIP_FIT = np.vander(_DIP_AT, 5) @ np.linalg.inv(np.vander(np.array([0.0, *DIP_S
 def segment_move(q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float) -> np.ndarray:
     """Per joint, a bound of |q(tau) - q0| and |q(tau) - q1| along a step of h [s] from (q0, v0) to (q1, v1) on
     the cubic Hermite of the joints: max(|dq|, h max(|qdot_0|, |qdot_1|)) + h |qdot_1 - qdot_0| / 4 [rad or m]
-    (the compiled row check, ``RowGuard`` in src/core/distances.cpp, computes the same)."""
+    (the compiled row checks compute the same: ``segment_move`` in src/core/rows.hpp)."""
     return np.maximum(np.abs(q1 - q0), h * np.maximum(np.abs(v0), np.abs(v1))) + 0.25 * h * np.abs(v1 - v0)
 
 

@@ -13,16 +13,17 @@
 // routine of StepCore.watch_measure, which the single steps call), the state carried from measurement to measurement
 // as the watch carries it (Watch.took, Watch.keep_exact); where that measurement is not watch_measure's (v of another
 // size, u not finite: the Python watch's exact branch) the run ends there as without it.
-// With a row check (``guard``: the StepCore's RowSource, a scene's RowGuard or a frame's FrameRows: StepCore.set_guard)
-// each step is checked right after it, as StepCore.step_guarded checks a single step (its clear_at on the same arrays,
-// its smallest row value at the step's end written out): the run ends at the first step the check does not clear
-// (GUARD_DUE, its row written: the caller's stepper searches it for a switch), and after the first step the watch
-// measures, exactly or by the inverse iteration (as when the watch's verdicts were taken after the run, which could
-// drop the rows after it while the guard's kept values could not be taken back; the verdicts are the run's now, but
-// guarded runs were left as they were). With general rows held in the core (StepCore.set_rows) the run goes on with
-// them, the check leaving them out (as step_guarded does), a held row's release ending it with its status (step.cpp's
-// ROW_RELEASE), and a step whose R has odd inertia (odd_inertia: a saddle of the held problem, maybe) ending it as one
-// the watch must measure (WATCH_DUE: the caller measures it exactly, kinredund.tracking.compiled.CompiledStep.accept).
+// With a row check (``guard``: the StepCore's RowSource, a scene's RowGuard, a frame's FrameRows or a RowStack of
+// several: StepCore.set_guard) each step is checked right after it, as StepCore.step_guarded checks a single step (its
+// clear_at on the same arrays, its smallest row value at the step's end written out): the run ends at the first step
+// the check does not clear (GUARD_DUE, its row written: the caller's stepper searches it for a switch), and after the
+// first step the watch measures, exactly or by the inverse iteration (as when the watch's verdicts were taken after
+// the run, which could drop the rows after it while the guard's kept values could not be taken back; the verdicts are
+// the run's now, but guarded runs were left as they were). With general rows held in the core (StepCore.set_rows) the
+// run goes on with them, the check leaving them out (as step_guarded does), a held row's release ending it with its
+// status (step.cpp's ROW_RELEASE), and a step whose R has odd inertia (odd_inertia: a saddle of the held problem,
+// maybe) ending it as one the watch must measure (WATCH_DUE: the caller measures it exactly,
+// kinredund.tracking.compiled.CompiledStep.accept).
 #include "loop.hpp"
 
 #include <nanobind/ndarray.h>
