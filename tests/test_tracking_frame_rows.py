@@ -206,9 +206,9 @@ def test_a_plane_held_is_the_python_run():
 
 def test_two_constraints_held_together_are_the_cores():
     """The elbow sphere and a plane lower down (both on panda_link4): their checks are one (RowStack, the rows
-    numbered as the stepper numbers them), and both rows are held at once for part of each loop, the sphere's row
-    first. Stepped in turn the backends agree at every step (agree_in_turn), the core taking the steps with both rows
-    held; tracked, the records are the same."""
+    numbered as the stepper numbers them), and both rows are held at once for part of each loop, the plane's row
+    reached first (rows (1, 0): the stack maps them back to their parts). Stepped in turn the backends agree at every
+    step (agree_in_turn), the core taking the steps with both rows held; tracked, the records are the same."""
     r, path, index, q0, plane = elbow_plane(0.3)
     circle, frame, center, radius = CASES["panda_elbow_sphere"]
     both_rows = [SphereClearance(r, frame, center, radius), plane]
