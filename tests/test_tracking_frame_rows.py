@@ -58,8 +58,9 @@ def test_the_cores_row_is_the_constraints(name):
 
 
 def test_the_curvature_is_the_gradients_derivative():
-    """w Hess c from the core against central differences of the constraint's gradient (step 1e-6: O(h^2) + the
-    gradient's rounding / h, about 1e-9 relative), so the core's curvature is right, not only Python's twin."""
+    """w Hess c from the core against central differences of the constraint's gradient (step h = 1e-6: truncation
+    O(h^2) ~ 1e-12 and the gradient's rounding eps |G| / h ~ 1e-10 of max(1, |H|); bar 1e-8, a hundredfold), so the
+    core's curvature is right, not only Python's twin."""
     robot = load_robot("panda", task="position")
     rng = np.random.default_rng(4)
     h = 1e-6
@@ -69,7 +70,7 @@ def test_the_curvature_is_the_gradients_derivative():
             q = rng.uniform(robot.lower, robot.upper)
             H = check.compiled.curvature(q, 1.0)
             D = np.array([(c.gradients(q + h * e) - c.gradients(q - h * e))[0] / (2 * h) for e in np.eye(len(q))])
-            np.testing.assert_allclose(H, 0.5 * (D + D.T), rtol=0, atol=1e-7 * max(1.0, np.abs(H).max()))
+            np.testing.assert_allclose(H, 0.5 * (D + D.T), rtol=0, atol=1e-8 * max(1.0, np.abs(H).max()))
 
 
 def test_the_check_is_the_searchs_test():
@@ -138,15 +139,18 @@ def test_a_subclass_gets_no_compiled_row():
     assert_same_record(a, b)
 
 
-@pytest.mark.parametrize(("kind", "bad"), [(2, {}), (0, {"radius": 0.0}), (0, {"reach": -np.ones(7)}),
-                                           (0, {"point": np.array([np.nan, 0.0, 0.0])}), (1, {"clearance": -1.0})])
-def test_bad_arguments_are_refused(kind, bad):
+@pytest.mark.parametrize(("kind", "bad", "says"), [
+    (2, {}, "kind must be"), (0, {"radius": 0.0}, "radius"), (0, {"reach": -np.ones(7)}, "reach"),
+    (0, {"point": np.array([np.nan, 0.0, 0.0])}, "point and normal"), (1, {"clearance": -1.0}, "clearance"),
+    (0, {"tol": np.inf}, "tol"), (1, {"normal": np.array([0.0, 0.0, 2.0])}, "unit vector")])
+def test_bad_arguments_are_refused(kind, bad, says):
+    """The core's own checks (the constraints validate their input first: OptionError; these guard the core)."""
     robot = load_robot("panda", task="position")
     import kinredund._core as core
 
     args = {"point": np.zeros(3), "normal": np.array([0.0, 0.0, 1.0]), "radius": 0.1, "clearance": 0.0,
             "reach": np.ones(7), "extent": np.full(7, np.inf), "tol": 1e-9} | bad
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=says):
         core.FrameRows(robot.model, robot.model.getFrameId("panda_link4"), kind, **args)
 
 

@@ -63,8 +63,8 @@ class HeldRows:
         rows = s.rows
         if rows == self.rows:
             return
-        pairs = [s.row_pairs[f] for f in rows]  # (the check's rows are the stepper's numbers: row_check)
-        self.core.set_rows(np.array(rows, dtype=np.int64), DIFFERENCE_STEP)
+        pairs = [s.row_pairs[f] for f in rows]
+        self.core.set_rows(np.array(rows, dtype=np.int64), DIFFERENCE_STEP)  # (the stepper's numbers: row_check)
         self.rows = rows
         m = self.m + len(rows)
         self.layout = (row_slices(self.n, m), (self.n, m))

@@ -53,9 +53,11 @@ class FrameRows : public RowSource {
         extent.hasNaN() || (extent.array() < 0.0).any())
       throw nb::value_error(("reach (finite) and extent (or inf) must be " + std::to_string(nv) +
                              " numbers >= 0").c_str());
-    if (!(std::isfinite(radius) && std::isfinite(clearance) && clearance >= 0.0 && tol >= 0.0 &&
+    if (!(std::isfinite(radius) && std::isfinite(clearance) && std::isfinite(tol) && clearance >= 0.0 && tol >= 0.0 &&
           (kind == PLANE || radius > 0.0)))
       throw nb::value_error("radius (> 0 for a sphere), clearance and tol (>= 0) must be finite");
+    if (kind == PLANE && !(std::abs(normal.norm() - 1.0) <= 1e-12))
+      throw nb::value_error("a plane's normal must be a unit vector");
     point_ = point;
     normal_ = normal;
     J6_.setZero(6, nv);

@@ -46,7 +46,7 @@ class RowSource {
 // The least entry of v but the held rows' (they are left out of a check's tests; null: none). A NaN is returned
 // where it is met, so that the test on the result fails.
 inline double least_but(const Eigen::VectorXd& v, const RowIndices* held) {
-  if (held == nullptr || held->size() == 0) return v.minCoeff();
+  if (held == nullptr || held->size() == 0) return v.hasNaN() ? std::numeric_limits<double>::quiet_NaN() : v.minCoeff();
   double out = std::numeric_limits<double>::infinity();
   for (Eigen::Index r = 0; r < v.size(); ++r) {
     bool skip = false;

@@ -77,7 +77,7 @@ class RowCheck:
 
 class _StackedCheck(RowCheck):
     """The checks of several constraints as one (``kinredund._core.RowStack``: their rows numbered in turn, as the
-    stepper numbers them), valid while each is, holding the rows where each can."""
+    stepper numbers them), valid while each is; it holds the rows (and settles them) only where every part can."""
 
     __slots__ = ("_parts",)
 
