@@ -321,3 +321,25 @@ def test_a_sphere_held_on_a_pose_task_is_the_python_run(scheme):
               for x in ("python", "compiled"))
     agree_in_turn(ta, tb, 200)
     assert tb.compiled.row_steps > 20 and "row_active" not in tb.compiled.handed_back
+
+
+def test_a_stack_leaves_each_held_row_out_of_its_own_part():
+    """RowStack.clear with rows held (the stack's numbers) gives each part its own held rows: with the second of two
+    spheres reached at the step's end (its row below -tol) and the first clear, the stack clears the step only
+    where the second sphere's row is held, and a first sphere held leaves the second's reach in the test."""
+    import kinredund._core as core
+
+    robot = load_robot("panda", task="position")
+    q = 0.5 * (robot.lower + robot.upper)
+    p = SphereClearance(robot, "panda_link4", np.zeros(3), 1.0).point(q)
+    far = SphereClearance(robot, "panda_link4", p + np.array([0.0, 0.0, 0.5]), 0.1)  # 0.4 m clear
+    inside = SphereClearance(robot, "panda_link4", p + np.array([0.0, 0.0, 0.05]), 0.1)  # 5 cm inside
+    stack = core.RowStack([far.row_guard(ROW_TOL).compiled, inside.row_guard(ROW_TOL).compiled])
+    v = np.zeros(7)
+    assert stack.size == 2
+    assert not stack.clear(q, q, v, v, 0.01)
+    assert stack.clear(q, q, v, v, 0.01, np.array([1]))
+    assert not stack.clear(q, q, v, v, 0.01, np.array([0]))
+    assert stack.smallest == pytest.approx(inside.values(q)[0], abs=64 * EPS)  # the least of both, held or not
+    with pytest.raises(ValueError, match="rows of the stack"):
+        stack.clear(q, q, v, v, 0.01, np.array([2]))
