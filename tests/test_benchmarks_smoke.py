@@ -94,3 +94,18 @@ def test_a_full_run_refuses_a_checkout_without_the_core_and_a_smoke_run_says_so(
         bench["parser"]("x").parse_args([])
     assert bench["parser"]("x").parse_args(["--smoke"]).smoke
     assert "the figures time the Python paths" in capsys.readouterr().err
+
+
+def test_the_held_rows_benchmark_runs_the_sphere_and_its_pseudo_backends(tmp_path):
+    """scene_rows.py's sphere case with both pseudo-backends (the rows held left to Python; no compiled check): it
+    exits 0, and its compiled and Python backends, stepped in turn, agree to the tracker's 1e-12 rad per step (no
+    speed asserted)."""
+    out = tmp_path / "figures.json"
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "scene_rows.py"), "--smoke", "--case", "sphere",
+                          "--backends", "compiled,compiled-no-check,compiled-rows-in-python", "--json", str(out)],
+                         capture_output=True, text=True, cwd=tmp_path, env={**os.environ, "MPLBACKEND": "Agg"},
+                         timeout=HANG)
+    assert run.returncode == 0, f"{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
+    figures = json.loads(out.read_text())
+    assert figures["case"] == "sphere" and figures["agreement_q_max"] < 1e-12
+    assert figures["backend_compiled-no-check"] == "compiled-no-check" and figures["scene_active_steps"] > 0
