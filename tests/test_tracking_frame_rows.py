@@ -341,5 +341,5 @@ def test_a_stack_leaves_each_held_row_out_of_its_own_part():
     assert stack.clear(q, q, v, v, 0.01, np.array([1]))
     assert not stack.clear(q, q, v, v, 0.01, np.array([0]))
     assert stack.smallest == pytest.approx(inside.values(q)[0], abs=64 * EPS)  # the least of both, held or not
-    with pytest.raises(ValueError, match="rows of the stack"):
+    with pytest.raises(ValueError, match="rows of the source"):
         stack.clear(q, q, v, v, 0.01, np.array([2]))

@@ -572,16 +572,6 @@ class RowGuard : public RowSource {
     return pairs_;
   }
 
-  // The Python binding: sizes checked, then clear_at with the GIL released.
-  bool clear(const Eigen::Ref<const VectorXd>& q0, const Eigen::Ref<const VectorXd>& q1,
-             const Eigen::Ref<const VectorXd>& v0, const Eigen::Ref<const VectorXd>& v1, double h) {
-    const Eigen::Index nv = bound_.cols();
-    if (q0.size() != nv || q1.size() != nv || v0.size() != nv || v1.size() != nv)
-      throw nb::value_error(("q0, q1, v0, v1 must have " + str(nv) + " entries").c_str());
-    nb::gil_scoped_release release;
-    return clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h, nullptr);
-  }
-
   // The check itself on raw arrays of nv entries (no Python object touched). `held`: rows held during the step
   // (the stepper's active rows, on their zero), left out of both tests as the stepper's search leaves them out
   // (GeneralRows._row_events' reach and SwitchLocation._row_dips); null: none.
@@ -780,7 +770,27 @@ RowSource& row_source(nb::handle obj) {
 }
 
 void bind_row_source(nb::module_& m) {
-  nb::class_<RowSource>(m, "RowSource", "A constraint's rows as the core's step holds them (issues 27, 28).");
+  nb::class_<RowSource>(m, "RowSource", "A constraint's rows as the core's step holds them (issues 27, 28).")
+      .def(
+          "clear",  // clear_at on checked arrays, the GIL released (every source's Python binding)
+          [](RowSource& s, const Eigen::Ref<const VectorXd>& q0, const Eigen::Ref<const VectorXd>& q1,
+             const Eigen::Ref<const VectorXd>& v0, const Eigen::Ref<const VectorXd>& v1, double h,
+             const RowIndices& held) {
+            const Eigen::Index n = s.nv();
+            if (q0.size() != n || q1.size() != n || v0.size() != n || v1.size() != n)
+              throw nb::value_error(("q0, q1, v0, v1 must have " + str(n) + " entries").c_str());
+            for (Eigen::Index i = 0; i < held.size(); ++i)
+              if (held[i] < 0 || held[i] >= s.size()) throw nb::value_error("held: rows of the source");
+            nb::gil_scoped_release release;
+            return s.clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h, held.size() ? &held : nullptr);
+          },
+          nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"), nb::arg("held") = RowIndices(),
+          "the check of a step from (q0, v0) to (q1, v1), h [s] long: no row can switch within it (the rows ``held`` "
+          "left out)")
+      .def_prop_ro("smallest", &RowSource::smallest,
+                   "the least row value at the last check's end [m] (a scene's exact at or below its skip margin, "
+                   "else a lower bound; NaN where that check stopped before its values)")
+      .def_prop_ro("size", &RowSource::size, "the number of rows");
 }
 
 void bind_distances(nb::module_& m) {
@@ -803,10 +813,6 @@ void bind_distances(nb::module_& m) {
                     const Eigen::Ref<const RowMatrixXd>&, const Eigen::Ref<const VectorXd>&, double, double>(),
            nb::arg("query"), nb::arg("row_of_pair"), nb::arg("clearances"), nb::arg("influence"), nb::arg("bound"),
            nb::arg("extent"), nb::arg("tol"), nb::arg("skip"), nb::keep_alive<1, 2>())
-      .def("clear", &RowGuard::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"))
-      .def_prop_ro("smallest", &RowGuard::smallest,
-                   "the smallest row value at the last check's end [m] (exact at or below skip, else a lower bound; "
-                   "NaN where that check stopped before its values)")
       .def_prop_ro("seconds", &RowGuard::seconds, "time spent in its checks [s] (the core's calls included)")
       .def_prop_ro("distances", &RowGuard::distances, "exact distances its checks computed")
       .def_prop_ro("placements", &RowGuard::placements, "placements of the objects its checks made")

@@ -128,16 +128,6 @@ class FrameRows : public RowSource {
       for (int k = 0; k < n; ++k) M(i, k) += f * (C_(i, k) + C_(k, i));
   }
 
-  // The Python binding: sizes checked, then clear_at with the GIL released.
-  bool clear(const CRef& q0, const CRef& q1, const CRef& v0, const CRef& v1, double h) {
-    check(q0);
-    check(q1);
-    check(v0);
-    check(v1);
-    nb::gil_scoped_release release;
-    return clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h, nullptr);
-  }
-
   // (c (1,), G (1, nv)) at q: rows_at of the row (for comparison with the Python constraint)
   std::tuple<VectorXd, RowMajorMatrix> rows(const CRef& q) {
     check(q);
@@ -220,11 +210,8 @@ void bind_frame_rows(nb::module_& m) {
                     double>(),
            nb::arg("model"), nb::arg("frame_id"), nb::arg("kind"), nb::arg("point"), nb::arg("normal"),
            nb::arg("radius"), nb::arg("clearance"), nb::arg("reach"), nb::arg("extent"), nb::arg("tol"))
-      .def("clear", &FrameRows::clear, nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"))
       .def("rows", &FrameRows::rows, nb::arg("q"))
-      .def("curvature", &FrameRows::curvature, nb::arg("q"), nb::arg("w"))
-      .def_prop_ro("smallest", &FrameRows::smallest,
-                   "the row's value at the last check's end [m] (NaN where that check stopped before it)");
+      .def("curvature", &FrameRows::curvature, nb::arg("q"), nb::arg("w"));
 }
 
 }  // namespace kinredund

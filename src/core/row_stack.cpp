@@ -130,24 +130,7 @@ void bind_row_stack(nb::module_& m) {
   nb::class_<RowStack, RowSource>(m, "RowStack",
                                   "Several constraints' rows (RowGuard, FrameRows) as one, numbered in turn "
                                   "(issue 28).")
-      .def(nb::init<const std::vector<nb::object>&>(), nb::arg("parts"))
-      .def(
-          "clear",
-          [](RowStack& s, const Eigen::Ref<const VectorXd>& q0, const Eigen::Ref<const VectorXd>& q1,
-             const Eigen::Ref<const VectorXd>& v0, const Eigen::Ref<const VectorXd>& v1, double h,
-             const RowIndices& held) {
-            const Eigen::Index n = s.nv();
-            if (q0.size() != n || q1.size() != n || v0.size() != n || v1.size() != n)
-              throw nb::value_error(("q0, q1, v0, v1 must have " + std::to_string(n) + " entries").c_str());
-            for (Eigen::Index i = 0; i < held.size(); ++i)
-              if (held[i] < 0 || held[i] >= s.size()) throw nb::value_error("held: rows of the stack");
-            nb::gil_scoped_release release;
-            return s.clear_at(q0.data(), q1.data(), v0.data(), v1.data(), h, held.size() ? &held : nullptr);
-          },
-          nb::arg("q0"), nb::arg("q1"), nb::arg("v0"), nb::arg("v1"), nb::arg("h"), nb::arg("held") = RowIndices(),
-          "the check of a step (the rows ``held``, the stack's numbers, left out of it)")
-      .def_prop_ro("smallest", &RowStack::smallest, "the least row value at the last check's end [m] (NaN: none)")
-      .def_prop_ro("size", &RowStack::size);
+      .def(nb::init<const std::vector<nb::object>&>(), nb::arg("parts"));
 }
 
 }  // namespace kinredund
