@@ -371,6 +371,11 @@ class CompiledStep:
         self.row_steps -= self.rows and bool(self.stepper.rows)
         return self.hand_back(status)
 
+    def output_layout(self) -> tuple:
+        """(slices, (n, m)) of the core's output row now: with the rows the stepper holds where it holds any (they are
+        the core's then: :class:`~kinredund.tracking.compiled_rows.HeldRows`, synced before a step), else the task's."""
+        return self.held.layout if self.rows and self.stepper.rows else self.layout
+
     def sync_active(self) -> None:
         """Give the core the stepper's active set where it changed (a switch replaces the ``fixed`` array)."""
         if self.stepper.fixed is self._fixed:  # the common case, without making the bound values
@@ -388,8 +393,7 @@ class CompiledStep:
         compiled check has it (see :meth:`accept`; a step put back later leaves it with a q no longer current)."""
         s = self.stepper
         held = self.rows and bool(s.rows)
-        slices = self.held.layout[0] if held else self.slices
-        sy, ssol, sM, _, sq, _, _, _, s_mu, s_label = slices
+        sy, ssol, sM, _, sq, _, _, _, s_mu, s_label = self.output_layout()[0]
         n = self.n
         M = out[sM].reshape(n, n)
         if held:  # the extended evaluation (the rows held at this step) where more than J is read

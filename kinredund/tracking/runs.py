@@ -130,8 +130,7 @@ class Runs:
         K = len(times)  # (a run ends where the samples taken ahead end: _window)
         if c.held is not None:
             c.held.sync()  # the rows held now (a switch taken by the Python stepper replaces them)
-        slices = c.held.layout[0] if c.rows and s.rows else c.slices  # (the output's layout with the rows held)
-        out = np.empty((K, int(slices[-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
+        out = np.empty((K, int(c.output_layout()[0][-1].stop) + 2))  # the core's row: the fields, rcond, speed^2
         fixed = getattr(s, "fixed", None)
         if ctl is None:
             watch, speed2 = (False, RCOND_NEAR, RCOND_DROP, 0.0, 0, EXACT_EVERY, False), 0.0
@@ -209,7 +208,7 @@ class Runs:
         keeps it)."""
         c, s, ctl = self.c, self.s, self.ctl
         rows = c.rows and bool(s.rows)  # rows held through the run: the output's layout with them
-        slices, (n, m) = c.held.layout if rows else (c.slices, c.shapes[:2])
+        slices, (n, m) = c.output_layout()
         sy, ssol, sM, sJ, _, sQ, sp = slices[:7]
         mt = c.shapes[1]  # the task's multipliers (the rows' after them)
         K = len(times)
