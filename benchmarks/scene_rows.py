@@ -29,7 +29,10 @@ held its own, as a sphere's were before ``FrameRows``). Figures, medians over th
 - ``scene_active_step_us_python`` etc.: the same of the other backend, and ``active_ratio``, the second backend's
   row-active step over the first's, and ``track_ratio``, the same of ``track()``;
 - ``agreement_q_max``: the compiled and the Python backend stepped in turn over ``--steps`` steps, the largest joint
-  difference after a step [rad].
+  difference after a step [rad];
+- ``switch_share``, ``switch_ms``, ``switches``: one more ``track()`` on the first backend, the share of its time
+  spent locating and stepping through the switches (the Python stepper's ``SwitchLocation._resolve_switches``, timed
+  around each call), that time per switch [ms], and the switches.
 
 It runs on whichever kinredund is installed, so the figure of an older build is had by running this file with that
 build's Python (the issue's before/after: run the two in turn, a few times each).
@@ -46,6 +49,7 @@ from clearance_peers import elbow_case
 
 import kinredund
 from kinredund.tracking import SceneClearance, SphereClearance, Tracker, compiled, track
+from kinredund.tracking.switches import SwitchLocation
 
 #: the ball's centre and radius [m] and the clearance [m] of panda_elbow_ball (tests/test_tracking_scene.py)
 BALL, CLEARANCE = ([-0.3178, 0.2255, 0.3518], 0.05), 0.02
@@ -123,6 +127,26 @@ def agreement(case, steps: int) -> float:
     return worst
 
 
+def switch_time(case, steps: int, backend: str) -> tuple[float, float, int]:
+    """(share of a ``track()``'s time in ``SwitchLocation._resolve_switches``, that time per switch [ms], switches)."""
+    spent, inner = [0.0], SwitchLocation._resolve_switches
+
+    def timed(self, snap):
+        t0 = time.perf_counter()
+        try:
+            return inner(self, snap)
+        finally:
+            spent[0] += time.perf_counter() - t0
+
+    r, path, index, q0, rows = case
+    with _patched(SwitchLocation, "_resolve_switches", timed), backend_of(backend) as name:
+        t0 = time.perf_counter()
+        tr = track(r, path, index, q0, loops=max(1, steps // 200), steps_per_loop=200, backend=name, **rows)
+        total = time.perf_counter() - t0
+    count = len(tr.meta["switches"])
+    return spent[0] / total, 1e3 * spent[0] / max(count, 1), count
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--rounds", type=int, default=5, help="fresh trackers to time (default 5)")
@@ -163,6 +187,8 @@ def main() -> None:
     if len(backends) > 1:
         out["active_ratio"] = out[f"scene_active_step_us_{backends[1]}"] / out["scene_active_step_us"]
         out["track_ratio"] = out[f"scene_track_ms_{backends[1]}"] / out["scene_track_ms"]
+    share, per_switch, switches = switch_time(case, steps, backends[0])
+    out |= {"switch_share": share, "switch_ms": per_switch, "switches": switches}
     out |= {"agreement_q_max": agreement(case, steps), "case": args.case, "rounds": rounds, "steps": steps,
             "active_step_us_per_round": per[backends[0]][0]}
     print_table([[k, v] for k, v in out.items() if k != "active_step_us_per_round"], ["figure", "value"])

@@ -109,3 +109,4 @@ def test_the_held_rows_benchmark_runs_the_sphere_and_its_pseudo_backends(tmp_pat
     figures = json.loads(out.read_text())
     assert figures["case"] == "sphere" and figures["agreement_q_max"] < 1e-12
     assert figures["backend_compiled-no-check"] == "compiled-no-check" and figures["scene_active_steps"] > 0
+    assert figures["switches"] >= 1 and 0.0 < figures["switch_share"] < 1.0  # (a share of one run's time)
