@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/many.py [--runs 8] [--loops 1] [--repeat 3] [--processes] [--json FILE]
+    python benchmarks/many.py [--runs 8] [--loops 1] [--repeat 3] [--processes] [--sphere] [--json FILE]
 
 Problem: ``--runs`` variants of the Panda benchmark circle (``kinredund.problems.panda_circle``, 200 steps per
 loop, limits held), the k-th turning the tool about its axis by up to 2 k degrees along the loop. Each round
@@ -12,6 +12,11 @@ the machine). The compiled core makes each run's start (the correction onto the 
 first measurement: ``start_run``) and runs the ordinary steps in runs (:mod:`kinredund.tracking.runs`; the watch's
 measurements and verdicts inside them), each one C++ call with the GIL released, as are the start's checks; the rest
 (the rest of each run's set-up, the path's samples, the record, the steps it hands back) holds it.
+``--sphere``: instead, ``--runs`` copies of clearance_peers.py's elbow case (a 13.3 cm Panda circle whose optimum's
+elbow is kept out of a 0.1 m sphere, ``SphereClearance``), ``--loops`` loops of 200 steps each: the rows are held in
+the core's runs, but each switch of the active set (a row reached or released, about four a loop) is located by the
+Python stepper's switching-time search (``kinredund.tracking.switches``), which holds the GIL but for its corrector
+solves.
 The records of both thread counts are compared with the runs one by one (joints, bit for bit). Also the share of
 a run's CPU time (``time.thread_time``: the load of other processes does not count) spent in those calls of the
 core (C++, the GIL released: :data:`GIL_FREE`; numpy's LAPACK calls release it as well), which bounds the
@@ -115,9 +120,20 @@ def process_rate(jobs: list, options: dict, repeat: int) -> float:
     return float(np.median(rates))
 
 
-def bench(runs: int = 8, loops: int = 1, repeat: int = 3, processes: bool = False) -> dict:
-    jobs = problems(runs)
+def sphere_problems(count: int) -> tuple[list, list]:
+    """(``count`` copies of clearance_peers.py's elbow case, the constraints for ``track``): see ``--sphere``."""
+    from clearance_peers import elbow_case
+
+    robot, path, index, q0, sphere = elbow_case()
+    return [(robot, path, index, q0)] * count, [sphere]
+
+
+def bench(runs: int = 8, loops: int = 1, repeat: int = 3, processes: bool = False, sphere: bool = False) -> dict:
     options = {"loops": loops}
+    if sphere:
+        jobs, options["constraints"] = sphere_problems(runs)
+    else:
+        jobs = problems(runs)
     alone = track_many(jobs, threads=1, **options)  # one track() after another, in this thread
     rates = {1: [], 2: []}
     same = True
@@ -130,7 +146,8 @@ def bench(runs: int = 8, loops: int = 1, repeat: int = 3, processes: bool = Fals
                         for a, b in zip(alone, got, strict=True))
     one, two = (float(np.median(rates[k])) for k in (1, 2))
     share, held_ms = gil_free_share(jobs, options)
-    return {"runs": runs, "steps_per_run": 200 * loops, "runs_per_s_1_thread": one, "runs_per_s_2_threads": two,
+    return {"case": "sphere" if sphere else "circle", "runs": runs, "steps_per_run": 200 * loops,
+            "runs_per_s_1_thread": one, "runs_per_s_2_threads": two,
             "speedup_2_over_1": two / one, "same_as_one_by_one": bool(same), "core_runs_share": share,
             "gil_held_ms_per_run": held_ms,
             "stopped": sum(isinstance(a, TrackingError) for a in alone), "machine": machine(),
@@ -143,10 +160,12 @@ def main() -> None:
     p.add_argument("--loops", type=int, default=1, help="loops of each run (default 1)")
     p.add_argument("--repeat", type=int, default=3, help="rounds (default 3)")
     p.add_argument("--processes", action="store_true", help="also time two worker processes (threads' ceiling)")
+    p.add_argument("--sphere", action="store_true", help="clearance_peers.py's elbow sphere case instead (module "
+                                                        "docstring)")
     args = p.parse_args()
     if args.smoke:
         args.runs, args.loops, args.repeat = 2, 1, 1
-    res = bench(args.runs, args.loops, args.repeat, args.processes)
+    res = bench(args.runs, args.loops, args.repeat, args.processes, args.sphere)
     print_table([[res["runs"], res["steps_per_run"], res["runs_per_s_1_thread"], res["runs_per_s_2_threads"],
                   res["speedup_2_over_1"], res["core_runs_share"], res["gil_held_ms_per_run"], res["stopped"],
                   res["same_as_one_by_one"]]],

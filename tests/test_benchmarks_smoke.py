@@ -110,3 +110,16 @@ def test_the_held_rows_benchmark_runs_the_sphere_and_its_pseudo_backends(tmp_pat
     assert figures["case"] == "sphere" and figures["agreement_q_max"] < 1e-12
     assert figures["backend_compiled-no-check"] == "compiled-no-check" and figures["scene_active_steps"] > 0
     assert figures["switches"] >= 1 and 0.0 < figures["switch_share"] < 1.0  # (a share of one run's time)
+
+
+def test_the_many_runs_benchmark_runs_the_sphere_case(tmp_path):
+    """many.py's ``--sphere`` case (clearance_peers' elbow sphere in every run): it exits 0, its runs complete, and
+    the records of one and two threads are those of the runs one by one, bit for bit (no speed asserted)."""
+    out = tmp_path / "figures.json"
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "many.py"), "--smoke", "--sphere", "--json", str(out)],
+                         capture_output=True, text=True, cwd=tmp_path, env={**os.environ, "MPLBACKEND": "Agg"},
+                         timeout=HANG)
+    assert run.returncode == 0, f"{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
+    figures = json.loads(out.read_text())
+    assert figures["case"] == "sphere" and figures["same_as_one_by_one"] and figures["stopped"] == 0
+    assert 0.0 < figures["core_runs_share"] < 1.0 and figures["runs"] == 2
