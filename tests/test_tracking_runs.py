@@ -388,6 +388,82 @@ def test_a_scene_run_records_the_same_numbers_as_single_guarded_steps(monkeypatc
     assert all(exact <= 1 for _, _, exact, _ in calls) and max(done for done, *_ in calls) <= watch.EXACT_EVERY
 
 
+#: test_tracking_limits's circle case in the Panda's plane of symmetry (x-z): its home (the joints about axes across
+#: that plane at zero, joint 7 moving no point of the task), a 0.1 m circle in the plane at 0.1 m/s, z = 1/2 ||q -
+#: home||^2; and a sphere centred in the plane where the free optimum's elbow (panda_link4's origin) passes at 7/40 of
+#: the loop, 5 mm larger than its distance from the free start's elbow, so that the start is held on it (HEAD_ON_Q0:
+#: solve_ik_rows's minimum at t = 0, its out-of-plane joints' 1e-16 rad set to zero, push |w| = 0.43)
+HEAD_ON_SPHERE = ("panda_link4", [-0.19381380788762115, 0.0, 0.5958658552800273], 0.039506645060579854)
+HEAD_ON_Q0 = [0.0, -0.769665703885916, 0.0, -2.338583082196584, 0.0, 1.5305534882181615, 0.785]
+
+
+def test_a_run_hands_over_a_held_step_whose_r_has_odd_inertia(monkeypatch):
+    """The elbow pressed head-on into a sphere in the arm's plane of symmetry: the held optimum stays in the plane,
+    and as the push grows the row's curvature (its multiplier over the radius) takes the reduced Hessian's
+    out-of-plane eigenvalue through zero without a fold (a pitchfork: the held branch goes on, as a saddle). R's
+    condition, the watch's gate, does not fall (rcond rises, 0.0026 -> 0.0033) and the watch's history holds the
+    start's measurement alone, so nothing predicts the crossing: a run with the row held steps onto the saddle and
+    only its inertia test (loop.cpp: odd_inertia on the step's R factors) ends it there, with WATCH_DUE, for
+    CompiledStep.accept to measure exactly and hand back. Checked: a run ended after held steps with WATCH_DUE at a
+    step whose factors have odd inertia (Python's odd_inertia) and which the gate would have passed (due_next False:
+    no other exit of the run gives WATCH_DUE there), where Z^T M Z (Z an SVD null basis of [J; G]) has an
+    eigenvalue of -0.050 (the 13 held steps before it in the run: minima, their inertia even); one step at a time
+    the Python test finds the same step, with the same numbers. Both ways the run stops at the step before it
+    (``collision``, a fold under it), with the same joints and partial record."""
+    from test_tracking_limits import circle_case
+
+    from kinredund.tracking.step_control import odd_inertia
+
+    r, path, index, _ = circle_case("panda", [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785], [0, 1, 0], [1, 0, 0], 0.1)
+    sphere = SphereClearance(r, *HEAD_ON_SPHERE)
+    core = compiled.load_core()
+    inner, accept = core.run_steps, compiled.CompiledStep.accept
+    events = []
+
+    def counting(*args):
+        held = bool(args[0].held_rows)
+        done, status, kept = inner(*args)
+        events.append(("run", held, done, status))
+        return done, status, kept
+
+    def measured(self, out, sample, t_to, *args, **kwargs):
+        s = self.stepper
+        if self.rows and s.rows:  # a held step: R's inertia, the gate's verdict, Z^T M Z's least eigenvalue
+            free = ~s.fixed
+            y = out[self.output_layout()[0][0]]
+            pt = s.evaluate(y[:s.n], t_to)
+            M, A = pt.system(y[s.n:])[0][np.ix_(free, free)], pt.J[:, free]
+            Z = np.linalg.svd(A)[2][len(A):].T
+            events.append(("held", t_to, odd_inertia(*self.held.factors(), int(free.sum())),
+                           s.control.watch.due_next(float(out[-2])), float(np.linalg.eigvalsh(Z.T @ M @ Z)[0])))
+        return accept(self, out, sample, t_to, *args, **kwargs)
+
+    monkeypatch.setattr(core, "run_steps", counting)
+    monkeypatch.setattr(compiled.CompiledStep, "accept", measured)
+    stops, held = [], []
+    for stepping in (runs.one_by_one, runs.stepping):
+        events.clear()
+        monkeypatch.setattr(run, "stepping", stepping)
+        with pytest.raises(TrackingError) as info:
+            run.track(r, path, index, np.array(HEAD_ON_Q0), backend="compiled", loops=1, steps_per_loop=100,
+                      constraints=[sphere])
+        stops.append(info.value)
+        held.append([e for e in events if e[0] == "held"])
+    j = next(j for j, e in enumerate(events) if e[0] == "held" and e[2])  # the runs' step with odd inertia
+    saddle, (_, rows, done, status) = events[j], events[j - 1]
+    assert rows and done >= 2 and status == core.WATCH_DUE  # the end of a run of held steps
+    assert saddle[3] is False and saddle[4] < -0.01  # the gate passes it; a saddle of the held problem
+    assert held[0][-1] == saddle and len(held[0]) == done + 1  # one step at a time: the same step, the same numbers
+    assert all(not odd and eig > 0.0 for _, _, odd, _, eig in held[0][:-1])  # minima before it
+    a, b = stops
+    assert (b.cause, b.t) == (a.cause, a.t) and a.cause == "collision"
+    assert a.watched["underlying_cause"] == b.watched["underlying_cause"] == "fold"
+    assert saddle[1] == pytest.approx(a.t + path.period / 100, abs=1e-12)  # the step after the last good one
+    np.testing.assert_array_equal(b.q, a.q)
+    assert_identical(a.partial, b.partial, "partial.")
+    assert a.partial.meta == b.partial.meta
+
+
 def test_scene_runs_leave_the_state_and_the_checks_counters_of_single_steps():
     """Tracker-level: after 400 steps in runs the stepper's state, the step counters and the scene check's own
     counters (placements of the objects, exact distances, per-row recomputations) are those of single guarded
