@@ -666,6 +666,29 @@ def test_track_many_raises_the_first_bad_problem_s_error_after_every_run(monkeyp
         assert_identical(alone, traj)
 
 
+def test_track_many_starts_no_more_threads_than_problems(monkeypatch):
+    """threads beyond the problems' count would find no problem to take: track_many starts at most one thread per
+    problem (the caller one of them), so threads=10**6 for two problems runs them on two threads (it started a
+    million threads, which the machine could not make)."""
+    import threading
+
+    from kinredund.tracking import many, track_many
+
+    good = problem("panda_wrist15")
+    started, inner = [], threading.Thread
+
+    def counted(*args, **kwargs):
+        started.append(1)
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(many.threading, "Thread", counted)
+    records = track_many([good, good], threads=10**6, loops=1, steps_per_loop=20)
+    assert len(started) == 1  # the second problem's; the first runs on the calling thread
+    alone = run.track(*good, loops=1, steps_per_loop=20)
+    for traj in records:
+        assert_identical(alone, traj)
+
+
 @pytest.mark.parametrize("backend", ["compiled", "python"])
 def test_a_start_within_the_tolerance_is_polished_so_the_loop_closes(backend):
     """The start takes one Newton update even where F is within the corrector's tolerance (an IK answer): a start

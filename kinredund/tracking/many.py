@@ -31,7 +31,8 @@ def track_many(problems, *, threads: int | None = None, **options) -> list:
 
     Args:
         problems: (robot, path, index, q0) per run (robots, paths and indices may be shared between them).
-        threads: worker threads (an integer >= 1; default: the machine's CPU count, at most the problems').
+        threads: worker threads (an integer >= 1; default: the machine's CPU count), at most one per problem: a
+            thread more would find no problem to take.
         **options: :func:`~kinredund.tracking.run.track`'s keyword arguments, the same for every run.
 
     Returns:
@@ -46,8 +47,8 @@ def track_many(problems, *, threads: int | None = None, **options) -> list:
     for k, job in enumerate(jobs):
         if not isinstance(job, tuple | list) or len(job) != 4:
             raise OptionError(f"problem {k} must be a (robot, path, index, q0) tuple, got {type(job).__name__}")
-    workers = min(len(jobs), os.cpu_count() or 1) if threads is None else check_count(threads, 1, "threads",
-                                                                                        OptionError)
+    workers = (os.cpu_count() or 1) if threads is None else check_count(threads, 1, "threads", OptionError)
+    workers = min(workers, len(jobs))  # (threads=10**6 for two problems started a million threads, that waited)
     load_core()  # once, before the threads (it warns once where the core cannot be loaded)
 
     def one(job):
