@@ -666,6 +666,18 @@ def test_track_many_raises_the_first_bad_problem_s_error_after_every_run(monkeyp
         assert_identical(alone, traj)
 
 
+@pytest.mark.parametrize("problems", [None, 3, "abcd"])
+def test_track_many_refuses_problems_that_are_not_a_list_of_tuples(problems):
+    """None or a number raised Python's TypeError ('NoneType' object is not iterable); a string was taken as its
+    characters. Each is an OptionError saying what problems must be."""
+    from kinredund.errors import OptionError
+    from kinredund.tracking import track_many
+
+    with pytest.raises(OptionError, match=r"problems must be a list of \(robot, path, index, q0\) tuples, got "
+                                          f"{type(problems).__name__}"):
+        track_many(problems)
+
+
 def test_track_many_starts_no_more_threads_than_problems(monkeypatch):
     """threads beyond the problems' count would find no problem to take: track_many starts at most one thread per
     problem (the caller one of them), so threads=10**6 for two problems runs them on two threads (it started a

@@ -40,9 +40,11 @@ def track_many(problems, *, threads: int | None = None, **options) -> list:
         :class:`~kinredund.errors.TrackingError` where its run stopped (with its ``partial`` record).
 
     Raises:
-        OptionError: a problem that is not a (robot, path, index, q0) tuple, or a bad ``threads``; any error of
-            bad input that :func:`~kinredund.tracking.run.track` raises for a run.
+        OptionError: problems that are not a list of (robot, path, index, q0) tuples, or a bad ``threads``; any
+            error of bad input that :func:`~kinredund.tracking.run.track` raises for a run.
     """
+    if isinstance(problems, str | bytes) or not hasattr(problems, "__iter__"):
+        raise OptionError(f"problems must be a list of (robot, path, index, q0) tuples, got {type(problems).__name__}")
     jobs = list(problems)
     for k, job in enumerate(jobs):
         if not isinstance(job, tuple | list) or len(job) != 4:
