@@ -247,6 +247,27 @@ def test_bad_constraint_input_is_named():
         Tracker(r, path, index, q0, 0.01, mode="thesis", constraints=[sphere("panda_elbow_sphere")])
 
 
+@pytest.mark.parametrize("other", ["xarm7", "ur5"])
+def test_a_constraint_or_limits_of_another_robot_are_refused(other):
+    """A clearance made for another robot's frame evaluated that robot's kinematics at the tracked joint values: a
+    sphere of the xarm7 (7 joints, as the Panda) on a Panda run gave a record with no error, of the ur5 (6 joints)
+    Pinocchio's ValueError. Limits of another robot stopped the run as a start outside them (the other arm's)."""
+    r, path, index, q0 = case("panda_elbow_circle")
+    o = kinredund.load_robot(other)
+    far = [2.0, 2.0, 2.0]  # [m]: far from both arms, so that no row is ever near active
+    for c in (SphereClearance(o, o.ee_frame, far, 0.1), PlaneClearance(o, o.ee_frame, [0, 0, -2.0], [0, 0, 1])):
+        with pytest.raises(OptionError, match=f"the constraint .* is of a robot with joints .*{o.joint_names[0]}"
+                                              ".* not the tracked .*panda_joint1"):
+            track(r, path, index, q0, loops=1, steps_per_loop=20, constraints=[c])
+    with pytest.raises(OptionError, match=f"limits= is of a robot with joints .*{o.joint_names[0]}"):
+        Tracker(r, path, index, q0, 0.01, limits=kinredund.JointLimits(o))
+    # the tracked robot loaded again (another pin.Model of the same chain) is the same robot
+    again = kinredund.load_robot(r.name)
+    traj = track(r, path, index, q0, loops=1, steps_per_loop=20,
+                 constraints=[SphereClearance(again, "panda_link4", far, 0.1)])
+    assert traj.q.shape == (21, r.nq)
+
+
 def test_a_clearance_pickles_and_gives_the_same_values_in_another_thread():
     import pickle
     from concurrent.futures import ThreadPoolExecutor

@@ -192,7 +192,8 @@ class Tracker:
 
     Raises:
         ChoiceError, OptionError: an unknown scheme, mode or solver, or an option out of its range (also:
-            limits asked of thesis mode or a baseline; ``backend="compiled"`` where it cannot run, saying why).
+            limits asked of thesis mode or a baseline; ``backend="compiled"`` where it cannot run, saying why; limits,
+            a scene or a constraint made for another robot).
         TrackingError: with constraints, ``q0`` violates one (``cause="collision"``, naming it and by how much).
         TaskError: an index that cannot be evaluated on the robot's joints (the wrong length, a custom
             index whose callables fail or return the wrong shapes: :func:`kinredund.ik.solve.check_index_at`).
@@ -235,6 +236,7 @@ class Tracker:
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
         self.limits, constraints = limits, list(constraints or ()) + scene_constraints(robot, scene, clearance,
                                                                                        self_clearance)
+        check_constraints_robot(robot, limits, constraints)
         if constraints and not (mode == "default" and scheme in ("augmented", "velocity")):
             raise OptionError(f"constraints are held by the default mode's augmented and velocity schemes only, "
                               f"not by mode={mode!r}, scheme={scheme!r}")
@@ -308,16 +310,34 @@ def scene_constraints(robot: Robot, scene, clearance, self_clearance) -> list:
         return []
     if not isinstance(scene, Scene):
         raise OptionError(f"scene must be a kinredund Scene, got {type(scene).__name__}")
-    if list(scene.robot.joint_names) != list(robot.joint_names):
-        raise OptionError(f"the scene is of a robot with joints {list(scene.robot.joint_names)}, not the tracked "
-                          f"{list(robot.joint_names)}")
-    if not same_chain(scene.robot.model, robot.model):
-        raise OptionError(f"the scene is of a robot {scene.robot.name!r} whose joints have the tracked robot's names "
-                          f"but other placements or kinds than {robot.name!r}'s: make the Scene of the tracked robot")
+    check_robot_of(robot, "the scene", scene.robot.name, scene.robot.joint_names, scene.robot.model, "the Scene")
     if self_clearance is True:
         raise OptionError("self_clearance takes a distance [m] (default 0.01) or False, not True")
     own = None if self_clearance is False else (0.01 if self_clearance is None else self_clearance)
     return [SceneClearance(scene, 0.02 if clearance is None else clearance, own)]
+
+
+def check_robot_of(robot: Robot, what: str, name: str, joint_names, model=None, kind: str = "it") -> None:
+    """Refuse (OptionError) ``what`` (a scene, a constraint, the limits), made for the robot ``name`` with
+    ``joint_names`` and ``model`` (None: not compared), where the tracked robot's joints are other ones: its rows
+    would be another arm's kinematics at the tracked joint values (a wrong record with no error where the joint counts
+    agree, a Pinocchio error where they do not)."""
+    if list(joint_names) != list(robot.joint_names):
+        raise OptionError(f"{what} is of a robot with joints {list(joint_names)}, not the tracked "
+                          f"{list(robot.joint_names)}: make {kind} of the tracked robot")
+    if model is not None and not same_chain(model, robot.model):
+        raise OptionError(f"{what} is of a robot {name!r} whose joints have the tracked robot's names but other "
+                          f"placements or kinds than {robot.name!r}'s: make {kind} of the tracked robot")
+
+
+def check_constraints_robot(robot: Robot, limits, constraints: list) -> None:
+    """:func:`check_robot_of` for the limits and each constraint that says whose joints it is of (``joint_names``:
+    JointLimits, the frame clearances; a user's own Constraint need not say)."""
+    for c in ([limits] if limits is not None else []) + constraints:
+        joint_names = getattr(c, "joint_names", None)
+        if joint_names is not None:
+            what = "limits=" if c is limits else f"the constraint {c.names()[0]!r}"
+            check_robot_of(robot, what, getattr(c, "robot_name", "?"), joint_names, getattr(c, "model", None))
 
 
 def same_chain(a, b) -> bool:

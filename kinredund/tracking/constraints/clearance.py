@@ -59,10 +59,17 @@ class _FrameClearance(Constraint):
             raise OptionError(f"robot must be a kinredund Robot, got {type(robot).__name__}")
         self.frame_id, _ = resolve_frame(robot.model, frame)
         self.frame, self.clearance = frame, _length(clearance, "the clearance")
+        # whose joints the rows are of: the tracker refuses the constraint on another robot (tracker.check_robot_of)
+        self.robot_name, self.joint_names = robot.name, list(robot.joint_names)
         self._kinematics = PerThread(robot.model, self.frame_id)
         f = robot.model.frames[self.frame_id]  # joint j moves the frame's origin by at most reach[j] |dq_j|
         self._reach = robot.reach(f.parentJoint, float(np.linalg.norm(f.placement.translation)))
         self._extent = np.where(robot.revolute, np.inf, np.maximum(np.abs(robot.lower), np.abs(robot.upper)))
+
+    @property
+    def model(self):
+        """The Pinocchio model (a ``pin.Model``) of the robot the constraint was made for."""
+        return self._kinematics.model
 
     @property
     def _kin(self) -> Kinematics:
