@@ -97,16 +97,49 @@ def _track_with(arm, which: str, junk) -> None:
     from kinredund import track
 
     path = Circle([3.0, 3.0], 0.8, 0.8)
-    kw = {"index": minimum_norm(3), "q0": solve_ik(arm, path(0.0).p[:2], minimum_norm(3)).q, "scheme": "augmented",
-          "mode": "default", "steps_per_loop": 8, "loops": 1, "tol": 1e-12, "liegeois_gain": 1.0}
+    kw = {"robot": arm, "path": path, "index": minimum_norm(3), "q0": solve_ik(arm, path(0.0).p[:2], minimum_norm(3)).q,
+          "scheme": "augmented", "mode": "default", "steps_per_loop": 8, "loops": 1, "tol": 1e-12,
+          "liegeois_gain": 1.0}
     kw[which] = junk
-    _only_ours(lambda: track(arm, path, kw.pop("index"), kw.pop("q0"), **kw))
+    _only_ours(lambda: track(kw.pop("robot"), kw.pop("path"), kw.pop("index"), kw.pop("q0"), **kw))
 
 
 @SETTINGS
 @given(which=st.sampled_from(("q0", "scheme", "mode")), junk=JUNK)
 def test_track_with_junk(arm, which, junk):
     _track_with(arm, which, junk)
+
+
+@SETTINGS
+@given(which=st.sampled_from(("robot", "path", "constraints")), junk=JUNK)
+def test_track_robot_path_and_constraints_with_junk(arm, which, junk):
+    # None, a number or a name as the robot or the path raised AttributeError; a number as constraints TypeError
+    _track_with(arm, which, junk)
+
+
+@pytest.mark.parametrize(("which", "junk", "words"), [
+    ("robot", None, "robot must be a kinredund Robot .*got NoneType"),
+    ("robot", "planar3r", "robot must be a kinredund Robot .*got str"),
+    ("path", None, "path must be a kinredund.paths.Path, got NoneType"),
+    ("constraints", 3, r"constraints must be a list of Constraints .*got int"),
+])
+def test_tracker_track_solve_ik_and_plan_name_a_robot_path_or_constraints_of_the_wrong_type(arm, which, junk, words):
+    from kinredund import Tracker, plan, track
+
+    path = Circle([3.0, 3.0], 0.8, 0.8)
+    q0 = solve_ik(arm, path(0.0).p[:2], minimum_norm(3)).q
+    args = {"robot": arm, "path": path, "constraints": None}
+    args[which] = junk
+    robot, path, constraints = args["robot"], args["path"], args["constraints"]
+    with pytest.raises(kinredund.OptionError, match=words):
+        track(robot, path, minimum_norm(3), q0, loops=1, steps_per_loop=8, constraints=constraints)
+    with pytest.raises(kinredund.OptionError, match=words):
+        Tracker(robot, path, minimum_norm(3), q0, 0.1, constraints=constraints)
+    if which == "robot":
+        with pytest.raises(kinredund.OptionError, match=words):
+            solve_ik(robot, path(0.0).p[:2], minimum_norm(3))
+        with pytest.raises(kinredund.OptionError, match=words):
+            plan(robot, path, minimum_norm(3))
 
 
 @SETTINGS

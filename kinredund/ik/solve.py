@@ -49,6 +49,7 @@ from kinredund.ik.optimality import (  # noqa: F401  (check_optimality, check_in
 from kinredund.ik.qp import BoxStep
 from kinredund.indices import Index
 from kinredund.kinematics.angles import turn_into_limits
+from kinredund.model.robot import check_robot
 from kinredund.tasks import task_residual
 
 #: residuals are never asked to be smaller than this many units of round-off times the target scale
@@ -111,6 +112,7 @@ MAX_STARTS = SIZES["starts"][0]
 
 
 def _check_options(robot, starts, tol, max_iter, timeout, seed, bounds) -> None:
+    check_robot(robot)
     check_flag(bounds, "bounds", TaskError)
     check_size(starts, "starts", "starts", TaskError)  # a long search is bounded by timeout= instead
     check_count(seed, 0, "seed (of numpy.random.default_rng)", TaskError)
@@ -215,7 +217,7 @@ def solve_ik(
         converged when the gradient vanishes on the SVD null space there. Every reason says which.
 
     Raises:
-        OptionError: ``backend="compiled"`` where the compiled core cannot run the problem.
+        OptionError: ``backend="compiled"`` where the compiled core cannot run the problem; ``robot`` not a Robot.
         ChoiceError: an unknown ``backend``.
         TaskError: wrong-size or non-finite target, a target for another task kind, bad options (``starts``
             outside 1..:data:`MAX_STARTS`, a negative ``seed``, ``bounds`` not a bool), an index of the wrong size.

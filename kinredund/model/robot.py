@@ -20,7 +20,7 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from kinredund.errors import JointVectorError, check_joint_vector
+from kinredund.errors import JointVectorError, KinredundError, OptionError, check_joint_vector
 from kinredund.kinematics.hd import REVOLUTE, HDTable
 from kinredund.kinematics.state import Kinematics, PerThread
 from kinredund.model.frames import TOOL_AXIS_FRAME, resolve_frame
@@ -237,3 +237,11 @@ def robot_from_hd(table: HDTable, task: str = "pose") -> Robot:
     from kinredund.model.urdf import hd_to_model
 
     return Robot(table.name, hd_to_model(table), EE_FRAME, task, hd=table)
+
+
+def check_robot(robot, error: type[KinredundError] = OptionError) -> Robot:
+    """``robot`` if it is a :class:`Robot`, else ``error`` saying so (an entry point's first check: the attributes
+    it reads next would fail as Python's AttributeError on None or a robot's name)."""
+    if not isinstance(robot, Robot):
+        raise error(f"robot must be a kinredund Robot (see kinredund.load_robot), got {type(robot).__name__}")
+    return robot

@@ -64,6 +64,7 @@ import numpy as np
 
 from kinredund.errors import PathError, TaskError
 from kinredund.indices import Index
+from kinredund.model.robot import check_robot
 from kinredund.paths import Path
 from kinredund.planning.keepout import verify_clearance
 from kinredund.planning.options import PlanOptions
@@ -81,6 +82,7 @@ CyclicSamples = PlanSamples
 
 
 def _check_args(robot, path, index) -> None:
+    check_robot(robot)
     if not isinstance(path, Path) or path.period is None:
         raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
     if not isinstance(index, Index):
@@ -116,7 +118,7 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
     Raises:
         PathError, TaskError: an open path, not an index, a non-redundant arm, a q0 outside the limits.
         OptionError: an option outside its range (:class:`~kinredund.planning.options.PlanOptions`), a scene
-            of another robot.
+            of another robot, ``robot`` not a Robot.
     """
     _check_args(robot, path, index)
     opt = PlanOptions.of(options, **overrides)

@@ -18,13 +18,13 @@ from kinredund.errors import (
     check_size,
 )
 from kinredund.indices import Index
-from kinredund.model.robot import Robot
+from kinredund.model.robot import Robot, check_robot
 from kinredund.paths import Path
 from kinredund.tracking.failure import loadable_name
 from kinredund.tracking.record_checks import say_open_loop, say_rate_burst
 from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.runs import stepping
-from kinredund.tracking.tracker import Tracker
+from kinredund.tracking.tracker import Tracker, check_path
 from kinredund.trajectory import Trajectory
 
 #: the most steps one run records (the record holds every step; kinredund.errors.SIZES holds every such limit)
@@ -115,7 +115,8 @@ def _run(robot: Robot, path: Path, index: Index | None, q0, span: dict, options:
          meta: dict | None) -> Trajectory:
     """The run of :func:`track` (its arguments grouped) and its record, without the record's checks."""
     scheme, mode = options["scheme"], options["mode"]
-    dt, total, loops_run = _span(path, **span)
+    check_robot(robot)
+    dt, total, loops_run = _span(check_path(path), **span)
     tracker = Tracker(robot, path, index, q0, dt, **options)
     rec = Recorder(tracker.stepper, diagnostics)
     rec.add()

@@ -34,7 +34,7 @@ from kinredund.errors import OptionError, PathError, check_choice, check_flag, c
 from kinredund.geometry.scene import Scene
 from kinredund.ik.solve import check_index_at
 from kinredund.indices import Index
-from kinredund.model.robot import Robot
+from kinredund.model.robot import Robot, check_robot
 from kinredund.paths import Path
 from kinredund.tasks import get_task
 from kinredund.tracking.baselines import Liegeois, Pseudoinverse
@@ -214,6 +214,8 @@ class Tracker:
                  self_clearance: float | bool | None = None, backend: str | None = None):
         linear_solver, qp_backend, tol, gain, project_start, strict = checked_options(
             scheme, mode, linear_solver, qp_backend, tol, liegeois_gain, project_start, strict)
+        check_robot(robot)
+        check_path(path)
         if get_task(robot.task).has_orientation and not path.has_orientation:
             raise PathError(f"a {robot.task} task needs a path with orientation (e.g. Circle(..., frenet=True))")
         if index is None and scheme in ("augmented", "velocity", "liegeois"):
@@ -221,8 +223,6 @@ class Tracker:
         if index is not None and not isinstance(index, Index):
             raise OptionError(f"index must be a kinredund.indices.Index (or None for the pseudoinverse scheme), "
                               f"got {type(index).__name__}")
-        if not isinstance(path, Path):
-            raise OptionError(f"path must be a kinredund.paths.Path, got {type(path).__name__}")
         if not (type(dt) is float and 0.0 < dt < math.inf):  # (a positive finite float is check_positive's own)
             dt = check_positive(dt, "the time step [s]", PathError)
         if not math.isfinite(float(t0)):
@@ -234,8 +234,8 @@ class Tracker:
         ev.keep_index_at(q, check_index_at(robot, index, q))
         limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
-        self.limits, constraints = limits, list(constraints or ()) + scene_constraints(robot, scene, clearance,
-                                                                                       self_clearance)
+        self.limits, constraints = limits, constraint_list(constraints) + scene_constraints(robot, scene, clearance,
+                                                                                            self_clearance)
         check_constraints_robot(robot, limits, constraints)
         if constraints and not (mode == "default" and scheme in ("augmented", "velocity")):
             raise OptionError(f"constraints are held by the default mode's augmented and velocity schemes only, "
@@ -285,6 +285,25 @@ class Tracker:
 
 
 _LIMITS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # robot -> ((lower, upper), its JointLimits)
+
+
+def check_path(path) -> Path:
+    """``path`` if it is a :class:`~kinredund.paths.Path`, else OptionError."""
+    if not isinstance(path, Path):
+        raise OptionError(f"path must be a kinredund.paths.Path, got {type(path).__name__}")
+    return path
+
+
+def constraint_list(constraints) -> list:
+    """``constraints`` (None, or an iterable of them) as a new list, else OptionError (a single constraint or a number
+    is not a list of them; each item is checked where the rows are set up)."""
+    if constraints is None:
+        return []
+    try:
+        return list(constraints)
+    except TypeError as err:  # (a number, a single constraint, a 0-d array)
+        raise OptionError(f"constraints must be a list of Constraints (e.g. [kr.SphereClearance(...)]), got "
+                          f"{type(constraints).__name__}") from err
 
 
 def robot_limits(robot: Robot) -> JointLimits:
