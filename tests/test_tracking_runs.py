@@ -666,7 +666,7 @@ def test_track_many_raises_the_first_bad_problem_s_error_after_every_run(monkeyp
         assert_identical(alone, traj)
 
 
-@pytest.mark.parametrize("problems", [None, 3, "abcd"])
+@pytest.mark.parametrize("problems", [None, 3, "abcd", np.array(0.0)])
 def test_track_many_refuses_problems_that_are_not_a_list_of_tuples(problems):
     """None or a number raised Python's TypeError ('NoneType' object is not iterable); a string was taken as its
     characters. Each is an OptionError saying what problems must be."""

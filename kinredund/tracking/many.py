@@ -43,9 +43,13 @@ def track_many(problems, *, threads: int | None = None, **options) -> list:
         OptionError: problems that are not a list of (robot, path, index, q0) tuples, or a bad ``threads``; any
             error of bad input that :func:`~kinredund.tracking.run.track` raises for a run.
     """
-    if isinstance(problems, str | bytes) or not hasattr(problems, "__iter__"):
-        raise OptionError(f"problems must be a list of (robot, path, index, q0) tuples, got {type(problems).__name__}")
-    jobs = list(problems)
+    try:
+        if isinstance(problems, str | bytes):
+            raise TypeError("a string is not a list of problems")
+        jobs = list(problems)
+    except TypeError as err:  # (None, a number, a 0-d array)
+        raise OptionError(f"problems must be a list of (robot, path, index, q0) tuples, got {type(problems).__name__}"
+                          ) from err
     for k, job in enumerate(jobs):
         if not isinstance(job, tuple | list) or len(job) != 4:
             raise OptionError(f"problem {k} must be a (robot, path, index, q0) tuple, got {type(job).__name__}")
