@@ -125,6 +125,23 @@ def test_user_path_of_the_wrong_shape_says_when():
         path(0.25)
 
 
+@pytest.mark.parametrize(("kwargs", "words"), [
+    ({"period": 0.0}, r"period \[s\] must be a finite number > 0, got 0.0"),
+    ({"period": -1.0}, r"period \[s\] must be a finite number > 0, got -1.0"),
+    ({"period": float("nan")}, r"period \[s\] must be a finite number > 0, got nan"),
+    ({"period": "1"}, r"period \[s\] must be a finite number > 0, got '1'"),
+    ({"has_orientation": "no"}, "has_orientation must be True or False, got 'no'"),
+    ({"fn": 3}, "fn must be a function of t"),
+])
+def test_a_user_path_with_a_bad_period_flag_or_function_is_refused_when_made(kwargs, words):
+    """FunctionPath took any period (0, -1, NaN, a string: track then divided it into a negative or NaN time step, or
+    raised TypeError), any has_orientation (the string 'no' is true) and fn=3 (TypeError at the first sample)."""
+    args = {"fn": lambda t: (np.zeros(3), np.zeros(3)), **kwargs}
+    with pytest.raises(kinredund.PathError, match=words):
+        FunctionPath(**args)
+    assert FunctionPath(args["fn"] if "fn" not in kwargs else np.cos, period=2).period == 2.0
+
+
 def test_huge_but_finite_path_values_are_named_not_called_non_finite():
     """A path whose values are finite but so large that their squares overflow is refused by name (the
     finiteness check squares them), with the sizes, and without a floating-point warning."""

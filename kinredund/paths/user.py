@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinredund.errors import PathError, check_positive
+from kinredund.errors import PathError, check_flag, check_positive
 from kinredund.paths.base import Path, PathSample
 
 
@@ -17,13 +17,23 @@ class FunctionPath(Path):
 
     Args:
         fn: the callable.
-        period: the period [s] of a closed path, or None.
+        period: the period [s] of a closed path (a finite number > 0), or None.
         has_orientation: True when ``fn`` returns the 4-tuple.
+
+    Raises:
+        PathError: ``fn`` not callable, a period that is not a finite number > 0, ``has_orientation`` not a bool.
     """
 
     fn: Callable[[float], tuple]
     period: float | None = None
     has_orientation: bool = False
+
+    def __post_init__(self) -> None:
+        if not callable(self.fn):
+            raise PathError(f"a user path's fn must be a function of t [s], got {type(self.fn).__name__}")
+        if self.period is not None:
+            object.__setattr__(self, "period", check_positive(self.period, "the path's period [s]", PathError))
+        object.__setattr__(self, "has_orientation", check_flag(self.has_orientation, "has_orientation", PathError))
 
     def sample(self, t: float) -> PathSample:
         out = self.fn(t)
