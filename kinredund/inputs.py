@@ -40,6 +40,8 @@ def check_regular_file(path, limit: int = MAX_INPUT_BYTES) -> Path:
     """
     if isinstance(path, (str, os.PathLike)) and not str(path).strip():
         raise InputFileError(path, "the path is empty")
+    if not isinstance(path, (str, bytes, os.PathLike)):  # os.stat(1) is stdout's file descriptor, True is 1
+        raise InputFileError(path, f"not a file path ({type(path).__name__})")
     try:
         st = os.stat(path)
     except (OSError, ValueError) as err:  # ValueError: a NUL byte in the path

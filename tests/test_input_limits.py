@@ -88,6 +88,24 @@ def test_a_fifo_is_refused_without_blocking(fifo):
     assert isinstance(err, URDFError) and "a FIFO" in str(err)
 
 
+def test_a_number_is_not_taken_as_a_file_descriptor(tmp_path):
+    """os.stat takes an int as a file descriptor: read_path_file(k), k an open regular file's descriptor, passed the
+    check and raised TypeError from os.open; True (descriptor 1) was called "a FIFO" where stdout was a pipe."""
+    from kinredund import read_path_file
+    from kinredund.export import ExportError, read_csv
+
+    good = tmp_path / "path.json"
+    good.write_text('{"t": [0, 1, 2, 3], "p": [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 0, 0]]}')
+    with open(good) as fh:
+        for value in (fh.fileno(), True):
+            for reader in (read_input, check_regular_file, read_path_file):
+                words = rf"cannot read '{value}': not a file path \({type(value).__name__}\)"
+                with pytest.raises(InputFileError, match=words):
+                    reader(value)
+            with pytest.raises(ExportError, match=r"not a file path"):
+                read_csv(value)
+
+
 def test_devices_folders_missing_and_oversized_files_are_refused(tmp_path):
     for path, what in (("/dev/zero", "a character device"), (tmp_path, "a directory"),
                        (tmp_path / "none.json", "No such file")):
