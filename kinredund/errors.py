@@ -291,6 +291,18 @@ def check_flag(value, what: str, error: type[KinredundError] = OptionError) -> b
     return bool(value)
 
 
+def check_hooks(progress, meta, error: type[KinredundError] = OptionError) -> None:
+    """Refuse (``error``) a ``progress`` that is neither None nor callable and a ``meta`` that is neither None nor a
+    mapping: an entry point's check before any work (else the first step's call of ``progress(done, total)``, or
+    the record's ``dict(meta)``, fails as Python's TypeError after the work)."""
+    from collections.abc import Mapping
+
+    if progress is not None and not callable(progress):
+        raise error(f"progress must be a function progress(done, total, ...) or None, got {type(progress).__name__}")
+    if meta is not None and not isinstance(meta, Mapping):
+        raise error(f"meta must be a dict of extra entries for the record's meta or None, got {type(meta).__name__}")
+
+
 # -- the sizes a user can ask for -------------------------------------------------------------------------
 #: The largest value of every size a user can ask for, and why; the library checks them (:func:`check_size`)
 #: and the command line's options use the same numbers, so that a size too large is refused before any work.

@@ -188,3 +188,56 @@ def test_sampled_paths_and_path_files_with_junk(tmp_path, which, junk):
     f = tmp_path / "path.json"
     f.write_text(text)
     _only_ours(lambda: read_path_file(f)[0](0.3))
+
+
+@pytest.mark.parametrize(("which", "junk", "words"), [
+    ("progress", 3, r"progress must be a function progress\(done, total, \.\.\.\) or None, got int"),
+    ("progress", "print", "progress must be a function .*got str"),
+    ("meta", 3, "meta must be a dict of extra entries .*got int"),
+    ("meta", [("a", 1)], "meta must be a dict .*got list"),
+])
+def test_track_and_the_planners_refuse_a_progress_or_meta_of_the_wrong_type_before_any_work(arm, which, junk, words):
+    """track(progress=3) called 3 after the first step (Python's TypeError, the run's work lost), and meta=3 failed in
+    the record's dict(meta); so did plan() and the obstacle planners. Each refuses them up front, naming them."""
+    from kinredund import plan, track
+    from kinredund.planning.obstacles import EllipticCylinder
+    from kinredund.planning.planner import plan as plan_obstacle
+    from kinredund.planning.roadmap import plan_roadmap
+
+    path = Circle([3.0, 3.0], 0.8, 0.8)
+    q0 = solve_ik(arm, path(0.0).p[:2], minimum_norm(3)).q
+    hooks = {which: junk}
+    with pytest.raises(kinredund.OptionError, match=words):
+        track(arm, path, minimum_norm(3), q0, loops=1, steps_per_loop=8, **hooks)
+    with pytest.raises(kinredund.OptionError, match=words):
+        plan(arm, path, minimum_norm(3), **hooks)
+    obstacle = EllipticCylinder([3.0, 3.0, 0.0], 0.3, 0.2, 0.0, 0.5)
+    for planner in (plan_obstacle, plan_roadmap):
+        with pytest.raises(kinredund.OptionError, match=words):
+            planner(arm, path, obstacle, **hooks)
+
+
+def test_the_roadmap_planner_names_an_obstacle_or_robot_of_the_wrong_type():
+    """plan_roadmap(robot, path, None) failed reading None.to_dict() (AttributeError) after its options' checks; it
+    now checks its arguments as the obstacle planner does (one function, check_obstacle_args)."""
+    from kinredund.planning.roadmap import plan_roadmap
+
+    robot, path = kinredund.load_robot("panda"), Circle([0.4, 0.0, 0.4], 0.1, 0.1)
+    with pytest.raises(kinredund.TaskError, match="obstacle must be a kinredund.planning Obstacle, got NoneType"):
+        plan_roadmap(robot, path, None)
+    with pytest.raises(kinredund.OptionError, match="robot must be a kinredund Robot .*got NoneType"):
+        plan_roadmap(None, path, None)
+
+
+@pytest.mark.parametrize(("junk", "words"), [(None, r"not a file path \(NoneType\)"), ("", "the path is empty"),
+                                             (3, r"not a file path \(int\)")])
+def test_write_csv_names_a_path_that_is_not_one(tmp_path, junk, words):
+    """write_csv(traj, None) raised Python's TypeError from Path(None), and '' was called the folder '.': the path is
+    the outputs' check's (file_path) before any work, and nothing is written."""
+    from kinredund.errors import OutputPathError
+    from kinredund.export import JointSamples, write_csv
+
+    samples = JointSamples(("a", "b"), np.array([0.0, 0.1]), np.zeros((2, 2)))
+    with pytest.raises(OutputPathError, match=words):
+        write_csv(samples, junk)
+    assert list(tmp_path.iterdir()) == []

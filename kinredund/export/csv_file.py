@@ -19,6 +19,7 @@ import numpy as np
 from kinredund.errors import KinredundError
 from kinredund.export.samples import ExportError, JointSamples
 from kinredund.io import atomic_write_text, read_text
+from kinredund.outputs import file_path
 from kinredund.trajectory import Trajectory
 
 _GROUPS = ("q", "qdot", "qddot")
@@ -29,7 +30,9 @@ def write_csv(data: JointSamples | Trajectory, path: str | Path, joint_names=Non
 
     Raises:
         ExportError: a record that is not a joint trajectory.
+        OutputPathError: ``path`` is not a file path (None, empty, ending in a separator).
     """
+    path = file_path(path)  # (None or '' refused before the work, as OutputPathError)
     samples = data.checked() if isinstance(data, JointSamples) else JointSamples.from_trajectory(data, joint_names)
     groups = [g for g in _GROUPS if getattr(samples, g) is not None]
     header = ["t"] + [f"{g}_{name}" for g in groups for name in samples.joint_names]
@@ -37,7 +40,6 @@ def write_csv(data: JointSamples | Trajectory, path: str | Path, joint_names=Non
     text = io.StringIO()
     csv.writer(text, lineterminator="\n").writerow(header)  # a name with a comma, quote or newline is quoted
     text.write("".join(",".join(repr(float(v)) for v in row) + "\n" for row in table))
-    path = Path(path)
     atomic_write_text(path, text.getvalue())
     return path
 

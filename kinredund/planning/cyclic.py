@@ -62,7 +62,7 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import PathError, TaskError
+from kinredund.errors import PathError, TaskError, check_hooks
 from kinredund.indices import Index
 from kinredund.model.robot import check_robot
 from kinredund.paths import Path
@@ -118,9 +118,11 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
     Raises:
         PathError, TaskError: an open path, not an index, a non-redundant arm, a q0 outside the limits.
         OptionError: an option outside its range (:class:`~kinredund.planning.options.PlanOptions`), a scene
-            of another robot, ``robot`` not a Robot.
+            of another robot, ``robot`` not a Robot, a ``progress`` that is not callable, a ``meta`` that is not a
+            dict.
     """
     _check_args(robot, path, index)
+    check_hooks(progress, meta)
     opt = PlanOptions.of(options, **overrides)
     opt.check_for(robot)
     keep = opt.keepout_for(robot)

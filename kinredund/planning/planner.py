@@ -44,8 +44,9 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import PathError, TaskError
+from kinredund.errors import PathError, TaskError, check_hooks
 from kinredund.indices import Index
+from kinredund.model.robot import check_robot
 from kinredund.paths import Path
 from kinredund.planning.branches import candidates, entries, transition
 from kinredund.planning.clearance import link_model, tool_tip_length, verify_motion, winding
@@ -152,6 +153,18 @@ def _reach_reason(wr: WristReach, ts, ps, names) -> str:
             "before it, so the policy's optima cannot be met there; plan with a policy of your own "
             "(policy=...), a larger arm, or, for the P-15 layout, kinredund.planning.roadmap.plan_roadmap, which "
             "chooses the branch on the self-motion manifold (Section 6.3 plans that way at scale 8)")
+
+
+def check_obstacle_args(robot, path, obstacle, progress, meta, planner: str) -> None:
+    """The checks of an obstacle plan's arguments (:func:`plan`'s and the roadmap's), before any work: a Robot
+    (OptionError), an :class:`~kinredund.planning.obstacles.Obstacle` (TaskError), a closed path (PathError), a
+    callable ``progress`` and a dict ``meta`` or None (OptionError)."""
+    check_robot(robot)
+    if not isinstance(obstacle, Obstacle):
+        raise TaskError(f"obstacle must be a kinredund.planning Obstacle, got {type(obstacle).__name__}")
+    if not isinstance(path, Path) or path.period is None:
+        raise PathError(f"{planner}() needs a closed path (a kinredund.paths.Path with a period)")
+    check_hooks(progress, meta)
 
 
 def obstacle_stage(robot, path, obstacle: Obstacle, opt: ObstacleOptions, *, planner: str, progress, meta,
@@ -328,14 +341,12 @@ def plan(robot, path: Path, obstacle: Obstacle, options: ObstacleOptions | None 
 
     Raises:
         TaskError: not an obstacle; PathError: an open path; OptionError: an option out of range (bad weights or
-        sample times included).
+        sample times included), ``robot`` not a Robot, a ``progress`` that is not callable, a ``meta`` that is not a
+        dict.
     """
     t0, timings = perf_counter(), {}
     opt = ObstacleOptions.of(options, **overrides)
-    if not isinstance(obstacle, Obstacle):
-        raise TaskError(f"obstacle must be a kinredund.planning Obstacle, got {type(obstacle).__name__}")
-    if not isinstance(path, Path) or path.period is None:
-        raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
+    check_obstacle_args(robot, path, obstacle, progress, meta, "plan")
     opt.check_for(robot)
     ts = opt.times(float(path.period))
     st, tool_tip = obstacle_stage(robot, path, obstacle, opt, planner="chapter6", progress=progress, meta=meta,

@@ -39,14 +39,13 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from kinredund.errors import KinredundError, PathError, TaskError
+from kinredund.errors import KinredundError, TaskError
 from kinredund.kinematics.angles import wrap_joints
-from kinredund.paths import Path
 from kinredund.planning.clearance import PENETRATION_TOL, link_clearance
 from kinredund.planning.obstacles import EllipticCylinder
 from kinredund.planning.options import RoadmapOptions
 from kinredund.planning.pipeline import Walk, finish
-from kinredund.planning.planner import obstacle_stage
+from kinredund.planning.planner import check_obstacle_args, obstacle_stage
 from kinredund.planning.result import PlanResult
 from kinredund.planning.spline import unwrap_samples
 from kinredund.planning.walk import closest_on_path, target_at
@@ -308,13 +307,13 @@ def plan_roadmap(robot, path, obstacle, options: RoadmapOptions | None = None, *
         with the reason when no cycle exists, the tracking fails or the verification fails or finds contact.
 
     Raises:
-        TaskError: the arm is not of Table 4.1's architecture; PathError: ``path`` is not closed;
-        OptionError: an option out of range (a bad ``tool_tip`` included).
+        TaskError: the arm is not of Table 4.1's architecture, ``obstacle`` not an Obstacle; PathError: ``path`` is
+        not closed; OptionError: an option out of range (a bad ``tool_tip`` included), ``robot`` not a Robot, a
+        ``progress`` that is not callable, a ``meta`` that is not a dict.
     """
     t_start, timings = perf_counter(), {}
     opt = RoadmapOptions.of(options, **overrides)
-    if not isinstance(path, Path) or path.period is None:
-        raise PathError("plan_roadmap() needs a closed path (a kinredund.paths.Path with a period)")
+    check_obstacle_args(robot, path, obstacle, progress, meta, "plan_roadmap")
     opt.check_for(robot)
     extra = {"hd": {"alpha": robot.hd.alpha.tolist(), "a": robot.hd.a.tolist(), "b": robot.hd.b.tolist()}} \
         if robot.hd is not None else {}

@@ -14,6 +14,7 @@ from kinredund.errors import (
     PathError,
     TrackingError,
     check_count,
+    check_hooks,
     check_positive,
     check_size,
 )
@@ -88,13 +89,15 @@ def track(robot: Robot, path: Path, index: Index | None, q0, *, scheme: str = "a
             is False and ``meta["loop_not_closed"]`` names the cause).
 
     Raises:
-        OptionError, ChoiceError: an argument out of its range (checked before any work).
+        OptionError, ChoiceError: an argument out of its range (checked before any work), a ``progress`` that is
+            not callable, a ``meta`` that is not a dict.
         PathError: the path is malformed, non-finite, or leaves the workspace (says when and where).
         SingularityError: R or J becomes singular (time, configuration, smallest singular value).
         TrackingError: the run stopped (a subclass of both errors above): ``cause``, ``t`` and ``q`` of the
             last good point (on the path, inside the limits), ``watched``, and ``partial``, the record up to
             the last requested time before it.
     """
+    check_hooks(progress, meta)
     options = {"scheme": scheme, "mode": mode, "linear_solver": linear_solver, "qp_backend": qp_backend, "tol": tol,
                "liegeois_gain": liegeois_gain, "limits": limits, "project_start": project_start, "strict": strict,
                "constraints": constraints, "qp_solver": qp_solver,
