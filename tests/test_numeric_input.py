@@ -46,6 +46,9 @@ def test_track_refuses_a_time_step_out_of_range(capsys):
     path = Circle(r.fk(r.home)[:3, 3], 0.1, 1e-300, orientation=r.fk(r.home)[:3, :3])
     with pytest.raises(OptionError, match="outside the range the tracker computes in"):
         kinredund.track(r, path, JointDeviation(r.home), r.home)
+    for dt in (1e-200, 1e200):  # a Tracker stepped by the user: the same range (it took 1e-200 s)
+        with pytest.raises(OptionError, match=re.escape(f"time step {dt:.3g} s is outside the range")):
+            Tracker(r, path, JointDeviation(r.home), r.home, dt)
 
 
 def _panda_tracker(index, **kw):

@@ -25,16 +25,11 @@ from kinredund.tracking.failure import loadable_name
 from kinredund.tracking.record_checks import say_open_loop, say_rate_burst
 from kinredund.tracking.recorder import Recorder
 from kinredund.tracking.runs import stepping
-from kinredund.tracking.tracker import Tracker, check_path
+from kinredund.tracking.tracker import DT_RANGE, Tracker, check_path
 from kinredund.trajectory import Trajectory
 
 #: the most steps one run records (the record holds every step; kinredund.errors.SIZES holds every such limit)
 MAX_STEPS = MAX_SAMPLES
-
-
-#: the range of time steps [s] the tracker computes in: its step control squares dt and the rates times dt,
-#: which overflow or vanish beyond these (a path at 1e-300 m/s has a period of ~1e300 s)
-DT_RANGE = (1e-100, 1e100)
 
 
 def _span(path: Path, steps_per_loop, loops, duration, steps) -> tuple[float, int, int | None]:

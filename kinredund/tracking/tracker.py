@@ -56,6 +56,9 @@ STEPPERS = {("default", "augmented"): PredictorCorrector, ("default", "velocity"
             ("thesis", "augmented"): ExplicitEuler, ("thesis", "velocity"): ExplicitEuler,
             ("default", "pseudoinverse"): Pseudoinverse, ("thesis", "pseudoinverse"): Pseudoinverse,
             ("default", "liegeois"): Liegeois, ("thesis", "liegeois"): Liegeois}
+#: the range of time steps [s] the tracker computes in: its step control squares dt and the rates times dt,
+#: which overflow or vanish beyond these (a path at 1e-300 m/s has a period of ~1e300 s)
+DT_RANGE = (1e-100, 1e100)
 
 
 def check_tolerance(tol) -> float:
@@ -225,6 +228,9 @@ class Tracker:
                               f"got {type(index).__name__}")
         if not (type(dt) is float and 0.0 < dt < math.inf):  # (a positive finite float is check_positive's own)
             dt = check_positive(dt, "the time step [s]", PathError)
+        if not DT_RANGE[0] <= dt <= DT_RANGE[1]:
+            raise OptionError(f"the time step {dt:.3g} s is outside the range the tracker computes in, "
+                              f"{DT_RANGE[0]:g} to {DT_RANGE[1]:g} s")
         if not math.isfinite(float(t0)):
             raise OptionError(f"t0 (the starting time [s]) must be finite, got {t0!r}")
         self.robot, self.path, self.index, self.scheme, self.mode, self.dt = robot, path, index, scheme, mode, dt
