@@ -142,6 +142,21 @@ def test_a_user_path_with_a_bad_period_flag_or_function_is_refused_when_made(kwa
     assert FunctionPath(args["fn"] if "fn" not in kwargs else np.cos, period=2).period == 2.0
 
 
+@pytest.mark.parametrize(("Q", "words"), [(3.0 * np.eye(3), r"\|Q Q\^T - 1\| = 8, det = 27"),
+                                          (np.diag([1.0, 1.0, -1.0]), r"\|Q Q\^T - 1\| = 0, det = -1"),
+                                          (np.full((3, 3), np.nan), "det = nan")])
+def test_a_user_paths_orientation_must_be_a_rotation(Q, words):
+    """A user pose path returning 3 I (or a reflection) as Q was sampled as it was, and the tracker then called the
+    start 'turned by 180 deg' from the path: the sample names the matrix that is not a rotation (the sampled path's
+    test, rotation_gaps, to ROTATION_TOL), and when."""
+    path = FunctionPath(lambda t: (Q, np.zeros(3), np.zeros(3), np.zeros(3)), has_orientation=True)
+    with pytest.raises(kinredund.PathError, match=r"Q at t = 0.5 s is not a rotation matrix .*" + words):
+        path(0.5)
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    assert np.array_equal(FunctionPath(lambda t: (turn, np.zeros(3), np.zeros(3), np.zeros(3)),
+                                       has_orientation=True)(0.5).Q, turn)
+
+
 def test_huge_but_finite_path_values_are_named_not_called_non_finite():
     """A path whose values are finite but so large that their squares overflow is refused by name (the
     finiteness check squares them), with the sizes, and without a floating-point warning."""

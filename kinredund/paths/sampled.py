@@ -13,6 +13,12 @@ ROTATION_TOL = 1e-5
 POINT_TOL = 1e-9
 
 
+def rotation_gaps(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(largest |Q Q^T - 1| entry, det Q) of each of the rotations Q (..., 3, 3): a rotation matrix, not merely a
+    matrix (Rotation.from_matrix would quietly orthonormalise 2 I), has the first <= ROTATION_TOL and the second > 0."""
+    return np.abs(Q @ np.swapaxes(Q, -1, -2) - np.eye(3)).max(axis=(-2, -1)), np.linalg.det(Q)
+
+
 class SampledPath(Path):
     """A path through sampled points (a closed loop when ``closed``), interpolated by cubic splines.
 
@@ -53,12 +59,12 @@ class SampledPath(Path):
             Q = check_array(Q, (t.shape[0], 3, 3), "sampled rotations", PathError)
             # rotations, not merely matrices (Rotation.from_matrix would quietly orthonormalise 2 I): entries
             # read from a file carry ~1e-9 of rounding at most, so ROTATION_TOL leaves room for 6 printed digits
-            gap = np.abs(Q @ Q.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
-            bad = np.flatnonzero((gap > ROTATION_TOL) | (np.linalg.det(Q) <= 0))
+            gap, det = rotation_gaps(Q)
+            bad = np.flatnonzero((gap > ROTATION_TOL) | (det <= 0))
             if bad.size:
                 k = int(bad[0])
                 raise PathError(f"sampled rotation {k} (of {len(Q)}) is not a rotation matrix (orthonormal, det +1): "
-                                f"|Q Q^T - 1| = {gap[k]:.3g}, det = {np.linalg.det(Q[k]):.3g}", t=float(t[k]))
+                                f"|Q Q^T - 1| = {gap[k]:.3g}, det = {det[k]:.3g}", t=float(t[k]))
             if closed and np.abs(Q[0] - Q[-1]).max() > 1e-9:
                 raise PathError("a closed sampled path must end with the rotation it starts with")
             self._rot = RotationSpline(t, Rotation.from_matrix(Q))

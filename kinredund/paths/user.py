@@ -9,6 +9,7 @@ import numpy as np
 
 from kinredund.errors import PathError, check_flag, check_positive
 from kinredund.paths.base import Path, PathSample
+from kinredund.paths.sampled import ROTATION_TOL, rotation_gaps
 
 
 @dataclass(frozen=True)
@@ -42,16 +43,22 @@ class FunctionPath(Path):
                 Q, p, omega, v = (np.asarray(x, float) for x in out)
                 if Q.shape != (3, 3) or p.shape != (3,) or omega.shape != (3,) or v.shape != (3,):
                     raise ValueError("shapes")
-                return PathSample(p, v, Q, omega)
-            p, v = (np.asarray(x, float) for x in out)
-            if p.shape == (2,):
-                p, v = np.append(p, 0.0), np.append(v, 0.0)
-            if p.shape != (3,) or v.shape != (3,):
-                raise ValueError("shapes")
-            return PathSample(p, v)
+            else:
+                p, v = (np.asarray(x, float) for x in out)
+                if p.shape == (2,):
+                    p, v = np.append(p, 0.0), np.append(v, 0.0)
+                if p.shape != (3,) or v.shape != (3,):
+                    raise ValueError("shapes")
         except (TypeError, ValueError) as err:
             want = "(Q 3x3, p (3,), omega (3,), v (3,))" if self.has_orientation else "(p (2,) or (3,), v like p)"
             raise PathError(f"the user path must return {want} at t = {t:.6g} s, got {out!r}", t=t) from err
+        if not self.has_orientation:
+            return PathSample(p, v)
+        gap, det = rotation_gaps(Q)
+        if not (gap <= ROTATION_TOL and det > 0):  # (NaN fails it too; the tracker read 3 I as a half turn)
+            raise PathError(f"the user path's Q at t = {t:.6g} s is not a rotation matrix (orthonormal, det +1): "
+                            f"|Q Q^T - 1| = {gap:.3g}, det = {det:.3g}", t=t)
+        return PathSample(p, v, Q, omega)
 
 
 @dataclass(frozen=True)
