@@ -351,6 +351,34 @@ def test_row_rate_qp_has_no_solution_where_M_is_indefinite_on_the_null_space(mon
     assert row_rate_qp(B @ B.T + np.eye(n), top, A, b, g) is not None  # convex: a rate
 
 
+def test_bound_rate_qp_has_no_solution_where_M_is_indefinite_on_the_null_space(monkeypatch):
+    """The same for a weakly active joint bound's QP (bound_rate_qp, proxsuite): it asked proxqp anyway, which
+    iterated to its limit (10,000 outer iterations, 6 to 17 s on the random tasks' stops of this kind) before the
+    answer, no rate. Now None without the solver (one check, convexified, for both QPs); convex, a rate."""
+    import proxsuite
+
+    from kinredund.tracking.linalg import bound_rate_qp
+
+    rng = np.random.default_rng(7)
+    n = 7
+    J, top, xdot = rng.normal(size=(3, n)), rng.normal(size=n), rng.normal(size=3)
+    Z = np.linalg.svd(J)[2][3:].T
+    B = rng.normal(size=(n, n))
+    M = B @ B.T + np.eye(n) - 40.0 * np.outer(Z[:, 1], Z[:, 1])
+    assert np.linalg.eigvalsh(Z.T @ M @ Z).min() < -1.0
+    made = proxsuite.proxqp.dense.QP
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("proxsuite was asked a QP that has no minimiser")
+
+    monkeypatch.setattr(proxsuite.proxqp.dense, "QP", refuse)
+    for side in (1.0, -1.0):
+        assert bound_rate_qp(M, top, J, xdot, 2, side) is None
+    monkeypatch.setattr(proxsuite.proxqp.dense, "QP", made)
+    rate, mult = bound_rate_qp(B @ B.T + np.eye(n), top, J, xdot, 2, 1.0)
+    assert rate >= -1e-9 and mult >= -1e-9 and min(abs(rate), abs(mult)) <= 1e-8  # complementary
+
+
 @pytest.mark.parametrize("seed", range(8))
 def test_row_rate_qp_agrees_with_the_kkt_system_of_its_active_set(seed):
     """The rate QP at a weakly active row (qpsolvers, proxqp) against the equality-constrained KKT solve of the

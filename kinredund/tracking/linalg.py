@@ -108,21 +108,35 @@ class RateQP:
         return self.qp.results.x.copy(), self.qp.results.y.copy() + rho * xdot
 
 
+def convexified(M: np.ndarray, A: np.ndarray) -> np.ndarray | None:
+    """sym(M) + rho A^T A for the least rho in 0, 1, 4, 16, ... below 1e12 that makes it positive definite (the same
+    minimiser of 1/2 v^T M v - top^T v on A v = b), or None where none does: M is then not positive definite on the
+    null space of A (Finsler's lemma), and a rate QP with one inequality besides A v = b is unbounded along a
+    direction of negative curvature, which the inequality cannot bound in both senses (no solution)."""
+    Ms = 0.5 * (M + M.T)
+    H, rho, convex = Ms, 1.0, cholesky_ok(Ms)
+    while not convex and rho < 1e12:
+        H, rho = Ms + rho * A.T @ A, rho * 4.0
+        convex = cholesky_ok(H)
+    return H if convex else None
+
+
 def bound_rate_qp(M: np.ndarray, top: np.ndarray, J: np.ndarray, xdot: np.ndarray, joint: int,
                   side: float) -> tuple[float, float] | None:
     """The rate QP at a weakly active joint bound: min 1/2 v^T M v - top^T v s.t. J v = xdot, side v_joint >= 0.
 
     Eq. (4.24)'s rates as a QP (Theorem 2, Eq. 4.28) with the sign condition of the bound (``side`` +1 at
     a lower bound, -1 at an upper one), over the joints not held on a bound. M is replaced by
-    sym(M) + rho J^T J where it is not positive definite (the same minimiser on J v = xdot). Solved with
-    proxsuite to 1e-12. Returns (side v_joint, the bound's multiplier >= 0), or None if unsolved.
+    sym(M) + rho J^T J where it is not positive definite (the same minimiser on J v = xdot: :func:`convexified`).
+    Solved with proxsuite to 1e-12. Returns (side v_joint, the bound's multiplier >= 0), or None if unsolved, also
+    without calling the solver where no rho makes it convex (unbounded: proxsuite iterated to its limit, 6 to 17 s,
+    on such QPs of random tasks before it gave up).
     """
     import proxsuite
 
-    Ms = 0.5 * (M + M.T)
-    H, rho = Ms, 1.0
-    while not cholesky_ok(H) and rho < 1e12:
-        H, rho = Ms + rho * J.T @ J, rho * 4.0
+    H = convexified(M, J)
+    if H is None:
+        return None
     C = np.zeros((1, M.shape[0]))
     C[0, joint] = side
     qp = proxsuite.proxqp.dense.QP(M.shape[0], J.shape[0], 1)

@@ -29,7 +29,7 @@ import numpy as np
 
 from kinredund.errors import OptionError, TrackingError, check_choice
 from kinredund.tracking.constraints.base import Constraint
-from kinredund.tracking.linalg import cholesky_ok
+from kinredund.tracking.linalg import convexified
 from kinredund.tracking.point import Point
 
 #: the QP solvers :func:`row_rate_qp` takes through qpsolvers (proxsuite's dense solver the default)
@@ -94,12 +94,8 @@ def row_rate_qp(M: np.ndarray, top: np.ndarray, A: np.ndarray, b: np.ndarray, g:
     """
     import qpsolvers
 
-    Ms = 0.5 * (M + M.T)
-    H, rho, convex = Ms, 1.0, cholesky_ok(Ms)
-    while not convex and rho < 1e12:
-        H, rho = Ms + rho * A.T @ A, rho * 4.0
-        convex = cholesky_ok(H)
-    if not convex:
+    H = convexified(M, A)
+    if H is None:
         return None
     problem = qpsolvers.Problem(H, -top, G=-g[None, :], h=np.zeros(1), A=A, b=b)
     options = {"eps_abs": 1e-12, "eps_rel": 0.0} if solver == "proxqp" else {}
