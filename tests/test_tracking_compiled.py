@@ -287,6 +287,8 @@ def assert_same_stop(cause, r, path, index, q0, **options):
         errors.append(info.value)
     a, b = errors
     assert a.cause == b.cause == cause and b.t == a.t
+    for e in errors:  # the documented float array (a stop raised inside a step was given a list)
+        assert isinstance(e.q, np.ndarray) and e.q.dtype == float and e.q.shape == np.shape(q0)
     np.testing.assert_allclose(b.q, a.q, rtol=0, atol=Q_BAR)
     assert_same_watched(a.watched, b.watched)
     assert_same_record(a.partial, b.partial)

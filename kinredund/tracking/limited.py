@@ -357,7 +357,7 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
         except TrackingError as err:
             inside = err.q is None  # raised within the step (a corrector iterate's): said at the step's start
             if inside:
-                err.t, err.q = snap.t, [float(v) for v in snap.q]
+                err.t, err.q = snap.t, np.array(snap.q, dtype=float)  # (a float array, as TrackingError makes it)
                 err.watched = self._watched(snap) | dict(err.watched or {})  # the step control's own entries kept
                 err.args = (f"{err.args[0]}; last good point t = {err.t:.6g} s, q = "
                             f"{np.round(np.asarray(err.q), 6).tolist()}",)
