@@ -30,6 +30,9 @@ from kinredund.trajectory import LOOP_CLOSURE_TOL, RecordWarning, Trajectory
 #: candidate, checked by running again with half the time step (smooth motions vary far less than this
 #: within a run of tens of steps per loop; the issue's bursts were 60x the median)
 BURST_RATIO = 10.0
+#: steps within this factor of the largest count as the largest, and the first of them is named: the same step of two
+#: loops differs by rounding only (~1e-15), which named one loop's on one backend and the other's on the other
+BURST_TIE = 1e-9
 #: halving the time step shrinks a smooth motion's largest step 2x, a square-root point's (q ~ sqrt(t - t*))
 #: sqrt(2) = 1.41x; a candidate whose largest step shrinks by less than this is a rate burst
 REFINED_SHRINK = 1.7
@@ -73,17 +76,21 @@ def largest_steps(q: np.ndarray) -> np.ndarray:
 
 def burst_candidate(q: np.ndarray) -> int | None:
     """The step (its index k: from row k to k + 1) whose largest joint change is more than
-    :data:`BURST_RATIO` times the run's median one, the largest such; None where there is none. By the compiled core
-    where it is installed (``_core.burst_candidate``: the same arithmetic), else by numpy."""
+    :data:`BURST_RATIO` times the run's median one, the largest such (the first within :data:`BURST_TIE` of it); None
+    where there is none. By the compiled core where it is installed (``_core.burst_candidate``: the same arithmetic),
+    else by numpy."""
     if len(q) < MIN_STEPS + 1:
         return None
     core = load_core()
     if core is not None and hasattr(core, "burst_candidate"):  # the same step in one call (src/core/record_checks.cpp)
-        k = core.burst_candidate(np.ascontiguousarray(q, float), BURST_RATIO)
+        k = core.burst_candidate(np.ascontiguousarray(q, float), BURST_RATIO, BURST_TIE)
         return None if k < 0 else k
     d = largest_steps(q)
-    k = int(np.argmax(d))
-    return k if d[k] > BURST_RATIO * median(d) else None
+    largest = d.max()
+    if np.isnan(largest):
+        return None
+    k = int(np.flatnonzero(d >= largest * (1.0 - BURST_TIE))[0])
+    return k if largest > BURST_RATIO * median(d) else None
 
 
 def median(d: np.ndarray) -> float:

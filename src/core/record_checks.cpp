@@ -25,9 +25,10 @@ namespace {
 using Joints = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 // The step k (from row k to k + 1) whose largest joint change max_j |q[k+1, j] - q[k, j]| is the largest (the first
-// such) where it is more than ``ratio`` times the median of them all; -1 where there is none, and where a change is
-// not a number (numpy's largest would be that NaN, which is no burst). At least two rows.
-long burst_candidate(const Joints& q, double ratio) {
+// within a factor 1 - tie of it: equal steps of two loops differ by rounding, which must not choose between them)
+// where it is more than ``ratio`` times the median of them all; -1 where there is none, and where a change is not a
+// number (numpy's largest would be that NaN, which is no burst). At least two rows.
+long burst_candidate(const Joints& q, double ratio, double tie) {
   const size_t rows = q.shape(0), n = q.shape(1);
   if (rows < 2 || n < 1) throw nb::value_error("q must have at least 2 rows and 1 column");
   const size_t steps = rows - 1;
@@ -44,8 +45,10 @@ long burst_candidate(const Joints& q, double ratio) {
     if (std::isnan(m)) return -1;
     d[k] = m;
   }
-  const size_t k = static_cast<size_t>(std::max_element(d.begin(), d.end()) - d.begin());  // the first largest
-  const double largest = d[k];
+  const double largest = *std::max_element(d.begin(), d.end());
+  const double near = largest * (1.0 - tie);
+  const size_t k = static_cast<size_t>(std::find_if(d.begin(), d.end(), [near](double x) { return x >= near; }) -
+                                       d.begin());  // the first as large as the largest, to the tie
   const size_t h = steps / 2;
   std::nth_element(d.begin(), d.begin() + h, d.end());
   double median = d[h];
@@ -107,7 +110,7 @@ void record_extremes(const Joints& q, const Joints& qdot, const Mask& revolute, 
 }  // namespace
 
 void bind_record_checks(nb::module_& m) {
-  m.def("burst_candidate", &burst_candidate, nb::arg("q"), nb::arg("ratio"),
+  m.def("burst_candidate", &burst_candidate, nb::arg("q"), nb::arg("ratio"), nb::arg("tie"),
         "record_checks.burst_candidate's step, -1 for none (see src/core/record_checks.cpp).");
   m.def("record_extremes", &record_extremes, nb::arg("q"), nb::arg("qdot"), nb::arg("revolute"),
         nb::arg("steps_per_loop"), nb::arg("drift"), nb::arg("fastest"),
