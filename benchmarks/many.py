@@ -22,7 +22,9 @@ a run's CPU time (``time.thread_time``: the load of other processes does not cou
 core (C++, the GIL released: :data:`GIL_FREE`; numpy's LAPACK calls release it as well), which bounds the
 speed-up on two threads.
 ``--processes`` also times the problems split between two worker processes, which share no GIL: the ceiling
-threads could reach on this machine. On a shared machine the speed-up moves with the others' load
+threads could reach on this machine (the records not sent back); and ``track_many(problems, processes=2)``, which
+sends them back (pickled: the records' lazily computed fields are computed in the workers), its records compared
+with the runs one by one. On a shared machine the speed-up moves with the others' load
 (``parallel capacity`` in ``benchmarks/sweep.py``).
 """
 
@@ -146,12 +148,20 @@ def bench(runs: int = 8, loops: int = 1, repeat: int = 3, processes: bool = Fals
                         for a, b in zip(alone, got, strict=True))
     one, two = (float(np.median(rates[k])) for k in (1, 2))
     share, held_ms = gil_free_share(jobs, options)
+    in_processes = []
+    for _ in range(repeat if processes else 0):
+        t0 = time.perf_counter()
+        got = track_many(jobs, processes=2, **options)
+        in_processes.append(len(jobs) / (time.perf_counter() - t0))
+        same &= all(type(a) is type(b) and np.array_equal(np.asarray(a.q), np.asarray(b.q))
+                    for a, b in zip(alone, got, strict=True))
     return {"case": "sphere" if sphere else "circle", "runs": runs, "steps_per_run": 200 * loops,
             "runs_per_s_1_thread": one, "runs_per_s_2_threads": two,
             "speedup_2_over_1": two / one, "same_as_one_by_one": bool(same), "core_runs_share": share,
             "gil_held_ms_per_run": held_ms,
             "stopped": sum(isinstance(a, TrackingError) for a in alone), "machine": machine(),
-            "runs_per_s_2_processes": process_rate(jobs, options, repeat) if processes else None}
+            "runs_per_s_2_processes": process_rate(jobs, options, repeat) if processes else None,
+            "runs_per_s_track_many_processes": float(np.median(in_processes)) if processes else None}
 
 
 def main() -> None:
@@ -175,7 +185,9 @@ def main() -> None:
           "GIL released;\nGIL-held ms/run: the rest of a run's CPU time (1 thread), which threads cannot overlap")
     if res["runs_per_s_2_processes"] is not None:
         print(f"2 processes: {res['runs_per_s_2_processes']:.0f} runs/s "
-              f"({res['runs_per_s_2_processes'] / res['runs_per_s_1_thread']:.2f}x one thread)")
+              f"({res['runs_per_s_2_processes'] / res['runs_per_s_1_thread']:.2f}x one thread); "
+              f"track_many(processes=2): {res['runs_per_s_track_many_processes']:.0f} runs/s "
+              f"({res['runs_per_s_track_many_processes'] / res['runs_per_s_1_thread']:.2f}x)")
     write_json(args.json, res)
 
 

@@ -113,13 +113,16 @@ def test_the_held_rows_benchmark_runs_the_sphere_and_its_pseudo_backends(tmp_pat
 
 
 def test_the_many_runs_benchmark_runs_the_sphere_case(tmp_path):
-    """many.py's ``--sphere`` case (clearance_peers' elbow sphere in every run): it exits 0, its runs complete, and
-    the records of one and two threads are those of the runs one by one, bit for bit (no speed asserted)."""
+    """many.py's ``--sphere`` case (clearance_peers' elbow sphere in every run) with ``--processes``: it exits 0, its
+    runs complete, and the records of one and two threads and of track_many(processes=2) are those of the runs one by
+    one, bit for bit (no speed asserted)."""
     out = tmp_path / "figures.json"
-    run = subprocess.run([sys.executable, str(BENCHMARKS / "many.py"), "--smoke", "--sphere", "--json", str(out)],
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "many.py"), "--smoke", "--sphere", "--processes", "--json",
+                          str(out)],
                          capture_output=True, text=True, cwd=tmp_path, env={**os.environ, "MPLBACKEND": "Agg"},
                          timeout=HANG)
     assert run.returncode == 0, f"{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
     figures = json.loads(out.read_text())
     assert figures["case"] == "sphere" and figures["same_as_one_by_one"] and figures["stopped"] == 0
     assert 0.0 < figures["core_runs_share"] < 1.0 and figures["runs"] == 2
+    assert figures["runs_per_s_track_many_processes"] > 0.0

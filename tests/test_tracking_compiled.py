@@ -525,3 +525,44 @@ def test_track_many_equals_the_runs_one_by_one():
         track_many(problems, threads=0)
     with pytest.raises(OptionError, match="problem 0"):
         track_many([problems[0][:3]])
+
+
+def test_track_many_in_processes_equals_the_runs_one_by_one(monkeypatch):
+    """processes=2: the problems and options pickled to two spawned workers, the records and stops pickled back; the
+    same computation, so the records are the runs' one by one bit for bit, the stops the same (cause, time, joints,
+    partial record), with a sphere held (the runs whose switches hold the GIL, for which threads gain nothing). The
+    workers are forked, so a path of a lambda is tracked too; where they must be spawned it is refused, as are
+    processes=0 and threads and processes both."""
+    from test_tracking_clearance import CASES, STOP_CASES
+
+    from kinredund.paths import FunctionPath
+    from kinredund.tracking import SphereClearance, many_processes
+
+    circle, frame, center, radius = CASES["panda_elbow_sphere"]
+    held = problem(circle)
+    _, _, stop_center, stop_radius, _ = STOP_CASES["fold"]
+    for problems, sphere in (([held, held], (center, radius)), ([held, held], (stop_center, stop_radius))):
+        options = {"loops": 1, "steps_per_loop": 200, "constraints": [SphereClearance(held[0], frame, *sphere)]}
+        many = track_many(problems, processes=2, **options)
+        alone = track_many(problems, threads=1, **options)
+        for got, want in zip(many, alone, strict=True):
+            if isinstance(want, TrackingError):
+                assert isinstance(got, TrackingError) and got.cause == want.cause == "collision" and got.t == want.t
+                np.testing.assert_array_equal(got.q, want.q)
+                got, want = got.partial, want.partial
+            else:
+                assert len(got.meta["switches"]) >= 2  # the sphere met and left
+            for key in ("q", "lam", "qdot", "t"):
+                np.testing.assert_array_equal(getattr(got, key), getattr(want, key), err_msg=key)
+            assert got.meta == want.meta
+    with pytest.raises(OptionError, match="processes must be an integer >= 1"):
+        track_many(problems, processes=0)
+    with pytest.raises(OptionError, match="threads= or processes=, not both"):
+        track_many(problems, threads=2, processes=2)
+    r, path, index, q0 = held
+    lam = FunctionPath(lambda t: (path(t).p, path(t).v), period=path.period)  # (a lambda: forked, not pickled)
+    got = track_many([(r, lam, index, q0)] * 2, processes=2, loops=1, steps_per_loop=50)
+    np.testing.assert_array_equal(got[1].q, track(r, lam, index, q0, loops=1, steps_per_loop=50).q)
+    monkeypatch.setattr(many_processes, "start_method", lambda: "spawn")  # where the platform has no fork
+    with pytest.raises(OptionError, match="picklable"):
+        track_many([(r, lam, index, q0)] * 2, processes=2)

@@ -1,5 +1,5 @@
 """Many tracking runs in one call (issue 28): :func:`track_many`, one :func:`~kinredund.tracking.run.track` per
-problem, in threads.
+problem, in threads (or in worker processes: :mod:`kinredund.tracking.many_processes`).
 
 Each run is independent and deterministic (its own stepper, its own compiled core and, per thread, its own
 kinematics workspace: ``Robot.kinematics``), so the results equal the runs made one by one. On the compiled
@@ -23,16 +23,21 @@ import threading
 
 from kinredund.errors import OptionError, TrackingError, check_count
 from kinredund.tracking.compiled import load_core
+from kinredund.tracking.many_processes import in_processes
 from kinredund.tracking.run import track
 
 
-def track_many(problems, *, threads: int | None = None, **options) -> list:
-    """Track each problem with the same :func:`~kinredund.tracking.run.track` options, in ``threads`` threads.
+def track_many(problems, *, threads: int | None = None, processes: int | None = None, **options) -> list:
+    """Track each problem with the same :func:`~kinredund.tracking.run.track` options, in ``threads`` threads or
+    ``processes`` worker processes.
 
     Args:
         problems: (robot, path, index, q0) per run (robots, paths and indices may be shared between them).
         threads: worker threads (an integer >= 1; default: the machine's CPU count), at most one per problem: a
             thread more would find no problem to take.
+        processes: worker processes instead of threads (an integer >= 1, at most one per problem; not with
+            ``threads``): for runs whose Python part holds the GIL most of the time, as clearance rows' switches do
+            (:mod:`~kinredund.tracking.many_processes`; the problems and options must pickle).
         **options: :func:`~kinredund.tracking.run.track`'s keyword arguments, the same for every run.
 
     Returns:
@@ -40,8 +45,9 @@ def track_many(problems, *, threads: int | None = None, **options) -> list:
         :class:`~kinredund.errors.TrackingError` where its run stopped (with its ``partial`` record).
 
     Raises:
-        OptionError: problems that are not a list of (robot, path, index, q0) tuples, or a bad ``threads``; any
-            error of bad input that :func:`~kinredund.tracking.run.track` raises for a run.
+        OptionError: problems that are not a list of (robot, path, index, q0) tuples, a bad ``threads`` or
+            ``processes``, both given, problems or options that do not pickle (``processes``); any error of bad input
+            that :func:`~kinredund.tracking.run.track` raises for a run.
     """
     try:
         if isinstance(problems, str | bytes):
@@ -53,8 +59,15 @@ def track_many(problems, *, threads: int | None = None, **options) -> list:
     for k, job in enumerate(jobs):
         if not isinstance(job, tuple | list) or len(job) != 4:
             raise OptionError(f"problem {k} must be a (robot, path, index, q0) tuple, got {type(job).__name__}")
-    workers = (os.cpu_count() or 1) if threads is None else check_count(threads, 1, "threads", OptionError)
-    workers = min(workers, len(jobs))  # (threads=10**6 for two problems started a million threads, that waited)
+    if processes is not None and threads is not None:
+        raise OptionError(f"give threads= or processes=, not both (got threads={threads!r}, processes={processes!r})")
+    if processes is not None:
+        workers = min(check_count(processes, 1, "processes", OptionError), len(jobs))
+        if workers > 1:
+            return in_processes(jobs, options, workers)
+    else:
+        workers = (os.cpu_count() or 1) if threads is None else check_count(threads, 1, "threads", OptionError)
+        workers = min(workers, len(jobs))  # (threads=10**6 for two problems started a million threads, that waited)
     load_core()  # once, before the threads (it warns once where the core cannot be loaded)
 
     def one(job):
