@@ -14,6 +14,19 @@ from collections.abc import Sequence
 class KinredundError(Exception):
     """Base class of every error kinredund raises on purpose."""
 
+    def __reduce__(self):  # (an __init__ of other arguments than the message could not be called with its args)
+        return _rebuilt, (type(self), self.args, self.__dict__)
+
+
+def _rebuilt(cls: type, args: tuple, fields: dict) -> KinredundError:
+    """An error of ``cls`` unpickled with its ``args`` and its fields, without calling its ``__init__``: a subclass
+    taking (what, value, allowed) or (path, reason) would be called with its message alone and fail, which broke
+    :func:`~kinredund.tracking.many.track_many`'s worker processes."""
+    err = cls.__new__(cls, *args)
+    err.args = args
+    err.__dict__.update(fields)
+    return err
+
 
 def shown(value) -> str:
     """``repr(value)`` shortened for a message (long strings, lists and arrays cut with ``...``): a value read

@@ -566,3 +566,16 @@ def test_track_many_in_processes_equals_the_runs_one_by_one(monkeypatch):
     monkeypatch.setattr(many_processes, "start_method", lambda: "spawn")  # where the platform has no fork
     with pytest.raises(OptionError, match="picklable"):
         track_many([(r, lam, index, q0)] * 2, processes=2)
+
+
+def test_track_many_in_processes_raises_a_run_s_choice_error_as_such():
+    """A worker's ChoiceError (an unknown scheme) came back as SolverError 'a worker process ... ended abruptly ...
+    killed, or out of memory?': it pickled, but did not unpickle (ChoiceError's __init__ takes what, value, allowed).
+    It is the ChoiceError that threads raise."""
+    from kinredund.errors import ChoiceError
+
+    good = problem("panda_wrist15")
+    for how in ({"threads": 2}, {"processes": 2}):
+        with pytest.raises(ChoiceError, match="unknown scheme 'bogus'; allowed: augmented") as info:
+            track_many([good, good], loops=1, steps_per_loop=20, scheme="bogus", **how)
+        assert info.value.allowed == ["augmented", "velocity", "pseudoinverse", "liegeois"]

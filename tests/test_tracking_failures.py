@@ -337,3 +337,29 @@ def test_the_watch_names_the_crossing_predicted_first():
     assert abs(w.crossings()["fold"] - t_fold) <= 1e-9 and abs(w.crossings()["kinematic"] - t_sigma) <= 1e-9
     w = watch([v * 0.05 for v in eig], [v * 40 for v in sigma])  # the same shapes, the roles swapped
     assert w.ahead(7.07) == "kinematic" and w.ahead(t_fold - 1e-6) is None
+
+
+def test_every_error_of_the_family_pickles_with_its_fields():
+    """An error whose __init__ takes other arguments than its message (ChoiceError(what, value, allowed), the file
+    errors (path, reason), ...) pickled, but unpickling called __init__ with the message alone (TypeError): in
+    track_many(processes=) a worker's ChoiceError then broke the pool, reported as a worker 'killed, or out of
+    memory'. Each unpickles as its own class with its message and fields."""
+    import pickle
+
+    from kinredund.errors import (
+        ChoiceError,
+        FrameNotFoundError,
+        InputFileError,
+        OutputPathError,
+        PathError,
+        UnknownRobotError,
+        URDFError,
+    )
+
+    for err in (ChoiceError("scheme", "bogus", ["augmented", "velocity"]), UnknownRobotError("x", ["panda"]),
+                URDFError("a.urdf", "bad"), FrameNotFoundError("ee", ["a", "b"], "note"), InputFileError("f", "gone"),
+                OutputPathError("g", "full"), PathError("off", t=0.5, q=[1.0])):
+        back = pickle.loads(pickle.dumps(err))
+        assert type(back) is type(err) and str(back) == str(err) and back.args == err.args
+        assert vars(back).keys() == vars(err).keys()
+        assert all(np.array_equal(getattr(back, k), v) for k, v in vars(err).items())
