@@ -579,3 +579,26 @@ def test_track_many_in_processes_raises_a_run_s_choice_error_as_such():
         with pytest.raises(ChoiceError, match="unknown scheme 'bogus'; allowed: augmented") as info:
             track_many([good, good], loops=1, steps_per_loop=20, scheme="bogus", **how)
         assert info.value.allowed == ["augmented", "velocity", "pseudoinverse", "liegeois"]
+
+
+def test_track_many_in_processes_raises_the_first_problem_s_error_as_threads_do():
+    """An error of another family in a later problem (a user path's own exception) was raised, from the workers' map,
+    before an earlier problem's JointVectorError (held back to the end), where threads raise the first problem's:
+    both routes raise the error of the first problem that raised one."""
+    from kinredund.errors import JointVectorError
+
+    good = problem("panda_wrist15")
+    r, path, index, q0 = good
+
+    def sample(t):
+        if t > 0.3:
+            raise ZeroDivisionError("the user's own")
+        s = path(t)
+        return s.Q, s.p, s.omega, s.v
+
+    failing = (r, FunctionPath(sample, period=path.period, has_orientation=True), index, q0)
+    for how in ({"threads": 2}, {"processes": 2}):
+        with pytest.raises(JointVectorError, match=r"got \(3,\)"):
+            track_many([(r, path, index, q0[:3]), failing], loops=1, steps_per_loop=20, **how)
+        with pytest.raises(ZeroDivisionError, match="the user's own"):
+            track_many([good, failing], loops=1, steps_per_loop=20, **how)

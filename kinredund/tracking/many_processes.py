@@ -16,7 +16,7 @@ import pickle
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
-from kinredund.errors import KinredundError, OptionError, SolverError, TrackingError
+from kinredund.errors import OptionError, SolverError, TrackingError
 
 _WORK: dict = {}  # in a worker: the problems and the options (given once, by _load)
 
@@ -27,14 +27,15 @@ def _load(jobs: list, options: dict) -> None:
 
 def _track_one(k: int) -> tuple[bool, object]:
     """(True, the record or the TrackingError) of problem ``k``, or (False, the error) where track() raised another
-    (a bad problem: the caller raises the first such in the problems' order, as the threads' route does)."""
+    (a bad problem, or a user path's or index's own exception: the caller raises the first such in the problems'
+    order once all have run, as the threads' route does)."""
     from kinredund.tracking.run import track
 
     try:
         return True, track(*_WORK["jobs"][k], **_WORK["options"])
     except TrackingError as err:
         return True, err
-    except KinredundError as err:
+    except Exception as err:  # (of any family: an error raised by the map itself would skip an earlier problem's)
         return False, err
 
 
