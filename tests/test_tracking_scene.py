@@ -334,3 +334,26 @@ def test_a_scene_of_another_robot_with_the_same_joint_names_is_refused():
     with pytest.raises(OptionError, match="placements"):
         scene_constraints(planar, kr.Scene(other), None, False)
     assert len(scene_constraints(planar, kr.Scene(kr.load_robot("planar3r")), 0.02, None)) == 1
+
+
+@pytest.mark.parametrize("other", ["xarm7", "ur5"])
+def test_a_scene_clearance_of_another_robot_is_refused_as_a_constraint_too(other):
+    """scene= of another robot was refused, but the same scene's SceneClearance given in constraints= was not: the
+    Panda run evaluated the xarm7's collision model at the Panda's joints and returned a record with no error. Both
+    are refused by the one check (tracker.check_robot_of), naming the scene's joints; the tracked robot's own
+    scene, made of the robot loaded again, is taken."""
+    r, path, index, q0 = case("panda_elbow_circle")
+    o = kr.load_robot(other)
+    sc = kr.Scene(o)
+    sc.add_sphere("far", 0.1, [2.0, 2.0, 2.0])  # [m]: far from both arms
+    words = f"is of a robot with joints .*{o.joint_names[0]}.* not the tracked .*panda_joint1"
+    with pytest.raises(OptionError, match=f"the scene {words}"):
+        kr.track(r, path, index, q0, loops=1, steps_per_loop=20, scene=sc, self_clearance=False)
+    for c in (kr.SceneClearance(sc, self_clearance=None), kr.CornerClearance(sc, self_clearance=None)):
+        with pytest.raises(OptionError, match=f"the constraint .* {words}"):
+            kr.track(r, path, index, q0, loops=1, steps_per_loop=20, constraints=[c])
+    own = kr.Scene(kr.load_robot(r.name))
+    own.add_sphere("far", 0.1, [2.0, 2.0, 2.0])
+    traj = kr.track(r, path, index, q0, loops=1, steps_per_loop=20,
+                    constraints=[kr.SceneClearance(own, self_clearance=None)])
+    assert traj.q.shape == (21, r.nq)

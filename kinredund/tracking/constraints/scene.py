@@ -174,6 +174,21 @@ class SceneClearance(Constraint):
     def size(self) -> int:
         return len(self.index)
 
+    # whose joints the rows are of (the scene's robot's): the tracker refuses the constraint on another robot
+    # (tracker.check_constraints_robot), as it refuses scene= of another robot
+    @property
+    def robot_name(self) -> str:
+        return self.scene.robot.name
+
+    @property
+    def joint_names(self) -> list[str]:
+        return list(self.scene.robot.joint_names)
+
+    @property
+    def model(self):
+        """The Pinocchio model (a ``pin.Model``) of the scene's robot."""
+        return self.scene.robot.model
+
     def names(self) -> list[str]:
         return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
 
