@@ -528,7 +528,7 @@ def test_track_many_equals_the_runs_one_by_one():
 
 
 def test_track_many_in_processes_equals_the_runs_one_by_one(monkeypatch):
-    """processes=2: the problems and options pickled to two spawned workers, the records and stops pickled back; the
+    """processes=2: the problems and options inherited by two forked workers, the records and stops pickled back; the
     same computation, so the records are the runs' one by one bit for bit, the stops the same (cause, time, joints,
     partial record), with a sphere held (the runs whose switches hold the GIL, for which threads gain nothing). The
     workers are forked, so a path of a lambda is tracked too; where they must be spawned it is refused, as are
