@@ -602,3 +602,26 @@ def test_track_many_in_processes_raises_the_first_problem_s_error_as_threads_do(
             track_many([(r, path, index, q0[:3]), failing], loops=1, steps_per_loop=20, **how)
         with pytest.raises(ZeroDivisionError, match="the user's own"):
             track_many([good, failing], loops=1, steps_per_loop=20, **how)
+
+
+def test_track_many_threads_stop_taking_problems_at_a_keyboard_interrupt():
+    """Ctrl-C reaches the calling thread, one of track_many's workers: its run's KeyboardInterrupt used to be kept as
+    that job's error while every other problem was still run to its end; now no job is taken after it, the runs under
+    way end, and it is raised."""
+    import time
+
+    from kinredund.tracking.many import _in_threads
+
+    ran = []
+
+    def one(job):
+        if job == 0:
+            raise KeyboardInterrupt
+        time.sleep(0.01)
+        ran.append(job)
+        return job
+
+    with pytest.raises(KeyboardInterrupt):
+        _in_threads(one, list(range(20)), 2)
+    assert len(ran) <= 2  # the helper's job under way (and at most one it took before the interrupt)
+    assert _in_threads(lambda job: job * 2, list(range(5)), 2) == [0, 2, 4, 6, 8]

@@ -111,8 +111,10 @@ class RateQP:
 def convexified(M: np.ndarray, A: np.ndarray) -> np.ndarray | None:
     """sym(M) + rho A^T A for the least rho in 0, 1, 4, 16, ... below 1e12 that makes it positive definite (the same
     minimiser of 1/2 v^T M v - top^T v on A v = b), or None where none does: M is then not positive definite on the
-    null space of A (Finsler's lemma), and a rate QP with one inequality besides A v = b is unbounded along a
-    direction of negative curvature, which the inequality cannot bound in both senses (no solution)."""
+    null space of A (Finsler's lemma), or nearly singular there (rho stops below 1e12; rates of ~1e7 there, next to a
+    fold). Indefinite, a rate QP with one inequality besides A v = b is unbounded along a direction of negative
+    curvature, which the inequality cannot bound in both senses (no solution); semidefinite, its minimiser is not
+    unique (the rates not determined): either way the run stops there as not strongly stable."""
     Ms = 0.5 * (M + M.T)
     H, rho, convex = Ms, 1.0, cholesky_ok(Ms)
     while not convex and rho < 1e12:

@@ -84,18 +84,22 @@ def track_many(problems, *, threads: int | None = None, processes: int | None = 
 def _in_threads(one, jobs: list, workers: int) -> list:
     """``[one(job) for job in jobs]`` computed by ``workers`` threads, the calling thread one of them: each takes the
     next job not yet taken until none is left. Where ``one`` raises, the first such job's error (in the jobs' order)
-    is raised once all have run, as ``ThreadPoolExecutor.map`` raises it. (No future per job: the caller, waiting on
-    each job's future in turn, took the GIL from the workers at every job's end.)"""
-    results, failed, taken = [None] * len(jobs), {}, itertools.count()
+    is raised once all have run, as ``ThreadPoolExecutor.map`` raises it. A KeyboardInterrupt (or SystemExit) stops
+    the taking of jobs: the runs under way end, and it is raised. (No future per job: the caller, waiting on each
+    job's future in turn, took the GIL from the workers at every job's end.)"""
+    results, failed, taken, stop = [None] * len(jobs), {}, itertools.count(), []
 
     def work() -> None:
         for k in iter(taken.__next__, None):  # (itertools.count's next is atomic: each job is taken once)
-            if k >= len(jobs):
+            if k >= len(jobs) or stop:
                 return
             try:
                 results[k] = one(jobs[k])
-            except BaseException as err:  # re-raised in the caller below, as map re-raises it
+            except Exception as err:  # re-raised in the caller below, as map re-raises it
                 failed[k] = err
+            except BaseException as err:  # Ctrl-C (delivered to the calling thread): no more jobs are taken
+                stop.append(err)
+                return
 
     helpers = [threading.Thread(target=work, daemon=True) for _ in range(workers - 1)]
     for thread in helpers:
@@ -103,6 +107,8 @@ def _in_threads(one, jobs: list, workers: int) -> list:
     work()
     for thread in helpers:
         thread.join()
+    if stop:
+        raise stop[0]
     if failed:
         raise failed[min(failed)]
     return results
