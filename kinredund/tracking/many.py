@@ -37,7 +37,8 @@ def track_many(problems, *, threads: int | None = None, processes: int | None = 
             thread more would find no problem to take.
         processes: worker processes instead of threads (an integer >= 1, at most one per problem; not with
             ``threads``): for runs whose Python part holds the GIL most of the time, as clearance rows' switches do
-            (:mod:`~kinredund.tracking.many_processes`; the problems and options must pickle).
+            (:mod:`~kinredund.tracking.many_processes`: forked workers; the records must pickle, and the problems and
+            options too where the platform has no fork).
         **options: :func:`~kinredund.tracking.run.track`'s keyword arguments, the same for every run.
 
     Returns:
@@ -46,8 +47,8 @@ def track_many(problems, *, threads: int | None = None, processes: int | None = 
 
     Raises:
         OptionError: problems that are not a list of (robot, path, index, q0) tuples, a bad ``threads`` or
-            ``processes``, both given, problems or options that do not pickle (``processes``); any error of bad input
-            that :func:`~kinredund.tracking.run.track` raises for a run.
+            ``processes``, both given, problems or options that do not pickle (``processes`` without fork); any error
+            of bad input that :func:`~kinredund.tracking.run.track` raises for a run.
     """
     try:
         if isinstance(problems, str | bytes):
