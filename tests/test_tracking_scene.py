@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -160,6 +161,30 @@ def test_a_start_under_the_clearance_is_refused():
     with pytest.raises(TrackingError, match=r"ball kept .* apart by") as err:
         kr.Tracker(r, path, index, q0, 0.01, scene=sc, clearance=d + 0.01, self_clearance=False)
     assert err.value.cause == "collision" and "0.01" in str(err.value)
+
+
+def test_a_start_under_the_self_clearance_says_what_lets_it_start():
+    """A self pair under self_clearance at the start: the refusal names it and by how much, and, as it may be that
+    close wherever the arm goes (baxter's coaxial covers stay 5 mm apart; the default pair matrix leaves out only
+    pairs in contact), says what lets the run start: a smaller self_clearance, or the pair left out (scene.ignore),
+    which then starts. An obstacle's pair gets no such words."""
+    r, path, index, q0, _ = setup()
+    sc = kr.Scene(r)
+    ks, d = sc.pair_distances(q0, influence=1.0)  # (the robot's own pairs alone: no object added)
+    own = {sc.pairs[k]: x for k, x in zip(ks.tolist(), d.tolist(), strict=True)}
+    (a, b), closest = min(own.items(), key=lambda x: x[1])
+    with pytest.raises(TrackingError, match=re.escape(f"{a} and {b} kept {closest + 0.01:.4g} m apart by")) as err:
+        kr.Tracker(r, path, index, q0, 0.01, scene=sc, self_clearance=closest + 0.01)
+    said = str(err.value)
+    assert f"give a smaller self_clearance (now {closest + 0.01:g} m)" in said and "scene.ignore(" in said
+    others = [p for p, x in own.items() if x < closest + 0.01]
+    for p in others:
+        sc.ignore(*p)
+    kr.Tracker(r, path, index, q0, 0.01, scene=sc, self_clearance=closest + 0.01)  # left out: it starts
+    sc.add_sphere("ball", 0.05, sc.object_pose("panda_link4_0", q0)[:3, 3])
+    with pytest.raises(TrackingError, match="panda_link4_0 and ball kept 0.02 m apart by") as err:
+        kr.Tracker(r, path, index, q0, 0.01, scene=sc, self_clearance=False)
+    assert "self_clearance" not in str(err.value)
 
 
 def test_options_are_checked():

@@ -143,9 +143,11 @@ class GeneralRows:
         bad = np.flatnonzero(values < -1e-10)
         if bad.size:
             names = self.row_names(tuple(bad))
+            hints = "".join(c.start_hint([ri for cj, ri in (self.row_pairs[f] for f in bad) if cj == ci])
+                            for ci, c in enumerate(self.general))
             raise TrackingError(
                 "the starting configuration violates " + "; ".join(f"{nm} by {-values[f]:.3g} m"
-                                                                   for nm, f in zip(names, bad, strict=True)),
+                                                                   for nm, f in zip(names, bad, strict=True)) + hints,
                 cause=self.general[self.row_pairs[bad[0]][0]].cause, t=0.0, q=None,
                 watched={"constraint_values": values.tolist(), "constraints": names})
         self.rows = tuple(int(f) for f in np.flatnonzero(values <= 1e-10))  # on the constraint: active

@@ -126,6 +126,11 @@ class Constraint(abc.ABC):
     def names(self) -> list[str]:
         """A readable name per inequality (e.g. ``panda_joint4 >= -3.0718``)."""
 
+    def start_hint(self, rows) -> str:
+        """What a user can do where the start violates the inequalities ``rows`` (their indices) of this constraint,
+        for the tracker's message; '' where there is nothing to add (the default)."""
+        return ""
+
     def violations(self, q: np.ndarray, tol: float = 0.0) -> list[tuple[str, float]]:
         """(name, amount) of each inequality violated by more than ``tol`` at q [rad or m]."""
         c = self.values(q)

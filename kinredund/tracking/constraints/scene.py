@@ -140,6 +140,7 @@ class SceneClearance(Constraint):
             raise OptionError("the scene checks no pair (add an object, or check the robot's own pairs with "
                               "self_clearance=...)")
         self.index, self.clearances = np.array(index), np.array(clear)
+        self._own = np.array([a in moving and b in moving for a, b in (self._scene_pairs[k] for k in index)])
         # the pairs its queries compute (None: every pair of the scene): the others are no row here
         self._only = None if len(index) == len(self._scene_pairs) else self.index.astype(np.int64)
         self.pairs = tuple(self._scene_pairs[k] for k in index)
@@ -191,6 +192,17 @@ class SceneClearance(Constraint):
 
     def names(self) -> list[str]:
         return [f"{a} and {b} kept {c:.4g} m apart" for (a, b), c in zip(self.pairs, self.clearances, strict=True)]
+
+    def start_hint(self, rows) -> str:
+        """For the robot's own pairs: some are that close wherever the arm goes (two covers on one roll joint, a
+        wrist's links; the default pair matrix leaves out only pairs in contact), which no start can clear."""
+        own = [self.pairs[r] for r in rows if r < len(self._own) and self._own[r]]  # (a corner piece: none)
+        if not own:
+            return ""
+        a, b = own[0]
+        return (f"; of the robot's own pairs, one that is this close wherever the arm goes cannot be cleared: give a "
+                f"smaller self_clearance (now {self.self_clearance:g} m), or leave the pair out (scene.ignore({a!r}, "
+                f"{b!r}))")
 
     def _query(self, q: np.ndarray, rows: bool = True) -> tuple:
         """(the scene's record of this constraint's pairs within the influence (None for values only; the scene's
