@@ -129,18 +129,19 @@ class SceneClearance(Constraint):
         self.self_clearance = None if self_clearance is None else _clearance(self_clearance, "the self clearance")
         moving = set(scene.robot_objects) | {o for o in scene.objects if scene.object(o).attach_to is not None}
         self._scene_pairs = scene.pairs
-        index, clear = [], []
+        index, clear, owns = [], [], []
         for k, (a, b) in enumerate(self._scene_pairs):
             own = a in moving and b in moving
             if own and self.self_clearance is None:
                 continue
             index.append(k)
             clear.append(self.self_clearance if own else self.clearance)
+            owns.append(own)
         if not index:
             raise OptionError("the scene checks no pair (add an object, or check the robot's own pairs with "
                               "self_clearance=...)")
         self.index, self.clearances = np.array(index), np.array(clear)
-        self._own = np.array([a in moving and b in moving for a, b in (self._scene_pairs[k] for k in index)])
+        self._own = np.array(owns)  # (the robot's own pair: start_hint)
         # the pairs its queries compute (None: every pair of the scene): the others are no row here
         self._only = None if len(index) == len(self._scene_pairs) else self.index.astype(np.int64)
         self.pairs = tuple(self._scene_pairs[k] for k in index)
