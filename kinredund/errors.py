@@ -175,14 +175,7 @@ class TrackingError(SingularityError, PathError, RuntimeError):
         self.watched = dict(watched or {})
         self.partial = partial
         self.sigma_min = self.watched.get("sigma_min_R", self.watched.get("sigma_min_J"))
-        Exception.__init__(self, message)
-
-    def __reduce__(self):  # keyword-only fields: pickle (e.g. dask workers) through them
-        return (_tracking_error, (self.args[0], self.cause, self.t, self.q, self.watched, self.partial))
-
-
-def _tracking_error(message, cause, t, q, watched, partial) -> TrackingError:
-    return TrackingError(message, cause=cause, t=t, q=q, watched=watched, partial=partial)
+        Exception.__init__(self, message)  # (pickled with its fields: KinredundError.__reduce__)
 
 
 def check_array(value, shape: tuple, what: str, error: type[KinredundError] = TaskError, owner: str = ""):
