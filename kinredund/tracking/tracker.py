@@ -240,9 +240,9 @@ class Tracker:
         ev.keep_index_at(q, check_index_at(robot, index, q))
         limits = self._limits(robot, limits, mode, scheme)
         kwargs = {"t0": t0, "tol": tol, "linear_solver": linear_solver, "qp_backend": qp_backend}
-        self.limits, constraints = limits, constraint_list(constraints) + scene_constraints(robot, scene, clearance,
-                                                                                            self_clearance)
-        check_constraints_robot(robot, limits, constraints)
+        given = constraint_list(constraints)
+        check_constraints_robot(robot, limits, given)  # (scene_constraints checks scene='s robot itself)
+        self.limits, constraints = limits, given + scene_constraints(robot, scene, clearance, self_clearance)
         if constraints and not (mode == "default" and scheme in ("augmented", "velocity")):
             raise OptionError(f"constraints are held by the default mode's augmented and velocity schemes only, "
                               f"not by mode={mode!r}, scheme={scheme!r}")
