@@ -62,13 +62,12 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import PathError, TaskError, check_hooks
+from kinredund.errors import TaskError
 from kinredund.indices import Index
-from kinredund.model.robot import check_robot
 from kinredund.paths import Path
 from kinredund.planning.keepout import verify_clearance
 from kinredund.planning.options import PlanOptions
-from kinredund.planning.pipeline import CLOSURE_TOL, TASK_TOL, Stage, Walk, finish
+from kinredund.planning.pipeline import CLOSURE_TOL, TASK_TOL, Stage, Walk, check_plan_args, finish
 from kinredund.planning.result import PlanResult, PlanSamples
 from kinredund.planning.sampling import CandidateSet
 from kinredund.planning.topology import RepeatedPath, orientation_loop_flips
@@ -81,10 +80,8 @@ CyclicPlan = PlanResult
 CyclicSamples = PlanSamples
 
 
-def _check_args(robot, path, index) -> None:
-    check_robot(robot)
-    if not isinstance(path, Path) or path.period is None:
-        raise PathError("plan() needs a closed path (a kinredund.paths.Path with a period)")
+def _check_args(robot, path, index, progress, meta) -> None:
+    check_plan_args(robot, path, progress, meta, "plan")
     if not isinstance(index, Index):
         raise TaskError(f"index must be a kinredund.indices.Index, got {type(index).__name__}")
     if robot.nq <= robot.task_dim:
@@ -121,8 +118,7 @@ def plan(robot, path: Path, index: Index, options: PlanOptions | None = None, *,
             of another robot, ``robot`` not a Robot, a ``progress`` that is not callable, a ``meta`` that is not a
             dict.
     """
-    _check_args(robot, path, index)
-    check_hooks(progress, meta)
+    _check_args(robot, path, index, progress, meta)
     opt = PlanOptions.of(options, **overrides)
     opt.check_for(robot)
     keep = opt.keepout_for(robot)

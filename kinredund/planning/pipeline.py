@@ -35,8 +35,10 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, PathError, check_hooks
 from kinredund.indices import TimeVaryingReference
+from kinredund.model.robot import check_robot
+from kinredund.paths import Path
 from kinredund.planning.follow import follow_optimum
 from kinredund.planning.result import PlanResult, PlanSamples
 from kinredund.planning.spline import JointSpline
@@ -50,6 +52,15 @@ TASK_TOL = 1e-9
 #: a completed plan closes to this after every loop [rad or m]: the tracked joints are the optimum of h
 #: with a periodic reference, held by the corrector to ~1e-12, so the loop returns to them
 CLOSURE_TOL = 1e-10
+
+
+def check_plan_args(robot, path, progress, meta, planner: str) -> None:
+    """Every planner's first checks, before any work: a Robot (OptionError), a closed path (PathError), a callable
+    ``progress`` and a dict ``meta`` or None (OptionError)."""
+    check_robot(robot)
+    if not isinstance(path, Path) or path.period is None:
+        raise PathError(f"{planner}() needs a closed path (a kinredund.paths.Path with a period)")
+    check_hooks(progress, meta)
 
 
 @dataclass

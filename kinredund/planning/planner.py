@@ -44,15 +44,14 @@ from time import perf_counter
 
 import numpy as np
 
-from kinredund.errors import PathError, TaskError, check_hooks
+from kinredund.errors import TaskError
 from kinredund.indices import Index
-from kinredund.model.robot import check_robot
 from kinredund.paths import Path
 from kinredund.planning.branches import candidates, entries, transition
 from kinredund.planning.clearance import link_model, tool_tip_length, verify_motion, winding
 from kinredund.planning.obstacles import Obstacle
 from kinredund.planning.options import ObstacleOptions
-from kinredund.planning.pipeline import Stage, Walk, finish
+from kinredund.planning.pipeline import Stage, Walk, check_plan_args, finish
 from kinredund.planning.policy import PlanarPolicy, SpatialPolicy
 from kinredund.planning.result import PlanResult
 from kinredund.planning.walk import choose, shrunk_limits, target_at
@@ -156,15 +155,12 @@ def _reach_reason(wr: WristReach, ts, ps, names) -> str:
 
 
 def check_obstacle_args(robot, path, obstacle, progress, meta, planner: str) -> None:
-    """The checks of an obstacle plan's arguments (:func:`plan`'s and the roadmap's), before any work: a Robot
-    (OptionError), an :class:`~kinredund.planning.obstacles.Obstacle` (TaskError), a closed path (PathError), a
-    callable ``progress`` and a dict ``meta`` or None (OptionError)."""
-    check_robot(robot)
+    """The checks of an obstacle plan's arguments (:func:`plan`'s and the roadmap's), before any work: every
+    planner's (:func:`~kinredund.planning.pipeline.check_plan_args`), then an
+    :class:`~kinredund.planning.obstacles.Obstacle` (TaskError)."""
+    check_plan_args(robot, path, progress, meta, planner)
     if not isinstance(obstacle, Obstacle):
         raise TaskError(f"obstacle must be a kinredund.planning Obstacle, got {type(obstacle).__name__}")
-    if not isinstance(path, Path) or path.period is None:
-        raise PathError(f"{planner}() needs a closed path (a kinredund.paths.Path with a period)")
-    check_hooks(progress, meta)
 
 
 def obstacle_stage(robot, path, obstacle: Obstacle, opt: ObstacleOptions, *, planner: str, progress, meta,
