@@ -3,11 +3,12 @@
 A run with clearance rows spends about half its time locating the switches of its active set in Python
 (:mod:`kinredund.tracking.switches`), with the GIL held, so threads gain nothing on it (``python benchmarks/many.py
 --sphere --runs 16 --loops 2 --repeat 5 --processes``, README: 0.92 times one thread's runs per second on two threads,
-1.38 times with ``processes=2``, 2.45 times on two bare worker processes that send no record back); processes do. The
+1.38 times with ``processes=2``, 2.46 times on two bare worker processes that send no record back); processes do. The
 workers are forked (:func:`start_method`: they inherit the problems and options; ``spawn`` where the platform has no
 fork, which pickles them to each worker as it starts); each takes the next problem not yet taken (one at a time, so a
-long run does not hold up the others) and sends its record back pickled (about 10 ms for 400 steps of a 7-axis arm).
-The runs are the same computation as in the caller, so the records equal the runs one by one, bit for bit.
+long run does not hold up the others) and sends its record back pickled (the record's lazily computed fields are
+computed in the worker for it). The runs are the same computation as in the caller, so the records equal the runs
+one by one, bit for bit.
 
 A forked worker holds only the calling thread: a lock that another of the caller's threads held at the fork stays
 held in it (a thread of the caller's own inside kinredund, such as a second ``track_many``, can hold one), so call it
