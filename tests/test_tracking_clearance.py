@@ -353,7 +353,7 @@ def test_row_rate_qp_has_no_solution_where_M_is_indefinite_on_the_null_space(mon
 
 def test_bound_rate_qp_has_no_solution_where_M_is_indefinite_on_the_null_space(monkeypatch):
     """The same for a weakly active joint bound's QP (bound_rate_qp, proxsuite): it asked proxqp anyway, which
-    iterated to its limit (10,000 outer iterations, 6 to 17 s on the random tasks' stops of this kind) before the
+    iterated to its iteration limit (seconds on the stops of this kind that random tasks met) before the
     answer, no rate. Now None without the solver (one check, convexified, for both QPs); convex, a rate."""
     import proxsuite
 

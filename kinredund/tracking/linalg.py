@@ -131,7 +131,7 @@ def bound_rate_qp(M: np.ndarray, top: np.ndarray, J: np.ndarray, xdot: np.ndarra
     a lower bound, -1 at an upper one), over the joints not held on a bound. M is replaced by
     sym(M) + rho J^T J where it is not positive definite (the same minimiser on J v = xdot: :func:`convexified`).
     Solved with proxsuite to 1e-12. Returns (side v_joint, the bound's multiplier >= 0), or None if unsolved, also
-    without calling the solver where no rho makes it convex (unbounded: proxsuite iterated to its limit, 6 to 17 s,
+    without calling the solver where no rho makes it convex (unbounded: proxsuite iterated to its limit, seconds,
     on such QPs of random tasks before it gave up).
     """
     import proxsuite
