@@ -27,7 +27,7 @@ from kinredund.errors import (
 from kinredund.ik.solve import solve_ik
 from kinredund.indices import JointDeviation
 from kinredund.model.erd import ERD_ARMS, erd_share_dir
-from kinredund.model.loader import HOME_CONDITION, conditioning, known_robots, load_robot, robot_table
+from kinredund.model.loader import HOME_CONDITION, check_tool_axis, conditioning, known_robots, load_robot, robot_table
 from kinredund.model.urdf import load_urdf
 from kinredund.paths import Circle
 from kinredund.tasks import TASKS
@@ -238,6 +238,11 @@ def test_tool_axis_turns_a_frame_onto_the_axis():
         assert np.allclose(T[:3, 2], T0[:3, :3] @ unit, atol=1e-12)  # its z axis is the tool axis
         assert np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)
     assert load_robot("ur5", tool_axis="z").ee_frame == "tool0"
+    # an axis whose squares overflow (hypothesis found 1.34e154: the norm was inf, the axis zero, the home NaN) and
+    # one of tiny entries: the unit axis still
+    for v, unit in (([0.0, 3e300, 4e300], [0.0, 0.6, 0.8]), ([0.0, 1e154, 1.34e154], [0.0, 0.598, 0.801])):
+        assert np.allclose(load_robot("ur5", tool_axis=v).tool_axis, unit, atol=2e-3)
+    assert np.allclose(check_tool_axis([3e-8, 0.0, 4e-8]), [0.6, 0.0, 0.8], atol=1e-15)
 
 
 @pytest.mark.parametrize(
@@ -245,6 +250,7 @@ def test_tool_axis_turns_a_frame_onto_the_axis():
     [
         ({"tool_axis": "w"}, ChoiceError, "tool axis"),
         ({"tool_axis": [0, 0, 0]}, TaskError, "non-zero"),
+        ({"tool_axis": [0, 1e-300, 0]}, TaskError, "non-zero"),
         ({"task": "pose", "tool_axis": "z"}, TaskError, "task='axis'"),
     ],
 )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import weakref
 
 import numpy as np
@@ -128,3 +129,37 @@ def test_brent_root_leaves_no_cyclic_garbage():
         assert kept() is None
     finally:
         gc.enable()
+
+
+def _core_brent():
+    from kinredund.tracking.compiled import load_core
+
+    core = load_core()
+    if core is None or not hasattr(core, "brent_root"):
+        if os.environ.get("CI"):
+            pytest.fail("the compiled core is not built (CI builds it)")
+        pytest.skip("the compiled core is not built")
+    return core.brent_root
+
+
+@pytest.mark.parametrize("xtol", [1e-14, 1e-6])
+def test_the_cores_brent_makes_brent_roots_evaluations(xtol):
+    """src/core/brent.hpp (the switching-time search in the core, StepCore.locate) against brent_root: the same points
+    evaluated, in order, and the same root, on the 400 functions and the tiny ones whose products underflow."""
+    brent = _core_brent()
+    rng = np.random.default_rng(5)
+    tiny = [(lambda x: 1e-170 * (x - 0.5), -1.0, 2.0), (lambda x: -1e-170 * (x - 0.5) ** 3, -1.0, 2.0)]
+    for f, a, b in _functions(rng, 400) + tiny:
+        ours, core = _Recorded(f), _Recorded(f)
+        x = brent_root(ours, a, b, xtol, 4 * EPS)
+        assert brent(core, a, b, xtol, 4 * EPS, 100) == x and core.points == ours.points
+
+
+def test_the_cores_brent_says_why_it_found_none():
+    """The core's codes where brent_root raises: no sign change (20), no convergence (21), a NaN (23); a zero at an end
+    is that end."""
+    brent = _core_brent()
+    assert brent(lambda x: x * x + 1.0, -1.0, 1.0, 1e-12, 4 * EPS, 100) == 20
+    assert brent(lambda x: math.tanh(40 * (x - 0.3)), -2.0, 2.0, 1e-14, 4 * EPS, 3) == 21
+    assert brent(lambda x: math.nan if x > 0.5 else x - 0.7, 0.0, 1.0, 1e-12, 4 * EPS, 100) == 23
+    assert brent(lambda x: x - 1.0, 1.0, 3.0, 1e-12, 4 * EPS, 100) == 1.0

@@ -150,8 +150,8 @@ def test_a_solve_the_core_declines_is_python_s_with_its_error():
 
 def test_handed_back_steps_correct_in_the_core():
     """On a circle where a joint meets its limit and leaves it, the steps handed back to the Python stepper (the
-    switches, located by Brent's method) make their corrector solves in the core, none declined, and the run's
-    record is the Python backend's."""
+    switches) make their corrector solves in the core, none declined, the switching times are located there
+    (Brent's method in C++), and the run's record is the Python backend's."""
     r, path, index, q0 = problem("panda_pose_circle")
     tracker = Tracker(r, path, index, q0, path.period / 200, backend="compiled")
     for _ in range(200):
@@ -159,7 +159,9 @@ def test_handed_back_steps_correct_in_the_core():
     c, hook = tracker.compiled, tracker.stepper.corrector
     handed = sum(c.handed_back.values())
     assert c.handed_back.get("limit", 0) >= 1 and c.handed_back.get("release", 0) >= 1
-    assert hook.used >= 5 * handed and hook.declined == 0  # the switch search: several solves per switch
+    assert hook.used >= handed and hook.declined == 0  # (each handed-back step's own solve, the switches' corrections)
+    # the switching-time searches: Brent's method in the core, its solves there too (CoreCorrector.locate)
+    assert hook.located >= c.handed_back["limit"] + c.handed_back["release"] and hook.locates_declined == 0
     a = track(r, path, index, q0, backend="python", loops=1, steps_per_loop=200)
     b = track(r, path, index, q0, backend="compiled", loops=1, steps_per_loop=200)
     assert_same_record(a, b)

@@ -310,14 +310,17 @@ def test_steps_with_a_scene_row_held_are_the_cores_and_agree_one_by_one(options)
     """Ten loops stepped in turn: the joints to Q_BAR and the multipliers (the row's too) to rounding at every step,
     the rows held and the switches the same; the core took every step with the row held but those its own tests
     hand back (a held row's multiplier turning negative: row_release) and those around the switches, and the
-    corrector solves of those (the switching-time search's) with the row held too."""
+    corrector solves of those with the row held too, and the switching-time searches themselves
+    (CoreCorrector.locate)."""
     a, b = scene_tracker("python", **options), scene_tracker("compiled", **options)
     agree_in_turn(a, b, 2000)
     c = b.compiled
     back = c.handed_back
     assert len(a.stepper.switches) >= 20 and "row_active" not in back and back.get("row_release", 0) >= 5
     assert c.row_steps > 300 and c.steps + sum(back.values()) == 2000
-    assert b.stepper.corrector.row_solves >= 20 and b.stepper.corrector.settled == 0  # (a scene's rows: Python's)
+    cc = b.stepper.corrector
+    assert cc.row_solves >= 20 and cc.settled == 0  # (the Newton after a switch with a scene's rows: Python's)
+    assert cc.located >= len(b.stepper.switches) and cc.locates_declined == 0  # (the switching times: the core's)
 
 
 def test_a_held_row_stays_pythons_where_the_core_cannot_make_its_step():

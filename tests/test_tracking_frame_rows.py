@@ -168,7 +168,8 @@ def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, optio
     """Five loops stepped in turn (agree_in_turn: the joints to Q_BAR and the multipliers, the row's too, to rounding
     at every step, the row held and the switches the same); the core took most steps with the row held (none handed
     back for it as row_active), the switching-time search's corrector solves with it and the Newton solve after each
-    switch (CoreCorrector.settle: a frame's rows settle, RowCheck.settles). The check leaves the held row out (the
+    switch (CoreCorrector.settle: a frame's rows settle, RowCheck.settles); each switching time located in the core
+    (CoreCorrector.locate). The check leaves the held row out (the
     only row: it clears every step with it held), so no core step with the row held is searched in Python."""
     a, b = sphere_tracker(name, "python", **options), sphere_tracker(name, "compiled", **options)
     c = b.compiled
@@ -181,6 +182,8 @@ def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, optio
     assert len(sa.switches) >= 8 and "row_active" not in c.handed_back and not any(searched)
     assert c.row_steps > 100 and c.steps + sum(c.handed_back.values()) == 1000
     assert sb.corrector.row_solves >= 8 and sb.corrector.settled >= len(sb.switches)  # (the Newton after each switch)
+    # the switching times located in the core (CoreCorrector.locate: Brent's method in C++), none left to Python
+    assert sb.corrector.located >= len(sb.switches) and sb.corrector.locates_declined == 0
 
 
 def elbow_plane(frac: float):

@@ -28,10 +28,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from kinredund.errors import KinredundError
 from kinredund.tracking.ahead import core_orientation, core_reference
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.compiled_rows import HeldRows
 from kinredund.tracking.compiled_start import make_step_core, row_slices
+from kinredund.tracking.constraints.base import Constraint
+from kinredund.tracking.roots import SWITCH_RTOL, SWITCH_XTOL
+from kinredund.tracking.rows import ROW_TOL
 
 
 class CoreCorrector:
@@ -53,6 +57,7 @@ class CoreCorrector:
         self.n, self.layout = n, (row_slices(n, m), (n, m))
         self._basis = stepper.pt.basis
         self.used = self.declined = self.restarts = self.row_solves = self.settled = 0
+        self.located = self.locates_declined = 0
 
     def __call__(self, y: np.ndarray) -> bool:
         """The stepper's corrector at its time t from the prediction ``y`` = [q; lambda]; False (the stepper
@@ -73,7 +78,54 @@ class CoreCorrector:
         self.settled += made
         return made
 
-    def _solve(self, y: np.ndarray, newton: bool) -> bool:
+    def locate(self, anchor, a: float, b: float, fa: float, fb: float, key: int, kind: str) -> float | None:
+        """The switching-time search of :meth:`~kinredund.tracking.switches.SwitchLocation._crossing` in the core
+        (``StepCore.locate``, ``src/core/brent.hpp``: Brent's method as ``roots.brent_root``, the GIL released but for
+        the path's samples): the time in (a, b] where the watched quantity of (``key``, ``kind``) reaches zero, each
+        evaluation ``euler_to`` from ``anchor`` (a state at a, the stepper's active set) as this corrector's solve.
+        ``fa``, ``fb``: the quantity at a and b (fb NaN where the search has not evaluated it). None where the core
+        leaves the search to Python (a solve it declines, a row it does not compute, no bracket, no convergence, an
+        error of the path's sample): the caller's own search then runs from the same inputs and meets it itself."""
+        s = self.stepper
+        if (kind.startswith("row") and self._guard is None) or not self._ready():
+            return None
+        n, m = self.n, len(s.task_lam)
+        row, own, index, sign, level = -1, None, 0, 1.0, 0.0
+        if kind == "lower":
+            index, level = key, float(s.lo[key])
+        elif kind == "upper":
+            index, sign, level = key, -1.0, float(s.hi[key])
+        elif kind == "release":
+            index = (self.held.layout if s.rows else self.layout)[0][8].start + key  # the bound multipliers
+        elif kind == "row_release":
+            index, sign = n + m + s.rows.index(key), -1.0  # its w: nu = -w
+        else:  # row_reach: the row's value c, or 2 ROW_TOL where it does not stand for itself (GeneralRows._row_watch)
+            row = key
+            ci, ri = s.row_pairs[key]
+            con = s.general[ci]
+            if type(con).representative is not Constraint.representative:
+                own = lambda q: con.representative(q, ri) == ri  # noqa: E731
+        sample_at = self._sample_at
+        try:
+            got = self.core.locate(anchor.t, anchor.y, anchor.yd, a, b, fa, fb, index, sign, level, row, 2 * ROW_TOL,
+                                   sample_at, own, SWITCH_XTOL, SWITCH_RTOL, 100)
+        except KinredundError:  # the path's sample failed: Python's search meets it and says so
+            got = None
+        if type(got) is not float:
+            self.locates_declined += 1
+            return None
+        self.located += 1
+        return got
+
+    def _sample_at(self, t: float) -> tuple:
+        """The path's sample and the index's reference at t as the core's ``correct`` takes them."""
+        s = self.stepper
+        sample = s.ev.sample(t)
+        return (sample.p, sample.v, *core_orientation(sample), *core_reference(s.ev.index, t))
+
+    def _ready(self) -> bool:
+        """The core made and given the stepper's active set and rows; False where a row is active that it does not
+        hold (the solve is Python's then)."""
         s = self.stepper
         if s.rows and (self._guard is None or not self._guard.valid()):  # a row active the core does not hold
             return False
@@ -88,6 +140,12 @@ class CoreCorrector:
             fixed, side, bound = s.active_set()
             self.core.set_active(np.flatnonzero(~fixed).astype(np.int32), bound, side)
             self._fixed = fixed
+        return True
+
+    def _solve(self, y: np.ndarray, newton: bool) -> bool:
+        s = self.stepper
+        if not self._ready():
+            return False
         t = s.t
         sample = s.ev.sample(t)
         Q, omega = core_orientation(sample)

@@ -15,6 +15,10 @@ from collections.abc import Callable
 
 from kinredund.errors import KinredundError, OptionError, SolverError
 
+#: the switching time is solved to this accuracy [s] (:mod:`~kinredund.tracking.switches`): far below the 1e-9 s asked
+#: for, plus SWITCH_RTOL |t| (4 machine epsilons, as SciPy's brentq's least rtol)
+SWITCH_XTOL, SWITCH_RTOL = 1e-14, 4 * 2.220446049250313e-16
+
 
 class RootBracketError(KinredundError, ValueError):
     """f has the same sign at both ends of the interval, or is not a number (NaN) where it is evaluated."""

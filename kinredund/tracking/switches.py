@@ -5,10 +5,10 @@ within it: a free joint beyond its bound or a multiplier below zero (:mod:`kinre
 inactive general row below zero or an active row's multiplier below zero (:mod:`kinredund.tracking.rows`), or a
 row that dips below zero inside the step and comes back (``GeneralRows._row_dips``). It solves for the
 switching time on the corrected path (Brent's method on the joint's margin, the row's value or the multiplier,
-each evaluation a corrector solve at that time: on the compiled backend the core's, the stepper's ``corrector``),
-steps to it, changes the active set there and steps on to the end of the step. After a switch strict
-complementarity is checked: a reached bound's multiplier grows, a released joint moves inward; where the LU route
-cannot tell (a rate ~0) the rate QP decides which set continues.
+each evaluation a corrector solve at that time; on the compiled backend the search is the core's, the stepper's
+``corrector.locate``, and so are the solves, ``corrector``), steps to it, changes the active set there and steps
+on to the end of the step. After a switch strict complementarity is checked: a reached bound's multiplier grows, a
+released joint moves inward; where the LU route cannot tell (a rate ~0) the rate QP decides which set continues.
 The step's end is then measured exactly (the step control watched the step with the active set it started with):
 where it is no strict minimum of the problem with the new active set, the path is followed again from the switch in
 checked pieces, and where none reaches the end the run stops at the step's start.
@@ -23,13 +23,11 @@ import numpy as np
 from kinredund.errors import KinredundError, PathError, SingularityError
 from kinredund.tracking.failure import constraints_dependent, on_branch
 from kinredund.tracking.linalg import bound_rate_qp
-from kinredund.tracking.roots import brent_root
+from kinredund.tracking.roots import SWITCH_RTOL, SWITCH_XTOL, brent_root
 from kinredund.tracking.rows import ROW_TOL
 from kinredund.tracking.state import ConstrainedState
 from kinredund.tracking.step_control import MAX_HALVINGS
 
-#: the switching time is solved to this accuracy [s] (Brent's method): far below the 1e-9 s asked for
-SWITCH_XTOL = 1e-14
 #: the most switches resolved within one step (more means chattering: the optimum is not strongly stable)
 MAX_SWITCHES_PER_STEP = 8
 #: where inside a step (fractions of it) a row that may dip below zero is sampled (``_row_dips``)
@@ -134,14 +132,20 @@ class SwitchLocation:
             inside = self._positive_inside(phi, t_start, t_end) if f >= -self._zero_of(kind) else None
             if inside is None:
                 return t_start
-            t_start = inside
-        if kind == "row_reach" and phi(t_end) > 0.0:  # below zero at the end as another row (GeneralRows._row_watch)
+            t_start, f = inside, np.nan
+        f_end = phi(t_end) if kind == "row_reach" else np.nan
+        if f_end > 0.0:  # below zero at the end as another row (GeneralRows._row_watch)
             below = self._under_inside(phi, t_start, t_end)
             if below is None:
                 return np.inf  # not an event of its own
-            t_end = below
+            t_end, f_end = below, np.nan
+        locate = getattr(self.corrector, "locate", None)  # the core's search (CoreCorrector.locate), where only the
+        if locate is not None and f == f and len(anchors) == 1 and reach[0] == np.inf:  # step's start is known
+            tau = locate(snap, t_start, t_end, f, f_end, joint, kind)
+            if tau is not None:
+                return tau
         try:
-            return brent_root(phi, t_start, t_end, SWITCH_XTOL, 4 * np.finfo(float).eps)
+            return brent_root(phi, t_start, t_end, SWITCH_XTOL, SWITCH_RTOL)
         except (ValueError, RuntimeError, KinredundError) as err:
             self.state = snap
             raise self._failure("switch_not_resolved", f"the switch of {self._event_name(joint, kind)} "
@@ -210,11 +214,8 @@ class SwitchLocation:
     @staticmethod
     def _positive_inside(phi, t_start: float, t_end: float, samples: int = 8) -> float | None:
         """The first of ``samples - 1`` evenly spaced times inside (t_start, t_end) where phi > 0, or None."""
-        for k in range(1, samples):
-            tau = t_start + (t_end - t_start) * k / samples
-            if phi(tau) > 0.0:
-                return tau
-        return None
+        taus = (t_start + (t_end - t_start) * k / samples for k in range(1, samples))
+        return next((tau for tau in taus if phi(tau) > 0.0), None)
 
     def pending_switches(self, snap: ConstrainedState) -> tuple[list, list]:
         """(events, dips): the switches the step from ``snap`` to now holds, as the step looks for them after it

@@ -13,6 +13,7 @@
 // Python reference's likewise (it then names the failure). The Python stepper's own corrector solves (a handed-back
 // step's, a sub-step's, the switching-time search's: kinredund/tracking/compiled_correct.py) run here as well
 // (correct: advance()'s corrector without its verdicts, the fallback through start_at).
+#include "brent.hpp"
 #include "frame.hpp"
 #include "rows.hpp"
 #include "step.hpp"
@@ -61,6 +62,9 @@ enum Task { PLANAR = 0, POSITION = 1, POSE = 2, AXIS = 3 };
 // Why a step is handed back to the Python reference.
 constexpr int OK = 0, FACTOR_SINGULAR = 1, RCOND_LOW = 2, NOT_FINITE = 3, CHORD_FAILED = 4, JUMP = 5, LIMIT = 6,
               LOG_NEAR_PI = 7, RELEASE = 11, ROW_RELEASE = 14;
+// Why StepCore.locate left a switching-time search to Python (besides the corrector's codes and brent.hpp's): a time
+// not after the anchor (the caller reads the anchor's own state there), a watched value that is NaN.
+constexpr int LOCATE_AT_ANCHOR = 22, LOCATE_NAN = 23;
 
 struct Sample {
   Vector3d p, v, omega;
@@ -285,6 +289,60 @@ class StepCore {
     MatrixXd lu = lu_;
     VectorXi piv = ipiv_;
     return nb::make_tuple(numpy_of(std::move(out)), restarted, lu, piv);
+  }
+
+  // SwitchLocation._crossing's search (kinredund/tracking/switches.py) in the core: the time in (a, b] where a switch's
+  // watched quantity reaches zero on the corrected path, by Brent's method (brent.hpp, as roots.py's brent_root), each
+  // evaluation at tau PredictorCorrector.euler_to from the anchor (t_a, y_a, yd_a): the Euler prediction
+  // y_a + (tau - t_a) yd_a and correct_at() there, the GIL released. The quantity: sign (out[index] - level) of the
+  // corrected point's output row (a joint's margin to its bound, a bound's or a held row's multiplier), or with row >= 0
+  // the guard's value c of that row (GeneralRows._row_watch: c where c >= 0 or own_at(q) says the row stands for
+  // itself at q, else stand_in; own_at None: it always does). fa, fb: the quantity at a and b (fb NaN: evaluated here);
+  // sample_at(tau): the path's (p, v, Q, omega, ref, rate) at tau, as correct() takes them. Returns the time, or the
+  // status code of anything else: a corrector solve that is not ordinary, a NaN, a time not after the anchor, no
+  // bracket, no convergence (brent.hpp); the caller's own search then runs from the same inputs and meets it itself.
+  nb::object locate(double t_a, CRef y_a, CRef yd_a, double a, double b, double fa, double fb, Eigen::Index index,
+                    double sign, double level, Eigen::Index row, double stand_in, nb::callable sample_at,
+                    nb::object own_at, double xtol, double rtol, int maxiter) {
+    const Eigen::Index N = n_ + m_;
+    if (y_a.size() != N || yd_a.size() != N) throw nb::value_error("y_a and yd_a must have n + m entries");
+    if (row >= 0 && (guard_ == nullptr || row >= guard_->size()))
+      throw nb::value_error("row: one of the guard's rows (a guard is needed)");
+    if (row < 0 && (index < 0 || index >= output_size())) throw nb::value_error("index: an entry of the output row");
+    VectorXd out(output_size()), c;
+    RowMatrixXd G;
+    RowIndices one(1);
+    one[0] = row;
+    auto phi = [&](double tau, double& value) -> int {
+      if (!(tau > t_a)) return LOCATE_AT_ANCHOR;
+      nb::tuple s = nb::cast<nb::tuple>(sample_at(tau));  // the path's sample (Python's, the GIL held)
+      if (s.size() != 6) throw nb::value_error("sample_at must return (p, v, Q, omega, ref, rate)");
+      set_sample(nb::cast<VectorXd>(s[0]), nb::cast<VectorXd>(s[1]), nb::cast<Mat3>(s[2]), nb::cast<VectorXd>(s[3]));
+      set_reference(nb::cast<VectorXd>(s[4]), nb::cast<VectorXd>(s[5]));
+      int st;
+      {
+        nb::gil_scoped_release release;  // no Python object below
+        bool restarted;
+        st = correct_at(y_a + (tau - t_a) * yd_a, out, restarted);  // PredictorCorrector.euler_to
+        if (st == OK && row >= 0) guard_->rows_at(out.head(n_), one, c, G);
+      }
+      if (st != OK) return st;
+      if (row < 0) {
+        value = sign * (out[index] - level);
+      } else {
+        value = c[0];
+        if (value < 0.0 && !own_at.is_none() && !nb::cast<bool>(own_at(VectorXd(out.head(n_))))) value = stand_in;
+      }
+      return std::isnan(value) ? LOCATE_NAN : OK;
+    };
+    if (std::isnan(fb)) {
+      const int st = phi(b, fb);
+      if (st != OK) return nb::int_(st);
+    }
+    double root = 0.0;
+    const int st = brent_root(phi, a, b, fa, fb, xtol, rtol, maxiter, root);
+    if (st != OK) return nb::int_(st);
+    return nb::float_(root);
   }
 
  private:
@@ -1136,12 +1194,29 @@ void bind_step(nb::module_& m) {
       .def("factors", &StepCore::factors)
       .def("correct", &StepCore::correct, nb::arg("t"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"),
            nb::arg("ref"), nb::arg("rate"), nb::arg("y"), nb::arg("newton") = false)
+      .def("locate", &StepCore::locate, nb::arg("t_a"), nb::arg("y_a"), nb::arg("yd_a"), nb::arg("a"), nb::arg("b"),
+           nb::arg("fa"), nb::arg("fb"), nb::arg("index"), nb::arg("sign"), nb::arg("level"), nb::arg("row"),
+           nb::arg("stand_in"), nb::arg("sample_at"), nb::arg("own_at").none(), nb::arg("xtol"), nb::arg("rtol"),
+           nb::arg("maxiter"))
       .def("watch_measure", &StepCore::watch_measure, nb::arg("v"), nb::arg("J_ref"), nb::arg("sigma_ref"),
            nb::arg("gate"))
       .def("residual_min", &StepCore::residual_min, nb::arg("q"), nb::arg("p"), nb::arg("v"), nb::arg("Q"),
            nb::arg("omega"), nb::arg("max_iter"))
       .def("evaluate", &StepCore::evaluate_at, nb::arg("q"), nb::arg("lam"), nb::arg("p"), nb::arg("v"),
            nb::arg("Q"), nb::arg("omega"), nb::arg("ref"), nb::arg("rate"));
+  m.def("brent_root", [](nb::callable f, double a, double b, double xtol, double rtol, int maxiter) {
+          auto g = [&](double x, double& fx) -> int {
+            fx = nb::cast<double>(f(x));
+            return std::isnan(fx) ? LOCATE_NAN : OK;
+          };
+          double fa = 0.0, fb = 0.0, root = 0.0;
+          int st = g(a, fa);
+          if (st == OK) st = g(b, fb);
+          if (st == OK) st = brent_root(g, a, b, fa, fb, xtol, rtol, maxiter, root);
+          return st == OK ? nb::object(nb::float_(root)) : nb::object(nb::int_(st));
+        }, nb::arg("f"), nb::arg("a"), nb::arg("b"), nb::arg("xtol"), nb::arg("rtol"), nb::arg("maxiter"),
+        "brent.hpp's Brent search of StepCore.locate on a Python function f (for the tests: roots.py's brent_root "
+        "makes the same calls): the root, or the status code (20: not bracketed, 21: no convergence, 23: a NaN).");
   m.def("start_run", [](StepCore& core, CRef p, CRef v, Mat3 Q, CRef omega, CRef ref, CRef rate, CRef y0) {
           return core.start(p, v, Q, omega, ref, rate, y0);
         }, nb::arg("core"), nb::arg("p"), nb::arg("v"), nb::arg("Q"), nb::arg("omega"), nb::arg("ref"),
