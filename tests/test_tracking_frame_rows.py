@@ -169,7 +169,8 @@ def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, optio
     at every step, the row held and the switches the same); the core took most steps with the row held (none handed
     back for it as row_active), the switching-time search's corrector solves with it and the Newton solve after each
     switch (CoreCorrector.settle: a frame's rows settle, RowCheck.settles); each switching time located in the core
-    (CoreCorrector.locate). The check leaves the held row out (the
+    (CoreCorrector.locate), and the compiled check of the stepper's own searches ruled the row out where it could
+    (GeneralRows.step_check). The check leaves the held row out (the
     only row: it clears every step with it held), so no core step with the row held is searched in Python."""
     a, b = sphere_tracker(name, "python", **options), sphere_tracker(name, "compiled", **options)
     c = b.compiled
@@ -177,7 +178,10 @@ def test_steps_with_a_sphere_held_are_the_cores_and_agree_one_by_one(name, optio
     searched = []  # the core's steps the Python search looked at: did they start with the row held?
     search = c._switch_within
     c._switch_within = lambda start: searched.append(bool(start.rows)) or search(start)
+    cleared, check = [], b.stepper._rows_cleared  # the stepper's own searches: did the compiled check rule rows out?
+    b.stepper._rows_cleared = lambda snap: cleared.append(check(snap)) or cleared[-1]
     agree_in_turn(a, b, 1000)
+    assert b.stepper.step_check is c.guard and sum(cleared) >= len(b.stepper.switches)  # (and agreeing, above)
     sa, sb = a.stepper, b.stepper
     assert len(sa.switches) >= 8 and "row_active" not in c.handed_back and not any(searched)
     assert c.row_steps > 100 and c.steps + sum(c.handed_back.values()) == 1000

@@ -228,8 +228,9 @@ class CompiledStep:
         self.rows = bool(getattr(stepper, "row_pairs", None))  # general rows: each step checked for a switch
         # the constraints' compiled check of a step, where each has one
         self.guard = row_check(stepper.general, ROW_TOL, core) if self.rows else None
-        if self.guard is not None:  # the core runs the check right after its step (StepCore.step_guarded)
-            self.core.set_guard(self.guard.compiled)
+        if self.guard is not None:  # the core runs the check right after its step (StepCore.step_guarded), and the
+            self.core.set_guard(self.guard.compiled)  # stepper before its own search of a step (GeneralRows.step_check)
+            stepper.step_check = self.guard
         self._basis = stepper.pt.basis
         self.ahead = SamplesAhead(ev.path, stepper.t0, stepper.dt)  # the path's samples of the next steps
         m = len(stepper.task_lam)  # the task's (a row active at the start appends its multiplier to lam)

@@ -118,6 +118,10 @@ class GeneralRows:
     their rows (``row_pairs``: (constraint, row) per number); ``lam`` = [lambda; w], w = -nu.
     """
 
+    #: the general rows' compiled check of a step (a :class:`~kinredund.tracking.constraints.base.RowCheck`: the
+    #: compiled backend's, :mod:`kinredund.tracking.compiled`), or None: every step is searched (:meth:`_rows_cleared`)
+    step_check = None
+
     def _init_rows(self, constraints, q0: np.ndarray, qp_solver: str) -> None:
         check_choice("QP solver of the rate QP", qp_solver, QP_SOLVERS)
         self.qp_solver = qp_solver
@@ -203,15 +207,28 @@ class GeneralRows:
     def _cause(self) -> str:
         return self.general[self.row_pairs[self.rows[0]][0]].cause if self.rows else "limits_infeasible"
 
-    def _row_events(self) -> list[tuple[int, str]]:
-        """(row, ``row_reach``): an inactive row below zero; (row, ``row_release``): an active row's nu < 0."""
+    def _rows_cleared(self, snap) -> bool:
+        """Does the rows' compiled check (:attr:`step_check`) rule out a row's switch within the step from ``snap`` to
+        now (no inactive row below -ROW_TOL at its end, none able to dip below it inside: the tests of
+        :meth:`_row_events`' reach and ``SwitchLocation._row_dips``, by the constraints' ``segment_lower_bounds``, the
+        rows held left out)? False where there is none or it cannot tell (no rate at the start, the rows held
+        changed within the step)."""
+        check, h = self.step_check, self.t - snap.t
+        if check is None or snap.qdot is None or not h > 0.0 or snap.rows != self.rows or not check.valid():
+            return False
+        return check.compiled.clear(snap.q, self.q, snap.qdot, self.qdot, h, np.array(self.rows, dtype=np.int64))
+
+    def _row_events(self, reach: bool = True) -> list[tuple[int, str]]:
+        """(row, ``row_reach``): an inactive row below zero; (row, ``row_release``): an active row's nu < 0.
+        ``reach`` False: the releases only (a check ruled the reaches out: :meth:`_rows_cleared`)."""
         if not self.row_pairs:
             return []
-        values = self._row_values(self.q)
-        if not values.min() < -ROW_TOL and not self.rows:  # the common case: one reduction
-            return []
-        out = [(int(f), "row_reach") for f in np.flatnonzero(values < -ROW_TOL)
-               if int(f) not in self.rows]
+        out = []
+        if reach:
+            values = self._row_values(self.q)
+            if not values.min() < -ROW_TOL and not self.rows:  # the common case: one reduction
+                return []
+            out = [(int(f), "row_reach") for f in np.flatnonzero(values < -ROW_TOL) if int(f) not in self.rows]
         if self.rows:
             scale = max(1.0, float(np.abs(self.pt.grad).max()))
             nu = -self.lam[self._m:]

@@ -56,21 +56,21 @@ class SwitchLocation:
     stepper's state, ``euler_to``, ``_newton``, ``_rates`` and the rows' hooks of
     :class:`~kinredund.tracking.rows.GeneralRows`)."""
 
-    def _events(self) -> list[tuple[int, str]]:
+    def _events(self, reach: bool = True) -> list[tuple[int, str]]:
         """The switches the state at t shows: (joint, ``lower``/``upper``) reached, or (joint, ``release``);
-        (row, ``row_reach``/``row_release``) of the general rows."""
+        (row, ``row_reach``/``row_release``) of the general rows (``reach`` False: their releases only)."""
         q = self.q
         if self._sel is None:  # no joint on a bound: every joint within its switch limits (the common case)
             lo, hi = self._switch_floats  # (as lists of floats: a numpy call costs more on a few entries)
             x = q.tolist()
             if all(map(operator.le, lo, x)) and all(map(operator.le, x, hi)):
-                return self._row_events()
+                return self._row_events(reach)
         free = ~self.fixed
         scale = max(1.0, float(np.abs(self.pt.grad).max()))
         out = [(int(i), "lower") for i in np.flatnonzero(free & (q < self._lo_tol))]
         out += [(int(i), "upper") for i in np.flatnonzero(free & (q > self._hi_tol))]
         out += [(int(i), "release") for i in np.flatnonzero(self.fixed & (self.mu < -1e-12 * scale))]
-        return out + self._row_events()
+        return out + self._row_events(reach)
 
     def _watch(self, joint: int, kind: str) -> float:
         """The quantity whose zero is the switch: the margin to the bound, or the multiplier (>= 0 before)."""
@@ -220,8 +220,10 @@ class SwitchLocation:
     def pending_switches(self, snap: ConstrainedState) -> tuple[list, list]:
         """(events, dips): the switches the step from ``snap`` to now holds, as the step looks for them after it
         is taken: the events at its end (:meth:`_events`), then the general rows that dip below zero inside it
-        only (:meth:`_row_dips`). Both empty: the step holds no switch. The compiled driver asks this of a step
-        taken in C++ (:mod:`kinredund.tracking.compiled`), so its check is this stepper's own."""
+        only (:meth:`_row_dips`); neither of a row where the rows' compiled check rules it out (``_rows_cleared``).
+        Both empty: the step holds no switch. The compiled driver asks this of a step taken in C++."""
+        if self._rows_cleared(snap):
+            return self._events(reach=False), []
         return self._events(), self._row_dips(snap)
 
     def _first_switch(self, snap: ConstrainedState) -> tuple[float, int, str] | None:
