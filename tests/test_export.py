@@ -53,6 +53,17 @@ def test_csv_round_trip_is_exact(tmp_path):
     assert header[:2] == ["t", "q_panda_joint1"] and header[-1] == "qddot_panda_joint7" and len(header) == 22
 
 
+@pytest.mark.parametrize(("joint_names", "words"), [(["a", "b"], "2 names for a record of 7 joints"),
+                                                     ([f"j{k}" for k in range(8)], "8 names for a record of 7 joints"),
+                                                     ("abcdefg", "a list of names"), (7, "a list of names")])
+def test_write_csv_says_the_joint_names_do_not_fit_the_record(tmp_path, joint_names, words):
+    """joint_names of the wrong count or kind: an ExportError saying so (the count was reported as q of the wrong
+    shape for a robot of 2 joints, a string as seven one-letter names), and no file."""
+    with pytest.raises(ExportError, match=words):
+        write_csv(records()[0], tmp_path / "r.csv", joint_names=joint_names)
+    assert not (tmp_path / "r.csv").exists()
+
+
 def test_bag_round_trip_message_type_and_joint_names(tmp_path):
     from rosbags.rosbag2 import Reader
 

@@ -131,6 +131,13 @@ def test_unknown_robot_lists_known_names():
     assert "kuka_iiwa" in str(err.value) and "panda" in str(err.value) and "planar3r" in str(err.value)
 
 
+@pytest.mark.parametrize("name", ["", "   "])
+def test_an_empty_robot_name_lists_known_names(name):
+    """'' is no robot (it was read as the current folder: "cannot load URDF '/tmp': ... a directory")."""
+    with pytest.raises(kinredund.UnknownRobotError, match=f"unknown robot '{name}': .* known names .*panda"):
+        kinredund.load_robot(name)
+
+
 def test_missing_urdf_file():
     with pytest.raises(kinredund.UnknownRobotError, match="nothere.urdf"):
         kinredund.load_robot("/tmp/nothere.urdf")

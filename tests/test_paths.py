@@ -120,6 +120,17 @@ def test_bad_paths_raise_path_error(make):
         make()
 
 
+@pytest.mark.parametrize(("make", "period"), [(lambda: Circle((0.0, 0.0, 0.0), 1e-300, 1e300), "0.0"),
+                                              (lambda: Circle((0.0, 0.0, 0.0), 1e300, 1e-300), "inf"),
+                                              (lambda: Ellipse((0.0, 0.0), 1.0, 1.0, rate=1e-310), "inf")])
+def test_a_period_that_over_or_underflows_is_refused(make, period):
+    """Fields each finite and > 0 whose period is not (a circle of 1e-300 m at 1e300 m/s had period 0): a PathError
+    naming the period and what gives it, not a path that divides by it."""
+    with pytest.raises(kinredund.PathError, match=rf"gives the period {period} s; it must be a finite number > 0"):
+        make()
+    assert Circle((0.0, 0.0, 0.0), 1e-3, 1e3).period == pytest.approx(2 * np.pi * 1e-6, rel=1e-15)
+
+
 def test_user_path_of_the_wrong_shape_says_when():
     path = FunctionPath(lambda t: (np.zeros(4), np.zeros(4)))
     with pytest.raises(kinredund.PathError, match=r"at t = 0\.25 s"):

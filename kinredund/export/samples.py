@@ -109,6 +109,12 @@ class JointSamples:
             from kinredund.model.loader import load_robot
 
             joint_names = load_robot(traj.robot, task=traj.task).joint_names
+        elif isinstance(joint_names, (str, bytes)) or not hasattr(joint_names, "__len__"):
+            raise ExportError(f"joint_names must be a list of names, one per joint, got {joint_names!r}")
+        columns = np.shape(traj.q)[-1] if np.ndim(traj.q) == 2 else None
+        if columns is not None and len(joint_names) != columns:  # (the record's own shape is checked() below)
+            raise ExportError(f"joint_names: {len(joint_names)} names for a record of {columns} joints (q's columns); "
+                              "give one name per joint, or None for the robot's")
         traj = traj.checked(len(joint_names))
         return cls(tuple(joint_names), traj.t, traj.q, traj.qdot, traj.qddot).checked()
 

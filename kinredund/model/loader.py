@@ -180,6 +180,8 @@ def load_robot(name_or_path: str | Path, ee_frame: str | None = None, *, task: s
     """
     if isinstance(name_or_path, Path):
         key, stored = str(name_or_path), {}
+    elif isinstance(name_or_path, str) and not name_or_path.strip():  # ('' was read as the folder '.')
+        raise UnknownRobotError(name_or_path, known_robots())
     elif isinstance(name_or_path, str):
         key, stored = split_source(name_or_path)  # a record's name: options follow it (model.source)
     else:

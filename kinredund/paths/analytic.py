@@ -27,6 +27,15 @@ def _positive(path, what: str, *names: str) -> None:
         object.__setattr__(path, name, check_positive(getattr(path, name), f"{what} {name}", PathError))
 
 
+def _set_period(path, what: str, period: float, made_of: str) -> None:
+    """Store the period [s] the fields give; refused where it is not a finite number > 0 (fields finite and > 0 whose
+    quotient over- or underflows: a radius of 1e-300 m at 1e300 m/s gave a period of 0)."""
+    if not (math.isfinite(period) and period > 0.0):
+        raise PathError(f"{what}: {made_of} gives the period {period!r} s; it must be a finite number > 0 (fields of "
+                        "less extreme sizes)")
+    object.__setattr__(path, "period", float(period))
+
+
 def _real(path, what: str, *names: str) -> None:
     """Check that each named field is a finite real number and store it as a float."""
     for name in names:
@@ -104,7 +113,7 @@ class Circle(Path):
         # the same numbers as arrays for sample_many (read-only: a path is shared between runs and threads)
         object.__setattr__(self, "_plane_rows", _read_only(self._plane_floats))
         object.__setattr__(self, "_center", _read_only(self._center_floats))
-        object.__setattr__(self, "period", 2 * np.pi * self.radius / self.speed)
+        _set_period(self, "circle", 2 * np.pi * self.radius / self.speed, "2 pi radius / speed")
         _real(self, "circle", "start_angle", "roll_amplitude")  # [rad]
         if not isinstance(self.frenet, (bool, np.bool_)):
             raise PathError(f"circle frenet must be True or False, got {self.frenet!r}")
@@ -248,7 +257,7 @@ class Ellipse(Path):
         _positive(self, "ellipse", "a", "b", "rate")
         _real(self, "ellipse", "angle", "start")  # [rad]
         object.__setattr__(self, "center", _center3(self.center, "ellipse"))
-        object.__setattr__(self, "period", 2 * np.pi / self.rate)
+        _set_period(self, "ellipse", 2 * np.pi / self.rate, "2 pi / rate")
 
     def sample(self, t: float) -> PathSample:
         s = self.start + self.rate * t

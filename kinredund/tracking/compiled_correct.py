@@ -3,7 +3,11 @@
 On the compiled backend (:mod:`kinredund.tracking.compiled`) the steps the core does not take are the Python stepper's:
 a bound reached or released, a chord that failed, a jump, the watch's rejections; within them the switching-time
 location (:mod:`kinredund.tracking.switches`: Brent's method, each evaluation a corrector solve) and the sub-steps of
-the step control. Each of those corrector solves
+the step control. The switching-time search itself runs in the core where it starts from the step's start
+(:meth:`CoreCorrector.locate`: ``StepCore.locate``, Brent's method of ``src/core/brent.hpp`` with the iterates of
+:func:`~kinredund.tracking.roots.brent_root`, each evaluation the Euler prediction and the corrector below, the watched
+quantity read from the corrected point or, for a row's value, the rows' compiled check; Python's search runs where it
+declines). Each of those corrector solves
 (:meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector._correct` with the limited stepper's wrapper,
 :mod:`kinredund.tracking.limited`) is the core's ``StepCore.correct`` (``src/core/step.cpp``, the GIL released): from
 the prediction, the held joints set on their bounds, one evaluation with dK, R's LU factors, the rates of Eq. (4.24),
@@ -87,7 +91,7 @@ class CoreCorrector:
         leaves the search to Python (a solve it declines, a row it does not compute, no bracket, no convergence, an
         error of the path's sample): the caller's own search then runs from the same inputs and meets it itself."""
         s = self.stepper
-        if (kind.startswith("row") and self._guard is None) or not self._ready():
+        if anchor.yd is None or (kind.startswith("row") and self._guard is None) or not self._ready():
             return None
         n, m = self.n, len(s.task_lam)
         row, own, index, sign, level = -1, None, 0, 1.0, 0.0
