@@ -371,3 +371,25 @@ def test_ten_loops_held_are_the_python_record_and_close(rows):
     assert_same_rows(a, b)
     for x in (a, b):
         assert len(x.loop_drift) == 10 and x.loop_drift.max() < 1e3 * EPS  # (rounding: at most 3.1e-15 rad seen)
+
+
+def test_the_cores_system_at_a_switch_is_the_python_evaluations():
+    """PredictorCorrector.system_at (the strict-minimum measurement after a switch, a bound multiplier's rate) on the
+    compiled backend is the core's evaluation (CoreCorrector.system_at): J with the held row's gradient, M with its
+    curvature and top equal the Python point's to rounding, at every step of a loop with the row held or free, with
+    joints held or not; and where the core does not hold an active row it is Python's own (None)."""
+    b = sphere_tracker("panda_elbow_sphere", "compiled")
+    s, seen = b.stepper, set()
+    for _ in range(200):
+        b.step()
+        made = s.corrector.system_at(s.q, s.t, s.lam)
+        pt = s.evaluate(s.q, s.t)
+        M, top = pt.system(s.lam)
+        for got, want in zip(made, (pt.J, M, top), strict=True):
+            assert got.shape == want.shape
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * max(1.0, np.abs(want).max()))
+        seen.add((bool(s.rows), bool(s.fixed.any())))
+    assert {r for r, _ in seen} == {True, False} and any(j for _, j in seen)  # (a row held, a joint held: each met)
+    s.corrector._guard = None  # a core that does not hold the rows: it declines where one is active
+    s.rows = (0,)
+    assert s.corrector.system_at(s.q, s.t, np.append(s.task_lam, 0.0)) is None

@@ -121,6 +121,15 @@ class CoreCorrector:
         self.located += 1
         return got
 
+    def system_at(self, q: np.ndarray, t: float, lam: np.ndarray) -> tuple | None:
+        """(J, M, top) of the stepper's :meth:`~kinredund.tracking.predictor_corrector.PredictorCorrector.system_at`
+        in the core (``StepCore.evaluate``: the evaluation with the rows held, M with their curvature); None where
+        the core does not hold the rows active."""
+        if not self._ready():
+            return None
+        _, J, _, _, M, top = self.core.evaluate(q, lam, *self._sample_at(t))
+        return J, M, top
+
     def _sample_at(self, t: float) -> tuple:
         """The path's sample and the index's reference at t as the core's ``correct`` takes them."""
         s = self.stepper

@@ -335,9 +335,8 @@ class LimitedPredictorCorrector(SwitchLocation, GeneralRows, PredictorCorrector)
 
     def _mu_rates(self) -> np.ndarray:
         """d mu / dt on the active joints from the current rates: s_i (M qdot + J^T lamdot - top)_i."""
-        pt = self.evaluate(self.q, self.t)
-        M, top = pt.system(self.lam)
-        return np.where(self.fixed, self.side * (M @ self.qdot + pt.J.T @ self.lamdot - top), 0.0)
+        J, M, top = self.system_at(self.q, self.t, self.lam)
+        return np.where(self.fixed, self.side * (M @ self.qdot + J.T @ self.lamdot - top), 0.0)
 
     # -- the step and its switches -----------------------------------------------------------------
     def _state_applied(self) -> None:

@@ -59,7 +59,8 @@ class PredictorCorrector(Stepper):
 
     #: the corrector solves made elsewhere, or None (this stepper's own): the compiled backend's
     #: :class:`~kinredund.tracking.compiled_correct.CoreCorrector`, which the limited stepper's ``_correct`` calls
-    #: first with the prediction (True: it made the solve) and :meth:`_newton_rates` with none (``settle``)
+    #: first with the prediction (True: it made the solve) and :meth:`_newton_rates` with none (``settle``); also the
+    #: switching-time search (``locate``, :mod:`kinredund.tracking.switches`) and the evaluations of :meth:`system_at`
     corrector = None
 
     def __init__(self, evaluator: Evaluator, q0: np.ndarray, dt: float, strict: bool = True, start=None, **kwargs):
@@ -172,6 +173,17 @@ class PredictorCorrector(Stepper):
         solve needed the fallback)."""
         self._take(y, yd, pt, M, rcond, label)
         self.lu = lu
+
+    def system_at(self, q: np.ndarray, t: float, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(J, M, top) of Eq. (4.24) at (q, t) with the multipliers ``lam``: the full evaluation's (with the active
+        rows' where the stepper holds some), made by the :attr:`corrector` where it makes them (the core's, the same
+        numbers to rounding), else by this stepper's ``evaluate``."""
+        made = None if self.corrector is None else self.corrector.system_at(q, t, lam)
+        if made is not None:
+            return made
+        pt = self.evaluate(q, t)
+        M, top = pt.system(lam)
+        return pt.J, M, top
 
     def _take(self, y, yd, pt, M, rcond, label) -> None:
         n = self.n

@@ -299,8 +299,8 @@ class SwitchLocation:
         """(what the watch's floors say at the current point measured exactly: None for a strict minimum with J
         regular, else ``fold`` or ``kinematic``; sigma_min of J with the active rows; the reduced-Hessian eigenvalue).
         """
-        pt = self.evaluate(self.q, self.t)
-        sigma, eig = self.control.watch.measure_exact(pt.J, pt.system(self.lam)[0], self.fixed)
+        J, M, _ = self.system_at(self.q, self.t, self.lam)
+        sigma, eig = self.control.watch.measure_exact(J, M, self.fixed)
         return self.control.watch.crossed(sigma, eig), sigma, eig
 
     def _settled(self, after: ConstrainedState, t_end: float, followed: bool) -> bool:
