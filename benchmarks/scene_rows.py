@@ -15,7 +15,11 @@ unsuffixed). Besides ``compiled`` and ``python``, the backend ``compiled-rows-in
 rows held left to the Python stepper, as before the core held them (``kinredund.tracking.compiled.held_rows`` patched to
 give None for those rounds), and ``compiled-no-check`` the compiled one without the constraint's compiled check (its
 ``row_guard`` patched to give None: every step searched for a switch by the Python stepper, and the steps with a row
-held its own, as a sphere's were before ``FrameRows``). Figures, medians over the rounds of each round's median [us]:
+held its own, as a sphere's were before ``FrameRows``), and ``compiled-python-search`` the compiled one with the
+switches' search as before the core made it (``CoreCorrector.locate`` and the stepper's rows check,
+``GeneralRows._rows_cleared``, patched off: Brent's method in Python, each of its evaluations a core solve, and every
+step the Python stepper takes searched for a row's switch in Python). Figures, medians over the rounds of each round's
+median [us]:
 
 - ``scene_active_step_us``: a step with a row active (on the compiled backend the core's, the rows held in it:
   ``kinredund/tracking/compiled_rows.py``; a scene's rows' curvature by central differences,
@@ -30,9 +34,10 @@ held its own, as a sphere's were before ``FrameRows``). Figures, medians over th
   row-active step over the first's, and ``track_ratio``, the same of ``track()``;
 - ``agreement_q_max``: the compiled and the Python backend stepped in turn over ``--steps`` steps, the largest joint
   difference after a step [rad];
-- ``switch_share``, ``switch_ms``, ``switches``: one more ``track()`` on the first backend, the share of its time
-  spent locating and stepping through the switches (the Python stepper's ``SwitchLocation._resolve_switches``, timed
-  around each call), that time per switch [ms], and the switches.
+- ``switch_share``, ``switch_ms``, ``switches``: ``--rounds`` more ``track()`` runs of each backend (medians), the
+  share of its time spent locating and stepping through the switches (the Python stepper's
+  ``SwitchLocation._resolve_switches``, timed around each call), that time per switch [ms], and the switches (with the
+  other backends' names appended, as above).
 
 It runs on whichever kinredund is installed, so the figure of an older build is had by running this file with that
 build's Python (the issue's before/after: run the two in turn, a few times each).
@@ -49,6 +54,8 @@ from clearance_peers import elbow_case
 
 import kinredund
 from kinredund.tracking import SceneClearance, SphereClearance, Tracker, compiled, track
+from kinredund.tracking.compiled_correct import CoreCorrector
+from kinredund.tracking.rows import GeneralRows
 from kinredund.tracking.switches import SwitchLocation
 
 #: the ball's centre and radius [m] and the clearance [m] of panda_elbow_ball (tests/test_tracking_scene.py)
@@ -66,21 +73,24 @@ def setup(kind: str = "ball"):
     return robot, path, index, q0, {"scene": scene, "clearance": CLEARANCE, "self_clearance": False}
 
 
-#: the pseudo-backends (module docstring): the compiled step with the rows held left to the Python stepper, and
-#: without the constraint's compiled check
-ROWS_IN_PYTHON, NO_CHECK = "compiled-rows-in-python", "compiled-no-check"
+#: the pseudo-backends (module docstring): the compiled step with the rows held left to the Python stepper, without
+#: the constraint's compiled check, and with the switches' search in Python
+ROWS_IN_PYTHON, NO_CHECK, PYTHON_SEARCH = "compiled-rows-in-python", "compiled-no-check", "compiled-python-search"
 
 
 @contextlib.contextmanager
 def backend_of(name: str):
     """The Tracker backend of ``name`` (``compiled`` for the pseudo-backends, with what they switch off patched while
     the block runs)."""
-    if name not in (ROWS_IN_PYTHON, NO_CHECK):
+    if name not in (ROWS_IN_PYTHON, NO_CHECK, PYTHON_SEARCH):
         yield name
         return
     with contextlib.ExitStack() as patches:
         if name == ROWS_IN_PYTHON:
             patches.enter_context(_patched(compiled, "held_rows", lambda *args: None))
+        elif name == PYTHON_SEARCH:
+            patches.enter_context(_patched(CoreCorrector, "locate", lambda *args: None))
+            patches.enter_context(_patched(GeneralRows, "_rows_cleared", lambda *args: False))
         else:
             for cls in (SceneClearance, SphereClearance):
                 patches.enter_context(_patched(cls, "row_guard", lambda self, tol: None))
@@ -187,8 +197,11 @@ def main() -> None:
     if len(backends) > 1:
         out["active_ratio"] = out[f"scene_active_step_us_{backends[1]}"] / out["scene_active_step_us"]
         out["track_ratio"] = out[f"scene_track_ms_{backends[1]}"] / out["scene_track_ms"]
-    share, per_switch, switches = switch_time(case, steps, backends[0])
-    out |= {"switch_share": share, "switch_ms": per_switch, "switches": switches}
+    for i, b in enumerate(backends):  # (medians over the rounds, the backends in turn)
+        timed = np.array([switch_time(case, steps, b) for _ in range(rounds)])
+        tail = "" if i == 0 else f"_{b}"
+        out |= {f"switch_share{tail}": float(np.median(timed[:, 0])), f"switch_ms{tail}": float(np.median(timed[:, 1])),
+                f"switches{tail}": int(timed[0, 2])}
     out |= {"agreement_q_max": agreement(case, steps), "case": args.case, "rounds": rounds, "steps": steps,
             "active_step_us_per_round": per[backends[0]][0]}
     print_table([[k, v] for k, v in out.items() if k != "active_step_us_per_round"], ["figure", "value"])
