@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from test_tracking_compiled import assert_same_record, problem
 
-from kinredund.errors import KinredundError
+from kinredund.errors import KinredundError, TrackingError
+from kinredund.paths import FunctionPath
 from kinredund.tracking import Tracker, compiled, track
 from kinredund.tracking.compiled_correct import CoreCorrector
 
@@ -159,9 +160,40 @@ def test_handed_back_steps_correct_in_the_core():
     c, hook = tracker.compiled, tracker.stepper.corrector
     handed = sum(c.handed_back.values())
     assert c.handed_back.get("limit", 0) >= 1 and c.handed_back.get("release", 0) >= 1
-    assert hook.used >= handed and hook.declined == 0  # (each handed-back step's own solve, the switches' corrections)
+    switches = len(tracker.stepper.switches)
+    # each handed-back step's own solve; per switch the correction to its time, the Newton solve there (settle) and the
+    # correction on to the step's end
+    assert switches >= 2 and hook.used >= handed + 3 * switches and hook.declined == 0
     # the switching-time searches: Brent's method in the core, its solves there too (CoreCorrector.locate)
     assert hook.located >= c.handed_back["limit"] + c.handed_back["release"] and hook.locates_declined == 0
     a = track(r, path, index, q0, backend="python", loops=1, steps_per_loop=200)
     b = track(r, path, index, q0, backend="compiled", loops=1, steps_per_loop=200)
     assert_same_record(a, b)
+
+
+def test_a_search_that_meets_a_users_error_is_pythons_and_says_so():
+    """A user's path function that raises ValueError at times only the switching-time search evaluates (a table of
+    samples at dt / 64): the core's search hands the search to Python's (CoreCorrector.locate declines), which meets the
+    error and names it, switch_not_resolved, the message and time the Python backend's (the raw ValueError escaped)."""
+    r, circle, index, q0 = problem("panda_pose_circle")
+    dt = circle.period / 200
+
+    def fn(t):
+        k = t / dt * 64
+        if abs(k - round(k)) > 1e-6:
+            raise ValueError(f"no table entry at t = {t!r}")
+        s = circle.sample(t)
+        return s.Q, s.p, s.omega, s.v
+
+    path = FunctionPath(fn, period=circle.period, has_orientation=True)
+    stops = {}
+    for backend in ("python", "compiled"):
+        tracker = Tracker(r, path, index, q0, dt, backend=backend)
+        with pytest.raises(TrackingError) as err:
+            for _ in range(200):
+                tracker.step()
+        stops[backend] = err.value
+    a, b = stops["python"], stops["compiled"]
+    assert a.cause == b.cause == "switch_not_resolved" and "no table entry" in str(b)
+    assert str(a) == str(b) and a.t == b.t
+    assert tracker.stepper.corrector.locates_declined >= 1

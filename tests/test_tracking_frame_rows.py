@@ -393,3 +393,30 @@ def test_the_cores_system_at_a_switch_is_the_python_evaluations():
     s.corrector._guard = None  # a core that does not hold the rows: it declines where one is active
     s.rows = (0,)
     assert s.corrector.system_at(s.q, s.t, np.append(s.task_lam, 0.0)) is None
+
+
+@pytest.mark.parametrize("which", ["sphere", "scene"])
+def test_what_the_rows_check_clears_the_search_finds_nothing_in(which):
+    """GeneralRows._rows_cleared is sound: wherever the compiled check rules a row's switch out of a step the stepper
+    searches itself, its own full search (the rows' reaches at the end, _row_dips inside) finds none there; over two
+    loops with the row met and left (a sphere's rows, a scene's)."""
+    if which == "sphere":
+        b = sphere_tracker("panda_elbow_sphere", "compiled")
+    else:
+        r, path, index, q0, sc = scene_setup("panda_elbow_ball")
+        b = Tracker(r, path, index, q0, path.period / 200, backend="compiled", scene=sc, clearance=SCENE_CLEARANCE,
+                    self_clearance=False)
+    s, found, check = b.stepper, [], b.stepper._rows_cleared
+
+    def audited(snap):
+        cleared = check(snap)
+        if cleared:
+            end = s.state
+            found.append([e for e in s._events() if e[1] == "row_reach"] + s._row_dips(snap))
+            s.state = end
+        return cleared
+
+    s._rows_cleared = audited
+    for _ in range(400):
+        b.step()
+    assert len(found) >= len(s.switches) >= 4 and not any(found)

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinredund.errors import KinredundError
 from kinredund.tracking.ahead import core_orientation, core_reference
 from kinredund.tracking.compiled_point import CompiledPoint
 from kinredund.tracking.compiled_rows import HeldRows
@@ -89,7 +88,8 @@ class CoreCorrector:
         evaluation ``euler_to`` from ``anchor`` (a state at a, the stepper's active set) as this corrector's solve.
         ``fa``, ``fb``: the quantity at a and b (fb NaN where the search has not evaluated it). None where the core
         leaves the search to Python (a solve it declines, a row it does not compute, no bracket, no convergence, an
-        error of the path's sample): the caller's own search then runs from the same inputs and meets it itself."""
+        error raised by the path's sample or a user's function): the caller's own search then runs from the same
+        inputs and meets it itself."""
         s = self.stepper
         if anchor.yd is None or (kind.startswith("row") and self._guard is None) or not self._ready():
             return None
@@ -103,8 +103,8 @@ class CoreCorrector:
             index = (self.held.layout if s.rows else self.layout)[0][8].start + key  # the bound multipliers
         elif kind == "row_release":
             index, sign = n + m + s.rows.index(key), -1.0  # its w: nu = -w
-        else:  # row_reach: the row's value c, or 2 ROW_TOL where it does not stand for itself (GeneralRows._row_watch)
-            row = key
+        else:  # row_reach: the row's value c, or 2 ROW_TOL where it does not stand for itself (GeneralRows._row_watch;
+            row = key  # today's compiled checks are of constraints whose rows always do: own stays None for them)
             ci, ri = s.row_pairs[key]
             con = s.general[ci]
             if type(con).representative is not Constraint.representative:
@@ -113,8 +113,8 @@ class CoreCorrector:
         try:
             got = self.core.locate(anchor.t, anchor.y, anchor.yd, a, b, fa, fb, index, sign, level, row, 2 * ROW_TOL,
                                    sample_at, own, SWITCH_XTOL, SWITCH_RTOL, 100)
-        except KinredundError:  # the path's sample failed: Python's search meets it and says so
-            got = None
+        except Exception:  # noqa: BLE001 (the path's sample or a user's function raised: Python's search, which
+            got = None  # makes the same evaluations, meets it and names it, switch_not_resolved as before)
         if type(got) is not float:
             self.locates_declined += 1
             return None

@@ -1,8 +1,8 @@
 // Brent's method on a bracketed root (issue 28): kinredund/tracking/roots.py's brent_root in C++, the switching-time
 // search of kinredund/tracking/switches.py run in the core (StepCore.locate, step.cpp). Brent (1973), *Algorithms for
 // Minimization Without Derivatives*, ch. 4, in the variant of SciPy's brentq (C. Harris): the same decisions and the
-// same arithmetic as roots.py (each product and sum rounded on its own: no fused multiply-add on the baseline x86-64
-// the core is built for), so the same iterates from the same values (tests/test_roots.py: _core.brent_root).
+// same arithmetic as roots.py (each product and sum rounded on its own: step.cpp, which includes it, is compiled with
+// -ffp-contract=off, CMakeLists.txt), so the same iterates from the same values (tests/test_roots.py: _core.brent_root).
 #pragma once
 
 #include <algorithm>

@@ -63,8 +63,9 @@ enum Task { PLANAR = 0, POSITION = 1, POSE = 2, AXIS = 3 };
 constexpr int OK = 0, FACTOR_SINGULAR = 1, RCOND_LOW = 2, NOT_FINITE = 3, CHORD_FAILED = 4, JUMP = 5, LIMIT = 6,
               LOG_NEAR_PI = 7, RELEASE = 11, ROW_RELEASE = 14;
 // Why StepCore.locate left a switching-time search to Python (besides the corrector's codes and brent.hpp's): a time
-// not after the anchor (the caller reads the anchor's own state there), a watched value that is NaN.
-constexpr int LOCATE_AT_ANCHOR = 22, LOCATE_NAN = 23;
+// not after the anchor (the caller reads the anchor's own state there), a watched value that is NaN, a row the guard
+// cannot hold (a scene's row without a pair: constant, so never the row of a search).
+constexpr int LOCATE_AT_ANCHOR = 22, LOCATE_NAN = 23, LOCATE_NOT_HOLDABLE = 24;
 
 struct Sample {
   Vector3d p, v, omega;
@@ -308,6 +309,7 @@ class StepCore {
     if (y_a.size() != N || yd_a.size() != N) throw nb::value_error("y_a and yd_a must have n + m entries");
     if (row >= 0 && (guard_ == nullptr || row >= guard_->size()))
       throw nb::value_error("row: one of the guard's rows (a guard is needed)");
+    if (row >= 0 && !guard_->holdable(row)) return nb::int_(LOCATE_NOT_HOLDABLE);  // (a constant row: never reached)
     if (row < 0 && (index < 0 || index >= output_size())) throw nb::value_error("index: an entry of the output row");
     VectorXd out(output_size()), c;
     RowMatrixXd G;
