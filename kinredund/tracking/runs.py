@@ -37,10 +37,10 @@ active where the rows have the core's compiled check (``CompiledStep.guard``, :m
 ``StepCore.step_guarded`` runs after a single step): the run calls it after each step, as that single step does, and
 writes each step's smallest row value (the check's ``smallest``: the record's, as ``keep_smallest`` keeps it); the first
 step it does not clear is handed over with its verdict (``GUARD_DUE``:
-:meth:`~kinredund.tracking.compiled.CompiledStep.accept`, whose search for a switch decides), and a guarded run ends at
-the first step the watch measures, exactly or by its inverse iteration (as when the watch's verdicts were taken after
-the run, which could drop the rows after it while the check's kept values could not be taken back), so the check runs
-on exactly the steps, with the same arrays, that single steps check. Where the core holds the rows active
+:meth:`~kinredund.tracking.compiled.CompiledStep.accept`, whose search for a switch decides); a guarded run goes on
+through the steps the watch measures as any run does (its verdicts taken in the run, step by step, a step it rejects
+ending the run before the check's value of it is kept), so the check runs on exactly the steps, with the same arrays,
+that single steps check. Where the core holds the rows active
 (:mod:`kinredund.tracking.compiled_rows`) runs go on with them held, the output's layout the held rows' (their
 multipliers recorded per step), the check leaving them out as ``StepCore.step_guarded`` does, a held row's release
 (``row_release``) handed back, and a step whose R has odd inertia handed over for the watch's exact measurement

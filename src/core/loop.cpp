@@ -16,10 +16,10 @@
 // With a row check (``guard``: the StepCore's RowSource, a scene's RowGuard, a frame's FrameRows or a RowStack of
 // several: StepCore.set_guard) each step is checked right after it, as StepCore.step_guarded checks a single step (its
 // clear_at on the same arrays, its smallest row value at the step's end written out): the run ends at the first step
-// the check does not clear (GUARD_DUE, its row written: the caller's stepper searches it for a switch), and after the
-// first step the watch measures, exactly or by the inverse iteration (as when the watch's verdicts were taken after
-// the run, which could drop the rows after it while the guard's kept values could not be taken back; the verdicts are
-// the run's now, but guarded runs were left as they were). With general rows held in the core (StepCore.set_rows) the
+// the check does not clear (GUARD_DUE, its row written: the caller's stepper searches it for a switch); it goes on
+// through the steps the watch measures as an unguarded run does (the watch's verdicts are the run's, taken step by
+// step, so a step the watch rejects ends the run before the check's value of it is kept; guarded runs ended after
+// each measured step until the last stop). With general rows held in the core (StepCore.set_rows) the
 // run goes on with them, the check leaving them out (as step_guarded does), a held row's release ending it with its
 // status (step.cpp's ROW_RELEASE), and a step whose R has odd inertia (odd_inertia: a saddle of the held problem,
 // maybe) ending it as one the watch must measure (WATCH_DUE: the caller measures it exactly,
@@ -303,10 +303,6 @@ nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InM
         }
         hist.push(t.data()[k], sigma, eig);
         ++kept;
-        if (guard != nullptr) {  // the run ends here (the file's comment)
-          ++done;
-          break;
-        }
       }
       // the driver's bookkeeping (CompiledStep._apply): (y, ydot) joins the history, which keeps two pairs
       prev.push_back(y);
