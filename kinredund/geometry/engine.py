@@ -33,38 +33,8 @@ import numpy as np
 import pinocchio as pin
 
 from kinredund.errors import GeometryError, OptionError
+from kinredund.geometry.gjk import GJK_TOLERANCE, fresh_starts, no_warm_start
 from kinredund.kinematics.state import point_curvature
-
-#: GJK's stopping tolerance (coal's default is 1e-6): separated distances to ~1e-9 m, at no measurable cost on
-#: the Panda's hulls, so that the rates can be checked by central differences
-GJK_TOLERANCE = 1e-9
-
-
-def no_warm_start(requests) -> None:
-    """GJK from its default guess at every call, never from the previous call's result (for each of ``requests``,
-    under one filter of the warning: a Scene's workspace sets a request per pair).
-
-    With coal 3.0.3's warm start (the default), the distance between a hull and a box came out alternately
-    0.0819774 and 0.0820143 m on consecutive calls at configurations 5e-5 rad apart (GJK stopping early from
-    the cached support vertices), which ruins the rates' central differences; from the default guess it is
-    the same, smallest value every time, at no measurable cost. coal marks ``enable_cached_gjk_guess`` as
-    deprecated, but ``gjk_initial_guess = DefaultGuess`` alone does not stop the support-function cache.
-
-    One cache stays: each pair's GJK solver (pinocchio's distance functor) starts its support-vertex search from
-    where its last call ended (coal 3.0.3, ``narrowphase.h``), so on large hulls a distance can differ at ~1e-14 m
-    with the queries the same workspace made before (the Kinova's hulls: 28 of 1050 pair distances, by up to
-    1.7e-14 m). A run repeats bit for bit (its queries are the same each time; a tracker's compiled check queries a
-    workspace of its own), but a change that adds or skips a query of that workspace can move a run's numbers at that
-    level.
-    """
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        for request in requests:
-            request.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
-            request.enable_cached_gjk_guess = False
-
 
 #: below this distance [m] a pair's normal is coal's own, not (p_b - p_a) / d: the witness points' rounding
 #: (~1e-16 of their size) over d tilts the latter (1e-6 at d = 1e-11 m, a zero vector at d <= 1e-12 m)
@@ -319,6 +289,7 @@ class Workspace:
         ks = ks.tolist()
         k = len(ks)
         gm, gd, one = self.geometry, self.gdata, pin.computeDistance
+        fresh_starts(gd.distanceRequests, ks)
         results = [one(gm, gd, pair) for pair in ks]  # references into gdata.distanceResults
         d = np.array(list(map(_DISTANCE, results)))
         P = np.array(list(map(_POINT1, results)) + list(map(_POINT2, results))).reshape(2 * k, 3)
@@ -347,7 +318,9 @@ class Workspace:
         self.place(q)
         lb = self.lower_bounds()
         gm, gd = self.geometry, self.gdata
+        fresh_starts(gd.distanceRequests, range(len(lb)))
         bound = max(pin.computeDistance(gm, gd, int(lb.argmin())).min_distance, 0.0)
+        fresh_starts(gd.distanceRequests, [int(lb.argmin())])
         active = lb <= bound
         cells = np.zeros(self._map_size, dtype=bool)
         cells[self._cell_ab] = active  # both (a, b) and (b, a): whichever triangle Pinocchio reads

@@ -4,7 +4,8 @@
 // - the broadphase: each object's bounding spheres (centres in its joint's frame) placed by its joint, and a pair
 //   kept when one of its sphere pairs is within the influence distance (compared squared, as engine.py does);
 // - exact signed distances: pinocchio::computeDistance per kept pair, with the GeometryData's own requests (the
-//   Python Workspace sets them: signed distances, GJK tolerance, no warm start);
+//   Python Workspace sets them: signed distances, GJK tolerance, no warm start), each from the same start
+//   (fresh_distance, as engine.fresh_starts);
 // - unit normals by the rules of engine.unit_normals;
 // - the distance rows G[k] = n^T (J_b(p_b) - J_a(p_a)) from the world-frame joint Jacobians data.J, each body's
 //   point velocity J(p) = J_v - [p]_x J_omega over the joints that support it: n^T J(p) = n^T J_v + (p x n)^T J_omega;
@@ -278,7 +279,19 @@ class DistanceQuery {
   double distance(std::size_t k) {
     if (!posed_) pinocchio::updateGeometryPlacements(model_, data_, gm_, gd_);  // (updateGeometryPlacements at q's)
     posed_ = true;
-    return pinocchio::computeDistance(gm_, gd_, k).min_distance;
+    return fresh_distance(k).min_distance;
+  }
+  // pinocchio::computeDistance of pair k from the same start at every call (engine.py's fresh_starts): coal 3.0.3's
+  // GJK solver of a pair (the GeometryData's distance functor) starts its support-vertex search where its last call
+  // ended unless the request asks for a cached guess, so the request is given GJK's default direction (1, 0, 0) and
+  // support hint 0 as that guess before each call (coal writes the call's own back into it). A distance is then a
+  // function of q alone, not of the queries the workspace made before (on the Kinova's hulls up to 1.7e-14 m apart).
+  const coal::DistanceResult& fresh_distance(std::size_t k) {
+    coal::DistanceRequest& request = gd_.distanceRequests[k];
+    request.gjk_initial_guess = coal::GJKInitialGuess::CachedGuess;
+    request.cached_gjk_guess = coal::Vec3s(1.0, 0.0, 0.0);
+    request.cached_support_func_guess.setZero();
+    return pinocchio::computeDistance(gm_, gd_, k);
   }
   // a lower bound [m] on the least gap between pair k's bounding spheres: the gap of the spheres around its objects
   // where that exceeds `limit` by kGapReach, else the least gap itself (both less the rounding slack)
@@ -313,7 +326,7 @@ class DistanceQuery {
       const auto& cp = gm_.collisionPairs[k];
       if (gm_.geometryObjects[cp.first].disableCollision || gm_.geometryObjects[cp.second].disableCollision) return;
       gd_.activeCollisionPairs[k] = true;
-      const double d = pinocchio::computeDistance(gm_, gd_, k).min_distance;
+      const double d = fresh_distance(k).min_distance;
       if (d < best || (d == best && k < best_k)) {
         best = d;
         best_k = k;
@@ -390,7 +403,7 @@ class DistanceQuery {
   // d, unit normal, p_first, p_second of pairs ks into the first columns of rows 0..k-1 of o
   void exact(const std::vector<std::int64_t>& ks, OutMap& o) {
     for (std::size_t r = 0; r < ks.size(); ++r) {
-      const auto& res = pinocchio::computeDistance(gm_, gd_, static_cast<std::size_t>(ks[r]));
+      const auto& res = fresh_distance(static_cast<std::size_t>(ks[r]));
       const Vector3 &pa = res.nearest_points[0], &pb = res.nearest_points[1];
       const auto i = static_cast<Eigen::Index>(r);
       o(i, 0) = res.min_distance;
@@ -436,7 +449,7 @@ class DistanceQuery {
         G.row(i).setZero();
         continue;
       }
-      const auto& res = pinocchio::computeDistance(gm_, gd_, k);
+      const auto& res = fresh_distance(k);
       const Vector3 &pa = res.nearest_points[0], &pb = res.nearest_points[1];
       const Vector3 n = unit_normal(res.min_distance, res.normal, pa, pb);
       if (d != nullptr) d[i] = res.min_distance, near_out[i] = 1;
