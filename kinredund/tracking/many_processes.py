@@ -3,8 +3,9 @@
 A run with clearance rows spends most of its CPU on the Python bookkeeping of the switches of its active set
 (:mod:`kinredund.tracking.switches`: finding, making and checking them; their times are located in the core) and the
 steps around them, with the GIL held, so threads gain little on it (``python benchmarks/many.py --sphere --runs 16
---loops 2 --repeat 5 --processes``, README: 1.05 times one thread's runs per second on two threads, 1.23 times with
-``processes=2``, 2.06 times on two bare worker processes that send no record back); processes do. The
+--loops 2 --repeat 5 --processes``, README: 1.04 to 1.24 times one thread's runs per second on two threads, 1.23 to
+1.35 times with ``processes=2``, up to 2.2 times on two bare worker processes that send no record back); processes
+do. The
 workers are forked (:func:`start_method`: they inherit the problems and options; ``spawn`` where the platform has no
 fork, which pickles them to each worker as it starts); each takes the next problem not yet taken (one at a time, so a
 long run does not hold up the others) and sends its record back pickled (the record's lazily computed fields are
