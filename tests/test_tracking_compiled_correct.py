@@ -10,10 +10,12 @@ rounding with the same pivots. A solve the core declines is Python's own, with i
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 import pytest
 from test_tracking_compiled import assert_same_record, problem
+from test_tracking_compiled_rows import SWITCH_BAR
 
 from kinredund.errors import KinredundError, TrackingError
 from kinredund.paths import FunctionPath
@@ -194,6 +196,12 @@ def test_a_search_that_meets_a_users_error_is_pythons_and_says_so():
                 tracker.step()
         stops[backend] = err.value
     a, b = stops["python"], stops["compiled"]
-    assert a.cause == b.cause == "switch_not_resolved" and "no table entry" in str(b)
-    assert str(a) == str(b) and a.t == b.t
+    assert a.cause == b.cause == "switch_not_resolved" and a.t == b.t  # (the last good point: the step's start)
+    # the same words; the search's iterate where the table failed (a time in the message) the same to rounding: the
+    # backends' corrector solves differ in the last bits, and so does Brent's next point from them (another BLAS
+    # kernel gave 1.7373371056854676 against ...5465)
+    at = [float(re.search(r"no table entry at t = ([0-9.e+-]+)", str(x)).group(1)) for x in (a, b)]
+    assert at[1] == pytest.approx(at[0], rel=0, abs=SWITCH_BAR)  # (the switching times' bar of the backends)
+    masked = [re.sub(r"no table entry at t = [0-9.e+-]+", "", str(x)) for x in (a, b)]
+    assert masked[0] == masked[1]
     assert tracker.stepper.corrector.locates_declined >= 1
