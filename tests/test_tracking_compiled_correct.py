@@ -199,7 +199,8 @@ def test_a_search_that_meets_a_users_error_is_pythons_and_says_so():
     assert a.cause == b.cause == "switch_not_resolved" and a.t == b.t  # (the last good point: the step's start)
     # the same words; the search's iterate where the table failed (a time in the message) the same to rounding: the
     # backends' corrector solves differ in the last bits, and so does Brent's next point from them (another BLAS
-    # kernel gave 1.7373371056854676 against ...5465)
+    # kernel gave 1.7373371056854676 against ...5465). The bar: a wrong bracket or step would miss it by a table
+    # spacing or more (dt / 64 = 3.1e-4 s), rounding moves it by ~1e-15 s; 1e-10 s is far from both
     at = [float(re.search(r"no table entry at t = ([0-9.e+-]+)", str(x)).group(1)) for x in (a, b)]
     assert at[1] == pytest.approx(at[0], rel=0, abs=SWITCH_BAR)  # (the switching times' bar of the backends)
     masked = [re.sub(r"no table entry at t = [0-9.e+-]+", "", str(x)) for x in (a, b)]

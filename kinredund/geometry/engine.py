@@ -317,11 +317,11 @@ class Workspace:
             return self._core.closest(q)
         self.place(q)
         lb = self.lower_bounds()
-        gm, gd = self.geometry, self.gdata
-        fresh_starts(gd.distanceRequests, range(len(lb)))
-        bound = max(pin.computeDistance(gm, gd, int(lb.argmin())).min_distance, 0.0)
-        fresh_starts(gd.distanceRequests, [int(lb.argmin())])
+        gm, gd, first = self.geometry, self.gdata, int(lb.argmin())
+        fresh_starts(gd.distanceRequests, [first])
+        bound = max(pin.computeDistance(gm, gd, first).min_distance, 0.0)
         active = lb <= bound
+        fresh_starts(gd.distanceRequests, np.flatnonzero(active).tolist())  # (the pairs computed below only)
         cells = np.zeros(self._map_size, dtype=bool)
         cells[self._cell_ab] = active  # both (a, b) and (b, a): whichever triangle Pinocchio reads
         cells[self._cell_ba] = active

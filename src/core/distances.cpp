@@ -285,7 +285,7 @@ class DistanceQuery {
   // GJK solver of a pair (the GeometryData's distance functor) starts its support-vertex search where its last call
   // ended unless the request asks for a cached guess, so the request is given GJK's default direction (1, 0, 0) and
   // support hint 0 as that guess before each call (coal writes the call's own back into it). A distance is then a
-  // function of q alone, not of the queries the workspace made before (on the Kinova's hulls up to 1.7e-14 m apart).
+  // function of q alone, not of the queries the workspace made before (which moved it within GJK's tolerance).
   const coal::DistanceResult& fresh_distance(std::size_t k) {
     coal::DistanceRequest& request = gd_.distanceRequests[k];
     request.gjk_initial_guess = coal::GJKInitialGuess::CachedGuess;

@@ -150,8 +150,8 @@ nb::ndarray<nb::numpy, double> array_of(const std::vector<double>& a, size_t row
 // back), one of the inverse iteration with WATCH_REJECTS (handed back), and after a measurement a step predicted into
 // a crossing (Watch.ahead) ends it with AHEAD, before that step. The state: (times, eig, sigma_times, sigma,
 // sigma_max, scale, safe_before, v, J_ref (m x nf) or None where unchanged, sigma_ref, fresh, the measurements of the
-// inverse iteration among them (Watch.core_measured), the measurements kept). Status 0 after all K steps (or after the first step the watch
-// measures, with a guard), else that of step ``done`` (WATCH_DUE, GUARD_DUE: its row is written).
+// inverse iteration among them (Watch.core_measured), the measurements kept). Status 0 after all K steps, else that of
+// step ``done`` (WATCH_DUE, GUARD_DUE: its row is written).
 nb::tuple run_steps(nb::handle core_obj, InVec t, InMat p, InMat v, InMat Q, InMat omega, InMat ref, InMat rate,
                     InVec y0, InVec yd0, nb::list prev_list, InVec qdot0, double speed2, bool check_jump, nb::tuple watch,
                     OutMat out, nb::object guard_arg) {
