@@ -301,7 +301,8 @@ class CompiledStep:
         stepper's new state, then the checks that may still hand it back to the Python stepper (from the state
         before it): with general rows, the stepper's own search for a switch within the step
         (``pending_switches``: a row reached, a row dipping below zero inside the step) unless the compiled check
-        ruled one out (``cleared``: its verdict where the core ran it with the step, None to run it here); the
+        ruled one out (``cleared``: its verdict, which the core gives with the step wherever the rows have a check;
+        None: there is none); the
         watch's measurement where due. Either rejection gives the Python stepper's step, which runs both itself.
         ``sample``: the path sample at ``t_to``, or None with ``ahead`` = (Samples, row) holding it. ``smallest``:
         the check's least row value at the step's end (its ``smallest``), handed to the stepper with a step
@@ -320,8 +321,6 @@ class CompiledStep:
             ctl.speed2 = float(out[-1])
             return None
         measured = ctl is not None and (held or ctl.watch.due_next(rcond))
-        if cleared is None and self.rows:
-            cleared = self._clear(out, t_to)
         look = self.rows and not cleared  # the stepper's search for a row switch is needed
         saved = None
         if measured or look:  # what a rejected step goes back to (the state, the control's speed)
@@ -340,15 +339,6 @@ class CompiledStep:
             ctl.watch.load(watch)
             return self._undo(saved, 9)
         return None
-
-    def _clear(self, out: np.ndarray, t_to: float) -> bool:
-        """Does the compiled row check rule out a switch within the core's step ``out`` to ``t_to``, before it is
-        applied? False where there is no such check, or no rate at the step's start (the first step)."""
-        s = self.stepper
-        if self.guard is None or s.qdot is None or s.rows:  # (with rows held the core's call has checked)
-            return False
-        n, (sy, ssol) = self.n, self.slices[:2]
-        return self.guard.clear(s.q, out[sy][:n], s.qdot, out[ssol][:n], t_to - s.t)
 
     def _switch_within(self, start) -> bool:
         """Does the stepper find a switch within the step from ``start`` to now? (A failure of its search, a

@@ -214,9 +214,9 @@ class GeneralRows:
         rows held left out)? False where there is none or it cannot tell (no rate at the start, the rows held
         changed within the step)."""
         check, h = self.step_check, self.t - snap.t
-        if check is None or snap.qdot is None or not h > 0.0 or snap.rows != self.rows or not check.valid():
+        if check is None or snap.qdot is None or not h > 0.0 or snap.rows != self.rows:
             return False
-        return check.compiled.clear(snap.q, self.q, snap.qdot, self.qdot, h, np.array(self.rows, dtype=np.int64))
+        return check.clear(snap.q, self.q, snap.qdot, self.qdot, h, self.rows)
 
     def _row_events(self, reach: bool = True) -> list[tuple[int, str]]:
         """(row, ``row_reach``): an inactive row below zero; (row, ``row_release``): an active row's nu < 0.

@@ -70,9 +70,10 @@ class RowCheck:
         verdict counts only where this holds.)"""
         return True
 
-    def clear(self, q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float) -> bool:
-        """True where no row can switch within the step from (q0, v0) to (q1, v1), h [s] long (``compiled.clear``)."""
-        return self.valid() and self.compiled.clear(q0, q1, v0, v1, h)
+    def clear(self, q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float, held=()) -> bool:
+        """True where no row can switch within the step from (q0, v0) to (q1, v1), h [s] long (``compiled.clear``),
+        the rows ``held`` (their numbers) left out."""
+        return self.valid() and self.compiled.clear(q0, q1, v0, v1, h, np.asarray(held, dtype=np.int64))
 
 
 class _StackedCheck(RowCheck):
