@@ -325,7 +325,7 @@ class StepCore {
       {
         nb::gil_scoped_release release;  // no Python object below
         bool restarted;
-        st = correct_at(y_a + (tau - t_a) * yd_a, out, restarted);  // PredictorCorrector.euler_to
+        st = correct_at(y_a + (tau - t_a) * yd_a, out, restarted, false);  // PredictorCorrector.euler_to
         if (st == OK && row >= 0) guard_->rows_at(out.head(n_), one, c, G);
       }
       if (st != OK) return st;
@@ -517,8 +517,9 @@ class StepCore {
   // y: the corrector (corrector()); where its chord iterations fail, the fallback from the prediction (the held
   // joints on their bounds): _newton, then _rates, which start_at() makes (``restarted``: the caller clears the
   // predictor's history); the bound multipliers at the corrected point. No LIMIT, RELEASE or JUMP verdict: the
-  // caller judges those. Fills out (advance()'s layout) or returns the status.
-  int correct_at(CRef y, VectorXd& out, bool& restarted) {
+  // caller judges those. Fills out (advance()'s layout) or returns the status. ``pose``: the pose at the corrected
+  // joints written into the row (a forward kinematics pass); without it the evaluation's (locate reads no pose).
+  int correct_at(CRef y, VectorXd& out, bool& restarted, bool pose = true) {
     const int n = n_;
     VectorXd yp = y, yc, sol, mu;
     RowMatrixXd M;
@@ -538,7 +539,7 @@ class StepCore {
     else if ((st = bound_multipliers(yc, mu)) != OK)
       return st;
     write_row(out, yc, sol, M, y.head(n), rerated ? VectorXd(yc.head(n)) : VectorXd(yp.head(n)), mu,
-              sol.head(n).dot(sol.head(n)), true);
+              sol.head(n).dot(sol.head(n)), pose);
     return OK;
   }
 
