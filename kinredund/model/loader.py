@@ -104,9 +104,10 @@ def check_tool_axis(tool_axis) -> np.ndarray:
     v = check_array(tool_axis, (3,), "tool axis ('x', 'y', 'z' or a 3-vector)", TaskError)  # no booleans
     big = float(np.abs(v).max())
     u = v / big if big > 0.0 else v  # (scaled first: the squares of entries over ~1e154 overflow to inf)
-    if not big * np.linalg.norm(u) >= 1e-9:
+    length = float(np.linalg.norm(u))
+    if not big * length >= 1e-9:
         raise TaskError(f"tool axis must be a finite non-zero 3-vector, got {tool_axis!r}")
-    return u / np.linalg.norm(u)
+    return u / length
 
 
 def task_jacobian(K: np.ndarray, R: np.ndarray, task: str) -> np.ndarray:
