@@ -162,7 +162,7 @@ def test_motion_check_is_the_same_on_both_paths():
 def test_a_distance_does_not_depend_on_the_queries_before_it(compiled):
     """The Kinova's cell (large convex hulls): every distance at q_b is the same number whether or not the workspace
     was queried at q_a just before. coal's GJK solver of a pair kept its support-vertex hint from its last call,
-    whatever the request's guess mode (distances differed within GJK's tolerance, up to 1.2e-9 m); each query now
+    whatever the request's guess mode (distances differed within GJK's stopping tolerance); each query now
     starts the same (gjk.fresh_starts, fresh_distance in the core). Exact equality: the same computation either way."""
     r = kr.load_robot("kinova")
     configurations = _configurations(r, 16, seed=7)

@@ -23,8 +23,8 @@ def no_warm_start(requests) -> None:
 
     One cache stays: each pair's GJK solver (pinocchio's distance functor) starts its support-vertex search from
     where its last call ended (coal 3.0.3, ``narrowphase.h``) unless the request asks for a cached guess: a distance
-    then differed with the queries the same workspace made before, within GJK's tolerance (on the Kinova's and the
-    xArm7's hulls by up to 1.2e-9 m after a query at a distant configuration, 1e-14 m after a near one). So the
+    then differed with the queries the same workspace made before, within GJK's stopping tolerance (so that a change
+    which only added queries could move a tracking run's numbers; ``tests/test_geometry_core.py``). So the
     requests ask for a cached guess, and :func:`fresh_starts` gives them the same one, GJK's default direction and
     support hint 0, before each query (coal writes the query's own back): a distance is a function of q alone. The
     compiled query does the same (``fresh_distance``, src/core/distances.cpp).
