@@ -420,3 +420,36 @@ def test_what_the_rows_check_clears_the_search_finds_nothing_in(which):
     for _ in range(400):
         b.step()
     assert len(found) >= len(s.switches) >= 4 and not any(found)
+
+
+@pytest.mark.parametrize("name", ["panda_elbow_sphere", "xarm7_elbow_sphere"])
+def test_the_cores_switching_times_checked_by_pinocchio_alone(name):
+    """The switches located in the core (CoreCorrector.locate), checked without kinredund's constraint or record code:
+    Pinocchio's own forward kinematics at each switch's joints puts the frame origin on the sphere where its row is
+    reached (to 1e-12 m: the switching time is solved to 1e-14 s, the row moves at well under 1 m/s, and the
+    corrected point carries the corrector's residual, ~1e-13 m), a reached bound's joint on its bound exactly (set
+    there), and the tool point on the path at the switch's time (to 1e-11 m, the corrector's tolerance over the task's
+    smallest singular value)."""
+    import pinocchio as pin
+
+    circle, frame, center, radius = CASES[name]
+    b = sphere_tracker(name, "compiled")
+    r, path = b.robot, b.path
+    for _ in range(400):
+        b.step()
+    assert b.stepper.corrector.located >= len(b.stepper.switches) >= 4
+    model = r.model
+    data, fid, eid = model.createData(), model.getFrameId(frame), model.getFrameId(r.ee_frame)
+    kinds = set()
+    for s in b.stepper.switches:
+        q = np.array(s["q"])
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        assert np.linalg.norm(data.oMf[eid].translation - path(s["t"]).p) <= 1e-11
+        if s.get("constraint") and s["kind"] == "reach":
+            assert abs(np.linalg.norm(data.oMf[fid].translation - np.asarray(center)) - radius) <= 1e-12
+        elif not s.get("constraint") and s["kind"] == "reach":
+            j = s["joint"]
+            assert q[j] in (model.lowerPositionLimit[j], model.upperPositionLimit[j])
+        kinds.add((bool(s.get("constraint")), s["kind"]))
+    assert (True, "reach") in kinds
