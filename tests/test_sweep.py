@@ -435,3 +435,27 @@ def test_limits_a_run_cannot_hold_are_refused_once_before_any_placement(mode, sc
     with pytest.raises(OptionError, match="limits=False"):
         sweep(robot, path, index, [pose, pose], mode=mode, scheme=scheme, workers=0)  # limits default True
     assert calls == []
+
+
+def test_a_batch_lost_on_the_cluster_is_recorded_as_the_workers_cause(monkeypatch):
+    """On Dask, a batch whose task fails (here its run raises) gives records of cause 'worker' naming the error, and
+    the other batches' records as they are: the loop reads results as as_completed's thread gathered them (no
+    fut.result(), whose sync() a Ctrl-C could catch before distributed's own future existed)."""
+    from distributed import Client
+
+    import kinredund.sweep.run as run_mod
+
+    def run_batch(job, items):
+        if any(k == 1 for k, _ in items):
+            raise ValueError("this batch's worker was lost")
+        return [("ok", k) for k, _ in items]
+
+    monkeypatch.setattr(run_mod, "run_batch", run_batch)
+    T = [np.eye(4) for _ in range(3)]
+    got = []
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
+        run_mod._run_on_dask(None, T, [0, 1, 2], 1, got.extend, client, None, None)
+    lost = [r for r in got if not isinstance(r, tuple)]
+    assert sorted(r[1] for r in got if isinstance(r, tuple)) == [0, 2]
+    assert len(lost) == 1 and lost[0].placement == 1 and lost[0].cause == "worker" and not lost[0].feasible
+    assert lost[0].message == "ValueError: this batch's worker was lost"

@@ -275,11 +275,15 @@ def _run_on_dask(job, T, todo, batch_size, finish, client, scheduler, workers) -
             items_of[fut.key] = items
             futures.append(fut)
         try:
-            for fut in as_completed(futures):
-                try:
-                    records = fut.result()
-                except Exception as err:  # noqa: BLE001 - a lost task: its placements say so
-                    records = _lost(items_of[fut.key], err)
+            # the results gathered by as_completed's own thread: fut.result() is a sync() call, and a Ctrl-C in its
+            # first instants hit distributed's cancel callback before its future existed (a NameError traceback)
+            for fut, got in as_completed(futures, with_results=True, raise_errors=False):
+                if fut.status == "error":  # a lost task: its placements say so ((type, error, traceback))
+                    records = _lost(items_of[fut.key], got[1])
+                elif isinstance(got, BaseException):  # cancelled
+                    records = _lost(items_of[fut.key], got)
+                else:
+                    records = got
                 finish(records)
         finally:
             c.cancel(futures)
